@@ -1,0 +1,65 @@
+"""Error hierarchy: every failure a user can cause is a `PlannerError`.
+
+The CLI turns a `PlannerError` into one line on stderr and a non-zero exit code;
+any other exception is a bug and keeps its traceback.
+"""
+
+from __future__ import annotations
+
+
+class PlannerError(Exception):
+    """Root of every error the planner raises on purpose."""
+
+
+class InputError(PlannerError, ValueError):
+    """An argument has the wrong shape, a non-finite value or is out of range."""
+
+
+class SpecError(PlannerError):
+    """A YAML file (hand spec, grasp, plan) is invalid.
+
+    Args:
+        path: the file.
+        key: dotted key path inside the file, e.g. ``fingers.index.contact.point``.
+        message: what was wrong and what was expected.
+    """
+
+    def __init__(self, path: str, key: str, message: str):
+        self.path = str(path)
+        self.key = key
+        self.message = message
+        where = f"{self.path}: {key}: " if key else f"{self.path}: "
+        super().__init__(where + message)
+
+
+class UnknownNameError(PlannerError, KeyError):
+    """A name (finger, link, joint, planner...) is not one of the valid choices."""
+
+    def __init__(self, kind: str, name: str, valid):
+        self.kind = kind
+        self.name = name
+        self.valid = sorted(valid)
+        super().__init__(f"unknown {kind} {name!r}; {kind}s are {', '.join(self.valid)}")
+
+    def __str__(self) -> str:  # KeyError would otherwise quote the message
+        return self.args[0]
+
+
+class KinematicsError(PlannerError):
+    """Inverse kinematics failed: a target is out of reach or outside joint limits."""
+
+
+class NoSequenceError(PlannerError):
+    """No finger-gaiting sequence connects the two grasps; the message says why."""
+
+    def __init__(self, message: str, report: dict | None = None):
+        self.report = report or {}
+        super().__init__(message)
+
+
+class MotionError(PlannerError):
+    """A finger path could not be planned within its time budget."""
+
+
+class SimulationError(PlannerError):
+    """The physics back end failed or the replay could not be set up."""
