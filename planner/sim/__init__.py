@@ -1,0 +1,19 @@
+"""pybullet replay of regrasp plans: the only package that imports pybullet.
+
+`replay_plan` executes a plan with gravity on and re-measures contacts and force
+closure from the simulator; `ContactFilter` is the thesis's temporal contact filter
+(pure numpy, importable without pybullet).
+"""
+
+from planner.sim.contact_filter import ContactFilter, FilteredContact
+
+__all__ = ["ContactFilter", "FilteredContact", "ReplayReport", "StateReport", "replay_plan"]
+
+
+def __getattr__(name):
+    # pybullet is loaded only when the replay itself is used
+    if name in ("ReplayReport", "StateReport", "replay_plan"):
+        from planner.sim import replay
+
+        return getattr(replay, name)
+    raise AttributeError(f"module 'planner.sim' has no attribute {name!r}")
