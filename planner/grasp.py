@@ -1,0 +1,536 @@
+"""Grasp files: the YAML schema, its validation and the realization of a grasp.
+
+A grasp file (``grasps/**/*.yaml``, schema_version 1)::
+
+    schema_version: 1
+    name: box_parallel_extension          # optional, defaults to the file stem
+    description: free text                # optional
+    hand: icub_right                      # a name under robots/ or a path to a hand.yaml
+                                          # (relative to this file)
+    object:
+      shape: box                          # box | cylinder | sphere | mesh
+      size: [0.03, 0.06, 0.06]            # metres. box: full extents [x, y, z];
+                                          # cylinder: [radius, length], axis = object z;
+                                          # sphere: [radius]; mesh: [s] or [sx, sy, sz] (scale)
+      position: [0.0, 0.0, 0.05]          # object centre in the palm frame, metres
+      quat_xyzw: [0, 0, 0, 1]             # object orientation in the palm frame
+      mesh: meshes/mug.obj                # only for shape mesh, relative to this file
+      mass_kg: 0.05                       # optional
+    friction: {mu: 0.9, gamma: 0.003, edges: 5}   # gamma in metres; edges optional (5)
+    fingers:
+      thumb: {contact: {point: [x, y, z]}}          # object frame, on the surface;
+      index: {contact: {point: [..], link: index_2}} # link optional: default the fingertip pad
+      middle: {posture: [0.0, 0.6, 0.4, 0.3]}        # the finger's joints in hand.yaml order,
+                                                     # then closed onto the object
+      little: free                                   # open posture, not touching
+
+Fingers of the hand that the file does not list are free (open posture).
+
+Realization (``realize``) turns a spec into a hand configuration: contact fingers are
+placed by IK of the pad onto the point with the pad facing into the object, then closed
+with the closing procedure (thesis eqs. (8)-(9)) until they touch without penetrating;
+posture fingers are closed from their posture; free fingers stay open. The contacts are
+then measured from the geometry (several points per touching link) and scored with the
+force-closure test and metric (thesis eqs. (1)-(7)) and Algorithm 1 (removable fingers).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from functools import lru_cache
+from pathlib import Path
+from types import MappingProxyType
+from typing import Any, Mapping
+
+import numpy as np
+import yaml
+
+from planner.errors import KinematicsError, PlannerError, SpecError
+
+SCHEMA_VERSION = 1
+SHAPES = ("box", "cylinder", "sphere", "mesh")
+SIZE_LENGTHS = {"box": (3,), "cylinder": (2,), "sphere": (1,), "mesh": (1, 3)}
+SIZE_MEANING = {
+    "box": "[x, y, z] full extents in metres",
+    "cylinder": "[radius, length] in metres",
+    "sphere": "[radius] in metres",
+    "mesh": "[scale] or [sx, sy, sz]",
+}
+#: A contact point may lie this far from the object surface (it is projected onto it).
+SURFACE_TOL_M = 0.002
+#: Contact fingers are placed this far out along the surface normal, then closed onto it.
+APPROACH_M = 0.004
+#: Joint values in a posture may exceed the limits by this much (rounding in files).
+LIMIT_TOL_RAD = 1e-6
+
+_TOP_KEYS = ("schema_version", "name", "description", "hand", "object", "friction", "fingers")
+_OBJECT_KEYS = ("shape", "size", "position", "quat_xyzw", "mesh", "mass_kg")
+_FRICTION_KEYS = ("mu", "gamma", "edges")
+_ROBOTS_DIR = Path(__file__).resolve().parent.parent / "robots"
+
+
+# --------------------------------------------------------------------------- data
+
+
+@dataclass(frozen=True)
+class ObjectSpec:
+    """The object of a grasp file, as written (metres, palm frame).
+
+    Attributes:
+        shape: box, cylinder, sphere or mesh.
+        size: box (x, y, z) full extents; cylinder (radius, length); sphere (radius,);
+            mesh scale (s,) or (sx, sy, sz).
+        position: object centre in the palm frame, metres.
+        quat_xyzw: object orientation in the palm frame (unit quaternion).
+        mesh_path: absolute mesh file path, or None.
+        mass_kg: mass, or None.
+    """
+
+    shape: str
+    size: tuple[float, ...]
+    position: tuple[float, float, float]
+    quat_xyzw: tuple[float, float, float, float]
+    mesh_path: str | None = None
+    mass_kg: float | None = None
+
+    @property
+    def T_palm_obj(self) -> np.ndarray:
+        """(4, 4) pose of the object frame in the palm frame."""
+        from scipy.spatial.transform import Rotation
+
+        T = np.eye(4)
+        T[:3, :3] = Rotation.from_quat(self.quat_xyzw).as_matrix()
+        T[:3, 3] = self.position
+        return T
+
+    def make(self):
+        """Build the `planner.objects.GraspObject` this spec describes."""
+        from planner.objects import make_object
+
+        return make_object(self.shape, self.size, self.T_palm_obj, mesh_path=self.mesh_path, mass_kg=self.mass_kg)
+
+    def to_dict(self) -> dict:
+        """Plain-data form, the ``object:`` block of grasp and plan files."""
+        return {
+            "shape": self.shape,
+            "size": list(self.size),
+            "position": list(self.position),
+            "quat_xyzw": list(self.quat_xyzw),
+            "mesh": self.mesh_path,
+            "mass_kg": self.mass_kg,
+        }
+
+
+@dataclass(frozen=True)
+class FingerSpec:
+    """What one finger does in a grasp file.
+
+    Attributes:
+        name: finger name (as in the hand spec).
+        kind: ``contact``, ``posture`` or ``free``.
+        point_obj: contact point in the object frame (kind contact), metres.
+        link: contact link (kind contact); None means the finger's fingertip pad.
+        posture: joint values in the finger's joint order (kind posture), radians.
+    """
+
+    name: str
+    kind: str
+    point_obj: tuple[float, float, float] | None = None
+    link: str | None = None
+    posture: tuple[float, ...] | None = None
+
+
+@dataclass(frozen=True)
+class GraspSpec:
+    """A validated grasp file.
+
+    Attributes:
+        path: the file it came from (absolute), or "" when built in code.
+        name: grasp name.
+        hand: the hand reference as written in the file.
+        hand_ref: a name under robots/ or an absolute path to a hand.yaml.
+        object: the object, see `ObjectSpec`.
+        friction: `planner.closure.Friction` (mu, gamma in metres, edges).
+        fingers: one `FingerSpec` per finger of the hand, in the hand's finger order
+            (fingers the file does not list are ``free``).
+        description: free text from the file.
+    """
+
+    path: str
+    name: str
+    hand: str
+    hand_ref: str
+    object: ObjectSpec
+    friction: Any
+    fingers: tuple[FingerSpec, ...]
+    description: str = ""
+    schema_version: int = SCHEMA_VERSION
+
+    def finger(self, name: str) -> FingerSpec:
+        """The spec of finger `name` (UnknownNameError if the hand has none)."""
+        for f in self.fingers:
+            if f.name == name:
+                return f
+        from planner.errors import UnknownNameError
+
+        raise UnknownNameError("finger", name, [f.name for f in self.fingers])
+
+    @property
+    def contact_fingers(self) -> tuple[str, ...]:
+        """Fingers meant to touch the object (kind contact or posture)."""
+        return tuple(f.name for f in self.fingers if f.kind != "free")
+
+
+@dataclass(frozen=True, eq=False)
+class RealizedGrasp:
+    """A grasp turned into a hand configuration, with its measured contacts.
+
+    Attributes:
+        spec: the grasp spec.
+        hand: the `planner.hand.Hand`.
+        obj: the `planner.objects.GraspObject`.
+        friction: `planner.closure.Friction`.
+        q: (nq,) whole-hand joint configuration, read-only.
+        finger_q: finger -> (n_joints,) values of that finger's joints.
+        patches: finger -> (p_obj (n, 3), n_in_obj (n, 3)) for touching fingers only.
+        touching: finger -> links touching the object.
+        closure: `planner.closure.Closure` of all patches.
+        removable: fingers whose contacts can all be dropped keeping force closure.
+        collisions: (name_a, name_b, depth_m) finger-finger / finger-palm / penetration.
+        missing: fingers the file wants on the object that do not touch it.
+    """
+
+    spec: GraspSpec
+    hand: Any
+    obj: Any
+    friction: Any
+    q: np.ndarray
+    finger_q: Mapping[str, np.ndarray]
+    patches: Mapping[str, tuple[np.ndarray, np.ndarray]]
+    touching: Mapping[str, tuple[str, ...]]
+    closure: Any
+    removable: frozenset
+    collisions: tuple = field(default=())
+    missing: tuple[str, ...] = field(default=())
+
+    @property
+    def is_force_closure(self) -> bool:
+        return bool(self.closure.is_force_closure)
+
+    @property
+    def metric(self) -> float:
+        return float(self.closure.metric)
+
+    @property
+    def finger_collisions(self) -> tuple:
+        """Collisions between two hand parts (finger-finger, finger-palm), not the object."""
+        return tuple(c for c in self.collisions if not _is_object_name(c[0]) and not _is_object_name(c[1]))
+
+    def summary(self) -> dict:
+        """Plain-data report (what ``regrasp check --json`` prints)."""
+        fingers = {}
+        for f in self.spec.fingers:
+            pts = self.patches.get(f.name)
+            fingers[f.name] = {
+                "kind": f.kind,
+                "touching_links": list(self.touching.get(f.name, ())),
+                "contact_points": 0 if pts is None else int(len(pts[0])),
+                "removable": f.name in self.removable,
+                "q": [float(v) for v in self.finger_q[f.name]],
+            }
+        return {
+            "grasp": self.spec.name,
+            "file": self.spec.path,
+            "hand": self.hand.name,
+            "object": self.spec.object.to_dict(),
+            "friction": {"mu": self.friction.mu, "gamma": self.friction.gamma, "edges": self.friction.edges},
+            "force_closure": self.is_force_closure,
+            "metric": self.metric,
+            "removable": sorted(self.removable),
+            "fingers": fingers,
+            "missing": list(self.missing),
+            "collisions": [[a, b, float(d)] for a, b, d in self.collisions],
+            "joints": {n: float(v) for n, v in zip(self.hand.joint_names, self.q)},
+        }
+
+
+def _is_object_name(name: str) -> bool:
+    return str(name).lower() in ("object", "obj")
+
+
+# --------------------------------------------------------------------------- loading
+
+
+class _Reader:
+    """Validation helpers that raise one SpecError naming the file and key path."""
+
+    def __init__(self, path: Path):
+        self.path = path
+
+    def fail(self, key: str, message: str) -> SpecError:
+        return SpecError(str(self.path), key, message)
+
+    def mapping(self, value, key: str, what: str = "a mapping") -> dict:
+        if not isinstance(value, dict):
+            raise self.fail(key, f"expected {what}, got {_describe(value)}")
+        for k in value:
+            if not isinstance(k, str):
+                raise self.fail(key, f"keys must be strings, got {k!r}")
+        return value
+
+    def keys(self, value: dict, key: str, allowed, required=()) -> None:
+        for k in value:
+            if k not in allowed:
+                raise self.fail(_join(key, k), f"unknown key {k!r}; valid keys are {', '.join(allowed)}")
+        for k in required:
+            if k not in value:
+                raise self.fail(_join(key, k), f"missing required key {k!r}")
+
+    def number(self, value, key: str, *, positive=False, nonnegative=False) -> float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise self.fail(key, f"expected a number, got {_describe(value)}")
+        x = float(value)
+        if not math.isfinite(x):
+            raise self.fail(key, f"expected a finite number, got {value!r}")
+        if positive and not x > 0:
+            raise self.fail(key, f"expected a positive number, got {value!r}")
+        if nonnegative and x < 0:
+            raise self.fail(key, f"expected a non-negative number, got {value!r}")
+        return x
+
+    def vector(self, value, key: str, lengths, meaning: str = "", **kw) -> tuple[float, ...]:
+        lengths = tuple(lengths)
+        expect = " or ".join(str(n) for n in lengths)
+        hint = f" ({meaning})" if meaning else ""
+        if not isinstance(value, (list, tuple)):
+            raise self.fail(key, f"expected a list of {expect} numbers{hint}, got {_describe(value)}")
+        if len(value) not in lengths:
+            raise self.fail(key, f"expected {expect} numbers{hint}, got {len(value)}")
+        return tuple(self.number(v, f"{key}[{i}]", **kw) for i, v in enumerate(value))
+
+    def string(self, value, key: str) -> str:
+        if not isinstance(value, str) or not value.strip():
+            raise self.fail(key, f"expected a non-empty string, got {_describe(value)}")
+        return value
+
+
+def _join(key: str, sub) -> str:
+    return f"{key}.{sub}" if key else str(sub)
+
+
+def _describe(value) -> str:
+    if value is None:
+        return "nothing (null)"
+    text = repr(value)
+    if len(text) > 40:
+        text = text[:37] + "..."
+    return f"{type(value).__name__} {text}"
+
+
+def resolve_hand_ref(hand: str, base_dir: Path) -> str:
+    """A hand name under robots/ stays a name; anything else is a path relative to `base_dir`.
+
+    A reference is a path when it contains a path separator or ends in .yaml/.yml.
+    """
+    if "/" in hand or "\\" in hand or hand.endswith((".yaml", ".yml")):
+        p = Path(hand)
+        if not p.is_absolute():
+            p = (base_dir / p).resolve()
+        return str(p)
+    return hand
+
+
+@lru_cache(maxsize=8)
+def _cached_hand(ref: str):
+    from planner.hand import Hand
+
+    return Hand.load(ref)
+
+
+def load_hand(ref: str):
+    """`Hand.load(ref)`, cached: hands are read-only once loaded."""
+    return _cached_hand(ref)
+
+
+def load_grasp(path) -> GraspSpec:
+    """Read and validate a grasp file.
+
+    Validation checks the schema, the hand's finger and link names, the lengths of all
+    vectors, the joint limits of postures, and that contact points lie on the object
+    surface (within `SURFACE_TOL_M`).
+
+    Args:
+        path: the YAML file.
+
+    Returns:
+        The validated `GraspSpec`.
+
+    Raises:
+        SpecError: naming the file, the key path and what was expected.
+    """
+    path = Path(path).resolve() if Path(path).exists() else Path(path)
+    r = _Reader(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as err:
+        raise r.fail("", f"cannot read grasp file: {err.strerror if isinstance(err, OSError) else err}") from err
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as err:
+        mark = getattr(err, "problem_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        problem = getattr(err, "problem", None) or str(err).splitlines()[0]
+        raise r.fail("", f"malformed YAML{where}: {problem}") from err
+    data = r.mapping(data, "", "a YAML mapping at the top level")
+    return parse_grasp(data, path)
+
+
+def parse_grasp(data: Mapping, path) -> GraspSpec:
+    """Validate already-parsed grasp data; `path` names the source in errors and anchors
+    relative paths (hand, mesh). See `load_grasp`."""
+    path = Path(path)
+    r = _Reader(path)
+    data = r.mapping(data, "", "a YAML mapping at the top level")
+    r.keys(data, "", _TOP_KEYS, required=("schema_version", "hand", "object", "friction", "fingers"))
+
+    version = data["schema_version"]
+    if isinstance(version, bool) or version != SCHEMA_VERSION:
+        raise r.fail("schema_version", f"unsupported schema version {version!r}; this planner reads {SCHEMA_VERSION}")
+
+    name = r.string(data["name"], "name") if "name" in data else path.stem
+    description = data.get("description", "")
+    if description is None:
+        description = ""
+    if not isinstance(description, str):
+        raise r.fail("description", f"expected a string, got {_describe(description)}")
+
+    # -- hand
+    hand_text = r.string(data["hand"], "hand")
+    hand_ref = resolve_hand_ref(hand_text, path.parent)
+    try:
+        hand = load_hand(hand_ref)
+    except PlannerError as err:
+        raise r.fail("hand", f"cannot load hand {hand_text!r}: {err}") from err
+
+    # -- object
+    obj_spec = _parse_object(r, data["object"], path.parent)
+    try:
+        obj = obj_spec.make()
+    except PlannerError as err:
+        raise r.fail("object", str(err)) from err
+
+    # -- friction
+    fr = r.mapping(data["friction"], "friction")
+    r.keys(fr, "friction", _FRICTION_KEYS, required=("mu", "gamma"))
+    mu = r.number(fr["mu"], "friction.mu", positive=True)
+    gamma = r.number(fr["gamma"], "friction.gamma", nonnegative=True)
+    edges = fr.get("edges", 5)
+    if isinstance(edges, bool) or not isinstance(edges, int) or edges < 3:
+        raise r.fail("friction.edges", f"expected an integer >= 3 (friction cone sides), got {edges!r}")
+    from planner.closure import Friction
+
+    friction = Friction(mu=mu, gamma=gamma, edges=edges)
+
+    # -- fingers
+    fingers_data = r.mapping(data["fingers"], "fingers")
+    valid = list(hand.fingers)
+    for fname in fingers_data:
+        if fname not in hand.fingers:
+            raise r.fail(
+                f"fingers.{fname}", f"unknown finger {fname!r}; fingers of {hand.name} are {', '.join(valid)}"
+            )
+    fingers = []
+    for fname, finger in hand.fingers.items():
+        if fname not in fingers_data:
+            fingers.append(FingerSpec(fname, "free"))
+            continue
+        fingers.append(_parse_finger(r, fingers_data[fname], f"fingers.{fname}", hand, finger, obj))
+    if not any(f.kind != "free" for f in fingers):
+        raise r.fail("fingers", "no finger touches the object; give at least one contact or posture")
+
+    return GraspSpec(
+        path=str(path),
+        name=name,
+        hand=hand_text,
+        hand_ref=hand_ref,
+        object=obj_spec,
+        friction=friction,
+        fingers=tuple(fingers),
+        description=description,
+    )
+
+
+def _parse_object(r: _Reader, value, base_dir: Path) -> ObjectSpec:
+    o = r.mapping(value, "object")
+    r.keys(o, "object", _OBJECT_KEYS, required=("shape", "size", "position", "quat_xyzw"))
+    shape = o["shape"]
+    if shape not in SHAPES:
+        raise r.fail("object.shape", f"unknown shape {shape!r}; shapes are {', '.join(SHAPES)}")
+    size = r.vector(o["size"], "object.size", SIZE_LENGTHS[shape], SIZE_MEANING[shape], positive=True)
+    position = r.vector(o["position"], "object.position", (3,), "[x, y, z] in metres, palm frame")
+    quat = np.array(r.vector(o["quat_xyzw"], "object.quat_xyzw", (4,), "[x, y, z, w]"))
+    norm = float(np.linalg.norm(quat))
+    if abs(norm - 1.0) > 1e-3:
+        raise r.fail("object.quat_xyzw", f"expected a unit quaternion [x, y, z, w], got norm {norm:.4g}")
+    quat = tuple(float(v) for v in quat / norm)
+    mesh_path = None
+    if shape == "mesh":
+        if "mesh" not in o or o["mesh"] is None:
+            raise r.fail("object.mesh", "shape mesh needs a mesh file path (relative to the grasp file)")
+        mp = Path(r.string(o["mesh"], "object.mesh"))
+        mp = mp if mp.is_absolute() else (base_dir / mp).resolve()
+        if not mp.is_file():
+            raise r.fail("object.mesh", f"mesh file not found: {mp}")
+        mesh_path = str(mp)
+    elif o.get("mesh") is not None:
+        raise r.fail("object.mesh", f"only shape mesh takes a mesh file (shape is {shape})")
+    mass = o.get("mass_kg")
+    if mass is not None:
+        mass = r.number(mass, "object.mass_kg", positive=True)
+    return ObjectSpec(shape, size, position, quat, mesh_path, mass)
+
+
+def _parse_finger(r: _Reader, value, key: str, hand, finger, obj) -> FingerSpec:
+    if value == "free" or value is None:
+        return FingerSpec(finger.name, "free")
+    if isinstance(value, str):
+        raise r.fail(key, f"expected 'free', {{contact: ...}} or {{posture: [...]}}, got {value!r}")
+    v = r.mapping(value, key, "'free', {contact: {point: [x, y, z]}} or {posture: [joint values]}")
+    if len(v) != 1 or next(iter(v)) not in ("contact", "posture"):
+        extra = [k for k in v if k not in ("contact", "posture")]
+        if extra:
+            raise r.fail(_join(key, extra[0]), f"unknown key {extra[0]!r}; a finger is 'free', contact or posture")
+        raise r.fail(key, "give either contact or posture, not both")
+    kind = next(iter(v))
+    if kind == "posture":
+        joints = finger.joints
+        q = r.vector(v["posture"], f"{key}.posture", (len(joints),), f"values of {', '.join(joints)} in radians")
+        lo = np.asarray(hand.lower)[list(finger.q_index)]
+        hi = np.asarray(hand.upper)[list(finger.q_index)]
+        for i, (x, a, b) in enumerate(zip(q, lo, hi)):
+            if x < a - LIMIT_TOL_RAD or x > b + LIMIT_TOL_RAD:
+                raise r.fail(
+                    f"{key}.posture[{i}]", f"joint {joints[i]} = {x:.4g} rad is outside its limits [{a:.4g}, {b:.4g}]"
+                )
+        return FingerSpec(finger.name, "posture", posture=q)
+    c = r.mapping(v["contact"], f"{key}.contact")
+    r.keys(c, f"{key}.contact", ("point", "link"), required=("point",))
+    point = r.vector(c["point"], f"{key}.contact.point", (3,), "[x, y, z] in metres, object frame")
+    link = c.get("link")
+    if link is not None:
+        link = r.string(link, f"{key}.contact.link")
+        if link not in finger.contact_links:
+            raise r.fail(
+                f"{key}.contact.link",
+                f"unknown contact link {link!r} of finger {finger.name}; valid links are {', '.join(finger.contact_links)}",
+            )
+    _, _, dist = obj.closest_surface(np.asarray(point, dtype=float))
+    if abs(dist) > SURFACE_TOL_M:
+        side = "outside" if dist > 0 else "inside"
+        raise r.fail(
+            f"{key}.contact.point",
+            f"point {list(point)} is {abs(dist) * 1000:.1f} mm {side} the object surface; "
+            f"expected a point on the surface (within {SURFACE_TOL_M * 1000:.1f} mm, object frame)",
+        )
+    return FingerSpec(finger.name, "contact", point_obj=point, link=link)
