@@ -1,0 +1,416 @@
+"""Grasp-state graph and its ranked search (the planner's core).
+
+A grasp state assigns every finger a contact *slot* (a realized contact: joint values
+and contact patch) or ``LIFTED``. Two states are joined when exactly one finger
+changes: *lift* (slot -> lifted) or *land* (lifted -> slot). A state is a node of the
+graph only when it is valid: its contacts are force closure and no two fingers (nor a
+finger and the palm) collide. Any path from the initial to the final state is thus a
+finger-gaiting sequence that keeps force closure throughout.
+
+`build_graph` grows the graph breadth-first from the initial state, evaluating each
+new layer of states in one batch closure call; states that are not force closure are
+recorded as blocked and never expanded, so states that cannot matter are never built.
+`search` ranks paths by (1) the bottleneck: the worst closure metric along the path,
+larger is better; (2) fewer gait steps; (3) a larger mean metric.
+`greedy` is the thesis's Algorithm 2, kept as the baseline.
+
+This module is pure numpy/networkx: it knows nothing of hands or simulators. Slots
+carry finger joint values for the caller; collisions come in as a pairwise predicate.
+"""
+
+from __future__ import annotations
+
+import heapq
+import itertools
+from dataclasses import dataclass, field
+from typing import Callable, Mapping, Sequence
+
+import networkx as nx
+import numpy as np
+
+from planner.closure import Closure, Friction, batch_grasp_closure
+from planner.errors import InputError, NoSequenceError
+
+LIFTED = -1
+"""Slot index of a finger that does not touch the object."""
+
+Node = tuple  # tuple[int, ...]: slot index per finger (LIFTED = -1), in problem.fingers order
+
+
+def _frozen(a, shape_tail=(3,)) -> np.ndarray:
+    arr = np.array(a, dtype=float).reshape((-1,) + shape_tail)
+    arr.setflags(write=False)
+    return arr
+
+
+@dataclass(frozen=True, eq=False)
+class Slot:
+    """A realized contact of one finger.
+
+    Attributes:
+        finger: finger name.
+        label: "initial", "final", "int0", ... (unique per finger).
+        points: (n, 3) contact points of the finger's patch, object frame, metres.
+        normals: (n, 3) unit normals pointing INTO the object, object frame.
+        q: the finger's joint values (radians) realizing the contact, or None.
+    """
+
+    finger: str
+    label: str
+    points: np.ndarray
+    normals: np.ndarray
+    q: np.ndarray | None = None
+
+    def __post_init__(self):
+        object.__setattr__(self, "points", _frozen(self.points))
+        object.__setattr__(self, "normals", _frozen(self.normals))
+        if self.q is not None:
+            object.__setattr__(self, "q", _frozen(self.q, ()))
+        if len(self.points) != len(self.normals):
+            raise InputError(f"slot {self.finger}/{self.label}: {len(self.points)} points but {len(self.normals)} normals")
+
+
+Compatible = Callable[[str, int, str, int], bool]
+"""compatible(finger_a, slot_a, finger_b, slot_b) -> True when the two do not collide
+(slot LIFTED = the finger at its open posture). Must be symmetric."""
+
+
+@dataclass(frozen=True)
+class GaitProblem:
+    """Everything the graph needs: fingers, their slots, the two grasps.
+
+    Attributes:
+        fingers: finger names, fixing the order of node tuples.
+        slots: finger -> its slots; node entries index into this tuple.
+        start: initial node; goal: final node (LIFTED for fingers free at the end).
+        friction: contact model for closure.
+        compatible: optional pairwise collision predicate (see `Compatible`).
+        max_lifted: optional bound on the number of fingers lifted at once.
+    """
+
+    fingers: tuple[str, ...]
+    slots: Mapping[str, tuple[Slot, ...]]
+    start: Node
+    goal: Node
+    friction: Friction
+    compatible: Compatible | None = None
+    max_lifted: int | None = None
+
+    def __post_init__(self):
+        n = len(self.fingers)
+        for name, node in (("start", self.start), ("goal", self.goal)):
+            if len(node) != n:
+                raise InputError(f"{name} node has {len(node)} entries for {n} fingers")
+            for f, s in zip(self.fingers, node):
+                if s != LIFTED and not 0 <= s < len(self.slots[f]):
+                    raise InputError(f"{name} node: finger {f!r} has no slot {s}")
+
+    def patches(self, node: Node) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """Touching finger -> (points, normals) of a node."""
+        out = {}
+        for f, s in zip(self.fingers, node):
+            if s != LIFTED:
+                slot = self.slots[f][s]
+                out[f] = (slot.points, slot.normals)
+        return out
+
+    def labels(self, node: Node) -> dict[str, str]:
+        """Finger -> slot label ("lifted" when not touching)."""
+        return {f: ("lifted" if s == LIFTED else self.slots[f][s].label) for f, s in zip(self.fingers, node)}
+
+    def neighbours(self, node: Node):
+        """Yield (finger index, action, next node) for every single-finger change."""
+        for i, f in enumerate(self.fingers):
+            if node[i] != LIFTED:
+                yield i, "lift", node[:i] + (LIFTED,) + node[i + 1 :]
+            else:
+                for s in range(len(self.slots[f])):
+                    yield i, "land", node[:i] + (s,) + node[i + 1 :]
+
+
+def _within_lift_bound(problem: GaitProblem, node: Node) -> bool:
+    return problem.max_lifted is None or sum(s == LIFTED for s in node) <= problem.max_lifted
+
+
+class _Evaluator:
+    """Caches closure per node and collision compatibility per slot pair."""
+
+    def __init__(self, problem: GaitProblem):
+        self.problem = problem
+        self.closure: dict[Node, Closure] = {}
+        self._pairs: dict[tuple, bool] = {}
+
+    def evaluate(self, nodes: Sequence[Node]) -> None:
+        todo = [n for n in dict.fromkeys(nodes) if n not in self.closure]
+        if todo:
+            results = batch_grasp_closure([self.problem.patches(n) for n in todo], self.problem.friction)
+            self.closure.update(zip(todo, results))
+
+    def collision_free(self, node: Node) -> bool:
+        check = self.problem.compatible
+        if check is None:
+            return True
+        fingers = self.problem.fingers
+        for i, j in itertools.combinations(range(len(fingers)), 2):
+            key = (i, node[i], j, node[j])
+            ok = self._pairs.get(key)
+            if ok is None:
+                ok = bool(check(fingers[i], node[i], fingers[j], node[j]))
+                self._pairs[key] = ok
+            if not ok:
+                return False
+        return True
+
+    def removable(self, node: Node) -> frozenset[str]:
+        """Thesis Algorithm 1 from cached closures: lifted fingers are removable."""
+        if not self.closure[node].is_force_closure:
+            return frozenset()
+        fingers = self.problem.fingers
+        lifts = [node[:i] + (LIFTED,) + node[i + 1 :] for i in range(len(fingers)) if node[i] != LIFTED]
+        self.evaluate(lifts)
+        return frozenset(f for i, f in enumerate(fingers) if node[i] == LIFTED or self.closure[node[:i] + (LIFTED,) + node[i + 1 :]].is_force_closure)
+
+    def blocked_reason(self, node: Node) -> str | None:
+        """Why a node is not a valid state, or None when it is."""
+        p = self.problem
+        if not _within_lift_bound(p, node):
+            return "too many fingers lifted"
+        if not self.closure[node].is_force_closure:
+            return "not force closure"
+        if not self.collision_free(node):
+            return "fingers collide"
+        return None
+
+
+def build_graph(problem: GaitProblem) -> nx.DiGraph:
+    """Grow the graph of valid grasp states reachable from ``problem.start``.
+
+    Node attributes: ``labels`` (finger -> slot label), ``patches``, ``closure``,
+    ``metric``, ``removable``. Edge attributes: ``finger``, ``action`` (lift|land).
+    Graph attributes: ``problem``, ``start``, ``goal``, ``blocked`` (node -> reason for
+    every state that was generated but is not valid), ``evaluator`` (caches).
+
+    Raises:
+        NoSequenceError: the initial grasp itself is not a valid state.
+    """
+    ev = _Evaluator(problem)
+    G = nx.DiGraph(problem=problem, start=problem.start, goal=problem.goal, blocked={}, evaluator=ev)
+    ev.evaluate([problem.start, problem.goal])
+    reason = ev.blocked_reason(problem.start)
+    if reason is not None:
+        raise NoSequenceError(f"the initial grasp is not a valid state: {reason}")
+    _add_node(G, ev, problem.start)
+    frontier = [problem.start]
+    while frontier:
+        moves = [(u, i, action, v) for u in frontier for i, action, v in problem.neighbours(u)]
+        ev.evaluate([v for *_, v in moves if v not in G and v not in G.graph["blocked"] and _within_lift_bound(problem, v)])
+        new = []
+        for u, i, action, v in moves:
+            if v not in G:
+                if v in G.graph["blocked"]:
+                    continue
+                reason = ev.blocked_reason(v)
+                if reason is not None:
+                    G.graph["blocked"][v] = reason
+                    continue
+                _add_node(G, ev, v)
+                new.append(v)
+            G.add_edge(u, v, finger=problem.fingers[i], action=action)
+        frontier = new
+    for v in G.nodes:
+        G.nodes[v]["removable"] = ev.removable(v)
+    return G
+
+
+def _add_node(G: nx.DiGraph, ev: _Evaluator, v: Node) -> None:
+    p = ev.problem
+    c = ev.closure[v]
+    G.add_node(v, labels=p.labels(v), patches=p.patches(v), closure=c, metric=float(c.metric))
+
+
+@dataclass(frozen=True)
+class GaitSequence:
+    """A path through the graph with its ranking keys.
+
+    Attributes:
+        nodes: the states, start to goal.
+        actions: (finger, action) per edge.
+        bottleneck: worst closure metric over the states.
+        mean_metric: mean closure metric over the states.
+        gait_steps: number of lifts (each lift starts one gait step).
+    """
+
+    nodes: tuple[Node, ...]
+    actions: tuple[tuple[str, str], ...]
+    bottleneck: float
+    mean_metric: float
+    gait_steps: int = field(default=0)
+
+    @property
+    def rank_key(self) -> tuple:
+        """Sort key: larger bottleneck, then fewer steps, then larger mean."""
+        return (-self.bottleneck, len(self.actions), -self.mean_metric)
+
+    def order(self, problem: GaitProblem) -> tuple[str, ...]:
+        """Compact ordering: "finger:lift" / "finger:land>label" per edge."""
+        out = []
+        for (finger, action), node in zip(self.actions, self.nodes[1:]):
+            if action == "land":
+                out.append(f"{finger}:land>{problem.labels(node)[finger]}")
+            else:
+                out.append(f"{finger}:lift")
+        return tuple(out)
+
+
+def _sequence(G: nx.DiGraph, nodes: Sequence[Node]) -> GaitSequence:
+    metrics = [G.nodes[v]["metric"] for v in nodes]
+    actions = tuple((G.edges[u, v]["finger"], G.edges[u, v]["action"]) for u, v in zip(nodes, nodes[1:]))
+    return GaitSequence(
+        nodes=tuple(nodes),
+        actions=actions,
+        bottleneck=float(min(metrics)),
+        mean_metric=float(np.mean(metrics)),
+        gait_steps=sum(a == "lift" for _, a in actions),
+    )
+
+
+def search(G: nx.DiGraph, k: int = 1, *, max_expansions: int = 200_000) -> list[GaitSequence]:
+    """The best ``k`` distinct gait sequences from the graph's start to its goal.
+
+    Best-first over simple paths with the key (-bottleneck, edges): both parts can only
+    grow as a path extends, so paths reach the goal in rank order. Each node is expanded
+    at most ``4k`` times (k-shortest-paths label setting); ties in (bottleneck, edges)
+    are ordered by the mean metric.
+
+    Returns:
+        Up to k sequences, best first; empty when the goal is unreachable.
+    """
+    start, goal = G.graph["start"], G.graph["goal"]
+    if goal not in G:
+        return []
+    metric = {v: G.nodes[v]["metric"] for v in G.nodes}
+    pops: dict[Node, int] = {}
+    limit = 4 * max(k, 1)
+    tie = itertools.count()
+    heap = [(-metric[start], 0, -metric[start], next(tie), (start,))]
+    found: list[GaitSequence] = []
+    expansions = 0
+    while heap and expansions < max_expansions:
+        neg_b, n_edges, neg_sum, _, path = heapq.heappop(heap)
+        if len(found) >= k and (neg_b, n_edges) > (-found[k - 1].bottleneck, len(found[k - 1].actions)):
+            break
+        v = path[-1]
+        if v == goal:
+            found.append(_sequence(G, path))
+            found.sort(key=lambda s: s.rank_key)
+            continue
+        pops[v] = pops.get(v, 0) + 1
+        if pops[v] > limit:
+            continue
+        expansions += 1
+        on_path = set(path)
+        for w in sorted(G.successors(v)):
+            if w in on_path:
+                continue
+            b = max(neg_b, -metric[w])
+            heapq.heappush(heap, (b, n_edges + 1, neg_sum - metric[w], next(tie), path + (w,)))
+    return found[:k]
+
+
+def greedy(G: nx.DiGraph) -> GaitSequence:
+    """The thesis's Algorithm 2 on the same states, as the baseline.
+
+    Repeatedly repositions (lift, then land at its final slot) the first finger, in
+    hand order, that still needs repositioning and is removable; when all needed fingers
+    are in place, lifts the fingers free in the final grasp, each when removable. It
+    never looks ahead, so it fails where the order matters.
+
+    Raises:
+        NoSequenceError: greedy got stuck; ``report`` holds the partial sequence.
+    """
+    p: GaitProblem = G.graph["problem"]
+    ev: _Evaluator = G.graph["evaluator"]
+    current = p.start
+    path = [current]
+    needed = [i for i, s in enumerate(p.goal) if s != LIFTED and p.start[i] != s]
+    unneeded = [i for i, s in enumerate(p.goal) if s == LIFTED and p.start[i] != LIFTED]
+
+    def step(node: Node) -> bool:
+        ev.evaluate([node])
+        if ev.blocked_reason(node) is not None:
+            return False
+        if node not in G:
+            _add_node(G, ev, node)
+        return True
+
+    def stuck(why: str) -> NoSequenceError:
+        labels = p.labels(current)
+        return NoSequenceError(
+            f"greedy (thesis Algorithm 2) is stuck: {why}; reached {labels}",
+            report={"partial": [p.labels(v) for v in path], "strategy": "greedy"},
+        )
+
+    while needed or unneeded:
+        removable = ev.removable(current)
+        pool = needed if needed else unneeded
+        movable = [i for i in pool if p.fingers[i] in removable]
+        if not movable:
+            names = ", ".join(p.fingers[i] for i in pool)
+            raise stuck(f"none of the fingers still to move ({names}) is removable")
+        i = movable[0]
+        lifted = current[:i] + (LIFTED,) + current[i + 1 :]
+        if lifted != current:
+            if not step(lifted):
+                raise stuck(f"lifting {p.fingers[i]} gives an invalid state ({ev.blocked_reason(lifted)})")
+            path.append(lifted)
+            current = lifted
+        if pool is needed:
+            landed = lifted[:i] + (p.goal[i],) + lifted[i + 1 :]
+            if not step(landed):
+                raise stuck(f"landing {p.fingers[i]} gives an invalid state ({ev.blocked_reason(landed)})")
+            path.append(landed)
+            current = landed
+        pool.remove(i)
+    for u, v in zip(path, path[1:]):
+        if not G.has_edge(u, v):
+            i = next(j for j in range(len(u)) if u[j] != v[j])
+            G.add_edge(u, v, finger=p.fingers[i], action="lift" if v[i] == LIFTED else "land")
+    for v in path:
+        G.nodes[v].setdefault("removable", ev.removable(v))
+    return _sequence(G, path)
+
+
+def explain_failure(G: nx.DiGraph, intermediate_tried: bool) -> NoSequenceError:
+    """Why no sequence connects start and goal: the error the CLI prints.
+
+    Names the fingers never removable in any reachable state, the reachable state closest
+    to the goal (and its best path), the count of blocked states by reason, and whether
+    intermediate contacts were tried.
+    """
+    p: GaitProblem = G.graph["problem"]
+    start, goal = G.graph["start"], G.graph["goal"]
+    ev: _Evaluator = G.graph["evaluator"]
+    never = [f for f in p.fingers if not any(f in G.nodes[v]["removable"] for v in G.nodes if G.nodes[v]["labels"][f] != "lifted")]
+    dist = {v: sum(a != b for a, b in zip(v, goal)) for v in G.nodes}
+    closest = min(G.nodes, key=lambda v: (dist[v], -G.nodes[v]["metric"], v))
+    partial = nx.shortest_path(G, start, closest)
+    reasons: dict[str, int] = {}
+    for r in G.graph["blocked"].values():
+        reasons[r] = reasons.get(r, 0) + 1
+    goal_reason = ev.blocked_reason(goal) if goal in ev.closure else None
+    parts = []
+    if goal_reason:
+        parts.append(f"the final grasp itself is invalid ({goal_reason})")
+    if never:
+        parts.append(f"never removable: {', '.join(never)}")
+    parts.append(f"closest state reached ({dist[closest]} finger(s) from the goal): {p.labels(closest)}")
+    parts.append("blocked states: " + (", ".join(f"{n} {r}" for r, n in sorted(reasons.items())) or "none"))
+    parts.append("intermediate contacts were tried" if intermediate_tried else "try intermediate contacts (--intermediate N)")
+    report = {
+        "never_removable": never,
+        "closest": p.labels(closest),
+        "partial": [p.labels(v) for v in partial],
+        "blocked": reasons,
+        "intermediate_tried": intermediate_tried,
+    }
+    return NoSequenceError("no finger-gaiting sequence: " + "; ".join(parts), report=report)

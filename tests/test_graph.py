@@ -1,0 +1,188 @@
+"""Grasp-state graph and search on synthetic contact slots (no hand needed).
+
+Contacts are single points on a sphere of radius R with inward normals. With soft
+fingers, an antipodal pair is force closure; the cases below are built from that fact
+and every claim is re-checked with `grasp_closure` independently of the graph.
+"""
+
+import itertools
+
+import networkx as nx
+import numpy as np
+import pytest
+
+from planner.closure import Friction, grasp_closure
+from planner.errors import NoSequenceError
+from planner.graph import LIFTED, GaitProblem, Slot, build_graph, explain_failure, greedy, search
+
+R = 0.03
+FRICTION = Friction(mu=0.5, gamma=0.004, edges=5)
+DIRS = {
+    "+x": (1, 0, 0), "-x": (-1, 0, 0), "+y": (0, 1, 0), "-y": (0, -1, 0), "+z": (0, 0, 1), "-z": (0, 0, -1),
+}
+
+
+def slot(finger, label, direction, tilt_deg=0.0):
+    """A one-point slot on the sphere at a direction (optionally tilted toward +z)."""
+    d = np.array(DIRS[direction] if isinstance(direction, str) else direction, dtype=float)
+    if tilt_deg:
+        d = d * np.cos(np.radians(tilt_deg)) + np.array([0, 0, 1.0]) * np.sin(np.radians(tilt_deg))
+    d /= np.linalg.norm(d)
+    return Slot(finger, label, [R * d], [-d])
+
+
+def problem(slots, start, goal, **kw):
+    fingers = tuple(slots)
+    return GaitProblem(
+        fingers=fingers,
+        slots={f: tuple(s) for f, s in slots.items()},
+        start=tuple(start[f] for f in fingers),
+        goal=tuple(goal[f] for f in fingers),
+        friction=FRICTION,
+        **kw,
+    )
+
+
+def greedy_trap():
+    """Moving A first (greedy's choice) strands B; moving B first works."""
+    slots = {
+        "A": [slot("A", "initial", "+x"), slot("A", "final", "+z")],
+        "B": [slot("B", "initial", "+y"), slot("B", "final", "+x", tilt_deg=-8)],
+        "C": [slot("C", "initial", "-x")],
+        "D": [slot("D", "initial", "-y")],
+    }
+    return problem(slots, dict(A=0, B=0, C=0, D=0), dict(A=1, B=1, C=0, D=0))
+
+
+def deadlock(with_intermediate):
+    """Two fingers must form a new pair while each is part of the only other pair."""
+    slots = {
+        "A": [slot("A", "initial", "+x"), slot("A", "final", "+z")],
+        "B": [slot("B", "initial", "-x")],
+        "C": [slot("C", "initial", "+y"), slot("C", "final", "-z")],
+        "D": [slot("D", "initial", "-y")],
+    }
+    if with_intermediate:
+        slots["B"].append(slot("B", "int0", (0.15, 0.0, -1.0)))
+    return problem(slots, dict(A=0, B=0, C=0, D=0), dict(A=1, B=LIFTED, C=1, D=LIFTED))
+
+
+def recheck(prob, seq):
+    """Independent re-check: single-finger steps, all states force closure, keys right."""
+    assert seq.nodes[0] == prob.start and seq.nodes[-1] == prob.goal
+    metrics = []
+    for u, v in zip(seq.nodes, seq.nodes[1:]):
+        assert sum(a != b for a, b in zip(u, v)) == 1
+        changed = next(i for i in range(len(u)) if u[i] != v[i])
+        assert LIFTED in (u[changed], v[changed])
+    for v in seq.nodes:
+        c = grasp_closure(prob.patches(v), FRICTION)
+        assert c.is_force_closure
+        metrics.append(c.metric)
+    assert seq.bottleneck == pytest.approx(min(metrics), rel=1e-9, abs=1e-12)
+    assert seq.mean_metric == pytest.approx(np.mean(metrics), rel=1e-9, abs=1e-12)
+
+
+def test_greedy_is_stuck_where_graph_search_succeeds():
+    """The thesis's greedy Algorithm 2 fails on an order-sensitive pair; graph search solves it."""
+    prob = greedy_trap()
+    G = build_graph(prob)
+    with pytest.raises(NoSequenceError, match="greedy"):
+        greedy(G)
+    best = search(G, k=3)
+    assert best, "graph search found no sequence"
+    recheck(prob, best[0])
+    assert best[0].order(prob)[:2] == ("B:lift", "B:land>final")
+
+
+def test_intermediate_contact_unlocks_a_deadlock():
+    """Without intermediate slots no sequence exists; one intermediate contact solves it."""
+    G = build_graph(deadlock(with_intermediate=False))
+    assert search(G, k=1) == []
+    err = explain_failure(G, intermediate_tried=False)
+    assert "intermediate" in str(err) and err.report["closest"]
+    prob = deadlock(with_intermediate=True)
+    best = search(build_graph(prob), k=1)
+    assert best
+    recheck(prob, best[0])
+    assert any(a == "B:land>int0" for a in best[0].order(prob))
+
+
+def test_search_matches_brute_force_ranking():
+    """The best sequence's (bottleneck, length) equals the best over all simple paths."""
+    prob = greedy_trap()
+    G = build_graph(prob)
+    best = search(G, k=5)
+    brute = []
+    for path in nx.all_simple_paths(G, prob.start, prob.goal, cutoff=10):
+        m = [G.nodes[v]["metric"] for v in path]
+        brute.append((-min(m), len(path) - 1))
+    assert (-best[0].bottleneck, len(best[0].actions)) == pytest.approx(min(brute))
+    keys = [s.rank_key for s in best]
+    assert keys == sorted(keys)
+    assert len({s.nodes for s in best}) == len(best)
+    for s in best:
+        recheck(prob, s)
+
+
+def test_graph_nodes_are_valid_and_blocked_are_not():
+    """Every graph node is force closure; every blocked node is not (re-checked)."""
+    prob = deadlock(with_intermediate=True)
+    G = build_graph(prob)
+    for v in G.nodes:
+        assert grasp_closure(prob.patches(v), FRICTION).is_force_closure
+    for v, reason in G.graph["blocked"].items():
+        assert reason == "not force closure"
+        assert not grasp_closure(prob.patches(v), FRICTION).is_force_closure
+    for u, v, data in G.edges(data=True):
+        assert data["action"] in ("lift", "land")
+
+
+def test_removable_matches_algorithm_one():
+    """Node 'removable' equals dropping each finger and re-testing closure."""
+    prob = greedy_trap()
+    G = build_graph(prob)
+    for v in G.nodes:
+        patches = prob.patches(v)
+        expected = {f for f in prob.fingers if f not in patches}
+        expected |= {f for f in patches if grasp_closure({g: p for g, p in patches.items() if g != f}, FRICTION).is_force_closure}
+        assert G.nodes[v]["removable"] == frozenset(expected)
+
+
+def test_collision_predicate_removes_states():
+    """A pairwise collision predicate keeps colliding states out of the graph."""
+    base = greedy_trap()
+    # B at its final slot collides with A at its initial slot (both near +x).
+    clash = lambda fa, sa, fb, sb: not ({(fa, sa), (fb, sb)} == {("A", 0), ("B", 1)})
+    prob = GaitProblem(base.fingers, base.slots, base.start, base.goal, base.friction, compatible=clash)
+    G = build_graph(prob)
+    for v in G.nodes:
+        assert not (v[0] == 0 and v[1] == 1)
+    assert search(G, k=1) == []
+
+
+def test_max_lifted_bound():
+    """With at most one finger lifted, no graph node has two lifted fingers."""
+    base = deadlock(with_intermediate=True)
+    prob = GaitProblem(base.fingers, base.slots, base.start, base.goal, base.friction, max_lifted=1)
+    G = build_graph(prob)
+    assert all(sum(s == LIFTED for s in v) <= 1 for v in G.nodes)
+
+
+def test_initial_grasp_not_force_closure_is_an_error():
+    """An initial grasp that is not force closure is refused with a clear reason."""
+    slots = {"A": [slot("A", "initial", "+x")], "B": [slot("B", "initial", "+y")]}
+    with pytest.raises(NoSequenceError, match="initial grasp"):
+        build_graph(problem(slots, dict(A=0, B=0), dict(A=0, B=LIFTED)))
+
+
+def test_permuting_fingers_keeps_best_bottleneck():
+    """Renaming/reordering fingers does not change the best bottleneck or step count."""
+    prob = greedy_trap()
+    best = search(build_graph(prob), k=1)[0]
+    for perm in itertools.islice(itertools.permutations(range(4)), 1, 6):
+        fingers = tuple(prob.fingers[i] for i in perm)
+        p2 = GaitProblem(fingers, prob.slots, tuple(prob.start[i] for i in perm), tuple(prob.goal[i] for i in perm), FRICTION)
+        b2 = search(build_graph(p2), k=1)[0]
+        assert b2.bottleneck == pytest.approx(best.bottleneck, rel=1e-9)
+        assert len(b2.actions) == len(best.actions)
