@@ -1,0 +1,699 @@
+"""A dexterous hand: URDF + hand spec (robots/<hand>/hand.yaml), kinematics and geometry.
+
+Pinocchio gives forward kinematics and Jacobians, coal the collision geometry. All poses
+are in the palm frame (``T_palm_link``). The hand's ``q`` vector is pinocchio's
+configuration vector; ``Hand.joint_names`` gives its order.
+
+Hand spec (schema_version 1)::
+
+    schema_version: 1
+    name: icub_right                # optional, default: the folder name
+    urdf: icub_right.urdf           # relative to the yaml, absolute, or package://pkg/...
+    package_dirs: []                # optional, extra dirs holding ROS packages
+    palm_frame: palm
+    fingers:                        # ordered
+      index:
+        joints: [index_0, index_1, index_2, index_3]
+        close_joints: [index_1, ...]       # optional, default: all joints (closing, eqs. 8-9)
+        contact_links: [index_distal, ...] # optional, default: the finger's links with geometry
+        tip_frame: index_tip
+        pad: {link: index_distal, point: [x, y, z], normal: [x, y, z]}  # optional, link frame
+    open: {joint: value, ...}       # optional, rad; others 0 clipped into the limits
+    disabled_collisions: [[link_a, link_b], ...]  # optional, besides the automatic ones
+"""
+
+from __future__ import annotations
+
+import glob
+import os
+import site
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import coal
+import numpy as np
+import pinocchio as pin
+import yaml
+
+from planner.errors import InputError, KinematicsError, SpecError, UnknownNameError
+
+ROBOTS_DIR = Path(__file__).resolve().parents[1] / "robots"
+SCHEMA_VERSION = 1
+IK_TOL_M = 5e-4          # accepted fingertip error
+_IK_GOAL_M = 1e-6        # error at which the iterations stop
+_CONTACT_EPS_M = 1e-6    # penetration below this is not a collision between links
+
+
+def _share_dirs() -> list[str]:
+    """Directories that may hold ROS packages of installed cmeel wheels (example-robot-data)."""
+    roots = list(site.getsitepackages()) + [site.getusersitepackages(), sys.prefix]
+    roots += [p for p in sys.path if p.endswith("site-packages")]
+    out = []
+    for root in roots:
+        for cand in (os.path.join(root, "cmeel.prefix", "share"), os.path.join(root, "share")):
+            if os.path.isdir(os.path.join(cand, "example-robot-data")) and cand not in out:
+                out.append(cand)
+    for cand in glob.glob(os.path.join(sys.prefix, "lib", "python3*", "site-packages", "cmeel.prefix", "share")):
+        if os.path.isdir(cand) and cand not in out:
+            out.append(cand)
+    return out
+
+
+@dataclass(frozen=True)
+class Finger:
+    """One finger: an ordered serial chain of joints of the hand.
+
+    Attributes:
+        name: finger name ("index").
+        joints: joint names, base to tip.
+        q_index: position of each joint in the hand's q vector.
+        contact_links: links that may touch the object.
+        tip_frame: frame at the fingertip.
+        q_open: open posture of the finger's joints (rad), same order as ``joints``.
+        close_joints: joints moved by the closing procedure (thesis eqs. 8-9).
+        links: every link of the finger that has collision geometry.
+        pad_link, pad_p_link, pad_n_link: the fingertip pad (default IK point): a link, a point
+            on its surface and the outward surface normal there, both in the link frame.
+    """
+
+    name: str
+    joints: tuple[str, ...]
+    q_index: tuple[int, ...]
+    contact_links: tuple[str, ...]
+    tip_frame: str
+    q_open: tuple[float, ...]
+    close_joints: tuple[str, ...] = ()
+    links: tuple[str, ...] = ()
+    pad_link: str = ""
+    pad_p_link: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    pad_n_link: tuple[float, float, float] | None = None
+
+
+@dataclass
+class _Geom:
+    """One collision shape: link it belongs to, finger (None: palm), coal shape, placement."""
+
+    link: str
+    finger: str | None
+    shape: coal.CollisionGeometry
+    joint_id: int
+    placement: pin.SE3          # shape pose in its parent joint frame
+    radius: float               # bounding sphere radius about ``center`` (joint frame)
+    center: np.ndarray = field(default_factory=lambda: np.zeros(3))
+
+
+def _as_list(spec_path, key, value, kind=str):
+    if not isinstance(value, list) or not all(isinstance(v, kind) for v in value):
+        raise SpecError(spec_path, key, f"expected a list of {kind.__name__}, got {value!r}")
+    return value
+
+
+def _vec3(spec_path, key, value) -> np.ndarray:
+    try:
+        v = np.asarray(value, dtype=float)
+    except (TypeError, ValueError) as err:
+        raise SpecError(spec_path, key, f"expected 3 numbers, got {value!r}") from err
+    if v.shape != (3,) or not np.all(np.isfinite(v)):
+        raise SpecError(spec_path, key, f"expected 3 finite numbers, got {value!r}")
+    return v
+
+
+def _merge_capsules(entries):
+    """Replace cylinder + 2 end spheres of equal radius on one link by one coal.Capsule.
+
+    URDF has no capsule; the authored hands describe capsules this way. One capsule is exact
+    and three times cheaper to query.
+    """
+    by_link: dict[str, list] = {}
+    for e in entries:
+        by_link.setdefault(e[0], []).append(e)
+    out = []
+    for link, items in by_link.items():
+        cyl = [e for e in items if isinstance(e[2], coal.Cylinder)]
+        sph = [e for e in items if isinstance(e[2], coal.Sphere)]
+        if len(items) == 3 and len(cyl) == 1 and len(sph) == 2:
+            c = cyl[0]
+            r, half = float(c[2].radius), float(c[2].halfLength)
+            ends = [c[4].act(np.array([0.0, 0.0, s * half])) for s in (-1.0, 1.0)]
+            ok = all(abs(float(s[2].radius) - r) < 1e-9 for s in sph)
+            ok = ok and all(min(np.linalg.norm(s[4].translation - p) for p in ends) < 1e-7 for s in sph)
+            if ok:
+                out.append((link, c[1], coal.Capsule(r, 2.0 * half), c[3], c[4]))
+                continue
+        out.extend(items)
+    return out
+
+
+class Hand:
+    """A hand model: pinocchio kinematics, coal geometry and the finger structure.
+
+    Use ``Hand.load("icub_right")`` or ``Hand.load("path/to/hand.yaml")``.
+    Not thread-safe: queries reuse one ``pinocchio.Data``.
+    """
+
+    def __init__(self, spec_path: Path, spec: dict):
+        self.spec_path = Path(spec_path)
+        self._load(spec)
+
+    # ------------------------------------------------------------------ loading
+    @classmethod
+    def load(cls, name_or_path: str | os.PathLike) -> "Hand":
+        """Load a hand by name (a folder under robots/) or by the path of its hand.yaml.
+
+        Raises:
+            UnknownNameError: no such hand under robots/.
+            SpecError: the hand.yaml is invalid (file + key path in the message).
+        """
+        p = Path(name_or_path)
+        if p.suffix in (".yaml", ".yml") or p.is_file():
+            path = p
+        elif p.is_dir():
+            path = p / "hand.yaml"
+        else:
+            path = ROBOTS_DIR / str(name_or_path) / "hand.yaml"
+            if not path.is_file():
+                valid = sorted(d.name for d in ROBOTS_DIR.iterdir() if (d / "hand.yaml").is_file())
+                raise UnknownNameError("hand", str(name_or_path), valid)
+        if not path.is_file():
+            raise SpecError(str(path), "", "file not found")
+        try:
+            spec = yaml.safe_load(path.read_text())
+        except yaml.YAMLError as err:
+            raise SpecError(str(path), "", f"not valid YAML: {err}") from err
+        if not isinstance(spec, dict):
+            raise SpecError(str(path), "", "expected a mapping at the top level")
+        return cls(path, spec)
+
+    def _load(self, spec: dict) -> None:
+        sp = str(self.spec_path)
+        for key in ("schema_version", "urdf", "palm_frame", "fingers"):
+            if key not in spec:
+                raise SpecError(sp, key, "missing required key")
+        if spec["schema_version"] != SCHEMA_VERSION:
+            raise SpecError(sp, "schema_version", f"unsupported version {spec['schema_version']!r}; "
+                                                  f"supported: {SCHEMA_VERSION}")
+        self.name = str(spec.get("name", self.spec_path.parent.name))
+        self.package_dirs = [str((self.spec_path.parent / d).resolve())
+                             for d in _as_list(sp, "package_dirs", spec.get("package_dirs", []))]
+        self.package_dirs += [d for d in _share_dirs() if d not in self.package_dirs]
+        self.urdf_path = self._resolve_urdf(str(spec["urdf"]))
+        try:
+            full = pin.buildModelFromUrdf(self.urdf_path)
+        except (RuntimeError, ValueError) as err:
+            raise SpecError(sp, "urdf", f"pinocchio cannot load {self.urdf_path}: {err}") from err
+
+        fingers_spec = spec["fingers"]
+        if not isinstance(fingers_spec, dict) or not fingers_spec:
+            raise SpecError(sp, "fingers", "expected a non-empty mapping finger -> spec")
+        urdf_joints = [n for n in full.names[1:]]
+        used: list[str] = []
+        for fname, fs in fingers_spec.items():
+            key = f"fingers.{fname}"
+            if not isinstance(fs, dict):
+                raise SpecError(sp, key, "expected a mapping")
+            for k in ("joints", "tip_frame"):
+                if k not in fs:
+                    raise SpecError(sp, f"{key}.{k}", "missing required key")
+            for j in _as_list(sp, f"{key}.joints", fs["joints"]):
+                if j not in urdf_joints:
+                    raise SpecError(sp, f"{key}.joints", str(UnknownNameError("joint", j, urdf_joints)))
+                if j in used:
+                    raise SpecError(sp, f"{key}.joints", f"joint {j!r} belongs to two fingers")
+                used.append(j)
+        # joints outside every finger are locked at 0 (e.g. a wrist)
+        locked = [full.getJointId(n) for n in urdf_joints if n not in used]
+        if locked:
+            full = pin.buildReducedModel(full, locked, pin.neutral(full))
+        self.model = full
+        self.data = self.model.createData()
+        for jid in range(1, self.model.njoints):
+            if self.model.joints[jid].nq != 1:
+                raise SpecError(sp, "urdf", f"joint {self.model.names[jid]!r} is not 1-dof; "
+                                            "only revolute/prismatic joints are supported")
+        self.joint_names = tuple(self.model.names[1:])
+        self.lower = np.array(self.model.lowerPositionLimit, dtype=float)
+        self.upper = np.array(self.model.upperPositionLimit, dtype=float)
+        self.lower.flags.writeable = False
+        self.upper.flags.writeable = False
+        frame_names = [f.name for f in self.model.frames]
+        body_names = sorted({f.name for f in self.model.frames if f.type == pin.FrameType.BODY})
+
+        def frame_id(key, name, kind="frame"):
+            if not isinstance(name, str) or not self.model.existFrame(name):
+                valid = body_names if kind == "link" else frame_names
+                raise SpecError(sp, key, str(UnknownNameError(kind, str(name), valid)))
+            return self.model.getFrameId(name)
+
+        self.palm_frame = str(spec["palm_frame"])
+        pid = frame_id("palm_frame", self.palm_frame, "link")
+        if self.model.frames[pid].parentJoint != 0:
+            raise SpecError(sp, "palm_frame", f"{self.palm_frame!r} moves with a joint; "
+                                              "the palm must be fixed to the URDF root")
+        self._T_palm_world = self.model.frames[pid].placement.inverse()
+        self._palm_is_root = self._T_palm_world.isIdentity(1e-12)
+        self._frame_ids: dict[str, int] = {}
+
+        # open posture
+        q_open = np.clip(np.zeros(self.model.nq), self.lower, self.upper)
+        open_spec = spec.get("open", {}) or {}
+        if not isinstance(open_spec, dict):
+            raise SpecError(sp, "open", "expected a mapping joint -> angle (rad)")
+        for j, v in open_spec.items():
+            if j not in self.joint_names:
+                raise SpecError(sp, "open", str(UnknownNameError("joint", str(j), self.joint_names)))
+            i = self.joint_names.index(j)
+            if not isinstance(v, (int, float)) or not (self.lower[i] - 1e-9 <= v <= self.upper[i] + 1e-9):
+                raise SpecError(sp, f"open.{j}", f"expected a number in [{self.lower[i]:.4g}, "
+                                                 f"{self.upper[i]:.4g}], got {v!r}")
+            q_open[i] = float(v)
+        q_open.flags.writeable = False
+        self.q_open = q_open
+
+        # collision geometry
+        try:
+            gm = pin.buildGeomFromUrdf(self.model, self.urdf_path, pin.GeometryType.COLLISION,
+                                       package_dirs=self.package_dirs)
+        except (RuntimeError, ValueError) as err:
+            raise SpecError(sp, "urdf", f"cannot load collision geometry: {err}") from err
+        joint_finger: dict[int, str] = {}
+        for fname, fs in fingers_spec.items():
+            for j in fs["joints"]:
+                joint_finger[self.model.getJointId(j)] = fname
+
+        def finger_of_joint(jid: int) -> str | None:
+            while jid != 0:
+                if jid in joint_finger:
+                    return joint_finger[jid]
+                jid = self.model.parents[jid]
+            return None
+
+        entries = []
+        for go in gm.geometryObjects:
+            link = self.model.frames[go.parentFrame].name
+            entries.append((link, finger_of_joint(go.parentJoint), go.geometry, go.parentJoint,
+                            pin.SE3(go.placement)))
+        self._geoms: list[_Geom] = []
+        for link, fname, shape, jid, plc in _merge_capsules(entries):
+            shape.computeLocalAABB()
+            center = plc.act(np.asarray(shape.aabb_center, dtype=float))
+            self._geoms.append(_Geom(link, fname, shape, jid, plc, float(shape.aabb_radius), center))
+        self._link_geoms: dict[str, list[int]] = {}
+        for i, g in enumerate(self._geoms):
+            self._link_geoms.setdefault(g.link, []).append(i)
+        self.links = tuple(self._link_geoms)
+
+        # fingers
+        self.fingers: dict[str, Finger] = {}
+        for fname, fs in fingers_spec.items():
+            key = f"fingers.{fname}"
+            joints = tuple(fs["joints"])
+            q_index = tuple(self.joint_names.index(j) for j in joints)
+            flinks = tuple(l for l in self._link_geoms if self._geoms[self._link_geoms[l][0]].finger == fname)
+            contact = fs.get("contact_links", list(flinks))
+            for l in _as_list(sp, f"{key}.contact_links", contact):
+                if l not in flinks:
+                    raise SpecError(sp, f"{key}.contact_links",
+                                    str(UnknownNameError("link", l, flinks or ["(none)"])))
+            close = fs.get("close_joints", list(joints))
+            for j in _as_list(sp, f"{key}.close_joints", close):
+                if j not in joints:
+                    raise SpecError(sp, f"{key}.close_joints", str(UnknownNameError("joint", j, joints)))
+            tip = fs["tip_frame"]
+            tip_id = frame_id(f"{key}.tip_frame", tip)
+            pad = fs.get("pad")
+            if pad is None:
+                # default pad: the tip frame origin on the link carrying it; no normal known
+                tip_frame = self.model.frames[tip_id]
+                pad_link = self.model.frames[tip_frame.parentFrame].name
+                pad_p = tuple(tip_frame.placement.translation) if pad_link != tip else (0.0, 0.0, 0.0)
+                pad_n = None
+            else:
+                if not isinstance(pad, dict) or "link" not in pad or "point" not in pad:
+                    raise SpecError(sp, f"{key}.pad", "expected {link, point, normal}")
+                pad_link = pad["link"]
+                frame_id(f"{key}.pad.link", pad_link, "link")
+                pad_p = tuple(_vec3(sp, f"{key}.pad.point", pad["point"]))
+                pad_n = None
+                if pad.get("normal") is not None:
+                    n = _vec3(sp, f"{key}.pad.normal", pad["normal"])
+                    if np.linalg.norm(n) < 1e-9:
+                        raise SpecError(sp, f"{key}.pad.normal", "must be non-zero")
+                    pad_n = tuple(float(x) for x in n / np.linalg.norm(n))
+            self.fingers[fname] = Finger(
+                name=fname, joints=joints, q_index=q_index, contact_links=tuple(contact),
+                tip_frame=tip, q_open=tuple(float(q_open[i]) for i in q_index),
+                close_joints=tuple(close), links=flinks, pad_link=pad_link,
+                pad_p_link=tuple(float(x) for x in pad_p), pad_n_link=pad_n)
+
+        # collision pairs between links: skip adjacent bodies and pairs touching at q = 0 or
+        # at the open posture (shapes that overlap by design, like MoveIt's "default" pairs)
+        disabled = set()
+        for pair in spec.get("disabled_collisions", []) or []:
+            if not (isinstance(pair, list) and len(pair) == 2):
+                raise SpecError(sp, "disabled_collisions", f"expected [link_a, link_b], got {pair!r}")
+            for l in pair:
+                if l not in self._link_geoms:
+                    raise SpecError(sp, "disabled_collisions", str(UnknownNameError("link", l, self.links)))
+            disabled.add(frozenset(pair))
+        link_joint = {l: self._geoms[ix[0]].joint_id for l, ix in self._link_geoms.items()}
+        for a in self.links:
+            for b in self.links:
+                ja, jb = link_joint[a], link_joint[b]
+                if a < b and (ja == jb or self.model.parents[ja] == jb or self.model.parents[jb] == ja):
+                    disabled.add(frozenset((a, b)))
+        self._disabled = disabled
+        pairs = self._candidate_link_pairs()
+        for q in (np.clip(np.zeros(self.model.nq), self.lower, self.upper), self.q_open):
+            for a, b, d in self._link_pair_distances(q, pairs):
+                if d < _CONTACT_EPS_M:
+                    self._disabled.add(frozenset((a, b)))
+        self._pairs = self._candidate_link_pairs()
+
+    def _resolve_urdf(self, urdf: str) -> str:
+        if urdf.startswith("package://"):
+            rel = urdf[len("package://"):]
+            for d in self.package_dirs:
+                cand = Path(d) / rel
+                if cand.is_file():
+                    return str(cand)
+            raise SpecError(str(self.spec_path), "urdf",
+                            f"{urdf} not found in package_dirs {self.package_dirs}")
+        path = Path(urdf)
+        if not path.is_absolute():
+            path = self.spec_path.parent / path
+        if not path.is_file():
+            raise SpecError(str(self.spec_path), "urdf", f"file not found: {path}")
+        return str(path.resolve())
+
+    # ------------------------------------------------------------- name lookups
+    def finger(self, finger: str | Finger) -> Finger:
+        """The Finger named ``finger`` (a Finger is returned as is)."""
+        if isinstance(finger, Finger):
+            return finger
+        try:
+            return self.fingers[finger]
+        except KeyError:
+            raise UnknownNameError("finger", str(finger), self.fingers) from None
+
+    def _fid(self, frame: str) -> int:
+        fid = self._frame_ids.get(frame)
+        if fid is None:
+            if not self.model.existFrame(frame):
+                names = sorted({f.name for f in self.model.frames})
+                raise UnknownNameError("link", str(frame), names)
+            fid = self._frame_ids[frame] = self.model.getFrameId(frame)
+        return fid
+
+    def _check_q(self, q) -> np.ndarray:
+        q = np.asarray(q, dtype=float)
+        if q.shape != (self.model.nq,) or not np.all(np.isfinite(q)):
+            raise InputError(f"q must be {self.model.nq} finite numbers in the order of "
+                             f"hand.joint_names, got shape {q.shape}")
+        return q
+
+    # --------------------------------------------------------------- kinematics
+    def link_pose(self, q, link: str) -> np.ndarray:
+        """Pose of a link (or any frame) in the palm frame.
+
+        Args:
+            q: (nq,) joint angles, order ``joint_names``.
+            link: link or frame name.
+        Returns:
+            T_palm_link: (4, 4).
+        """
+        q = self._check_q(q)
+        fid = self._fid(link)
+        pin.forwardKinematics(self.model, self.data, q)
+        M = pin.updateFramePlacement(self.model, self.data, fid)
+        if not self._palm_is_root:
+            M = self._T_palm_world * M
+        return M.homogeneous
+
+    def frame_jacobian(self, q, link: str, p_link=None) -> np.ndarray:
+        """Jacobian of a point of a link, palm-aligned, linear rows first.
+
+        Args:
+            q: (nq,) joint angles.
+            link: link or frame name.
+            p_link: (3,) point in the link frame (default its origin).
+        Returns:
+            J: (6, nq): rows 0-2 d(p_palm)/dq, rows 3-5 the link's angular velocity in the palm frame.
+        """
+        q = self._check_q(q)
+        J, _, _ = self._point_jacobian(q, self._fid(link), p_link)
+        return J
+
+    def _point_jacobian(self, q, fid, p_link=None):
+        pin.computeJointJacobians(self.model, self.data, q)
+        M = pin.updateFramePlacement(self.model, self.data, fid)
+        J = pin.getFrameJacobian(self.model, self.data, fid, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED).copy()
+        p = M.translation.copy()
+        if p_link is not None:
+            r = M.rotation @ np.asarray(p_link, dtype=float)
+            p = p + r
+            # v_p = v_o + w x r
+            J[:3] -= _skew(r) @ J[3:]
+        R = M.rotation
+        if not self._palm_is_root:
+            Rp = self._T_palm_world.rotation
+            J[:3] = Rp @ J[:3]
+            J[3:] = Rp @ J[3:]
+            p = self._T_palm_world.act(p)
+            R = Rp @ R
+        return J, p, R
+
+    # ----------------------------------------------------------------- geometry
+    def _update(self, q) -> None:
+        pin.forwardKinematics(self.model, self.data, q)
+
+    def _geom_pose(self, i: int) -> pin.SE3:
+        g = self._geoms[i]
+        M = self.data.oMi[g.joint_id] * g.placement
+        if not self._palm_is_root:
+            M = self._T_palm_world * M
+        return M
+
+    def _geom_tf(self, i: int) -> coal.Transform3s:
+        M = self._geom_pose(i)
+        return coal.Transform3s(M.rotation, M.translation)
+
+    def _geom_center(self, i: int) -> np.ndarray:
+        g = self._geoms[i]
+        c = self.data.oMi[g.joint_id].act(g.center)
+        return self._T_palm_world.act(c) if not self._palm_is_root else c
+
+    def collision_objects(self, q) -> list[tuple[str, str | None, coal.CollisionGeometry, coal.Transform3s]]:
+        """Every collision shape of the hand posed at q.
+
+        Returns:
+            list of (link, finger name or None for the palm, coal shape, Transform3s in the palm frame).
+        """
+        q = self._check_q(q)
+        self._update(q)
+        return [(g.link, g.finger, g.shape, self._geom_tf(i)) for i, g in enumerate(self._geoms)]
+
+    def _candidate_link_pairs(self):
+        """Geometry index pairs of different links, at least one on a finger, not disabled."""
+        out = []
+        n = len(self._geoms)
+        for i in range(n):
+            for j in range(i + 1, n):
+                a, b = self._geoms[i], self._geoms[j]
+                if a.link == b.link or (a.finger is None and b.finger is None):
+                    continue
+                if frozenset((a.link, b.link)) in getattr(self, "_disabled", set()):
+                    continue
+                out.append((i, j))
+        return out
+
+    def _link_pair_distances(self, q, pairs, fingers=None, margin=0.0):
+        """Signed distances of geometry pairs whose bounding spheres come within ``margin``."""
+        self._update(q)
+        centers = {}
+        out = []
+        req = coal.DistanceRequest()
+        for i, j in pairs:
+            gi, gj = self._geoms[i], self._geoms[j]
+            if fingers is not None and gi.finger not in fingers and gj.finger not in fingers:
+                continue
+            ci = centers.get(i)
+            if ci is None:
+                ci = centers[i] = self._geom_center(i)
+            cj = centers.get(j)
+            if cj is None:
+                cj = centers[j] = self._geom_center(j)
+            if np.linalg.norm(ci - cj) > gi.radius + gj.radius + margin:
+                continue
+            res = coal.DistanceResult()
+            d = coal.distance(gi.shape, self._geom_tf(i), gj.shape, self._geom_tf(j), req, res)
+            out.append((gi.link, gj.link, float(d)))
+        return out
+
+    def _finger_object_distance(self, q, finger: Finger, obj, links=None) -> float:
+        """Smallest signed distance between the finger's links and the object (m)."""
+        self._update(q)
+        T = obj.T_palm_obj
+        tf_obj = coal.Transform3s(T[:3, :3], T[:3, 3])
+        req = coal.DistanceRequest()
+        best = np.inf
+        for link in (links or finger.links):
+            for i in self._link_geoms.get(link, ()):
+                res = coal.DistanceResult()
+                best = min(best, coal.distance(self._geoms[i].shape, self._geom_tf(i), obj.geometry,
+                                               tf_obj, req, res))
+        return float(best)
+
+    # ---------------------------------------------------------------------- IK
+    def ik(self, finger, target_palm, q0, link: str | None = None, p_link=None, normal_palm=None,
+           restarts: int = 8, max_iter: int = 150, seed: int = 0) -> np.ndarray:
+        """Place a point of a finger link on a target; only that finger's joints move.
+
+        Damped least squares with joint clamping, restarted from q0, the open posture, mid-range
+        and seeded random starts. The pad normal alignment is a secondary task in the null space
+        of the position task (best effort; the fingers have at most 4 joints).
+
+        Args:
+            finger: finger name or Finger.
+            target_palm: (3,) target point in the palm frame.
+            q0: (nq,) start; other fingers' joints are kept.
+            link: link to place (default: the finger's pad link).
+            p_link: (3,) point in the link frame (default: the pad point when ``link`` is the pad
+                link, else the link origin).
+            normal_palm: (3,) optional contact normal INTO the object in the palm frame: the link's
+                outward pad normal is turned toward it.
+        Returns:
+            q: (nq,) with the point within 0.5 mm of the target.
+        Raises:
+            KinematicsError: no start reached the target within 0.5 mm inside the joint limits.
+        """
+        f = self.finger(finger)
+        q0 = self._check_q(q0)
+        target = np.asarray(target_palm, dtype=float)
+        if target.shape != (3,) or not np.all(np.isfinite(target)):
+            raise InputError(f"target_palm must be 3 finite numbers, got {target_palm!r}")
+        link = link or f.pad_link
+        fid = self._fid(link)
+        if link == f.pad_link and p_link is None:
+            p_link = np.array(f.pad_p_link)
+        p_link = np.zeros(3) if p_link is None else np.asarray(p_link, dtype=float)
+        n_link = np.array(f.pad_n_link) if f.pad_n_link is not None else None
+        n_des = None
+        if normal_palm is not None:
+            n_des = np.asarray(normal_palm, dtype=float)
+            if n_des.shape != (3,) or np.linalg.norm(n_des) < 1e-9:
+                raise InputError(f"normal_palm must be a non-zero 3-vector, got {normal_palm!r}")
+            n_des = n_des / np.linalg.norm(n_des)
+            if n_link is None:
+                n_des = None
+        idx = np.array(f.q_index)
+        lo, hi = self.lower[idx], self.upper[idx]
+        rng = np.random.default_rng(seed)
+        starts = [q0[idx], np.array(f.q_open), 0.5 * (lo + hi)]
+        starts += [rng.uniform(lo, hi) for _ in range(max(0, restarts - len(starts)))]
+        best = None   # (position error, normal error, q)
+        for s in starts:
+            q = q0.copy()
+            q[idx] = np.clip(s, lo, hi)
+            q, err, nerr = self._dls(q, idx, lo, hi, fid, p_link, target, n_link, n_des, max_iter)
+            cand = (err, nerr, q)
+            if err < IK_TOL_M and (best is None or best[0] >= IK_TOL_M or nerr < best[1] - 1e-6):
+                best = cand
+            elif best is None or (best[0] >= IK_TOL_M and err < best[0]):
+                best = cand
+            if best[0] < IK_TOL_M and (n_des is None or best[1] < 0.05):
+                break
+        if best[0] >= IK_TOL_M:
+            raise KinematicsError(
+                f"finger {f.name!r}: target {np.round(target, 4).tolist()} m (palm frame) is out of "
+                f"reach of {link}; closest approach {best[0] * 1e3:.1f} mm after {len(starts)} starts")
+        return best[2]
+
+    def _dls(self, q, idx, lo, hi, fid, p_link, target, n_link, n_des, max_iter):
+        lam2 = 1e-6        # damping^2 (m^2)
+        k_n = 0.5          # gain of the normal-alignment task (per iteration)
+        err = np.inf
+        prev = np.inf
+        stall = 0
+        for _ in range(max_iter):
+            J, p, R = self._point_jacobian(q, fid, p_link)
+            e = target - p
+            err = float(np.linalg.norm(e))
+            e_n = np.cross(R @ n_link, n_des) if n_des is not None else None
+            if err < _IK_GOAL_M and (e_n is None or np.linalg.norm(e_n) < 1e-4):
+                break
+            Jp = J[:3, idx]
+            A = Jp @ Jp.T + lam2 * np.eye(3)
+            dq = Jp.T @ np.linalg.solve(A, e)
+            if e_n is not None:
+                Jn = J[3:, idx]
+                Jp_pinv = Jp.T @ np.linalg.inv(A)
+                N = np.eye(len(idx)) - Jp_pinv @ Jp
+                JnN = Jn @ N
+                dq += N @ (JnN.T @ np.linalg.solve(JnN @ JnN.T + 1e-3 * np.eye(3), k_n * e_n - Jn @ dq))
+            step = np.max(np.abs(dq))
+            if step > 0.3:
+                dq *= 0.3 / step
+            q_new = q.copy()
+            q_new[idx] = np.clip(q[idx] + dq, lo, hi)
+            q = q_new
+            if err > prev - 1e-7:
+                stall += 1
+                if stall > 15:
+                    break
+            else:
+                stall = 0
+            prev = min(prev, err)
+        J, p, R = self._point_jacobian(q, fid, p_link)
+        err = float(np.linalg.norm(target - p))
+        nerr = 0.0
+        if n_des is not None:
+            nerr = float(np.arccos(np.clip((R @ n_link) @ n_des, -1.0, 1.0)))
+        return q, err, nerr
+
+    # ----------------------------------------------------------------- closing
+    def close_finger(self, finger, q, obj, steps: int = 20, backoff: float = 1e-3) -> np.ndarray:
+        """Close a finger onto the object, thesis eqs. (8)-(9).
+
+        Every closing joint moves from its value in ``q`` toward its upper limit by the same
+        fraction alpha of its remaining range: alpha_n = alpha_{n-1} +/- (1/2)^n, n = 1..steps
+        (+ while the finger is free, - while it penetrates the object), then alpha is reduced by
+        ``backoff`` (0.1 % of the range) until the finger is free of penetration. The finger then
+        touches the object within about 0.1 % of its range, or is fully closed if it never met it.
+
+        Args:
+            finger: finger name or Finger.
+            q: (nq,) start posture (the finger free of the object).
+            obj: a planner.objects.GraspObject (pose T_palm_obj).
+        Returns:
+            q: (nq,) with only the finger's closing joints changed.
+        """
+        f = self.finger(finger)
+        q = self._check_q(q).copy()
+        cidx = np.array([self.joint_names.index(j) for j in f.close_joints])
+        start = q[cidx].copy()
+        span = np.maximum(self.upper[cidx] - start, 0.0)
+
+        def at(alpha):
+            qa = q.copy()
+            qa[cidx] = start + alpha * span
+            return qa
+
+        def colliding(alpha):
+            return self._finger_object_distance(at(alpha), f, obj) < 0.0
+
+        if colliding(0.0):
+            return q
+        alpha = 0.0
+        for n in range(1, steps + 1):
+            if colliding(alpha):
+                alpha -= 0.5 ** n
+            else:
+                alpha = min(alpha + 0.5 ** n, 1.0)
+        while alpha > 0.0 and colliding(alpha):
+            alpha = max(alpha - backoff, 0.0)
+        return at(alpha)
+
+
+def _skew(v) -> np.ndarray:
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
