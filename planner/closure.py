@@ -1,0 +1,519 @@
+"""Contact wrenches, force closure and the signed Ferrari-Canny metric.
+
+Thesis section II (eqs. 1-7) and Algorithm 1 (removable fingers).
+
+A soft-finger contact at point ``p`` with inward unit normal ``n`` is represented by its
+friction cone sampled on the rim with unit normal force (thesis eq. 2); every rim edge
+``f`` appears twice, with torsional torque ``+gamma n`` and ``-gamma n``.  The wrench rows
+are ``w = [f ; p x f (+/- gamma n)]``, torques about the object-frame origin.
+
+Force closure holds iff the origin lies strictly inside ``conv(W)`` (thesis section II-A).
+
+Signed metric (``Closure.metric``):
+
+* force closure: the Ferrari-Canny epsilon (L1 / convex-hull version), the Euclidean
+  distance from the origin to the nearest facet of ``conv(W)``; equivalently
+  ``min_{|u|=1} max_i u . w_i``.
+* not force closure: ``-dist(0, conv(W))`` (minus the Euclidean distance from the origin to
+  the hull), which is ``0`` when the origin is on the boundary, or inside a hull that does
+  not span 6-D.
+
+How it is computed (pure numpy, no convex hull of the whole set):
+
+1. ``_initial_simplex``: a greedy, pivoted Gram-Schmidt picks 7 affinely independent wrenches
+   spread as far as possible.  If none exist (affine dimension < 6, tolerance
+   ``RANK_RTOL * max|w_i|``) the set is never force closure.
+2. ``_expand``: an incremental inner polytope ``Q = conv(S)``, ``S`` a subset of the rows,
+   is kept as a simplicial facet list.  Facets are stored as ``a . (x - c) = 1`` around a fixed
+   interior point ``c`` of ``Q``, so each facet plane is one batched 6x6 solve and needs no
+   orientation bookkeeping.  Each step takes the facet with the smallest signed distance
+   ``d`` to the origin (the most violated one while the origin is outside ``Q``; the nearest
+   one, as in EPA, once it is inside), queries the support value ``h(u) = max_i u . w_i``
+   along its unit normal ``u`` and either stops (``h(u) - d <= tol``: the facet plane
+   supports ``conv(W)``) or adds the support point (beneath-beyond insertion: visible
+   facets are removed, the horizon ridges are coned to the new point).
+   Because ``Q`` is inside ``conv(W)``, the stop gives the exact answer:
+   ``epsilon(Q) = d <= epsilon(W) <= h(u) <= d + tol``.
+3. Not force closure: ``_min_norm_point`` (Wolfe's algorithm) gives ``dist(0, conv(W))``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from planner.errors import InputError
+
+__all__ = [
+    "Closure",
+    "Friction",
+    "batch_grasp_closure",
+    "closure_from_wrenches",
+    "contact_wrenches",
+    "grasp_closure",
+    "removable_fingers",
+]
+
+#: Relative tolerance (times the largest wrench norm) for affine/linear rank decisions.
+RANK_RTOL = 1e-9
+#: Relative tolerance (times the largest wrench norm) for "on the boundary" and for the
+#: support-gap stopping test.  Metric values with ``|metric| <= METRIC_RTOL * max|w|``
+#: are reported as exactly 0 (boundary, not force closure).
+METRIC_RTOL = 1e-10
+
+_SIMPLEX_FACETS = np.array([[j for j in range(7) if j != i] for i in range(7)])  # (7, 6)
+
+
+@dataclass(frozen=True)
+class Friction:
+    """Soft-finger Coulomb friction (thesis eq. 1).
+
+    Args:
+        mu: static friction coefficient (dimensionless, >= 0).
+        gamma: torsional friction, torque per unit normal force (metres, >= 0).
+        edges: number of sides of the friction-cone polygon (>= 3; thesis uses 5).
+    """
+
+    mu: float
+    gamma: float
+    edges: int = 5
+
+    def __post_init__(self):
+        for name in ("mu", "gamma"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
+                raise InputError(f"friction {name} must be a number, got {value!r}")
+            if not math.isfinite(value) or value < 0:
+                raise InputError(f"friction {name} must be finite and >= 0, got {value!r}")
+            object.__setattr__(self, name, float(value))
+        edges = self.edges
+        if isinstance(edges, bool) or not isinstance(edges, (int, np.integer)) or edges < 3:
+            raise InputError(f"friction edges must be an integer >= 3, got {edges!r}")
+        object.__setattr__(self, "edges", int(edges))
+
+
+@dataclass(frozen=True)
+class Closure:
+    """Result of a force-closure test.
+
+    Attributes:
+        is_force_closure: the origin is strictly inside the convex hull of the wrenches.
+        metric: signed metric (module docstring): Ferrari-Canny epsilon when force closure,
+            else minus the distance from the origin to the hull (0 on the boundary).
+        rank: numerical rank of the wrench matrix (k, 6), tolerance ``RANK_RTOL * max|w|``.
+    """
+
+    is_force_closure: bool
+    metric: float
+    rank: int
+
+
+# --------------------------------------------------------------------------- wrenches
+
+
+def _as_points_normals(points, normals) -> tuple[np.ndarray, np.ndarray]:
+    try:
+        p = np.asarray(points, dtype=float)
+        n = np.asarray(normals, dtype=float)
+    except (TypeError, ValueError) as err:
+        raise InputError(f"points and normals must be numeric arrays: {err}") from err
+    if p.size == 0 and n.size == 0:
+        return np.zeros((0, 3)), np.zeros((0, 3))
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise InputError(f"points must have shape (n, 3), got {p.shape}")
+    if n.shape != p.shape:
+        raise InputError(f"normals must have the shape of points {p.shape}, got {n.shape}")
+    if not (np.isfinite(p).all() and np.isfinite(n).all()):
+        raise InputError("points and normals must be finite (found NaN or inf)")
+    length = np.linalg.norm(n, axis=1)
+    if (length < 1e-12).any():
+        bad = int(np.argmax(length < 1e-12))
+        raise InputError(f"normal {bad} has zero length")
+    return p, n / length[:, None]
+
+
+def _tangent_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Deterministic tangents t1, t2 with (t1, t2, n) right-handed; n (m, 3) unit."""
+    helper = np.zeros_like(n)
+    helper[np.arange(len(n)), np.argmin(np.abs(n), axis=1)] = 1.0  # axis least aligned with n
+    t1 = np.cross(helper, n)
+    t1 /= np.linalg.norm(t1, axis=1)[:, None]
+    t2 = np.cross(n, t1)
+    return t1, t2
+
+
+def contact_wrenches(points, normals, friction: Friction) -> np.ndarray:
+    """Soft-finger contact wrenches on the friction-cone rim (thesis eqs. 2-5).
+
+    Args:
+        points: (n, 3) contact points, object frame, metres.
+        normals: (n, 3) contact normals pointing INTO the object (normalized here).
+        friction: friction model; ``edges`` rim directions per point.
+
+    Returns:
+        (2 * edges * n, 6) wrench rows ``[f ; p x f + s gamma n]``, torques about the object
+        origin; ordered point-major, then edge ``k`` (angle ``2 pi k / edges``), then torsion
+        sign ``s = +1, -1``.  The normal force component is 1.
+    """
+    if not isinstance(friction, Friction):
+        raise InputError(f"friction must be a Friction, got {type(friction).__name__}")
+    p, n = _as_points_normals(points, normals)
+    e = friction.edges
+    if len(p) == 0:
+        return np.zeros((0, 6))
+    t1, t2 = _tangent_basis(n)
+    theta = 2.0 * np.pi * np.arange(e) / e
+    # f[i, k] = n_i + mu (sin th_k t1_i + cos th_k t2_i)   (thesis eq. 2, f3 = 1)
+    f = n[:, None, :] + friction.mu * (
+        np.sin(theta)[None, :, None] * t1[:, None, :] + np.cos(theta)[None, :, None] * t2[:, None, :]
+    )
+    tau = np.cross(p[:, None, :], f)  # (n, e, 3)
+    tors = friction.gamma * n[:, None, None, :] * np.array([1.0, -1.0])[None, None, :, None]
+    w = np.empty((len(p), e, 2, 6))
+    w[..., :3] = f[:, :, None, :]
+    w[..., 3:] = tau[:, :, None, :] + tors
+    return w.reshape(-1, 6)
+
+
+# --------------------------------------------------------------------------- geometry core
+
+
+def _check_wrenches(W) -> np.ndarray:
+    try:
+        W = np.asarray(W, dtype=float)
+    except (TypeError, ValueError) as err:
+        raise InputError(f"wrenches must be a numeric array: {err}") from err
+    if W.ndim != 2 or W.shape[1] != 6:
+        raise InputError(f"wrenches must have shape (k, 6), got {W.shape}")
+    if not np.isfinite(W).all():
+        raise InputError("wrenches must be finite (found NaN or inf)")
+    return W
+
+
+def _numerical_rank(W: np.ndarray, scale: float) -> int:
+    if len(W) == 0 or scale == 0.0:
+        return 0
+    # Singular values of W from its 6x6 Gram matrix would square the conditioning; a thin
+    # QR first keeps it: W = Q R, same singular values as R.
+    r = np.linalg.qr(W, mode="r") if len(W) > 6 else W
+    s = np.linalg.svd(r, compute_uv=False)
+    return int((s > RANK_RTOL * scale * max(1.0, math.sqrt(len(W)))).sum())
+
+
+def _initial_simplex(W: np.ndarray, tol: float) -> np.ndarray | None:
+    """Indices of 7 affinely independent rows spread far apart, or None (affine dim < 6)."""
+    i0 = int(np.argmax(W[:, 0] + 1e-3 * W[:, 3]))
+    R = W - W[i0]
+    chosen = [i0]
+    for _ in range(6):
+        norms = np.einsum("ij,ij->i", R, R)
+        j = int(np.argmax(norms))
+        if norms[j] <= tol * tol:
+            return None
+        q = R[j] / math.sqrt(norms[j])
+        R = R - np.outer(R @ q, q)
+        chosen.append(j)
+    return np.array(chosen)
+
+
+def _facet_planes(P: np.ndarray) -> np.ndarray:
+    """Normals a with a . y = 1 through the 6 points y of each facet; P (m, 6, 6) centered."""
+    return np.linalg.solve(P, np.ones(P.shape[:2] + (1,)))[..., 0]
+
+
+_ZOBRIST = np.zeros(0, dtype=np.uint64)
+
+
+def _zobrist(k: int) -> np.ndarray:
+    """Fixed random 64-bit keys per wrench index (ridge keys are sums of vertex keys)."""
+    global _ZOBRIST
+    if len(_ZOBRIST) < k:
+        size = max(k, 2 * len(_ZOBRIST), 4096)
+        raw = np.random.default_rng(20240607).bytes(8 * size)
+        _ZOBRIST = np.frombuffer(raw, dtype=np.uint64).copy()
+    return _ZOBRIST
+
+
+def _expand(W: np.ndarray, simplex: np.ndarray, tol: float, decide_only: bool) -> tuple[int, float]:
+    """Grow an inner polytope Q = conv(S), S a subset of the rows of W, until the answer is certain.
+
+    Q is a list of simplicial facets: vertex rows ``V[f]`` (indices into W) and normal ``A[f]``
+    with ``A[f] . (x - c) <= 1`` on Q, equality on facet f, ``c`` the centroid of the seed
+    simplex (inside Q for ever).  ``D[f]`` is the signed distance from the origin to the
+    facet plane (positive on the inner side); dead facet slots have ``A = 0, D = inf``.
+    A ridge is keyed by the wrapping sum of random 64-bit keys of its 5 vertices
+    (collision probability ~ 1e-16 per insertion).
+
+    Returns:
+        (state, value): state 1 = force closure with epsilon ``value`` (with ``decide_only``
+        only a lower bound > tol); 0 = origin on the boundary; -1 = origin strictly outside.
+    """
+    Z = _zobrist(len(W))
+    c = W[simplex].mean(axis=0)
+    Y = W - c
+    cu = 256
+    A = np.zeros((cu, 6))
+    V = np.zeros((cu, 6), dtype=np.intp)
+    K = np.zeros(cu, dtype=np.uint64)
+    D = np.full(cu, np.inf)
+    V[:7] = simplex[_SIMPLEX_FACETS]
+    A[:7] = _facet_planes(Y[V[:7]])
+    K[:7] = Z[V[:7]].sum(axis=1)
+    D[:7] = (1.0 + A[:7] @ c) / np.sqrt(np.einsum("ij,ij->i", A[:7], A[:7]))
+    n = 7
+    vis_thr = 1.0 + 1e-12
+    for _ in range(len(W) + 1):
+        f = int(np.argmin(D[:n]))
+        d = D[f]
+        if decide_only and d > tol:
+            return 1, d
+        a = A[f]
+        u = a / math.sqrt(a @ a)
+        s = Y @ u
+        j = int(np.argmax(s))
+        h = s[j] + c @ u  # support value max_i u . w_i
+        if h < -tol:
+            return -1, d  # a plane strictly separates the origin from every wrench
+        if h - d <= tol:
+            # The facet plane supports conv(W): epsilon(Q) = d <= epsilon(W) <= h <= d + tol.
+            if d > tol:
+                return 1, d
+            return (0, 0.0) if d >= -tol else (-1, d)
+        # Beneath-beyond insertion of row j: drop the facets it sees, cone the horizon to it.
+        y = Y[j]
+        visible = A[:n] @ y > vis_thr
+        visible[f] = True
+        vis = np.flatnonzero(visible)
+        Vv = V[vis]
+        rk = (K[vis][:, None] - Z[Vv]).ravel()  # key of the ridge opposite each vertex
+        order = np.argsort(rk)
+        sk = rk[order]
+        neq = sk[1:] != sk[:-1]
+        single = np.ones(len(sk), dtype=bool)
+        single[1:] = neq
+        single[:-1] &= neq
+        # A ridge inside the visible region belongs to two visible facets; a horizon ridge
+        # (visible facet / hidden facet) appears once.
+        hz = order[single]
+        fi, ci = np.divmod(hz, 6)
+        newV = Vv[fi]
+        newV[np.arange(len(hz)), ci] = j  # the new facet: ridge + new vertex
+        newA = _facet_planes(Y[newV])
+        newD = (1.0 + newA @ c) / np.sqrt(np.einsum("ij,ij->i", newA, newA))
+        newK = Z[newV].sum(axis=1)
+        nh, nv = len(hz), len(vis)
+        if nh <= nv:
+            slots = vis[:nh]
+            dead = vis[nh:]
+            A[dead] = 0.0
+            D[dead] = np.inf
+        else:
+            if n + nh - nv > cu:
+                cu = 2 * (n + nh - nv)
+                A = np.concatenate([A, np.zeros((cu - len(A), 6))])
+                V = np.concatenate([V, np.zeros((cu - len(V), 6), dtype=np.intp)])
+                K = np.concatenate([K, np.zeros(cu - len(K), dtype=np.uint64)])
+                D = np.concatenate([D, np.full(cu - len(D), np.inf)])
+            slots = np.concatenate([vis, np.arange(n, n + nh - nv)])
+            n += nh - nv
+        A[slots] = newA
+        V[slots] = newV
+        K[slots] = newK
+        D[slots] = newD
+    raise RuntimeError("polytope expansion did not terminate")  # pragma: no cover (a bug)
+
+
+def _min_norm_point(W: np.ndarray, tol: float) -> float:
+    """Euclidean distance from the origin to conv(W) (Wolfe's min-norm-point algorithm)."""
+    sq = np.einsum("ij,ij->i", W, W)
+    S = [int(np.argmin(sq))]
+    lam = np.array([1.0])
+    x = W[S[0]].copy()
+    for _ in range(50 * len(W) + 100):
+        xx = x @ x
+        s = W @ x
+        j = int(np.argmin(s))
+        if xx - s[j] <= tol * tol + 1e-13 * xx or j in S:
+            break
+        S.append(j)
+        lam = np.append(lam, 0.0)
+        while True:  # minor cycle: affine minimizer of the corral, clipped into the simplex
+            P = W[S]
+            m = len(S)
+            K = np.zeros((m + 1, m + 1))
+            K[:m, :m] = P @ P.T
+            K[:m, m] = K[m, :m] = 1.0
+            rhs = np.zeros(m + 1)
+            rhs[m] = 1.0
+            alpha = np.linalg.lstsq(K, rhs, rcond=None)[0][:m]
+            if (alpha > 1e-12).all():
+                lam = alpha
+                break
+            neg = alpha <= 1e-12
+            theta = np.min(lam[neg] / (lam[neg] - alpha[neg]))
+            lam = lam + theta * (alpha - lam)
+            keep = lam > 1e-12
+            keep[np.argmax(lam)] = True
+            S = [i for i, k in zip(S, keep) if k]
+            lam = lam[keep]
+            lam /= lam.sum()
+        x = lam @ W[S]
+    return float(math.sqrt(x @ x))
+
+
+def _closure(W: np.ndarray, decide_only: bool = False) -> Closure:
+    k = len(W)
+    if k == 0:
+        return Closure(False, 0.0, 0)
+    scale = float(np.sqrt(np.einsum("ij,ij->i", W, W).max()))
+    rank = _numerical_rank(W, scale)
+    tol = METRIC_RTOL * max(scale, 1e-300)
+    simplex = _initial_simplex(W, RANK_RTOL * scale) if rank == 6 else None
+    if simplex is not None:
+        state, value = _expand(W, simplex, tol, decide_only)
+        if state == 1:
+            return Closure(True, float(value), rank)
+        if state == 0:
+            return Closure(False, 0.0, rank)
+    dist = _min_norm_point(W, tol)
+    return Closure(False, 0.0 if dist <= tol else -dist, rank)
+
+
+# --------------------------------------------------------------------------- public API
+
+
+def closure_from_wrenches(W) -> Closure:
+    """Force closure and signed Ferrari-Canny metric of a wrench set (thesis section II-A).
+
+    Args:
+        W: (k, 6) wrench rows ``[f ; tau]``.
+
+    Returns:
+        Closure: ``is_force_closure`` iff the origin is strictly inside conv(W) (sets of rank
+        < 6 never are); ``metric`` = epsilon (distance from the origin to the nearest facet
+        of conv(W)) when force closure, else ``-dist(0, conv(W))`` (0 on the boundary).
+    """
+    return _closure(_check_wrenches(W))
+
+
+def _patch_items(patches) -> list[tuple[str, object, object]]:
+    if not isinstance(patches, Mapping):
+        raise InputError(f"patches must be a mapping finger -> (points, normals), got {type(patches).__name__}")
+    items = []
+    for finger, patch in patches.items():
+        try:
+            points, normals = patch
+        except (TypeError, ValueError) as err:
+            raise InputError(f"patch of finger {finger!r} must be a pair (points, normals)") from err
+        items.append((finger, points, normals))
+    return items
+
+
+class _WrenchCache:
+    """Wrench blocks keyed by patch content, so patches shared between grasps are built once."""
+
+    def __init__(self, friction: Friction):
+        if not isinstance(friction, Friction):
+            raise InputError(f"friction must be a Friction, got {type(friction).__name__}")
+        self.friction = friction
+        self._by_id: dict[tuple[int, int], tuple[str, np.ndarray]] = {}
+        self._by_key: dict[str, np.ndarray] = {}
+        self._keep_alive: list[object] = []
+
+    def block(self, finger, points, normals) -> tuple[str, np.ndarray]:
+        ident = (id(points), id(normals))
+        hit = self._by_id.get(ident)
+        if hit is not None:
+            return hit
+        try:
+            p = np.ascontiguousarray(points, dtype=float)
+            n = np.ascontiguousarray(normals, dtype=float)
+        except (TypeError, ValueError) as err:
+            raise InputError(f"patch of finger {finger!r}: points and normals must be numeric: {err}") from err
+        key = hashlib.blake2b(repr((p.shape, n.shape)).encode() + p.tobytes() + n.tobytes(), digest_size=16).hexdigest()
+        W = self._by_key.get(key)
+        if W is None:
+            try:
+                W = contact_wrenches(p, n, self.friction)
+            except InputError as err:
+                raise InputError(f"patch of finger {finger!r}: {err}") from err
+            W.setflags(write=False)
+            self._by_key[key] = W
+        self._keep_alive.append((points, normals))  # ids stay valid while cached
+        self._by_id[ident] = (key, W)
+        return key, W
+
+
+def grasp_closure(patches: Mapping[str, tuple], friction: Friction) -> Closure:
+    """Force closure of a grasp using every point of every finger patch (thesis VIII).
+
+    Args:
+        patches: finger -> (points (n, 3), normals (n, 3)), object frame, normals inward;
+            an empty patch contributes nothing.
+        friction: soft-finger friction model.
+
+    Returns:
+        Closure of all contact wrenches stacked (see ``closure_from_wrenches``).
+    """
+    cache = _WrenchCache(friction)
+    blocks = [cache.block(f, p, n)[1] for f, p, n in _patch_items(patches)]
+    return _closure(np.vstack(blocks) if blocks else np.zeros((0, 6)))
+
+
+def removable_fingers(patches: Mapping[str, tuple], friction: Friction) -> frozenset:
+    """Fingers whose whole patch can be lifted with the rest still force closure (Algorithm 1).
+
+    Args:
+        patches: finger -> (points (n, 3), normals (n, 3)), object frame, normals inward.
+        friction: soft-finger friction model.
+
+    Returns:
+        frozenset of finger names; fingers with an empty patch are removable; empty when the
+        grasp itself is not force closure.
+    """
+    cache = _WrenchCache(friction)
+    blocks = {f: cache.block(f, p, n)[1] for f, p, n in _patch_items(patches)}
+    full = np.vstack(list(blocks.values())) if blocks else np.zeros((0, 6))
+    if not _closure(full, decide_only=True).is_force_closure:
+        return frozenset()
+    removable = set()
+    for finger, block in blocks.items():
+        if len(block) == 0:
+            removable.add(finger)
+            continue
+        rest = [b for g, b in blocks.items() if g != finger]
+        if _closure(np.vstack(rest), decide_only=True).is_force_closure:
+            removable.add(finger)
+    return frozenset(removable)
+
+
+def batch_grasp_closure(list_of_patches: Sequence[Mapping[str, tuple]], friction: Friction) -> list[Closure]:
+    """Closure of many grasps in one call, sharing work between them.
+
+    Wrench blocks are built once per distinct patch (by identity, then by content) and
+    grasps with the same set of patches are evaluated once.
+
+    Args:
+        list_of_patches: grasps, each finger -> (points (n, 3), normals (n, 3)).
+        friction: soft-finger friction model shared by all grasps.
+
+    Returns:
+        One Closure per grasp, in order.
+    """
+    cache = _WrenchCache(friction)
+    results: dict[tuple, Closure] = {}
+    out = []
+    for patches in list_of_patches:
+        keyed = [cache.block(f, p, n) for f, p, n in _patch_items(patches)]
+        signature = tuple(sorted(k for k, _ in keyed))
+        res = results.get(signature)
+        if res is None:
+            blocks = [b for _, b in keyed]
+            res = _closure(np.vstack(blocks) if blocks else np.zeros((0, 6)))
+            results[signature] = res
+        out.append(res)
+    return out
