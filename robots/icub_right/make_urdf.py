@@ -141,7 +141,10 @@ def phalanges(parts, f, parent, xyz, R_rpy, first_joint_index, lengths):
         seg = length - RADIUS if part == "distal" else length
         parts.append(link(child, MASS[part], seg))
     tip = f"{f}_tip"
-    parts.append(f'  <link name="{tip}"/>\n')
+    # a massless link would get 1 kg in pybullet: give the tip frame a token 1 g point mass
+    parts.append(f'  <link name="{tip}">\n    <inertial>\n      <origin xyz="0 0 0" rpy="0 0 0"/>\n'
+                 f'      <mass value="0.001"/>\n      <inertia ixx="1e-8" ixy="0" ixz="0" iyy="1e-8" iyz="0" izz="1e-8"/>\n'
+                 f'    </inertial>\n  </link>\n')
     parts.append(joint(f"{f}_tip_joint", f"{f}_distal", tip, (L[2], 0, 0), (0, 0, 0), None, 0, 0, "fixed"))
 
 

@@ -1,0 +1,354 @@
+"""Grasped objects: box, cylinder, sphere and triangle mesh, with coal geometry.
+
+The object frame is at the object's centre (box/cylinder/sphere: the geometric centre;
+mesh: the origin of the mesh file, scaled). Surface normals returned here point OUTWARD;
+contact code flips them to get contact normals into the object.
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import coal
+import numpy as np
+
+from planner.errors import InputError, UnknownNameError
+
+SHAPES = ("box", "cylinder", "sphere", "mesh")
+DEFAULT_DENSITY_KG_M3 = 500.0   # used when mass_kg is not given
+
+
+def _readonly(a) -> np.ndarray:
+    a = np.array(a, dtype=float)
+    a.flags.writeable = False
+    return a
+
+
+def load_mesh(path, scale=(1.0, 1.0, 1.0)) -> tuple[np.ndarray, np.ndarray]:
+    """Read an OBJ or STL (ASCII or binary) triangle mesh.
+
+    Returns:
+        vertices (n, 3) scaled, triangles (m, 3) int vertex indices.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"mesh file not found: {path}")
+    ext = path.suffix.lower()
+    if ext == ".obj":
+        verts, tris = [], []
+        for line in path.read_text(errors="replace").splitlines():
+            parts = line.split()
+            if not parts:
+                continue
+            if parts[0] == "v":
+                verts.append([float(x) for x in parts[1:4]])
+            elif parts[0] == "f":
+                idx = [int(p.split("/")[0]) for p in parts[1:]]
+                idx = [i - 1 if i > 0 else len(verts) + i for i in idx]
+                for k in range(1, len(idx) - 1):   # fan-triangulate polygons
+                    tris.append([idx[0], idx[k], idx[k + 1]])
+        V, F = np.array(verts, dtype=float).reshape(-1, 3), np.array(tris, dtype=int).reshape(-1, 3)
+    elif ext == ".stl":
+        raw = path.read_bytes()
+        if raw[:5].lower() == b"solid" and b"facet" in raw[:1000]:
+            pts = [[float(x) for x in line.split()[1:4]] for line in raw.decode(errors="replace").splitlines()
+                   if line.strip().startswith("vertex")]
+            tri_pts = np.array(pts, dtype=float).reshape(-1, 3, 3)
+        else:
+            (n,) = struct.unpack("<I", raw[80:84])
+            rec = np.frombuffer(raw[84:84 + 50 * n], dtype=np.dtype([("n", "<f4", 3), ("v", "<f4", (3, 3)),
+                                                                      ("a", "<u2")]))
+            tri_pts = rec["v"].astype(float)
+        V, inv = np.unique(tri_pts.reshape(-1, 3), axis=0, return_inverse=True)
+        F = inv.reshape(-1, 3)
+    else:
+        raise InputError(f"unsupported mesh format {ext!r} for {path}; use .obj or .stl")
+    if len(F) == 0:
+        raise InputError(f"mesh {path} has no triangles")
+    return V * np.asarray(scale, dtype=float), F
+
+
+@dataclass(frozen=True)
+class GraspObject:
+    """A rigid object in the palm frame.
+
+    Attributes:
+        shape: "box", "cylinder", "sphere" or "mesh".
+        size: box (x, y, z) full extents; cylinder (radius, length), axis = object z;
+            sphere (radius,); mesh scale (s,) or (sx, sy, sz). Metres.
+        T_palm_obj: (4, 4) read-only pose of the object in the palm frame.
+        mesh_path: mesh file for shape "mesh", else None.
+        mass_kg: mass (default: volume x 500 kg/m^3).
+    """
+
+    shape: str
+    size: tuple[float, ...]
+    T_palm_obj: np.ndarray
+    mesh_path: str | None = None
+    mass_kg: float = 0.0
+    _mesh: tuple | None = field(default=None, repr=False, compare=False)
+    _geometry: object = field(default=None, repr=False, compare=False)
+
+    @property
+    def geometry(self) -> coal.CollisionGeometry:
+        """coal geometry in the object frame (built once)."""
+        return self._geometry
+
+    @property
+    def volume_m3(self) -> float:
+        s = self.size
+        if self.shape == "box":
+            return float(s[0] * s[1] * s[2])
+        if self.shape == "cylinder":
+            return float(np.pi * s[0] ** 2 * s[1])
+        if self.shape == "sphere":
+            return float(4.0 / 3.0 * np.pi * s[0] ** 3)
+        V, F = self._mesh
+        a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
+        return float(abs(np.einsum("ij,ij->i", a, np.cross(b, c)).sum()) / 6.0)
+
+    def with_pose(self, T_palm_obj) -> "GraspObject":
+        """The same object at another pose (geometry shared)."""
+        T = _check_pose(T_palm_obj)
+        return GraspObject(self.shape, self.size, T, self.mesh_path, self.mass_kg, self._mesh, self._geometry)
+
+    # ------------------------------------------------------------- sampling
+    def sample_surface(self, n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """Points uniformly distributed by area on the surface.
+
+        Args:
+            n: number of points.
+            rng: numpy Generator (seeded by the caller).
+        Returns:
+            p_obj (n, 3), n_out_obj (n, 3) unit outward normals, object frame.
+        """
+        if not isinstance(n, (int, np.integer)) or n < 0:
+            raise InputError(f"n must be a non-negative integer, got {n!r}")
+        if self.shape == "box":
+            h = np.array(self.size) / 2.0
+            areas = np.array([h[1] * h[2], h[0] * h[2], h[0] * h[1]] * 2)
+            face = rng.choice(6, size=n, p=areas / areas.sum())
+            axis, sign = face % 3, np.where(face < 3, 1.0, -1.0)
+            p = rng.uniform(-h, h, size=(n, 3))
+            p[np.arange(n), axis] = sign * h[axis]
+            nrm = np.zeros((n, 3))
+            nrm[np.arange(n), axis] = sign
+            return p, nrm
+        if self.shape == "sphere":
+            v = rng.normal(size=(n, 3))
+            v /= np.linalg.norm(v, axis=1, keepdims=True)
+            return v * self.size[0], v
+        if self.shape == "cylinder":
+            r, L = self.size
+            a_side, a_cap = 2 * np.pi * r * L, np.pi * r * r
+            part = rng.choice(3, size=n, p=np.array([a_side, a_cap, a_cap]) / (a_side + 2 * a_cap))
+            th = rng.uniform(0, 2 * np.pi, size=n)
+            p = np.zeros((n, 3))
+            nrm = np.zeros((n, 3))
+            side = part == 0
+            p[side] = np.column_stack([r * np.cos(th[side]), r * np.sin(th[side]),
+                                       rng.uniform(-L / 2, L / 2, size=side.sum())])
+            nrm[side] = np.column_stack([np.cos(th[side]), np.sin(th[side]), np.zeros(side.sum())])
+            cap = ~side
+            rad = r * np.sqrt(rng.uniform(0, 1, size=cap.sum()))   # uniform on the disc
+            zs = np.where(part[cap] == 1, L / 2, -L / 2)
+            p[cap] = np.column_stack([rad * np.cos(th[cap]), rad * np.sin(th[cap]), zs])
+            nrm[cap] = np.column_stack([np.zeros(cap.sum()), np.zeros(cap.sum()), np.sign(zs)])
+            return p, nrm
+        V, F = self._mesh
+        a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
+        cr = np.cross(b - a, c - a)
+        area = np.linalg.norm(cr, axis=1)
+        k = rng.choice(len(F), size=n, p=area / area.sum())
+        u, v = rng.uniform(size=(2, n))
+        flip = u + v > 1
+        u[flip], v[flip] = 1 - u[flip], 1 - v[flip]
+        p = a[k] + u[:, None] * (b[k] - a[k]) + v[:, None] * (c[k] - a[k])
+        return p, cr[k] / area[k][:, None]
+
+    # ------------------------------------------------------------- queries
+    def closest_surface(self, p_obj) -> tuple[np.ndarray, np.ndarray, float]:
+        """Closest surface point, its outward normal and the signed distance of ``p_obj``.
+
+        Args:
+            p_obj: (3,) point in the object frame.
+        Returns:
+            p_surf_obj (3,), n_out_obj (3,) unit, signed_distance_m (negative inside).
+        """
+        p = np.asarray(p_obj, dtype=float)
+        if p.shape != (3,) or not np.all(np.isfinite(p)):
+            raise InputError(f"p_obj must be 3 finite numbers, got {p_obj!r}")
+        if self.shape == "sphere":
+            r = self.size[0]
+            d = np.linalg.norm(p)
+            n = p / d if d > 1e-12 else np.array([0.0, 0.0, 1.0])
+            return n * r, n, float(d - r)
+        if self.shape == "box":
+            h = np.array(self.size) / 2.0
+            q = np.abs(p) - h
+            if np.all(q <= 0):   # inside: nearest face
+                i = int(np.argmax(q))
+                s = 1.0 if p[i] >= 0 else -1.0
+                ps = p.copy()
+                ps[i] = s * h[i]
+                n = np.zeros(3)
+                n[i] = s
+                return ps, n, float(q[i])
+            ps = np.clip(p, -h, h)
+            d = p - ps
+            return ps, d / np.linalg.norm(d), float(np.linalg.norm(d))
+        if self.shape == "cylinder":
+            r, L = self.size
+            rho = np.hypot(p[0], p[1])
+            radial = p[:2] / rho if rho > 1e-12 else np.array([1.0, 0.0])
+            dr, dz = rho - r, abs(p[2]) - L / 2
+            sz = 1.0 if p[2] >= 0 else -1.0
+            if dr <= 0 and dz <= 0:   # inside
+                if dr >= dz:
+                    return (np.r_[radial * r, p[2]], np.r_[radial, 0.0], float(dr))
+                return np.r_[p[:2], sz * L / 2], np.array([0.0, 0.0, sz]), float(dz)
+            ps = np.r_[radial * min(rho, r), np.clip(p[2], -L / 2, L / 2)]
+            d = p - ps
+            return ps, d / np.linalg.norm(d), float(np.linalg.norm(d))
+        return self._closest_mesh(p)
+
+    def _closest_mesh(self, p):
+        V, F = self._mesh
+        a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
+        cp = _closest_on_triangles(p, a, b, c)
+        d2 = np.einsum("ij,ij->i", cp - p, cp - p)
+        k = int(np.argmin(d2))
+        ps = cp[k]
+        fn = np.cross(b[k] - a[k], c[k] - a[k])
+        fn /= np.linalg.norm(fn)
+        d = float(np.sqrt(d2[k]))
+        inside = _inside_mesh(p, a, b, c)
+        if d > 1e-12:
+            n_out = (p - ps) / d * (-1.0 if inside else 1.0)
+        else:
+            n_out = fn
+        return ps, n_out, -d if inside else d
+
+
+def _inside_mesh(p, a, b, c) -> bool:
+    """Ray-parity test (Moller-Trumbore, vectorised) for a closed mesh; a fixed odd direction
+    avoids grazing edges of axis-aligned meshes."""
+    d = np.array([0.5773, 0.5774, 0.5775])
+    d = d / np.linalg.norm(d) + np.array([1e-3, -2e-3, 0.0])
+    e1, e2 = b - a, c - a
+    h = np.cross(d, e2)
+    det = np.einsum("ij,ij->i", e1, h)
+    ok = np.abs(det) > 1e-15
+    inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+    s = p - a
+    u = np.einsum("ij,ij->i", s, h) * inv
+    qv = np.cross(s, e1)
+    v = (qv @ d) * inv
+    t = np.einsum("ij,ij->i", e2, qv) * inv
+    hit = ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 0)
+    return bool(hit.sum() % 2)
+
+
+def _closest_on_triangles(p, a, b, c):
+    """Closest point of p on each triangle (a, b, c): (m, 3). Ericson, RTCD 5.1.5, vectorised."""
+    ab, ac, ap = b - a, c - a, p - a
+    d1, d2 = np.einsum("ij,ij->i", ab, ap), np.einsum("ij,ij->i", ac, ap)
+    bp = p - b
+    d3, d4 = np.einsum("ij,ij->i", ab, bp), np.einsum("ij,ij->i", ac, bp)
+    cp = p - c
+    d5, d6 = np.einsum("ij,ij->i", ab, cp), np.einsum("ij,ij->i", ac, cp)
+    va = d3 * d6 - d5 * d4
+    vb = d5 * d2 - d1 * d6
+    vc = d1 * d4 - d3 * d2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        denom = 1.0 / (va + vb + vc)
+        v = vb * denom
+        w = vc * denom
+        out = a + ab * v[:, None] + ac * w[:, None]
+        # edge regions
+        m = (vc <= 0) & (d1 >= 0) & (d3 <= 0)
+        t = d1 / (d1 - d3)
+        out[m] = (a + ab * t[:, None])[m]
+        m = (vb <= 0) & (d2 >= 0) & (d6 <= 0)
+        t = d2 / (d2 - d6)
+        out[m] = (a + ac * t[:, None])[m]
+        m = (va <= 0) & ((d4 - d3) >= 0) & ((d5 - d6) >= 0)
+        t = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        out[m] = (b + (c - b) * t[:, None])[m]
+    # vertex regions
+    m = (d1 <= 0) & (d2 <= 0)
+    out[m] = a[m]
+    m = (d3 >= 0) & (d4 <= d3)
+    out[m] = b[m]
+    m = (d6 >= 0) & (d5 <= d6)
+    out[m] = c[m]
+    return out
+
+
+def _check_pose(T) -> np.ndarray:
+    T = np.asarray(T, dtype=float)
+    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+        raise InputError(f"T_palm_obj must be a finite 4x4 matrix, got shape {T.shape}")
+    R = T[:3, :3]
+    if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0 or \
+            not np.allclose(T[3], [0, 0, 0, 1]):
+        raise InputError("T_palm_obj must be a homogeneous rigid transform (orthonormal rotation)")
+    return _readonly(T)
+
+
+def make_object(shape: str, size, T_palm_obj=None, mesh_path=None, mass_kg=None) -> GraspObject:
+    """Build a GraspObject and its coal geometry.
+
+    Args:
+        shape: "box", "cylinder", "sphere" or "mesh".
+        size: see GraspObject.size (metres); every entry finite and > 0.
+        T_palm_obj: (4, 4) pose in the palm frame (default identity).
+        mesh_path: OBJ/STL file for shape "mesh".
+        mass_kg: > 0, default volume x 500 kg/m^3.
+    Raises:
+        UnknownNameError: unknown shape. InputError: bad size, pose, mass or mesh.
+    """
+    if shape not in SHAPES:
+        raise UnknownNameError("shape", str(shape), SHAPES)
+    try:
+        s = tuple(float(x) for x in np.atleast_1d(np.asarray(size, dtype=float)))
+    except (TypeError, ValueError) as err:
+        raise InputError(f"{shape} size must be numbers, got {size!r}") from err
+    n_expected = {"box": (3,), "cylinder": (2,), "sphere": (1,), "mesh": (1, 3)}[shape]
+    meaning = {"box": "(x, y, z) full extents", "cylinder": "(radius, length)", "sphere": "(radius,)",
+               "mesh": "(scale,) or (sx, sy, sz)"}[shape]
+    if len(s) not in n_expected:
+        raise InputError(f"{shape} size must be {meaning}, got {size!r}")
+    if not all(np.isfinite(x) and x > 0 for x in s):
+        raise InputError(f"{shape} size entries must be finite and > 0 (metres), got {size!r}")
+    T = _check_pose(np.eye(4) if T_palm_obj is None else T_palm_obj)
+    mesh = None
+    if shape == "box":
+        geom = coal.Box(*s)
+    elif shape == "cylinder":
+        geom = coal.Cylinder(s[0], s[1])
+    elif shape == "sphere":
+        geom = coal.Sphere(s[0])
+    else:
+        if mesh_path is None:
+            raise InputError("shape 'mesh' needs mesh_path")
+        scale = s * 3 if len(s) == 1 else s
+        V, F = load_mesh(mesh_path, scale)
+        mesh = (_readonly(V), np.array(F, dtype=np.int64))
+        geom = coal.BVHModelOBBRSS()
+        geom.beginModel(len(F), len(V))
+        geom.addVertices(np.ascontiguousarray(V, dtype=float))
+        geom.addTriangles(np.ascontiguousarray(F, dtype=np.int64))
+        geom.endModel()
+    geom.computeLocalAABB()
+    obj = GraspObject(shape, s, T, None if mesh_path is None else str(mesh_path), 0.0, mesh, geom)
+    if mass_kg is None:
+        mass = DEFAULT_DENSITY_KG_M3 * obj.volume_m3
+    else:
+        mass = float(mass_kg)
+        if not (np.isfinite(mass) and mass > 0):
+            raise InputError(f"mass_kg must be > 0, got {mass_kg!r}")
+    object.__setattr__(obj, "mass_kg", float(mass))
+    return obj
