@@ -9,11 +9,69 @@ from __future__ import annotations
 import argparse
 import sys
 
-from planner.errors import PlannerError
+from planner.errors import NoSequenceError, PlannerError
+
+DEMO_INITIAL = "grasps/icub/box_parallel_extension.yaml"
+DEMO_FINAL = "grasps/icub/box_ir2m.yaml"
+
+
+def _cmd_plan(args: argparse.Namespace) -> int:
+    import time
+
+    from planner.grasp import load_grasp, realize
+    from planner.plan import plan_format, write_plan
+    from planner.regrasp import PlanOptions, check_same_setup, plan_regrasp, sha256_file
+
+    if args.output:
+        plan_format(args.output)  # refuse a bad suffix before any work
+    t0 = time.perf_counter()
+    options = PlanOptions(
+        strategy=args.strategy,
+        alternatives=args.alternatives,
+        intermediate=args.intermediate,
+        seed=args.seed,
+        motion=not args.no_motion,
+        motion_planner=args.motion_planner,
+        motion_timeout_s=args.motion_timeout,
+        max_lifted=args.max_lifted,
+    )
+    specs = [load_grasp(args.initial), load_grasp(args.final)]
+    check_same_setup(*specs)
+    initial, final = (realize(s) for s in specs)
+    inputs = {k: {"path": str(p), "sha256": sha256_file(p)} for k, p in (("initial", args.initial), ("final", args.final))}
+    result = plan_regrasp(initial, final, options, inputs)
+    plan = result.plan
+    print(f"{'step':>4}  {'finger':<8} {'action':<5} {'state':>5}  {'metric':>10}  removable")
+    for i, step in enumerate(plan.steps):
+        st = plan.states[step.to_state]
+        print(f"{i:>4}  {step.finger:<8} {step.action:<5} {step.to_state:>5}  {st.metric:>10.4g}  {','.join(st.removable) or '-'}")
+    s = plan.summary
+    for rank, alt in enumerate(result.alternatives, start=2):
+        print(f"alternative {rank}: bottleneck {alt.bottleneck:.4g}, {alt.gait_steps} gait steps: {' '.join(alt.order(result.graph.graph['problem']))}")
+    if args.output:
+        write_plan(plan, args.output)
+    print(
+        f"{s['strategy']}: {s['gait_steps']} gait steps ({len(plan.steps)} motions), bottleneck metric "
+        f"{s['bottleneck_metric']:.4g}, graph {s['graph_nodes']} states / {s['graph_edges']} edges "
+        f"({s['blocked_states']} blocked), {time.perf_counter() - t0:.2f} s"
+        + (f", written to {args.output}" if args.output else "")
+    )
+    return 0
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
-    print("regrasp demo: the planner is not yet available")
+    """Plan the bundled box example (parallel extension -> IR2M) and replay it."""
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parent.parent
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    plan_path = out / "box_plan.yaml"
+    code = main(["plan", str(root / DEMO_INITIAL), str(root / DEMO_FINAL), "-o", str(plan_path)])
+    if code != 0:
+        return code
+    if _has_command("replay"):
+        return main(["replay", str(plan_path), "--gif", str(out / "box_replay.gif"), "--report", str(out / "box_report.json")])
     return 0
 
 
@@ -21,8 +79,30 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="regrasp", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
     demo = sub.add_parser("demo", help="plan (and replay) the bundled box example")
+    demo.add_argument("--out", default="out", help="output folder (default: out)")
     demo.set_defaults(func=_cmd_demo)
+
+    plan = sub.add_parser("plan", help="plan a finger-gaiting sequence between two grasps")
+    plan.add_argument("initial", help="grasp YAML the hand holds now")
+    plan.add_argument("final", help="grasp YAML the hand needs")
+    plan.add_argument("-o", "--output", help="write the plan here (.yaml/.yml or .json)")
+    plan.add_argument("--alternatives", type=int, default=4, metavar="K", help="ranked sequences to report (default 4)")
+    plan.add_argument("--intermediate", type=int, default=0, metavar="N", help="extra contacts sampled per finger (default 0)")
+    plan.add_argument("--strategy", default="graph", help="graph (ranked search, default) or greedy (thesis Algorithm 2)")
+    plan.add_argument("--seed", type=int, default=0, help="seed for sampling and motion planning (default 0)")
+    plan.add_argument("--max-lifted", type=int, default=None, metavar="N", help="at most N fingers lifted at once")
+    plan.add_argument("--no-motion", action="store_true", help="skip OMPL finger paths (straight joint segments)")
+    plan.add_argument("--motion-planner", default="rrtconnect", help="OMPL planner name (default rrtconnect)")
+    plan.add_argument("--motion-timeout", type=float, default=2.0, metavar="S", help="time budget per finger path, s")
+    plan.add_argument("--verbose", action="store_true", help="show the motion planner's console output")
+    plan.set_defaults(func=_cmd_plan)
     return parser
+
+
+def _has_command(name: str) -> bool:
+    parser = build_parser()
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    return name in sub.choices
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -30,6 +110,9 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         return int(args.func(args))
+    except NoSequenceError as err:
+        print(f"regrasp {args.command}: {err}", file=sys.stderr)
+        return 1
     except PlannerError as err:
         print(f"regrasp {args.command}: error: {err}", file=sys.stderr)
-        return getattr(args, "error_exit_code", 2)
+        return 2

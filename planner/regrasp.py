@@ -1,0 +1,402 @@
+"""The regrasp pipeline: two realized grasps in, a finger-gaiting `Plan` out.
+
+1. Contact slots per finger: its initial and final contacts and, on request, up to N
+   intermediate contacts sampled on the object surface within the finger's reach.
+2. `planner.graph.build_graph` / `search` (or the greedy baseline) over those slots,
+   with finger-finger collisions checked pairwise with coal.
+3. Finger paths, lazily: only for the gait steps of candidate sequences, best-ranked
+   first; a step whose path cannot be planned removes its edge and the search goes on.
+4. The winning sequence expanded into plan states and lift / move / land steps.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, Callable, Mapping
+
+import networkx as nx
+import numpy as np
+
+from planner.errors import MotionError, NoSequenceError, PlannerError, SpecError, UnknownNameError
+from planner.graph import LIFTED, GaitProblem, GaitSequence, Slot, build_graph, explain_failure, greedy, search
+from planner.plan import Alternative, Plan, PlanState, PlanStep
+
+STRATEGIES = ("graph", "greedy")
+
+
+@dataclass(frozen=True)
+class PlanOptions:
+    """Planner parameters (all written to the plan's ``parameters``).
+
+    Attributes:
+        strategy: "graph" (ranked search) or "greedy" (thesis Algorithm 2).
+        alternatives: number of ranked sequences to return (graph strategy).
+        intermediate: extra contacts to sample per finger (0 = none).
+        seed: seed for intermediate sampling and motion planning.
+        motion: plan finger paths with OMPL (False: straight joint-space segments).
+        motion_planner: OMPL planner name (see planner.motion).
+        motion_timeout_s: time budget per finger path.
+        max_lifted: at most this many fingers lifted at once (None = no bound).
+        same_slot_tol_rad: initial and final contacts closer than this (max joint
+            difference) are one slot: the finger does not move.
+    """
+
+    strategy: str = "graph"
+    alternatives: int = 4
+    intermediate: int = 0
+    seed: int = 0
+    motion: bool = True
+    motion_planner: str = "rrtconnect"
+    motion_timeout_s: float = 2.0
+    max_lifted: int | None = None
+    same_slot_tol_rad: float = 1e-3
+
+    def __post_init__(self):
+        if self.strategy not in STRATEGIES:
+            raise UnknownNameError("strategy", self.strategy, STRATEGIES)
+        if self.alternatives < 1:
+            raise PlannerError(f"alternatives must be >= 1, got {self.alternatives}")
+        if self.intermediate < 0:
+            raise PlannerError(f"intermediate must be >= 0, got {self.intermediate}")
+
+
+@dataclass(frozen=True)
+class PlanResult:
+    """What `plan_regrasp` returns: the plan plus things worth printing."""
+
+    plan: Plan
+    graph: nx.DiGraph
+    sequence: GaitSequence
+    alternatives: tuple[GaitSequence, ...]
+    elapsed_s: float
+    failed_moves: tuple[str, ...]
+
+
+def sha256_file(path: str | Path) -> str:
+    """Hex sha256 of a file's bytes."""
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def check_same_setup(initial, final) -> None:
+    """Refuse two grasps that do not share hand, object, object pose and friction.
+
+    Args:
+        initial, final: `planner.grasp.GraspSpec` of the two grasps.
+    """
+    a, b = initial, final
+    checks = [
+        ("hand", a.hand_ref, b.hand_ref),
+        ("object.shape", a.object.shape, b.object.shape),
+        ("object.size", a.object.size, b.object.size),
+        ("object.mesh", a.object.mesh_path, b.object.mesh_path),
+        ("object.position", a.object.position, b.object.position),
+        ("object.quat_xyzw", a.object.quat_xyzw, b.object.quat_xyzw),
+        ("friction", (a.friction.mu, a.friction.gamma, a.friction.edges), (b.friction.mu, b.friction.gamma, b.friction.edges)),
+    ]
+    for key, va, vb in checks:
+        same = va == vb if isinstance(va, str) or va is None else np.allclose(np.asarray(va, float), np.asarray(vb, float), atol=1e-9)
+        if not same:
+            raise SpecError(b.path, key, f"differs from the initial grasp ({a.path}): {va} vs {vb}; both grasps must share hand, object, object pose and friction")
+
+
+# ------------------------------------------------------------------ slots
+
+
+def _finger_q(hand, finger: str, q: np.ndarray) -> np.ndarray:
+    return np.asarray(q, float)[list(hand.fingers[finger].q_index)]
+
+
+def _sample_intermediate(initial, finger: str, n: int, rng: np.random.Generator, taken: list[Slot]) -> list[Slot]:
+    """Up to n extra contacts of one finger, sampled on the object surface.
+
+    A candidate is kept when the finger reaches it (IK), touches without penetrating,
+    does not hit the palm, and lies at least 1 cm from the finger's other slots.
+    """
+    from planner.contacts import collisions
+    from planner.grasp import realize_contact
+
+    hand, obj = initial.hand, initial.obj
+    out: list[Slot] = []
+    p_obj, _ = obj.sample_surface(max(30 * n, 30), rng)
+    # Try points nearest the finger's current tip first: they are the reachable ones.
+    T_palm_obj = obj.T_palm_obj
+    tip_palm = hand.link_pose(initial.q, hand.fingers[finger].tip_frame)[:3, 3]
+    tip_obj = T_palm_obj[:3, :3].T @ (tip_palm - T_palm_obj[:3, 3])
+    order = np.argsort(np.linalg.norm(p_obj - tip_obj, axis=1), kind="stable")
+    for p in p_obj[order]:
+        if len(out) >= n:
+            break
+        if any(np.min(np.linalg.norm(s.points - p, axis=1)) < 0.01 for s in taken + out):
+            continue
+        try:
+            q, patch = realize_contact(hand, obj, finger, p, initial.q)
+        except PlannerError:
+            continue
+        if patch is None or len(patch[0]) == 0:
+            continue
+        hits = collisions(hand, q, obj, fingers=(finger,))
+        if hits:
+            continue
+        out.append(Slot(finger, f"int{len(out)}", patch[0], patch[1], _finger_q(hand, finger, q)))
+    return out
+
+
+def build_problem(initial, final, options: PlanOptions) -> GaitProblem:
+    """Contact slots of every finger and the start/goal nodes of the graph.
+
+    Args:
+        initial, final: `planner.grasp.RealizedGrasp` of the same hand and object.
+    """
+    hand = initial.hand
+    fingers = tuple(hand.fingers)
+    rng = np.random.default_rng(options.seed)
+    slots: dict[str, tuple[Slot, ...]] = {}
+    start, goal = [], []
+    for f in fingers:
+        fs: list[Slot] = []
+        s_idx = g_idx = LIFTED
+        if f in initial.patches:
+            fs.append(Slot(f, "initial", *initial.patches[f], _finger_q(hand, f, initial.q)))
+            s_idx = 0
+        if f in final.patches:
+            qf = _finger_q(hand, f, final.q)
+            if fs and np.max(np.abs(fs[0].q - qf)) <= options.same_slot_tol_rad:
+                g_idx = 0
+            else:
+                fs.append(Slot(f, "final", *final.patches[f], qf))
+                g_idx = len(fs) - 1
+        if options.intermediate and (f in initial.patches or f in final.patches):
+            fs.extend(_sample_intermediate(initial, f, options.intermediate, rng, list(fs)))
+        slots[f] = tuple(fs)
+        start.append(s_idx)
+        goal.append(g_idx)
+    compatible = _pairwise_collision_check(initial.hand, slots)
+    return GaitProblem(fingers, slots, tuple(start), tuple(goal), initial.friction, compatible, options.max_lifted)
+
+
+def _pairwise_collision_check(hand, slots: Mapping[str, tuple[Slot, ...]]) -> Callable[[str, int, str, int], bool]:
+    """compatible(fa, sa, fb, sb): finger a at slot sa and b at sb do not collide."""
+    from planner.contacts import collisions
+
+    link_finger = {}
+    for f, finger in hand.fingers.items():
+        for link in finger.contact_links:
+            link_finger[link] = f
+
+    def q_of(assign: dict[str, int]) -> np.ndarray:
+        q = np.array(hand.q_open, dtype=float)
+        for f, s in assign.items():
+            if s != LIFTED:
+                q[list(hand.fingers[f].q_index)] = slots[f][s].q
+        return q
+
+    def compatible(fa: str, sa: int, fb: str, sb: int) -> bool:
+        q = q_of({fa: sa, fb: sb})
+        for a, b, _ in collisions(hand, q, None, fingers=(fa, fb)):
+            if {link_finger.get(a), link_finger.get(b)} == {fa, fb}:
+                return False
+        return True
+
+    return compatible
+
+
+def node_q(hand, problem: GaitProblem, node) -> np.ndarray:
+    """Whole-hand q of a node: slot joint values, lifted fingers at the open posture."""
+    q = np.array(hand.q_open, dtype=float)
+    for f, s in zip(problem.fingers, node):
+        if s != LIFTED:
+            q[list(hand.fingers[f].q_index)] = problem.slots[f][s].q
+    return q
+
+
+# ------------------------------------------------------------------ motion
+
+
+def _straight_gait(hand, obj, q_a, q_b, finger, **_):
+    """Without the motion planner: lift to the open posture, land from it."""
+    idx = list(hand.fingers[finger].q_index)
+    q_open = np.asarray(hand.q_open, float)[idx]
+    out = {}
+    if q_a is not None:
+        out["lift"] = np.array([np.asarray(q_a, float)[idx], q_open])
+    if q_b is not None:
+        out["land"] = np.array([q_open, np.asarray(q_b, float)[idx]])
+    return out
+
+
+def _motion_gait(options: PlanOptions):
+    from planner.motion import plan_gait_step
+
+    def gait(hand, obj, q_a, q_b, finger):
+        return plan_gait_step(
+            hand, obj, q_a, q_b, finger,
+            planner=options.motion_planner, timeout_s=options.motion_timeout_s, seed=options.seed,
+        )
+
+    return gait
+
+
+def _gaits(seq: GaitSequence):
+    """Group the edges of a sequence into gaits: (i_lift or None, i_land or None, finger)."""
+    i, n = 0, len(seq.actions)
+    while i < n:
+        finger, action = seq.actions[i]
+        if action == "lift" and i + 1 < n and seq.actions[i + 1] == (finger, "land"):
+            yield i, i + 1, finger
+            i += 2
+        elif action == "lift":
+            yield i, None, finger
+            i += 1
+        else:
+            yield None, i, finger
+            i += 1
+
+
+def _plan_motions(hand, obj, problem, seq: GaitSequence, gait_fn, cache: dict) -> list:
+    """Paths of every gait of a sequence; raises MotionError naming the failed edge."""
+    out = []
+    for i_lift, i_land, finger in _gaits(seq):
+        u = seq.nodes[i_lift] if i_lift is not None else None
+        w = seq.nodes[i_land + 1] if i_land is not None else None
+        key = (finger, u, w)
+        if key not in cache:
+            q_a = node_q(hand, problem, u) if u is not None else None
+            q_b = node_q(hand, problem, w) if w is not None else None
+            try:
+                cache[key] = gait_fn(hand, obj, q_a, q_b, finger)
+            except MotionError as err:
+                cache[key] = err
+        result = cache[key]
+        if isinstance(result, MotionError):
+            edge = (seq.nodes[i_land], seq.nodes[i_land + 1]) if i_land is not None else (seq.nodes[i_lift], seq.nodes[i_lift + 1])
+            raise _EdgeFailed(edge, finger, str(result))
+        out.append((i_lift, i_land, finger, result))
+    return out
+
+
+class _EdgeFailed(Exception):
+    def __init__(self, edge, finger, why):
+        self.edge, self.finger, self.why = edge, finger, why
+        super().__init__(why)
+
+
+# ------------------------------------------------------------------ main entry
+
+
+def plan_regrasp(initial, final, options: PlanOptions = PlanOptions(), inputs: Mapping[str, Any] | None = None) -> PlanResult:
+    """Plan a finger-gaiting sequence from one realized grasp to another.
+
+    Args:
+        initial, final: `planner.grasp.RealizedGrasp` (same hand, object, pose, friction).
+        options: planner parameters.
+        inputs: what to record under the plan's ``inputs`` (paths and sha256).
+
+    Returns:
+        `PlanResult` with the plan, the graph and the ranked sequences.
+
+    Raises:
+        NoSequenceError: no sequence exists (or none whose moves can be executed);
+            the message says why.
+    """
+    check_same_setup(initial.spec, final.spec)
+    t0 = time.perf_counter()
+    hand, obj = initial.hand, initial.obj
+    if not initial.is_force_closure:
+        raise NoSequenceError(f"the initial grasp {initial.spec.name!r} is not force closure (metric {initial.metric:.3g})")
+    if not final.is_force_closure:
+        raise NoSequenceError(f"the final grasp {final.spec.name!r} is not force closure (metric {final.metric:.3g})")
+    problem = build_problem(initial, final, options)
+    G = build_graph(problem)
+    gait_fn = _motion_gait(options) if options.motion else _straight_gait
+    cache: dict = {}
+    failed: list[str] = []
+    for _ in range(50):
+        if options.strategy == "greedy":
+            candidates = [greedy(G)]
+        else:
+            candidates = search(G, k=options.alternatives)
+            if not candidates:
+                err = explain_failure(G, intermediate_tried=options.intermediate > 0)
+                if failed:
+                    err = NoSequenceError(f"{err}; finger moves that could not be planned: {'; '.join(failed)}", err.report)
+                raise err
+        try:
+            motions = _plan_motions(hand, obj, problem, candidates[0], gait_fn, cache)
+            break
+        except _EdgeFailed as bad:
+            failed.append(f"{bad.finger} {problem.labels(bad.edge[0])[bad.finger]}->{problem.labels(bad.edge[1])[bad.finger]}: {bad.why}")
+            if options.strategy == "greedy":
+                raise NoSequenceError(f"greedy sequence has a finger move that cannot be planned: {failed[-1]}") from None
+            G.remove_edge(*bad.edge)
+    else:
+        raise NoSequenceError("no executable sequence after 50 re-plans; impossible moves: " + "; ".join(failed))
+    best = candidates[0]
+    plan = _make_plan(initial, final, options, inputs or {}, problem, G, best, candidates[1:], motions)
+    return PlanResult(plan, G, best, tuple(candidates[1:]), time.perf_counter() - t0, tuple(failed))
+
+
+def _make_plan(initial, final, options, inputs, problem, G, best, others, motions) -> Plan:
+    hand = initial.hand
+    states: list[PlanState] = []
+    steps: list[PlanStep] = []
+
+    def add_state(node, q) -> int:
+        data = G.nodes[node]
+        states.append(
+            PlanState(
+                fingers=data["labels"],
+                patches=data["patches"],
+                is_force_closure=data["closure"].is_force_closure,
+                metric=data["metric"],
+                removable=tuple(sorted(data["removable"])),
+                q=tuple(float(v) for v in q),
+            )
+        )
+        return len(states) - 1
+
+    q = node_q(hand, problem, best.nodes[0])
+    current = add_state(best.nodes[0], q)
+    for i_lift, i_land, finger, paths in motions:
+        idx = list(hand.fingers[finger].q_index)
+        joints = tuple(hand.fingers[finger].joints)
+        lifted_node = best.nodes[i_lift + 1] if i_lift is not None else best.nodes[i_land]
+        for action in ("lift", "move", "land"):
+            if action not in paths:
+                continue
+            path = np.asarray(paths[action], float)
+            q = q.copy()
+            q[idx] = path[-1]
+            node = best.nodes[i_land + 1] if action == "land" else lifted_node
+            nxt = add_state(node, q)
+            steps.append(PlanStep(finger, action, current, nxt, joints, tuple(tuple(float(v) for v in wp) for wp in path)))
+            current = nxt
+    spec = initial.spec
+    metrics = [G.nodes[v]["metric"] for v in best.nodes]
+    summary = {
+        "strategy": options.strategy,
+        "gait_steps": best.gait_steps,
+        "graph_edges_in_sequence": len(best.actions),
+        "bottleneck_metric": best.bottleneck,
+        "mean_metric": float(np.mean(metrics)),
+        "graph_nodes": G.number_of_nodes(),
+        "graph_edges": G.number_of_edges(),
+        "blocked_states": len(G.graph["blocked"]),
+        "order": list(best.order(problem)),
+    }
+    return Plan(
+        hand={"name": hand.name, "spec": spec.hand},
+        object=spec.object.to_dict(),
+        friction={"mu": spec.friction.mu, "gamma": spec.friction.gamma, "edges": spec.friction.edges},
+        inputs=dict(inputs),
+        parameters=asdict(options),
+        summary=summary,
+        joints=tuple(hand.joint_names),
+        states=tuple(states),
+        steps=tuple(steps),
+        alternatives=tuple(
+            Alternative(s.order(problem), s.bottleneck, s.gait_steps, s.mean_metric) for s in others
+        ),
+    )
