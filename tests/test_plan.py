@@ -1,0 +1,92 @@
+"""Plan export: schema, determinism, atomic writes and validation of plan files."""
+
+import json
+
+import numpy as np
+import pytest
+import yaml
+
+from planner.errors import SpecError
+from planner.plan import SCHEMA_VERSION, Alternative, Plan, PlanState, PlanStep, dumps_plan, read_plan, write_plan
+
+
+def tiny_plan(metric=0.0123456789012345):
+    pts = np.array([[0.01, 0.0, 0.02], [0.011, 0.001, 0.02]])
+    nrm = np.array([[0.0, 0.0, -1.0], [0.0, 0.0, -1.0]])
+    s0 = PlanState({"a": "initial", "b": "initial"}, {"a": (pts, nrm), "b": (-pts, -nrm)}, True, metric, ("b",), (0.1, 0.2))
+    s1 = PlanState({"a": "initial", "b": "lifted"}, {"a": (pts, nrm)}, False, -0.5, (), (0.1, 0.0))
+    step = PlanStep("b", "lift", 0, 1, ("jb",), ((0.2,), (0.1,), (0.0,)))
+    return Plan(
+        hand={"name": "h", "spec": "robots/h/hand.yaml"},
+        object={"shape": "box", "size": [0.03, 0.04, 0.05], "position": [0, 0, 0.05], "quat_xyzw": [0, 0, 0, 1]},
+        friction={"mu": 0.9, "gamma": 0.003, "edges": 5},
+        inputs={"initial": {"path": "a.yaml", "sha256": "0" * 64}},
+        parameters={"seed": 0},
+        summary={"gait_steps": 1, "bottleneck_metric": np.float64(metric)},
+        joints=("ja", "jb"),
+        states=(s0, s1),
+        steps=(step,),
+        alternatives=(Alternative(("b:lift",), -0.5, 1, 0.1),),
+    )
+
+
+def test_yaml_and_json_carry_the_documented_keys(tmp_path):
+    """Both formats hold schema_version, states with patches/closure/removable/q, and steps."""
+    for suffix in (".yaml", ".json"):
+        path = write_plan(tiny_plan(), tmp_path / f"plan{suffix}")
+        data = read_plan(path)
+        assert data["schema_version"] == SCHEMA_VERSION
+        s0 = data["states"][0]
+        assert set(s0["patches"]) == {"a", "b"}
+        assert len(s0["patches"]["a"]["points"]) == 2 and len(s0["patches"]["a"]["normals"][0]) == 3
+        assert s0["closure"] == {"is_force_closure": True, "metric": pytest.approx(0.0123456789)}
+        assert s0["removable"] == ["b"] and s0["q"] == {"ja": 0.1, "jb": 0.2}
+        assert "b" not in data["states"][1]["patches"]
+        assert data["steps"][0]["path"][0] == [0.2] and data["steps"][0]["path"][-1] == [0.0]
+        assert data["alternatives"][0]["order"] == ["b:lift"]
+
+
+def test_export_is_byte_identical_and_plain():
+    """Same plan gives the same text; numpy scalars never leak into the file."""
+    a, b = dumps_plan(tiny_plan()), dumps_plan(tiny_plan())
+    assert a == b
+    assert "numpy" not in a and "!!" not in a
+    assert dumps_plan(tiny_plan(), "json") == dumps_plan(tiny_plan(), "json")
+    json.loads(dumps_plan(tiny_plan(), "json"))
+
+
+def test_unknown_suffix_is_refused_and_nothing_written(tmp_path):
+    """A .txt plan path is an error naming the valid suffixes; no file appears."""
+    with pytest.raises(SpecError, match=r"\.yaml"):
+        write_plan(tiny_plan(), tmp_path / "plan.txt")
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize(
+    "mutate, key",
+    [
+        (lambda d: d.pop("states"), "states"),
+        (lambda d: d.update(schema_version=99), "schema_version"),
+        (lambda d: d["states"][0]["q"].pop("ja"), "states[0].q"),
+        (lambda d: d["steps"][0].update(action="jump"), "steps[0].action"),
+        (lambda d: d["steps"][0].update(to_state=7), "steps[0].to_state"),
+        (lambda d: d["states"][1]["patches"]["a"]["normals"].pop(), "states[1].patches.a"),
+    ],
+)
+def test_read_plan_names_file_and_key(tmp_path, mutate, key):
+    """A broken plan file gives a SpecError naming the file and the key path."""
+    data = yaml.safe_load(dumps_plan(tiny_plan()))
+    mutate(data)
+    path = tmp_path / "broken.yaml"
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(SpecError) as err:
+        read_plan(path)
+    assert str(path) in str(err.value) and key in str(err.value)
+
+
+def test_malformed_yaml_is_a_spec_error(tmp_path):
+    """Unparseable YAML is reported as such, with the file name."""
+    path = tmp_path / "bad.yaml"
+    path.write_text("states: [unclosed\n")
+    with pytest.raises(SpecError, match="not valid YAML"):
+        read_plan(path)
