@@ -1,0 +1,128 @@
+"""End-to-end planning on the grasp library: plans re-checked from their exported files."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from planner.cli import main
+from planner.closure import Friction, grasp_closure
+from planner.grasp import load_grasp, realize
+from planner.plan import read_plan
+from planner.regrasp import PlanOptions, plan_regrasp
+
+ROOT = Path(__file__).resolve().parent.parent
+ICUB = ROOT / "grasps" / "icub"
+PAIRS = {
+    "box": (ICUB / "box_parallel_extension.yaml", ICUB / "box_ir2m.yaml"),
+    "cylinder": (ICUB / "cylinder_parallel_extension.yaml", ICUB / "cylinder_ir2m.yaml"),
+}
+
+
+@pytest.fixture(scope="module")
+def realized():
+    cache = {}
+
+    def get(path):
+        if path not in cache:
+            cache[path] = realize(load_grasp(path))
+        return cache[path]
+
+    return get
+
+
+def recheck_plan_file(path):
+    """Re-check a plan from its file alone: closure of every state, single-finger steps."""
+    data = read_plan(path)
+    fr = Friction(**data["friction"])
+    for i, state in enumerate(data["states"]):
+        patches = {f: (np.array(p["points"]), np.array(p["normals"])) for f, p in state["patches"].items()}
+        c = grasp_closure(patches, fr)
+        assert c.is_force_closure, f"state {i} is not force closure when re-checked"
+        assert state["closure"]["is_force_closure"]
+        assert c.metric == pytest.approx(state["closure"]["metric"], rel=1e-6, abs=1e-9)
+    joints = data["joints"]
+    for step in data["steps"]:
+        a, b = data["states"][step["from_state"]], data["states"][step["to_state"]]
+        moved = {j for j in joints if abs(a["q"][j] - b["q"][j]) > 1e-9}
+        assert moved <= set(step["joints"]), f"step moves joints outside finger {step['finger']}"
+        assert np.allclose(step["path"][0], [a["q"][j] for j in step["joints"]], atol=1e-8)
+        assert np.allclose(step["path"][-1], [b["q"][j] for j in step["joints"]], atol=1e-8)
+    return data
+
+
+@pytest.mark.parametrize("pair", sorted(PAIRS))
+def test_parallel_extension_to_ir2m_is_planned_and_rechecks(pair, realized, tmp_path):
+    """Box and cylinder: PE -> IR2M plans; every exported state is force closure from its patches."""
+    initial, final = (realized(p) for p in PAIRS[pair])
+    result = plan_regrasp(initial, final, PlanOptions(motion=False, alternatives=8))
+    path = tmp_path / "plan.yaml"
+    from planner.plan import write_plan
+
+    write_plan(result.plan, path)
+    assert result.plan.summary["gait_steps"] >= 2
+    data = recheck_plan_file(path)
+    last = data["states"][-1]
+    assert set(last["patches"]) == set(final.patches)
+    keys = [s.rank_key for s in (result.sequence, *result.alternatives)]
+    assert keys == sorted(keys)
+
+
+def test_thesis_orderings_are_among_the_alternatives(realized):
+    """The box alternatives include both index-first and ring-first orderings (thesis fig. 11)."""
+    initial, final = (realized(p) for p in PAIRS["box"])
+    result = plan_regrasp(initial, final, PlanOptions(motion=False, alternatives=16))
+    problem = result.graph.graph["problem"]
+    firsts = {s.order(problem)[0] for s in (result.sequence, *result.alternatives)}
+    assert {"index:lift", "ring:lift"} <= firsts
+
+
+def test_greedy_baseline_reports_the_same_way(realized):
+    """The greedy strategy solves the thesis pair and returns force-closure states only."""
+    initial, final = (realized(p) for p in PAIRS["box"])
+    greedy = plan_regrasp(initial, final, PlanOptions(strategy="greedy", motion=False))
+    graph = plan_regrasp(initial, final, PlanOptions(motion=False))
+    assert all(s.is_force_closure for s in greedy.plan.states)
+    assert graph.sequence.bottleneck >= greedy.sequence.bottleneck - 1e-12
+
+
+def test_plan_cli_is_deterministic(tmp_path):
+    """Same inputs and seed give a byte-identical plan file."""
+    a, b = PAIRS["box"]
+    out1, out2 = tmp_path / "p1.yaml", tmp_path / "p2.yaml"
+    assert main(["plan", str(a), str(b), "-o", str(out1), "--no-motion"]) == 0
+    assert main(["plan", str(a), str(b), "-o", str(out2), "--no-motion"]) == 0
+    assert out1.read_bytes() == out2.read_bytes()
+
+
+def test_plan_cli_refuses_different_objects(tmp_path, capsys):
+    """Grasps of different objects are refused with exit 2 and a one-line error naming the key."""
+    a = PAIRS["box"][0]
+    b = PAIRS["cylinder"][1]
+    out = tmp_path / "p.yaml"
+    assert main(["plan", str(a), str(b), "-o", str(out), "--no-motion"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "object" in err
+    assert not out.exists()
+
+
+def test_plan_cli_bad_strategy_and_suffix(tmp_path, capsys):
+    """Unknown strategy lists the valid ones; a bad output suffix is refused before planning."""
+    a, b = PAIRS["box"]
+    assert main(["plan", str(a), str(b), "--strategy", "astar", "--no-motion"]) == 2
+    assert "graph, greedy" in capsys.readouterr().err
+    assert main(["plan", str(a), str(b), "-o", str(tmp_path / "p.txt")]) == 2
+    assert ".yaml" in capsys.readouterr().err
+
+
+def test_unreachable_goal_exits_one_with_an_explanation(tmp_path, capsys):
+    """A final grasp with the thumb alone cannot be force closure: exit 1 and a reason."""
+    a, _ = PAIRS["box"]
+    data = yaml.safe_load(a.read_text())
+    data["fingers"] = {f: ("free" if f != "thumb" else v) for f, v in data["fingers"].items()}
+    data["name"] = "thumb_only"
+    final = tmp_path / "thumb_only.yaml"
+    final.write_text(yaml.safe_dump(data))
+    assert main(["plan", str(a), str(final), "--no-motion"]) == 1
+    assert "force closure" in capsys.readouterr().err
