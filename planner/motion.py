@@ -1,0 +1,805 @@
+"""Finger paths: joint-space motion of one finger around the object (OMPL).
+
+This is the only module that imports OMPL. A gait step of a finger is three paths
+(see docs/INTERFACES.md, plan file): **lift** (retreat from contact A a few mm along
+the outward normal, Jacobian steps), **move** (joint-space transfer from the retreat
+to the approach configuration above contact B, keeping a clearance from the object;
+straight line when free, otherwise an OMPL planner) and **land** (approach along the
+normal and close onto contact B, ending exactly at the contact configuration).
+
+Paths are arrays ``(m, n_finger_joints)`` of that finger's joint values, in the order
+of ``hand.fingers[finger].joints``; consecutive waypoints differ by at most
+``resolution_rad`` in every joint, the first row is the start and the last the goal.
+The other fingers do not move.
+
+Console output. OMPL logs through its own C++ handler; every call here runs with
+OMPL's log level set to ``LOG_NONE`` (restored afterwards) unless ``verbose=True``.
+The OMPL objects (state space, planner, validity callback...) live only inside
+:func:`_solve_ompl` and hold no reference cycle, so nothing of OMPL is alive at
+interpreter exit and nanobind has no leak to report (its "leaked instances/functions"
+lines appear only for objects still alive at shutdown).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
+from types import MappingProxyType
+
+import coal
+import numpy as np
+
+from planner.errors import InputError, MotionError, UnknownNameError
+
+DEFAULT_CLEARANCE_M = 0.002
+"""Distance a moving finger keeps from the object outside the lift/land steps."""
+DEFAULT_TOUCH_TOL_M = 0.001
+"""Penetration tolerated between touching bodies (finger-object at contact, finger-finger)."""
+DEFAULT_LIFT_M = 0.005
+"""Retreat of the contact point along the outward normal in a lift (and approach in a land)."""
+MAX_LIFT_M = 0.03
+"""A lift gives up when the finger is not clear of the object after this retreat."""
+
+# name -> OMPL geometric planner class. Asymptotically optimal planners stop at their
+# first solution (cost threshold +inf): the path is then shortened by PathSimplifier.
+# PRM and PRM* grow their roadmap in a second thread, so their paths are not
+# reproducible from the seed; every other planner here is. FMT and BFMT are left out:
+# they stop after a fixed number of samples whatever the time budget.
+_PLANNER_CLASSES = {
+    "rrtconnect": "RRTConnect",
+    "rrt": "RRT",
+    "rrtstar": "RRTstar",
+    "informedrrtstar": "InformedRRTstar",
+    "sorrtstar": "SORRTstar",
+    "prm": "PRM",
+    "prmstar": "PRMstar",
+    "kpiece": "KPIECE1",
+    "bkpiece": "BKPIECE1",
+    "lbkpiece": "LBKPIECE1",
+    "bitstar": "BITstar",
+    "aorrtc": "AORRTC",
+}
+
+
+def _registered_planners() -> Mapping[str, str]:
+    from ompl import geometric as og
+
+    return MappingProxyType({k: v for k, v in _PLANNER_CLASSES.items() if hasattr(og, v)})
+
+
+PLANNERS: Mapping[str, str] = _registered_planners()
+"""Registered planners: name -> OMPL class in ``ompl.geometric`` (only those installed)."""
+
+
+def available_planners() -> tuple[str, ...]:
+    """Names accepted by ``planner=``, sorted."""
+    return tuple(sorted(PLANNERS))
+
+
+def _planner_class_name(name: str) -> str:
+    try:
+        return PLANNERS[name]
+    except (KeyError, TypeError):
+        raise UnknownNameError("planner", str(name), PLANNERS) from None
+
+
+# --------------------------------------------------------------------------- OMPL
+
+
+@contextlib.contextmanager
+def _ompl_output(verbose: bool) -> Iterator[None]:
+    """OMPL's log level is global: silence it (or open it up) and restore it after."""
+    from ompl import util as ou
+
+    previous = ou.getLogLevel()
+    ou.setLogLevel(ou.LOG_INFO if verbose else ou.LOG_NONE)
+    try:
+        yield
+    finally:
+        ou.setLogLevel(previous)
+
+
+def _ompl_seed(seed: int) -> int:
+    # OMPL rejects 0 ("seed cannot be 0") and keeps a 32-bit seed.
+    return int(seed) % (2**32 - 1) + 1
+
+
+def _solve_ompl(
+    is_valid,
+    start: np.ndarray,
+    goal: np.ndarray,
+    lower: np.ndarray,
+    upper: np.ndarray,
+    *,
+    planner: str,
+    timeout_s: float,
+    seed: int,
+    resolution_rad: float,
+    verbose: bool,
+) -> np.ndarray | None:
+    """Plan in the box ``[lower, upper]`` of R^n; returns the simplified waypoints or None.
+
+    Every OMPL object is local to this frame (see the module docstring), so the caller
+    raises its error after they are gone.
+    """
+    from ompl import base as ob
+    from ompl import geometric as og
+    from ompl import util as ou
+
+    n = len(start)
+    with _ompl_output(verbose):
+        # Seeding the generator of seeds before any sampler exists makes the run
+        # reproducible; a later re-seed still applies to the samplers created after it.
+        ou.RNG.setSeed(_ompl_seed(seed))
+        space = ob.RealVectorStateSpace(n)
+        bounds = ob.RealVectorBounds(n)
+        for i in range(n):
+            bounds.setLow(i, float(lower[i]))
+            bounds.setHigh(i, float(upper[i]))
+        space.setBounds(bounds)
+        si = ob.SpaceInformation(space)
+        si.setStateValidityChecker(lambda s: bool(is_valid(np.fromiter((s[i] for i in range(n)), float, n))))
+        # Motions are checked every resolution_rad (L2 norm, so every joint moves less).
+        si.setStateValidityCheckingResolution(resolution_rad / space.getMaximumExtent())
+        si.setup()
+        s_start = space.allocState()
+        s_goal = space.allocState()
+        for i in range(n):
+            s_start[i] = float(start[i])
+            s_goal[i] = float(goal[i])
+        pdef = ob.ProblemDefinition(si)
+        pdef.setStartAndGoalStates(s_start, s_goal)
+        objective = ob.PathLengthOptimizationObjective(si)
+        objective.setCostThreshold(ob.Cost(math.inf))  # any solution satisfies it
+        pdef.setOptimizationObjective(objective)
+        algo = getattr(og, _planner_class_name(planner))(si)
+        algo.setProblemDefinition(pdef)
+        algo.setup()
+        ptc = ob.plannerOrTerminationCondition(
+            ob.timedPlannerTerminationCondition(float(timeout_s)),
+            ob.exactSolnPlannerTerminationCondition(pdef),
+        )
+        algo.solve(ptc)
+        if not pdef.hasExactSolution():
+            return None
+        path = pdef.getSolutionPath()
+        # Shortcutting without a time budget keeps it deterministic; simplifyMax gives
+        # about the same length for four times the collision checks.
+        simplifier = og.PathSimplifier(si)
+        simplifier.ropeShortcutPath(path)
+        simplifier.reduceVertices(path)
+        simplifier.partialShortcutPath(path)
+        waypoints = np.array(
+            [[path.getState(k)[i] for i in range(n)] for k in range(path.getStateCount())]
+        )
+    return waypoints
+
+
+# ---------------------------------------------------------------- collision scene
+
+
+def _tf(T: np.ndarray) -> coal.Transform3s:
+    return coal.Transform3s(np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3]))
+
+
+def _mat(tf: coal.Transform3s) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = tf.getRotation()
+    T[:3, 3] = tf.getTranslation()
+    return T
+
+
+def _bounding_sphere(geometry) -> tuple[np.ndarray, float]:
+    geometry.computeLocalAABB()
+    return np.array(geometry.aabb_center, dtype=float), float(geometry.aabb_radius)
+
+
+@dataclass(frozen=True)
+class _Body:
+    name: str  # link name, or "object"
+    finger: str | None
+    geometry: object  # coal.CollisionGeometry in its own frame
+    center: np.ndarray  # bounding sphere centre in the body frame (3,)
+    radius: float
+
+
+class _FingerScene:
+    """Collision world for one moving finger; coal geometry built once.
+
+    Static bodies (palm, other fingers at ``q_ref``, the object) keep their pose; the
+    moving finger's geometries are re-posed from forward kinematics per query. A
+    configuration is valid when every moving geometry is at least ``object_margin_m``
+    from the object (negative: tolerated penetration) and penetrates the palm, the other
+    fingers and the non-adjacent links of its own finger by less than ``touch_tol_m``.
+    """
+
+    def __init__(self, hand, obj, q_ref: np.ndarray, finger: str, touch_tol_m: float):
+        import pinocchio as pin
+
+        self.hand = hand
+        self.finger = hand.fingers[finger]
+        self.idx = np.asarray(self.finger.q_index, dtype=int)
+        self.q_ref = np.array(q_ref, dtype=float)
+        self.touch_tol_m = float(touch_tol_m)
+        model = hand.model
+        self._model = model
+        self._data = model.createData()
+        self._pin = pin
+
+        moving: list[tuple[_Body, np.ndarray]] = []  # (body, T_link_geom)
+        static: list[tuple[_Body, np.ndarray]] = []  # (body, T_palm_geom)
+        for link, owner, geometry, tf_palm in hand.collision_objects(self.q_ref):
+            center, radius = _bounding_sphere(geometry)
+            body = _Body(link, owner, geometry, center, radius)
+            T_palm_geom = _mat(tf_palm)
+            if owner == finger:
+                T_palm_link = np.asarray(hand.link_pose(self.q_ref, link), dtype=float)
+                moving.append((body, np.linalg.inv(T_palm_link) @ T_palm_geom))
+            else:
+                static.append((body, T_palm_geom))
+        if not moving:
+            raise MotionError(f"finger {finger!r} has no collision geometry")
+        self.moving_links = tuple(dict.fromkeys(b.name for b, _ in moving))
+        self._moving = moving
+        self._T_link_geom = np.array([T for _, T in moving])  # (k, 4, 4)
+        self._moving_centers = np.array([b.center for b, _ in moving])  # (k, 3) geometry frames
+        self._moving_radii = np.array([b.radius for b, _ in moving])
+        self._link_of = np.array([self.moving_links.index(b.name) for b, _ in moving])
+
+        self.obj = obj
+        self._T_palm_obj = np.asarray(obj.T_palm_obj, dtype=float)
+        o_center, o_radius = _bounding_sphere(obj.geometry)
+        self._obj_body = _Body("object", None, obj.geometry, o_center, o_radius)
+        self._obj_tf = _tf(self._T_palm_obj)
+        self._obj_center_palm = self._T_palm_obj[:3, :3] @ o_center + self._T_palm_obj[:3, 3]
+
+        # Pairs never checked: a link and its parent or child link, and the pairs the hand
+        # disables (shapes overlapping by design at q = 0 or at the open posture, as in
+        # MoveIt's "default" allowed-collision pairs) so that this agrees with contacts.
+        adjacent = set()
+        for body, _ in moving:
+            par = self._parent_link(body.name)
+            adjacent.update({(body.name, par), (par, body.name)})
+        for pair in getattr(hand, "_disabled", ()):
+            a, b = tuple(pair)
+            adjacent.update({(a, b), (b, a)})
+        self._static = [(b, _tf(T), T[:3, :3] @ b.center + T[:3, 3]) for b, T in static]
+        self._static_centers = (
+            np.array([c for _, _, c in self._static]) if self._static else np.zeros((0, 3))
+        )
+        self._static_radii = np.array([b.radius for b, _, _ in self._static])
+        self._static_mask = np.array(
+            [[(bm.name, bs.name) not in adjacent for bs, _, _ in self._static] for bm, _ in moving],
+            dtype=bool,
+        ).reshape(len(moving), len(self._static))
+        self._self_pairs = [
+            (i, j)
+            for i in range(len(moving))
+            for j in range(i + 1, len(moving))
+            if moving[i][0].name != moving[j][0].name
+            and (moving[i][0].name, moving[j][0].name) not in adjacent
+        ]
+        self._collide_obj = [coal.ComputeCollision(b.geometry, obj.geometry) for b, _ in moving]
+        self._collide_static = [
+            [coal.ComputeCollision(bm.geometry, bs.geometry) for bs, _, _ in self._static]
+            for bm, _ in moving
+        ]
+        self._collide_self = {
+            (i, j): coal.ComputeCollision(moving[i][0].geometry, moving[j][0].geometry)
+            for i, j in self._self_pairs
+        }
+        self._touch_request = coal.CollisionRequest()
+        self._touch_request.security_margin = -self.touch_tol_m
+
+        # Fast forward kinematics straight from pinocchio when the hand's q vector
+        # maps onto the model's; checked once against hand.link_pose.
+        self._frame_ids = [model.getFrameId(link) for link in self.moving_links]
+        self._palm_id = model.getFrameId(hand.palm_frame) if hasattr(hand, "palm_frame") else None
+        self._q_map = self._pin_q_map()
+        self._q_pin = pin.neutral(model)
+        self._T_palm_world = None
+        self._fast = self._q_map is not None and self._palm_id is not None and all(
+            np.allclose(
+                self._link_poses_fast(self.q_ref)[k],
+                np.asarray(hand.link_pose(self.q_ref, link)),
+                atol=1e-9,
+            )
+            for k, link in enumerate(self.moving_links)
+        )
+
+    # -- kinematics
+    def _parent_link(self, link: str) -> str:
+        model = self._model
+        frames = model.frames
+        fid = model.getFrameId(link)
+        f = frames[fid].parentFrame
+        for _ in range(len(frames)):
+            if frames[f].type == self._pin.FrameType.BODY or f == 0:
+                break
+            f = frames[f].parentFrame
+        return frames[f].name
+
+    def _pin_q_map(self) -> np.ndarray | None:
+        model = self._model
+        names = list(getattr(self.hand, "joint_names", ()))
+        if not names:
+            return None
+        out = []
+        for name in names:
+            if not model.existJointName(name):
+                return None
+            joint = model.joints[model.getJointId(name)]
+            if joint.nq != 1:
+                return None
+            out.append(joint.idx_q)
+        return np.asarray(out, dtype=int)
+
+    def _link_poses_fast(self, q: np.ndarray) -> np.ndarray:
+        pin = self._pin
+        q_pin = self._q_pin
+        q_pin[self._q_map] = q
+        pin.framesForwardKinematics(self._model, self._data, q_pin)
+        oMf = self._data.oMf
+        if self._T_palm_world is None:  # the palm is rigidly attached to the hand's root
+            self._T_palm_world = np.linalg.inv(oMf[self._palm_id].homogeneous)
+        return self._T_palm_world @ np.array([oMf[f].homogeneous for f in self._frame_ids])
+
+    def full_q(self, q_finger: np.ndarray) -> np.ndarray:
+        q = self.q_ref.copy()
+        q[self.idx] = q_finger
+        return q
+
+    def link_poses(self, q_finger: np.ndarray) -> np.ndarray:
+        """``T_palm_link`` of the moving links, (k, 4, 4)."""
+        q = self.full_q(q_finger)
+        if self._fast:
+            return self._link_poses_fast(q)
+        return np.array([np.asarray(self.hand.link_pose(q, link)) for link in self.moving_links])
+
+    def _geom_poses(self, q_finger: np.ndarray) -> np.ndarray:
+        return self.link_poses(q_finger)[self._link_of] @ self._T_link_geom
+
+    # -- queries
+    def is_valid(self, q_finger: np.ndarray, object_margin_m: float) -> bool:
+        """True when the finger at ``q_finger`` respects the margins (see class doc)."""
+        T = self._geom_poses(q_finger)
+        centers = np.einsum("kij,kj->ki", T[:, :3, :3], self._moving_centers) + T[:, :3, 3]
+        radii = self._moving_radii
+        tfs = [None] * len(T)
+
+        def tf(k):
+            if tfs[k] is None:
+                tfs[k] = _tf(T[k])
+            return tfs[k]
+
+        # object, with its margin (the cheap bounding-sphere test first)
+        d_obj = np.sqrt(((centers - self._obj_center_palm) ** 2).sum(1)) - radii - self._obj_body.radius
+        request = coal.CollisionRequest()
+        request.security_margin = float(object_margin_m)
+        for k in np.flatnonzero(d_obj < object_margin_m):
+            if self._collide_obj[k](tf(k), self._obj_tf, request, coal.CollisionResult()):
+                return False
+        # palm and other fingers
+        if len(self._static):
+            d = (
+                np.sqrt(((centers[:, None, :] - self._static_centers[None]) ** 2).sum(2))
+                - radii[:, None]
+                - self._static_radii[None]
+            )
+            for k, s in zip(*np.nonzero((d < 0.0) & self._static_mask)):
+                if self._collide_static[k][s](tf(k), self._static[s][1], self._touch_request, coal.CollisionResult()):
+                    return False
+        # own non-adjacent links
+        for i, j in self._self_pairs:
+            if ((centers[i] - centers[j]) ** 2).sum() < (radii[i] + radii[j]) ** 2:
+                if self._collide_self[(i, j)](tf(i), tf(j), self._touch_request, coal.CollisionResult()):
+                    return False
+        return True
+
+    def object_distance(self, q_finger: np.ndarray) -> tuple[float, str, np.ndarray, np.ndarray]:
+        """Signed distance of the finger to the object (negative: penetration).
+
+        Returns ``(distance_m, link, p_link_palm (3,), p_object_palm (3,))`` for the
+        nearest moving geometry: the nearest points on the link and on the object.
+        """
+        T = self._geom_poses(q_finger)
+        best = (math.inf, "", np.zeros(3), np.zeros(3))
+        for k, (body, _) in enumerate(self._moving):
+            result = coal.DistanceResult()
+            request = coal.DistanceRequest()
+            request.enable_signed_distance = True
+            d = coal.distance(body.geometry, _tf(T[k]), self.obj.geometry, self._obj_tf, request, result)
+            if d < best[0]:
+                best = (
+                    float(d),
+                    body.name,
+                    np.array(result.getNearestPoint1(), dtype=float),
+                    np.array(result.getNearestPoint2(), dtype=float),
+                )
+        return best
+
+    def explain(self, q_finger: np.ndarray, object_margin_m: float) -> str:
+        """A short human-readable reason why ``q_finger`` is invalid."""
+        T = self._geom_poses(q_finger)
+        reasons = []
+        for k, (body, _) in enumerate(self._moving):
+            d = coal.distance(body.geometry, _tf(T[k]), self.obj.geometry, self._obj_tf,
+                              coal.DistanceRequest(), coal.DistanceResult())
+            if d < object_margin_m:
+                reasons.append(f"{body.name} is {d * 1000:.1f} mm from the object (needs {object_margin_m * 1000:.1f})")
+            for s, (other, tf_other, _) in enumerate(self._static):
+                if not self._static_mask[k, s]:
+                    continue
+                d = coal.distance(body.geometry, _tf(T[k]), other.geometry, tf_other,
+                                  coal.DistanceRequest(), coal.DistanceResult())
+                if d < -self.touch_tol_m:
+                    reasons.append(f"{body.name} penetrates {other.name} by {-d * 1000:.1f} mm")
+        for i, j in self._self_pairs:
+            bi, bj = self._moving[i][0], self._moving[j][0]
+            d = coal.distance(bi.geometry, _tf(T[i]), bj.geometry, _tf(T[j]),
+                              coal.DistanceRequest(), coal.DistanceResult())
+            if d < -self.touch_tol_m:
+                reasons.append(f"{bi.name} penetrates {bj.name} by {-d * 1000:.1f} mm")
+        return "; ".join(dict.fromkeys(reasons)) or "no collision found"
+
+
+# ------------------------------------------------------------------- path helpers
+
+
+def _densify(waypoints: np.ndarray, resolution_rad: float) -> np.ndarray:
+    """Insert points so no joint moves more than ``resolution_rad`` between rows."""
+    waypoints = np.asarray(waypoints, dtype=float)
+    rows = [waypoints[0]]
+    for a, b in zip(waypoints[:-1], waypoints[1:]):
+        steps = max(1, int(math.ceil(np.max(np.abs(b - a)) / resolution_rad - 1e-9)))
+        t = np.arange(1, steps + 1)[:, None] / steps
+        rows.extend(a + t * (b - a))
+    return np.array(rows)
+
+
+def _first_invalid(scene: _FingerScene, path: np.ndarray, margins) -> int | None:
+    margins = np.broadcast_to(np.asarray(margins, dtype=float), (len(path),))
+    for k, (q, m) in enumerate(zip(path, margins)):
+        if not scene.is_valid(q, m):
+            return k
+    return None
+
+
+def _as_q(hand, q, what: str) -> np.ndarray:
+    nq = len(hand.joint_names)
+    arr = np.array(q, dtype=float)
+    if arr.shape != (nq,):
+        raise InputError(f"{what} must have shape ({nq},) (hand joints {', '.join(hand.joint_names)}); got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise InputError(f"{what} has non-finite values")
+    return arr
+
+
+def _finger(hand, finger: str):
+    try:
+        return hand.fingers[finger]
+    except KeyError:
+        raise UnknownNameError("finger", finger, hand.fingers) from None
+
+
+def _check_limits(hand, finger, q_finger: np.ndarray, what: str) -> np.ndarray:
+    idx = list(finger.q_index)
+    lo = np.asarray(hand.lower, dtype=float)[idx]
+    hi = np.asarray(hand.upper, dtype=float)[idx]
+    tol = 1e-6
+    bad = [(j, v) for j, v, a, b in zip(finger.joints, q_finger, lo, hi) if v < a - tol or v > b + tol]
+    if bad:
+        j, v = bad[0]
+        raise InputError(f"{what}: joint {j} = {v:.4f} rad is outside its limits")
+    return np.clip(q_finger, lo, hi)
+
+
+def _check_positive(**values: float) -> None:
+    for name, v in values.items():
+        if not (np.isfinite(v) and v > 0):
+            raise InputError(f"{name} must be positive and finite; got {v!r}")
+
+
+# --------------------------------------------------------------- finger transfer
+
+
+def _plan_move(
+    scene: _FingerScene,
+    a: np.ndarray,
+    b: np.ndarray,
+    *,
+    planner: str,
+    timeout_s: float,
+    seed: int,
+    clearance_m: float,
+    resolution_rad: float,
+    verbose: bool,
+) -> np.ndarray:
+    name = scene.finger.name
+    if not scene.is_valid(a, clearance_m):
+        raise MotionError(f"finger {name}: start configuration is not free: {scene.explain(a, clearance_m)}")
+    if not scene.is_valid(b, clearance_m):
+        raise MotionError(f"finger {name}: goal configuration is not free: {scene.explain(b, clearance_m)}")
+    straight = _densify(np.array([a, b]), resolution_rad)
+    if _first_invalid(scene, straight, clearance_m) is None:
+        return straight
+    lower = np.asarray(scene.hand.lower, dtype=float)[scene.idx]
+    upper = np.asarray(scene.hand.upper, dtype=float)[scene.idx]
+    waypoints = _solve_ompl(
+        lambda q: scene.is_valid(q, clearance_m),
+        a, b, lower, upper,
+        planner=planner, timeout_s=timeout_s, seed=seed,
+        resolution_rad=resolution_rad, verbose=verbose,
+    )
+    if waypoints is None:
+        raise MotionError(
+            f"finger {name}: {planner} found no collision-free path in {timeout_s:g} s "
+            f"(clearance {clearance_m * 1000:.1f} mm)"
+        )
+    waypoints[0], waypoints[-1] = a, b
+    path = _densify(waypoints, resolution_rad)
+    bad = _first_invalid(scene, path, clearance_m)
+    if bad is not None:  # OMPL checks the same resolution; this guards the interpolation
+        raise MotionError(f"finger {name}: planned path fails its re-check at waypoint {bad}: "
+                          f"{scene.explain(path[bad], clearance_m)}")
+    return path
+
+
+def plan_finger_move(
+    hand,
+    obj,
+    q_start,
+    q_goal,
+    finger: str,
+    *,
+    planner: str = "rrtconnect",
+    timeout_s: float = 1.0,
+    seed: int = 0,
+    clearance_m: float = DEFAULT_CLEARANCE_M,
+    touch_tol_m: float = DEFAULT_TOUCH_TOL_M,
+    resolution_rad: float = 0.01,
+    verbose: bool = False,
+) -> np.ndarray:
+    """Collision-free joint-space path of one finger; the other fingers stay at ``q_start``.
+
+    The straight joint-space line is tried first (checked every ``resolution_rad``);
+    when it collides, the OMPL planner ``planner`` searches the finger's joint box,
+    seeded with ``seed`` (same seed, same path), and its path is simplified and
+    re-interpolated. Validity: every link of the finger keeps ``clearance_m`` from the
+    object and penetrates the palm, the other fingers and its own non-adjacent links by
+    less than ``touch_tol_m``.
+
+    Args:
+        hand: a ``planner.hand.Hand``.
+        obj: a ``planner.objects.GraspObject`` (pose ``T_palm_obj``).
+        q_start: hand configuration (nq,); its values of the other fingers are kept.
+        q_goal: hand configuration (nq,); only the finger's joints are read.
+        finger: name of the moving finger.
+        planner: one of :func:`available_planners`.
+        timeout_s: planning budget in seconds.
+        seed: OMPL random seed.
+        clearance_m: distance kept from the object.
+        touch_tol_m: tolerated penetration with the palm and other fingers.
+        resolution_rad: maximum joint step between waypoints (and of collision checks).
+        verbose: let OMPL log to the console.
+
+    Returns:
+        (m, n_finger_joints) joint waypoints in ``hand.fingers[finger].joints`` order;
+        first row = start, last row = goal.
+
+    Raises:
+        UnknownNameError: unknown planner or finger.
+        InputError: bad shapes, non-finite values or a configuration outside joint limits.
+        MotionError: start or goal in collision, or no path within ``timeout_s``.
+    """
+    _planner_class_name(planner)
+    f = _finger(hand, finger)
+    _check_positive(timeout_s=timeout_s, clearance_m=clearance_m, resolution_rad=resolution_rad)
+    if not (np.isfinite(touch_tol_m) and touch_tol_m >= 0):
+        raise InputError(f"touch_tol_m must be >= 0; got {touch_tol_m!r}")
+    qs = _as_q(hand, q_start, "q_start")
+    qg = _as_q(hand, q_goal, "q_goal")
+    a = _check_limits(hand, f, qs[list(f.q_index)], "q_start")
+    b = _check_limits(hand, f, qg[list(f.q_index)], "q_goal")
+    scene = _FingerScene(hand, obj, qs, finger, touch_tol_m)
+    return _plan_move(
+        scene, a, b, planner=planner, timeout_s=timeout_s, seed=seed,
+        clearance_m=clearance_m, resolution_rad=resolution_rad, verbose=verbose,
+    )
+
+
+# ------------------------------------------------------------------ lift and land
+
+
+def _inward_normal(scene: _FingerScene, p_object_palm: np.ndarray) -> np.ndarray:
+    """Inward contact normal (palm frame) at the object point nearest to the finger."""
+    T_palm_obj = scene._T_palm_obj
+    R = T_palm_obj[:3, :3]
+    p_obj = R.T @ (p_object_palm - T_palm_obj[:3, 3])
+    _, n_out_obj, _ = scene.obj.closest_surface(p_obj)
+    n_in = -(R @ np.asarray(n_out_obj, dtype=float))
+    return n_in / np.linalg.norm(n_in)
+
+
+def _retreat(
+    scene: _FingerScene,
+    a: np.ndarray,
+    n_in_palm,
+    *,
+    lift_m: float,
+    clearance_m: float,
+    resolution_rad: float,
+    step_m: float = 0.0005,
+    damping: float = 1e-3,
+) -> np.ndarray:
+    """Path from the contact configuration ``a`` backing off along the outward normal.
+
+    The contact point is the point of the finger nearest to the object, fixed on its
+    link; damped-least-squares steps on the position rows of its Jacobian move it along
+    ``-n_in_palm`` by ``step_m`` at a time until it has retreated ``lift_m`` and the
+    whole finger keeps ``clearance_m`` from the object (at most ``MAX_LIFT_M``). Every
+    state may touch the object no deeper than the contact itself or ``touch_tol_m``.
+    When the normal retreat stalls (joint limits, singularity) the finger opens toward
+    its open posture instead. Returns (m, n_finger_joints), first row ``a``.
+    """
+    hand = scene.hand
+    name = scene.finger.name
+    d0, link, p_palm, p_object_palm = scene.object_distance(a)
+    n_in = _inward_normal(scene, p_object_palm) if n_in_palm is None else np.asarray(n_in_palm, float)
+    norm = np.linalg.norm(n_in)
+    if n_in.shape != (3,) or not np.isfinite(norm) or norm < 1e-9:
+        raise InputError(f"contact normal of finger {name} must be a non-zero 3-vector; got {n_in_palm!r}")
+    n_in = n_in / norm
+    touch_margin = min(-scene.touch_tol_m, d0 - 1e-6)  # never deeper than the contact
+    k_link = scene.moving_links.index(link)
+    T_palm_link = scene.link_poses(a)[k_link]
+    p_link = np.linalg.inv(T_palm_link)[:3, :3] @ p_palm + np.linalg.inv(T_palm_link)[:3, 3]
+    lo = np.asarray(hand.lower, dtype=float)[scene.idx]
+    hi = np.asarray(hand.upper, dtype=float)[scene.idx]
+
+    def point(q):
+        T = scene.link_poses(q)[k_link]
+        return T[:3, :3] @ p_link + T[:3, 3]
+
+    path = [a.copy()]
+    q = a.copy()
+    s = 0.0
+    stalled = False
+    while True:
+        s += step_m
+        target = p_palm - s * n_in
+        for _ in range(3):
+            J = np.asarray(hand.frame_jacobian(scene.full_q(q), link, p_link), dtype=float)[:3][:, scene.idx]
+            err = target - point(q)
+            dq = J.T @ np.linalg.solve(J @ J.T + damping**2 * np.eye(3), err)
+            q = np.clip(q + dq, lo, hi)
+        achieved = float(np.dot(p_palm - point(q), n_in))
+        if achieved < s - 0.002 or not scene.is_valid(q, touch_margin):
+            stalled = True
+            break
+        path.append(q.copy())
+        if s >= lift_m - 1e-12 and scene.is_valid(q, clearance_m):
+            break
+        if s >= MAX_LIFT_M:
+            stalled = True
+            break
+    if not stalled:
+        return _densify(np.array(path), resolution_rad)
+
+    # Fallback: open the finger (joint-space line toward its open posture).
+    q_open = np.clip(np.asarray(hand.q_open, dtype=float)[scene.idx], lo, hi)
+    line = _densify(np.array([a, q_open]), resolution_rad)
+    for k, q in enumerate(line):
+        if not scene.is_valid(q, touch_margin):
+            break
+        retreat = float(np.dot(p_palm - point(q), n_in))
+        if k > 0 and retreat >= lift_m and scene.is_valid(q, clearance_m):
+            return line[: k + 1]
+    else:
+        if scene.is_valid(line[-1], clearance_m):
+            return line
+    raise MotionError(
+        f"finger {name}: cannot lift {lift_m * 1000:.1f} mm off the object from "
+        f"{'its contact on ' + link if d0 <= clearance_m else 'this configuration'} "
+        f"(retreat along the normal stalls and opening the finger collides)"
+    )
+
+
+def plan_gait_step(
+    hand,
+    obj,
+    q_contact_a,
+    q_contact_b,
+    finger: str,
+    n_a_palm=None,
+    n_b_palm=None,
+    *,
+    q_others=None,
+    planner: str = "rrtconnect",
+    timeout_s: float = 1.0,
+    seed: int = 0,
+    clearance_m: float = DEFAULT_CLEARANCE_M,
+    touch_tol_m: float = DEFAULT_TOUCH_TOL_M,
+    lift_m: float = DEFAULT_LIFT_M,
+    resolution_rad: float = 0.01,
+    verbose: bool = False,
+) -> dict:
+    """Paths of one gait step of ``finger``: lift off contact A, move, land on contact B.
+
+    Lift: the contact point backs off ``lift_m`` along the outward normal (damped
+    least-squares steps of the contact Jacobian) until the finger clears the object by
+    ``clearance_m``; it may touch the object (within ``touch_tol_m``) only at the
+    contact end. Move: :func:`plan_finger_move` from the lifted to the approach
+    configuration, with clearance. Land: the time reverse of a lift from contact B, so
+    the finger approaches along B's normal and closes exactly onto ``q_contact_b`` (the
+    contact found by the closing procedure, thesis eqs. (8)-(9), when the grasp was
+    realized). A finger without contact A starts lifted at its open posture (no lift); a
+    finger without contact B ends lifted at its open posture (no land).
+
+    Args:
+        hand: a ``planner.hand.Hand``.
+        obj: a ``planner.objects.GraspObject``.
+        q_contact_a: hand configuration (nq,) with the finger on contact A, or None.
+        q_contact_b: hand configuration (nq,) with the finger on contact B, or None
+            (only the finger's joints are read).
+        finger: name of the moving finger.
+        n_a_palm, n_b_palm: inward contact normals (3,) in the palm frame; by default the
+            object's surface normal at the point nearest to the finger.
+        q_others: configuration (nq,) of the other fingers; default ``q_contact_a``,
+            else ``q_contact_b``.
+        planner, timeout_s, seed, clearance_m, touch_tol_m, resolution_rad, verbose:
+            as in :func:`plan_finger_move` (``timeout_s`` bounds the move).
+        lift_m: retreat along the normal in metres.
+
+    Returns:
+        dict with ``lift``, ``move``, ``land``: (m, n_finger_joints) paths in
+        ``hand.fingers[finger].joints`` order (a step that does not apply is absent:
+        no ``lift`` without contact A, no ``land`` without contact B); each path starts
+        where the previous one ends. ``q_lifted`` and ``q_approach``:
+        full hand configurations (nq,) after the lift and before the land; ``joints``:
+        the finger's joint names.
+
+    Raises:
+        UnknownNameError: unknown planner or finger.
+        InputError: bad shapes or values, or both contacts None.
+        MotionError: the finger cannot lift, land or move within the budget.
+    """
+    _planner_class_name(planner)
+    f = _finger(hand, finger)
+    _check_positive(timeout_s=timeout_s, clearance_m=clearance_m, resolution_rad=resolution_rad, lift_m=lift_m)
+    if not (np.isfinite(touch_tol_m) and touch_tol_m >= 0):
+        raise InputError(f"touch_tol_m must be >= 0; got {touch_tol_m!r}")
+    if q_contact_a is None and q_contact_b is None:
+        raise InputError("plan_gait_step needs q_contact_a or q_contact_b (both are None)")
+    idx = list(f.q_index)
+    qa = None if q_contact_a is None else _as_q(hand, q_contact_a, "q_contact_a")
+    qb = None if q_contact_b is None else _as_q(hand, q_contact_b, "q_contact_b")
+    if q_others is not None:
+        base = _as_q(hand, q_others, "q_others")
+    else:
+        base = qa if qa is not None else qb
+    q_open = np.asarray(hand.q_open, dtype=float)[idx]
+    a = q_open.copy() if qa is None else _check_limits(hand, f, qa[idx], "q_contact_a")
+    b = q_open.copy() if qb is None else _check_limits(hand, f, qb[idx], "q_contact_b")
+    scene = _FingerScene(hand, obj, base, finger, touch_tol_m)
+    common = dict(lift_m=lift_m, clearance_m=clearance_m, resolution_rad=resolution_rad)
+
+    lift = None if qa is None else _retreat(scene, a, n_a_palm, **common)
+    land = None if qb is None else _retreat(scene, b, n_b_palm, **common)[::-1].copy()
+    start = a if lift is None else lift[-1]
+    goal = b if land is None else land[0]
+    move = _plan_move(
+        scene, start, goal, planner=planner, timeout_s=timeout_s, seed=seed,
+        clearance_m=clearance_m, resolution_rad=resolution_rad, verbose=verbose,
+    )
+    out = {"joints": tuple(f.joints)}
+    if lift is not None:
+        out["lift"] = lift
+    out["move"] = move
+    if land is not None:
+        out["land"] = land
+    out["q_lifted"] = scene.full_q(start)
+    out["q_approach"] = scene.full_q(goal)
+    return out
