@@ -75,6 +75,39 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_replay(args: argparse.Namespace) -> int:
+    """Replay a plan in pybullet; exit 0 pass, 1 fail (dropped or drifted), 2 bad input."""
+    import json
+
+    from planner.sim.replay import replay_plan
+
+    report = replay_plan(
+        args.plan, gui=args.gui, gif=args.gif, gif_every=args.gif_every, mp4=args.mp4,
+        drift_mm_max=args.drift_mm, drift_deg_max=args.drift_deg,
+        **({"gravity": tuple(args.gravity)} if args.gravity else {}),
+    )
+    print(f"{'state':>5}  {'plan fingers':<24} {'plan FC':>7} {'plan metric':>11}  {'sim fingers':<24} "
+          f"{'sim FC':>6} {'sim metric':>10}  {'drift mm':>8} {'drift deg':>9}")
+    for s in report.states:
+        if not s.reached:
+            print(f"{s.index:>5}  {','.join(s.planned_fingers) or '-':<24} {str(s.planned_force_closure):>7} "
+                  f"{s.planned_metric:>11.4g}  {'(not reached)':<24}")
+            continue
+        print(f"{s.index:>5}  {','.join(s.planned_fingers) or '-':<24} {str(s.planned_force_closure):>7} "
+              f"{s.planned_metric:>11.4g}  {','.join(s.sim_fingers) or '-':<24} {str(s.sim_force_closure):>6} "
+              f"{s.sim_metric:>10.4g}  {s.drift_mm:>8.2f} {s.drift_deg:>9.2f}")
+    agree, reached = report.closure_agreement
+    print(f"force closure agrees at {agree}/{reached} states; simulated {report.sim_time_s:.2f} s "
+          f"in {report.wall_time_s:.2f} s" + (f"; GIF {report.gif} ({report.gif_frames} frames)" if report.gif else ""))
+    if args.report:
+        from pathlib import Path
+
+        Path(args.report).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.report).write_text(json.dumps(report.to_dict(), indent=1) + "\n")
+    print(report.verdict)
+    return 0 if report.passed else 1
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="regrasp", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -96,6 +129,18 @@ def build_parser() -> argparse.ArgumentParser:
     plan.add_argument("--motion-timeout", type=float, default=2.0, metavar="S", help="time budget per finger path, s")
     plan.add_argument("--verbose", action="store_true", help="show the motion planner's console output")
     plan.set_defaults(func=_cmd_plan)
+    replay = sub.add_parser("replay", help="execute a plan in pybullet with gravity on and check the object stays put")
+    replay.add_argument("plan", help="plan file (.yaml/.yml or .json)")
+    replay.add_argument("--gif", metavar="FILE", help="write an animated GIF (headless TinyRenderer)")
+    replay.add_argument("--gif-every", type=int, default=8, metavar="N", help="one GIF frame every N physics steps (default 8)")
+    replay.add_argument("--mp4", metavar="FILE", help="write an MP4 (needs ffmpeg on PATH)")
+    replay.add_argument("--gui", action="store_true", help="open the pybullet GUI (needs a display)")
+    replay.add_argument("--report", metavar="FILE", help="write the replay report as JSON")
+    replay.add_argument("--drift-mm", type=float, default=5.0, metavar="X", help="largest allowed object drift, mm (default 5)")
+    replay.add_argument("--drift-deg", type=float, default=5.0, metavar="Y", help="largest allowed object rotation, deg (default 5)")
+    replay.add_argument("--gravity", type=float, nargs=3, metavar=("GX", "GY", "GZ"),
+                        help="gravity in the palm frame, m/s^2 (default 0 0 9.81: palm facing down)")
+    replay.set_defaults(func=_cmd_replay)
     return parser
 
 
