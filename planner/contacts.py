@@ -1,0 +1,174 @@
+"""Contacts between a hand configuration and the object, and collision checks (coal).
+
+A finger touches the object through a patch of several points (thesis section VII: the
+simulator reports every point the link and the object have in common, and the closure
+test uses all of them). Here a link touches when its signed distance to the object is
+at most ``touch_tol_m`` (or it penetrates). Its patch is the witness point of the
+link-object distance query, projected on the object surface, plus a ring of object-surface
+points around it that are within ``touch_tol_m`` of the link surface. Points are in the
+object frame; normals point INTO the object (minus the outward surface normal).
+"""
+
+from __future__ import annotations
+
+import coal
+import numpy as np
+
+from planner.errors import UnknownNameError
+
+TOUCH_TOL_M = 1e-3
+RING_RADII_M = (1.5e-3, 3.0e-3)
+RING_DIRECTIONS = 8
+_LINK_EPS_M = 1e-6        # finger-finger/palm penetration below this is not a collision
+_POINT = coal.Sphere(1e-7)  # a point for point-to-link distances
+_MIN_SPACING_M = 2e-4
+
+
+def _obj_tf(obj) -> coal.Transform3s:
+    T = obj.T_palm_obj
+    return coal.Transform3s(np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3]))
+
+
+def _fingers(hand, fingers):
+    if fingers is None:
+        return list(hand.fingers)
+    out = []
+    for f in fingers:
+        if f not in hand.fingers:
+            raise UnknownNameError("finger", str(f), hand.fingers)
+        out.append(f)
+    return out
+
+
+def _link_object_queries(hand, q, obj, links):
+    """Per link: (signed distance, witness on link (palm), witness on object (palm), geom indices)."""
+    hand._update(hand._check_q(q))
+    tf_obj = _obj_tf(obj)
+    req = coal.DistanceRequest()
+    out = {}
+    for link in links:
+        best = None
+        for i in hand._link_geoms.get(link, ()):
+            res = coal.DistanceResult()
+            d = coal.distance(hand._geoms[i].shape, hand._geom_tf(i), obj.geometry, tf_obj, req, res)
+            if best is None or d < best[0]:
+                best = (float(d), np.array(res.getNearestPoint1()), np.array(res.getNearestPoint2()))
+        if best is not None:
+            out[link] = best + (hand._link_geoms[link],)
+    return out
+
+
+def touching_links(hand, q, obj, touch_tol_m: float = TOUCH_TOL_M, fingers=None) -> dict[str, tuple[str, ...]]:
+    """Contact links within ``touch_tol_m`` of the object (or penetrating), per finger.
+
+    Returns:
+        finger -> tuple of touching links (only fingers that touch).
+    """
+    out = {}
+    for f in _fingers(hand, fingers):
+        links = hand.fingers[f].contact_links
+        res = _link_object_queries(hand, q, obj, links)
+        touching = tuple(l for l in links if l in res and res[l][0] <= touch_tol_m)
+        if touching:
+            out[f] = touching
+    return out
+
+
+def _point_link_distance(hand, p_palm, geom_ids) -> float:
+    tf_p = coal.Transform3s(np.eye(3), p_palm)
+    req = coal.DistanceRequest()
+    best = np.inf
+    for i in geom_ids:
+        res = coal.DistanceResult()
+        best = min(best, coal.distance(_POINT, tf_p, hand._geoms[i].shape, hand._geom_tf(i), req, res))
+    return float(best)
+
+
+def _link_patch(hand, obj, T_obj_palm, T_palm_obj, query, touch_tol_m):
+    """Patch of one touching link: (points (n,3), inward normals (n,3)) in the object frame."""
+    _, w_link, w_obj, geom_ids = query
+    seed_obj = T_obj_palm[:3, :3] @ (0.5 * (w_link + w_obj)) + T_obj_palm[:3, 3]
+    p0, n0, _ = obj.closest_surface(seed_obj)
+    pts, nrm = [p0], [n0]
+    a = np.array([1.0, 0.0, 0.0]) if abs(n0[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    u = np.cross(n0, a)
+    u /= np.linalg.norm(u)
+    v = np.cross(n0, u)
+    R, t = T_palm_obj[:3, :3], T_palm_obj[:3, 3]
+    for rho in RING_RADII_M:
+        for k in range(RING_DIRECTIONS):
+            th = 2.0 * np.pi * k / RING_DIRECTIONS
+            ps, ns, _ = obj.closest_surface(p0 + rho * (np.cos(th) * u + np.sin(th) * v))
+            if min(np.linalg.norm(ps - p) for p in pts) < _MIN_SPACING_M:
+                continue
+            if _point_link_distance(hand, R @ ps + t, geom_ids) <= touch_tol_m:
+                pts.append(ps)
+                nrm.append(ns)
+    return np.array(pts), -np.array(nrm)
+
+
+def contact_patches(hand, q, obj, touch_tol_m: float = TOUCH_TOL_M, fingers=None
+                    ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Contact patches of a hand configuration on the object.
+
+    Args:
+        hand: planner.hand.Hand.
+        q: (nq,) joint angles.
+        obj: planner.objects.GraspObject.
+        touch_tol_m: a link touches when its distance to the object is at most this.
+        fingers: restrict to these fingers (default all).
+    Returns:
+        finger -> (p_obj (n, 3), n_in_obj (n, 3)) for touching fingers only; several points per
+        touching link; normals are unit and point into the object. Ready for
+        planner.closure.grasp_closure.
+    """
+    T_palm_obj = obj.T_palm_obj
+    T_obj_palm = np.linalg.inv(T_palm_obj)
+    out = {}
+    for f in _fingers(hand, fingers):
+        links = hand.fingers[f].contact_links
+        queries = _link_object_queries(hand, q, obj, links)
+        P, N = [], []
+        for link in links:
+            qy = queries.get(link)
+            if qy is None or qy[0] > touch_tol_m:
+                continue
+            p, n = _link_patch(hand, obj, T_obj_palm, T_palm_obj, qy, touch_tol_m)
+            P.append(p)
+            N.append(n)
+        if P:
+            out[f] = (np.vstack(P), np.vstack(N))
+    return out
+
+
+def collisions(hand, q, obj=None, touch_tol_m: float = TOUCH_TOL_M, fingers=None
+               ) -> list[tuple[str, str, float]]:
+    """Collisions of a hand configuration.
+
+    Finger-finger and finger-palm link pairs that interpenetrate (adjacent links and pairs
+    overlapping by design at q = 0 / the open posture are excluded), and links penetrating
+    the object deeper than ``touch_tol_m``.
+
+    Args:
+        fingers: only pairs involving these fingers (default all; then the palm-object pair too).
+    Returns:
+        list of (name_a, name_b, depth_m), names are link names or "object"; depth > 0.
+    """
+    q = hand._check_q(q)
+    sel = None if fingers is None else set(_fingers(hand, fingers))
+    worst: dict[tuple[str, str], float] = {}
+    for a, b, d in hand._link_pair_distances(q, hand._pairs, fingers=sel):
+        if d < -_LINK_EPS_M:
+            key = (a, b)
+            worst[key] = max(worst.get(key, 0.0), -d)
+    out = [(a, b, depth) for (a, b), depth in worst.items()]
+    if obj is not None:
+        links = []
+        for f in _fingers(hand, fingers):
+            links.extend(hand.fingers[f].links)
+        if fingers is None:
+            links.extend(l for l in hand.links if hand._geoms[hand._link_geoms[l][0]].finger is None)
+        for link, (d, *_rest) in _link_object_queries(hand, q, obj, links).items():
+            if d < -touch_tol_m:
+                out.append((link, "object", -d))
+    return out
