@@ -47,12 +47,20 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pybullet as p
 from scipy.spatial.transform import Rotation
 
 from planner.closure import Friction, grasp_closure
 from planner.errors import InputError, SimulationError, SpecError, UnknownNameError
 from planner.sim.contact_filter import ContactFilter
+
+try:  # pybullet prints a build banner on import: keep a command's stdout clean
+    from planner.sim.render import quiet_native_output
+except ImportError:  # pragma: no cover - render helper not present
+    import contextlib
+
+    quiet_native_output = contextlib.nullcontext
+with quiet_native_output():
+    import pybullet as p
 
 _REPO = Path(__file__).resolve().parents[2]
 _ROBOTS_DIR = _REPO / "robots"
@@ -84,6 +92,8 @@ class StateReport:
             (None when not reached).
         sim_points: number of filtered contact points used.
         drift_mm, drift_deg: object displacement and rotation since the start of the replay.
+        sim_patches: finger (or "palm") -> (p_obj (n, 3), n_in_obj (n, 3)): the filtered sim
+            contacts in the object frame, normals INTO the object.
     """
 
     index: int
@@ -98,6 +108,7 @@ class StateReport:
     sim_points: int
     drift_mm: float
     drift_deg: float
+    sim_patches: Mapping[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -141,8 +152,22 @@ class ReplayReport:
         """Plain data for JSON (``json.dumps(report.to_dict())``)."""
         data = asdict(self)
         data["parameters"] = dict(self.parameters)
+        for st, src in zip(data["states"], self.states):
+            st["sim_patches"] = {f: {"points": np.asarray(pt).tolist(), "normals": np.asarray(nr).tolist()}
+                                 for f, (pt, nr) in src.sim_patches.items()}
         data["closure_agreement"] = list(self.closure_agreement)
-        return json.loads(json.dumps(data, default=_json_default))
+        return _no_nan(json.loads(json.dumps(data, default=_json_default)))
+
+
+def _no_nan(value):
+    """NaN (not measured) becomes null, so the JSON is strict."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _no_nan(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_no_nan(v) for v in value]
+    return value
 
 
 def _json_default(value):
@@ -461,7 +486,7 @@ def replay_plan(
     dwell_s: float = 0.25,
     joint_speed_rad_s: float = 1.5,
     finger_force_n: float = 2.0,
-    squeeze_m: float = 0.003,
+    squeeze_m: float = 0.001,
     solver_iterations: int = 150,
     drift_mm_max: float = 5.0,
     drift_deg_max: float = 5.0,
@@ -786,7 +811,7 @@ class _Sim:
             fc, metric = False, float("nan")
         mm, deg = self.last
         return StateReport(index, True, self.steps_done * self.dt, tuple(state.fingers), tuple(sorted(patches)),
-                           state.is_fc, state.metric, fc, metric, n_pts, mm, deg)
+                           state.is_fc, state.metric, fc, metric, n_pts, mm, deg, patches)
 
     def run(self, states, steps, recorder=None, every=8, realtime=False):
         self.recorder, self.every, self.realtime = recorder, every, realtime
