@@ -205,17 +205,28 @@ def _numerical_rank(W: np.ndarray, scale: float) -> int:
 
 
 def _initial_simplex(W: np.ndarray, tol: float) -> np.ndarray | None:
-    """Indices of 7 affinely independent rows spread far apart, or None (affine dim < 6)."""
+    """Indices of 7 affinely independent rows spread far apart, or None (affine dim < 6).
+
+    Greedy pivoted Gram-Schmidt on ``W - W[i0]``: each step takes the row farthest from the
+    affine hull of the rows chosen so far; that distance (recomputed exactly for the pivot)
+    must exceed ``tol``.
+    """
     i0 = int(np.argmax(W[:, 0] + 1e-3 * W[:, 3]))
     R = W - W[i0]
+    resid = np.einsum("ij,ij->i", R, R)  # squared distances to the current affine hull
     chosen = [i0]
+    basis = np.zeros((0, 6))
     for _ in range(6):
-        norms = np.einsum("ij,ij->i", R, R)
-        j = int(np.argmax(norms))
-        if norms[j] <= tol * tol:
+        j = int(np.argmax(resid))
+        r = R[j] - (R[j] @ basis.T) @ basis
+        r -= (r @ basis.T) @ basis  # second pass keeps the basis orthonormal
+        norm = math.sqrt(r @ r)
+        if norm <= tol:
             return None
-        q = R[j] / math.sqrt(norms[j])
-        R = R - np.outer(R @ q, q)
+        q = r / norm
+        basis = np.vstack([basis, q])
+        resid -= (R @ q) ** 2
+        resid[j] = -1.0
         chosen.append(j)
     return np.array(chosen)
 
@@ -238,6 +249,10 @@ def _zobrist(k: int) -> np.ndarray:
     return _ZOBRIST
 
 
+def _seed_polytope(W, simplex):
+    return W[simplex].mean(axis=0), simplex[_SIMPLEX_FACETS]
+
+
 def _expand(W: np.ndarray, simplex: np.ndarray, tol: float, decide_only: bool) -> tuple[int, float]:
     """Grow an inner polytope Q = conv(S), S a subset of the rows of W, until the answer is certain.
 
@@ -253,18 +268,20 @@ def _expand(W: np.ndarray, simplex: np.ndarray, tol: float, decide_only: bool) -
         only a lower bound > tol); 0 = origin on the boundary; -1 = origin strictly outside.
     """
     Z = _zobrist(len(W))
-    c = W[simplex].mean(axis=0)
+    c, V0 = _seed_polytope(W, simplex)
     Y = W - c
-    cu = 256
-    A = np.zeros((cu, 6))
-    V = np.zeros((cu, 6), dtype=np.intp)
-    K = np.zeros(cu, dtype=np.uint64)
-    D = np.full(cu, np.inf)
-    V[:7] = simplex[_SIMPLEX_FACETS]
-    A[:7] = _facet_planes(Y[V[:7]])
-    K[:7] = Z[V[:7]].sum(axis=1)
-    D[:7] = (1.0 + A[:7] @ c) / np.sqrt(np.einsum("ij,ij->i", A[:7], A[:7]))
-    n = 7
+    n = len(V0)
+    cu = 4096
+    A = np.empty((cu, 6))
+    V = np.empty((cu, 6), dtype=np.intp)
+    K = np.empty(cu, dtype=np.uint64)
+    D = np.empty(cu)
+    B = np.empty((cu, 6, 6))  # B[f] = inverse of the centered vertex matrix Y[V[f]]
+    V[:n] = V0
+    B[:n] = np.linalg.inv(Y[V0])
+    A[:n] = B[:n].sum(axis=2)
+    K[:n] = Z[V0].sum(axis=1)
+    D[:n] = (1.0 + A[:n] @ c) / np.sqrt(np.einsum("ij,ij->i", A[:n], A[:n]))
     vis_thr = 1.0 + 1e-12
     for _ in range(len(W) + 1):
         f = int(np.argmin(D[:n]))
@@ -285,7 +302,8 @@ def _expand(W: np.ndarray, simplex: np.ndarray, tol: float, decide_only: bool) -
             return (0, 0.0) if d >= -tol else (-1, d)
         # Beneath-beyond insertion of row j: drop the facets it sees, cone the horizon to it.
         y = Y[j]
-        visible = A[:n] @ y > vis_thr
+        pa = A[:n] @ y
+        visible = pa > vis_thr
         visible[f] = True
         vis = np.flatnonzero(visible)
         Vv = V[vis]
@@ -300,30 +318,42 @@ def _expand(W: np.ndarray, simplex: np.ndarray, tol: float, decide_only: bool) -
         # (visible facet / hidden facet) appears once.
         hz = order[single]
         fi, ci = np.divmod(hz, 6)
+        ar = np.arange(len(hz))
+        parent = vis[fi]
         newV = Vv[fi]
-        newV[np.arange(len(hz)), ci] = j  # the new facet: ridge + new vertex
-        newA = _facet_planes(Y[newV])
+        newV[ar, ci] = j  # the new facet: ridge + new vertex
+        # Replacing row ci of the parent's vertex matrix by y is a rank-one change, so the
+        # new inverse and plane follow by Sherman-Morrison (no 6x6 solves):
+        # g = B e_ci is the normal of the plane through c and the ridge, y.g != 0 because y
+        # is strictly beyond the parent facet and the ridge lies on it.
+        Bp = B[parent]
+        g = Bp[ar, :, ci]
+        yB = y @ Bp
+        denom = yB[ar, ci]
+        yB[ar, ci] -= 1.0
+        yB /= denom[:, None]
+        Bp -= g[:, :, None] * yB[:, None, :]
+        newA = A[parent]
+        newA -= g * ((pa[parent] - 1.0) / denom)[:, None]
         newD = (1.0 + newA @ c) / np.sqrt(np.einsum("ij,ij->i", newA, newA))
-        newK = Z[newV].sum(axis=1)
-        nh, nv = len(hz), len(vis)
-        if nh <= nv:
-            slots = vis[:nh]
-            dead = vis[nh:]
-            A[dead] = 0.0
-            D[dead] = np.inf
-        else:
-            if n + nh - nv > cu:
-                cu = 2 * (n + nh - nv)
-                A = np.concatenate([A, np.zeros((cu - len(A), 6))])
-                V = np.concatenate([V, np.zeros((cu - len(V), 6), dtype=np.intp)])
-                K = np.concatenate([K, np.zeros(cu - len(K), dtype=np.uint64)])
-                D = np.concatenate([D, np.full(cu - len(D), np.inf)])
-            slots = np.concatenate([vis, np.arange(n, n + nh - nv)])
-            n += nh - nv
-        A[slots] = newA
-        V[slots] = newV
-        K[slots] = newK
-        D[slots] = newD
+        # Visible facets die (A = 0 is never visible, D = inf never nearest); new ones are
+        # appended, so no slot bookkeeping.
+        A[vis] = 0.0
+        D[vis] = np.inf
+        nh = len(hz)
+        if n + nh > cu:
+            cu = 2 * (n + nh)
+            A = np.concatenate([A, np.zeros((cu - len(A), 6))])
+            B = np.concatenate([B, np.zeros((cu - len(B), 6, 6))])
+            V = np.concatenate([V, np.zeros((cu - len(V), 6), dtype=np.intp)])
+            K = np.concatenate([K, np.zeros(cu - len(K), dtype=np.uint64)])
+            D = np.concatenate([D, np.full(cu - len(D), np.inf)])
+        A[n : n + nh] = newA
+        B[n : n + nh] = Bp
+        V[n : n + nh] = newV
+        K[n : n + nh] = K[parent] - Z[Vv[fi, ci]] + Z[j]
+        D[n : n + nh] = newD
+        n += nh
     raise RuntimeError("polytope expansion did not terminate")  # pragma: no cover (a bug)
 
 
@@ -370,9 +400,10 @@ def _closure(W: np.ndarray, decide_only: bool = False) -> Closure:
     if k == 0:
         return Closure(False, 0.0, 0)
     scale = float(np.sqrt(np.einsum("ij,ij->i", W, W).max()))
-    rank = _numerical_rank(W, scale)
     tol = METRIC_RTOL * max(scale, 1e-300)
-    simplex = _initial_simplex(W, RANK_RTOL * scale) if rank == 6 else None
+    simplex = _initial_simplex(W, RANK_RTOL * scale) if k >= 7 and scale > 0 else None
+    # 7 affinely independent rows span R^6; only rank-deficient candidates need the SVD.
+    rank = 6 if simplex is not None else _numerical_rank(W, scale)
     if simplex is not None:
         state, value = _expand(W, simplex, tol, decide_only)
         if state == 1:
