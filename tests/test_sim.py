@@ -1,0 +1,207 @@
+"""pybullet replay of hand-built plans: a stable grasp holds, lifting the thumb drops the object.
+
+The plans are built here from the iCub hand (`Hand.close_finger`, thesis eqs. 8-9) and the
+planner's own contact and closure code, in the plan file schema of docs/INTERFACES.md.
+"""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from planner.closure import Friction, grasp_closure, removable_fingers
+from planner.contacts import contact_patches
+from planner.errors import SpecError
+from planner.hand import Hand
+from planner.objects import make_object
+from planner.sim.replay import ReplayReport, replay_plan
+
+BOX_SIZE = (0.03, 0.03, 0.03)
+BOX_POS = (0.02, -0.02, 0.025)  # palm frame: between the opposed thumb and index/middle pads
+FRICTION = Friction(mu=0.8, gamma=0.002, edges=5)
+GRASP_FINGERS = ("thumb", "index", "middle")
+
+
+@pytest.fixture(scope="module")
+def hand():
+    return Hand.load("icub_right")
+
+
+@pytest.fixture(scope="module")
+def grasp(hand):
+    """A thumb-opposing three-finger grasp of a 3 cm box: (q, obj)."""
+    T = np.eye(4)
+    T[:3, 3] = BOX_POS
+    obj = make_object("box", BOX_SIZE, T, mass_kg=0.03)
+    names = list(hand.joint_names)
+    q = hand.q_open.copy()
+    q[names.index("thumb_0")] = 1.2  # opposition: thumb pad over the grasping face
+    for finger in GRASP_FINGERS:
+        q = hand.close_finger(finger, q, obj)
+    return q, obj
+
+
+def _state(hand, q, obj, fingers):
+    patches = {f: v for f, v in contact_patches(hand, q, obj).items() if f in fingers}
+    closure = grasp_closure(patches, FRICTION)
+    return {
+        "fingers": {f: ("initial" if f in fingers else "lifted") for f in hand.fingers},
+        "patches": {f: {"points": p.tolist(), "normals": n.tolist()} for f, (p, n) in patches.items()},
+        "closure": {"is_force_closure": bool(closure.is_force_closure), "metric": float(closure.metric)},
+        "removable": sorted(removable_fingers(patches, FRICTION)),
+        "q": {j: float(v) for j, v in zip(hand.joint_names, q)},
+    }
+
+
+def _lifted(hand, q, finger, amount=0.35):
+    """q with the finger's flexion joints opened by `amount` rad (a lift away from the box)."""
+    names = list(hand.joint_names)
+    q = q.copy()
+    for j in hand.fingers[finger].close_joints:
+        i = names.index(j)
+        q[i] = max(hand.lower[i], q[i] - amount)
+    return q
+
+
+def _plan(hand, grasp, lift=None):
+    """Plan data: the grasp alone, or the grasp then one lift of `lift`."""
+    q, obj = grasp
+    states = [_state(hand, q, obj, GRASP_FINGERS)]
+    steps = []
+    if lift is not None:
+        q1 = _lifted(hand, q, lift)
+        states.append(_state(hand, q1, obj, tuple(f for f in GRASP_FINGERS if f != lift)))
+        joints = list(hand.fingers[lift].joints)
+        idx = [list(hand.joint_names).index(j) for j in joints]
+        path = [[float(v) for v in qq[idx]] for qq in (q, 0.5 * (q + q1), q1)]
+        steps.append({"finger": lift, "action": "lift", "from_state": 0, "to_state": 1, "joints": joints, "path": path})
+    return {
+        "schema_version": 1,
+        "kind": "regrasp-plan",
+        "hand": {"name": "icub_right", "spec": "robots/icub_right/hand.yaml"},
+        "object": {"shape": "box", "size": list(BOX_SIZE), "position": list(BOX_POS), "quat_xyzw": [0, 0, 0, 1],
+                   "mesh": None, "mass_kg": 0.03},
+        "friction": {"mu": FRICTION.mu, "gamma": FRICTION.gamma, "edges": FRICTION.edges},
+        "inputs": {},
+        "parameters": {},
+        "summary": {},
+        "joints": list(hand.joint_names),
+        "states": states,
+        "steps": steps,
+        "alternatives": [],
+    }
+
+
+def _write(tmp_path, plan, name="plan.yaml"):
+    path = tmp_path / name
+    path.write_text(yaml.safe_dump(plan, sort_keys=False))
+    return path
+
+
+def _cli(*args):
+    return subprocess.run([sys.executable, "-m", "planner", "replay", *map(str, args)],
+                          capture_output=True, text=True, cwd=Path(__file__).resolve().parent.parent)
+
+
+def test_stable_grasp_holds_with_small_drift(hand, grasp):
+    """Holding the thumb-opposing grasp under gravity (palm down) passes with < 5 mm / 5 deg drift,
+    and the simulator finds force closure with the same three fingers."""
+    report = replay_plan(_plan(hand, grasp))
+    assert report.passed, report.verdict
+    assert not report.dropped
+    assert report.max_drift_mm < 5.0 and report.max_drift_deg < 5.0
+    s0 = report.states[0]
+    assert s0.reached and s0.sim_force_closure
+    assert set(s0.sim_fingers) == set(GRASP_FINGERS)
+
+
+def test_safe_lift_of_index_passes(hand, grasp):
+    """Lifting the index (removable in the simulator's and the plan's contacts) keeps the box."""
+    plan = _plan(hand, grasp, lift="index")
+    assert "index" in plan["states"][0]["removable"]
+    report = replay_plan(plan)
+    assert report.passed, report.verdict
+    s1 = report.states[1]
+    assert s1.reached and "index" not in s1.sim_fingers and s1.sim_force_closure
+
+
+def test_lifting_the_thumb_drops_the_object(hand, grasp, tmp_path):
+    """Lifting the opposing thumb leaves nothing against gravity: the replay fails, and the CLI
+    exits 1 with a FAIL verdict."""
+    plan = _plan(hand, grasp, lift="thumb")
+    report = replay_plan(plan)
+    assert not report.passed
+    assert report.dropped or report.max_drift_mm > 5.0
+    out = _cli(_write(tmp_path, plan))
+    assert out.returncode == 1, out.stderr
+    assert "FAIL" in out.stdout.splitlines()[-1]
+
+
+def test_sim_normals_point_into_the_object(hand, grasp):
+    """Filtered sim contacts are in the object frame on the box surface, normals pointing inward."""
+    s0 = replay_plan(_plan(hand, grasp)).states[0]
+    assert s0.sim_patches
+    for points, normals in s0.sim_patches.values():
+        assert np.all(np.max(np.abs(points), axis=1) < BOX_SIZE[0] / 2 + 2e-3)  # on the box surface
+        np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-6)
+        assert np.all(np.einsum("ij,ij->i", points, normals) < 0.0)  # inward: against the position
+
+
+def test_replay_is_deterministic(hand, grasp):
+    """The same plan and parameters give the same drift to the last digit."""
+    a = replay_plan(_plan(hand, grasp, lift="index"))
+    b = replay_plan(_plan(hand, grasp, lift="index"))
+    assert (a.max_drift_mm, a.max_drift_deg, a.sim_steps) == (b.max_drift_mm, b.max_drift_deg, b.sim_steps)
+
+
+def test_gif_and_report_written_by_cli(hand, grasp, tmp_path):
+    """`regrasp replay --gif --report` writes a multi-frame GIF and a JSON report, exit 0."""
+    from PIL import Image
+
+    path = _write(tmp_path, _plan(hand, grasp, lift="index"))
+    gif, rep = tmp_path / "replay.gif", tmp_path / "report.json"
+    out = _cli(path, "--gif", gif, "--report", rep)
+    assert out.returncode == 0, out.stdout + out.stderr
+    assert out.stdout.splitlines()[-1].startswith("PASS")
+    with Image.open(gif) as im:
+        assert im.n_frames >= 5
+        assert im.size == (320, 240)
+    data = json.loads(rep.read_text())
+    assert data["passed"] is True and len(data["states"]) == 2 and data["gif_frames"] >= 5
+
+
+def test_report_to_dict_is_strict_json(hand, grasp):
+    """ReplayReport.to_dict() round-trips through strict JSON (no NaN) for a failed replay too."""
+    report = replay_plan(_plan(hand, grasp, lift="thumb"))
+    assert isinstance(report, ReplayReport)
+    text = json.dumps(report.to_dict(), allow_nan=False)
+    assert json.loads(text)["passed"] is False
+
+
+def test_missing_key_is_a_spec_error_naming_file_and_key(hand, grasp, tmp_path):
+    """A plan without object.size raises SpecError(file, key); the CLI prints one line, exit 2."""
+    plan = _plan(hand, grasp)
+    del plan["object"]["size"]
+    with pytest.raises(SpecError) as err:
+        replay_plan(plan)
+    assert err.value.key == "object.size"
+    path = _write(tmp_path, plan, "broken.yaml")
+    out = _cli(path)
+    assert out.returncode == 2
+    lines = out.stderr.strip().splitlines()
+    assert len(lines) == 1 and "broken.yaml" in lines[0] and "object.size" in lines[0]
+
+
+def test_missing_file_and_mp4_without_ffmpeg_exit_2(tmp_path, hand, grasp, monkeypatch):
+    """A missing plan file exits 2; --mp4 without ffmpeg on PATH is a clear SimulationError."""
+    out = _cli(tmp_path / "nope.yaml")
+    assert out.returncode == 2 and len(out.stderr.strip().splitlines()) == 1
+    monkeypatch.setenv("PATH", str(tmp_path))  # no ffmpeg here
+    from planner.errors import SimulationError
+
+    with pytest.raises(SimulationError, match="ffmpeg"):
+        replay_plan(_plan(hand, grasp), mp4=tmp_path / "x.mp4")
