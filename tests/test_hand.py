@@ -1,0 +1,213 @@
+"""Hand assets and kinematics: specs load everywhere, the iCub model matches its facts,
+Jacobians match finite differences, IK reaches what FK produced and refuses the rest."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from planner.errors import InputError, KinematicsError, SpecError, UnknownNameError
+from planner.hand import ROBOTS_DIR, Hand
+
+SPECS = sorted(ROBOTS_DIR.glob("*/hand.yaml"))
+
+# fact sheet (/work/shared/reference/icub-hand-facts.md), fingertips at q = 0, metres
+ICUB_TIPS = {"index": (0.081, -0.030, -0.010), "middle": (0.084, -0.008, -0.012),
+             "ring": (0.080, 0.016, -0.018), "little": (0.072, 0.031, -0.016),
+             "thumb": (0.0185, -0.087, 0.0)}
+
+
+@pytest.fixture(scope="module")
+def icub():
+    return Hand.load("icub_right")
+
+
+def _pad_palm(hand, finger, q):
+    f = hand.fingers[finger]
+    T = hand.link_pose(q, f.pad_link)
+    return T[:3, :3] @ np.array(f.pad_p_link) + T[:3, 3]
+
+
+@pytest.mark.parametrize("spec", SPECS, ids=lambda p: p.parent.name)
+def test_spec_loads_in_pinocchio(spec):
+    """Every robots/*/hand.yaml builds a Hand whose fingers cover distinct joints of the model."""
+    hand = Hand.load(spec)
+    joints = [j for f in hand.fingers.values() for j in f.joints]
+    assert len(joints) == len(set(joints)) == hand.model.nq == len(hand.joint_names)
+    assert np.all(hand.lower <= hand.q_open) and np.all(hand.q_open <= hand.upper)
+    for f in hand.fingers.values():
+        assert [hand.joint_names[i] for i in f.q_index] == list(f.joints)
+        assert set(f.contact_links) <= set(f.links)
+        hand.link_pose(hand.q_open, f.tip_frame)
+    assert hand.collision_objects(hand.q_open)
+
+
+@pytest.mark.parametrize("spec", SPECS, ids=lambda p: p.parent.name)
+def test_spec_loads_in_pybullet(spec):
+    """Every hand URDF loads in pybullet with one revolute joint per hand joint."""
+    import pybullet as p
+
+    hand = Hand.load(spec)
+    cid = p.connect(p.DIRECT)
+    try:
+        for d in hand.package_dirs:
+            p.setAdditionalSearchPath(d, physicsClientId=cid)
+        body = p.loadURDF(hand.urdf_path, useFixedBase=True, physicsClientId=cid)
+        names = {p.getJointInfo(body, j, physicsClientId=cid)[1].decode()
+                 for j in range(p.getNumJoints(body, physicsClientId=cid))
+                 if p.getJointInfo(body, j, physicsClientId=cid)[2] == p.JOINT_REVOLUTE}
+        assert names == set(hand.joint_names)
+    finally:
+        p.disconnect(cid)
+
+
+def test_icub_fingertips_match_fact_sheet(icub):
+    """At q = 0 the iCub fingertip frames are within 2 mm of the published positions."""
+    q = np.zeros(icub.model.nq)
+    for finger, tip in ICUB_TIPS.items():
+        p = icub.link_pose(q, icub.fingers[finger].tip_frame)[:3, 3]
+        assert np.linalg.norm(p - np.array(tip)) < 2e-3, finger
+
+
+def test_icub_structure(icub):
+    """The iCub model has 19 joints: thumb 4, index 4, middle 3, ring 4, little 4."""
+    assert icub.model.nq == 19
+    assert {f: len(x.joints) for f, x in icub.fingers.items()} == \
+        {"thumb": 4, "index": 4, "middle": 3, "ring": 4, "little": 4}
+
+
+def test_positive_flexion_curls_toward_grasping_face(icub):
+    """Flexing any finger's joints from q = 0 moves its tip toward +z (the grasping face)."""
+    for f in icub.fingers.values():
+        q = np.zeros(icub.model.nq)
+        q[icub.joint_names.index("thumb_0")] = np.pi / 2   # opposed thumb
+        before = icub.link_pose(q, f.tip_frame)[:3, 3]
+        for j in f.close_joints:
+            q[icub.joint_names.index(j)] += 0.3
+        after = icub.link_pose(q, f.tip_frame)[:3, 3]
+        if f.name == "thumb":   # opposed thumb curls toward the fingers (+x)
+            assert after[0] > before[0] + 0.01
+        else:
+            assert after[2] > before[2] + 0.01
+
+
+@pytest.mark.parametrize("name", ["icub_right", "allegro_right"])
+def test_frame_jacobian_matches_finite_differences(name):
+    """frame_jacobian of a link point equals central differences of its FK (linear and angular)."""
+    hand = Hand.load(name)
+    rng = np.random.default_rng(0)
+    for _ in range(3):
+        q = rng.uniform(hand.lower, hand.upper)
+        for f in hand.fingers.values():
+            p_link = np.array(f.pad_p_link)
+            J = hand.frame_jacobian(q, f.pad_link, p_link)
+            eps = 1e-6
+            Jn = np.zeros_like(J)
+            for i in range(hand.model.nq):
+                dq = np.zeros(hand.model.nq)
+                dq[i] = eps
+                Tp, Tm = hand.link_pose(q + dq, f.pad_link), hand.link_pose(q - dq, f.pad_link)
+                Jn[:3, i] = ((Tp[:3, :3] - Tm[:3, :3]) @ p_link + Tp[:3, 3] - Tm[:3, 3]) / (2 * eps)
+                dR = (Tp[:3, :3] - Tm[:3, :3]) / (2 * eps) @ Tp[:3, :3].T   # skew(omega)
+                Jn[3:, i] = [dR[2, 1], dR[0, 2], dR[1, 0]]
+            assert np.allclose(J, Jn, atol=1e-6), f.name
+
+
+@pytest.mark.parametrize("name", ["icub_right", "allegro_right"])
+def test_ik_reaches_fk_targets(name):
+    """Targets made by FK of random in-limit postures are reached within 0.5 mm, only the
+    finger's joints move and the solution stays inside the limits."""
+    hand = Hand.load(name)
+    rng = np.random.default_rng(1)
+    for f in hand.fingers.values():
+        idx = list(f.q_index)
+        for _ in range(5):
+            q_true = hand.q_open.copy()
+            q_true[idx] = rng.uniform(hand.lower[idx], hand.upper[idx])
+            target = _pad_palm(hand, f.name, q_true)
+            q = hand.ik(f.name, target, hand.q_open)
+            assert np.linalg.norm(_pad_palm(hand, f.name, q) - target) < 5e-4
+            others = np.setdiff1d(np.arange(hand.model.nq), idx)
+            assert np.array_equal(q[others], hand.q_open[others])
+            assert np.all(q >= hand.lower - 1e-12) and np.all(q <= hand.upper + 1e-12)
+
+
+def test_ik_aligns_pad_normal_when_possible(icub):
+    """With normal_palm set to the pad normal of an FK posture, IK returns a posture whose pad
+    faces that direction within 5 degrees."""
+    rng = np.random.default_rng(2)
+    f = icub.fingers["index"]
+    idx = list(f.q_index)
+    for _ in range(5):
+        q_true = icub.q_open.copy()
+        q_true[idx] = rng.uniform(icub.lower[idx], icub.upper[idx])
+        n = icub.link_pose(q_true, f.pad_link)[:3, :3] @ np.array(f.pad_n_link)
+        q = icub.ik("index", _pad_palm(icub, "index", q_true), icub.q_open, normal_palm=n)
+        n_got = icub.link_pose(q, f.pad_link)[:3, :3] @ np.array(f.pad_n_link)
+        assert np.degrees(np.arccos(np.clip(n_got @ n, -1, 1))) < 5.0
+
+
+def test_ik_refuses_unreachable_targets(icub):
+    """A target far outside the finger's workspace raises KinematicsError."""
+    with pytest.raises(KinematicsError, match="index"):
+        icub.ik("index", [0.2, 0.0, 0.0], icub.q_open)
+    with pytest.raises(KinematicsError):
+        icub.ik("thumb", [-0.06, 0.03, -0.05], icub.q_open)   # under the palm, behind it
+
+
+def test_bad_names_and_sizes(icub):
+    """Unknown fingers/links list the valid names; wrong q sizes are InputError."""
+    with pytest.raises(UnknownNameError, match="index, little, middle, ring, thumb"):
+        icub.ik("pinky", [0, 0, 0], icub.q_open)
+    with pytest.raises(UnknownNameError, match="index_distal"):
+        icub.link_pose(icub.q_open, "index_distl")
+    with pytest.raises(InputError):
+        icub.link_pose(np.zeros(3), "palm")
+    with pytest.raises(UnknownNameError, match="icub_right"):
+        Hand.load("no_such_hand")
+
+
+def _write_spec(tmp_path: Path, text: str) -> Path:
+    urdf = (ROBOTS_DIR / "icub_right" / "icub_right.urdf").resolve()
+    path = tmp_path / "hand.yaml"
+    path.write_text(text.replace("URDF", str(urdf)))
+    return path
+
+
+GOOD = """schema_version: 1
+urdf: URDF
+palm_frame: palm
+fingers:
+  index: {joints: [index_0, index_1, index_2, index_3], tip_frame: index_tip}
+  thumb: {joints: [thumb_0, thumb_1, thumb_2, thumb_3], tip_frame: thumb_tip}
+"""
+
+
+def test_minimal_spec_locks_unlisted_joints(tmp_path):
+    """A spec naming two fingers gives an 8-joint hand; default contact links are the finger links."""
+    hand = Hand.load(_write_spec(tmp_path, GOOD))
+    assert hand.model.nq == 8
+    assert hand.fingers["index"].contact_links == ("index_proximal", "index_intermediate", "index_distal")
+
+
+@pytest.mark.parametrize("text, key, words", [
+    (GOOD.replace("palm_frame: palm\n", ""), "palm_frame", "missing"),
+    (GOOD.replace("index_3]", "index_9]"), "fingers.index.joints", "index_3"),
+    (GOOD.replace("tip_frame: index_tip", "tip_frame: index_tp"), "fingers.index.tip_frame", "index_tip"),
+    (GOOD.replace("tip_frame: thumb_tip}", "tip_frame: thumb_tip, contact_links: [index_distal]}"),
+     "fingers.thumb.contact_links", "thumb_distal"),
+    (GOOD.replace("palm_frame: palm", "palm_frame: palmm"), "palm_frame", "palm"),
+    (GOOD.replace("schema_version: 1", "schema_version: 7"), "schema_version", "supported"),
+    (GOOD + "open: {index_1: 3.0}\n", "open.index_1", "expected a number"),
+    (GOOD.replace("  index: {joints: [index_0, index_1, index_2, index_3], tip_frame: index_tip}\n",
+                  "  index: {tip_frame: index_tip}\n"), "fingers.index.joints", "missing"),
+])
+def test_spec_errors_name_the_key(tmp_path, text, key, words):
+    """Invalid hand specs raise SpecError with the file, the key path and the valid choices."""
+    with pytest.raises(SpecError) as err:
+        Hand.load(_write_spec(tmp_path, text))
+    assert err.value.key == key
+    assert words in str(err.value)
+    assert str(tmp_path) in str(err.value)
