@@ -1,0 +1,418 @@
+"""Force closure, the signed Ferrari-Canny metric and removable fingers (planner/closure.py)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.optimize import nnls
+from scipy.spatial import ConvexHull, QhullError
+from scipy.spatial.transform import Rotation
+
+from planner.closure import (
+    Closure,
+    Friction,
+    batch_grasp_closure,
+    closure_from_wrenches,
+    contact_wrenches,
+    grasp_closure,
+    removable_fingers,
+)
+from planner.errors import InputError
+
+SOFT = Friction(mu=0.5, gamma=0.01, edges=5)
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def hull_baseline(W: np.ndarray) -> tuple[bool, float]:
+    """Reference answer: qhull facets for force closure, NNLS for the outside distance."""
+    try:
+        offsets = ConvexHull(W).equations[:, -1]  # unit normals: distance = -offset
+        if offsets.max() < -1e-12:
+            return True, float(-offsets.max())
+    except QhullError:
+        pass  # rank-deficient: never force closure
+    big = 1e4  # heavy row enforcing sum(lambda) = 1
+    A = np.vstack([W.T, big * np.ones(len(W))])
+    lam, _ = nnls(A, np.r_[np.zeros(6), big], maxiter=20 * len(W))
+    return False, -float(np.linalg.norm(W.T @ lam))
+
+
+def random_grasp(rng, n_fingers, n_points, radius=0.03, spread=0.004, tilt=0.1):
+    """Fingers on a sphere-like object: patches of noisy points with roughly inward normals."""
+    patches = {}
+    for i in range(n_fingers):
+        d = rng.normal(size=3)
+        d /= np.linalg.norm(d)
+        points = radius * d + spread * rng.normal(size=(n_points, 3))
+        normals = -d + tilt * rng.normal(size=(n_points, 3))
+        patches[f"f{i}"] = (points, normals)
+    return patches
+
+
+def box_face_grasp(rng, n_fingers, n_points, half=0.02):
+    """Fingers on faces of a box: coplanar patches with identical normals (degenerate hulls)."""
+    patches = {}
+    faces = rng.choice(6, size=n_fingers, replace=False)
+    for i, face in enumerate(faces):
+        axis, sign = divmod(int(face), 2)
+        sign = 1.0 if sign else -1.0
+        points = rng.uniform(-half, half, size=(n_points, 3))
+        points[:, axis] = sign * half
+        normals = np.zeros((n_points, 3))
+        normals[:, axis] = -sign
+        patches[f"f{i}"] = (points, normals)
+    return patches
+
+
+def stack(patches, friction):
+    return np.vstack([contact_wrenches(p, n, friction) for p, n in patches.values()])
+
+
+def six_sphere_contacts(radius=0.05):
+    axes = np.vstack([np.eye(3), -np.eye(3)])
+    return {f"c{i}": (radius * a[None, :], -a[None, :]) for i, a in enumerate(axes)}
+
+
+def assert_same(c: Closure, reference: tuple[bool, float]):
+    fc, metric = reference
+    assert c.is_force_closure == fc
+    assert c.metric == pytest.approx(metric, rel=1e-6, abs=1e-9)  # NNLS penalty: ~1e-12 abs
+
+
+# --------------------------------------------------------------------------- friction and wrenches
+
+
+@pytest.mark.parametrize(
+    "kwargs",
+    [dict(mu=-0.1, gamma=0.0), dict(mu=0.5, gamma=-1e-3), dict(mu=math.nan, gamma=0.0),
+     dict(mu=0.5, gamma=math.inf), dict(mu=0.5, gamma=0.0, edges=2), dict(mu=0.5, gamma=0.0, edges=4.5)],
+)
+def test_friction_rejects_bad_values(kwargs):
+    """Negative or non-finite coefficients and fewer than 3 (or fractional) edges raise InputError."""
+    with pytest.raises(InputError):
+        Friction(**kwargs)
+
+
+def test_contact_wrenches_follow_the_soft_finger_cone():
+    """Each point gives 2*edges rows with unit normal force, rim at mu, and torque p x f +/- gamma n."""
+    rng = np.random.default_rng(0)
+    p = rng.normal(size=(4, 3)) * 0.03
+    n = rng.normal(size=(4, 3)) * 3.0  # not unit: must be normalized
+    fr = Friction(0.4, 0.02, edges=6)
+    W = contact_wrenches(p, n, fr)
+    assert W.shape == (2 * 6 * 4, 6)
+    un = n / np.linalg.norm(n, axis=1)[:, None]
+    rows = W.reshape(4, 6, 2, 6)
+    f = rows[..., :3]
+    normal_part = np.einsum("iksj,ij->iks", f, un)
+    np.testing.assert_allclose(normal_part, 1.0, atol=1e-12)
+    tangential = f - normal_part[..., None] * un[:, None, None, :]
+    np.testing.assert_allclose(np.linalg.norm(tangential, axis=-1), 0.4, atol=1e-12)
+    torsion = np.array([1.0, -1.0])[None, None, :, None] * 0.02 * un[:, None, None, :]
+    expected_tau = np.cross(p[:, None, None, :], f) + torsion
+    np.testing.assert_allclose(rows[..., 3:], expected_tau, atol=1e-15)
+    np.testing.assert_array_equal(W, contact_wrenches(p, n, fr))  # deterministic basis
+
+
+@pytest.mark.parametrize(
+    "points, normals, what",
+    [
+        (np.zeros((2, 3)), np.array([[0, 0, 1.0], [0, 0, 0]]), "zero length"),
+        (np.zeros((2, 3)), np.zeros((3, 3)) + 1, "shape"),
+        (np.zeros((2, 2)), np.ones((2, 2)), "shape"),
+        (np.array([[np.nan, 0, 0]]), np.array([[0, 0, 1.0]]), "finite"),
+        (np.array([[0, 0, 0.0]]), np.array([[0, np.inf, 1.0]]), "finite"),
+    ],
+)
+def test_contact_wrenches_reject_bad_input(points, normals, what):
+    """Zero-length normals, mismatched shapes and NaN/inf raise InputError saying what was wrong."""
+    with pytest.raises(InputError, match=what):
+        contact_wrenches(points, normals, SOFT)
+
+
+@pytest.mark.parametrize(
+    "W, what",
+    [(np.ones((10, 5)), "shape"), (np.ones(6), "shape"), (np.full((8, 6), np.nan), "finite"),
+     (np.array([[np.inf] + [0.0] * 5] * 8), "finite")],
+)
+def test_closure_from_wrenches_rejects_bad_input(W, what):
+    """Wrench arrays that are not (k, 6) or hold NaN/inf raise InputError."""
+    with pytest.raises(InputError, match=what):
+        closure_from_wrenches(W)
+
+
+def test_grasp_closure_rejects_bad_patches():
+    """A patch that is not a (points, normals) pair, or a wrong friction object, raises InputError."""
+    with pytest.raises(InputError, match="pair"):
+        grasp_closure({"index": np.zeros((3, 3))}, SOFT)
+    with pytest.raises(InputError, match="zero length"):
+        grasp_closure({"index": (np.zeros((1, 3)), np.zeros((1, 3)))}, SOFT)
+    with pytest.raises(InputError, match="Friction"):
+        grasp_closure(six_sphere_contacts(), 0.5)
+
+
+# --------------------------------------------------------------------------- analytic grasps
+
+
+def test_cross_polytope_epsilon_is_one_over_sqrt6():
+    """The wrenches +/- e_i form a cross-polytope whose facets are at distance 1/sqrt(6)."""
+    W = np.vstack([np.eye(6), -np.eye(6)])
+    c = closure_from_wrenches(W)
+    assert c.is_force_closure and c.rank == 6
+    assert c.metric == pytest.approx(1 / math.sqrt(6), rel=1e-12)
+
+
+def test_hypercube_epsilon_is_half_width():
+    """The 64 vertices of [-2, 2]^6 give epsilon 2, the distance to a face of the cube."""
+    W = 2.0 * np.array(np.meshgrid(*[[-1.0, 1.0]] * 6)).reshape(6, -1).T
+    assert closure_from_wrenches(W).metric == pytest.approx(2.0, rel=1e-12)
+
+
+@pytest.mark.parametrize("delta", [0.3, 1e-4, 1e-7])
+def test_shifted_cross_polytope_near_the_boundary(delta):
+    """Shifting the cross-polytope by t e_1 gives epsilon (1-t)/sqrt(6) inside and -(t-1) outside."""
+    base = np.vstack([np.eye(6), -np.eye(6)])
+    shift = np.eye(6)[0]
+    inside = closure_from_wrenches(base + (1 - delta) * shift)
+    assert inside.is_force_closure
+    assert inside.metric == pytest.approx(delta / math.sqrt(6), rel=1e-6)
+    outside = closure_from_wrenches(base + (1 + delta) * shift)
+    assert not outside.is_force_closure
+    assert outside.metric == pytest.approx(-delta, rel=1e-6)
+
+
+def test_origin_on_the_boundary_gives_exactly_zero():
+    """A wrench set with the origin as a vertex (or on a facet) is not force closure, metric 0."""
+    base = np.vstack([np.eye(6), -np.eye(6)])
+    on_vertex = closure_from_wrenches(base + np.eye(6)[0])
+    assert (on_vertex.is_force_closure, on_vertex.metric) == (False, 0.0)
+    on_facet = closure_from_wrenches(base + np.ones(6) / 6.0)  # facet sum(x) = 1 passes through 0
+    assert (on_facet.is_force_closure, on_facet.metric) == (False, 0.0)
+
+
+def test_rank_deficient_sets_are_never_force_closure():
+    """+/- e_i for five axes contain the origin but span 5-D: not force closure, metric 0, rank 5."""
+    W = np.vstack([np.eye(6)[:5], -np.eye(6)[:5]])
+    c = closure_from_wrenches(W)
+    assert (c.is_force_closure, c.metric, c.rank) == (False, 0.0, 5)
+    far = closure_from_wrenches(np.array([[2.0, 1, 0, 0, 0, 0], [2.0, -1, 0, 0, 0, 0]]))
+    assert not far.is_force_closure and far.metric == pytest.approx(-2.0, rel=1e-12)
+    assert closure_from_wrenches(np.zeros((0, 6))) == Closure(False, 0.0, 0)
+
+
+def test_sphere_six_contacts_with_friction_is_force_closure():
+    """Soft contacts at +/-x, +/-y, +/-z of a sphere are force closure; frictionless ones are not."""
+    patches = six_sphere_contacts()
+    assert grasp_closure(patches, SOFT).is_force_closure
+    frictionless = grasp_closure(patches, Friction(0.0, 0.0))
+    assert not frictionless.is_force_closure  # normals through the centre: no torque at all
+    assert frictionless.rank == 3 and frictionless.metric == 0.0
+
+
+@pytest.mark.parametrize(
+    "mu, gamma, expected", [(0.5, 0.01, True), (0.5, 0.0, False), (0.0, 0.01, False), (0.0, 0.0, False)]
+)
+def test_antipodal_pair_needs_friction_and_torsion(mu, gamma, expected):
+    """Two opposite soft contacts are force closure only with mu > 0 and gamma > 0."""
+    patches = {"thumb": ([[0.04, 0, 0]], [[-1.0, 0, 0]]), "index": ([[-0.04, 0, 0]], [[1.0, 0, 0]])}
+    c = grasp_closure(patches, Friction(mu, gamma))
+    assert c.is_force_closure is expected
+    if not expected:
+        assert c.metric == 0.0  # the origin is in the (flat) hull: squeezing balances itself
+    assert_same(c, hull_baseline(stack(patches, Friction(mu, gamma))))
+
+
+def test_frictionless_box_with_four_contacts_per_face_is_force_closure():
+    """Frictionless point contacts at the corners of a square on every box face immobilize it."""
+    patches = {}
+    half, off = 0.02, 0.01
+    corners = np.array([[1, 1], [1, -1], [-1, 1], [-1, -1]]) * off
+    for axis in range(3):
+        others = [a for a in range(3) if a != axis]
+        for sign in (1.0, -1.0):
+            points = np.zeros((4, 3))
+            points[:, axis] = sign * half
+            points[:, others] = corners
+            normals = np.zeros((4, 3))
+            normals[:, axis] = -sign
+            patches[f"{'xyz'[axis]}{'+' if sign > 0 else '-'}"] = (points, normals)
+    frictionless = Friction(0.0, 0.0, edges=3)
+    c = grasp_closure(patches, frictionless)
+    assert c.is_force_closure
+    assert_same(c, hull_baseline(stack(patches, frictionless)))
+    one_face = grasp_closure({"x+": patches["x+"]}, frictionless)
+    assert not one_face.is_force_closure
+
+
+def test_contacts_on_one_face_are_never_force_closure_and_sit_at_distance_one():
+    """A patch symmetric about a face centre has the normal force at distance exactly 1 from the hull."""
+    rng = np.random.default_rng(3)
+    xy = rng.uniform(-0.02, 0.02, size=(6, 2))
+    xy = np.vstack([xy, -xy])  # symmetric about the face centre
+    points = np.column_stack([xy, np.full(len(xy), 0.03)])
+    normals = np.tile([0.0, 0.0, -1.0], (len(xy), 1))
+    for fr in (SOFT, Friction(1.0, 0.05, edges=8), Friction(0.0, 0.0)):
+        c = grasp_closure({"a": (points[:6], normals[:6]), "b": (points[6:], normals[6:])}, fr)
+        assert not c.is_force_closure
+        assert c.metric == pytest.approx(-1.0, rel=1e-9)
+
+
+# --------------------------------------------------------------------------- baseline agreement
+
+
+def test_agrees_with_qhull_on_random_grasps():
+    """Booleans and signed metrics match qhull (and an NNLS distance) on 250 seeded random grasps."""
+    rng = np.random.default_rng(2024)
+    n_fc = 0
+    for trial in range(250):
+        fr = Friction(rng.uniform(0.0, 1.0), rng.uniform(0.0, 0.01), int(rng.integers(3, 7)))
+        maker = box_face_grasp if trial % 5 == 4 else random_grasp
+        patches = maker(rng, int(rng.integers(2, 6)), int(rng.integers(1, 5)))
+        W = stack(patches, fr)
+        reference = hull_baseline(W)
+        n_fc += reference[0]
+        c = closure_from_wrenches(W)
+        assert c.is_force_closure == reference[0], trial
+        assert c.metric == pytest.approx(reference[1], rel=1e-6, abs=1e-12), trial
+    assert 50 < n_fc < 230  # both outcomes are exercised
+
+
+def test_agrees_with_qhull_on_random_point_clouds():
+    """Random 6-D point clouds around and beside the origin match qhull and the NNLS distance."""
+    rng = np.random.default_rng(7)
+    for trial in range(120):
+        k = int(rng.integers(7, 60))
+        W = rng.normal(size=(k, 6)) * rng.uniform(0.1, 2.0, size=6) + rng.normal(size=6) * 0.6
+        assert_same(closure_from_wrenches(W), hull_baseline(W))
+
+
+# --------------------------------------------------------------------------- invariances
+
+
+def test_rotating_all_wrenches_keeps_answer_and_metric():
+    """Rotating forces and torques by the same rotation (a frame change) keeps closure and metric."""
+    rng = np.random.default_rng(11)
+    for _ in range(15):
+        W = stack(random_grasp(rng, int(rng.integers(2, 5)), 3), SOFT)
+        R = Rotation.random(random_state=rng).as_matrix()
+        big = np.zeros((6, 6))
+        big[:3, :3] = big[3:, 3:] = R
+        a, b = closure_from_wrenches(W), closure_from_wrenches(W @ big.T)
+        assert a.is_force_closure == b.is_force_closure
+        assert b.metric == pytest.approx(a.metric, rel=1e-7, abs=1e-12)
+
+
+def test_rotating_contacts_keeps_answer_for_a_robust_grasp():
+    """Rotating every contact about the origin keeps force closure and the metric within cone sampling."""
+    rng = np.random.default_rng(12)
+    patches = six_sphere_contacts()
+    fine = Friction(0.5, 0.01, edges=64)  # fine cone: the cone's phase barely matters
+    ref = grasp_closure(patches, fine)
+    for _ in range(5):
+        R = Rotation.random(random_state=rng).as_matrix()
+        rotated = {f: (p @ R.T, n @ R.T) for f, (p, n) in patches.items()}
+        c = grasp_closure(rotated, fine)
+        assert c.is_force_closure
+        assert c.metric == pytest.approx(ref.metric, rel=0.02)
+
+
+def test_permuting_fingers_and_rows_keeps_result():
+    """Reordering fingers (and wrench rows) gives the identical answer and metric."""
+    rng = np.random.default_rng(13)
+    for _ in range(10):
+        patches = random_grasp(rng, 4, 3)
+        reordered = dict(reversed(list(patches.items())))
+        a, b = grasp_closure(patches, SOFT), grasp_closure(reordered, SOFT)
+        assert a.is_force_closure == b.is_force_closure
+        assert b.metric == pytest.approx(a.metric, rel=1e-9, abs=1e-14)
+        W = stack(patches, SOFT)
+        c = closure_from_wrenches(W[rng.permutation(len(W))])
+        assert c.metric == pytest.approx(a.metric, rel=1e-9, abs=1e-14)
+
+
+def test_adding_a_contact_never_breaks_closure_nor_lowers_the_metric():
+    """Adding contacts can only grow the hull: closure is kept and the signed metric never drops."""
+    rng = np.random.default_rng(14)
+    for _ in range(30):
+        patches = random_grasp(rng, int(rng.integers(2, 5)), 2)
+        before = grasp_closure(patches, SOFT)
+        extra = random_grasp(rng, 1, int(rng.integers(1, 3)))["f0"]
+        after = grasp_closure({**patches, "extra": extra}, SOFT)
+        assert after.metric >= before.metric - 1e-12
+        if before.is_force_closure:
+            assert after.is_force_closure
+
+
+def test_removing_a_finger_never_creates_closure():
+    """Dropping a finger can only shrink the hull: no closure appears and the metric never rises."""
+    rng = np.random.default_rng(15)
+    for _ in range(20):
+        patches = random_grasp(rng, 4, 2)
+        full = grasp_closure(patches, SOFT)
+        for finger in patches:
+            rest = grasp_closure({f: v for f, v in patches.items() if f != finger}, SOFT)
+            assert rest.metric <= full.metric + 1e-12
+            assert not (rest.is_force_closure and not full.is_force_closure)
+
+
+def test_empty_patch_contributes_nothing():
+    """A finger with zero points leaves the answer unchanged."""
+    patches = six_sphere_contacts()
+    a = grasp_closure(patches, SOFT)
+    b = grasp_closure({**patches, "idle": (np.zeros((0, 3)), np.zeros((0, 3)))}, SOFT)
+    assert a == b
+
+
+# --------------------------------------------------------------------------- Algorithm 1 and batches
+
+
+def test_removable_fingers_matches_the_definition():
+    """A finger is removable exactly when the other fingers alone are force closure."""
+    rng = np.random.default_rng(16)
+    seen_some = 0
+    for _ in range(25):
+        patches = random_grasp(rng, int(rng.integers(3, 6)), 2)
+        removable = removable_fingers(patches, SOFT)
+        if not grasp_closure(patches, SOFT).is_force_closure:
+            assert removable == frozenset()
+            continue
+        expected = {
+            f for f in patches if grasp_closure({g: v for g, v in patches.items() if g != f}, SOFT).is_force_closure
+        }
+        assert removable == expected
+        seen_some += bool(expected)
+    assert seen_some > 0
+
+
+def test_removable_fingers_antipodal_pair_plus_helper():
+    """With a soft antipodal pair doing the holding, only the helper finger and idle fingers can go."""
+    patches = {
+        "thumb": ([[0.04, 0, 0]], [[-1.0, 0, 0]]),
+        "index": ([[-0.04, 0, 0]], [[1.0, 0, 0]]),
+        "middle": ([[0, 0.04, 0]], [[0, -1.0, 0]]),
+        "ring": (np.zeros((0, 3)), np.zeros((0, 3))),
+    }
+    assert removable_fingers(patches, SOFT) == frozenset({"middle", "ring"})
+    assert removable_fingers({"thumb": patches["thumb"], "ring": patches["ring"]}, SOFT) == frozenset()
+
+
+def test_batch_matches_single_calls_and_shares_patches():
+    """batch_grasp_closure returns, in order, what grasp_closure gives for each grasp."""
+    rng = np.random.default_rng(17)
+    pool = random_grasp(rng, 6, 3)
+    names = list(pool)
+    grasps = []
+    for _ in range(30):
+        chosen = rng.choice(names, size=int(rng.integers(2, 6)), replace=False)
+        grasps.append({str(f): pool[str(f)] for f in chosen})
+    grasps.append(dict(grasps[0]))  # a repeated grasp
+    grasps.append({})  # no contact at all
+    results = batch_grasp_closure(grasps, SOFT)
+    assert len(results) == len(grasps)
+    for g, r in zip(grasps, results):
+        assert r == grasp_closure(g, SOFT)
+    assert results[-1] == Closure(False, 0.0, 0)
