@@ -657,9 +657,11 @@ class Hand:
 
         Every closing joint moves from its value in ``q`` toward its upper limit by the same
         fraction alpha of its remaining range: alpha_n = alpha_{n-1} +/- (1/2)^n, n = 1..steps
-        (+ while the finger is free, - while it penetrates the object), then alpha is reduced by
-        ``backoff`` (0.1 % of the range) until the finger is free of penetration. The finger then
-        touches the object within about 0.1 % of its range, or is fully closed if it never met it.
+        (+ while the finger is free, - while it penetrates the object), then the closing joints are
+        opened by ``backoff`` (0.1 %) of their range until the finger is free of penetration. The
+        finger then touches the object within about 0.1 % of its range, or is fully closed if it
+        never met it. A finger that already penetrates at ``q`` (e.g. placed by IK) is only opened
+        by 0.1 % steps until free.
 
         Args:
             finger: finger name or Finger.
@@ -682,17 +684,25 @@ class Hand:
         def colliding(alpha):
             return self._finger_object_distance(at(alpha), f, obj) < 0.0
 
+        step = backoff * (self.upper[cidx] - self.lower[cidx])
         if colliding(0.0):
-            return q
+            # already penetrating (e.g. an IK placement): open by 0.1 % steps until free
+            qb = q.copy()
+            for _ in range(int(np.ceil(1.0 / backoff))):
+                if self._finger_object_distance(qb, f, obj) >= 0.0:
+                    return qb
+                qb[cidx] = np.maximum(qb[cidx] - step, self.lower[cidx])
+            return qb
         alpha = 0.0
         for n in range(1, steps + 1):
             if colliding(alpha):
                 alpha -= 0.5 ** n
             else:
                 alpha = min(alpha + 0.5 ** n, 1.0)
-        while alpha > 0.0 and colliding(alpha):
-            alpha = max(alpha - backoff, 0.0)
-        return at(alpha)
+        qc = at(alpha)
+        while self._finger_object_distance(qc, f, obj) < 0.0 and np.any(qc[cidx] > start):
+            qc[cidx] = np.maximum(qc[cidx] - step, start)
+        return qc
 
 
 def _skew(v) -> np.ndarray:

@@ -139,3 +139,23 @@ def test_allegro_closing_touches_a_sphere():
     assert "index" in touching_links(hand, q, obj)
     assert collisions(hand, q, obj, fingers=["index"]) == []
     assert "index" in contact_patches(hand, q, obj)
+
+
+def test_ik_placement_then_closing_touches_without_penetration(icub, box_grasp):
+    """Placing the middle pad on the box by IK (pad normal toward the face) and then running the
+    closing procedure leaves it touching within tolerance and not penetrating."""
+    q, obj = box_grasp
+    idx = list(icub.fingers["middle"].q_index)
+    q0 = q.copy()
+    q0[idx] = icub.q_open[idx]
+    R, t = obj.T_palm_obj[:3, :3], obj.T_palm_obj[:3, 3]   # object y axis = palm y axis
+    # on the +x face, in the middle finger's flexion plane (the finger has no abduction)
+    f = icub.fingers["middle"]
+    T_pad = icub.link_pose(q0, f.pad_link)
+    y_plane = (T_pad[:3, :3] @ np.array(f.pad_p_link) + T_pad[:3, 3])[1]
+    p_obj = np.array([0.012, y_plane - t[1], 0.0])
+    q1 = icub.ik("middle", R @ p_obj + t, q0, normal_palm=R @ [-1.0, 0.0, 0.0])
+    q2 = icub.close_finger("middle", q1, obj)
+    d = icub._finger_object_distance(q2, icub.fingers["middle"], obj)
+    assert 0.0 <= d <= TOUCH_TOL_M
+    assert "middle" in contact_patches(icub, q2, obj)
