@@ -253,6 +253,24 @@ def _seed_polytope(W, simplex):
     return W[simplex].mean(axis=0), simplex[_SIMPLEX_FACETS]
 
 
+class _Degenerate(Exception):
+    """The incremental polytope met a numerically degenerate update."""
+
+
+def _qhull_fallback(W: np.ndarray, tol: float) -> tuple[int, float]:
+    """Slow exact path (qhull facets, never joggled) if the fast expansion degenerates."""
+    from scipy.spatial import ConvexHull, QhullError  # noqa: PLC0415 (rarely needed)
+
+    try:
+        offsets = ConvexHull(W).equations[:, -1]  # unit normals: distance = -offset
+    except QhullError:
+        return -1, 0.0
+    d = float(-offsets.max())
+    if d > tol:
+        return 1, d
+    return (0, 0.0) if d >= -tol else (-1, d)
+
+
 def _expand(W: np.ndarray, simplex: np.ndarray, tol: float, decide_only: bool) -> tuple[int, float]:
     """Grow an inner polytope Q = conv(S), S a subset of the rows of W, until the answer is certain.
 
@@ -286,6 +304,8 @@ def _expand(W: np.ndarray, simplex: np.ndarray, tol: float, decide_only: bool) -
     for _ in range(len(W) + 1):
         f = int(np.argmin(D[:n]))
         d = D[f]
+        if not d < math.inf:  # NaN from a degenerate update (argmin returns NaN first)
+            raise _Degenerate
         if decide_only and d > tol:
             return 1, d
         a = A[f]
@@ -354,7 +374,7 @@ def _expand(W: np.ndarray, simplex: np.ndarray, tol: float, decide_only: bool) -
         K[n : n + nh] = K[parent] - Z[Vv[fi, ci]] + Z[j]
         D[n : n + nh] = newD
         n += nh
-    raise RuntimeError("polytope expansion did not terminate")  # pragma: no cover (a bug)
+    raise _Degenerate  # pragma: no cover (every step adds a new vertex: cannot happen)
 
 
 def _min_norm_point(W: np.ndarray, tol: float) -> float:
@@ -405,7 +425,11 @@ def _closure(W: np.ndarray, decide_only: bool = False) -> Closure:
     # 7 affinely independent rows span R^6; only rank-deficient candidates need the SVD.
     rank = 6 if simplex is not None else _numerical_rank(W, scale)
     if simplex is not None:
-        state, value = _expand(W, simplex, tol, decide_only)
+        try:
+            with np.errstate(divide="ignore", invalid="ignore"):
+                state, value = _expand(W, simplex, tol, decide_only)
+        except _Degenerate:
+            state, value = _qhull_fallback(W, tol)
         if state == 1:
             return Closure(True, float(value), rank)
         if state == 0:
