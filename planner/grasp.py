@@ -61,6 +61,8 @@ SIZE_MEANING = {
 SURFACE_TOL_M = 0.002
 #: Contact fingers are placed this far out along the surface normal, then closed onto it.
 APPROACH_M = 0.004
+#: A closed finger landing farther than this from its contact point is re-placed along the normal.
+LANDING_TOL_M = 0.004
 #: Joint values in a posture may exceed the limits by this much (rounding in files).
 LIMIT_TOL_RAD = 1e-6
 
@@ -534,3 +536,194 @@ def _parse_finger(r: _Reader, value, key: str, hand, finger, obj) -> FingerSpec:
             f"expected a point on the surface (within {SURFACE_TOL_M * 1000:.1f} mm, object frame)",
         )
     return FingerSpec(finger.name, "contact", point_obj=point, link=link)
+
+
+# --------------------------------------------------------------------------- realization
+
+
+def _finger_of(hand, finger):
+    """A `Finger` from a name or a Finger (UnknownNameError with the valid names)."""
+    if isinstance(finger, str):
+        if finger not in hand.fingers:
+            from planner.errors import UnknownNameError
+
+            raise UnknownNameError("finger", finger, list(hand.fingers))
+        return hand.fingers[finger]
+    return finger
+
+
+def _finger_object_distance(hand, q, obj, finger) -> float:
+    """Signed distance (m) between the finger's links and the object (negative: penetration)."""
+    import coal
+
+    T = np.asarray(obj.T_palm_obj)
+    tf_obj = coal.Transform3s(T[:3, :3], T[:3, 3])
+    req = coal.DistanceRequest()
+    req.enable_signed_distance = True
+    best = np.inf
+    for link, fname, geom, tf in hand.collision_objects(q):
+        if fname != finger.name:
+            continue
+        res = coal.DistanceResult()
+        best = min(best, coal.distance(geom, tf, obj.geometry, tf_obj, req, res))
+    return float(best)
+
+
+def _approach_along_normal(hand, obj, f, p_palm, n_out_palm, q, link, iters: int = 12):
+    """Slide the IK target along the surface normal until the finger just touches.
+
+    Used when closing the finger (which curls it) does not land it on the requested point,
+    e.g. a lateral contact with the side of a phalanx: the finger is moved straight toward
+    the surface instead, keeping the pad facing it.
+    """
+    from planner.contacts import TOUCH_TOL_M
+
+    offset = APPROACH_M
+    best = None
+    for _ in range(iters):
+        try:
+            q = hand.ik(f, p_palm + offset * n_out_palm, q, link=link, normal_palm=-n_out_palm)
+        except KinematicsError:
+            break
+        d = _finger_object_distance(hand, q, obj, f)
+        if 0.0 <= d <= 0.5 * TOUCH_TOL_M:
+            return q
+        if d >= 0.0:
+            best = q
+        # the finger surface moves with the target: step by the measured gap (or depth)
+        offset -= d - 0.25 * TOUCH_TOL_M
+    return best
+
+
+def realize_contact(hand, obj, finger, p_obj, q_seed, link=None):
+    """Place one finger on an object-frame point, touching without penetration.
+
+    The point is projected onto the surface. IK puts the contact link's pad (default:
+    the fingertip pad) `APPROACH_M` outside it with the pad facing into the object
+    (inward normal), then the closing procedure (thesis eqs. (8)-(9)) flexes the finger
+    until it touches. When the closed finger does not touch within `LANDING_TOL_M` of the
+    point (closing curls the finger, which suits pads but not e.g. the side of a phalanx),
+    the finger is instead moved straight along the surface normal until it touches.
+    Only that finger's joints change.
+
+    Args:
+        hand: `planner.hand.Hand`.
+        obj: `planner.objects.GraspObject`.
+        finger: finger name (or `Finger`).
+        p_obj: (3,) target point, object frame, metres.
+        q_seed: (nq,) configuration the other fingers keep and IK starts from.
+        link: contact link of the finger; None means the fingertip pad.
+
+    Returns:
+        (q (nq,), patch) where patch is (p_obj (n, 3), n_in_obj (n, 3)) of that finger's
+        measured contact, or None when the finger does not touch the object.
+
+    Raises:
+        KinematicsError: the point is out of the finger's reach.
+    """
+    from planner.contacts import contact_patches
+
+    f = _finger_of(hand, finger)
+    p_surf, n_out, _ = obj.closest_surface(np.asarray(p_obj, dtype=float).reshape(3))
+    T = np.asarray(obj.T_palm_obj)
+    R = T[:3, :3]
+    n_out_palm = R @ np.asarray(n_out, dtype=float)
+    p_palm = R @ np.asarray(p_surf, dtype=float) + T[:3, 3]
+    q_seed = np.asarray(q_seed, dtype=float)
+    q_ik, err = None, None
+    # a pad that cannot stand off by APPROACH_M (e.g. under a face it only reaches when
+    # almost extended) is tried closer to the surface
+    for offset in (APPROACH_M, 0.5 * APPROACH_M, 0.25 * APPROACH_M):
+        try:
+            q_ik = hand.ik(f, p_palm + offset * n_out_palm, q_seed, link=link, normal_palm=-n_out_palm)
+            break
+        except KinematicsError as e:
+            err = err or e
+    if q_ik is None:
+        raise err
+    q = np.asarray(hand.close_finger(f, q_ik, obj), dtype=float)
+    patch = contact_patches(hand, q, obj, fingers=[f.name]).get(f.name)
+    if patch is not None and _landing_error(patch, p_surf) <= LANDING_TOL_M:
+        return q, patch
+    q_n = _approach_along_normal(hand, obj, f, p_palm, n_out_palm, q_ik, link)
+    if q_n is not None:
+        patch_n = contact_patches(hand, q_n, obj, fingers=[f.name]).get(f.name)
+        if patch_n is not None and (patch is None or _landing_error(patch_n, p_surf) < _landing_error(patch, p_surf)):
+            return np.asarray(q_n, dtype=float), patch_n
+    return q, patch
+
+
+def _landing_error(patch, p_obj) -> float:
+    """Distance (m) from a requested contact point to the nearest point of a patch."""
+    return float(np.min(np.linalg.norm(np.asarray(patch[0]) - np.asarray(p_obj), axis=1)))
+
+
+def realize(spec: GraspSpec, hand=None) -> RealizedGrasp:
+    """Turn a grasp spec into a hand configuration and measure its contacts and closure.
+
+    Contact fingers: `realize_contact`. Posture fingers: the closing procedure from the
+    posture. Free fingers: the open posture. Then contact patches (several points per
+    touching link), force closure and metric (thesis eqs. (1)-(7)), removable fingers
+    (Algorithm 1) and self-collisions of the hand.
+
+    Args:
+        spec: a validated `GraspSpec`.
+        hand: the `Hand`; None loads ``spec.hand_ref``.
+
+    Returns:
+        The `RealizedGrasp`.
+
+    Raises:
+        KinematicsError: a contact point is out of its finger's reach (the message names
+            the file and the key).
+    """
+    from planner.closure import grasp_closure, removable_fingers
+    from planner.contacts import collisions, contact_patches, touching_links
+
+    hand = load_hand(spec.hand_ref) if hand is None else hand
+    obj = spec.object.make()
+    q = np.array(hand.q_open, dtype=float, copy=True)
+    for fs in spec.fingers:
+        f = hand.fingers[fs.name]
+        idx = list(f.q_index)
+        if fs.kind == "contact":
+            try:
+                q, _ = realize_contact(hand, obj, f, fs.point_obj, q, link=fs.link)
+            except KinematicsError as err:
+                raise KinematicsError(f"{spec.path}: fingers.{fs.name}.contact.point: {err}") from err
+        elif fs.kind == "posture":
+            q[idx] = fs.posture
+            q = np.asarray(hand.close_finger(f, q, obj), dtype=float)
+        else:
+            q[idx] = np.asarray(hand.q_open)[idx]
+    q = np.array(q, dtype=float, copy=True)
+    q.setflags(write=False)
+    patches = contact_patches(hand, q, obj)
+    patches = {k: (_ro(p), _ro(n)) for k, (p, n) in patches.items()}
+    closure = grasp_closure(patches, spec.friction)
+    removable = frozenset(removable_fingers(patches, spec.friction)) if patches else frozenset(hand.fingers)
+    touching = {k: tuple(v) for k, v in touching_links(hand, q, obj).items()}
+    finger_q = {}
+    for name, f in hand.fingers.items():
+        finger_q[name] = _ro(q[list(f.q_index)])
+    missing = tuple(fs.name for fs in spec.fingers if fs.kind != "free" and fs.name not in patches)
+    return RealizedGrasp(
+        spec=spec,
+        hand=hand,
+        obj=obj,
+        friction=spec.friction,
+        q=q,
+        finger_q=MappingProxyType(finger_q),
+        patches=MappingProxyType(patches),
+        touching=MappingProxyType(touching),
+        closure=closure,
+        removable=removable,
+        collisions=tuple((str(a), str(b), float(d)) for a, b, d in collisions(hand, q, obj)),
+        missing=missing,
+    )
+
+
+def _ro(a) -> np.ndarray:
+    a = np.array(a, dtype=float, copy=True)
+    a.setflags(write=False)
+    return a
