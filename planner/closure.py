@@ -249,8 +249,22 @@ def _zobrist(k: int) -> np.ndarray:
     return _ZOBRIST
 
 
-def _seed_polytope(W, simplex):
-    return W[simplex].mean(axis=0), simplex[_SIMPLEX_FACETS]
+@dataclass
+class _Hull:
+    """Simplicial facets of an inner polytope: vertex rows V (F, 6) of W, planes A (F, 6) with
+    ``A . (x - c) = 1`` on the facet, inverses B (F, 6, 6) of the centered vertex matrices."""
+
+    c: np.ndarray
+    V: np.ndarray
+    A: np.ndarray
+    B: np.ndarray
+
+
+def _simplex_hull(W: np.ndarray, simplex: np.ndarray) -> _Hull:
+    c = W[simplex].mean(axis=0)
+    V = simplex[_SIMPLEX_FACETS]
+    B = np.linalg.inv(W[V] - c)
+    return _Hull(c, V, B.sum(axis=2), B)
 
 
 class _Degenerate(Exception):
@@ -271,7 +285,7 @@ def _qhull_fallback(W: np.ndarray, tol: float) -> tuple[int, float]:
     return (0, 0.0) if d >= -tol else (-1, d)
 
 
-def _expand(W: np.ndarray, simplex: np.ndarray, tol: float, decide_only: bool) -> tuple[int, float]:
+def _expand(W: np.ndarray, seed: _Hull, tol: float, decide_only: bool, keep: bool = False):
     """Grow an inner polytope Q = conv(S), S a subset of the rows of W, until the answer is certain.
 
     Q is a list of simplicial facets: vertex rows ``V[f]`` (indices into W) and normal ``A[f]``
@@ -281,24 +295,32 @@ def _expand(W: np.ndarray, simplex: np.ndarray, tol: float, decide_only: bool) -
     A ridge is keyed by the wrapping sum of random 64-bit keys of its 5 vertices
     (collision probability ~ 1e-16 per insertion).
 
+    Args:
+        W: (k, 6) wrenches.
+        seed: a starting inner polytope (vertices are rows of W, ``seed.c`` strictly inside).
+        tol: distance tolerance of the stopping tests.
+        decide_only: stop as soon as force closure is certain (no exact epsilon).
+        keep: also return the final polytope (to warm-start a superset of W).
+
     Returns:
-        (state, value): state 1 = force closure with epsilon ``value`` (with ``decide_only``
-        only a lower bound > tol); 0 = origin on the boundary; -1 = origin strictly outside.
+        (state, value, hull): state 1 = force closure with epsilon ``value`` (with
+        ``decide_only`` only a lower bound > tol); 0 = origin on the boundary; -1 = origin
+        strictly outside.  ``hull`` is the final polytope if ``keep`` else None.
     """
     Z = _zobrist(len(W))
-    c, V0 = _seed_polytope(W, simplex)
+    c = seed.c
     Y = W - c
-    n = len(V0)
-    cu = 4096
+    n = len(seed.V)
+    cu = max(4096, 2 * n)
     A = np.empty((cu, 6))
     V = np.empty((cu, 6), dtype=np.intp)
     K = np.empty(cu, dtype=np.uint64)
     D = np.empty(cu)
     B = np.empty((cu, 6, 6))  # B[f] = inverse of the centered vertex matrix Y[V[f]]
-    V[:n] = V0
-    B[:n] = np.linalg.inv(Y[V0])
-    A[:n] = B[:n].sum(axis=2)
-    K[:n] = Z[V0].sum(axis=1)
+    V[:n] = seed.V
+    B[:n] = seed.B
+    A[:n] = seed.A
+    K[:n] = Z[seed.V].sum(axis=1)
     D[:n] = (1.0 + A[:n] @ c) / np.sqrt(np.einsum("ij,ij->i", A[:n], A[:n]))
     vis_thr = 1.0 + 1e-12
     for _ in range(len(W) + 1):
@@ -307,19 +329,20 @@ def _expand(W: np.ndarray, simplex: np.ndarray, tol: float, decide_only: bool) -
         if not d < math.inf:  # NaN from a degenerate update (argmin returns NaN first)
             raise _Degenerate
         if decide_only and d > tol:
-            return 1, d
+            state = 1
+            break
         a = A[f]
         u = a / math.sqrt(a @ a)
         s = Y @ u
         j = int(np.argmax(s))
         h = s[j] + c @ u  # support value max_i u . w_i
         if h < -tol:
-            return -1, d  # a plane strictly separates the origin from every wrench
+            state = -1  # a plane strictly separates the origin from every wrench
+            break
         if h - d <= tol:
             # The facet plane supports conv(W): epsilon(Q) = d <= epsilon(W) <= h <= d + tol.
-            if d > tol:
-                return 1, d
-            return (0, 0.0) if d >= -tol else (-1, d)
+            state = 1 if d > tol else (0 if d >= -tol else -1)
+            break
         # Beneath-beyond insertion of row j: drop the facets it sees, cone the horizon to it.
         y = Y[j]
         pa = A[:n] @ y
@@ -374,7 +397,13 @@ def _expand(W: np.ndarray, simplex: np.ndarray, tol: float, decide_only: bool) -
         K[n : n + nh] = K[parent] - Z[Vv[fi, ci]] + Z[j]
         D[n : n + nh] = newD
         n += nh
-    raise _Degenerate  # pragma: no cover (every step adds a new vertex: cannot happen)
+    else:
+        raise _Degenerate  # pragma: no cover (every step adds a new vertex: cannot happen)
+    hull = None
+    if keep:
+        alive = D[:n] < math.inf
+        hull = _Hull(c, V[:n][alive], A[:n][alive], B[:n][alive])
+    return state, (d if state == 1 else 0.0), hull
 
 
 def _min_norm_point(W: np.ndarray, tol: float) -> float:
@@ -415,27 +444,35 @@ def _min_norm_point(W: np.ndarray, tol: float) -> float:
     return float(math.sqrt(x @ x))
 
 
-def _closure(W: np.ndarray, decide_only: bool = False) -> Closure:
+def _closure(W: np.ndarray, decide_only: bool = False, warm: _Hull | None = None, keep: bool = False):
+    """Closure of W (k, 6); ``warm``: an inner polytope of a subset of W to start from.
+
+    Returns (Closure, final inner polytope or None).
+    """
     k = len(W)
     if k == 0:
-        return Closure(False, 0.0, 0)
+        return Closure(False, 0.0, 0), None
     scale = float(np.sqrt(np.einsum("ij,ij->i", W, W).max()))
     tol = METRIC_RTOL * max(scale, 1e-300)
-    simplex = _initial_simplex(W, RANK_RTOL * scale) if k >= 7 and scale > 0 else None
+    if warm is None:
+        simplex = _initial_simplex(W, RANK_RTOL * scale) if k >= 7 and scale > 0 else None
+        if simplex is not None:
+            warm = _simplex_hull(W, simplex)
     # 7 affinely independent rows span R^6; only rank-deficient candidates need the SVD.
-    rank = 6 if simplex is not None else _numerical_rank(W, scale)
-    if simplex is not None:
+    rank = 6 if warm is not None else _numerical_rank(W, scale)
+    hull = None
+    if warm is not None:
         try:
             with np.errstate(divide="ignore", invalid="ignore"):
-                state, value = _expand(W, simplex, tol, decide_only)
+                state, value, hull = _expand(W, warm, tol, decide_only, keep)
         except _Degenerate:
             state, value = _qhull_fallback(W, tol)
         if state == 1:
-            return Closure(True, float(value), rank)
+            return Closure(True, float(value), rank), hull
         if state == 0:
-            return Closure(False, 0.0, rank)
+            return Closure(False, 0.0, rank), hull
     dist = _min_norm_point(W, tol)
-    return Closure(False, 0.0 if dist <= tol else -dist, rank)
+    return Closure(False, 0.0 if dist <= tol else -dist, rank), hull
 
 
 # --------------------------------------------------------------------------- public API
@@ -452,7 +489,7 @@ def closure_from_wrenches(W) -> Closure:
         < 6 never are); ``metric`` = epsilon (distance from the origin to the nearest facet
         of conv(W)) when force closure, else ``-dist(0, conv(W))`` (0 on the boundary).
     """
-    return _closure(_check_wrenches(W))
+    return _closure(_check_wrenches(W))[0]
 
 
 def _patch_items(patches) -> list[tuple[str, object, object]]:
@@ -516,7 +553,7 @@ def grasp_closure(patches: Mapping[str, tuple], friction: Friction) -> Closure:
     """
     cache = _WrenchCache(friction)
     blocks = [cache.block(f, p, n)[1] for f, p, n in _patch_items(patches)]
-    return _closure(np.vstack(blocks) if blocks else np.zeros((0, 6)))
+    return _closure(np.vstack(blocks) if blocks else np.zeros((0, 6)))[0]
 
 
 def removable_fingers(patches: Mapping[str, tuple], friction: Friction) -> frozenset:
@@ -533,7 +570,7 @@ def removable_fingers(patches: Mapping[str, tuple], friction: Friction) -> froze
     cache = _WrenchCache(friction)
     blocks = {f: cache.block(f, p, n)[1] for f, p, n in _patch_items(patches)}
     full = np.vstack(list(blocks.values())) if blocks else np.zeros((0, 6))
-    if not _closure(full, decide_only=True).is_force_closure:
+    if not _closure(full, decide_only=True)[0].is_force_closure:
         return frozenset()
     removable = set()
     for finger, block in blocks.items():
@@ -541,34 +578,61 @@ def removable_fingers(patches: Mapping[str, tuple], friction: Friction) -> froze
             removable.add(finger)
             continue
         rest = [b for g, b in blocks.items() if g != finger]
-        if _closure(np.vstack(rest), decide_only=True).is_force_closure:
+        if _closure(np.vstack(rest), decide_only=True)[0].is_force_closure:
             removable.add(finger)
     return frozenset(removable)
+
+
+#: Inner polytopes kept by ``batch_grasp_closure`` for warm starts (each holds ~1-3k facets).
+_WARM_CACHE_SIZE = 32
 
 
 def batch_grasp_closure(list_of_patches: Sequence[Mapping[str, tuple]], friction: Friction) -> list[Closure]:
     """Closure of many grasps in one call, sharing work between them.
 
-    Wrench blocks are built once per distinct patch (by identity, then by content) and
-    grasps with the same set of patches are evaluated once.
+    * Wrench blocks are built once per distinct patch (by identity, then by content).
+    * Grasps with the same multiset of patches are evaluated once.
+    * Grasps are evaluated by increasing number of patches, and a grasp one patch larger
+      than an evaluated grasp starts from that grasp's final inner polytope (its vertices
+      are wrenches of the larger grasp too), instead of a fresh simplex.
 
     Args:
         list_of_patches: grasps, each finger -> (points (n, 3), normals (n, 3)).
         friction: soft-finger friction model shared by all grasps.
 
     Returns:
-        One Closure per grasp, in order.
+        One Closure per grasp, in the input order.
     """
     cache = _WrenchCache(friction)
-    results: dict[tuple, Closure] = {}
-    out = []
+    grasps = []
     for patches in list_of_patches:
         keyed = [cache.block(f, p, n) for f, p, n in _patch_items(patches)]
-        signature = tuple(sorted(k for k, _ in keyed))
-        res = results.get(signature)
-        if res is None:
-            blocks = [b for _, b in keyed]
-            res = _closure(np.vstack(blocks) if blocks else np.zeros((0, 6)))
-            results[signature] = res
-        out.append(res)
+        grasps.append(sorted(((k, b) for k, b in keyed if len(b)), key=lambda kb: kb[0]))
+    done: dict[tuple, Closure] = {}
+    hulls: dict[tuple, _Hull] = {}  # insertion-ordered: oldest evicted first
+    out: list[Closure | None] = [None] * len(grasps)
+    for i in sorted(range(len(grasps)), key=lambda i: len(grasps[i])):
+        items = grasps[i]
+        signature = tuple(k for k, _ in items)
+        if signature in done:
+            out[i] = done[signature]
+            continue
+        blocks = [b for _, b in items]
+        W = np.vstack(blocks) if blocks else np.zeros((0, 6))
+        warm = None
+        for pos in range(len(signature)):
+            sub = hulls.get(signature[:pos] + signature[pos + 1 :])
+            if sub is not None:  # rows of the sub-grasp inside W: every block but `pos`
+                starts = np.cumsum([0] + [len(b) for b in blocks])
+                rows = np.concatenate(
+                    [np.arange(starts[q], starts[q + 1]) for q in range(len(blocks)) if q != pos]
+                )
+                warm = _Hull(sub.c, rows[sub.V], sub.A, sub.B)
+                break
+        res, hull = _closure(W, warm=warm, keep=True)
+        if hull is not None:
+            hulls[signature] = hull
+            if len(hulls) > _WARM_CACHE_SIZE:
+                del hulls[next(iter(hulls))]
+        done[signature] = out[i] = res
     return out
