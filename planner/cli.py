@@ -59,6 +59,39 @@ def _cmd_plan(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_check(args: argparse.Namespace) -> int:
+    """Realize one grasp and report it; exit 0 force closure, 1 not, 2 bad input."""
+    import json
+
+    from planner.grasp import load_grasp, realize
+
+    grasp = realize(load_grasp(args.grasp))
+    if args.png:
+        from planner.sim.render import render_png
+
+        render_png(grasp.hand, grasp.q, grasp.obj, args.png)
+    report = grasp.summary()
+    if args.json:
+        print(json.dumps(report, indent=1))
+    else:
+        print(f"grasp {grasp.spec.name} ({grasp.spec.path})")
+        print(f"hand {grasp.hand.name}, {grasp.obj.shape} {list(grasp.obj.size)} m, "
+              f"mu {grasp.friction.mu:g}, gamma {grasp.friction.gamma:g} m, {grasp.friction.edges} cone edges")
+        print(f"{'finger':<8} {'spec':<8} {'points':>6}  {'removable':<9}  touching links")
+        for name, f in report["fingers"].items():
+            print(f"{name:<8} {f['kind']:<8} {f['contact_points']:>6}  {'yes' if f['removable'] else 'no':<9}  "
+                  f"{', '.join(f['touching_links']) or '-'}")
+        for a, b, depth in grasp.collisions:
+            print(f"collision: {a} - {b}, {depth * 1000:.2f} mm")
+        if grasp.missing:
+            print(f"not touching although the file places them: {', '.join(grasp.missing)}")
+        print(f"force closure: {'yes' if grasp.is_force_closure else 'no'}, metric {grasp.metric:.4g}, "
+              f"removable: {', '.join(sorted(grasp.removable)) or '-'}")
+        if args.png:
+            print(f"picture written to {args.png}")
+    return 0 if grasp.is_force_closure else 1
+
+
 def _cmd_demo(args: argparse.Namespace) -> int:
     """Plan the bundled box example (parallel extension -> IR2M) and replay it."""
     from pathlib import Path
@@ -114,6 +147,12 @@ def build_parser() -> argparse.ArgumentParser:
     demo = sub.add_parser("demo", help="plan (and replay) the bundled box example")
     demo.add_argument("--out", default="out", help="output folder (default: out)")
     demo.set_defaults(func=_cmd_demo)
+
+    check = sub.add_parser("check", help="realize one grasp file and report its contacts and force closure")
+    check.add_argument("grasp", help="grasp YAML")
+    check.add_argument("--json", action="store_true", help="machine-readable output")
+    check.add_argument("--png", metavar="FILE", help="render the hand holding the object (headless)")
+    check.set_defaults(func=_cmd_check)
 
     plan = sub.add_parser("plan", help="plan a finger-gaiting sequence between two grasps")
     plan.add_argument("initial", help="grasp YAML the hand holds now")
