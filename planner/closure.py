@@ -342,6 +342,14 @@ def _expand(W: np.ndarray, seed: _Hull, tol: float, decide_only: bool, keep: boo
         if h - d <= tol:
             # The facet plane supports conv(W): epsilon(Q) = d <= epsilon(W) <= h <= d + tol.
             state = 1 if d > tol else (0 if d >= -tol else -1)
+            if state == 1:
+                # Report the plane solved afresh from its vertices (the rank-one updates
+                # drift by ~1e-12 relative) and re-check that it supports W.
+                a = np.linalg.solve(Y[V[f]], np.ones(6))
+                norm = math.sqrt(a @ a)
+                d = (1.0 + a @ c) / norm
+                if (Y @ a).max() / norm + c @ a / norm - d > 2 * tol or not d > tol:
+                    raise _Degenerate
             break
         # Beneath-beyond insertion of row j: drop the facets it sees, cone the horizon to it.
         y = Y[j]
