@@ -31,12 +31,15 @@ from types import MappingProxyType
 import coal
 import numpy as np
 
+from planner.contacts import TOUCH_TOL_M
 from planner.errors import InputError, MotionError, UnknownNameError
 
 DEFAULT_CLEARANCE_M = 0.002
 """Distance a moving finger keeps from the object outside the lift/land steps."""
-DEFAULT_TOUCH_TOL_M = 0.001
-"""Penetration tolerated between touching bodies (finger-object at contact, finger-finger)."""
+DEFAULT_TOUCH_TOL_M = TOUCH_TOL_M
+"""Finger-object penetration tolerated at a contact (the lift/land ends), as in contacts."""
+_LINK_EPS_M = 1e-6
+"""Finger-finger / finger-palm penetration below this is not a collision (as in contacts)."""
 DEFAULT_LIFT_M = 0.005
 """Retreat of the contact point along the outward normal in a lift (and approach in a land)."""
 MAX_LIFT_M = 0.03
@@ -211,8 +214,9 @@ class _FingerScene:
     Static bodies (palm, other fingers at ``q_ref``, the object) keep their pose; the
     moving finger's geometries are re-posed from forward kinematics per query. A
     configuration is valid when every moving geometry is at least ``object_margin_m``
-    from the object (negative: tolerated penetration) and penetrates the palm, the other
-    fingers and the non-adjacent links of its own finger by less than ``touch_tol_m``.
+    from the object (negative: tolerated penetration) and does not penetrate the palm,
+    the other fingers or the non-adjacent links of its own finger (touching is fine; the
+    same link pairs and the same 1 um threshold as ``planner.contacts.collisions``).
     """
 
     def __init__(self, hand, obj, q_ref: np.ndarray, finger: str, touch_tol_m: float):
@@ -291,7 +295,7 @@ class _FingerScene:
             for i, j in self._self_pairs
         }
         self._touch_request = coal.CollisionRequest()
-        self._touch_request.security_margin = -self.touch_tol_m
+        self._touch_request.security_margin = -_LINK_EPS_M
 
         # Fast forward kinematics straight from pinocchio when the hand's q vector
         # maps onto the model's; checked once against hand.link_pose.
@@ -398,27 +402,34 @@ class _FingerScene:
                     return False
         return True
 
-    def object_distance(self, q_finger: np.ndarray) -> tuple[float, str, np.ndarray, np.ndarray]:
-        """Signed distance of the finger to the object (negative: penetration).
+    def object_distances(self, q_finger: np.ndarray) -> list[tuple[float, str, np.ndarray, np.ndarray]]:
+        """Signed distance of every moving geometry to the object (negative: penetration).
 
-        Returns ``(distance_m, link, p_link_palm (3,), p_object_palm (3,))`` for the
-        nearest moving geometry: the nearest points on the link and on the object.
+        Returns a list of ``(distance_m, link, p_link_palm (3,), p_object_palm (3,))``:
+        the nearest points on the link and on the object, palm frame.
         """
         T = self._geom_poses(q_finger)
-        best = (math.inf, "", np.zeros(3), np.zeros(3))
+        out = []
+        request = coal.DistanceRequest()
         for k, (body, _) in enumerate(self._moving):
             result = coal.DistanceResult()
-            request = coal.DistanceRequest()
-            request.enable_signed_distance = True
             d = coal.distance(body.geometry, _tf(T[k]), self.obj.geometry, self._obj_tf, request, result)
-            if d < best[0]:
-                best = (
-                    float(d),
-                    body.name,
-                    np.array(result.getNearestPoint1(), dtype=float),
-                    np.array(result.getNearestPoint2(), dtype=float),
-                )
-        return best
+            out.append((
+                float(d),
+                body.name,
+                np.array(result.getNearestPoint1(), dtype=float),
+                np.array(result.getNearestPoint2(), dtype=float),
+            ))
+        return out
+
+    def object_distance(self, q_finger: np.ndarray) -> tuple[float, str, np.ndarray, np.ndarray]:
+        """The entry of :meth:`object_distances` nearest to the object."""
+        return min(self.object_distances(q_finger), key=lambda r: r[0])
+
+    def point_on_link(self, q_finger: np.ndarray, link: str, p_palm: np.ndarray) -> np.ndarray:
+        """Palm-frame point ``p_palm`` expressed in the frame of ``link`` at ``q_finger``."""
+        T = self.link_poses(q_finger)[self.moving_links.index(link)]
+        return T[:3, :3].T @ (np.asarray(p_palm, dtype=float) - T[:3, 3])
 
     def explain(self, q_finger: np.ndarray, object_margin_m: float) -> str:
         """A short human-readable reason why ``q_finger`` is invalid."""
@@ -434,14 +445,14 @@ class _FingerScene:
                     continue
                 d = coal.distance(body.geometry, _tf(T[k]), other.geometry, tf_other,
                                   coal.DistanceRequest(), coal.DistanceResult())
-                if d < -self.touch_tol_m:
-                    reasons.append(f"{body.name} penetrates {other.name} by {-d * 1000:.1f} mm")
+                if d < -_LINK_EPS_M:
+                    reasons.append(f"{body.name} penetrates {other.name} by {-d * 1000:.2f} mm")
         for i, j in self._self_pairs:
             bi, bj = self._moving[i][0], self._moving[j][0]
             d = coal.distance(bi.geometry, _tf(T[i]), bj.geometry, _tf(T[j]),
                               coal.DistanceRequest(), coal.DistanceResult())
-            if d < -self.touch_tol_m:
-                reasons.append(f"{bi.name} penetrates {bj.name} by {-d * 1000:.1f} mm")
+            if d < -_LINK_EPS_M:
+                reasons.append(f"{bi.name} penetrates {bj.name} by {-d * 1000:.2f} mm")
         return "; ".join(dict.fromkeys(reasons)) or "no collision found"
 
 
@@ -568,8 +579,8 @@ def plan_finger_move(
     when it collides, the OMPL planner ``planner`` searches the finger's joint box,
     seeded with ``seed`` (same seed, same path), and its path is simplified and
     re-interpolated. Validity: every link of the finger keeps ``clearance_m`` from the
-    object and penetrates the palm, the other fingers and its own non-adjacent links by
-    less than ``touch_tol_m``.
+    object and does not penetrate the palm, the other fingers or its own non-adjacent
+    links (pairs as in ``planner.contacts.collisions``).
 
     Args:
         hand: a ``planner.hand.Hand``.
@@ -581,7 +592,8 @@ def plan_finger_move(
         timeout_s: planning budget in seconds.
         seed: OMPL random seed.
         clearance_m: distance kept from the object.
-        touch_tol_m: tolerated penetration with the palm and other fingers.
+        touch_tol_m: finger-object penetration tolerated at contacts (used by the
+            lift and land of :func:`plan_gait_step`; the move keeps ``clearance_m``).
         resolution_rad: maximum joint step between waypoints (and of collision checks).
         verbose: let OMPL log to the console.
 
@@ -623,6 +635,115 @@ def _inward_normal(scene: _FingerScene, p_object_palm: np.ndarray) -> np.ndarray
     return n_in / np.linalg.norm(n_in)
 
 
+def _retreat_dls(
+    scene: _FingerScene,
+    a: np.ndarray,
+    n_in: np.ndarray,
+    link: str,
+    p_link: np.ndarray,
+    *,
+    rotation_weight_m: float,
+    touch_margin: float,
+    lift_m: float,
+    clearance_m: float,
+    step_m: float,
+    damping: float = 1e-3,
+) -> list[np.ndarray] | None:
+    """Damped least squares moving ``p_link`` (on ``link``) along ``-n_in``; None if stuck.
+
+    ``rotation_weight_m`` > 0 also asks the link to keep its orientation (a rigid
+    retreat, so no other point of the link swings into the object), weighted so that
+    1 rad of rotation costs as much as that many metres of position error.
+    """
+    hand = scene.hand
+    k_link = scene.moving_links.index(link)
+    lo = np.asarray(hand.lower, dtype=float)[scene.idx]
+    hi = np.asarray(hand.upper, dtype=float)[scene.idx]
+
+    def point(q):
+        T = scene.link_poses(q)[k_link]
+        return T[:3, :3] @ p_link + T[:3, 3]
+
+    p0 = point(a)
+    rows = 6 if rotation_weight_m > 0 else 3
+    W = np.array([1.0, 1.0, 1.0] + [rotation_weight_m] * 3)[:rows, None]
+    path = [a.copy()]
+    q = a.copy()
+    s = 0.0
+    while s < MAX_LIFT_M:
+        s += step_m
+        target = p0 - s * n_in
+        for _ in range(3):
+            J = np.asarray(hand.frame_jacobian(scene.full_q(q), link, p_link), dtype=float)[:rows][:, scene.idx]
+            err = np.zeros(rows)
+            err[:3] = target - point(q)  # orientation target: no rotation (zero rows)
+            Jw = W * J
+            ew = W[:, 0] * err
+            dq = np.linalg.solve(Jw.T @ Jw + damping**2 * np.eye(len(q)), Jw.T @ ew)
+            q = np.clip(q + dq, lo, hi)
+        if float(np.dot(p0 - point(q), n_in)) < s - 0.002 or not scene.is_valid(q, touch_margin):
+            return None
+        path.append(q.copy())
+        if s >= lift_m - 1e-12 and scene.is_valid(q, clearance_m):
+            return path
+    return None
+
+
+def _retreat_repel(
+    scene: _FingerScene,
+    a: np.ndarray,
+    contact_link: str,
+    *,
+    touch_margin: float,
+    lift_m: float,
+    clearance_m: float,
+    step_m: float,
+    damping: float = 1e-3,
+) -> list[np.ndarray] | None:
+    """Push every link near the object away along its own surface normal; None if stuck.
+
+    For a finger wrapped around an edge, backing off the contact point alone drags
+    another phalanx along the object. Here each link within ``clearance_m + 3 mm`` (and
+    the contact link) asks its nearest point to gain ``step_m`` of distance per step:
+    one row ``n_out . J_point`` each, solved by damped least squares. Ends when the
+    contact link is ``lift_m`` and every link ``clearance_m`` away from the object.
+    """
+    hand = scene.hand
+    lo = np.asarray(hand.lower, dtype=float)[scene.idx]
+    hi = np.asarray(hand.upper, dtype=float)[scene.idx]
+    path = [a.copy()]
+    q = a.copy()
+    best, since_best = -math.inf, 0
+    for _ in range(int(MAX_LIFT_M / step_m)):
+        rows = []
+        for d, link, p_link_palm, p_object_palm in scene.object_distances(q):
+            if d >= clearance_m + 0.003 and link != contact_link:
+                continue
+            n_out = -_inward_normal(scene, p_object_palm)
+            p_link = scene.point_on_link(q, link, p_link_palm)
+            J = np.asarray(hand.frame_jacobian(scene.full_q(q), link, p_link), dtype=float)[:3][:, scene.idx]
+            rows.append(n_out @ J)
+        A = np.array(rows)
+        dq = A.T @ np.linalg.solve(A @ A.T + damping**2 * np.eye(len(A)), np.full(len(A), step_m))
+        q = np.clip(q + dq, lo, hi)
+        if not scene.is_valid(q, touch_margin):
+            return None
+        path.append(q.copy())
+        distances = {}
+        for d, link, _, _ in scene.object_distances(q):
+            distances[link] = min(d, distances.get(link, math.inf))
+        if distances[contact_link] >= lift_m and min(distances.values()) >= clearance_m:
+            return path
+        progress = min(distances.values())
+        if progress > best + 1e-5:
+            best, since_best = progress, 0
+        else:
+            since_best += 1
+            if since_best >= 5:  # joint limits: no link gets farther any more
+                return None
+    return None
+
+
 def _retreat(
     scene: _FingerScene,
     a: np.ndarray,
@@ -631,18 +752,20 @@ def _retreat(
     lift_m: float,
     clearance_m: float,
     resolution_rad: float,
+    what: str,
     step_m: float = 0.0005,
-    damping: float = 1e-3,
 ) -> np.ndarray:
     """Path from the contact configuration ``a`` backing off along the outward normal.
 
     The contact point is the point of the finger nearest to the object, fixed on its
-    link; damped-least-squares steps on the position rows of its Jacobian move it along
-    ``-n_in_palm`` by ``step_m`` at a time until it has retreated ``lift_m`` and the
-    whole finger keeps ``clearance_m`` from the object (at most ``MAX_LIFT_M``). Every
-    state may touch the object no deeper than the contact itself or ``touch_tol_m``.
-    When the normal retreat stalls (joint limits, singularity) the finger opens toward
-    its open posture instead. Returns (m, n_finger_joints), first row ``a``.
+    link. Damped least-squares steps of its Jacobian move it along ``-n_in_palm`` by
+    ``step_m`` at a time until it has retreated ``lift_m`` and the whole finger keeps
+    ``clearance_m`` from the object (at most ``MAX_LIFT_M``); first keeping the link's
+    orientation (a rigid retreat), then, if that is stuck, the point only. If another
+    phalanx stays against the object, every link near it is pushed away along its own
+    normal (:func:`_retreat_repel`); last, the finger opens toward its open posture.
+    Every state may touch the object no deeper than the contact itself or
+    ``touch_tol_m``. Returns (m, n_finger_joints), first row ``a``.
     """
     hand = scene.hand
     name = scene.finger.name
@@ -653,57 +776,36 @@ def _retreat(
         raise InputError(f"contact normal of finger {name} must be a non-zero 3-vector; got {n_in_palm!r}")
     n_in = n_in / norm
     touch_margin = min(-scene.touch_tol_m, d0 - 1e-6)  # never deeper than the contact
-    k_link = scene.moving_links.index(link)
-    T_palm_link = scene.link_poses(a)[k_link]
-    p_link = np.linalg.inv(T_palm_link)[:3, :3] @ p_palm + np.linalg.inv(T_palm_link)[:3, 3]
-    lo = np.asarray(hand.lower, dtype=float)[scene.idx]
-    hi = np.asarray(hand.upper, dtype=float)[scene.idx]
-
-    def point(q):
-        T = scene.link_poses(q)[k_link]
-        return T[:3, :3] @ p_link + T[:3, 3]
-
-    path = [a.copy()]
-    q = a.copy()
-    s = 0.0
-    stalled = False
-    while True:
-        s += step_m
-        target = p_palm - s * n_in
-        for _ in range(3):
-            J = np.asarray(hand.frame_jacobian(scene.full_q(q), link, p_link), dtype=float)[:3][:, scene.idx]
-            err = target - point(q)
-            dq = J.T @ np.linalg.solve(J @ J.T + damping**2 * np.eye(3), err)
-            q = np.clip(q + dq, lo, hi)
-        achieved = float(np.dot(p_palm - point(q), n_in))
-        if achieved < s - 0.002 or not scene.is_valid(q, touch_margin):
-            stalled = True
-            break
-        path.append(q.copy())
-        if s >= lift_m - 1e-12 and scene.is_valid(q, clearance_m):
-            break
-        if s >= MAX_LIFT_M:
-            stalled = True
-            break
-    if not stalled:
+    p_link = scene.point_on_link(a, link, p_palm)
+    for rotation_weight_m in (0.03, 0.0):
+        path = _retreat_dls(
+            scene, a, n_in, link, p_link, rotation_weight_m=rotation_weight_m,
+            touch_margin=touch_margin, lift_m=lift_m, clearance_m=clearance_m, step_m=step_m,
+        )
+        if path is not None:
+            return _densify(np.array(path), resolution_rad)
+    path = _retreat_repel(
+        scene, a, link, touch_margin=touch_margin, lift_m=lift_m, clearance_m=clearance_m, step_m=step_m,
+    )
+    if path is not None:
         return _densify(np.array(path), resolution_rad)
 
     # Fallback: open the finger (joint-space line toward its open posture).
+    lo = np.asarray(hand.lower, dtype=float)[scene.idx]
+    hi = np.asarray(hand.upper, dtype=float)[scene.idx]
     q_open = np.clip(np.asarray(hand.q_open, dtype=float)[scene.idx], lo, hi)
     line = _densify(np.array([a, q_open]), resolution_rad)
     for k, q in enumerate(line):
         if not scene.is_valid(q, touch_margin):
             break
-        retreat = float(np.dot(p_palm - point(q), n_in))
-        if k > 0 and retreat >= lift_m and scene.is_valid(q, clearance_m):
+        if k > 0 and scene.object_distance(q)[0] >= lift_m and scene.is_valid(q, clearance_m):
             return line[: k + 1]
     else:
         if scene.is_valid(line[-1], clearance_m):
             return line
     raise MotionError(
-        f"finger {name}: cannot lift {lift_m * 1000:.1f} mm off the object from "
-        f"{'its contact on ' + link if d0 <= clearance_m else 'this configuration'} "
-        f"(retreat along the normal stalls and opening the finger collides)"
+        f"finger {name}: cannot {what} (contact on {link}): neither a {lift_m * 1000:.1f} mm "
+        f"retreat along the contact normal nor opening the finger is free"
     )
 
 
@@ -786,8 +888,8 @@ def plan_gait_step(
     scene = _FingerScene(hand, obj, base, finger, touch_tol_m)
     common = dict(lift_m=lift_m, clearance_m=clearance_m, resolution_rad=resolution_rad)
 
-    lift = None if qa is None else _retreat(scene, a, n_a_palm, **common)
-    land = None if qb is None else _retreat(scene, b, n_b_palm, **common)[::-1].copy()
+    lift = None if qa is None else _retreat(scene, a, n_a_palm, what="lift off contact A", **common)
+    land = None if qb is None else _retreat(scene, b, n_b_palm, what="land on contact B", **common)[::-1].copy()
     start = a if lift is None else lift[-1]
     goal = b if land is None else land[0]
     move = _plan_move(
