@@ -25,16 +25,27 @@ How it is computed (pure numpy, no convex hull of the whole set):
    ``RANK_RTOL * max|w_i|``) the set is never force closure.
 2. ``_expand``: an incremental inner polytope ``Q = conv(S)``, ``S`` a subset of the rows,
    is kept as a simplicial facet list.  Facets are stored as ``a . (x - c) = 1`` around a fixed
-   interior point ``c`` of ``Q``, so each facet plane is one batched 6x6 solve and needs no
-   orientation bookkeeping.  Each step takes the facet with the smallest signed distance
-   ``d`` to the origin (the most violated one while the origin is outside ``Q``; the nearest
-   one, as in EPA, once it is inside), queries the support value ``h(u) = max_i u . w_i``
-   along its unit normal ``u`` and either stops (``h(u) - d <= tol``: the facet plane
-   supports ``conv(W)``) or adds the support point (beneath-beyond insertion: visible
-   facets are removed, the horizon ridges are coned to the new point).
-   Because ``Q`` is inside ``conv(W)``, the stop gives the exact answer:
-   ``epsilon(Q) = d <= epsilon(W) <= h(u) <= d + tol``.
+   interior point ``c`` of ``Q`` (no orientation bookkeeping), together with the inverse of
+   the facet's centered vertex matrix, so the plane of a new facet (one vertex swapped) is a
+   Sherman-Morrison rank-one update instead of a 6x6 solve.  Each step takes the facet with
+   the smallest signed distance ``d`` to the origin (the most violated one while the origin
+   is outside ``Q``; the nearest one, as in EPA, once it is inside), queries the support
+   value ``h(u) = max_i u . w_i`` along its unit normal ``u`` and either stops
+   (``h(u) - d <= tol``: the facet plane supports ``conv(W)``) or adds the support point
+   (beneath-beyond insertion: visible facets die, horizon ridges are coned to the new point;
+   a ridge is found by hashing its vertex set).  Because ``Q`` is inside ``conv(W)``, the
+   stop gives the exact answer: ``epsilon(Q) = d <= epsilon(W) <= h(u) <= d + tol``; the
+   reported plane is solved afresh from its 6 vertices.  A numerically degenerate update
+   falls back to an exact (never joggled) qhull hull of ``W``.
 3. Not force closure: ``_min_norm_point`` (Wolfe's algorithm) gives ``dist(0, conv(W))``.
+
+Tolerances: ``RANK_RTOL`` (rank / affine independence) and ``METRIC_RTOL`` (boundary and
+stopping test), both relative to the largest wrench norm.  Algorithm 1 only needs booleans
+and stops as soon as the origin is strictly inside ``Q``; ``batch_grasp_closure`` shares
+wrench blocks and starts each grasp from the polytope of a grasp with one patch less.
+
+Units: forces in newtons per unit normal force, torques in N m about the object origin; the
+metric mixes both (no characteristic length is applied).
 """
 
 from __future__ import annotations

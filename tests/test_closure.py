@@ -419,3 +419,21 @@ def test_batch_matches_single_calls_and_shares_patches():
         assert r.metric == pytest.approx(single.metric, rel=1e-9, abs=1e-14)  # warm starts reorder sums
     assert results[-1] == Closure(False, 0.0, 0)
     assert results[0] == results[-2]
+
+
+def test_qhull_fallback_gives_the_same_answer(monkeypatch):
+    """If the fast expansion reports a degenerate update, the exact qhull fallback answers the same."""
+    import planner.closure as closure_module
+
+    rng = np.random.default_rng(18)
+    cases = [stack(random_grasp(rng, int(rng.integers(2, 5)), 3), SOFT) for _ in range(8)]
+    fast = [closure_from_wrenches(W) for W in cases]
+
+    def degenerate(*args, **kwargs):
+        raise closure_module._Degenerate
+
+    monkeypatch.setattr(closure_module, "_expand", degenerate)
+    for W, expected in zip(cases, fast):
+        slow = closure_from_wrenches(W)
+        assert slow.is_force_closure == expected.is_force_closure
+        assert slow.metric == pytest.approx(expected.metric, rel=1e-9, abs=1e-12)
