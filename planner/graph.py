@@ -390,9 +390,10 @@ def explain_failure(G: nx.DiGraph, intermediate_tried: bool) -> NoSequenceError:
     p: GaitProblem = G.graph["problem"]
     start, goal = G.graph["start"], G.graph["goal"]
     ev: _Evaluator = G.graph["evaluator"]
-    never = [f for f in p.fingers if not any(f in G.nodes[v]["removable"] for v in G.nodes if G.nodes[v]["labels"][f] != "lifted")]
-    dist = {v: sum(a != b for a, b in zip(v, goal)) for v in G.nodes}
-    closest = min(G.nodes, key=lambda v: (dist[v], -G.nodes[v]["metric"], v))
+    reach = nx.descendants(G, start) | {start}
+    never = [f for f in p.fingers if not any(f in G.nodes[v]["removable"] for v in reach if G.nodes[v]["labels"][f] != "lifted")]
+    dist = {v: sum(a != b for a, b in zip(v, goal)) for v in reach}
+    closest = min(reach, key=lambda v: (dist[v], -G.nodes[v]["metric"], v))
     partial = nx.shortest_path(G, start, closest)
     reasons: dict[str, int] = {}
     for r in G.graph["blocked"].values():

@@ -321,7 +321,9 @@ def plan_regrasp(initial, final, options: PlanOptions = PlanOptions(), inputs: M
             if not candidates:
                 err = explain_failure(G, intermediate_tried=options.intermediate > 0)
                 if failed:
-                    err = NoSequenceError(f"{err}; finger moves that could not be planned: {'; '.join(failed)}", err.report)
+                    counts = {m: failed.count(m) for m in dict.fromkeys(failed)}
+                    moves = "; ".join(m + (f" (x{n} states)" if n > 1 else "") for m, n in counts.items())
+                    err = NoSequenceError(f"{err}; finger moves that could not be planned: {moves}", err.report)
                 raise err
         try:
             motions = _plan_motions(hand, obj, problem, candidates[0], gait_fn, cache)
