@@ -465,8 +465,9 @@ def _densify(waypoints: np.ndarray, resolution_rad: float) -> np.ndarray:
     rows = [waypoints[0]]
     for a, b in zip(waypoints[:-1], waypoints[1:]):
         steps = max(1, int(math.ceil(np.max(np.abs(b - a)) / resolution_rad - 1e-9)))
-        t = np.arange(1, steps + 1)[:, None] / steps
+        t = np.arange(1, steps)[:, None] / steps
         rows.extend(a + t * (b - a))
+        rows.append(b)  # waypoints exactly, not a + 1.0 * (b - a)
     return np.array(rows)
 
 
