@@ -1,25 +1,69 @@
-"""Finger-gaiting regrasp planner for dexterous robot hands."""
+"""Finger-gaiting regrasp planner for dexterous robot hands.
 
-from planner.errors import (
-    InputError,
-    KinematicsError,
-    MotionError,
-    NoSequenceError,
-    PlannerError,
-    SimulationError,
-    SpecError,
-    UnknownNameError,
-)
+The public API is re-exported here lazily, so that ``import planner.closure`` or
+``import planner.graph`` pulls in no kinematics, collision, OMPL or pybullet code.
+"""
 
-__all__ = sorted(
-    [
-        "InputError",
-        "KinematicsError",
-        "MotionError",
-        "NoSequenceError",
-        "PlannerError",
-        "SimulationError",
-        "SpecError",
-        "UnknownNameError",
-    ]
-)
+from __future__ import annotations
+
+import importlib
+
+_EXPORTS = {
+    # errors
+    "InputError": "planner.errors",
+    "KinematicsError": "planner.errors",
+    "MotionError": "planner.errors",
+    "NoSequenceError": "planner.errors",
+    "PlannerError": "planner.errors",
+    "SimulationError": "planner.errors",
+    "SpecError": "planner.errors",
+    "UnknownNameError": "planner.errors",
+    # closure (thesis eqs. 1-7, Algorithm 1)
+    "Closure": "planner.closure",
+    "Friction": "planner.closure",
+    "batch_grasp_closure": "planner.closure",
+    "closure_from_wrenches": "planner.closure",
+    "contact_wrenches": "planner.closure",
+    "grasp_closure": "planner.closure",
+    "removable_fingers": "planner.closure",
+    # hands, objects, contacts
+    "Finger": "planner.hand",
+    "Hand": "planner.hand",
+    "GraspObject": "planner.objects",
+    "make_object": "planner.objects",
+    "collisions": "planner.contacts",
+    "contact_patches": "planner.contacts",
+    # grasps
+    "GraspSpec": "planner.grasp",
+    "RealizedGrasp": "planner.grasp",
+    "load_grasp": "planner.grasp",
+    "realize": "planner.grasp",
+    # graph and planning
+    "GaitProblem": "planner.graph",
+    "GaitSequence": "planner.graph",
+    "Slot": "planner.graph",
+    "build_graph": "planner.graph",
+    "greedy": "planner.graph",
+    "search": "planner.graph",
+    "PlanOptions": "planner.regrasp",
+    "plan_regrasp": "planner.regrasp",
+    # plans
+    "Plan": "planner.plan",
+    "read_plan": "planner.plan",
+    "write_plan": "planner.plan",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str):
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'planner' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))
