@@ -433,9 +433,12 @@ def _min_norm_point(W: np.ndarray, tol: float) -> float:
     x = W[S[0]].copy()
     for _ in range(50 * len(W) + 100):
         xx = x @ x
+        if xx <= tol * tol:
+            break  # within tolerance of the origin: the metric is 0 anyway
         s = W @ x
         j = int(np.argmin(s))
-        if xx - s[j] <= tol * tol + 1e-13 * xx or j in S:
+        # Wolfe's optimality test: no row is closer to the origin along -x than x itself.
+        if xx - s[j] <= 1e-13 * xx or j in S:
             break
         S.append(j)
         lam = np.append(lam, 0.0)
