@@ -193,8 +193,8 @@ def render_png(
     client: int | None = None,
     *,
     distance_m: float | None = None,
-    yaw_deg: float = 40.0,
-    pitch_deg: float = -35.0,
+    yaw_deg: float = 200.0,
+    pitch_deg: float = -30.0,
 ) -> Path:
     """Save a picture of `hand` at configuration q holding `obj` (palm frame poses).
 
@@ -235,7 +235,7 @@ def render_png(
         target = 0.5 * (T_root_obj[:3, 3] + T_root_palm[:3, 3])
         if distance_m is None:
             reach = np.linalg.norm(T_root_obj[:3, 3] - T_root_palm[:3, 3])
-            distance_m = max(0.22, 2.2 * reach + 3.0 * float(max(obj.size)))
+            distance_m = max(0.16, 1.5 * reach + 2.0 * float(max(obj.size)))
         img = render_rgb(
             client, target, width=width, height=height, distance_m=distance_m, yaw_deg=yaw_deg, pitch_deg=pitch_deg
         )
