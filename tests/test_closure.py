@@ -320,6 +320,18 @@ def test_rotating_contacts_keeps_answer_for_a_robust_grasp():
         assert c.metric == pytest.approx(ref.metric, rel=0.02)
 
 
+def test_scaling_the_wrenches_scales_the_metric():
+    """Multiplying every wrench by s > 0 keeps the answer and multiplies the metric by s."""
+    rng = np.random.default_rng(19)
+    for _ in range(10):
+        W = stack(random_grasp(rng, int(rng.integers(2, 5)), 3), SOFT)
+        base = closure_from_wrenches(W)
+        for s in (1e-4, 1e3):
+            scaled = closure_from_wrenches(s * W)
+            assert scaled.is_force_closure == base.is_force_closure
+            assert scaled.metric == pytest.approx(s * base.metric, rel=1e-8, abs=1e-13 * s)
+
+
 def test_permuting_fingers_and_rows_keeps_result():
     """Reordering fingers (and wrench rows) gives the identical answer and metric."""
     rng = np.random.default_rng(13)
