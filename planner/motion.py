@@ -791,19 +791,21 @@ def _retreat(
     if path is not None:
         return _densify(np.array(path), resolution_rad)
 
-    # Fallback: open the finger (joint-space line toward its open posture).
+    # Fallback: open the finger along a joint-space line, first only the closing
+    # (flexion) joints, keeping abduction/opposition, then toward the whole open posture.
     lo = np.asarray(hand.lower, dtype=float)[scene.idx]
     hi = np.asarray(hand.upper, dtype=float)[scene.idx]
     q_open = np.clip(np.asarray(hand.q_open, dtype=float)[scene.idx], lo, hi)
-    line = _densify(np.array([a, q_open]), resolution_rad)
-    for k, q in enumerate(line):
-        if not scene.is_valid(q, touch_margin):
-            break
-        if k > 0 and scene.object_distance(q)[0] >= lift_m and scene.is_valid(q, clearance_m):
-            return line[: k + 1]
-    else:
-        if scene.is_valid(line[-1], clearance_m):
-            return line
+    closing = np.isin(np.asarray(scene.finger.joints), np.asarray(scene.finger.close_joints or scene.finger.joints))
+    for target in (np.where(closing, q_open, a), q_open):
+        line = _densify(np.array([a, target]), resolution_rad)
+        for k, q in enumerate(line[1:], start=1):
+            if not scene.is_valid(q, touch_margin):
+                break
+            distances = scene.object_distances(q)
+            lifted = min(d for d, l, _, _ in distances if l == link) >= lift_m
+            if lifted and min(d for d, *_ in distances) >= clearance_m and scene.is_valid(q, clearance_m):
+                return line[: k + 1]
     raise MotionError(
         f"finger {name}: cannot {what} (contact on {link}): neither a {lift_m * 1000:.1f} mm "
         f"retreat along the contact normal nor opening the finger is free"
