@@ -121,12 +121,13 @@ def _sample_intermediate(initial, finger: str, n: int, rng: np.random.Generator,
     hand, obj = initial.hand, initial.obj
     out: list[Slot] = []
     p_obj, _ = obj.sample_surface(max(30 * n, 30), rng)
-    # Try points nearest the finger's current tip first: they are the reachable ones.
-    T_palm_obj = obj.T_palm_obj
+    T_palm_obj = np.asarray(obj.T_palm_obj)
+    p_palm = p_obj @ T_palm_obj[:3, :3].T + T_palm_obj[:3, 3]
+    # Only IK-test points near the pad's sampled workspace; nearest the current tip first.
+    near = _pad_workspace(hand, finger, rng).query(p_palm)[0] <= WORKSPACE_TOL_M
     tip_palm = hand.link_pose(initial.q, hand.fingers[finger].tip_frame)[:3, 3]
-    tip_obj = T_palm_obj[:3, :3].T @ (tip_palm - T_palm_obj[:3, 3])
-    order = np.argsort(np.linalg.norm(p_obj - tip_obj, axis=1), kind="stable")
-    for p in p_obj[order]:
+    order = [i for i in np.argsort(np.linalg.norm(p_palm - tip_palm, axis=1), kind="stable") if near[i]]
+    for p in p_obj[order][: MAX_IK_TRIES_PER_SLOT * n]:
         if len(out) >= n:
             break
         if any(np.min(np.linalg.norm(s.points - p, axis=1)) < 0.01 for s in taken + out):
@@ -142,6 +143,27 @@ def _sample_intermediate(initial, finger: str, n: int, rng: np.random.Generator,
             continue
         out.append(Slot(finger, f"int{len(out)}", patch[0], patch[1], _finger_q(hand, finger, q)))
     return out
+
+
+WORKSPACE_TOL_M = 0.006
+"""A sampled surface point is IK-tested only within this distance of the pad's workspace."""
+MAX_IK_TRIES_PER_SLOT = 8
+
+
+def _pad_workspace(hand, finger: str, rng: np.random.Generator, n: int = 2000):
+    """KD-tree of fingertip-pad positions (palm frame) at random in-limit postures."""
+    from scipy.spatial import cKDTree
+
+    f = hand.fingers[finger]
+    idx = list(f.q_index)
+    lo, hi = np.asarray(hand.lower)[idx], np.asarray(hand.upper)[idx]
+    q = np.array(hand.q_open, dtype=float)
+    pts = np.empty((n, 3))
+    p_link = np.append(np.asarray(f.pad_p_link, dtype=float), 1.0)
+    for k in range(n):
+        q[idx] = rng.uniform(lo, hi)
+        pts[k] = (hand.link_pose(q, f.pad_link) @ p_link)[:3]
+    return cKDTree(pts)
 
 
 def build_problem(initial, final, options: PlanOptions) -> GaitProblem:
