@@ -132,10 +132,13 @@ def _solve_ompl(
     from ompl import util as ou
 
     n = len(start)
-    with _ompl_output(verbose):
-        # Seeding the generator of seeds before any sampler exists makes the run
-        # reproducible; a later re-seed still applies to the samplers created after it.
+    with _ompl_output(False):
+        # Re-seeding OMPL's generator of seeds makes the samplers created below
+        # reproducible. After the first plan OMPL logs an error that "changing the seed
+        # will not lead to deterministic sampling": true only for samplers that already
+        # exist, and none of ours do, so it is silenced even when verbose.
         ou.RNG.setSeed(_ompl_seed(seed))
+    with _ompl_output(verbose):
         space = ob.RealVectorStateSpace(n)
         bounds = ob.RealVectorBounds(n)
         for i in range(n):
