@@ -1,0 +1,1 @@
+"""Experiments reproducing and extending the thesis's evaluation (see README.md)."""
