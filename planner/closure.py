@@ -76,6 +76,7 @@ RANK_RTOL = 1e-9
 #: are reported as exactly 0 (boundary, not force closure).
 METRIC_RTOL = 1e-10
 
+_TRUE = np.ones(1, dtype=bool)
 _SIMPLEX_FACETS = np.array([[j for j in range(7) if j != i] for i in range(7)])  # (7, 6)
 
 
@@ -325,13 +326,11 @@ def _expand(W: np.ndarray, seed: _Hull, tol: float, decide_only: bool, keep: boo
     cu = max(4096, 2 * n)
     A = np.empty((cu, 6))
     V = np.empty((cu, 6), dtype=np.intp)
-    K = np.empty(cu, dtype=np.uint64)
     D = np.empty(cu)
     B = np.empty((cu, 6, 6))  # B[f] = inverse of the centered vertex matrix Y[V[f]]
     V[:n] = seed.V
     B[:n] = seed.B
     A[:n] = seed.A
-    K[:n] = Z[seed.V].sum(axis=1)
     D[:n] = (1.0 + A[:n] @ c) / np.sqrt(np.einsum("ij,ij->i", A[:n], A[:n]))
     vis_thr = 1.0 + 1e-12
     for _ in range(len(W) + 1):
@@ -364,18 +363,15 @@ def _expand(W: np.ndarray, seed: _Hull, tol: float, decide_only: bool, keep: boo
             break
         # Beneath-beyond insertion of row j: drop the facets it sees, cone the horizon to it.
         y = Y[j]
-        pa = A[:n] @ y
-        visible = pa > vis_thr
-        visible[f] = True
-        vis = np.flatnonzero(visible)
+        # Facet f sees y: a_f . y - 1 = |a_f| (h - d) > tol / dist(c, facet) >> 1e-12.
+        vis = np.flatnonzero(A[:n] @ y > vis_thr)
         Vv = V[vis]
-        rk = (K[vis][:, None] - Z[Vv]).ravel()  # key of the ridge opposite each vertex
+        Zv = Z[Vv]
+        rk = (Zv.sum(axis=1)[:, None] - Zv).ravel()  # key of the ridge opposite each vertex
         order = np.argsort(rk)
         sk = rk[order]
         neq = sk[1:] != sk[:-1]
-        single = np.ones(len(sk), dtype=bool)
-        single[1:] = neq
-        single[:-1] &= neq
+        single = np.concatenate((_TRUE, neq)) & np.concatenate((neq, _TRUE))
         # A ridge inside the visible region belongs to two visible facets; a horizon ridge
         # (visible facet / hidden facet) appears once.
         hz = order[single]
@@ -395,8 +391,7 @@ def _expand(W: np.ndarray, seed: _Hull, tol: float, decide_only: bool, keep: boo
         yB[ar, ci] -= 1.0
         yB /= denom[:, None]
         Bp -= g[:, :, None] * yB[:, None, :]
-        newA = A[parent]
-        newA -= g * ((pa[parent] - 1.0) / denom)[:, None]
+        newA = Bp.sum(axis=2)  # a = B 1
         newD = (1.0 + newA @ c) / np.sqrt(np.einsum("ij,ij->i", newA, newA))
         # Visible facets die (A = 0 is never visible, D = inf never nearest); new ones are
         # appended, so no slot bookkeeping.
@@ -408,12 +403,10 @@ def _expand(W: np.ndarray, seed: _Hull, tol: float, decide_only: bool, keep: boo
             A = np.concatenate([A, np.zeros((cu - len(A), 6))])
             B = np.concatenate([B, np.zeros((cu - len(B), 6, 6))])
             V = np.concatenate([V, np.zeros((cu - len(V), 6), dtype=np.intp)])
-            K = np.concatenate([K, np.zeros(cu - len(K), dtype=np.uint64)])
             D = np.concatenate([D, np.full(cu - len(D), np.inf)])
         A[n : n + nh] = newA
         B[n : n + nh] = Bp
         V[n : n + nh] = newV
-        K[n : n + nh] = K[parent] - Z[Vv[fi, ci]] + Z[j]
         D[n : n + nh] = newD
         n += nh
     else:
