@@ -157,40 +157,68 @@ def realized(path: str):
     return realize(load_spec(path))
 
 
-def scaled_spec(spec, factors: Sequence[float], keep_bottom: bool = True):
-    """The grasp on an object with its size scaled by ``factors`` (box: per axis x, y, z;
-    cylinder: (radius, length)); contact points scaled onto the new surface the same way;
-    postures unchanged (re-closed onto the new surface by `realize`). With ``keep_bottom``
-    the object's -z face (box) or the cylinder's lowest side line stays where it was, so
-    an object resting on the finger pads still rests on them."""
+def _onto_scaled_surface(shape, old_size, new_size, p):
+    """Move an object-frame contact point of the old object onto the new object's surface,
+    keeping its tangential coordinates (so it stays where the finger is): box, the
+    coordinate of its face set to the new face, the others clipped inside the new face;
+    cylinder, side points keep height and direction (radius changed), cap points keep
+    direction and radius (clipped)."""
+    p = np.asarray(p, float).copy()
+    margin = 1e-3
+    if shape == "box":
+        h_old, h_new = np.asarray(old_size) / 2.0, np.asarray(new_size) / 2.0
+        face = int(np.argmax(np.abs(p) / h_old))
+        for j in range(3):
+            p[j] = np.sign(p[j]) * h_new[j] if j == face else np.clip(p[j], -(h_new[j] - margin), h_new[j] - margin)
+        return p
+    if shape == "cylinder":
+        (r0, l0), (r1, l1) = old_size, new_size
+        rho = np.hypot(p[0], p[1])
+        if rho / r0 >= abs(p[2]) / (l0 / 2):  # side
+            p[:2] *= r1 / max(rho, 1e-12)
+            p[2] = np.clip(p[2], -(l1 / 2 - margin), l1 / 2 - margin)
+        else:  # cap
+            p[2] = np.sign(p[2]) * l1 / 2
+            if rho > r1 - margin:
+                p[:2] *= (r1 - margin) / rho
+        return p
+    if shape == "sphere":
+        return p * (new_size[0] / np.linalg.norm(p))
+    raise ValueError(f"scaling a {shape} is not supported")
+
+
+def scaled_spec(spec, factors: Sequence[float]):
+    """The grasp on an object whose size is scaled by ``factors`` (box: per axis x, y, z;
+    cylinder: (radius, length); sphere: (radius,)).
+
+    The object's pad-side extreme (palm -z: where it rests on the finger pads) stays where
+    it was; contact points keep their tangential position and move onto the new surface
+    (`_onto_scaled_surface`); posture fingers keep their postures and are re-closed onto
+    the new surface by `planner.grasp.realize`.
+    """
     obj = spec.object
     size = tuple(float(s) * float(f) for s, f in zip(obj.size, factors))
-    if obj.shape == "box":
-        point_scale = np.array(factors, float)
-        dz = (size[2] - obj.size[2]) / 2.0
-    elif obj.shape == "cylinder":
-        fr, fl = factors
-        point_scale = np.array([fr, fr, fl])
-        dz = size[0] - obj.size[0]
-    elif obj.shape == "sphere":
-        point_scale = np.full(3, factors[0])
-        dz = size[0] - obj.size[0]
-    else:
-        raise ValueError(f"scaling a {obj.shape} is not supported")
-    R = spec.object.T_palm_obj[:3, :3]
-    # keep the lowest point of the object (palm -z... the pad side) in place: shift the centre
-    # along the palm direction of the object's own z axis only for boxes; cylinders lie on the
-    # pads with their side, whose lowest line moves by the radius change along palm z
-    if obj.shape == "box":
-        shift = R @ np.array([0.0, 0.0, dz]) if keep_bottom else np.zeros(3)
-    else:
-        shift = np.array([0.0, 0.0, dz]) if keep_bottom else np.zeros(3)
+    T = obj.T_palm_obj
+    R = T[:3, :3]
+    # lowest point along palm z of the object, before and after (support function)
+    def low(sz):
+        if obj.shape == "box":
+            return float(np.abs(R[2, :]) @ (np.asarray(sz) / 2.0))
+        if obj.shape == "cylinder":
+            r, L = sz
+            axis_z = R[2, 2]
+            return float(abs(axis_z) * L / 2 + r * np.sqrt(max(0.0, 1 - axis_z ** 2)))
+        return float(sz[0])
+    shift = np.array([0.0, 0.0, low(size) - low(obj.size)])
     new_obj = replace(obj, size=size, position=tuple(np.asarray(obj.position, float) + shift))
     fingers = []
     for f in spec.fingers:
         if f.kind == "contact" and f.point_obj is not None:
-            f = replace(f, point_obj=tuple(np.asarray(f.point_obj, float) * point_scale))
-        fingers.append(f)
+            p_new = _onto_scaled_surface(obj.shape, obj.size, size, f.point_obj)
+            # the object moved by `shift` (palm frame): keep the point's palm x, y where possible
+            fingers.append(replace(f, point_obj=tuple(float(v) for v in p_new)))
+        else:
+            fingers.append(f)
     return replace(spec, object=new_obj, fingers=tuple(fingers), name=f"{spec.name}_x{'_'.join(f'{x:.2f}' for x in factors)}")
 
 
