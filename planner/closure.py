@@ -213,7 +213,7 @@ def _numerical_rank(W: np.ndarray, scale: float) -> int:
     # QR first keeps it: W = Q R, same singular values as R.
     r = np.linalg.qr(W, mode="r") if len(W) > 6 else W
     s = np.linalg.svd(r, compute_uv=False)
-    return int((s > RANK_RTOL * scale * max(1.0, math.sqrt(len(W)))).sum())
+    return int((s > RANK_RTOL * scale).sum())
 
 
 def _initial_simplex(W: np.ndarray, tol: float) -> np.ndarray | None:
@@ -241,11 +241,6 @@ def _initial_simplex(W: np.ndarray, tol: float) -> np.ndarray | None:
         resid[j] = -1.0
         chosen.append(j)
     return np.array(chosen)
-
-
-def _facet_planes(P: np.ndarray) -> np.ndarray:
-    """Normals a with a . y = 1 through the 6 points y of each facet; P (m, 6, 6) centered."""
-    return np.linalg.solve(P, np.ones(P.shape[:2] + (1,)))[..., 0]
 
 
 _ZOBRIST = np.zeros(0, dtype=np.uint64)
@@ -285,7 +280,7 @@ class _Degenerate(Exception):
 
 def _qhull_fallback(W: np.ndarray, tol: float) -> tuple[int, float]:
     """Slow exact path (qhull facets, never joggled) if the fast expansion degenerates."""
-    from scipy.spatial import ConvexHull, QhullError  # noqa: PLC0415 (rarely needed)
+    from scipy.spatial import ConvexHull, QhullError  # imported lazily: rarely needed
 
     try:
         offsets = ConvexHull(W).equations[:, -1]  # unit normals: distance = -offset
