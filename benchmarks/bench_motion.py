@@ -1,12 +1,13 @@
 """Benchmark: finger path planning time per gait step (lift + move + land) on the iCub hand.
 
 Cases:
-  box      the bundled box demo, grasps/icub/box_parallel_extension.yaml -> box_ir2m.yaml:
-           every finger whose contact changes makes one gait step from its initial to its
-           final configuration (a finger free in the final grasp goes to its open posture),
-           with the other fingers held as in the initial grasp.
-  cylinder a cylinder lying across the fingers (axis along the palm's y): the index, middle
-           and thumb each move between two contacts found by the grasp realizer.
+  box, cylinder  the bundled demos grasps/icub/<shape>_parallel_extension.yaml ->
+           <shape>_ir2m.yaml (when present): every finger whose contact changes makes one
+           gait step from its initial to its final configuration (a finger free in the
+           final grasp goes to its open posture), the other fingers held as in the
+           initial grasp.
+  cyl-sampled  a cylinder lying across the fingers (axis along the palm's y): the index,
+           middle and thumb each move between two contacts found by the grasp realizer.
   detour   the index finger flexing around a small box (straight line blocked, OMPL needed).
 
 Each case runs with several seeds; medians are printed in milliseconds.
@@ -40,10 +41,18 @@ def _pose(position, R=None):
     return T
 
 
-def box_cases(hand):
-    """(label, obj, q_a, q_b or None, finger, q_others) from the bundled box demo."""
-    initial = realize(load_grasp(ROOT / "grasps/icub/box_parallel_extension.yaml"), hand)
-    final = realize(load_grasp(ROOT / "grasps/icub/box_ir2m.yaml"), hand)
+GRASP_PAIRS = {  # initial -> final grasp files of the bundled demos
+    "box": ("box_parallel_extension.yaml", "box_ir2m.yaml"),
+    "cylinder": ("cylinder_parallel_extension.yaml", "cylinder_ir2m.yaml"),
+}
+
+
+def grasp_cases(hand, shape):
+    """(label, obj, q_a, q_b or None, finger, q_others) from a bundled grasp pair, or []."""
+    paths = [ROOT / "grasps/icub" / name for name in GRASP_PAIRS[shape]]
+    if not all(p.is_file() for p in paths):
+        return []
+    initial, final = (realize(load_grasp(p), hand) for p in paths)
     out = []
     for finger, f in hand.fingers.items():
         idx = list(f.q_index)
@@ -52,11 +61,11 @@ def box_cases(hand):
         q_b = final.q if finger in final.patches else None
         if q_b is not None and np.allclose(initial.q[idx], final.q[idx]):
             continue  # same contact: no gait step
-        out.append((f"box {finger}", initial.obj, initial.q, q_b, finger, initial.q))
+        out.append((f"{shape} {finger}", initial.obj, initial.q, q_b, finger, initial.q))
     return out
 
 
-def cylinder_cases(hand, n_candidates=40):
+def sampled_cylinder_cases(hand, n_candidates=40):
     """Two realized contacts per finger on a cylinder lying across the fingers."""
     Rx = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])  # object z -> palm -y
     obj = make_object("cylinder", (0.02, 0.08), _pose([0.05, -0.005, 0.027], Rx))
@@ -76,7 +85,7 @@ def cylinder_cases(hand, n_candidates=40):
             if len(found) == 2:
                 break
         if len(found) == 2:
-            out.append((f"cylinder {finger}", obj, found[0], found[1], finger, found[0]))
+            out.append((f"cyl-sampled {finger}", obj, found[0], found[1], finger, found[0]))
     return out
 
 
@@ -103,7 +112,7 @@ def main() -> None:
     args = parser.parse_args()
 
     hand = Hand.load("icub_right")
-    cases = box_cases(hand) + cylinder_cases(hand)
+    cases = grasp_cases(hand, "box") + grasp_cases(hand, "cylinder") + sampled_cylinder_cases(hand)
     print(f"planner {args.planner}, {args.seeds} seeds; times in ms (median over seeds)")
     print(f"{'case':18s} {'gait step':>10s}  {'move by':8s} waypoints lift/move/land")
     all_times = []
