@@ -48,7 +48,7 @@ MAX_LIFT_M = 0.03
 # name -> OMPL geometric planner class. Asymptotically optimal planners stop at their
 # first solution (cost threshold +inf): the path is then shortened by PathSimplifier.
 # PRM and PRM* grow their roadmap in a second thread, so their paths are not
-# reproducible from the seed; every other planner here is. FMT and BFMT are left out:
+# guaranteed to be reproducible from the seed; every other planner here is. FMT and BFMT are left out:
 # they stop after a fixed number of samples whatever the time budget.
 _PLANNER_CLASSES = {
     "rrtconnect": "RRTConnect",
