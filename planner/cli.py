@@ -39,7 +39,7 @@ def _cmd_plan(args: argparse.Namespace) -> int:
     check_same_setup(*specs)
     initial, final = (realize(s) for s in specs)
     inputs = {k: {"path": str(p), "sha256": sha256_file(p)} for k, p in (("initial", args.initial), ("final", args.final))}
-    result = plan_regrasp(initial, final, options, inputs)
+    result = plan_regrasp(initial, final, options, inputs, verbose=args.verbose)
     plan = result.plan
     print(f"{'step':>4}  {'finger':<8} {'action':<5} {'state':>5}  {'metric':>10}  removable")
     for i, step in enumerate(plan.steps):

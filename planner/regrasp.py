@@ -249,13 +249,17 @@ def _straight_gait(hand, obj, q_a, q_b, finger, **_):
     return out
 
 
-def _motion_gait(options: PlanOptions):
-    from planner.motion import plan_gait_step
+def _motion_gait(options: PlanOptions, verbose: bool = False):
+    from planner.motion import available_planners, plan_gait_step
+
+    if options.motion_planner not in available_planners():
+        raise UnknownNameError("motion planner", options.motion_planner, available_planners())
 
     def gait(hand, obj, q_a, q_b, finger):
         return plan_gait_step(
             hand, obj, q_a, q_b, finger,
             planner=options.motion_planner, timeout_s=options.motion_timeout_s, seed=options.seed,
+            verbose=verbose,
         )
 
     return gait
@@ -308,13 +312,16 @@ class _EdgeFailed(Exception):
 # ------------------------------------------------------------------ main entry
 
 
-def plan_regrasp(initial, final, options: PlanOptions = PlanOptions(), inputs: Mapping[str, Any] | None = None) -> PlanResult:
+def plan_regrasp(
+    initial, final, options: PlanOptions = PlanOptions(), inputs: Mapping[str, Any] | None = None, verbose: bool = False
+) -> PlanResult:
     """Plan a finger-gaiting sequence from one realized grasp to another.
 
     Args:
         initial, final: `planner.grasp.RealizedGrasp` (same hand, object, pose, friction).
         options: planner parameters.
         inputs: what to record under the plan's ``inputs`` (paths and sha256).
+        verbose: let the motion planner print its log.
 
     Returns:
         `PlanResult` with the plan, the graph and the ranked sequences.
@@ -324,6 +331,7 @@ def plan_regrasp(initial, final, options: PlanOptions = PlanOptions(), inputs: M
             the message says why.
     """
     check_same_setup(initial.spec, final.spec)
+    gait_fn = _motion_gait(options, verbose) if options.motion else _straight_gait
     t0 = time.perf_counter()
     hand, obj = initial.hand, initial.obj
     if not initial.is_force_closure:
@@ -332,7 +340,6 @@ def plan_regrasp(initial, final, options: PlanOptions = PlanOptions(), inputs: M
         raise NoSequenceError(f"the final grasp {final.spec.name!r} is not force closure (metric {final.metric:.3g})")
     problem = build_problem(initial, final, options)
     G = build_graph(problem)
-    gait_fn = _motion_gait(options) if options.motion else _straight_gait
     cache: dict = {}
     failed: list[str] = []
     for _ in range(50):
