@@ -126,3 +126,40 @@ def test_unreachable_goal_exits_one_with_an_explanation(tmp_path, capsys):
     final.write_text(yaml.safe_dump(data))
     assert main(["plan", str(a), str(final), "--no-motion"]) == 1
     assert "force closure" in capsys.readouterr().err
+
+
+def test_exported_paths_recheck_with_coal(realized, tmp_path):
+    """Every exported finger path (box plan with OMPL): limits hold, no link sinks into the object.
+
+    Independent of the planner: the file's waypoints are densified to 0.01 rad and every
+    finger link is tested against the object with coal directly.
+    """
+    import coal
+
+    from planner.plan import write_plan
+
+    initial, final = (realized(p) for p in PAIRS["box"])
+    result = plan_regrasp(initial, final, PlanOptions(motion=True, seed=3))
+    data = recheck_plan_file(write_plan(result.plan, tmp_path / "plan.json"))
+    hand, obj = initial.hand, initial.obj
+    T_palm_obj = np.asarray(obj.T_palm_obj)
+    tf_obj = coal.Transform3s(np.ascontiguousarray(T_palm_obj[:3, :3]), np.ascontiguousarray(T_palm_obj[:3, 3]))
+    lo, hi = np.asarray(hand.lower), np.asarray(hand.upper)
+    names = list(hand.joint_names)
+    assert any(s["action"] == "move" for s in data["steps"])
+    for step in data["steps"]:
+        q = np.array([data["states"][step["from_state"]]["q"][j] for j in names])
+        idx = [names.index(j) for j in step["joints"]]
+        path = np.array(step["path"])
+        assert np.all(path >= lo[idx] - 1e-9) and np.all(path <= hi[idx] + 1e-9)
+        fine = [path[0]]
+        for a, b in zip(path[:-1], path[1:]):
+            n = max(1, int(np.ceil(np.max(np.abs(b - a)) / 0.01)))
+            fine.extend(a + (b - a) * t for t in np.arange(1, n + 1) / n)
+        for wp in fine:
+            q[idx] = wp
+            for link, finger, geom, tf in hand.collision_objects(q):
+                if finger != step["finger"]:
+                    continue
+                d = coal.distance(geom, tf, obj.geometry, tf_obj, coal.DistanceRequest(), coal.DistanceResult())
+                assert d > -1e-3, f"{link} sinks {-d * 1e3:.2f} mm into the object during {step['finger']} {step['action']}"
