@@ -96,7 +96,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--replay", action="store_true", help="also replay each plan in pybullet")
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
-    scales = [0.7, 0.9, 0.95, 1.0, 1.05, 1.1, 1.3] if args.quick else [round(x, 2) for x in np.arange(0.7, 1.301, 0.05)]
+    scales = [0.7, 0.9, 0.95, 1.0, 1.05, 1.1, 1.3] if args.quick else [float(round(x, 2)) for x in np.arange(0.7, 1.301, 0.05)]
     tasks = []
     for name, ini, fin in grasp_pairs():
         shape = load_spec(ini).object.shape
