@@ -76,7 +76,6 @@ RANK_RTOL = 1e-9
 #: are reported as exactly 0 (boundary, not force closure).
 METRIC_RTOL = 1e-10
 
-_TRUE = np.ones(1, dtype=bool)
 _SIMPLEX_FACETS = np.array([[j for j in range(7) if j != i] for i in range(7)])  # (7, 6)
 
 
@@ -321,11 +320,13 @@ def _expand(W: np.ndarray, seed: _Hull, tol: float, decide_only: bool, keep: boo
     cu = max(4096, 2 * n)
     A = np.empty((cu, 6))
     V = np.empty((cu, 6), dtype=np.intp)
+    K = np.empty(cu, dtype=np.uint64)
     D = np.empty(cu)
     B = np.empty((cu, 6, 6))  # B[f] = inverse of the centered vertex matrix Y[V[f]]
     V[:n] = seed.V
     B[:n] = seed.B
     A[:n] = seed.A
+    K[:n] = Z[seed.V].sum(axis=1)
     D[:n] = (1.0 + A[:n] @ c) / np.sqrt(np.einsum("ij,ij->i", A[:n], A[:n]))
     vis_thr = 1.0 + 1e-12
     for _ in range(len(W) + 1):
@@ -348,25 +349,28 @@ def _expand(W: np.ndarray, seed: _Hull, tol: float, decide_only: bool, keep: boo
             # The facet plane supports conv(W): epsilon(Q) = d <= epsilon(W) <= h <= d + tol.
             state = 1 if d > tol else (0 if d >= -tol else -1)
             if state == 1:
-                # Report the plane solved afresh from its vertices (the rank-one updates
-                # drift by ~1e-12 relative) and re-check that it supports W.
-                a = np.linalg.solve(Y[V[f]], np.ones(6))
+                # The rank-one updates drift by ~1e-12 relative: refine the plane once from its
+                # vertices and keep the refined distance if its plane still supports W.
+                a = A[f] + B[f] @ (1.0 - Y[V[f]] @ A[f])
                 norm = math.sqrt(a @ a)
-                d = (1.0 + a @ c) / norm
-                if (Y @ a).max() / norm + c @ a / norm - d > 2 * tol or not d > tol:
-                    raise _Degenerate
+                d_refined = (1.0 + a @ c) / norm
+                if (Y @ a).max() / norm + c @ a / norm - d_refined <= tol and d_refined > tol:
+                    d = d_refined
             break
         # Beneath-beyond insertion of row j: drop the facets it sees, cone the horizon to it.
         y = Y[j]
-        # Facet f sees y: a_f . y - 1 = |a_f| (h - d) > tol / dist(c, facet) >> 1e-12.
-        vis = np.flatnonzero(A[:n] @ y > vis_thr)
+        pa = A[:n] @ y
+        visible = pa > vis_thr
+        visible[f] = True
+        vis = np.flatnonzero(visible)
         Vv = V[vis]
-        Zv = Z[Vv]
-        rk = (Zv.sum(axis=1)[:, None] - Zv).ravel()  # key of the ridge opposite each vertex
+        rk = (K[vis][:, None] - Z[Vv]).ravel()  # key of the ridge opposite each vertex
         order = np.argsort(rk)
         sk = rk[order]
         neq = sk[1:] != sk[:-1]
-        single = np.concatenate((_TRUE, neq)) & np.concatenate((neq, _TRUE))
+        single = np.ones(len(sk), dtype=bool)
+        single[1:] = neq
+        single[:-1] &= neq
         # A ridge inside the visible region belongs to two visible facets; a horizon ridge
         # (visible facet / hidden facet) appears once.
         hz = order[single]
@@ -386,7 +390,8 @@ def _expand(W: np.ndarray, seed: _Hull, tol: float, decide_only: bool, keep: boo
         yB[ar, ci] -= 1.0
         yB /= denom[:, None]
         Bp -= g[:, :, None] * yB[:, None, :]
-        newA = Bp.sum(axis=2)  # a = B 1
+        newA = A[parent]
+        newA -= g * ((pa[parent] - 1.0) / denom)[:, None]
         newD = (1.0 + newA @ c) / np.sqrt(np.einsum("ij,ij->i", newA, newA))
         # Visible facets die (A = 0 is never visible, D = inf never nearest); new ones are
         # appended, so no slot bookkeeping.
@@ -398,10 +403,12 @@ def _expand(W: np.ndarray, seed: _Hull, tol: float, decide_only: bool, keep: boo
             A = np.concatenate([A, np.zeros((cu - len(A), 6))])
             B = np.concatenate([B, np.zeros((cu - len(B), 6, 6))])
             V = np.concatenate([V, np.zeros((cu - len(V), 6), dtype=np.intp)])
+            K = np.concatenate([K, np.zeros(cu - len(K), dtype=np.uint64)])
             D = np.concatenate([D, np.full(cu - len(D), np.inf)])
         A[n : n + nh] = newA
         B[n : n + nh] = Bp
         V[n : n + nh] = newV
+        K[n : n + nh] = K[parent] - Z[Vv[fi, ci]] + Z[j]
         D[n : n + nh] = newD
         n += nh
     else:

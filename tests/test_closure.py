@@ -449,3 +449,16 @@ def test_qhull_fallback_gives_the_same_answer(monkeypatch):
         slow = closure_from_wrenches(W)
         assert slow.is_force_closure == expected.is_force_closure
         assert slow.metric == pytest.approx(expected.metric, rel=1e-9, abs=1e-12)
+
+
+def test_symmetric_fine_cone_grasp_needs_no_fallback(monkeypatch):
+    """A highly symmetric grasp (64-edge cones, many coplanar wrenches) stays on the fast exact path."""
+    import planner.closure as closure_module
+
+    def no_fallback(*args, **kwargs):
+        raise AssertionError("qhull fallback used")
+
+    monkeypatch.setattr(closure_module, "_qhull_fallback", no_fallback)
+    fine = Friction(0.5, 0.01, edges=64)
+    c = grasp_closure(six_sphere_contacts(), fine)
+    assert c.is_force_closure and c.metric > 0
