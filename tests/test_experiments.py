@@ -1,15 +1,8 @@
 """Smoke test of the experiments: the fastest one, in --quick mode, into a temporary directory."""
 
 import csv
-import sys
-from pathlib import Path
 
 import pytest
-
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-
-pytest.importorskip("matplotlib")
 
 
 def test_exp1_quick_writes_csv_and_png(tmp_path, capsys):
