@@ -1,0 +1,307 @@
+"""Grasp files: schema validation, realization, the bundled library and `regrasp check`."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from planner.cli import main
+from planner.closure import grasp_closure
+from planner.errors import SpecError
+from planner.grasp import SURFACE_TOL_M, load_grasp, load_hand, realize, realize_contact
+
+ROOT = Path(__file__).resolve().parent.parent
+GRASPS = sorted((ROOT / "grasps").rglob("*.yaml"))
+BOX_PE = ROOT / "grasps/icub/box_parallel_extension.yaml"
+BOX_IR2M = ROOT / "grasps/icub/box_ir2m.yaml"
+PAIRS = [
+    ("icub/box_parallel_extension.yaml", "icub/box_ir2m.yaml"),
+    ("icub/cylinder_parallel_extension.yaml", "icub/cylinder_ir2m.yaml"),
+    ("icub/pen_palmar_pinch.yaml", "icub/pen_writing_tripod.yaml"),
+    ("allegro/box_four_finger.yaml", "allegro/box_tripod.yaml"),
+]
+
+
+@pytest.fixture(scope="module")
+def realized():
+    """Every library grasp realized once (realization is deterministic)."""
+    return {p: realize(load_grasp(p)) for p in GRASPS}
+
+
+# ---------------------------------------------------------------------------- library
+
+
+def test_library_is_not_empty():
+    """The library holds the demo pair and grasps for both hands."""
+    assert BOX_PE in GRASPS and BOX_IR2M in GRASPS
+    hands = {load_grasp(p).hand for p in GRASPS}
+    assert {"icub_right", "allegro_right"} <= hands
+
+
+@pytest.mark.parametrize("path", GRASPS, ids=lambda p: str(p.relative_to(ROOT / "grasps")))
+def test_library_grasp_names_exist(path):
+    """Every finger and link a library file names exists in its hand."""
+    data = yaml.safe_load(path.read_text())
+    spec = load_grasp(path)
+    hand = load_hand(spec.hand_ref)
+    for finger, entry in data["fingers"].items():
+        assert finger in hand.fingers
+        if isinstance(entry, dict) and "contact" in entry and "link" in entry["contact"]:
+            assert entry["contact"]["link"] in hand.fingers[finger].contact_links
+        if isinstance(entry, dict) and "posture" in entry:
+            assert len(entry["posture"]) == len(hand.fingers[finger].joints)
+
+
+@pytest.mark.parametrize("path", GRASPS, ids=lambda p: str(p.relative_to(ROOT / "grasps")))
+def test_library_grasp_is_force_closure_without_self_collision(path, realized):
+    """Every library grasp realizes to force closure, every placed finger touches, no hand part collides."""
+    g = realized[path]
+    assert g.is_force_closure and g.metric > 0
+    assert g.missing == ()
+    assert g.collisions == ()
+    assert set(g.patches) == set(g.spec.contact_fingers)
+    for p, n in g.patches.values():
+        assert np.all(np.isfinite(p)) and np.all(np.isfinite(n))
+        assert np.allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-6)
+
+
+@pytest.mark.parametrize("initial,final", PAIRS)
+def test_pairs_share_hand_object_pose_and_friction(initial, final):
+    """The two grasps of a pair describe the same hand, object, pose and friction."""
+    a, b = load_grasp(ROOT / "grasps" / initial), load_grasp(ROOT / "grasps" / final)
+    assert a.hand_ref == b.hand_ref
+    assert a.object == b.object
+    assert a.friction == b.friction
+
+
+def test_box_pair_admits_the_thesis_gait(realized):
+    """PE -> IR2M: index then ring are moved one at a time, then little and thumb lifted, all force closure."""
+    pe, ir = realized[BOX_PE], realized[BOX_IR2M]
+    assert set(ir.patches) == {"index", "middle", "ring"}
+    np.testing.assert_allclose(pe.finger_q["middle"], ir.finger_q["middle"])  # the middle finger stays
+    state = dict(pe.patches)
+    sequence = [("index", None), ("index", ir.patches["index"]), ("ring", None), ("ring", ir.patches["ring"]),
+                ("little", None), ("thumb", None)]
+    for finger, patch in sequence:
+        if patch is None:
+            state.pop(finger)
+        else:
+            state[finger] = patch
+        assert grasp_closure(state, pe.friction).is_force_closure, (finger, sorted(state))
+
+
+def test_realize_contact_lands_on_the_requested_point():
+    """A pad contact is placed within a few millimetres of the requested surface point without penetrating."""
+    spec = load_grasp(BOX_PE)
+    hand = load_hand(spec.hand_ref)
+    obj = spec.object.make()
+    p = np.array(spec.finger("thumb").point_obj)
+    q, patch = realize_contact(hand, obj, "thumb", p, hand.q_open)
+    assert patch is not None
+    assert np.min(np.linalg.norm(patch[0] - p, axis=1)) < 0.004
+    others = [i for i in range(len(q)) if i not in hand.fingers["thumb"].q_index]
+    np.testing.assert_array_equal(q[others], hand.q_open[others])
+
+
+def test_unlisted_fingers_are_free(tmp_path):
+    """A finger the file does not list is free and stays at the open posture."""
+    data = yaml.safe_load(BOX_IR2M.read_text())
+    del data["fingers"]["little"]
+    path = _write(tmp_path, data)
+    spec = load_grasp(path)
+    assert spec.finger("little").kind == "free"
+    g = realize(spec)
+    np.testing.assert_allclose(g.finger_q["little"], np.asarray(g.hand.q_open)[list(g.hand.fingers["little"].q_index)])
+
+
+# ---------------------------------------------------------------------------- bad input
+
+
+def _write(tmp_path: Path, data, name="grasp.yaml") -> Path:
+    path = tmp_path / name
+    path.write_text(data if isinstance(data, str) else yaml.safe_dump(data, sort_keys=False))
+    return path
+
+
+def _box() -> dict:
+    return yaml.safe_load(BOX_PE.read_text())
+
+
+def _edit(fn):
+    def make():
+        d = _box()
+        fn(d)
+        return d
+
+    return make
+
+
+BAD = {
+    "unknown top key": (_edit(lambda d: d.update(colour="red")), "colour", "unknown key"),
+    "unsupported version": (_edit(lambda d: d.update(schema_version=2)), "schema_version", "unsupported schema version"),
+    "missing object": (_edit(lambda d: d.pop("object")), "object", "missing"),
+    "unknown shape": (_edit(lambda d: d["object"].update(shape="cone")), "object.shape", "box, cylinder, sphere, mesh"),
+    "negative size": (_edit(lambda d: d["object"]["size"].__setitem__(1, -0.05)), "object.size[1]", "positive"),
+    "size length": (_edit(lambda d: d["object"].update(size=[0.06, 0.05])), "object.size", "expected 3 numbers"),
+    "nan position": (_edit(lambda d: d["object"]["position"].__setitem__(0, math.nan)), "object.position[0]", "finite"),
+    "quaternion": (_edit(lambda d: d["object"].update(quat_xyzw=[0, 0, 0, 2])), "object.quat_xyzw", "unit quaternion"),
+    "negative mu": (_edit(lambda d: d["friction"].update(mu=-1)), "friction.mu", "positive"),
+    "unknown finger": (_edit(lambda d: d["fingers"].update(pinky="free")), "fingers.pinky", "index, middle, ring, little"),
+    "unknown link": (
+        _edit(lambda d: d["fingers"]["thumb"]["contact"].update(link="index_distal")),
+        "fingers.thumb.contact.link",
+        "thumb_distal",
+    ),
+    "point length": (
+        _edit(lambda d: d["fingers"]["thumb"]["contact"].update(point=[0.0, 0.0])),
+        "fingers.thumb.contact.point",
+        "expected 3 numbers",
+    ),
+    "point off surface": (
+        _edit(lambda d: d["fingers"]["thumb"]["contact"].update(point=[0.0, 0.0, 0.03])),
+        "fingers.thumb.contact.point",
+        "outside the object surface",
+    ),
+    "point inside": (
+        _edit(lambda d: d["fingers"]["thumb"]["contact"].update(point=[0.0, 0.0, 0.0])),
+        "fingers.thumb.contact.point",
+        "inside the object surface",
+    ),
+    "posture length": (
+        _edit(lambda d: d["fingers"].update(little={"posture": [0.1, 0.2]})),
+        "fingers.little.posture",
+        "expected 4 numbers",
+    ),
+    "posture limits": (
+        _edit(lambda d: d["fingers"].update(little={"posture": [0.0, 3.0, 0.0, 0.0]})),
+        "fingers.little.posture[1]",
+        "outside its limits",
+    ),
+    "finger entry": (_edit(lambda d: d["fingers"].update(ring="touch")), "fingers.ring", "'free'"),
+    "contact and posture": (
+        _edit(lambda d: d["fingers"]["thumb"].update(posture=[0.0, 0.0, 0.0, 0.0])),
+        "fingers.thumb",
+        "either contact or posture",
+    ),
+    "string number": (_edit(lambda d: d["friction"].update(gamma="0.004")), "friction.gamma", "expected a number"),
+    "unknown hand": (_edit(lambda d: d.update(hand="shadow_left")), "hand", "cannot load hand"),
+    "no touching finger": (
+        _edit(lambda d: d.update(fingers={f: "free" for f in d["fingers"]})),
+        "fingers",
+        "no finger touches",
+    ),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD))
+def test_bad_grasp_gives_one_spec_error_naming_file_and_key(tmp_path, case):
+    """Each kind of bad input raises a SpecError naming the file, the key path and what was expected."""
+    make, key, expected = BAD[case]
+    path = _write(tmp_path, make())
+    with pytest.raises(SpecError) as info:
+        load_grasp(path)
+    err = info.value
+    assert err.key == key
+    assert str(path) in str(err)
+    assert f": {key}: " in str(err)
+    assert expected in str(err)
+    assert "\n" not in str(err)
+
+
+def test_malformed_yaml_names_the_line(tmp_path):
+    """Malformed YAML is a SpecError with the file and the line, not a parser traceback."""
+    path = _write(tmp_path, "schema_version: 1\nhand: [icub_right\nobject: {}\n")
+    with pytest.raises(SpecError, match=r"malformed YAML at line \d+") as info:
+        load_grasp(path)
+    assert str(path) in str(info.value)
+
+
+def test_missing_file_and_non_mapping(tmp_path):
+    """A missing file and a YAML list are reported as SpecErrors naming the file."""
+    with pytest.raises(SpecError, match="cannot read grasp file"):
+        load_grasp(tmp_path / "nope.yaml")
+    with pytest.raises(SpecError, match="YAML mapping"):
+        load_grasp(_write(tmp_path, "- 1\n- 2\n"))
+
+
+def test_hand_path_is_relative_to_the_grasp_file(tmp_path):
+    """`hand` may be a path to a hand.yaml, resolved against the grasp file's folder."""
+    import os
+
+    d = _box()
+    sub = tmp_path / "grasps"
+    sub.mkdir()
+    d["hand"] = os.path.relpath(ROOT / "robots/icub_right/hand.yaml", sub)
+    spec = load_grasp(_write(sub, d))
+    assert Path(spec.hand_ref) == (ROOT / "robots/icub_right/hand.yaml").resolve()
+    assert set(load_hand(spec.hand_ref).fingers) == {"thumb", "index", "middle", "ring", "little"}
+
+
+def test_surface_tolerance_accepts_points_near_the_surface(tmp_path):
+    """A contact point within the tolerance of the surface is accepted (and projected onto it)."""
+    d = _box()
+    x, y, z = d["fingers"]["thumb"]["contact"]["point"]
+    d["fingers"]["thumb"]["contact"]["point"] = [x, y, z + 0.5 * SURFACE_TOL_M]
+    assert load_grasp(_write(tmp_path, d)).finger("thumb").kind == "contact"
+
+
+# ---------------------------------------------------------------------------- command line
+
+
+def test_check_exit_0_and_report(capsys):
+    """`regrasp check` on a force-closure grasp exits 0 and reports fingers, closure and removable fingers."""
+    assert main(["check", str(BOX_PE)]) == 0
+    out = capsys.readouterr().out
+    assert "force closure: yes" in out
+    for finger in ("thumb", "index", "middle", "ring", "little"):
+        assert finger in out
+
+
+def test_check_exit_1_when_not_force_closure(tmp_path, capsys):
+    """A grasp that is not force closure (one finger) exits 1."""
+    d = _box()
+    d["fingers"] = {"thumb": d["fingers"]["thumb"]}
+    assert main(["check", str(_write(tmp_path, d))]) == 1
+    assert "force closure: no" in capsys.readouterr().out
+
+
+def test_check_exit_2_on_bad_input(tmp_path, capsys):
+    """Bad input exits 2 with one line on stderr naming the file and key."""
+    d = _box()
+    d["fingers"]["pinky"] = "free"
+    path = _write(tmp_path, d)
+    assert main(["check", str(path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1
+    assert str(path) in err and "fingers.pinky" in err
+
+
+def test_check_json_parses(capsys):
+    """`--json` prints one JSON document with closure, metric and per-finger contacts."""
+    assert main(["check", str(BOX_IR2M), "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["force_closure"] is True and report["metric"] > 0
+    assert set(report["removable"]) <= {"index", "middle", "ring"}
+    assert report["fingers"]["thumb"]["contact_points"] == 0
+    assert report["fingers"]["middle"]["contact_points"] > 0
+    assert len(report["joints"]) == 19
+
+
+def test_check_png_renders_hand_and_object(tmp_path, capsys):
+    """`--png` writes a picture in which both the object colour and the hand colour appear."""
+    from PIL import Image
+
+    png = tmp_path / "grasp.png"
+    assert main(["check", str(BOX_PE), "--png", str(png), "--json"]) == 0
+    json.loads(capsys.readouterr().out)  # pybullet's console noise does not reach stdout
+    img = np.asarray(Image.open(png).convert("RGB")).astype(int)
+    assert img.shape[0] >= 100 and img.shape[1] >= 100
+    orange = (img[..., 0] > 150) & (img[..., 1] > 60) & (img[..., 1] < 170) & (img[..., 2] < 90)
+    grey = (abs(img[..., 0] - img[..., 2]) < 25) & (img[..., 0] > 60) & (img[..., 0] < 220)
+    assert orange.mean() > 0.02, "object not visible"
+    assert grey.mean() > 0.02, "hand not visible"
