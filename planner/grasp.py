@@ -412,14 +412,14 @@ def parse_grasp(data: Mapping, path) -> GraspSpec:
     hand_ref = resolve_hand_ref(hand_text, path.parent)
     try:
         hand = load_hand(hand_ref)
-    except PlannerError as err:
+    except (PlannerError, OSError, ValueError) as err:
         raise r.fail("hand", f"cannot load hand {hand_text!r}: {err}") from err
 
     # -- object
     obj_spec = _parse_object(r, data["object"], path.parent)
     try:
         obj = obj_spec.make()
-    except PlannerError as err:
+    except (PlannerError, OSError, ValueError) as err:
         raise r.fail("object", str(err)) from err
 
     # -- friction
