@@ -237,7 +237,8 @@ class GaitSequence:
         actions: (finger, action) per edge.
         bottleneck: worst closure metric over the states.
         mean_metric: mean closure metric over the states.
-        gait_steps: number of lifts (each lift starts one gait step).
+        gait_steps: finger gaits: a lift and the landing of the same finger right after it
+            are one gait; a lift or a landing on its own is one gait too.
     """
 
     nodes: tuple[Node, ...]
@@ -248,8 +249,8 @@ class GaitSequence:
 
     @property
     def rank_key(self) -> tuple:
-        """Sort key: larger bottleneck, then fewer steps, then larger mean."""
-        return (-self.bottleneck, len(self.actions), -self.mean_metric)
+        """Sort key: larger bottleneck, then fewer gait steps (then edges), then larger mean."""
+        return (-self.bottleneck, self.gait_steps, len(self.actions), -self.mean_metric)
 
     def order(self, problem: GaitProblem) -> tuple[str, ...]:
         """Compact ordering: "finger:lift" / "finger:land>label" per edge."""
@@ -262,6 +263,11 @@ class GaitSequence:
         return tuple(out)
 
 
+def _gait_increment(prev: tuple[str, str] | None, action: tuple[str, str]) -> int:
+    """1 when ``action`` starts a new gait; 0 for a landing right after its own lift."""
+    return 0 if action[1] == "land" and prev == (action[0], "lift") else 1
+
+
 def _sequence(G: nx.DiGraph, nodes: Sequence[Node]) -> GaitSequence:
     metrics = [G.nodes[v]["metric"] for v in nodes]
     actions = tuple((G.edges[u, v]["finger"], G.edges[u, v]["action"]) for u, v in zip(nodes, nodes[1:]))
@@ -270,17 +276,17 @@ def _sequence(G: nx.DiGraph, nodes: Sequence[Node]) -> GaitSequence:
         actions=actions,
         bottleneck=float(min(metrics)),
         mean_metric=float(np.mean(metrics)),
-        gait_steps=sum(a == "lift" for _, a in actions),
+        gait_steps=sum(_gait_increment(prev, act) for prev, act in zip((None,) + actions, actions)),
     )
 
 
 def search(G: nx.DiGraph, k: int = 1, *, max_expansions: int = 200_000) -> list[GaitSequence]:
     """The best ``k`` distinct gait sequences from the graph's start to its goal.
 
-    Best-first over simple paths with the key (-bottleneck, edges): both parts can only
-    grow as a path extends, so paths reach the goal in rank order. Each node is expanded
-    at most ``4k`` times (k-shortest-paths label setting); ties in (bottleneck, edges)
-    are ordered by the mean metric.
+    Best-first over simple paths with the key (-bottleneck, gait steps, edges): every
+    part can only grow as a path extends, so paths reach the goal in rank order. Each
+    node is expanded at most ``4k`` times (k-shortest-paths label setting); ties are
+    ordered by the mean metric.
 
     Returns:
         Up to k sequences, best first; empty when the goal is unreachable.
@@ -292,12 +298,12 @@ def search(G: nx.DiGraph, k: int = 1, *, max_expansions: int = 200_000) -> list[
     pops: dict[Node, int] = {}
     limit = 4 * max(k, 1)
     tie = itertools.count()
-    heap = [(-metric[start], 0, -metric[start], next(tie), (start,))]
+    heap = [(-metric[start], 0, 0, -metric[start], next(tie), (start,), None)]
     found: list[GaitSequence] = []
     expansions = 0
     while heap and expansions < max_expansions:
-        neg_b, n_edges, neg_sum, _, path = heapq.heappop(heap)
-        if len(found) >= k and (neg_b, n_edges) > (-found[k - 1].bottleneck, len(found[k - 1].actions)):
+        neg_b, gaits, n_edges, neg_sum, _, path, last = heapq.heappop(heap)
+        if len(found) >= k and (neg_b, gaits, n_edges) > found[k - 1].rank_key[:3]:
             break
         v = path[-1]
         if v == goal:
@@ -313,7 +319,10 @@ def search(G: nx.DiGraph, k: int = 1, *, max_expansions: int = 200_000) -> list[
             if w in on_path:
                 continue
             b = max(neg_b, -metric[w])
-            heapq.heappush(heap, (b, n_edges + 1, neg_sum - metric[w], next(tie), path + (w,)))
+            e = G.edges[v, w]
+            act = (e["finger"], e["action"])
+            g = gaits + _gait_increment(last, act)
+            heapq.heappush(heap, (b, g, n_edges + 1, neg_sum - metric[w], next(tie), path + (w,), act))
     return found[:k]
 
 

@@ -190,7 +190,7 @@ def build_problem(initial, final, options: PlanOptions) -> GaitProblem:
             else:
                 fs.append(Slot(f, "final", *final.patches[f], qf))
                 g_idx = len(fs) - 1
-        if options.intermediate and (f in initial.patches or f in final.patches):
+        if options.intermediate:
             fs.extend(_sample_intermediate(initial, f, options.intermediate, rng, list(fs)))
         slots[f] = tuple(fs)
         start.append(s_idx)
