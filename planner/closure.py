@@ -18,25 +18,26 @@ Signed metric (``Closure.metric``):
   the hull), which is ``0`` when the origin is on the boundary, or inside a hull that does
   not span 6-D.
 
-How it is computed (pure numpy, no convex hull of the whole set):
+How it is computed (numpy and one LAPACK call, no convex hull of the whole set):
 
-1. ``_initial_simplex``: a greedy, pivoted Gram-Schmidt picks 7 affinely independent wrenches
-   spread as far as possible.  If none exist (affine dimension < 6, tolerance
-   ``RANK_RTOL * max|w_i|``) the set is never force closure.
+1. ``_initial_simplex``: greedy farthest-point selection (QR with column pivoting, one LAPACK
+   call) picks 7 affinely independent wrenches spread as far as possible.  If none exist
+   (affine dimension < 6, tolerance ``RANK_RTOL * max|w_i|``) the set is never force closure.
 2. ``_expand``: an incremental inner polytope ``Q = conv(S)``, ``S`` a subset of the rows,
-   is kept as a simplicial facet list.  Facets are stored as ``a . (x - c) = 1`` around a fixed
-   interior point ``c`` of ``Q`` (no orientation bookkeeping), together with the inverse of
-   the facet's centered vertex matrix, so the plane of a new facet (one vertex swapped) is a
-   Sherman-Morrison rank-one update instead of a 6x6 solve.  Each step takes the facet with
-   the smallest signed distance ``d`` to the origin (the most violated one while the origin
-   is outside ``Q``; the nearest one, as in EPA, once it is inside), queries the support
-   value ``h(u) = max_i u . w_i`` along its unit normal ``u`` and either stops
-   (``h(u) - d <= tol``: the facet plane supports ``conv(W)``) or adds the support point
-   (beneath-beyond insertion: visible facets die, horizon ridges are coned to the new point;
-   a ridge is found by hashing its vertex set).  Because ``Q`` is inside ``conv(W)``, the
-   stop gives the exact answer: ``epsilon(Q) = d <= epsilon(W) <= h(u) <= d + tol``; the
-   reported plane is solved afresh from its 6 vertices.  A numerically degenerate update
-   falls back to an exact (never joggled) qhull hull of ``W``.
+   is kept as a simplicial facet list with neighbour links.  Facets are stored as
+   ``a . (x - c) = 1`` around a fixed interior point ``c`` of ``Q`` (no orientation
+   bookkeeping).  Each step takes the facet with the smallest signed distance ``d`` to the
+   origin (the most violated one while the origin is outside ``Q``; the nearest one, as in
+   EPA, once it is inside), queries the support value ``h(u) = max_i u . w_i`` along its unit
+   normal ``u`` and either stops (``h(u) - d <= tol``: the facet plane supports ``conv(W)``)
+   or adds the support point (beneath-beyond insertion: visible facets die, the horizon is
+   read off the neighbour links and each horizon ridge is coned to the new point; the new
+   plane is the convex combination of the two planes through the ridge that passes through
+   the new point, and new facets are linked to each other by sorting exact ridge keys).
+   Because ``Q`` is inside ``conv(W)``, the stop gives the exact answer:
+   ``epsilon(Q) = d <= epsilon(W) <= h(u) <= d + tol``; the reported plane is solved afresh
+   from its 6 vertices.  A numerically degenerate update (inconsistent horizon) falls back
+   to an exact (never joggled) qhull hull of ``W``.
 3. Not force closure: ``_min_norm_point`` (Wolfe's algorithm) gives ``dist(0, conv(W))``.
 
 Tolerances: ``RANK_RTOL`` (rank / affine independence) and ``METRIC_RTOL`` (boundary and
@@ -56,6 +57,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.linalg.lapack import dgeqp3 as _dgeqp3
 
 from planner.errors import InputError
 
@@ -173,6 +175,11 @@ def contact_wrenches(points, normals, friction: Friction) -> np.ndarray:
     if not isinstance(friction, Friction):
         raise InputError(f"friction must be a Friction, got {type(friction).__name__}")
     p, n = _as_points_normals(points, normals)
+    return _wrench_rows(p, n, friction)
+
+
+def _wrench_rows(p: np.ndarray, n: np.ndarray, friction: Friction) -> np.ndarray:
+    """``contact_wrenches`` body for checked points and unit normals."""
     e = friction.edges
     if len(p) == 0:
         return np.zeros((0, 6))
@@ -218,59 +225,67 @@ def _numerical_rank(W: np.ndarray, scale: float) -> int:
 def _initial_simplex(W: np.ndarray, tol: float) -> np.ndarray | None:
     """Indices of 7 affinely independent rows spread far apart, or None (affine dim < 6).
 
-    Greedy pivoted Gram-Schmidt on ``W - W[i0]``: each step takes the row farthest from the
-    affine hull of the rows chosen so far; that distance (recomputed exactly for the pivot)
-    must exceed ``tol``.
+    Greedy farthest-point choice on ``W - W[i0]``: each step takes the row farthest from the
+    affine hull of the rows chosen so far.  That is Householder QR with column pivoting of
+    ``(W - W[i0]).T`` (one LAPACK ``dgeqp3`` call instead of a Python Gram-Schmidt loop); the
+    pivot's distance ``|R[k, k]|`` must exceed ``tol``.
     """
     i0 = int(np.argmax(W[:, 0] + 1e-3 * W[:, 3]))
-    R = W - W[i0]
-    resid = np.einsum("ij,ij->i", R, R)  # squared distances to the current affine hull
-    chosen = [i0]
-    basis = np.zeros((0, 6))
-    for _ in range(6):
-        j = int(np.argmax(resid))
-        r = R[j] - (R[j] @ basis.T) @ basis
-        r -= (r @ basis.T) @ basis  # second pass keeps the basis orthonormal
-        norm = math.sqrt(r @ r)
-        if norm <= tol:
-            return None
-        q = r / norm
-        basis = np.vstack([basis, q])
-        resid -= (R @ q) ** 2
-        resid[j] = -1.0
-        chosen.append(j)
-    return np.array(chosen)
+    qr, jpvt, _, _, info = _dgeqp3((W - W[i0]).T, overwrite_a=1)  # (6, k), Fortran order: no copy
+    if info != 0 or not (np.abs(qr.diagonal()) > tol).all():
+        return None
+    return np.concatenate([[i0], jpvt[:6] - 1]).astype(np.intp)
 
 
-_ZOBRIST = np.zeros(0, dtype=np.uint64)
+#: Ridge matching keys: one random integer below 2**43 per wrench row.  A ridge's key is the
+#: sum of the keys of its vertices; sums of 5 keys are exact in float64 (so one matmul gives
+#: the keys of all ridges of all new facets) and stay below 2**46, which leaves 17 low bits of
+#: an int64 sort key for the entry's index (a single in-place ``sort``, no ``argsort``).
+_RIDGE_KEYS = np.zeros(0)
+_KEY_SENTINEL = float(2**46 - 1)  # above every sum of 5 keys: sorts last
+_IDX_BITS = 17
+_IDX_MASK = (1 << _IDX_BITS) - 1
+_OFF_DIAG = np.ones((6, 6)) - np.eye(6)  # key of the ridge opposite m = sum of the others
+_ARANGE = np.arange(1 << 16)
 
 
-def _zobrist(k: int) -> np.ndarray:
-    """Fixed random 64-bit keys per wrench index (ridge keys are sums of vertex keys)."""
-    global _ZOBRIST
-    if len(_ZOBRIST) < k:
-        size = max(k, 2 * len(_ZOBRIST), 4096)
-        raw = np.random.default_rng(20240607).bytes(8 * size)
-        _ZOBRIST = np.frombuffer(raw, dtype=np.uint64).copy()
-    return _ZOBRIST
+def _ridge_keys(k: int) -> np.ndarray:
+    global _RIDGE_KEYS
+    if len(_RIDGE_KEYS) < k:
+        size = max(k, 2 * len(_RIDGE_KEYS), 4096)
+        _RIDGE_KEYS = np.random.default_rng(20240607).integers(1, 2**43, size=size).astype(float)
+    return _RIDGE_KEYS
+
+
+def _arange(size: int) -> np.ndarray:
+    global _ARANGE
+    if len(_ARANGE) < size:
+        _ARANGE = np.arange(max(size, 2 * len(_ARANGE)))
+    return _ARANGE
 
 
 @dataclass
 class _Hull:
-    """Simplicial facets of an inner polytope: vertex rows V (F, 6) of W, planes A (F, 6) with
-    ``A . (x - c) = 1`` on the facet, inverses B (F, 6, 6) of the centered vertex matrices."""
+    """Simplicial facets of an inner polytope around an interior point ``c``: vertex rows
+    V (F, 6) of W, planes A (F, 6) with ``A . (x - c) = 1`` on the facet, and neighbour slots
+    N (F, 6): ``N[f, m] = 6 g + m'`` where g is the facet across the ridge opposite vertex
+    ``V[f, m]`` and ``V[g, m']`` is g's vertex off that ridge (so ``N[g, m'] = 6 f + m``)."""
 
     c: np.ndarray
     V: np.ndarray
     A: np.ndarray
-    B: np.ndarray
+    N: np.ndarray
 
 
 def _simplex_hull(W: np.ndarray, simplex: np.ndarray) -> _Hull:
     c = W[simplex].mean(axis=0)
     V = simplex[_SIMPLEX_FACETS]
-    B = np.linalg.inv(W[V] - c)
-    return _Hull(c, V, B.sum(axis=2), B)
+    A = np.linalg.solve(W[V] - c, np.ones((7, 6, 1)))[:, :, 0]
+    # Facet i omits simplex vertex i; across its ridge opposite vertex v lies facet v, whose
+    # vertex off that ridge is i (at position i - 1 if v < i, else i).
+    i = np.arange(7)[:, None]
+    N = 6 * _SIMPLEX_FACETS + np.where(_SIMPLEX_FACETS < i, i - 1, i)
+    return _Hull(c, V, A, N)
 
 
 class _Degenerate(Exception):
@@ -294,12 +309,31 @@ def _qhull_fallback(W: np.ndarray, tol: float) -> tuple[int, float]:
 def _expand(W: np.ndarray, seed: _Hull, tol: float, decide_only: bool, keep: bool = False):
     """Grow an inner polytope Q = conv(S), S a subset of the rows of W, until the answer is certain.
 
-    Q is a list of simplicial facets: vertex rows ``V[f]`` (indices into W) and normal ``A[f]``
-    with ``A[f] . (x - c) <= 1`` on Q, equality on facet f, ``c`` the centroid of the seed
-    simplex (inside Q for ever).  ``D[f]`` is the signed distance from the origin to the
-    facet plane (positive on the inner side); dead facet slots have ``A = 0, D = inf``.
-    A ridge is keyed by the wrapping sum of random 64-bit keys of its 5 vertices
-    (collision probability ~ 1e-16 per insertion).
+    Q is a list of simplicial facets: vertex rows ``V[f]`` (indices into W), plane ``a_f``
+    (column f of ``AT``) with ``a_f . (x - c) <= 1`` on Q, equality on facet f, ``c`` the
+    centroid of the seed simplex (inside Q for ever), and neighbour slots ``N[f]`` (see
+    ``_Hull``).  ``D[f]`` is the signed distance from the origin to the facet plane (positive
+    on the inner side); dead facet slots have ``a = 0, D = inf``.
+
+    One step (a few dozen numpy calls on arrays of a few hundred facets; the step count, ~25
+    for 500 grasp wrenches, is what EPA needs and is not reduced by richer seeds):
+
+    * nearest facet f (most violated while the origin is outside Q), support row j along its
+      normal: stop if the support gap ``h(u) - D[f] <= tol``;
+    * visible facets: ``a_f . (y_j - c) > 1``; the horizon is read off the neighbour slots of
+      the visible facets (a visible facet next to a hidden one);
+    * a new facet cones each horizon ridge to ``y_j``.  Its plane lies in the pencil of the
+      two planes through the ridge (visible parent p, hidden neighbour q):
+      ``a = (1 - lam) a_p + lam a_q`` with ``lam = (a_p.y - 1) / (a_p.y - a_q.y)`` in (0, 1],
+      a convex combination, so rounding errors never grow from one generation to the next
+      (no 6x6 inverses are stored or updated);
+    * neighbours: a new facet's ridge opposite ``j`` is its horizon ridge (the hidden
+      neighbour's slot is rewired to it); its other 5 ridges contain ``j`` and are paired
+      among the new facets by sorting exact integer ridge keys.  A key seen other than
+      exactly twice (inconsistent horizon or key collision) raises ``_Degenerate``.
+
+    Because Q is inside conv(W), the stop is exact: ``epsilon(Q) = d <= epsilon(W) <= h(u)
+    <= d + tol``; the reported plane is then solved afresh from its 6 vertices.
 
     Args:
         W: (k, 6) wrenches.
@@ -313,110 +347,115 @@ def _expand(W: np.ndarray, seed: _Hull, tol: float, decide_only: bool, keep: boo
         ``decide_only`` only a lower bound > tol); 0 = origin on the boundary; -1 = origin
         strictly outside.  ``hull`` is the final polytope if ``keep`` else None.
     """
-    Z = _zobrist(len(W))
+    keys = _ridge_keys(len(W))
     c = seed.c
     Y = W - c
+    YT = Y.T.copy()
     n = len(seed.V)
-    cu = max(4096, 2 * n)
-    A = np.empty((cu, 6))
+    cu = max(2048, 2 * n)
+    AT = np.zeros((6, cu))  # planes as columns: y @ AT[:, :n] is a fast matvec
     V = np.empty((cu, 6), dtype=np.intp)
-    K = np.empty(cu, dtype=np.uint64)
-    D = np.empty(cu)
-    B = np.empty((cu, 6, 6))  # B[f] = inverse of the centered vertex matrix Y[V[f]]
+    N = np.empty((cu, 6), dtype=np.intp)
+    D = np.full(cu, np.inf)
     V[:n] = seed.V
-    B[:n] = seed.B
-    A[:n] = seed.A
-    K[:n] = Z[seed.V].sum(axis=1)
-    D[:n] = (1.0 + A[:n] @ c) / np.sqrt(np.einsum("ij,ij->i", A[:n], A[:n]))
+    N[:n] = seed.N
+    AT[:, :n] = seed.A.T
+    D[:n] = (1.0 + seed.A @ c) / np.sqrt(np.einsum("ij,ij->i", seed.A, seed.A))
+    Nf = N.reshape(-1)
+    ar6 = _arange(6 * cu)
+    take = np.take  # faster than fancy indexing for gathers
     vis_thr = 1.0 + 1e-12
     for _ in range(len(W) + 1):
-        f = int(np.argmin(D[:n]))
-        d = D[f]
+        f = int(D.argmin())
+        d = float(D[f])
         if not d < math.inf:  # NaN from a degenerate update (argmin returns NaN first)
             raise _Degenerate
         if decide_only and d > tol:
             state = 1
             break
-        a = A[f]
-        u = a / math.sqrt(a @ a)
-        s = Y @ u
-        j = int(np.argmax(s))
-        h = s[j] + c @ u  # support value max_i u . w_i
-        if h < -tol:
+        a = AT[:, f]
+        s = a @ YT
+        j = int(s.argmax())
+        gap = (float(s[j]) - 1.0) / math.sqrt(a @ a)  # h(u) - d, u = a / |a|
+        if d + gap < -tol:
             state = -1  # a plane strictly separates the origin from every wrench
             break
-        if h - d <= tol:
+        if gap <= tol:
             # The facet plane supports conv(W): epsilon(Q) = d <= epsilon(W) <= h <= d + tol.
             state = 1 if d > tol else (0 if d >= -tol else -1)
             if state == 1:
-                # The rank-one updates drift by ~1e-12 relative: refine the plane once from its
-                # vertices and keep the refined distance if its plane still supports W.
-                a = A[f] + B[f] @ (1.0 - Y[V[f]] @ A[f])
+                # Solve the plane afresh from its vertices and keep that distance if the
+                # refined plane still supports W.
+                a = np.linalg.solve(Y[V[f]], np.ones(6))
                 norm = math.sqrt(a @ a)
                 d_refined = (1.0 + a @ c) / norm
-                if (Y @ a).max() / norm + c @ a / norm - d_refined <= tol and d_refined > tol:
+                if ((Y @ a).max() - 1.0) / norm <= tol and d_refined > tol:
                     d = d_refined
             break
         # Beneath-beyond insertion of row j: drop the facets it sees, cone the horizon to it.
-        y = Y[j]
-        pa = A[:n] @ y
+        pa = Y[j] @ AT[:, :n]
         visible = pa > vis_thr
         visible[f] = True
-        vis = np.flatnonzero(visible)
-        Vv = V[vis]
-        rk = (K[vis][:, None] - Z[Vv]).ravel()  # key of the ridge opposite each vertex
-        order = np.argsort(rk)
-        sk = rk[order]
-        neq = sk[1:] != sk[:-1]
-        single = np.ones(len(sk), dtype=bool)
-        single[1:] = neq
-        single[:-1] &= neq
-        # A ridge inside the visible region belongs to two visible facets; a horizon ridge
-        # (visible facet / hidden facet) appears once.
-        hz = order[single]
-        fi, ci = np.divmod(hz, 6)
-        ar = np.arange(len(hz))
-        parent = vis[fi]
-        newV = Vv[fi]
-        newV[ar, ci] = j  # the new facet: ridge + new vertex
-        # Replacing row ci of the parent's vertex matrix by y is a rank-one change, so the
-        # new inverse and plane follow by Sherman-Morrison (no 6x6 solves):
-        # g = B e_ci is the normal of the plane through c and the ridge, y.g != 0 because y
-        # is strictly beyond the parent facet and the ridge lies on it.
-        Bp = B[parent]
-        g = Bp[ar, :, ci]
-        yB = y @ Bp
-        denom = yB[ar, ci]
-        yB[ar, ci] -= 1.0
-        yB /= denom[:, None]
-        Bp -= g[:, :, None] * yB[:, None, :]
-        newA = A[parent]
-        newA -= g * ((pa[parent] - 1.0) / denom)[:, None]
-        newD = (1.0 + newA @ c) / np.sqrt(np.einsum("ij,ij->i", newA, newA))
-        # Visible facets die (A = 0 is never visible, D = inf never nearest); new ones are
-        # appended, so no slot bookkeeping.
-        A[vis] = 0.0
-        D[vis] = np.inf
-        nh = len(hz)
-        if n + nh > cu:
-            cu = 2 * (n + nh)
-            A = np.concatenate([A, np.zeros((cu - len(A), 6))])
-            B = np.concatenate([B, np.zeros((cu - len(B), 6, 6))])
-            V = np.concatenate([V, np.zeros((cu - len(V), 6), dtype=np.intp)])
-            K = np.concatenate([K, np.zeros(cu - len(K), dtype=np.uint64)])
+        vis = visible.nonzero()[0]
+        ns = take(N, vis, axis=0)
+        fi, ci = (~take(visible, ns // 6)).nonzero()  # horizon: visible facet, hidden neighbour
+        parent = take(vis, fi)
+        hs = ns[fi, ci]  # the hidden neighbour's slot of the horizon ridge
+        nbr = hs // 6
+        nh = len(fi)
+        m = n + nh
+        if m > cu:
+            cu = 2 * m
+            AT = np.concatenate([AT, np.zeros((6, cu - AT.shape[1]))], axis=1)
+            V = np.concatenate([V, np.empty((cu - len(V), 6), dtype=np.intp)])
+            N = np.concatenate([N, np.empty((cu - len(N), 6), dtype=np.intp)])
             D = np.concatenate([D, np.full(cu - len(D), np.inf)])
-        A[n : n + nh] = newA
-        B[n : n + nh] = Bp
-        V[n : n + nh] = newV
-        K[n : n + nh] = K[parent] - Z[Vv[fi, ci]] + Z[j]
-        D[n : n + nh] = newD
-        n += nh
+            Nf = N.reshape(-1)
+            ar6 = _arange(6 * cu)
+        if 6 * nh > _IDX_MASK:
+            raise _Degenerate  # pragma: no cover (over 21845 new facets in one step)
+        ar = ar6[:nh]
+        # Planes of the new facets: the pencil through each horizon ridge.
+        pp = take(pa, parent)
+        lam = (pp - 1.0) / (pp - take(pa, nbr))
+        Ap = take(AT, parent, axis=1)
+        An = take(AT, nbr, axis=1)
+        An -= Ap
+        An *= lam
+        An += Ap
+        AT[:, n:m] = An
+        D[n:m] = (c @ An + 1.0) / np.sqrt(np.einsum("ij,ij->j", An, An))
+        Vn = V[n:m]
+        take(V, parent, axis=0, out=Vn)
+        Vn[ar, ci] = j  # ridge + new vertex
+        # Neighbours: across the horizon ridge, the hidden facet (both ways) ...
+        Nn = N[n:m]
+        Nn[ar, ci] = hs
+        Nf[hs] = ar6[6 * n : 6 * m : 6] + ci
+        # ... across the other ridges, the new facet with the same ridge key.
+        rk = take(keys, Vn) @ _OFF_DIAG
+        rk[ar, ci] = _KEY_SENTINEL
+        pk = (rk.ravel().astype(np.int64) << _IDX_BITS) | ar6[: 6 * nh]
+        pk.sort()
+        pk = pk[: 5 * nh]
+        step = np.diff(pk >> _IDX_BITS)
+        if step[0::2].any() or not step[1::2].all():
+            raise _Degenerate  # a ridge key not seen exactly twice
+        e = (pk & _IDX_MASK) + 6 * n
+        Nf[e[0::2]] = e[1::2]
+        Nf[e[1::2]] = e[0::2]
+        # Visible facets die (a = 0 is never visible, D = inf never nearest).
+        AT[:, vis] = 0.0
+        D[vis] = np.inf
+        n = m
     else:
         raise _Degenerate  # pragma: no cover (every step adds a new vertex: cannot happen)
     hull = None
     if keep:
         alive = D[:n] < math.inf
-        hull = _Hull(c, V[:n][alive], A[:n][alive], B[:n][alive])
+        new_id = np.cumsum(alive) - 1
+        Na = N[:n][alive]
+        hull = _Hull(c, V[:n][alive], AT[:, :n].T[alive], 6 * new_id[Na // 6] + Na % 6)
     return state, (d if state == 1 else 0.0), hull
 
 
@@ -557,6 +596,25 @@ class _WrenchCache:
         return key, W
 
 
+def _finger_wrenches(patches, friction: Friction) -> dict:
+    """finger -> its wrench block, all built by one vectorized ``contact_wrenches`` pass
+    (one call per patch costs ~60 us of numpy overhead each); no caching within a grasp."""
+    if not isinstance(friction, Friction):
+        raise InputError(f"friction must be a Friction, got {type(friction).__name__}")
+    fingers, ps, ns = [], [np.zeros((0, 3))], [np.zeros((0, 3))]
+    for finger, points, normals in _patch_items(patches):
+        try:
+            p, n = _as_points_normals(points, normals)
+        except InputError as err:
+            raise InputError(f"patch of finger {finger!r}: {err}") from err
+        fingers.append(finger)
+        ps.append(p)
+        ns.append(n)
+    W = _wrench_rows(np.concatenate(ps), np.concatenate(ns), friction)
+    ends = np.cumsum([0] + [2 * friction.edges * len(p) for p in ps[1:]])
+    return {f: W[ends[i] : ends[i + 1]] for i, f in enumerate(fingers)}
+
+
 def grasp_closure(patches: Mapping[str, tuple], friction: Friction) -> Closure:
     """Force closure of a grasp using every point of every finger patch (thesis VIII).
 
@@ -568,8 +626,7 @@ def grasp_closure(patches: Mapping[str, tuple], friction: Friction) -> Closure:
     Returns:
         Closure of all contact wrenches stacked (see ``closure_from_wrenches``).
     """
-    cache = _WrenchCache(friction)
-    blocks = [cache.block(f, p, n)[1] for f, p, n in _patch_items(patches)]
+    blocks = list(_finger_wrenches(patches, friction).values())
     return _closure(np.vstack(blocks) if blocks else np.zeros((0, 6)))[0]
 
 
@@ -584,8 +641,7 @@ def removable_fingers(patches: Mapping[str, tuple], friction: Friction) -> froze
         frozenset of finger names; fingers with an empty patch are removable; empty when the
         grasp itself is not force closure.
     """
-    cache = _WrenchCache(friction)
-    blocks = {f: cache.block(f, p, n)[1] for f, p, n in _patch_items(patches)}
+    blocks = _finger_wrenches(patches, friction)
     full = np.vstack(list(blocks.values())) if blocks else np.zeros((0, 6))
     if not _closure(full, decide_only=True)[0].is_force_closure:
         return frozenset()
@@ -644,7 +700,7 @@ def batch_grasp_closure(list_of_patches: Sequence[Mapping[str, tuple]], friction
                 rows = np.concatenate(
                     [np.arange(starts[q], starts[q + 1]) for q in range(len(blocks)) if q != pos]
                 )
-                warm = _Hull(sub.c, rows[sub.V], sub.A, sub.B)
+                warm = _Hull(sub.c, rows[sub.V], sub.A, sub.N)
                 break
         res, hull = _closure(W, warm=warm, keep=True)
         if hull is not None:
