@@ -434,7 +434,7 @@ class _Recorder:
         # look from the thumb side, slightly above the hand, with "up" against gravity
         side = np.array([0.35, -1.0, 0.0])
         side -= up * side.dot(up)
-        eye = target + 0.22 * side / np.linalg.norm(side) + 0.12 * up
+        eye = target + 0.17 * side / np.linalg.norm(side) + 0.09 * up
         self.view = p.computeViewMatrix(eye.tolist(), target.tolist(), up.tolist(), physicsClientId=cid)
         self.proj = p.computeProjectionMatrixFOV(45.0, self.width / self.height, 0.01, 2.0, physicsClientId=cid)
         self.frames: list[np.ndarray] = []

@@ -1,0 +1,100 @@
+"""Replay speed: simulated seconds per wall-clock second, with and without GIF rendering.
+
+A simple held-object scene: the iCub hand holds a 3 cm box in a thumb-opposing
+three-finger grasp (palm down, gravity on) and lifts the index finger. Each setting
+is replayed several times and the median is reported.
+
+Run: ``.venv/bin/python benchmarks/bench_replay.py [--repeats N]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from planner.closure import Friction, grasp_closure
+from planner.contacts import contact_patches
+from planner.hand import Hand
+from planner.objects import make_object
+from planner.sim.replay import replay_plan
+
+BOX_SIZE = (0.03, 0.03, 0.03)
+BOX_POS = (0.02, -0.02, 0.025)
+FRICTION = Friction(mu=0.8, gamma=0.002, edges=5)
+
+
+def held_box_plan(hold_s_extra: int = 0) -> dict:
+    """Plan data: three-finger grasp of a box, then a lift of the index finger."""
+    hand = Hand.load("icub_right")
+    names = list(hand.joint_names)
+    T = np.eye(4)
+    T[:3, 3] = BOX_POS
+    obj = make_object("box", BOX_SIZE, T, mass_kg=0.03)
+    q = hand.q_open.copy()
+    q[names.index("thumb_0")] = 1.2
+    for f in ("thumb", "index", "middle"):
+        q = hand.close_finger(f, q, obj)
+    q1 = q.copy()
+    for j in hand.fingers["index"].close_joints:
+        q1[names.index(j)] = max(0.0, q1[names.index(j)] - 0.35)
+
+    def state(qv, fingers):
+        patches = {f: v for f, v in contact_patches(hand, qv, obj).items() if f in fingers}
+        c = grasp_closure(patches, FRICTION)
+        return {"patches": {f: {"points": p.tolist(), "normals": n.tolist()} for f, (p, n) in patches.items()},
+                "closure": {"is_force_closure": bool(c.is_force_closure), "metric": float(c.metric)},
+                "removable": [], "q": dict(zip(names, map(float, qv)))}
+
+    joints = list(hand.fingers["index"].joints)
+    idx = [names.index(j) for j in joints]
+    return {
+        "schema_version": 1, "kind": "regrasp-plan",
+        "hand": {"name": "icub_right", "spec": "robots/icub_right/hand.yaml"},
+        "object": {"shape": "box", "size": list(BOX_SIZE), "position": list(BOX_POS), "quat_xyzw": [0, 0, 0, 1],
+                   "mesh": None, "mass_kg": 0.03},
+        "friction": {"mu": FRICTION.mu, "gamma": FRICTION.gamma, "edges": FRICTION.edges},
+        "joints": names,
+        "states": [state(q, {"thumb", "index", "middle"}), state(q1, {"thumb", "middle"})],
+        "steps": [{"finger": "index", "action": "lift", "from_state": 0, "to_state": 1, "joints": joints,
+                   "path": [[float(v) for v in qq[idx]] for qq in (q, q1)]}],
+    }
+
+
+def measure(plan: dict, repeats: int, **kwargs) -> tuple[float, float, float]:
+    """(median sim-s per wall-s, median wall s, sim s) over `repeats` replays."""
+    rates, walls, sim_s = [], [], 0.0
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        report = replay_plan(plan, **kwargs)
+        wall = time.perf_counter() - t0
+        assert report.passed, report.verdict
+        rates.append(report.sim_time_s / wall)
+        walls.append(wall)
+        sim_s = report.sim_time_s
+    return statistics.median(rates), statistics.median(walls), sim_s
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=5)
+    args = parser.parse_args()
+    plan = held_box_plan()
+    with tempfile.TemporaryDirectory() as tmp:
+        rows = [
+            ("no rendering", {}),
+            ("GIF 320x240, every 8 steps", {"gif": Path(tmp) / "a.gif", "gif_every": 8}),
+            ("GIF 320x240, every step", {"gif": Path(tmp) / "b.gif", "gif_every": 1}),
+        ]
+        print(f"{'setting':<30} {'sim s / wall s':>15} {'wall s':>8} {'sim s':>7}   (median of {args.repeats})")
+        for name, kw in rows:
+            rate, wall, sim_s = measure(plan, args.repeats, **kw)
+            print(f"{name:<30} {rate:>15.2f} {wall:>8.3f} {sim_s:>7.2f}")
+
+
+if __name__ == "__main__":
+    main()
