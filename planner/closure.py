@@ -129,6 +129,11 @@ class Closure:
 
 
 def _as_points_normals(points, normals) -> tuple[np.ndarray, np.ndarray]:
+    return _unit_normals(*_as_arrays(points, normals))
+
+
+def _as_arrays(points, normals) -> tuple[np.ndarray, np.ndarray]:
+    """Points and normals as float (m, 3) arrays of the same shape (not yet checked finite)."""
     try:
         p = np.asarray(points, dtype=float)
         n = np.asarray(normals, dtype=float)
@@ -140,22 +145,35 @@ def _as_points_normals(points, normals) -> tuple[np.ndarray, np.ndarray]:
         raise InputError(f"points must have shape (n, 3), got {p.shape}")
     if n.shape != p.shape:
         raise InputError(f"normals must have the shape of points {p.shape}, got {n.shape}")
+    return p, n
+
+
+def _unit_normals(p: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Check finiteness and non-zero normals of ``_as_arrays`` output; normalize the normals."""
     if not (np.isfinite(p).all() and np.isfinite(n).all()):
         raise InputError("points and normals must be finite (found NaN or inf)")
-    length = np.linalg.norm(n, axis=1)
+    length = np.sqrt(np.einsum("ij,ij->i", n, n))
     if (length < 1e-12).any():
         bad = int(np.argmax(length < 1e-12))
         raise InputError(f"normal {bad} has zero length")
     return p, n / length[:, None]
 
 
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a x b`` over the last axis with broadcasting: np.cross's arithmetic (same bits)
+    without its per-call overhead (~10 us)."""
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
+
+
 def _tangent_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Deterministic tangents t1, t2 with (t1, t2, n) right-handed; n (m, 3) unit."""
     helper = np.zeros_like(n)
     helper[np.arange(len(n)), np.argmin(np.abs(n), axis=1)] = 1.0  # axis least aligned with n
-    t1 = np.cross(helper, n)
-    t1 /= np.linalg.norm(t1, axis=1)[:, None]
-    t2 = np.cross(n, t1)
+    t1 = _cross(helper, n)
+    t1 /= np.sqrt(np.einsum("ij,ij->i", t1, t1))[:, None]
+    t2 = _cross(n, t1)
     return t1, t2
 
 
@@ -189,7 +207,7 @@ def _wrench_rows(p: np.ndarray, n: np.ndarray, friction: Friction) -> np.ndarray
     f = n[:, None, :] + friction.mu * (
         np.sin(theta)[None, :, None] * t1[:, None, :] + np.cos(theta)[None, :, None] * t2[:, None, :]
     )
-    tau = np.cross(p[:, None, :], f)  # (n, e, 3)
+    tau = _cross(p[:, None, :], f)  # (n, e, 3)
     tors = friction.gamma * n[:, None, None, :] * np.array([1.0, -1.0])[None, None, :, None]
     w = np.empty((len(p), e, 2, 6))
     w[..., :3] = f[:, :, None, :]
@@ -246,6 +264,7 @@ _KEY_SENTINEL = float(2**46 - 1)  # above every sum of 5 keys: sorts last
 _IDX_BITS = 17
 _IDX_MASK = (1 << _IDX_BITS) - 1
 _OFF_DIAG = np.ones((6, 6)) - np.eye(6)  # key of the ridge opposite m = sum of the others
+_ONES6 = np.ones(6)
 _ARANGE = np.arange(1 << 16)
 
 
@@ -278,9 +297,15 @@ class _Hull:
 
 
 def _simplex_hull(W: np.ndarray, simplex: np.ndarray) -> _Hull:
-    c = W[simplex].mean(axis=0)
+    X = W[simplex]
+    c = X.mean(axis=0)
     V = simplex[_SIMPLEX_FACETS]
-    A = np.linalg.solve(W[V] - c, np.ones((7, 6, 1)))[:, :, 0]
+    # Barycentric coordinates: lambda_{1..6}(x) = (x - x_0) @ G, G = inv(rows x_i - x_0), and
+    # lambda_0 = 1 - sum; each is 1/7 at c, so facet i (lambda_i = 0) is -7 g_i . (x - c) = 1.
+    G = np.linalg.inv(X[1:] - X[0])
+    A = np.empty((7, 6))
+    A[0] = 7.0 * G.sum(axis=1)
+    A[1:] = -7.0 * G.T
     # Facet i omits simplex vertex i; across its ridge opposite vertex v lies facet v, whose
     # vertex off that ridge is i (at position i - 1 if v < i, else i).
     i = np.arange(7)[:, None]
@@ -304,6 +329,19 @@ def _qhull_fallback(W: np.ndarray, tol: float) -> tuple[int, float]:
     if d > tol:
         return 1, d
     return (0, 0.0) if d >= -tol else (-1, d)
+
+
+def _connected(visible: np.ndarray, N: np.ndarray, f: int) -> np.ndarray:
+    """The facets of ``visible`` reachable from facet f through visible neighbours."""
+    comp = np.zeros_like(visible)
+    comp[f] = True
+    front = np.array([f])
+    while len(front):
+        nb = N.take(front, axis=0).ravel() // 6
+        nb = np.unique(nb[visible.take(nb) & ~comp.take(nb)])
+        comp[nb] = True
+        front = nb
+    return comp
 
 
 def _expand(W: np.ndarray, seed: _Hull, tol: float, decide_only: bool, keep: bool = False):
@@ -330,7 +368,9 @@ def _expand(W: np.ndarray, seed: _Hull, tol: float, decide_only: bool, keep: boo
     * neighbours: a new facet's ridge opposite ``j`` is its horizon ridge (the hidden
       neighbour's slot is rewired to it); its other 5 ridges contain ``j`` and are paired
       among the new facets by sorting exact integer ridge keys.  A key seen other than
-      exactly twice (inconsistent horizon or key collision) raises ``_Degenerate``.
+      exactly twice (inconsistent horizon or key collision) triggers one retry with the
+      visible set cut down to the facets connected to f (coplanar inputs can make an isolated
+      facet "visible" by rounding), then ``_Degenerate`` (exact qhull fallback).
 
     Because Q is inside conv(W), the stop is exact: ``epsilon(Q) = d <= epsilon(W) <= h(u)
     <= d + tol``; the reported plane is then solved afresh from its 6 vertices.
@@ -361,9 +401,9 @@ def _expand(W: np.ndarray, seed: _Hull, tol: float, decide_only: bool, keep: boo
     N[:n] = seed.N
     AT[:, :n] = seed.A.T
     D[:n] = (1.0 + seed.A @ c) / np.sqrt(np.einsum("ij,ij->i", seed.A, seed.A))
+    Vf = V.reshape(-1)  # flat views: flat index 6 f + m addresses vertex / neighbour slot m of f
     Nf = N.reshape(-1)
     ar6 = _arange(6 * cu)
-    take = np.take  # faster than fancy indexing for gathers
     vis_thr = 1.0 + 1e-12
     for _ in range(len(W) + 1):
         f = int(D.argmin())
@@ -396,51 +436,61 @@ def _expand(W: np.ndarray, seed: _Hull, tol: float, decide_only: bool, keep: boo
         pa = Y[j] @ AT[:, :n]
         visible = pa > vis_thr
         visible[f] = True
-        vis = visible.nonzero()[0]
-        ns = take(N, vis, axis=0)
-        fi, ci = (~take(visible, ns // 6)).nonzero()  # horizon: visible facet, hidden neighbour
-        parent = take(vis, fi)
+        for attempt in range(2):
+            vis = visible.nonzero()[0]
+            ns = N.take(vis, axis=0)  # ndarray.take: faster than fancy indexing for gathers
+            fi, ci = (~visible.take(ns // 6)).nonzero()  # horizon: visible facet, hidden neighbour
+            parent = vis.take(fi)
+            nh = len(fi)
+            m = n + nh
+            if m > cu:
+                cu = 2 * m
+                AT = np.concatenate([AT, np.zeros((6, cu - AT.shape[1]))], axis=1)
+                V = np.concatenate([V, np.empty((cu - len(V), 6), dtype=np.intp)])
+                N = np.concatenate([N, np.empty((cu - len(N), 6), dtype=np.intp)])
+                D = np.concatenate([D, np.full(cu - len(D), np.inf)])
+                Vf = V.reshape(-1)
+                Nf = N.reshape(-1)
+                ar6 = _arange(6 * cu)
+            if 6 * nh > _IDX_MASK:
+                raise _Degenerate  # pragma: no cover (over 21845 new facets in one step)
+            local = ar6[: 6 * nh : 6] + ci  # flat slot of each new facet's horizon ridge ...
+            slot = local + 6 * n  # ... in the new block, and in V / N
+            Vn = V[n:m]
+            V.take(parent, axis=0, out=Vn)
+            Vf[slot] = j  # ridge + new vertex
+            # New facets meet pairwise across their ridges through j: same ridge key.
+            rk = (keys.take(Vn) @ _OFF_DIAG).ravel()
+            rk[local] = _KEY_SENTINEL
+            pk = (rk.astype(np.int64) << _IDX_BITS) | ar6[: 6 * nh]
+            pk.sort()
+            pk = pk[: 5 * nh]
+            sk = pk >> _IDX_BITS
+            step = sk[1:] - sk[:-1]
+            if not (nh & 1 or step[0::2].any() or np.count_nonzero(step) != len(step) // 2):
+                break
+            # A ridge key not seen exactly twice: the horizon is not a closed manifold.  Seen
+            # on coplanar inputs, where a facet far from f is "visible" by rounding only
+            # (a . y - 1 ~ 1e-12): keep the visible facets connected to f and retry once.
+            if attempt:
+                raise _Degenerate
+            visible = _connected(visible, N, f)
         hs = ns[fi, ci]  # the hidden neighbour's slot of the horizon ridge
         nbr = hs // 6
-        nh = len(fi)
-        m = n + nh
-        if m > cu:
-            cu = 2 * m
-            AT = np.concatenate([AT, np.zeros((6, cu - AT.shape[1]))], axis=1)
-            V = np.concatenate([V, np.empty((cu - len(V), 6), dtype=np.intp)])
-            N = np.concatenate([N, np.empty((cu - len(N), 6), dtype=np.intp)])
-            D = np.concatenate([D, np.full(cu - len(D), np.inf)])
-            Nf = N.reshape(-1)
-            ar6 = _arange(6 * cu)
-        if 6 * nh > _IDX_MASK:
-            raise _Degenerate  # pragma: no cover (over 21845 new facets in one step)
-        ar = ar6[:nh]
         # Planes of the new facets: the pencil through each horizon ridge.
-        pp = take(pa, parent)
-        lam = (pp - 1.0) / (pp - take(pa, nbr))
-        Ap = take(AT, parent, axis=1)
-        An = take(AT, nbr, axis=1)
+        pp = pa.take(parent)
+        lam = (pp - 1.0) / (pp - pa.take(nbr))
+        Ap = AT.take(parent, axis=1)
+        An = AT.take(nbr, axis=1)
         An -= Ap
         An *= lam
         An += Ap
         AT[:, n:m] = An
-        D[n:m] = (c @ An + 1.0) / np.sqrt(np.einsum("ij,ij->j", An, An))
-        Vn = V[n:m]
-        take(V, parent, axis=0, out=Vn)
-        Vn[ar, ci] = j  # ridge + new vertex
-        # Neighbours: across the horizon ridge, the hidden facet (both ways) ...
-        Nn = N[n:m]
-        Nn[ar, ci] = hs
-        Nf[hs] = ar6[6 * n : 6 * m : 6] + ci
-        # ... across the other ridges, the new facet with the same ridge key.
-        rk = take(keys, Vn) @ _OFF_DIAG
-        rk[ar, ci] = _KEY_SENTINEL
-        pk = (rk.ravel().astype(np.int64) << _IDX_BITS) | ar6[: 6 * nh]
-        pk.sort()
-        pk = pk[: 5 * nh]
-        step = np.diff(pk >> _IDX_BITS)
-        if step[0::2].any() or not step[1::2].all():
-            raise _Degenerate  # a ridge key not seen exactly twice
+        D[n:m] = (c @ An + 1.0) / np.sqrt(_ONES6 @ (An * An))
+        # Neighbour links: across the horizon ridge, the hidden facet (both ways) ...
+        Nf[slot] = hs
+        Nf[hs] = slot
+        # ... across the other ridges, the new facet with the same key (sorted next to it).
         e = (pk & _IDX_MASK) + 6 * n
         Nf[e[0::2]] = e[1::2]
         Nf[e[1::2]] = e[0::2]
@@ -596,23 +646,32 @@ class _WrenchCache:
         return key, W
 
 
-def _finger_wrenches(patches, friction: Friction) -> dict:
-    """finger -> its wrench block, all built by one vectorized ``contact_wrenches`` pass
-    (one call per patch costs ~60 us of numpy overhead each); no caching within a grasp."""
+def _finger_wrenches(patches, friction: Friction) -> tuple[np.ndarray, dict]:
+    """All wrenches of a grasp (k, 6) and finger -> its block (a view), built by one
+    vectorized ``contact_wrenches`` pass (a call per patch costs ~60 us of numpy overhead)."""
     if not isinstance(friction, Friction):
         raise InputError(f"friction must be a Friction, got {type(friction).__name__}")
     fingers, ps, ns = [], [np.zeros((0, 3))], [np.zeros((0, 3))]
     for finger, points, normals in _patch_items(patches):
         try:
-            p, n = _as_points_normals(points, normals)
+            p, n = _as_arrays(points, normals)
         except InputError as err:
             raise InputError(f"patch of finger {finger!r}: {err}") from err
         fingers.append(finger)
         ps.append(p)
         ns.append(n)
-    W = _wrench_rows(np.concatenate(ps), np.concatenate(ns), friction)
+    try:
+        p, n = _unit_normals(np.concatenate(ps), np.concatenate(ns))
+    except InputError:
+        for finger, p, n in zip(fingers, ps[1:], ns[1:]):  # name the faulty patch
+            try:
+                _unit_normals(p, n)
+            except InputError as err:
+                raise InputError(f"patch of finger {finger!r}: {err}") from err
+        raise  # pragma: no cover
+    W = _wrench_rows(p, n, friction)
     ends = np.cumsum([0] + [2 * friction.edges * len(p) for p in ps[1:]])
-    return {f: W[ends[i] : ends[i + 1]] for i, f in enumerate(fingers)}
+    return W, {f: W[ends[i] : ends[i + 1]] for i, f in enumerate(fingers)}
 
 
 def grasp_closure(patches: Mapping[str, tuple], friction: Friction) -> Closure:
@@ -626,8 +685,7 @@ def grasp_closure(patches: Mapping[str, tuple], friction: Friction) -> Closure:
     Returns:
         Closure of all contact wrenches stacked (see ``closure_from_wrenches``).
     """
-    blocks = list(_finger_wrenches(patches, friction).values())
-    return _closure(np.vstack(blocks) if blocks else np.zeros((0, 6)))[0]
+    return _closure(_finger_wrenches(patches, friction)[0])[0]
 
 
 def removable_fingers(patches: Mapping[str, tuple], friction: Friction) -> frozenset:
@@ -641,8 +699,7 @@ def removable_fingers(patches: Mapping[str, tuple], friction: Friction) -> froze
         frozenset of finger names; fingers with an empty patch are removable; empty when the
         grasp itself is not force closure.
     """
-    blocks = _finger_wrenches(patches, friction)
-    full = np.vstack(list(blocks.values())) if blocks else np.zeros((0, 6))
+    full, blocks = _finger_wrenches(patches, friction)
     if not _closure(full, decide_only=True)[0].is_force_closure:
         return frozenset()
     removable = set()
