@@ -707,8 +707,8 @@ def removable_fingers(patches: Mapping[str, tuple], friction: Friction) -> froze
         if len(block) == 0:
             removable.add(finger)
             continue
-        rest = [b for g, b in blocks.items() if g != finger]
-        if _closure(np.vstack(rest), decide_only=True)[0].is_force_closure:
+        rest = [b for g, b in blocks.items() if g != finger and len(b)]
+        if rest and _closure(np.vstack(rest), decide_only=True)[0].is_force_closure:
             removable.add(finger)
     return frozenset(removable)
 

@@ -462,3 +462,12 @@ def test_symmetric_fine_cone_grasp_needs_no_fallback(monkeypatch):
     fine = Friction(0.5, 0.01, edges=64)
     c = grasp_closure(six_sphere_contacts(), fine)
     assert c.is_force_closure and c.metric > 0
+
+
+def test_removable_with_a_single_touching_finger():
+    """A lone finger whose patch alone is force closure is not removable; empty patches are."""
+    d = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], dtype=float)
+    fr = Friction(mu=0.5, gamma=0.004)
+    patches = {"wrap": (0.03 * d, -d), "idle": (np.zeros((0, 3)), np.zeros((0, 3)))}
+    assert grasp_closure(patches, fr).is_force_closure
+    assert removable_fingers(patches, fr) == frozenset({"idle"})
