@@ -188,7 +188,7 @@ class GraspObject:
         if self.shape == "box":
             h = np.array(self.size) / 2.0
             q = np.abs(p) - h
-            if np.all(q <= 0):   # inside: nearest face
+            if np.all(q <= 0) or np.linalg.norm(p - np.clip(p, -h, h)) < 1e-12:   # inside or on: nearest face
                 i = int(np.argmax(q))
                 s = 1.0 if p[i] >= 0 else -1.0
                 ps = p.copy()
@@ -205,7 +205,8 @@ class GraspObject:
             radial = p[:2] / rho if rho > 1e-12 else np.array([1.0, 0.0])
             dr, dz = rho - r, abs(p[2]) - L / 2
             sz = 1.0 if p[2] >= 0 else -1.0
-            if dr <= 0 and dz <= 0:   # inside
+            on_surface = np.linalg.norm(p - np.r_[radial * min(rho, r), np.clip(p[2], -L / 2, L / 2)]) < 1e-12
+            if (dr <= 0 and dz <= 0) or on_surface:   # inside or on the surface
                 if dr >= dz:
                     return (np.r_[radial * r, p[2]], np.r_[radial, 0.0], float(dr))
                 return np.r_[p[:2], sz * L / 2], np.array([0.0, 0.0, sz]), float(dz)

@@ -111,3 +111,17 @@ def test_pose_is_read_only_and_mass_defaults_from_volume():
     with pytest.raises(ValueError):
         box.T_palm_obj[0, 3] = 1.0
     assert np.isclose(box.mass_kg, 0.5)
+
+
+def test_closest_surface_on_edges_gives_unit_normals():
+    """Points exactly on a box edge/corner or a cylinder rim get a finite unit normal, distance 0."""
+    from planner.objects import make_object
+
+    box = make_object("box", (0.06, 0.05, 0.03), np.eye(4))
+    cyl = make_object("cylinder", (0.01, 0.1), np.eye(4))
+    for obj, pts in ((box, [(0.03, 0.025, 0.0), (0.03, 0.025, 0.015), (0.03 + 1e-17, 0.0, 0.015)]),
+                     (cyl, [(0.01, 0.0, 0.05), (0.0, 0.01 + 1e-18, -0.05)])):
+        for pt in pts:
+            ps, n, d = obj.closest_surface(np.array(pt))
+            assert np.all(np.isfinite(n)) and abs(np.linalg.norm(n) - 1) < 1e-12
+            assert abs(d) < 1e-9
