@@ -182,13 +182,8 @@ class _Evaluator:
         return None
 
 
-def build_graph(problem: GaitProblem) -> nx.DiGraph:
-    """Grow the graph of valid grasp states reachable from ``problem.start``.
-
-    Node attributes: ``labels`` (finger -> slot label), ``patches``, ``closure``,
-    ``metric``, ``removable``. Edge attributes: ``finger``, ``action`` (lift|land).
-    Graph attributes: ``problem``, ``start``, ``goal``, ``blocked`` (node -> reason for
-    every state that was generated but is not valid), ``evaluator`` (caches).
+def seed_graph(problem: GaitProblem) -> nx.DiGraph:
+    """A graph holding only the initial state (what `greedy` grows lazily).
 
     Raises:
         NoSequenceError: the initial grasp itself is not a valid state.
@@ -200,6 +195,22 @@ def build_graph(problem: GaitProblem) -> nx.DiGraph:
     if reason is not None:
         raise NoSequenceError(f"the initial grasp is not a valid state: {reason}")
     _add_node(G, ev, problem.start)
+    return G
+
+
+def build_graph(problem: GaitProblem) -> nx.DiGraph:
+    """Grow the graph of valid grasp states reachable from ``problem.start``.
+
+    Node attributes: ``labels`` (finger -> slot label), ``patches``, ``closure``,
+    ``metric``, ``removable``. Edge attributes: ``finger``, ``action`` (lift|land).
+    Graph attributes: ``problem``, ``start``, ``goal``, ``blocked`` (node -> reason for
+    every state that was generated but is not valid), ``evaluator`` (caches).
+
+    Raises:
+        NoSequenceError: the initial grasp itself is not a valid state.
+    """
+    G = seed_graph(problem)
+    ev = G.graph["evaluator"]
     frontier = [problem.start]
     while frontier:
         moves = [(u, i, action, v) for u in frontier for i, action, v in problem.neighbours(u)]

@@ -21,7 +21,7 @@ import networkx as nx
 import numpy as np
 
 from planner.errors import MotionError, NoSequenceError, PlannerError, SpecError, UnknownNameError
-from planner.graph import LIFTED, GaitProblem, GaitSequence, Slot, build_graph, explain_failure, greedy, search
+from planner.graph import LIFTED, GaitProblem, GaitSequence, Slot, build_graph, explain_failure, greedy, search, seed_graph
 from planner.plan import Alternative, Plan, PlanState, PlanStep
 
 STRATEGIES = ("graph", "greedy")
@@ -339,7 +339,8 @@ def plan_regrasp(
     if not final.is_force_closure:
         raise NoSequenceError(f"the final grasp {final.spec.name!r} is not force closure (metric {final.metric:.3g})")
     problem = build_problem(initial, final, options)
-    G = build_graph(problem)
+    # Greedy (thesis Algorithm 2) only visits the states it walks through.
+    G = seed_graph(problem) if options.strategy == "greedy" else build_graph(problem)
     cache: dict = {}
     failed: list[str] = []
     for _ in range(50):
