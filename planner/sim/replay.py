@@ -19,12 +19,17 @@ Sequence (thesis section VII / IX):
      in the object frame with normals INTO the object, grouped by finger, and the force
      closure and metric are recomputed with `planner.closure.grasp_closure`.
 
-Squeeze. A touching finger's position target is its planned posture plus a joint offset
-``dq = d * g / |g|^2`` with ``g = J_f^T n`` (``J_f``: linear Jacobian of the contact point
-over that finger's joints, ``n``: inward contact normal, ``d = squeeze_m``), i.e. a target
-``d`` metres inside the object; each joint's torque is capped at
-``finger_force_n * |g_i|`` (plus a small holding floor) so the saturated motors press the
-contact with about ``finger_force_n`` along its normal, ``tau = J^T (F n)``.
+Squeeze (grasp force optimization). At every state the contact of each touching finger
+(its link nearest the object at the planned pose) gets a force ``f_i`` chosen so the object
+is in equilibrium under gravity: ``min sum |f_i - F n_i|_1`` subject to the net wrench
+balancing ``m g``, every ``f_i`` inside half the friction cone (then 3/4, then the whole
+cone if needed) and a normal force of at least ``0.1 F`` (``F = finger_force_n``;
+`_Sim._grasp_forces`). Plain normal squeezing is kept only when no balanced forces exist
+at those point contacts. The finger then presses with joint torques ``tau = J_f^T f_i``
+(``J_f``: linear Jacobian of the contact point over the finger's joints): its position
+target lies ``squeeze_m`` beyond the contact along ``tau`` and each joint's torque is
+capped at ``|tau_j|`` (at least a small holding torque), so the motors saturate against
+the object and press with ``tau``.
 
 Friction. Bullet multiplies the two bodies' lateral friction and combines spinning friction
 as ``s_a * mu_b + s_b * mu_a``; with the hand links at lateral friction 1 and spinning 0 and
@@ -72,6 +77,8 @@ FREE_TORQUE_NM = 0.5
 #: Minimum torque of every joint of a squeezing finger, so joints orthogonal to the
 #: contact normal still hold their posture.
 HOLD_TORQUE_NM = 0.05
+#: Squeeze target: joint offset per metre of ``squeeze_m`` (1 mm ~ 0.05 rad at 20 mm).
+SQUEEZE_RAD_PER_M = 50.0
 
 
 # --------------------------------------------------------------------------- reports
@@ -684,14 +691,14 @@ class _Sim:
         self._reset_q(state.q)
         pos, quat = self.T_ref[:3, 3].tolist(), Rotation.from_matrix(self.T_ref[:3, :3]).as_quat().tolist()
         p.resetBasePositionAndOrientation(self.obj, pos, quat, physicsClientId=self.cid)
-        q_all = [p.getJointState(self.hand, i, physicsClientId=self.cid)[0] for i in self.movable]
-        zeros = [0.0] * len(q_all)
-        col = {i: c for c, i in enumerate(self.movable)}
         d, F = self.params["squeeze_m"], self.params["finger_force_n"]
-        found = []  # (finger, joints, g = J_f^T n, contact point, inward normal), palm frame
+        # one contact per finger, on its link nearest the object: (finger, joints, J (3, n) of
+        # the contact point over the finger's joints, contact point, inward normal), palm frame
+        found = []
         for f in state.fingers:
             if f not in self.fingers:
                 raise UnknownNameError("finger", f, self.fingers)
+            fj = [j for j in self.fingers[f] if j in self.jidx]
             best = None
             for link in self.finger_links[f]:
                 for cp in p.getClosestPoints(self.hand, self.obj, 0.01, linkIndexA=link, physicsClientId=self.cid):
@@ -700,17 +707,25 @@ class _Sim:
             if best is None:
                 continue  # planned contact not within 1 cm: nothing to squeeze
             n_in = -np.asarray(best[7])  # contactNormalOnB points from the object (B) to the hand (A)
-            fj = [j for j in self.fingers[f] if j in self.jidx]
             J = self._point_jacobian(best[3], np.asarray(best[5]), fj)  # (3, len(fj))
-            g = J.T @ n_in
-            if float(g @ g) > 1e-10:
-                found.append((f, fj, g, np.asarray(best[6]), n_in))
-        lam = self._balanced_forces([(x[3], x[4]) for x in found], F)
-        for (f, fj, g, _, _), lam_f in zip(found, lam):
-            dq = d * g / float(g @ g)
-            for j, dqi, gi in zip(fj, dq, g):
+            if float(np.linalg.norm(J.T @ n_in)) > 1e-5:
+                found.append((f, fj, J, np.asarray(best[6]), n_in))
+        forces = self._grasp_forces([(x[3], x[4]) for x in found], F)
+        tau: dict[str, np.ndarray] = {}
+        finger_joints = {}
+        for (f, fj, J, _, _), f_c in zip(found, forces):
+            tau[f] = J.T @ f_c
+            finger_joints[f] = fj
+        for f, t in tau.items():
+            norm = float(np.linalg.norm(t))
+            if norm <= 1e-9:
+                continue
+            # target: SQUEEZE_RAD_PER_M * d radians beyond the contact along tau; the object
+            # blocks the finger, every joint saturates at its cap and the finger presses with tau
+            dq = (d * SQUEEZE_RAD_PER_M) * t / norm
+            for j, dqi, ti in zip(finger_joints[f], dq, t):
                 targets[j] = state.q[j] + float(dqi)
-                caps[j] = max(HOLD_TORQUE_NM, lam_f * abs(float(gi)))
+                caps[j] = max(HOLD_TORQUE_NM, abs(float(ti)))
         return targets, caps
 
     def _point_jacobian(self, link: int, p_palm: np.ndarray, joints: list[str]) -> np.ndarray:
@@ -734,30 +749,76 @@ class _Sim:
             J[:, c] = (pts[0] - pts[1]) / (2 * h)
         return J
 
-    def _balanced_forces(self, contacts, F: float) -> np.ndarray:
-        """Normal force per squeezing finger so that the squeeze wrenches cancel.
+    def _grasp_forces(self, contacts, F: float) -> list[np.ndarray]:
+        """Contact forces (palm frame) that hold the object still: grasp force optimization.
 
-        Pressing every finger with the same force would push the object as soon as it is
-        released. Least squares on the net wrench of the normal forces (torques about the
-        object centre, scaled by 1/r with r the object's size), with the mean force fixed to
-        ``F`` and every force in [0.25 F, 3 F].
+        Squeezing every finger along its normal leaves a net wrench whenever the normals do
+        not meet (the thumb on the back of a box, the fingertips under its front), and the
+        object turns as soon as it is released. Instead the forces solve
+
+            min  sum_i |f_i - F n_i|_1
+            s.t. sum_i [f_i; (p_i - c) x f_i] = -[m g; 0]      (the object is in equilibrium)
+                 |f_i - (f_i.n_i) n_i| <= 0.5 mu (f_i.n_i)     (inside half the friction cone,
+                                                                 8-sided pyramid)
+                 f_i.n_i >= 0.1 F
+
+        (a linear program, HiGHS). When no such forces exist (a grasp without force
+        closure at its point contacts) the equilibrium is relaxed to least squares and the
+        normal squeeze is kept.
         """
         k = len(contacts)
         if k == 0:
-            return np.zeros(0)
+            return []
         c = self.T_ref[:3, 3]
-        r = max(1e-3, max(float(np.linalg.norm(pt - c)) for pt, _ in contacts))
-        A = np.zeros((7, k))
-        for i, (pt, n) in enumerate(contacts):
-            A[:3, i] = n
-            A[3:6, i] = np.cross(pt - c, n) / r
-        A[6, :] = 1.0 / k
-        b = np.zeros(7)
-        b[6] = F
-        from scipy.optimize import lsq_linear
+        P = np.array([pt for pt, _ in contacts])
+        N = np.array([n / np.linalg.norm(n) for _, n in contacts])
+        A = np.zeros((6, 3 * k))
+        for i in range(k):
+            A[:3, 3 * i:3 * i + 3] = np.eye(3)
+            r = P[i] - c
+            A[3:, 3 * i:3 * i + 3] = np.array([[0, -r[2], r[1]], [r[2], 0, -r[0]], [-r[1], r[0], 0]])
+        b = np.zeros(6)
+        b[:3] = -self.mass * np.asarray(self.params["gravity"], float)
+        scale = np.array([1.0] * 3 + [1.0 / max(1e-3, float(np.max(np.linalg.norm(P - c, axis=1))))] * 3)
+        A, b = A * scale[:, None], b * scale
+        f0 = (F * N).ravel()
+        x = f0  # no balanced forces at these point contacts: keep the normal squeeze
+        for margin in (0.5, 0.75, 1.0):
+            x_m = self._gfo_lp(A, b, N, f0, margin * self.friction.mu, 0.1 * F)
+            if x_m is not None:
+                x = x_m
+                break
+        return [x[3 * i:3 * i + 3] for i in range(k)]
 
-        sol = lsq_linear(A, b, bounds=(0.25 * F, 3.0 * F))
-        return np.asarray(sol.x, dtype=float)
+    @staticmethod
+    def _gfo_lp(A, b, N, f0, mu, fn_min):
+        """min |f - f0|_1 s.t. A f = b, f_i in the 8-sided pyramid of friction ``mu`` about
+        n_i (inscribed), f_i.n_i >= fn_min; None when infeasible."""
+        from scipy.optimize import linprog
+
+        k = len(N)
+        m = 3 * k
+        rows, h = [], []
+        for i, n in enumerate(N):
+            t1 = np.cross(n, [1.0, 0, 0] if abs(n[0]) < 0.9 else [0, 1.0, 0])
+            t1 /= np.linalg.norm(t1)
+            t2 = np.cross(n, t1)
+            for a in np.linspace(0, 2 * np.pi, 8, endpoint=False):
+                row = np.zeros(m)
+                row[3 * i:3 * i + 3] = mu * math.cos(math.pi / 8) * n - (math.cos(a) * t1 + math.sin(a) * t2)
+                rows.append(row)
+                h.append(0.0)
+            row = np.zeros(m)
+            row[3 * i:3 * i + 3] = n
+            rows.append(row)
+            h.append(fn_min)
+        G, h = np.array(rows), np.array(h)
+        I = np.eye(m)
+        res = linprog(np.r_[np.zeros(m), np.ones(m)],
+                      A_ub=np.block([[-G, np.zeros((len(G), m))], [I, -I], [-I, -I]]),
+                      b_ub=np.r_[-h, f0, -f0], A_eq=np.c_[A, np.zeros((6, m))], b_eq=b,
+                      bounds=[(None, None)] * m + [(0, None)] * m, method="highs")
+        return res.x[:m] if res.status == 0 else None
 
     # -- simulation -----------------------------------------------------------------
 
