@@ -19,8 +19,10 @@ _EXPORTS = {
     "SpecError": "planner.errors",
     "UnknownNameError": "planner.errors",
     # closure (thesis eqs. 1-7, Algorithm 1)
+    "CONTACT_MODELS": "planner.closure",
     "Closure": "planner.closure",
     "Friction": "planner.closure",
+    "apply_contact_model": "planner.closure",
     "batch_grasp_closure": "planner.closure",
     "closure_from_wrenches": "planner.closure",
     "contact_wrenches": "planner.closure",

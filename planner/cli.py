@@ -34,6 +34,7 @@ def _cmd_plan(args: argparse.Namespace) -> int:
         motion_planner=args.motion_planner,
         motion_timeout_s=args.motion_timeout,
         max_lifted=args.max_lifted,
+        contact_model=args.contact_model,
     )
     specs = [load_grasp(args.initial), load_grasp(args.final)]
     check_same_setup(*specs)
@@ -87,6 +88,9 @@ def _cmd_check(args: argparse.Namespace) -> int:
             print(f"not touching although the file places them: {', '.join(grasp.missing)}")
         print(f"force closure: {'yes' if grasp.is_force_closure else 'no'}, metric {grasp.metric:.4g}, "
               f"removable: {', '.join(sorted(grasp.removable)) or '-'}")
+        mean = report["mean_contact_closure"]
+        print(f"with one mean contact per finger (--contact-model mean): force closure "
+              f"{'yes' if mean['force_closure'] else 'no'}, metric {mean['metric']:.4g}")
         if args.png:
             print(f"picture written to {args.png}")
     return 0 if grasp.is_force_closure else 1
@@ -168,6 +172,9 @@ def build_parser() -> argparse.ArgumentParser:
     plan.add_argument("--intermediate", type=int, default=0, metavar="N", help="extra contacts sampled per finger (default 0)")
     plan.add_argument("--strategy", default="graph", help="graph (ranked search, default) or greedy (thesis Algorithm 2)")
     plan.add_argument("--seed", type=int, default=0, help="seed for sampling and motion planning (default 0)")
+    plan.add_argument("--contact-model", default="patch", metavar="MODEL",
+                      help="closure from every patch point (patch, default: the thesis) or from one mean contact "
+                           "per finger (mean: what the simulator's rigid fingertips give)")
     plan.add_argument("--max-lifted", type=int, default=None, metavar="N", help="at most N fingers lifted at once")
     plan.add_argument("--no-motion", action="store_true", help="skip OMPL finger paths (straight joint segments)")
     plan.add_argument("--motion-planner", default="rrtconnect", help="OMPL planner name (default rrtconnect)")

@@ -62,14 +62,23 @@ from scipy.linalg.lapack import dgeqp3 as _dgeqp3
 from planner.errors import InputError
 
 __all__ = [
+    "CONTACT_MODELS",
     "Closure",
     "Friction",
+    "apply_contact_model",
     "batch_grasp_closure",
     "closure_from_wrenches",
     "contact_wrenches",
     "grasp_closure",
     "removable_fingers",
 ]
+
+#: How a finger's contact patch enters the closure test. "patch": every point of the
+#: patch with its own friction cone (thesis section VII: all contact points of a link).
+#: "mean": one contact per finger at the mean point with the mean normal (thesis fig. 13,
+#: "mean"); this is what a rigid fingertip gives in a physics engine, so plans made with
+#: it are the ones that hold in the replay.
+CONTACT_MODELS = ("patch", "mean")
 
 #: Relative tolerance (times the largest wrench norm) for affine/linear rank decisions.
 RANK_RTOL = 1e-9
@@ -596,6 +605,34 @@ def closure_from_wrenches(W) -> Closure:
         of conv(W)) when force closure, else ``-dist(0, conv(W))`` (0 on the boundary).
     """
     return _closure(_check_wrenches(W))[0]
+
+
+def apply_contact_model(patches: Mapping[str, tuple], model: str) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Patches as the closure test sees them under a contact model (`CONTACT_MODELS`).
+
+    "patch" returns the patches unchanged; "mean" replaces each by one point, the mean of
+    its points, with the normalized mean of its normals.
+
+    Raises:
+        UnknownNameError: model is not one of `CONTACT_MODELS`.
+        InputError: a patch is not a pair of (n, 3) arrays, or its normals cancel out.
+    """
+    if model not in CONTACT_MODELS:
+        from planner.errors import UnknownNameError
+
+        raise UnknownNameError("contact model", model, CONTACT_MODELS)
+    out = {}
+    for finger, points, normals in _patch_items(patches):
+        p, n = _as_arrays(points, normals)
+        if model == "mean" and len(p):
+            p, n = _unit_normals(p, n)
+            m = n.mean(axis=0)
+            norm = float(np.linalg.norm(m))
+            if not norm > 1e-9:
+                raise InputError(f"the normals of finger {finger!r} cancel out: no mean contact normal")
+            p, n = p.mean(axis=0, keepdims=True), (m / norm)[None, :]
+        out[finger] = (p, n)
+    return out
 
 
 def _patch_items(patches) -> list[tuple[str, object, object]]:

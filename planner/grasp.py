@@ -229,6 +229,16 @@ class RealizedGrasp:
         """Collisions between two hand parts (finger-finger, finger-palm), not the object."""
         return tuple(c for c in self.collisions if not _is_object_name(c[0]) and not _is_object_name(c[1]))
 
+    def mean_contact_closure(self) -> dict:
+        """Closure with one mean contact per finger (contact model "mean"): whether the grasp
+        also holds with the point contacts a rigid fingertip gives in the simulator."""
+        from planner.closure import apply_contact_model, grasp_closure
+
+        if not self.patches:
+            return {"force_closure": False, "metric": float("nan")}
+        c = grasp_closure(apply_contact_model(self.patches, "mean"), self.friction)
+        return {"force_closure": bool(c.is_force_closure), "metric": float(c.metric)}
+
     def summary(self) -> dict:
         """Plain-data report (what ``regrasp check --json`` prints)."""
         fingers = {}
@@ -250,6 +260,7 @@ class RealizedGrasp:
             "force_closure": self.is_force_closure,
             "metric": self.metric,
             "removable": sorted(self.removable),
+            "mean_contact_closure": self.mean_contact_closure(),
             "fingers": fingers,
             "missing": list(self.missing),
             "collisions": [[a, b, float(d)] for a, b, d in self.collisions],

@@ -13,13 +13,14 @@ from __future__ import annotations
 
 import hashlib
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
 import networkx as nx
 import numpy as np
 
+from planner.closure import CONTACT_MODELS, apply_contact_model, grasp_closure
 from planner.errors import MotionError, NoSequenceError, PlannerError, SpecError, UnknownNameError
 from planner.graph import LIFTED, GaitProblem, GaitSequence, Slot, build_graph, explain_failure, greedy, search, seed_graph
 from planner.plan import Alternative, Plan, PlanState, PlanStep
@@ -42,6 +43,10 @@ class PlanOptions:
         max_lifted: at most this many fingers lifted at once (None = no bound).
         same_slot_tol_rad: initial and final contacts closer than this (max joint
             difference) are one slot: the finger does not move.
+        contact_model: "patch" (every patch point has a friction cone, as in the thesis)
+            or "mean" (one contact per finger at the patch mean: what a rigid fingertip
+            gives in the simulator; `planner.closure.CONTACT_MODELS`). Every state's
+            closure, removability and exported patches use it.
     """
 
     strategy: str = "graph"
@@ -53,10 +58,13 @@ class PlanOptions:
     motion_timeout_s: float = 2.0
     max_lifted: int | None = None
     same_slot_tol_rad: float = 1e-3
+    contact_model: str = "patch"
 
     def __post_init__(self):
         if self.strategy not in STRATEGIES:
             raise UnknownNameError("strategy", self.strategy, STRATEGIES)
+        if self.contact_model not in CONTACT_MODELS:
+            raise UnknownNameError("contact model", self.contact_model, CONTACT_MODELS)
         if self.alternatives < 1:
             raise PlannerError(f"alternatives must be >= 1, got {self.alternatives}")
         if self.intermediate < 0:
@@ -192,11 +200,19 @@ def build_problem(initial, final, options: PlanOptions) -> GaitProblem:
                 g_idx = len(fs) - 1
         if options.intermediate:
             fs.extend(_sample_intermediate(initial, f, options.intermediate, rng, list(fs)))
-        slots[f] = tuple(fs)
+        slots[f] = tuple(_modelled(s, options.contact_model) for s in fs)
         start.append(s_idx)
         goal.append(g_idx)
     compatible = _pairwise_collision_check(initial.hand, slots)
     return GaitProblem(fingers, slots, tuple(start), tuple(goal), initial.friction, compatible, options.max_lifted)
+
+
+def _modelled(slot: Slot, contact_model: str) -> Slot:
+    """The slot with its patch as the closure test sees it under ``contact_model``."""
+    if contact_model == "patch":
+        return slot
+    points, normals = apply_contact_model({slot.finger: (slot.points, slot.normals)}, contact_model)[slot.finger]
+    return replace(slot, points=points, normals=normals)
 
 
 def _pairwise_collision_check(hand, slots: Mapping[str, tuple[Slot, ...]]) -> Callable[[str, int, str, int], bool]:
@@ -334,10 +350,12 @@ def plan_regrasp(
     gait_fn = _motion_gait(options, verbose) if options.motion else _straight_gait
     t0 = time.perf_counter()
     hand, obj = initial.hand, initial.obj
-    if not initial.is_force_closure:
-        raise NoSequenceError(f"the initial grasp {initial.spec.name!r} is not force closure (metric {initial.metric:.3g})")
-    if not final.is_force_closure:
-        raise NoSequenceError(f"the final grasp {final.spec.name!r} is not force closure (metric {final.metric:.3g})")
+    for which, g in (("initial", initial), ("final", final)):
+        c = g.closure if options.contact_model == "patch" else \
+            grasp_closure(apply_contact_model(g.patches, options.contact_model), g.friction)
+        if not c.is_force_closure:
+            model = "" if options.contact_model == "patch" else f" with the {options.contact_model!r} contact model"
+            raise NoSequenceError(f"the {which} grasp {g.spec.name!r} is not force closure{model} (metric {c.metric:.3g})")
     problem = build_problem(initial, final, options)
     # Greedy (thesis Algorithm 2) only visits the states it walks through.
     G = seed_graph(problem) if options.strategy == "greedy" else build_graph(problem)

@@ -13,6 +13,7 @@ from scipy.spatial.transform import Rotation
 from planner.closure import (
     Closure,
     Friction,
+    apply_contact_model,
     batch_grasp_closure,
     closure_from_wrenches,
     contact_wrenches,
@@ -471,3 +472,43 @@ def test_removable_with_a_single_touching_finger():
     patches = {"wrap": (0.03 * d, -d), "idle": (np.zeros((0, 3)), np.zeros((0, 3)))}
     assert grasp_closure(patches, fr).is_force_closure
     assert removable_fingers(patches, fr) == frozenset({"idle"})
+
+
+# --------------------------------------------------------------------------- contact models
+
+
+def test_mean_contact_model_is_one_point_per_finger_with_unit_mean_normal():
+    """"mean": the patch's mean point and its normalized mean normal; "patch": unchanged."""
+    rng = np.random.default_rng(7)
+    pts = rng.normal(size=(9, 3)) * 0.003 + [0.01, 0.0, 0.02]
+    nrm = np.array([0.0, 0.0, -1.0]) + rng.normal(size=(9, 3)) * 0.1
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    mean = apply_contact_model({"index": (pts, nrm)}, "mean")["index"]
+    assert mean[0].shape == (1, 3) and mean[1].shape == (1, 3)
+    assert np.allclose(mean[0][0], pts.mean(axis=0))
+    assert np.allclose(mean[1][0], nrm.mean(axis=0) / np.linalg.norm(nrm.mean(axis=0)))
+    same = apply_contact_model({"index": (pts, nrm)}, "patch")["index"]
+    assert np.array_equal(same[0], pts) and np.array_equal(same[1], nrm)
+
+
+def test_mean_contact_model_loses_the_moment_of_a_wide_patch():
+    """Two opposed flat patches (pinching a block) resist a torque about the pinch axis by
+    their extent even without torsional friction; their mean points cannot (thesis fig. 13)."""
+    square = np.array([[x, y] for x in (-0.01, 0.01) for y in (-0.01, 0.01)], float)
+    top = np.c_[square, np.full(4, 0.02)]
+    patches = {"a": (top, np.tile([0.0, 0.0, -1.0], (4, 1))),
+               "b": (top * [1, 1, -1], np.tile([0.0, 0.0, 1.0], (4, 1)))}
+    hard = Friction(mu=0.5, gamma=0.0, edges=8)
+    assert grasp_closure(patches, hard).is_force_closure
+    mean = grasp_closure(apply_contact_model(patches, "mean"), hard)
+    assert not mean.is_force_closure and mean.rank < 6
+
+
+def test_contact_model_bad_name_and_cancelling_normals_are_refused():
+    from planner.errors import UnknownNameError
+
+    p = np.zeros((2, 3))
+    with pytest.raises(UnknownNameError, match="mean, patch"):
+        apply_contact_model({"index": (p, np.array([[0, 0, 1.0]] * 2))}, "average")
+    with pytest.raises(InputError, match="cancel"):
+        apply_contact_model({"index": (p, np.array([[0, 0, 1.0], [0, 0, -1.0]]))}, "mean")

@@ -163,3 +163,16 @@ def test_exported_paths_recheck_with_coal(realized, tmp_path):
                     continue
                 d = coal.distance(geom, tf, obj.geometry, tf_obj, coal.DistanceRequest(), coal.DistanceResult())
                 assert d > -1e-3, f"{link} sinks {-d * 1e3:.2f} mm into the object during {step['finger']} {step['action']}"
+
+
+def test_mean_contact_model_refuses_a_grasp_that_holds_only_by_its_patches(realized, capsys):
+    """The palmar pinch is force closure from its patches but not with one mean contact per
+    finger: planning with --contact-model mean exits 1 and says why."""
+    pinch, tripod = ICUB / "pen_palmar_pinch.yaml", ICUB / "pen_writing_tripod.yaml"
+    assert realized(pinch).is_force_closure
+    assert not realized(pinch).mean_contact_closure()["force_closure"]
+    assert main(["plan", str(pinch), str(tripod), "--no-motion", "--contact-model", "mean"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "'mean' contact model" in err and "pen_palmar_pinch" in err
+    assert main(["plan", str(pinch), str(tripod), "--no-motion", "--contact-model", "average"]) == 2
+    assert "mean, patch" in capsys.readouterr().err
