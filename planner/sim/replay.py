@@ -17,7 +17,9 @@ Sequence (thesis section VII / IX):
   4. at every state, contacts from ``getContactPoints`` (one raw sample per simulation
      step) go through the temporal filter (`planner.sim.contact_filter`), are expressed
      in the object frame with normals INTO the object, grouped by finger, and the force
-     closure and metric are recomputed with `planner.closure.grasp_closure`.
+     closure and metric are recomputed with `planner.closure.grasp_closure`, under the
+     plan's contact model (``parameters.contact_model``: every point, or one mean contact
+     per finger).
 
 Squeeze (grasp force optimization). At every state the contact of each touching finger
 (its link nearest the object at the planned pose) gets a force ``f_i`` chosen so the object
@@ -54,7 +56,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from planner.closure import Friction, grasp_closure
+from planner.closure import CONTACT_MODELS, Friction, apply_contact_model, grasp_closure
 from planner.errors import InputError, SimulationError, SpecError, UnknownNameError
 from planner.sim.contact_filter import ContactFilter
 
@@ -554,7 +556,12 @@ def replay_plan(
         if ffmpeg is None:
             raise SimulationError("--mp4 needs ffmpeg on PATH and none was found; use --gif instead")
     info = _load_hand(rd, joints, hand)
-    params = dict(dt=dt, gravity=list(map(float, gravity)), squeeze_s=squeeze_s, settle_s=settle_s, dwell_s=dwell_s,
+    contact_model = rd.get("parameters", "contact_model", default="patch")
+    if contact_model not in CONTACT_MODELS:
+        raise rd.fail("parameters.contact_model", f"unknown contact model {contact_model!r}; "
+                                                   f"valid: {', '.join(CONTACT_MODELS)}")
+    params = dict(dt=dt, contact_model=contact_model, gravity=list(map(float, gravity)), squeeze_s=squeeze_s,
+                  settle_s=settle_s, dwell_s=dwell_s,
                   joint_speed_rad_s=joint_speed_rad_s, finger_force_n=finger_force_n, squeeze_m=squeeze_m,
                   solver_iterations=int(solver_iterations), drop_mm=drop_mm, filter_k=int(filter_k),
                   mu=friction.mu, gamma=friction.gamma, edges=friction.edges, touch_tol_m=TOUCH_TOL_M)
@@ -866,7 +873,7 @@ class _Sim:
         patches = self.filter.patches(lambda link: self.link_finger.get(link, "palm"))
         n_pts = sum(len(v[0]) for v in patches.values())
         if patches:
-            c = grasp_closure(patches, self.friction)
+            c = grasp_closure(apply_contact_model(patches, self.params["contact_model"]), self.friction)
             fc, metric = bool(c.is_force_closure), float(c.metric)
         else:
             fc, metric = False, float("nan")
