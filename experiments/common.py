@@ -31,6 +31,11 @@ import numpy as np  # noqa: E402
 
 RESULTS = REPO / "experiments" / "results"
 GRASPS = REPO / "grasps"
+#: Replays run palm up (gravity along the palm's -z), the orientation the library's
+#: parallel-extension grasps are made for, with plans made under the "mean" contact
+#: model (one contact per finger, what the simulator's rigid fingertips give).
+REPLAY_GRAVITY = (0.0, 0.0, -9.81)
+REPLAY_CONTACT_MODEL = "mean"
 
 
 # ------------------------------------------------------------------ command line

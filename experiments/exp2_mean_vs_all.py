@@ -28,7 +28,17 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np  # noqa: E402
 
-from experiments.common import parser, print_summary, pyplot, realized, run_tasks, save, write_csv  # noqa: E402
+from experiments.common import (  # noqa: E402
+    REPLAY_CONTACT_MODEL,
+    REPLAY_GRAVITY,
+    parser,
+    print_summary,
+    pyplot,
+    realized,
+    run_tasks,
+    save,
+    write_csv,
+)
 
 INITIAL = "grasps/icub/box_parallel_extension.yaml"
 FINAL = "grasps/icub/box_ir2m.yaml"
@@ -65,11 +75,10 @@ def patches_of(problem, labels):
 
 
 def mean_patches(patches):
-    out = {}
-    for f, (p, n) in patches.items():
-        nm = np.asarray(n).mean(axis=0)
-        out[f] = (np.asarray(p).mean(axis=0, keepdims=True), (nm / np.linalg.norm(nm))[None, :])
-    return out
+    """One mean contact per finger (the planner's "mean" contact model)."""
+    from planner.closure import apply_contact_model
+
+    return apply_contact_model(patches, "mean")
 
 
 def tests(state_name, patches):
@@ -127,8 +136,8 @@ def sim_metrics(a, b) -> tuple[dict, str]:
         from planner.regrasp import PlanOptions, plan_regrasp
         from planner.sim.replay import replay_plan
 
-        res = plan_regrasp(a, b, PlanOptions(motion=False))
-        report = replay_plan(res.plan.to_dict())
+        res = plan_regrasp(a, b, PlanOptions(contact_model=REPLAY_CONTACT_MODEL))
+        report = replay_plan(res.plan.to_dict(), gravity=REPLAY_GRAVITY)
     except Exception as err:  # the replay is optional here
         return {}, f"replay unavailable: {type(err).__name__}: {err}"
     problem_states = {tuple(sorted(s.fingers.items())): i for i, s in enumerate(res.plan.states)}

@@ -8,8 +8,9 @@ finger is re-closed from its nominal realized posture (method "postures"). The o
 pad-side face stays where it was (it still rests on the finger pads). Success = both grasps realized force closure and
 a finger-gaiting plan found (also reported: whether every finger the file
 wants on the object touches it) (graph search, no OMPL
-paths: motion=False). With --replay the plan is also executed in pybullet
-(`planner.sim.replay.replay_plan`) and its verdict recorded.
+paths: motion=False). With --replay each pair is also planned with finger paths under the
+"mean" contact model and executed in pybullet palm up (`planner.sim.replay.replay_plan`);
+its verdict, drift and closure agreement are recorded.
 
     python experiments/exp4_shape_robustness.py [--quick] [--workers N] [--replay]
 """
@@ -24,7 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np  # noqa: E402
 
-from experiments.common import grasp_pairs, load_spec, parser, print_summary, pyplot, realized, run_tasks, save, scaled_spec, write_csv  # noqa: E402
+from experiments.common import REPLAY_CONTACT_MODEL, REPLAY_GRAVITY, grasp_pairs, load_spec, parser, print_summary, pyplot, realized, run_tasks, save, scaled_spec, write_csv  # noqa: E402
 
 MODES = {
     "box": {"uniform": (1, 1, 1), "x": (1, 0, 0), "y": (0, 1, 0), "z": (0, 0, 1)},
@@ -79,13 +80,17 @@ def task(t: dict) -> dict:
         row.update(planned=False, reason=str(err)[:160])
     row["success"] = bool(ok_grasps and row["planned"])
     row["success_all_fingers"] = bool(row["success"] and row["all_fingers_touch"])
-    if t["replay"] and res is not None:
+    if t["replay"] and ok_grasps:
+        # executable plan: one mean contact per finger, finger paths, replayed palm up
         try:
             from planner.sim.replay import replay_plan
 
-            rep = replay_plan(res.plan.to_dict())
-            row.update(replay_passed=rep.passed, replay_verdict=rep.verdict[:120], replay_max_drift_mm=rep.max_drift_mm)
-        except Exception as err:
+            res_m = plan_regrasp(gi, gf, PlanOptions(contact_model=REPLAY_CONTACT_MODEL))
+            rep = replay_plan(res_m.plan.to_dict(), gravity=REPLAY_GRAVITY)
+            row.update(replay_passed=rep.passed, replay_verdict=rep.verdict[:120], replay_max_drift_mm=rep.max_drift_mm,
+                       replay_max_drift_deg=rep.max_drift_deg,
+                       replay_closure_agree=f"{rep.closure_agreement[0]}/{rep.closure_agreement[1]}")
+        except PlannerError as err:
             row.update(replay_passed=False, replay_verdict=f"{type(err).__name__}: {err}"[:120])
     row["time_s"] = time.perf_counter() - t0
     return row
