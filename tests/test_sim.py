@@ -207,16 +207,18 @@ def test_missing_file_and_mp4_without_ffmpeg_exit_2(tmp_path, hand, grasp, monke
         replay_plan(_plan(hand, grasp), mp4=tmp_path / "x.mp4")
 
 
-@pytest.mark.parametrize("gravity", [(0.0, 0.0, 9.81), (0.0, 0.0, -9.81)], ids=["palm_down", "palm_up"])
-def test_library_box_plan_holds_and_agrees_at_every_state(gravity):
-    """Issue acceptance on the bundled box pair: planned with one mean contact per finger and
-    finger paths, the replay keeps the box within 5 mm / 5 deg with the palm down and up, and
-    the simulator's closure agrees with the plan's at every state of the gait."""
+@pytest.mark.parametrize("pair,gravity", [("box", (0.0, 0.0, 9.81)), ("box", (0.0, 0.0, -9.81)),
+                                          ("cylinder", (0.0, 0.0, -9.81))],
+                         ids=["box_palm_down", "box_palm_up", "cylinder_palm_up"])
+def test_library_plan_holds_and_agrees_at_every_state(pair, gravity):
+    """Issue acceptance on the bundled PE -> IR2M pairs: planned with one mean contact per
+    finger and finger paths, the replay keeps the object within 5 mm / 5 deg, and the
+    simulator's closure agrees with the plan's at every state of the gait."""
     from planner.grasp import load_grasp, realize
     from planner.regrasp import PlanOptions, plan_regrasp
 
     root = Path(__file__).resolve().parent.parent / "grasps" / "icub"
-    initial, final = (realize(load_grasp(root / f)) for f in ("box_parallel_extension.yaml", "box_ir2m.yaml"))
+    initial, final = (realize(load_grasp(root / f"{pair}_{g}.yaml")) for g in ("parallel_extension", "ir2m"))
     plan = plan_regrasp(initial, final, PlanOptions(contact_model="mean")).plan.to_dict()
     assert {s["finger"] for s in plan["steps"]} >= {"index", "ring", "little"}
     report = replay_plan(plan, gravity=gravity)
