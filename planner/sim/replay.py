@@ -718,19 +718,15 @@ class _Sim:
             if float(np.linalg.norm(J.T @ n_in)) > 1e-5:
                 found.append((f, fj, J, np.asarray(best[6]), n_in))
         forces = self._grasp_forces([(x[3], x[4]) for x in found], F)
-        tau: dict[str, np.ndarray] = {}
-        finger_joints = {}
-        for (f, fj, J, _, _), f_c in zip(found, forces):
-            tau[f] = J.T @ f_c
-            finger_joints[f] = fj
-        for f, t in tau.items():
+        for (_, fj, J, _, _), f_c in zip(found, forces):
+            t = J.T @ f_c  # joint torques that press the contact with f_c
             norm = float(np.linalg.norm(t))
             if norm <= 1e-9:
                 continue
             # target: SQUEEZE_RAD_PER_M * d radians beyond the contact along tau; the object
             # blocks the finger, every joint saturates at its cap and the finger presses with tau
             dq = (d * SQUEEZE_RAD_PER_M) * t / norm
-            for j, dqi, ti in zip(finger_joints[f], dq, t):
+            for j, dqi, ti in zip(fj, dq, t):
                 targets[j] = state.q[j] + float(dqi)
                 caps[j] = max(HOLD_TORQUE_NM, abs(float(ti)))
         return targets, caps
