@@ -229,14 +229,21 @@ class RealizedGrasp:
         """Collisions between two hand parts (finger-finger, finger-palm), not the object."""
         return tuple(c for c in self.collisions if not _is_object_name(c[0]) and not _is_object_name(c[1]))
 
+    def closure_under(self, contact_model: str):
+        """`planner.closure.Closure` of the grasp under a contact model (`CONTACT_MODELS`);
+        "patch" is ``self.closure``."""
+        if contact_model == "patch":
+            return self.closure
+        from planner.closure import apply_contact_model, grasp_closure
+
+        return grasp_closure(apply_contact_model(self.patches, contact_model), self.friction)
+
     def mean_contact_closure(self) -> dict:
         """Closure with one mean contact per finger (contact model "mean"): whether the grasp
         also holds with the point contacts a rigid fingertip gives in the simulator."""
-        from planner.closure import apply_contact_model, grasp_closure
-
         if not self.patches:
             return {"force_closure": False, "metric": float("nan")}
-        c = grasp_closure(apply_contact_model(self.patches, "mean"), self.friction)
+        c = self.closure_under("mean")
         return {"force_closure": bool(c.is_force_closure), "metric": float(c.metric)}
 
     def summary(self) -> dict:

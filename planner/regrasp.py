@@ -20,7 +20,7 @@ from typing import Any, Callable, Mapping
 import networkx as nx
 import numpy as np
 
-from planner.closure import CONTACT_MODELS, apply_contact_model, grasp_closure
+from planner.closure import CONTACT_MODELS, apply_contact_model
 from planner.errors import MotionError, NoSequenceError, PlannerError, SpecError, UnknownNameError
 from planner.graph import LIFTED, GaitProblem, GaitSequence, Slot, build_graph, explain_failure, greedy, search, seed_graph
 from planner.plan import Alternative, Plan, PlanState, PlanStep
@@ -351,8 +351,7 @@ def plan_regrasp(
     t0 = time.perf_counter()
     hand, obj = initial.hand, initial.obj
     for which, g in (("initial", initial), ("final", final)):
-        c = g.closure if options.contact_model == "patch" else \
-            grasp_closure(apply_contact_model(g.patches, options.contact_model), g.friction)
+        c = g.closure_under(options.contact_model)
         if not c.is_force_closure:
             model = "" if options.contact_model == "patch" else f" with the {options.contact_model!r} contact model"
             raise NoSequenceError(f"the {which} grasp {g.spec.name!r} is not force closure{model} (metric {c.metric:.3g})")

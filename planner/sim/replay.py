@@ -761,13 +761,13 @@ class _Sim:
 
             min  sum_i |f_i - F n_i|_1
             s.t. sum_i [f_i; (p_i - c) x f_i] = -[m g; 0]      (the object is in equilibrium)
-                 |f_i - (f_i.n_i) n_i| <= 0.5 mu (f_i.n_i)     (inside half the friction cone,
-                                                                 8-sided pyramid)
+                 |f_i - (f_i.n_i) n_i| <= s mu (f_i.n_i)       (inside the friction cone scaled
+                                                                 by s, 8-sided pyramid)
                  f_i.n_i >= 0.1 F
 
-        (a linear program, HiGHS). When no such forces exist (a grasp without force
-        closure at its point contacts) the equilibrium is relaxed to least squares and the
-        normal squeeze is kept.
+        (a linear program, HiGHS), with the margin s = 0.5, else 0.75, else 1. When no such
+        forces exist (a grasp without force closure at its point contacts) every finger
+        keeps the plain normal squeeze ``F n_i``.
         """
         k = len(contacts)
         if k == 0:
