@@ -524,6 +524,10 @@ def _min_norm_point(W: np.ndarray, tol: float) -> float:
     S = [int(np.argmin(sq))]
     lam = np.array([1.0])
     x = W[S[0]].copy()
+    # Optimality gap tolerance relative to the largest row (Wolfe's Z1 * max|p|^2): relative
+    # to |x|^2 alone, round-off on a face shared by many rows (e.g. several cone edges at the
+    # same distance) keeps the gap above it and the loop cycles, adding and dropping them.
+    gap_tol = 1e-12 * float(sq.max())
     for _ in range(50 * len(W) + 100):
         xx = x @ x
         if xx <= tol * tol:
@@ -531,7 +535,7 @@ def _min_norm_point(W: np.ndarray, tol: float) -> float:
         s = W @ x
         j = int(np.argmin(s))
         # Wolfe's optimality test: no row is closer to the origin along -x than x itself.
-        if xx - s[j] <= 1e-13 * xx or j in S:
+        if xx - s[j] <= gap_tol or j in S:
             break
         S.append(j)
         lam = np.append(lam, 0.0)
@@ -555,7 +559,10 @@ def _min_norm_point(W: np.ndarray, tol: float) -> float:
             S = [i for i, k in zip(S, keep) if k]
             lam = lam[keep]
             lam /= lam.sum()
-        x = lam @ W[S]
+        x_new = lam @ W[S]
+        if x_new @ x_new >= xx:
+            break  # no progress (round-off): x is the minimum-norm point to working precision
+        x = x_new
     return float(math.sqrt(x @ x))
 
 
