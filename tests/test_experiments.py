@@ -17,17 +17,47 @@ def test_exp1_quick_writes_csv_and_png(tmp_path, capsys):
     assert "exp1 cone edges" in capsys.readouterr().out
 
 
-def test_dask_option_without_dask_is_one_line_error(tmp_path):
+def test_dask_option_without_dask_is_one_line_error(monkeypatch):
+    import sys
+
     from experiments.common import parser, run_tasks
 
-    try:
-        import dask.distributed  # noqa: F401
-    except ImportError:
-        args = parser("x").parse_args(["--dask-scheduler", "tcp://127.0.0.1:1", "--no-progress"])
-        with pytest.raises(SystemExit, match="dask"):
-            run_tasks(abs, [1, -2], args)
-    else:
-        pytest.skip("dask is installed")
+    monkeypatch.setitem(sys.modules, "dask.distributed", None)  # import fails as if not installed
+    args = parser("x").parse_args(["--dask-scheduler", "tcp://127.0.0.1:1", "--no-progress"])
+    with pytest.raises(SystemExit, match="pip install 'dask\\[distributed\\]'"):
+        run_tasks(abs, [1, -2], args)
+
+
+def test_dask_scheduler_runs_the_same_sweep_as_local_processes(tmp_path):
+    """exp1 --quick on a real Dask cluster (scheduler on TCP, two worker processes) gives the
+    same metrics and removable sets as in-process."""
+    from dask.distributed import LocalCluster
+
+    from experiments import exp1_cone_edges
+
+    def table(out):
+        return [(r["edges"], r["metric"], r["removable"]) for r in csv.DictReader(open(out / "exp1_cone_edges.csv"))]
+
+    common = ["--quick", "--no-progress"]
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        exp1_cone_edges.main(common + ["--dask-scheduler", cluster.scheduler_address, "--out", str(tmp_path / "dask")])
+    exp1_cone_edges.main(common + ["--workers", "1", "--out", str(tmp_path / "local")])
+    rows = table(tmp_path / "dask")
+    assert len(rows) == 12  # 11 edge counts + the reference
+    assert rows == table(tmp_path / "local")
+
+
+def test_local_workers_get_one_blas_thread_and_parent_env_is_restored(monkeypatch):
+    import os
+
+    from experiments.common import BLAS_THREAD_VARS, parser, run_tasks
+
+    for k in BLAS_THREAD_VARS:
+        monkeypatch.delenv(k, raising=False)
+    monkeypatch.setenv("MKL_NUM_THREADS", "3")  # a user's own setting is kept
+    args = parser("x").parse_args(["--workers", "2", "--no-progress"])
+    assert run_tasks(os.getenv, list(BLAS_THREAD_VARS), args) == ["1", "1", "3"]
+    assert "OPENBLAS_NUM_THREADS" not in os.environ and os.environ["MKL_NUM_THREADS"] == "3"
 
 
 def test_local_pool_keeps_task_order():
