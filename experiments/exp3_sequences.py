@@ -9,7 +9,9 @@ final grasp itself, shared by every ordering). The thesis's four sequences are m
 the needed fingers repositioned one at a time (index-first or ring-first), then the
 unneeded fingers lifted (little-first or thumb-first). Also counts the longer simple
 paths (detours that lift and re-land a finger) and checks that `planner.graph.search`
-returns a minimal ordering with the best bottleneck.
+returns a minimal ordering with the best bottleneck. Every pair is run under both contact
+models: "patch" (every patch point, the thesis) and "mean" (one contact per finger, what
+executable plans use).
 
     python experiments/exp3_sequences.py [--quick] [--workers N]
 """
@@ -51,14 +53,20 @@ def task(t: dict) -> dict:
     from planner.graph import build_graph, search
     from planner.regrasp import PlanOptions, build_problem
 
+    from planner.errors import PlannerError
+
     t0 = time.perf_counter()
     a, b = realized(t["initial"]), realized(t["final"])
-    problem = build_problem(a, b, PlanOptions(motion=False))
-    G = build_graph(problem)
-    t_graph = time.perf_counter() - t0
-    start, goal = G.graph["start"], G.graph["goal"]
-    out = {"pair": t["pair"], "nodes": G.number_of_nodes(), "edges": G.number_of_edges(), "graph_s": t_graph,
+    out = {"pair": t["pair"], "contact_model": t["model"], "nodes": 0, "edges": 0, "graph_s": 0.0,
            "orderings": [], "longer_paths": {}}
+    try:
+        problem = build_problem(a, b, PlanOptions(motion=False, contact_model=t["model"]))
+    except PlannerError as err:
+        out["error"] = f"{type(err).__name__}: {err}"[:200]
+        return out
+    G = build_graph(problem)
+    out.update(nodes=G.number_of_nodes(), edges=G.number_of_edges(), graph_s=time.perf_counter() - t0)
+    start, goal = G.graph["start"], G.graph["goal"]
     if goal not in G or not nx.has_path(G, start, goal):
         out["error"] = "goal unreachable"
         return out
@@ -71,7 +79,7 @@ def task(t: dict) -> dict:
         for (f, act), v in zip(actions, path[1:]):
             order.append(f"{f}:{act}" + (f">{problem.labels(v)[f]}" if act == "land" else ""))
         out["orderings"].append({
-            "pair": t["pair"], "order": " ".join(order), "edges": len(actions),
+            "pair": t["pair"], "contact_model": t["model"], "order": " ".join(order), "edges": len(actions),
             "bottleneck": min(ms), "mean_metric": float(np.mean(ms)),
             "worst_intermediate": min(ms[1:-1]) if len(ms) > 2 else float("nan"),
             "thesis": classify(problem, actions),
@@ -90,12 +98,14 @@ def task(t: dict) -> dict:
 
 
 def main(argv=None) -> dict:
+    from planner.closure import CONTACT_MODELS
+
     ap = parser(__doc__.splitlines()[0])
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
     pairs = grasp_pairs()
-    tasks = [{"pair": n, "initial": i, "final": f, "extra": 1 if args.quick else 2, "count_limit": 200_000}
-             for n, i, f in pairs]
+    tasks = [{"pair": n, "model": model, "initial": i, "final": f, "extra": 1 if args.quick else 2, "count_limit": 200_000}
+             for n, i, f in pairs for model in CONTACT_MODELS]
     results = run_tasks(task, tasks, args, desc="exp3 sequences")
     rows = [o for r in results for o in r["orderings"]]
     write_csv(args.out / "exp3_sequences.csv", rows)
@@ -104,7 +114,7 @@ def main(argv=None) -> dict:
         o = r["orderings"]
         thesis = [x for x in o if x["thesis"]]
         summary_rows.append({
-            "pair": r["pair"], "graph_nodes": r["nodes"], "graph_edges": r["edges"], "graph_s": r["graph_s"],
+            "pair": r["pair"], "contact_model": r["contact_model"], "graph_nodes": r["nodes"], "graph_edges": r["edges"], "graph_s": r["graph_s"],
             "minimal_orderings": len(o), "thesis_style": len(thesis),
             "longer_simple_paths": " ".join(f"<={k}:{v}" for k, v in r["longer_paths"].items()),
             "bottleneck_best": max((x["bottleneck"] for x in o), default=float("nan")),
@@ -134,7 +144,7 @@ def main(argv=None) -> dict:
                 bbox={"fc": "white", "alpha": 0.8})
         top = max([v["worst_intermediate"] for v in o] + [v["bottleneck"] for v in o] + [1e-9])
         ax.set_ylim(0, 1.3 * top)
-        ax.set_title(f"{r['pair']}: {len(o)} minimal orderings ({r['nodes']} valid states)")
+        ax.set_title(f"{r['pair']}, {r['contact_model']} contacts: {len(o)} minimal orderings ({r['nodes']} valid states)")
         ax.set_xlabel("ordering (sorted by worst intermediate metric)")
         ax.set_ylabel("metric")
         ax.legend(fontsize=7, loc="upper center")
@@ -142,13 +152,13 @@ def main(argv=None) -> dict:
 
     summary = {"pairs": [p[0] for p in pairs]}
     for s in summary_rows:
-        summary[s["pair"]] = (f"{s['minimal_orderings']} minimal orderings ({s['thesis_style']} thesis-style), "
+        summary[f"{s['pair']} ({s['contact_model']})"] = (f"{s['minimal_orderings']} minimal orderings ({s['thesis_style']} thesis-style), "
                               f"bottleneck {s['bottleneck_worst']:.4g}..{s['bottleneck_best']:.4g}, worst intermediate "
                               f"{s['worst_intermediate_worst']:.4g}..{s['worst_intermediate_best']:.4g}; longer {s['longer_simple_paths']}; "
                               f"{s['orderings_at_best_bottleneck']} at the best bottleneck; search(k=1) returns one of them: {s['search_best_is_best_minimal']}")
     for r in rows:
         if r["thesis"]:
-            summary[f"{r['pair']} {r['thesis']}"] = f"bottleneck {r['bottleneck']:.4g}, worst intermediate {r['worst_intermediate']:.4g}"
+            summary[f"{r['pair']} ({r['contact_model']}) {r['thesis']}"] = f"bottleneck {r['bottleneck']:.4g}, worst intermediate {r['worst_intermediate']:.4g}"
     summary["wall_s"] = time.perf_counter() - t0
     print_summary("exp3 sequences", summary)
     return summary

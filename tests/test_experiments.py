@@ -11,6 +11,8 @@ def test_exp1_quick_writes_csv_and_png(tmp_path, capsys):
     summary = exp1_cone_edges.main(["--quick", "--workers", "1", "--no-progress", "--out", str(tmp_path)])
     rows = list(csv.DictReader(open(tmp_path / "exp1_cone_edges.csv")))
     assert [int(r["edges"]) for r in rows][:3] == [3, 4, 5]
+    assert sorted({r["contact_model"] for r in rows}) == ["mean", "patch"]
+    assert sum(r["contact_model"] == "mean" and int(r["wrenches"]) == 2 * int(r["edges"]) * 5 for r in rows) == 12
     assert all(r["force_closure"] == "True" for r in rows)
     assert (tmp_path / "exp1_cone_edges.png").stat().st_size > 1000
     assert summary["metric_reference"] > 0
@@ -36,14 +38,15 @@ def test_dask_scheduler_runs_the_same_sweep_as_local_processes(tmp_path):
     from experiments import exp1_cone_edges
 
     def table(out):
-        return [(r["edges"], r["metric"], r["removable"]) for r in csv.DictReader(open(out / "exp1_cone_edges.csv"))]
+        return [(r["contact_model"], r["edges"], r["metric"], r["removable"])
+                for r in csv.DictReader(open(out / "exp1_cone_edges.csv"))]
 
     common = ["--quick", "--no-progress"]
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
         exp1_cone_edges.main(common + ["--dask-scheduler", cluster.scheduler_address, "--out", str(tmp_path / "dask")])
     exp1_cone_edges.main(common + ["--workers", "1", "--out", str(tmp_path / "local")])
     rows = table(tmp_path / "dask")
-    assert len(rows) == 12  # 11 edge counts + the reference
+    assert len(rows) == 24  # (11 edge counts + the reference) x 2 contact models
     assert rows == table(tmp_path / "local")
 
 
