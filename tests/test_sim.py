@@ -226,3 +226,45 @@ def test_library_plan_holds_and_agrees_at_every_state(pair, gravity):
     assert all(s.reached for s in report.states)
     assert report.closure_agreement == (len(plan["states"]), len(plan["states"]))
     assert report.max_drift_mm < 5.0 and report.max_drift_deg < 5.0
+
+
+def test_narrower_box_holds_palm_up_when_landing_fingers_load_only_after_touchdown():
+    """The box 5 % narrower across the fingers (y), palm up: the index lands on a grasp whose
+    other fingers are balanced without it. When the others took the landed state's forces
+    while the index was still in the air, the box turned by ~28 deg; with point-contact-only
+    force optimization (no torsion) the 4-finger states had no balanced forces at all."""
+    from experiments.common import load_spec, scaled_spec
+    from planner.grasp import realize
+    from planner.regrasp import PlanOptions, plan_regrasp
+
+    initial, final = (realize(scaled_spec(load_spec(f"grasps/icub/box_{g}.yaml"), (1.0, 0.95, 1.0)))
+                      for g in ("parallel_extension", "ir2m"))
+    plan = plan_regrasp(initial, final, PlanOptions(contact_model="mean")).plan.to_dict()
+    assert any(s["action"] == "land" and s["finger"] == "index" for s in plan["steps"])
+    report = replay_plan(plan, gravity=(0.0, 0.0, -9.81))
+    assert report.passed, report.verdict
+    assert report.closure_agreement == (len(plan["states"]), len(plan["states"]))
+
+
+def test_force_optimization_uses_torsional_friction_only_within_its_limit():
+    """Two antipodal contacts 40 mm apart cannot resist a moment about their common axis with
+    point forces; with soft-finger torsion |t| <= gamma fn they can, at the smallest normal
+    force that reaches the moment: fn = moment / (2 gamma)."""
+    from planner.sim.replay import _Sim
+
+    P = np.array([[0.02, 0.0, 0.0], [-0.02, 0.0, 0.0]])
+    N = np.array([[-1.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
+    A = np.zeros((6, 6))
+    for i, r in enumerate(P):
+        A[:3, 3 * i:3 * i + 3] = np.eye(3)
+        A[3:, 3 * i:3 * i + 3] = np.array([[0, -r[2], r[1]], [r[2], 0, -r[0]], [-r[1], r[0], 0]])
+    A_t = np.zeros((6, 2))
+    A_t[3:, :] = N.T
+    f0 = (1.0 * N).ravel()  # 1 N squeeze
+    gamma = 0.01
+    for moment, fn in ((0.01, 1.0), (0.05, 2.5)):
+        b = np.array([0, 0, 0, moment, 0, 0], float)
+        assert _Sim._gfo_lp(A, A_t, b, N, f0, 0.5, 0.0, 0.1) is None
+        f = _Sim._gfo_lp(A, A_t, b, N, f0, 0.5, gamma, 0.1).reshape(2, 3)
+        assert np.allclose(np.einsum("ij,ij->i", f, N), fn, atol=1e-7)
+        assert np.allclose(f.sum(axis=0), 0.0, atol=1e-9)

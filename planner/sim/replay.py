@@ -13,7 +13,12 @@ Sequence (thesis section VII / IX):
      fixed constraint while the touching fingers squeeze;
   2. the constraint is released with gravity on and the grasp settles;
   3. every step drives its finger along ``step.path`` (position control, bounded joint
-     torque); the touching fingers keep squeezing;
+     torque) while the touching fingers keep squeezing. Before a lift, the other fingers
+     take the lifted state's forces for ``UNLOAD_S`` while the lifting finger only holds
+     its posture (it is unloaded, then lifted); during a land, the other fingers keep the
+     forces that balance the object without the landing finger, which switches from the
+     free-motion torque to its squeeze torque within ``LANDING_ZONE_M`` of the object;
+     at the end of the path every finger takes the new state's targets;
   4. at every state, contacts from ``getContactPoints`` (one raw sample per simulation
      step) go through the temporal filter (`planner.sim.contact_filter`), are expressed
      in the object frame with normals INTO the object, grouped by finger, and the force
@@ -25,9 +30,11 @@ Squeeze (grasp force optimization). At every state the contact of each touching 
 (its link nearest the object at the planned pose) gets a force ``f_i`` chosen so the object
 is in equilibrium under gravity: ``min sum |f_i - F n_i|_1`` subject to the net wrench
 balancing ``m g``, every ``f_i`` inside half the friction cone (then 3/4, then the whole
-cone if needed) and a normal force of at least ``0.1 F`` (``F = finger_force_n``;
+cone if needed; at each step point forces first, then with the soft-finger torsion that
+the simulator's spinning friction provides: ``GFO_MARGINS``), no component above
+``GFO_MAX_FORCE * F`` and a normal force of at least ``0.1 F`` (``F = finger_force_n``;
 `_Sim._grasp_forces`). Plain normal squeezing is kept only when no balanced forces exist
-at those point contacts. The finger then presses with joint torques ``tau = J_f^T f_i``
+at those contacts. The finger then presses with joint torques ``tau = J_f^T f_i``
 (``J_f``: linear Jacobian of the contact point over the finger's joints): its position
 target lies ``squeeze_m`` beyond the contact along ``tau`` and each joint's torque is
 capped at ``|tau_j|`` (at least a small holding torque), so the motors saturate against
@@ -81,6 +88,18 @@ FREE_TORQUE_NM = 0.5
 HOLD_TORQUE_NM = 0.05
 #: Squeeze target: joint offset per metre of ``squeeze_m`` (1 mm ~ 0.05 rad at 20 mm).
 SQUEEZE_RAD_PER_M = 50.0
+#: A landing finger closer than this to the object finishes its path with its squeeze
+#: torque caps instead of ``FREE_TORQUE_NM``, so it touches down softly instead of
+#: striking the object with the free-motion torque (up to ~10 N at a fingertip).
+LANDING_ZONE_M = 0.002
+#: Grasp force optimization: (friction-cone fraction, torsional-friction fraction) tried in
+#: turn; point-contact forces first, the soft-finger torsion only when they do not exist.
+GFO_MARGINS = ((0.5, 0.0), (0.5, 0.5), (0.75, 0.0), (0.75, 0.75), (1.0, 0.0), (1.0, 1.0))
+#: A force solution with a component above this multiple of ``finger_force_n`` is rejected
+#: (an almost singular grasp balanced by large internal forces the fingers cannot hold).
+GFO_MAX_FORCE = 5.0
+#: Before a finger lifts, the other fingers take over its load for this long, s.
+UNLOAD_S = 0.1
 
 
 # --------------------------------------------------------------------------- reports
@@ -731,6 +750,14 @@ class _Sim:
                 caps[j] = max(HOLD_TORQUE_NM, abs(float(ti)))
         return targets, caps
 
+    def _finger_distance(self, finger: str) -> float:
+        """Smallest distance between the finger's links and the object, m (inf beyond 5 cm)."""
+        d = math.inf
+        for link in self.finger_links.get(finger, ()):
+            for cp in p.getClosestPoints(self.hand, self.obj, 0.05, linkIndexA=link, physicsClientId=self.cid):
+                d = min(d, float(cp[8]))
+        return d
+
     def _point_jacobian(self, link: int, p_palm: np.ndarray, joints: list[str]) -> np.ndarray:
         """(3, len(joints)) linear Jacobian of a point fixed to ``link``, by central differences
         of pybullet's forward kinematics (the analytic call prints warnings for unit axes)."""
@@ -760,14 +787,21 @@ class _Sim:
         object turns as soon as it is released. Instead the forces solve
 
             min  sum_i |f_i - F n_i|_1
-            s.t. sum_i [f_i; (p_i - c) x f_i] = -[m g; 0]      (the object is in equilibrium)
+            s.t. sum_i [f_i; (p_i - c) x f_i + t_i n_i] = -[m g; 0]   (the object is in
+                                                                          equilibrium)
                  |f_i - (f_i.n_i) n_i| <= s mu (f_i.n_i)       (inside the friction cone scaled
                                                                  by s, 8-sided pyramid)
+                 |t_i| <= s_t gamma (f_i.n_i)                  (torsional friction about n_i)
                  f_i.n_i >= 0.1 F
 
-        (a linear program, HiGHS), with the margin s = 0.5, else 0.75, else 1. When no such
-        forces exist (a grasp without force closure at its point contacts) every finger
-        keeps the plain normal squeeze ``F n_i``.
+        (a linear program, HiGHS), with the margins (s, s_t) of ``GFO_MARGINS`` in turn:
+        (0.5, 0), (0.5, 0.5), (0.75, 0), (0.75, 0.75), (1, 0), (1, 1); a solution with a
+        component above ``GFO_MAX_FORCE * F`` is skipped (internal forces the finger torques
+        would not hold; seen at 50-200 N on near-singular point contacts). The torsion
+        t_i is the soft-finger moment of the plan's closure model (thesis eq. 1), which the
+        simulator provides as spinning friction; it is a reaction, not commanded: only f_i
+        becomes joint torques. When no such forces exist (a grasp without force closure at
+        its contacts) every finger keeps the plain normal squeeze ``F n_i``.
         """
         k = len(contacts)
         if k == 0:
@@ -784,19 +818,22 @@ class _Sim:
         b[:3] = -self.mass * np.asarray(self.params["gravity"], float)
         scale = np.array([1.0] * 3 + [1.0 / max(1e-3, float(np.max(np.linalg.norm(P - c, axis=1))))] * 3)
         A, b = A * scale[:, None], b * scale
+        A_t = np.zeros((6, k))  # the torsional moments t_i n_i
+        A_t[3:, :] = N.T * scale[3]
         f0 = (F * N).ravel()
-        x = f0  # no balanced forces at these point contacts: keep the normal squeeze
-        for margin in (0.5, 0.75, 1.0):
-            x_m = self._gfo_lp(A, b, N, f0, margin * self.friction.mu, 0.1 * F)
-            if x_m is not None:
+        x = f0  # no balanced forces at these contacts: keep the normal squeeze
+        for margin, torsion in GFO_MARGINS:
+            x_m = self._gfo_lp(A, A_t, b, N, f0, margin * self.friction.mu, torsion * self.friction.gamma, 0.1 * F)
+            if x_m is not None and float(np.abs(x_m).max()) <= GFO_MAX_FORCE * F:
                 x = x_m
                 break
         return [x[3 * i:3 * i + 3] for i in range(k)]
 
     @staticmethod
-    def _gfo_lp(A, b, N, f0, mu, fn_min):
-        """min |f - f0|_1 s.t. A f = b, f_i in the 8-sided pyramid of friction ``mu`` about
-        n_i (inscribed), f_i.n_i >= fn_min; None when infeasible."""
+    def _gfo_lp(A, A_t, b, N, f0, mu, gamma, fn_min):
+        """min |f - f0|_1 over forces f and torsions t s.t. A f + A_t t = b, f_i in the
+        8-sided pyramid of friction ``mu`` about n_i (inscribed), |t_i| <= gamma f_i.n_i,
+        f_i.n_i >= fn_min; the forces f (3k,), or None when infeasible."""
         from scipy.optimize import linprog
 
         k = len(N)
@@ -816,11 +853,20 @@ class _Sim:
             rows.append(row)
             h.append(fn_min)
         G, h = np.array(rows), np.array(h)
-        I = np.eye(m)
-        res = linprog(np.r_[np.zeros(m), np.ones(m)],
-                      A_ub=np.block([[-G, np.zeros((len(G), m))], [I, -I], [-I, -I]]),
-                      b_ub=np.r_[-h, f0, -f0], A_eq=np.c_[A, np.zeros((6, m))], b_eq=b,
-                      bounds=[(None, None)] * m + [(0, None)] * m, method="highs")
+        # torsion: t_i - gamma f_i.n_i <= 0 and -t_i - gamma f_i.n_i <= 0
+        T = np.zeros((2 * k, m + k))
+        for i, n in enumerate(N):
+            for r, sign in ((2 * i, 1.0), (2 * i + 1, -1.0)):
+                T[r, 3 * i:3 * i + 3] = -gamma * n
+                T[r, m + i] = sign
+        I, Z = np.eye(m), np.zeros
+        # variables: f (m), t (k), slack (m) with |f - f0| <= slack
+        res = linprog(np.r_[np.zeros(m + k), np.ones(m)],
+                      A_ub=np.block([[-G, Z((len(G), k)), Z((len(G), m))],
+                                     [T, Z((2 * k, m))],
+                                     [I, Z((m, k)), -I], [-I, Z((m, k)), -I]]),
+                      b_ub=np.r_[-h, np.zeros(2 * k), f0, -f0], A_eq=np.c_[A, A_t, Z((6, m))], b_eq=b,
+                      bounds=[(None, None)] * (m + k) + [(0, None)] * m, method="highs")
         return res.x[:m] if res.status == 0 else None
 
     # -- simulation -----------------------------------------------------------------
@@ -900,14 +946,32 @@ class _Sim:
             reports[0] = self._measure(0, states[0])
         current = dict(targets_of[0][0]), dict(targets_of[0][1])
         for st in steps if ok else ():
-            targets, caps = dict(targets_of[st.to_state][0]), dict(targets_of[st.to_state][1])
-            moving = set(st.joints)
-            # the moving finger tracks its path with the free-finger torque
+            to_targets, to_caps = targets_of[st.to_state]
+            landing = st.action == "land"
+            if landing:
+                # until it touches down, the other fingers keep the forces that balance the
+                # object without it (the from-state's); the to-state's count on its force
+                targets, caps = dict(current[0]), dict(current[1])
+            else:
+                # unload before lifting: the other fingers take the forces that balance the
+                # object without this finger while it still touches, holding its posture
+                targets, caps = dict(to_targets), dict(to_caps)
+                for j in st.joints:
+                    targets[j], caps[j] = current[0][j], HOLD_TORQUE_NM
+                self._command(targets, caps)
+                if not self._run_for(UNLOAD_S):
+                    ok = False
+                    break
+            # the moving finger tracks its path with the free-finger torque; a landing
+            # finger switches to its squeeze caps once within LANDING_ZONE_M of the object
             start = np.array([current[0][j] for j in st.joints])
             path = np.vstack([start[None, :], st.path])
             for j in st.joints:
                 caps[j] = FREE_TORQUE_NM
             for a, b in zip(path[:-1], path[1:]):
+                if landing and self._finger_distance(st.finger) <= LANDING_ZONE_M:
+                    caps.update({j: to_caps[j] for j in st.joints})
+                    landing = False
                 n = max(1, int(math.ceil(float(np.max(np.abs(b - a))) / (self.params["joint_speed_rad_s"] * self.dt))))
                 for k in range(1, n + 1):
                     wp = a + (b - a) * k / n
