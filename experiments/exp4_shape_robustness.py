@@ -134,7 +134,7 @@ def main(argv=None) -> dict:
         if args.replay:
             line, = ax[2].plot(x, [r.get("replay_max_drift_deg", np.nan) for r in sub], "o-", label=f"{pair} {mode}")
             failed = [r for r in sub if not r.get("success_replay")]
-            ax[2].plot([r["scale"] for r in failed], [r.get("replay_max_drift_deg", 0.0) if np.isfinite(r.get("replay_max_drift_deg", np.nan)) else 0.0
+            ax[2].plot([r["scale"] for r in failed], [r["replay_max_drift_deg"] if np.isfinite(r.get("replay_max_drift_deg", np.nan)) else 0.3
                                                     for r in failed], "x", color="red", ms=8)
     ax[0].set_xlabel("size scale (x nominal)")
     ax[0].set_ylabel("plan bottleneck metric (x at 0: failed)")
@@ -150,7 +150,8 @@ def main(argv=None) -> dict:
         if limit is not None:
             ax[2].axhline(limit, color="k", ls="--", lw=0.8, label="pass limit (rotation)")
         ax[2].set_xlabel("size scale (x nominal)")
-        ax[2].set_ylabel("replay max rotation drift (deg)")
+        ax[2].set_yscale("log")
+        ax[2].set_ylabel("replay max rotation drift (deg; x at 0.3: no plan)")
         ax[2].set_title("plan + replay (mean contacts, palm up; x: failed)")
         ax[2].legend(fontsize=6)
     save(fig, args.out / "exp4_shape_robustness.png")
