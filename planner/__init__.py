@@ -27,6 +27,7 @@ _EXPORTS = {
     "closure_from_wrenches": "planner.closure",
     "contact_wrenches": "planner.closure",
     "grasp_closure": "planner.closure",
+    "min_grip_force": "planner.closure",
     "removable_fingers": "planner.closure",
     # hands, objects, contacts
     "Finger": "planner.hand",

@@ -35,6 +35,8 @@ def _cmd_plan(args: argparse.Namespace) -> int:
         motion_timeout_s=args.motion_timeout,
         max_lifted=args.max_lifted,
         contact_model=args.contact_model,
+        gravity=tuple(args.gravity) if args.gravity is not None else None,
+        max_finger_force_n=args.max_finger_force,
     )
     specs = [load_grasp(args.initial), load_grasp(args.final)]
     check_same_setup(*specs)
@@ -175,6 +177,11 @@ def build_parser() -> argparse.ArgumentParser:
                       help="closure from every patch point (patch, default: the thesis) or from one mean contact "
                            "per finger (mean: what the simulator's rigid fingertips give)")
     plan.add_argument("--max-lifted", type=int, default=None, metavar="N", help="at most N fingers lifted at once")
+    plan.add_argument("--gravity", type=float, nargs=3, metavar=("GX", "GY", "GZ"), default=None,
+                      help="also require every state to hold the object's weight under this gravity (palm frame, "
+                           "m/s^2, e.g. 0 0 9.81 palm down) with each finger pressing at most --max-finger-force")
+    plan.add_argument("--max-finger-force", type=float, default=1.0, metavar="N",
+                      help="per-finger normal force budget against gravity, N (default 1, the replay's squeeze)")
     plan.add_argument("--no-motion", action="store_true", help="skip OMPL finger paths (straight joint segments)")
     plan.add_argument("--motion-planner", default="rrtconnect", help="OMPL planner name (default rrtconnect)")
     plan.add_argument("--motion-timeout", type=float, default=2.0, metavar="S", help="time budget per finger path, s")

@@ -70,6 +70,7 @@ __all__ = [
     "closure_from_wrenches",
     "contact_wrenches",
     "grasp_closure",
+    "min_grip_force",
     "removable_fingers",
 ]
 
@@ -755,6 +756,58 @@ def removable_fingers(patches: Mapping[str, tuple], friction: Friction) -> froze
         if rest and _closure(np.vstack(rest), decide_only=True)[0].is_force_closure:
             removable.add(finger)
     return frozenset(removable)
+
+
+def min_grip_force(patches: Mapping[str, tuple], friction: Friction, load) -> float:
+    """Smallest per-finger normal force with which the contacts hold an external load.
+
+    The contact wrenches are non-negative combinations ``sum_j lambda_j w_j`` of the same
+    soft-finger rim wrenches the closure uses (`contact_wrenches`: every row has a unit
+    normal force), so a finger's total normal force is the sum of its ``lambda_j``. This
+    solves the linear program
+
+        min t  s.t.  sum_j lambda_j w_j = -load,  lambda >= 0,
+                     sum_{j of finger i} lambda_j <= t   for every finger i
+
+    (HiGHS). Force closure says *some* contact forces resist any load; this says how hard
+    the fingers must press to resist *this* one (e.g. the object's weight), in newtons.
+
+    Args:
+        patches: finger -> (points (n, 3), normals (n, 3)), object frame, normals inward.
+        friction: soft-finger friction model (``edges`` rim directions per point).
+        load: (6,) external wrench on the object ``[f ; tau]``, object frame, torque about
+            the object origin (gravity: ``[m g_obj ; 0]`` when the origin is the centre of mass).
+
+    Returns:
+        t in newtons (0 for a zero load); ``inf`` when no contact forces balance the load.
+
+    Raises:
+        InputError: bad patches or a load that is not 6 finite numbers.
+    """
+    from scipy.optimize import linprog
+
+    try:
+        w_ext = np.asarray(load, dtype=float).reshape(6)
+    except (TypeError, ValueError) as err:
+        raise InputError(f"load must be 6 numbers [fx fy fz tx ty tz], got {load!r}") from err
+    if not np.all(np.isfinite(w_ext)):
+        raise InputError(f"load must be finite, got {w_ext.tolist()}")
+    W, blocks = _finger_wrenches(patches, friction)
+    if not w_ext.any():
+        return 0.0
+    sizes = [len(b) for b in blocks.values() if len(b)]
+    if not sizes:
+        return math.inf
+    k = len(W)
+    A_ub = np.zeros((len(sizes), k + 1))
+    for i, (a, b) in enumerate(zip(np.cumsum([0] + sizes[:-1]), np.cumsum(sizes))):
+        A_ub[i, a:b] = 1.0
+    A_ub[:, k] = -1.0
+    c = np.zeros(k + 1)
+    c[k] = 1.0
+    res = linprog(c, A_ub=A_ub, b_ub=np.zeros(len(sizes)), A_eq=np.c_[W.T, np.zeros(6)], b_eq=-w_ext,
+                  bounds=[(0, None)] * (k + 1), method="highs")
+    return float(res.x[k]) if res.status == 0 else math.inf
 
 
 #: Inner polytopes kept by ``batch_grasp_closure`` for warm starts (each holds ~1-3k facets).

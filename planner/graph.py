@@ -4,7 +4,9 @@ A grasp state assigns every finger a contact *slot* (a realized contact: joint v
 and contact patch) or ``LIFTED``. Two states are joined when exactly one finger
 changes: *lift* (slot -> lifted) or *land* (lifted -> slot). A state is a node of the
 graph only when it is valid: its contacts are force closure and no two fingers (nor a
-finger and the palm) collide. Any path from the initial to the final state is thus a
+finger and the palm) collide, and, when the problem carries a load (the object's
+weight), the fingers can hold that load pressing at most ``max_grip_force_n`` each
+(`planner.closure.min_grip_force`). Any path from the initial to the final state is thus a
 finger-gaiting sequence that keeps force closure throughout.
 
 `build_graph` grows the graph breadth-first from the initial state, evaluating each
@@ -28,7 +30,7 @@ from typing import Callable, Mapping, Sequence
 import networkx as nx
 import numpy as np
 
-from planner.closure import Closure, Friction, batch_grasp_closure
+from planner.closure import Closure, Friction, batch_grasp_closure, min_grip_force
 from planner.errors import InputError, NoSequenceError
 
 LIFTED = -1
@@ -86,6 +88,10 @@ class GaitProblem:
         friction: contact model for closure.
         compatible: optional pairwise collision predicate (see `Compatible`).
         max_lifted: optional bound on the number of fingers lifted at once.
+        load: optional (6,) external wrench on the object, object frame (e.g. its weight
+            ``[m g_obj ; 0]``); with it a state is valid only if its fingers hold the load
+            pressing at most ``max_grip_force_n`` each.
+        max_grip_force_n: per-finger normal force budget for ``load``, N.
     """
 
     fingers: tuple[str, ...]
@@ -95,8 +101,16 @@ class GaitProblem:
     friction: Friction
     compatible: Compatible | None = None
     max_lifted: int | None = None
+    load: np.ndarray | None = None
+    max_grip_force_n: float = 1.0
 
     def __post_init__(self):
+        if self.load is not None:
+            object.__setattr__(self, "load", _frozen(self.load, ()))
+            if self.load.shape != (6,) or not np.all(np.isfinite(self.load)):
+                raise InputError(f"load must be 6 finite numbers [fx fy fz tx ty tz], got {self.load.tolist()}")
+            if not (np.isfinite(self.max_grip_force_n) and self.max_grip_force_n > 0):
+                raise InputError(f"max_grip_force_n must be > 0, got {self.max_grip_force_n!r}")
         n = len(self.fingers)
         for name, node in (("start", self.start), ("goal", self.goal)):
             if len(node) != n:
@@ -138,6 +152,7 @@ class _Evaluator:
     def __init__(self, problem: GaitProblem):
         self.problem = problem
         self.closure: dict[Node, Closure] = {}
+        self.grip: dict[Node, float] = {}
         self._pairs: dict[tuple, bool] = {}
 
     def evaluate(self, nodes: Sequence[Node]) -> None:
@@ -161,6 +176,15 @@ class _Evaluator:
                 return False
         return True
 
+    def grip_force(self, node: Node) -> float | None:
+        """Per-finger normal force the state needs to hold the problem's load (None: no load)."""
+        if self.problem.load is None:
+            return None
+        f = self.grip.get(node)
+        if f is None:
+            f = self.grip[node] = min_grip_force(self.problem.patches(node), self.problem.friction, self.problem.load)
+        return f
+
     def removable(self, node: Node) -> frozenset[str]:
         """Thesis Algorithm 1 from cached closures: lifted fingers are removable."""
         if not self.closure[node].is_force_closure:
@@ -179,6 +203,9 @@ class _Evaluator:
             return "not force closure"
         if not self.collision_free(node):
             return "fingers collide"
+        f = self.grip_force(node)
+        if f is not None and f > p.max_grip_force_n:
+            return f"need over {p.max_grip_force_n:g} N per finger to hold the load"
         return None
 
 
@@ -236,7 +263,7 @@ def build_graph(problem: GaitProblem) -> nx.DiGraph:
 def _add_node(G: nx.DiGraph, ev: _Evaluator, v: Node) -> None:
     p = ev.problem
     c = ev.closure[v]
-    G.add_node(v, labels=p.labels(v), patches=p.patches(v), closure=c, metric=float(c.metric))
+    G.add_node(v, labels=p.labels(v), patches=p.patches(v), closure=c, metric=float(c.metric), grip_force=ev.grip_force(v))
 
 
 @dataclass(frozen=True)

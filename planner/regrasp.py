@@ -12,6 +12,7 @@
 from __future__ import annotations
 
 import hashlib
+import math
 import time
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -47,6 +48,13 @@ class PlanOptions:
             or "mean" (one contact per finger at the patch mean: what a rigid fingertip
             gives in the simulator; `planner.closure.CONTACT_MODELS`). Every state's
             closure, removability and exported patches use it.
+        gravity: None (default: force closure only, as in the thesis) or the gravity
+            vector in the palm frame, m/s^2, e.g. (0, 0, 9.81) with the palm facing down.
+            Every state must then hold the object's weight with each finger pressing at most
+            ``max_finger_force_n`` (`planner.closure.min_grip_force`, weight at the object
+            origin).
+        max_finger_force_n: per-finger normal force budget against gravity, N (default 1,
+            the replay's squeeze force).
     """
 
     strategy: str = "graph"
@@ -59,8 +67,21 @@ class PlanOptions:
     max_lifted: int | None = None
     same_slot_tol_rad: float = 1e-3
     contact_model: str = "patch"
+    gravity: tuple[float, float, float] | None = None
+    max_finger_force_n: float = 1.0
 
     def __post_init__(self):
+        if self.gravity is not None:
+            try:
+                g = tuple(float(v) for v in self.gravity)
+            except (TypeError, ValueError):
+                raise PlannerError(f"gravity must be 3 numbers (palm frame, m/s^2), got {self.gravity!r}") from None
+            if len(g) != 3 or not all(math.isfinite(v) for v in g):
+                raise PlannerError(f"gravity must be 3 finite numbers (palm frame, m/s^2), got {self.gravity!r}")
+            object.__setattr__(self, "gravity", g)
+        if not (isinstance(self.max_finger_force_n, (int, float)) and math.isfinite(self.max_finger_force_n)
+                and self.max_finger_force_n > 0):
+            raise PlannerError(f"max_finger_force_n must be a positive number of newtons, got {self.max_finger_force_n!r}")
         if self.strategy not in STRATEGIES:
             raise UnknownNameError("strategy", self.strategy, STRATEGIES)
         if self.contact_model not in CONTACT_MODELS:
@@ -204,7 +225,12 @@ def build_problem(initial, final, options: PlanOptions) -> GaitProblem:
         start.append(s_idx)
         goal.append(g_idx)
     compatible = _pairwise_collision_check(initial.hand, slots)
-    return GaitProblem(fingers, slots, tuple(start), tuple(goal), initial.friction, compatible, options.max_lifted)
+    load = None
+    if options.gravity is not None:  # the weight at the object origin, in the object frame
+        R = np.asarray(initial.obj.T_palm_obj, dtype=float)[:3, :3]
+        load = np.r_[initial.obj.mass_kg * (R.T @ np.asarray(options.gravity)), np.zeros(3)]
+    return GaitProblem(fingers, slots, tuple(start), tuple(goal), initial.friction, compatible, options.max_lifted,
+                       load=load, max_grip_force_n=float(options.max_finger_force_n))
 
 
 def _modelled(slot: Slot, contact_model: str) -> Slot:

@@ -539,3 +539,86 @@ def test_contact_model_bad_name_and_cancelling_normals_are_refused():
         apply_contact_model({"index": (p, np.array([[0, 0, 1.0]] * 2))}, "average")
     with pytest.raises(InputError, match="cancel"):
         apply_contact_model({"index": (p, np.array([[0, 0, 1.0], [0, 0, -1.0]]))}, "mean")
+
+
+# --------------------------------------------------------------------------- grip force against a load
+
+
+def _antipodal(r=0.02):
+    return {"a": (np.array([[r, 0.0, 0.0]]), np.array([[-1.0, 0.0, 0.0]])),
+            "b": (np.array([[-r, 0.0, 0.0]]), np.array([[1.0, 0.0, 0.0]]))}
+
+
+def test_grip_force_antipodal_pair_holds_a_weight_with_friction():
+    """Two antipodal fingers carry a weight W across their axis by friction: each needs
+    W / (2 mu) of normal force (up to the inscribed polygon: at most W / (2 mu cos(pi/e)))."""
+    from planner.closure import min_grip_force
+
+    for mu, weight in ((0.5, 1.0), (0.9, 0.3)):
+        t = min_grip_force(_antipodal(), Friction(mu, 0.01, edges=64), [0, 0, -weight, 0, 0, 0])
+        assert weight / (2 * mu) - 1e-9 <= t <= weight / (2 * mu * math.cos(math.pi / 64)) + 1e-9
+
+
+def test_grip_force_for_a_moment_about_the_contact_axis_is_torsion_only():
+    """A moment M about the line through both contacts is resisted only by torsional
+    friction: t = M / (2 gamma) exactly; without torsion no forces exist (inf)."""
+    from planner.closure import min_grip_force
+
+    assert min_grip_force(_antipodal(), Friction(0.5, 0.01), [0, 0, 0, 0.01, 0, 0]) == pytest.approx(0.5, rel=1e-9)
+    assert min_grip_force(_antipodal(), Friction(0.5, 0.0), [0, 0, 0, 0.01, 0, 0]) == math.inf
+
+
+def test_grip_force_scales_with_the_load_and_never_grows_with_an_added_finger():
+    from planner.closure import min_grip_force
+
+    rng = np.random.default_rng(11)
+    checked = 0
+    for _ in range(30):
+        patches = random_grasp(rng, 4, 3)
+        load = np.r_[rng.normal(size=3), 0.02 * rng.normal(size=3)]
+        t = min_grip_force(patches, SOFT, load)
+        if not math.isfinite(t):
+            continue
+        checked += 1
+        assert min_grip_force(patches, SOFT, 3.0 * load) == pytest.approx(3.0 * t, rel=1e-6)
+        more = dict(patches, extra=random_grasp(rng, 1, 3)["f0"])
+        assert min_grip_force(more, SOFT, load) <= t * (1 + 1e-7) + 1e-12
+        assert min_grip_force(patches, SOFT, np.zeros(6)) == 0.0
+    assert checked >= 10
+
+
+def test_grip_force_agrees_with_an_independent_check_of_its_forces():
+    """Re-check the LP's answer independently: with every finger limited to t the load is
+    balanced (feasible), with every finger limited to 0.99 t it is not (scipy linprog on
+    the explicit wrench rows)."""
+    from scipy.optimize import linprog
+
+    from planner.closure import min_grip_force
+
+    rng = np.random.default_rng(5)
+    patches = random_grasp(rng, 4, 4)
+    load = np.array([0.0, 0.0, -0.5, 0.0, 0.0, 0.0])
+    t = min_grip_force(patches, SOFT, load)
+    assert 0 < t < math.inf
+
+    def feasible(limit):
+        blocks = [contact_wrenches(p, n, SOFT) for p, n in patches.values()]
+        W = np.vstack(blocks)
+        A_ub = np.zeros((len(blocks), len(W)))
+        start = 0
+        for i, b in enumerate(blocks):
+            A_ub[i, start:start + len(b)] = 1.0
+            start += len(b)
+        res = linprog(np.zeros(len(W)), A_ub=A_ub, b_ub=np.full(len(blocks), limit), A_eq=W.T, b_eq=-load,
+                      bounds=[(0, None)] * len(W), method="highs")
+        return res.status == 0
+
+    assert feasible(t * 1.0001) and not feasible(t * 0.99)
+
+
+def test_grip_force_rejects_a_bad_load():
+    from planner.closure import min_grip_force
+
+    for bad in ([1, 2, 3], [0, 0, math.nan, 0, 0, 0], "down"):
+        with pytest.raises(InputError, match="load"):
+            min_grip_force(_antipodal(), SOFT, bad)

@@ -176,3 +176,46 @@ def test_mean_contact_model_refuses_a_grasp_that_holds_only_by_its_patches(reali
     assert len(err.splitlines()) == 1 and "'mean' contact model" in err and "pen_palmar_pinch" in err
     assert main(["plan", str(pinch), str(tripod), "--no-motion", "--contact-model", "average"]) == 2
     assert "mean, patch" in capsys.readouterr().err
+
+
+def test_gravity_aware_plan_holds_the_weight_at_every_state_when_rechecked(realized, tmp_path):
+    """--gravity: every exported state re-checked from the file holds the object's weight
+    (mass from the plan, gravity rotated into the object frame) with at most the budget per
+    finger, and the planner blocked the states that would need more."""
+    from planner.closure import min_grip_force
+
+    a, b = PAIRS["box"]
+    out = tmp_path / "g.yaml"
+    assert main(["plan", str(a), str(b), "-o", str(out), "--no-motion", "--contact-model", "mean",
+                 "--gravity", "0", "0", "-9.81", "--max-finger-force", "0.6"]) == 0
+    data = recheck_plan_file(out)
+    assert data["parameters"]["gravity"] == [0.0, 0.0, -9.81] and data["parameters"]["max_finger_force_n"] == 0.6
+    fr = Friction(**data["friction"])
+    mass = realized(a).obj.mass_kg
+    R = np.asarray(realized(a).obj.T_palm_obj)[:3, :3]
+    load = np.r_[mass * R.T @ np.array([0.0, 0.0, -9.81]), np.zeros(3)]
+    forces = []
+    for state in data["states"]:
+        patches = {f: (np.array(p["points"]), np.array(p["normals"])) for f, p in state["patches"].items()}
+        forces.append(min_grip_force(patches, fr, load))
+    assert max(forces) <= 0.6 + 1e-9
+    # the same problem without gravity keeps states that need more than 0.6 N
+    plain = plan_regrasp(realized(a), realized(b), PlanOptions(motion=False, contact_model="mean"))
+    heavy = PlanOptions(motion=False, contact_model="mean", gravity=(0.0, 0.0, -9.81), max_finger_force_n=0.6)
+    aware = plan_regrasp(realized(a), realized(b), heavy)
+    assert aware.graph.number_of_nodes() < plain.graph.number_of_nodes()
+    assert all(d["grip_force"] <= 0.6 for _, d in aware.graph.nodes(data=True))
+
+
+def test_gravity_budget_too_small_exits_one_and_bad_values_exit_two(capsys):
+    a, b = PAIRS["box"]
+    assert main(["plan", str(a), str(b), "--no-motion", "--contact-model", "mean",
+                 "--gravity", "0", "0", "-9.81", "--max-finger-force", "0.01"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "N per finger to hold the load" in err
+    assert main(["plan", str(a), str(b), "--no-motion", "--gravity", "0", "nan", "9.81"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "gravity" in err
+    assert main(["plan", str(a), str(b), "--no-motion", "--gravity", "0", "0", "9.81", "--max-finger-force", "0"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "max_finger_force_n" in err
