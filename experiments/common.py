@@ -38,6 +38,8 @@ GRASPS = REPO / "grasps"
 #: model (one contact per finger, what the simulator's rigid fingertips give).
 REPLAY_GRAVITY = (0.0, 0.0, -9.81)
 REPLAY_CONTACT_MODEL = "mean"
+#: The replay's squeeze force per finger (its default), also the gravity-aware plans' budget.
+REPLAY_FINGER_FORCE_N = 1.0
 
 
 # ------------------------------------------------------------------ command line

@@ -11,7 +11,9 @@ wants on the object touches it) (graph search, no OMPL
 paths: motion=False). Then, as the thesis did, the pair is executed: planned again with
 finger paths under the "mean" contact model (the executable plan) and replayed in pybullet
 palm up (`planner.sim.replay.replay_plan`); its verdict, drift and closure agreement are
-recorded, and "plan + replay" success needs both (`--no-replay`: planning only).
+recorded, and "plan + replay" success needs both (`--no-replay`: planning only). The
+executable plan is also made gravity-aware (`PlanOptions.gravity`: every state holds the
+weight with at most the replay's squeeze force per finger) and replayed ("g_" columns).
 
     python experiments/exp4_shape_robustness.py [--quick] [--workers N] [--no-replay]
 """
@@ -26,7 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np  # noqa: E402
 
-from experiments.common import REPLAY_CONTACT_MODEL, REPLAY_GRAVITY, grasp_pairs, load_spec, parser, print_summary, pyplot, realized, run_tasks, save, scaled_spec, write_csv  # noqa: E402
+from experiments.common import REPLAY_CONTACT_MODEL, REPLAY_FINGER_FORCE_N, REPLAY_GRAVITY, grasp_pairs, load_spec, parser, print_summary, pyplot, realized, run_tasks, save, scaled_spec, write_csv  # noqa: E402
 
 MODES = {
     "box": {"uniform": (1, 1, 1), "x": (1, 0, 0), "y": (0, 1, 0), "z": (0, 0, 1)},
@@ -82,19 +84,33 @@ def task(t: dict) -> dict:
     row["success"] = bool(ok_grasps and row["planned"])
     row["success_all_fingers"] = bool(row["success"] and row["all_fingers_touch"])
     if t["replay"] and ok_grasps:
-        # executable plan: one mean contact per finger, finger paths, replayed palm up
-        try:
-            from planner.sim.replay import replay_plan
+        # executable plans: one mean contact per finger, finger paths, replayed palm up;
+        # "g_": the same, planned gravity-aware (every state holds the weight with at most
+        # the replay's squeeze force per finger)
+        from planner.sim.replay import replay_plan
 
-            res_m = plan_regrasp(gi, gf, PlanOptions(contact_model=REPLAY_CONTACT_MODEL))
-            rep = replay_plan(res_m.plan.to_dict(), gravity=REPLAY_GRAVITY)
-            row.update(replay_passed=rep.passed, replay_verdict=rep.verdict[:120], replay_max_drift_mm=rep.max_drift_mm,
-                       replay_max_drift_deg=rep.max_drift_deg, replay_limit_mm=rep.drift_mm_max, replay_limit_deg=rep.drift_deg_max,
-                       replay_closure_agree=f"{rep.closure_agreement[0]}/{rep.closure_agreement[1]}")
-        except PlannerError as err:
-            row.update(replay_passed=False, replay_verdict=f"{type(err).__name__}: {err}"[:120])
+        for prefix, opts in (("", PlanOptions(contact_model=REPLAY_CONTACT_MODEL)),
+                             ("g_", PlanOptions(contact_model=REPLAY_CONTACT_MODEL, gravity=REPLAY_GRAVITY,
+                                                max_finger_force_n=REPLAY_FINGER_FORCE_N))):
+            try:
+                res_m = plan_regrasp(gi, gf, opts)
+            except PlannerError as err:
+                row.update({f"{prefix}replay_planned": False, f"{prefix}replay_passed": False,
+                            f"{prefix}replay_verdict": f"{type(err).__name__}: {err}"[:120]})
+                continue
+            rep = replay_plan(res_m.plan.to_dict(), gravity=REPLAY_GRAVITY, finger_force_n=REPLAY_FINGER_FORCE_N)
+            row.update({f"{prefix}replay_planned": True, f"{prefix}replay_passed": rep.passed,
+                        f"{prefix}replay_verdict": rep.verdict[:120], f"{prefix}replay_max_drift_mm": rep.max_drift_mm,
+                        f"{prefix}replay_max_drift_deg": rep.max_drift_deg,
+                        f"{prefix}replay_closure_agree": f"{rep.closure_agreement[0]}/{rep.closure_agreement[1]}"})
+            if not prefix:
+                row.update(replay_limit_mm=rep.drift_mm_max, replay_limit_deg=rep.drift_deg_max)
     if t["replay"]:
         row["success_replay"] = bool(row["success"] and row.get("replay_passed", False))
+        row["g_success_replay"] = bool(row["success"] and row.get("g_replay_passed", False))
+        # a plan that was made but dropped the object: the failure a user does not see coming
+        row["false_plan"] = bool(row.get("replay_planned") and not row.get("replay_passed"))
+        row["g_false_plan"] = bool(row.get("g_replay_planned") and not row.get("g_replay_passed"))
     row["time_s"] = time.perf_counter() - t0
     return row
 
@@ -160,6 +176,10 @@ def main(argv=None) -> dict:
                "replay": "on" if args.replay else "off (planning + closure only)"}
     if args.replay:
         summary["success plan + replay"] = f"{sum(bool(r.get('success_replay')) for r in rows)}/{len(rows)}"
+        summary["gravity-aware plan + replay"] = f"{sum(bool(r.get('g_success_replay')) for r in rows)}/{len(rows)}"
+        summary["plans that fail in the replay (plain / gravity-aware)"] = (
+            f"{sum(bool(r.get('false_plan')) for r in rows)}/{sum(bool(r.get('replay_planned')) for r in rows)} / "
+            f"{sum(bool(r.get('g_false_plan')) for r in rows)}/{sum(bool(r.get('g_replay_planned')) for r in rows)}")
     for pair, method, mode in groups:
         sub = [r for r in rows if (r["pair"], r["method"], r["mode"]) == (pair, method, mode)]
         mode = f"{mode} ({method})"
@@ -170,6 +190,10 @@ def main(argv=None) -> dict:
         if args.replay:
             ok_r = sorted(r["scale"] for r in sub if r.get("success_replay"))
             summary[f"{pair} {mode} plan + replay"] = f"{len(ok_r)}/{len(sub)} pass, scales {ok_r}"
+            ok_g = sorted(r["scale"] for r in sub if r.get("g_success_replay"))
+            refused = sum(1 for r in sub if r.get("success") and r.get("g_replay_planned") is False)
+            summary[f"{pair} {mode} gravity-aware plan + replay"] = (
+                f"{len(ok_g)}/{len(sub)} pass, {refused} refused, scales {ok_g}")
     summary["wall_s"] = time.perf_counter() - t0
     print_summary("exp4 shape robustness", summary)
     return summary
