@@ -106,9 +106,10 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     plan_path = out / "box_plan.yaml"
-    # one mean contact per finger: the plan must hold with the simulator's rigid fingertips
+    # one mean contact per finger: the plan must hold with the simulator's rigid fingertips;
+    # gravity-aware for the replay's orientation: every state holds the box's weight at 1 N
     code = main(["plan", str(root / DEMO_INITIAL), str(root / DEMO_FINAL), "-o", str(plan_path),
-                 "--contact-model", "mean"])
+                 "--contact-model", "mean", "--gravity", "0", "0", "9.81"])
     if code != 0:
         return code
     # Replay with the default gravity (palm facing down: the box hangs from the fingers, the
