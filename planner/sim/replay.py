@@ -725,11 +725,7 @@ class _Sim:
             if f not in self.fingers:
                 raise UnknownNameError("finger", f, self.fingers)
             fj = [j for j in self.fingers[f] if j in self.jidx]
-            best = None
-            for link in self.finger_links[f]:
-                for cp in p.getClosestPoints(self.hand, self.obj, 0.01, linkIndexA=link, physicsClientId=self.cid):
-                    if best is None or cp[8] < best[8]:
-                        best = cp
+            best = self._closest_point(f, 0.01)
             if best is None:
                 continue  # planned contact not within 1 cm: nothing to squeeze
             n_in = -np.asarray(best[7])  # contactNormalOnB points from the object (B) to the hand (A)
@@ -750,13 +746,20 @@ class _Sim:
                 caps[j] = max(HOLD_TORQUE_NM, abs(float(ti)))
         return targets, caps
 
+    def _closest_point(self, finger: str, within_m: float):
+        """pybullet's closest-point record between the finger's links and the object (the
+        nearest over its links), or None when none is within ``within_m``."""
+        best = None
+        for link in self.finger_links.get(finger, ()):
+            for cp in p.getClosestPoints(self.hand, self.obj, within_m, linkIndexA=link, physicsClientId=self.cid):
+                if best is None or cp[8] < best[8]:
+                    best = cp
+        return best
+
     def _finger_distance(self, finger: str) -> float:
         """Smallest distance between the finger's links and the object, m (inf beyond 5 cm)."""
-        d = math.inf
-        for link in self.finger_links.get(finger, ()):
-            for cp in p.getClosestPoints(self.hand, self.obj, 0.05, linkIndexA=link, physicsClientId=self.cid):
-                d = min(d, float(cp[8]))
-        return d
+        cp = self._closest_point(finger, 0.05)
+        return math.inf if cp is None else float(cp[8])
 
     def _point_jacobian(self, link: int, p_palm: np.ndarray, joints: list[str]) -> np.ndarray:
         """(3, len(joints)) linear Jacobian of a point fixed to ``link``, by central differences
@@ -986,9 +989,8 @@ class _Sim:
             if not ok:
                 break
             # at the end of the path the finger takes its state target (squeezing if it landed)
-            targets, caps = targets_of[st.to_state]
-            self._command(targets, caps)
-            current = dict(targets), dict(caps)
+            self._command(to_targets, to_caps)
+            current = dict(to_targets), dict(to_caps)
             if not self._run_for(self.params["dwell_s"]):
                 ok = False
                 break
