@@ -250,6 +250,10 @@ class Hand:
         if self.model.frames[pid].parentJoint != 0:
             raise SpecError(sp, "palm_frame", f"{self.palm_frame!r} moves with a joint; "
                                               "the palm must be fixed to the URDF root")
+        # grasping face of the palm (unit, palm frame): "palm down" is gravity along it
+        self.palm_normal = tuple(float(x) for x in _vec3(sp, "palm_normal", spec.get("palm_normal", [0.0, 0.0, 1.0])))
+        if abs(np.linalg.norm(self.palm_normal) - 1.0) > 1e-6:
+            raise SpecError(sp, "palm_normal", f"expected a unit vector (palm frame), got {list(self.palm_normal)}")
         self._T_palm_world = self.model.frames[pid].placement.inverse()
         self._palm_is_root = self._T_palm_world.isIdentity(1e-12)
         self._frame_ids: dict[str, int] = {}
