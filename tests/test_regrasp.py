@@ -165,10 +165,28 @@ def test_exported_paths_recheck_with_coal(realized, tmp_path):
                 assert d > -1e-3, f"{link} sinks {-d * 1e3:.2f} mm into the object during {step['finger']} {step['action']}"
 
 
-def test_mean_contact_model_refuses_a_grasp_that_holds_only_by_its_patches(realized, capsys):
-    """The palmar pinch is force closure from its patches but not with one mean contact per
-    finger: planning with --contact-model mean exits 1 and says why."""
-    pinch, tripod = ICUB / "pen_palmar_pinch.yaml", ICUB / "pen_writing_tripod.yaml"
+#: A pen pinch whose two pads touch 14 mm apart along the pen (the library's pinch before
+#: its redesign): force closure from its contact patches, not with one mean contact per finger.
+_PATCH_ONLY_PEN = """\
+schema_version: 1
+name: pen_palmar_pinch
+hand: icub_right
+object: {shape: cylinder, size: [0.005, 0.14], position: [0.025, -0.012, 0.022],
+         quat_xyzw: [0.270598, 0.653281, -0.270598, 0.653281], mass_kg: 0.01}
+friction: {mu: 0.9, gamma: 0.004, edges: 5}
+fingers:
+  thumb: {contact: {point: [-0.0029, -0.0041, 0.0259]}}
+  index: {contact: {point: [0.0024, 0.0044, 0.0406]}}
+"""
+
+
+def test_mean_contact_model_refuses_a_grasp_that_holds_only_by_its_patches(realized, capsys, tmp_path):
+    """A pen pinch with its pads offset along the pen is force closure from its patches but not
+    with one mean contact per finger: planning with --contact-model mean exits 1 and says why."""
+    pinch, tripod = tmp_path / "pen_palmar_pinch.yaml", tmp_path / "pen_writing_tripod.yaml"
+    pinch.write_text(_PATCH_ONLY_PEN)
+    tripod.write_text(_PATCH_ONLY_PEN.replace("name: pen_palmar_pinch", "name: pen_writing_tripod")
+                      + "  middle: {posture: [0.6787, 0.95, 0.6039]}\n")
     assert realized(pinch).is_force_closure
     assert not realized(pinch).mean_contact_closure()["force_closure"]
     assert main(["plan", str(pinch), str(tripod), "--no-motion", "--contact-model", "mean"]) == 1
