@@ -448,6 +448,22 @@ class Hand:
         J, _, _ = self._point_jacobian(q, self._fid(link), p_link)
         return J
 
+    def gravity_torques(self, q, g_palm) -> np.ndarray:
+        """Joint torques that hold the hand's own links still under gravity.
+
+        Args:
+            q: (nq,) joint angles.
+            g_palm: (3,) gravity vector in the palm frame, m/s^2.
+        Returns:
+            (nq,) torques, N m (generalized gravity of the URDF's masses).
+        """
+        q = self._check_q(q)
+        g = np.asarray(g_palm, dtype=float).reshape(3)
+        if not self._palm_is_root:
+            g = self._T_palm_world.rotation.T @ g
+        self.model.gravity.linear = g
+        return pin.computeGeneralizedGravity(self.model, self.data, q).copy()
+
     def _point_jacobian(self, q, fid, p_link=None):
         pin.computeJointJacobians(self.model, self.data, q)
         M = pin.updateFramePlacement(self.model, self.data, fid)

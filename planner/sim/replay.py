@@ -66,6 +66,7 @@ from scipy.spatial.transform import Rotation
 from planner.closure import CONTACT_MODELS, Friction, apply_contact_model, grasp_closure
 from planner.errors import InputError, SimulationError, SpecError, UnknownNameError
 from planner.sim.contact_filter import ContactFilter
+from planner.sim.controller import TOUCH_TOL_M, Controller
 
 try:  # pybullet prints a build banner on import: keep a command's stdout clean
     from planner.sim.render import quiet_native_output
@@ -78,28 +79,6 @@ with quiet_native_output():
 
 _REPO = Path(__file__).resolve().parents[2]
 _ROBOTS_DIR = _REPO / "robots"
-#: A point more than this far outside the object is not a contact (pybullet reports
-#: speculative manifold points with positive distance).
-TOUCH_TOL_M = 0.0005
-#: Joint torque cap of fingers that do not touch the object (they only track their path).
-FREE_TORQUE_NM = 0.5
-#: Minimum torque of every joint of a squeezing finger, so joints orthogonal to the
-#: contact normal still hold their posture.
-HOLD_TORQUE_NM = 0.05
-#: Squeeze target: joint offset per metre of ``squeeze_m`` (1 mm ~ 0.05 rad at 20 mm).
-SQUEEZE_RAD_PER_M = 50.0
-#: A landing finger closer than this to the object finishes its path with its squeeze
-#: torque caps instead of ``FREE_TORQUE_NM``, so it touches down softly instead of
-#: striking the object with the free-motion torque (up to ~10 N at a fingertip).
-LANDING_ZONE_M = 0.002
-#: Grasp force optimization: (friction-cone fraction, torsional-friction fraction) tried in
-#: turn; point-contact forces first, the soft-finger torsion only when they do not exist.
-GFO_MARGINS = ((0.5, 0.0), (0.5, 0.5), (0.75, 0.0), (0.75, 0.75), (1.0, 0.0), (1.0, 1.0))
-#: A force solution with a component above this multiple of ``finger_force_n`` is rejected
-#: (an almost singular grasp balanced by large internal forces the fingers cannot hold).
-GFO_MAX_FORCE = 5.0
-#: Before a finger lifts, the other fingers take over its load for this long, s.
-UNLOAD_S = 0.1
 
 
 # --------------------------------------------------------------------------- reports
@@ -144,7 +123,8 @@ class ReplayReport:
     """Outcome of `replay_plan`.
 
     Attributes:
-        passed: no drop and the drift stayed within both thresholds at every state.
+        passed: no drop, the drift stayed within both thresholds at every step, every state
+            was reached and the simulator's force closure agreed with the plan's at each.
         verdict: one line, e.g. "PASS: max drift 0.8 mm / 0.4 deg (limits 5 mm / 5 deg)".
         dropped: the object left the hand (moved more than ``drop_mm``).
         max_drift_mm, max_drift_deg: largest drift over every simulation step.
@@ -155,6 +135,9 @@ class ReplayReport:
         sim_time_s, wall_time_s, sim_steps: simulated time, wall-clock time, physics steps.
         gif, gif_frames, mp4: output files written (None when not asked).
         parameters: the physics and control parameters used.
+        reasons: why it failed: where the object first left the limits (the phase: step,
+            finger, action; contacts lost, slip, rotation axis) and every state whose
+            simulated closure disagrees with the plan's.
     """
 
     passed: bool
@@ -175,6 +158,7 @@ class ReplayReport:
     gif_frames: int = 0
     mp4: str | None = None
     parameters: Mapping[str, Any] = field(default_factory=dict)
+    reasons: tuple[str, ...] = ()
 
     def to_dict(self) -> dict:
         """Plain data for JSON (``json.dumps(report.to_dict())``)."""
@@ -265,6 +249,8 @@ class _HandInfo:
     urdf_path: str
     fingers: dict[str, tuple[str, ...]]  # finger -> joint names
     T_palm_base: np.ndarray  # pose of the URDF root link in the palm frame
+    hand: Any  # planner.hand.Hand: Jacobians for the controller
+    palm_normal: tuple[float, float, float]
 
 
 def _resolve(path_str: str, plan_path: str) -> Path | None:
@@ -289,32 +275,28 @@ def _T_palm_root(hand) -> np.ndarray:
     return np.asarray(hand.link_pose(hand.q_open, root_name), dtype=float)
 
 
+def _hand_target(rd: _PlanReader) -> str:
+    """The plan's hand: its spec path when it resolves, else its name."""
+    name = rd.get("hand", "name")
+    spec = rd.get("hand", "spec", default=None)
+    if spec:
+        resolved = _resolve(str(spec), rd.path)
+        if resolved is not None:
+            return str(resolved)
+    return str(name)
+
+
 def _load_hand(rd: _PlanReader, joints: list[str], hand=None) -> _HandInfo:
-    """Hand URDF and finger -> joints, from `planner.hand.Hand` when available."""
+    """Hand URDF, finger -> joints and the pinocchio model of the plan's hand."""
     if hand is None:
-        name = rd.get("hand", "name")
-        spec = rd.get("hand", "spec", default=None)
-        target = name
-        if spec:
-            resolved = _resolve(str(spec), rd.path)
-            target = str(resolved) if resolved is not None else name
-        try:
-            from planner.hand import Hand
-        except ImportError:
-            Hand = None
-        if Hand is not None:
-            hand = Hand.load(target)
-    if hand is not None:
-        fingers = {f: tuple(fg.joints) for f, fg in hand.fingers.items()}
-        return _HandInfo(str(hand.urdf_path), fingers, _T_palm_root(hand))
-    # fallback without planner.hand: robots/<name>/<name>.urdf, fingers by joint-name prefix
-    urdf = _ROBOTS_DIR / name / f"{name}.urdf"
-    if not urdf.exists():
-        raise rd.fail("hand.name", f"no URDF for hand {name!r} at {urdf}")
-    fingers: dict[str, list[str]] = {}
-    for j in joints:
-        fingers.setdefault(j.rsplit("_", 1)[0], []).append(j)
-    return _HandInfo(str(urdf), {f: tuple(js) for f, js in fingers.items()}, np.eye(4))
+        from planner.hand import Hand
+
+        hand = Hand.load(_hand_target(rd))
+    missing = [j for j in joints if j not in hand.joint_names]
+    if missing:
+        raise rd.fail("joints", f"joints {missing} are not joints of hand {hand.name!r}")
+    fingers = {f: tuple(fg.joints) for f, fg in hand.fingers.items()}
+    return _HandInfo(str(hand.urdf_path), fingers, _T_palm_root(hand), hand, tuple(hand.palm_normal))
 
 
 @dataclass(frozen=True)
@@ -509,12 +491,13 @@ def replay_plan(
     hand=None,
     dt: float = 1.0 / 240.0,
     gravity: tuple[float, float, float] = (0.0, 0.0, 9.81),
-    squeeze_s: float = 0.3,
-    settle_s: float = 0.5,
+    acquire_s: float = 0.3,
+    ramp_s: float = 0.5,
+    settle_s: float = 0.25,
+    handover_s: float = 0.15,
     dwell_s: float = 0.25,
     joint_speed_rad_s: float = 1.5,
-    finger_force_n: float = 1.0,
-    squeeze_m: float = 0.0005,
+    finger_force_n: float | None = None,
     solver_iterations: int = 150,
     drift_mm_max: float = 5.0,
     drift_deg_max: float = 5.0,
@@ -536,14 +519,18 @@ def replay_plan(
         gui: open a pybullet GUI window (needs a display) and run in real time.
         hand: a `planner.hand.Hand` to use instead of loading the plan's ``hand``.
         dt: physics time step, s.
-        gravity: gravity vector in the palm (= world) frame, m/s^2. Default +z: palm down,
-            the object hangs from the fingers (module docstring).
-        squeeze_s: time the fingers squeeze while the object is still held, s.
-        settle_s: time after releasing the object before state 0 is measured, s.
+        gravity: gravity vector in the palm (= world) frame, m/s^2. Default +z: palm down
+            for the iCub hand (module docstring); `planner.gravity` names the directions.
+        acquire_s: time the fingers take their planned contacts with gravity off while the
+            object is held at its planned pose, s.
+        ramp_s: time over which gravity rises from 0 after the object is released, s.
+        settle_s: time after the ramp before state 0 is measured, s.
+        handover_s: time over which a finger's load fades out before it lifts, and in after
+            it lands, s.
         dwell_s: time spent at every state after its step, before measuring it, s.
         joint_speed_rad_s: largest joint speed along a step's path, rad/s.
-        finger_force_n: normal force each touching finger presses with, N.
-        squeeze_m: how far inside the object a touching finger's target lies, m.
+        finger_force_n: the squeeze force per holding finger, N; None derives it from the
+            object's weight and friction (`planner.sim.controller.squeeze_force_n`).
         solver_iterations: pybullet numSolverIterations.
         drift_mm_max, drift_deg_max: pass thresholds on the object's drift.
         drop_mm: displacement beyond which the object counts as dropped; the replay stops.
@@ -555,7 +542,8 @@ def replay_plan(
         width, height: frame size in pixels.
 
     Returns:
-        ReplayReport with a pass/fail verdict, per-state closure and drift.
+        ReplayReport with a pass/fail verdict (drift and closure agreement), per-state
+        closure and drift, and where and why it failed.
 
     Raises:
         SpecError: the plan lacks a key or has a bad value (names the file and key).
@@ -563,10 +551,16 @@ def replay_plan(
     """
     rd = _PlanReader(*_read_plan(plan))
     joints, states, steps, obj, friction = _parse(rd)
-    for name, v in (("dt", dt), ("finger_force_n", finger_force_n), ("drift_mm_max", drift_mm_max),
-                    ("drift_deg_max", drift_deg_max), ("drop_mm", drop_mm), ("joint_speed_rad_s", joint_speed_rad_s)):
+    positive = [("dt", dt), ("drift_mm_max", drift_mm_max), ("drift_deg_max", drift_deg_max),
+                ("drop_mm", drop_mm), ("joint_speed_rad_s", joint_speed_rad_s)]
+    if finger_force_n is not None:
+        positive.append(("finger_force_n", finger_force_n))
+    for name, v in positive:
         if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
             raise InputError(f"{name} must be a positive number, got {v!r}")
+    g_vec = np.asarray(gravity, dtype=float)
+    if g_vec.shape != (3,) or not np.all(np.isfinite(g_vec)):
+        raise InputError(f"gravity must be 3 finite numbers (palm frame, m/s^2), got {gravity!r}")
     if int(gif_every) < 1:
         raise InputError(f"gif_every must be >= 1, got {gif_every!r}")
     ffmpeg = None
@@ -579,10 +573,10 @@ def replay_plan(
     if contact_model not in CONTACT_MODELS:
         raise rd.fail("parameters.contact_model", f"unknown contact model {contact_model!r}; "
                                                    f"valid: {', '.join(CONTACT_MODELS)}")
-    params = dict(dt=dt, contact_model=contact_model, gravity=list(map(float, gravity)), squeeze_s=squeeze_s,
-                  settle_s=settle_s, dwell_s=dwell_s,
-                  joint_speed_rad_s=joint_speed_rad_s, finger_force_n=finger_force_n, squeeze_m=squeeze_m,
-                  solver_iterations=int(solver_iterations), drop_mm=drop_mm, filter_k=int(filter_k),
+    params = dict(dt=dt, contact_model=contact_model, gravity=g_vec.tolist(), acquire_s=acquire_s, ramp_s=ramp_s,
+                  settle_s=settle_s, handover_s=handover_s, dwell_s=dwell_s, joint_speed_rad_s=joint_speed_rad_s,
+                  finger_force_n=finger_force_n, solver_iterations=int(solver_iterations), drop_mm=drop_mm,
+                  drift_mm_max=float(drift_mm_max), drift_deg_max=float(drift_deg_max), filter_k=int(filter_k),
                   mu=friction.mu, gamma=friction.gamma, edges=friction.edges, touch_tol_m=TOUCH_TOL_M)
 
     own = client is None
@@ -599,10 +593,11 @@ def replay_plan(
         params["object_mass_kg"] = sim.mass
         recorder = None
         if gif is not None or mp4 is not None:
-            up = -np.asarray(gravity, float)
-            up = up / np.linalg.norm(up) if np.linalg.norm(up) > 0 else np.array([0.0, 0.0, 1.0])
+            up = -g_vec
+            up = up / np.linalg.norm(up) if np.linalg.norm(up) > 0 else -np.asarray(info.palm_normal, float)
             recorder = _Recorder(cid, width, height, sim.T_ref[:3, 3], up)
         result = sim.run(states, steps, recorder=recorder, every=int(gif_every), realtime=gui and own)
+        params["squeeze_force_n"] = sim.ctl.force_n if finger_force_n is None else float(finger_force_n)
     finally:
         if own:
             p.disconnect(physicsClientId=cid)
@@ -620,19 +615,33 @@ def replay_plan(
         if mp4 is not None:
             _write_mp4(recorder.frames, str(mp4), 1.0 / frame_dt, ffmpeg)
 
-    reports, dropped, max_mm, max_deg, fin_mm, fin_deg, n_steps = result
+    reports, dropped, max_mm, max_deg, fin_mm, fin_deg, n_steps, failure = result
     reached = [r for r in reports if r.reached]
     agree = sum(1 for r in reached if r.sim_force_closure == r.planned_force_closure)
-    passed = (not dropped) and max_mm <= drift_mm_max and max_deg <= drift_deg_max
+    disagree = [r for r in reached if r.sim_force_closure != r.planned_force_closure]
+    within = math.isfinite(max_mm) and math.isfinite(max_deg) and max_mm <= drift_mm_max and max_deg <= drift_deg_max
+    passed = (not dropped) and within and not disagree and len(reached) == len(reports)
+    limits = f"limits {drift_mm_max:g} mm / {drift_deg_max:g} deg"
     if dropped:
-        last = max((r.index for r in reached), default=0)
-        verdict = f"FAIL: object dropped after state {last} (moved more than {drop_mm:g} mm)"
-    elif not passed:
-        verdict = (f"FAIL: drift {max_mm:.1f} mm / {max_deg:.1f} deg exceeds the limits "
-                   f"{drift_mm_max:g} mm / {drift_deg_max:g} deg")
+        verdict = f"FAIL: object dropped (moved more than {drop_mm:g} mm)"
+    elif not within:
+        verdict = f"FAIL: drift {max_mm:.1f} mm / {max_deg:.1f} deg exceeds the {limits}"
+    elif disagree:
+        verdict = (f"FAIL: the simulator's force closure disagrees with the plan at "
+                   f"{len(disagree)}/{len(reached)} states (max drift {max_mm:.1f} mm / {max_deg:.1f} deg)")
     else:
-        verdict = (f"PASS: max drift {max_mm:.1f} mm / {max_deg:.1f} deg "
-                   f"(limits {drift_mm_max:g} mm / {drift_deg_max:g} deg)")
+        verdict = f"PASS: max drift {max_mm:.1f} mm / {max_deg:.1f} deg ({limits}); closure agrees at {agree}/{len(reached)} states"
+    reasons = []
+    if failure is not None:
+        reasons.append(failure)
+    for r in disagree:
+        plan_fc = "force closure" if r.planned_force_closure else "not force closure"
+        sim_fc = "force closure" if r.sim_force_closure else "not force closure"
+        missing = sorted(set(r.planned_fingers) - set(r.sim_fingers))
+        reasons.append(f"state {r.index}: plan {plan_fc}, simulator {sim_fc} (touching: "
+                       f"{', '.join(r.sim_fingers) or 'nothing'}" + (f"; lost: {', '.join(missing)}" if missing else "") + ")")
+    if reasons and not passed:
+        verdict += ": " + "; ".join(reasons[:3]) + (f" (+{len(reasons) - 3} more)" if len(reasons) > 3 else "")
     return ReplayReport(
         passed=passed, verdict=verdict, dropped=dropped,
         max_drift_mm=max_mm, max_drift_deg=max_deg, final_drift_mm=fin_mm, final_drift_deg=fin_deg,
@@ -640,12 +649,77 @@ def replay_plan(
         closure_agreement=(agree, len(reached)), states=tuple(reports),
         sim_time_s=n_steps * dt, wall_time_s=wall, sim_steps=n_steps,
         gif=str(gif) if gif is not None else None, gif_frames=gif_frames,
-        mp4=str(mp4) if mp4 is not None else None, parameters=params,
+        mp4=str(mp4) if mp4 is not None else None, parameters=params, reasons=tuple(reasons),
     )
 
 
+@dataclass(frozen=True)
+class GravitySetReport:
+    """Outcome of `replay_gravity_set`: one replay per gravity direction.
+
+    Attributes:
+        passed: every direction passed.
+        verdict: one line: PASS/FAIL with the directions that failed.
+        directions: (name, gravity (3,), ReplayReport) per direction, in `planner.gravity` order.
+    """
+
+    passed: bool
+    verdict: str
+    directions: tuple[tuple[str, tuple[float, float, float], ReplayReport], ...]
+
+    def to_dict(self) -> dict:
+        """Plain data for JSON."""
+        return {"passed": self.passed, "verdict": self.verdict,
+                "directions": [{"name": n, "gravity": list(g), "report": r.to_dict()} for n, g, r in self.directions]}
+
+
+def replay_gravity_set(plan: Mapping | str | os.PathLike, n: int = 6, *, hand=None, g_mps2: float = 9.81,
+                       **kwargs) -> GravitySetReport:
+    """Replay a plan under several gravity directions of the palm frame (`planner.gravity`).
+
+    Args:
+        plan: plan data or file, as for `replay_plan`.
+        n: set size (`planner.gravity.GRAVITY_SET_SIZES`): 1 palm down, 2 palm down and up,
+            6 with the four sideways directions, 7 with gravity off too.
+        hand: the plan's `planner.hand.Hand` (loaded from the plan when None).
+        g_mps2: gravity magnitude.
+        **kwargs: passed to `replay_plan` (not ``gravity``; a ``gif`` path gets the direction
+            name inserted before its suffix).
+
+    Returns:
+        GravitySetReport; ``passed`` only when every direction passed.
+    """
+    from planner.gravity import gravity_directions
+
+    if "gravity" in kwargs:
+        raise InputError("replay_gravity_set takes no gravity: it replays the set's directions")
+    rd = _PlanReader(*_read_plan(plan))
+    data = rd.data
+    if hand is None:
+        from planner.hand import Hand
+
+        hand = Hand.load(_hand_target(rd))
+    out = []
+    for name, g in gravity_directions(hand.palm_normal, n, g_mps2):
+        kw = dict(kwargs)
+        for key in ("gif", "mp4"):
+            if kw.get(key) is not None:
+                path = Path(kw[key])
+                kw[key] = path.with_name(f"{path.stem}_{name}{path.suffix}")
+        out.append((name, g, replay_plan(data if rd.path == "<plan>" else rd.path, hand=hand, gravity=g, **kw)))
+    failed = [(name, r) for name, _, r in out if not r.passed]
+    if not failed:
+        worst_mm = max(r.max_drift_mm for _, _, r in out)
+        worst_deg = max(r.max_drift_deg for _, _, r in out)
+        verdict = f"PASS in all {len(out)} gravity directions: max drift {worst_mm:.1f} mm / {worst_deg:.1f} deg"
+    else:
+        verdict = (f"FAIL in {len(failed)}/{len(out)} gravity directions: "
+                   + "; ".join(f"{name}: {r.verdict.removeprefix('FAIL: ')}" for name, r in failed))
+    return GravitySetReport(not failed, verdict, tuple(out))
+
+
 class _Sim:
-    """The pybullet scene of one replay (hand, object, controllers, measurements)."""
+    """The pybullet scene of one replay (hand, object, controller, measurements)."""
 
     def __init__(self, cid, rd, info: _HandInfo, joints, obj, friction, params, density_kg_m3, bodies):
         self.cid, self.rd, self.params, self.friction = cid, rd, params, friction
@@ -668,10 +742,11 @@ class _Sim:
         # joint and link maps
         n = p.getNumJoints(self.hand, physicsClientId=cid)
         self.jidx: dict[str, int] = {}
-        parent, jname = {}, {}
+        parent, jname, link_name = {}, {}, {}
         for i in range(n):
             ji = p.getJointInfo(self.hand, i, physicsClientId=cid)
             jname[i] = ji[1].decode()
+            link_name[i] = ji[12].decode()
             parent[i] = ji[16]
             if ji[2] in (p.JOINT_REVOLUTE, p.JOINT_PRISMATIC):
                 self.jidx[jname[i]] = i
@@ -679,7 +754,6 @@ class _Sim:
         if unknown:
             raise rd.fail("joints", f"joints {unknown} are not movable joints of {info.urdf_path}")
         self.joints = joints
-        self.movable = [i for i in range(n) if p.getJointInfo(self.hand, i, physicsClientId=cid)[2] != p.JOINT_FIXED]
         self.fingers = info.fingers
         finger_of_joint = {j: f for f, js in info.fingers.items() for j in js}
         self.link_finger: dict[int, str] = {-1: "palm"}
@@ -689,202 +763,34 @@ class _Sim:
                 f = finger_of_joint.get(jname[k])
                 k = parent[k]
             self.link_finger[i] = f or "palm"
-        self.finger_links = {f: [i for i, g in self.link_finger.items() if g == f] for f in info.fingers}
 
         # friction: see the module docstring for Bullet's combination rules
         for link in range(-1, n):
             p.changeDynamics(self.hand, link, lateralFriction=1.0, spinningFriction=0.0, rollingFriction=0.0,
-                             restitution=0.0, physicsClientId=cid)
+                             restitution=0.0, linearDamping=0.0, angularDamping=0.0, physicsClientId=cid)
         p.changeDynamics(self.obj, -1, lateralFriction=friction.mu, spinningFriction=friction.gamma,
                          rollingFriction=0.0, restitution=0.0, linearDamping=0.0, angularDamping=0.0,
                          physicsClientId=cid)
+        g_max = float(np.linalg.norm(params["gravity"]))
+        self.ctl = Controller(cid, self.hand, self.obj, info.hand, joints, self.jidx, self.link_finger, link_name,
+                              self.mass, friction, g_max, force_n=params["finger_force_n"], dt_s=self.dt)
         self.filter = ContactFilter(params["filter_k"])
         self.steps_done = 0
         self.max_mm = self.max_deg = 0.0
-
-    # -- kinematics -----------------------------------------------------------------
+        self.phase = "acquiring the initial grasp"
+        self.failure: str | None = None
+        self.last_patches: Mapping[str, tuple[np.ndarray, np.ndarray]] = {}
 
     def _reset_q(self, q: Mapping[str, float]):
         for j, v in q.items():
             p.resetJointState(self.hand, self.jidx[j], v, 0.0, physicsClientId=self.cid)
-
-    def _squeeze(self, state) -> tuple[dict[str, float], dict[str, float]]:
-        """Position targets and torque caps for a state (module docstring, "Squeeze")."""
-        targets = dict(state.q)
-        caps = {j: FREE_TORQUE_NM for j in self.joints}
-        if not state.fingers:
-            return targets, caps
-        self._reset_q(state.q)
-        pos, quat = self.T_ref[:3, 3].tolist(), Rotation.from_matrix(self.T_ref[:3, :3]).as_quat().tolist()
-        p.resetBasePositionAndOrientation(self.obj, pos, quat, physicsClientId=self.cid)
-        d, F = self.params["squeeze_m"], self.params["finger_force_n"]
-        # one contact per finger, on its link nearest the object: (finger, joints, J (3, n) of
-        # the contact point over the finger's joints, contact point, inward normal), palm frame
-        found = []
-        for f in state.fingers:
-            if f not in self.fingers:
-                raise UnknownNameError("finger", f, self.fingers)
-            fj = [j for j in self.fingers[f] if j in self.jidx]
-            best = self._closest_point(f, 0.01)
-            if best is None:
-                continue  # planned contact not within 1 cm: nothing to squeeze
-            n_in = -np.asarray(best[7])  # contactNormalOnB points from the object (B) to the hand (A)
-            J = self._point_jacobian(best[3], np.asarray(best[5]), fj)  # (3, len(fj))
-            if float(np.linalg.norm(J.T @ n_in)) > 1e-5:
-                found.append((f, fj, J, np.asarray(best[6]), n_in))
-        forces = self._grasp_forces([(x[3], x[4]) for x in found], F)
-        for (_, fj, J, _, _), f_c in zip(found, forces):
-            t = J.T @ f_c  # joint torques that press the contact with f_c
-            norm = float(np.linalg.norm(t))
-            if norm <= 1e-9:
-                continue
-            # target: SQUEEZE_RAD_PER_M * d radians beyond the contact along tau; the object
-            # blocks the finger, every joint saturates at its cap and the finger presses with tau
-            dq = (d * SQUEEZE_RAD_PER_M) * t / norm
-            for j, dqi, ti in zip(fj, dq, t):
-                targets[j] = state.q[j] + float(dqi)
-                caps[j] = max(HOLD_TORQUE_NM, abs(float(ti)))
-        return targets, caps
-
-    def _closest_point(self, finger: str, within_m: float):
-        """pybullet's closest-point record between the finger's links and the object (the
-        nearest over its links), or None when none is within ``within_m``."""
-        best = None
-        for link in self.finger_links.get(finger, ()):
-            for cp in p.getClosestPoints(self.hand, self.obj, within_m, linkIndexA=link, physicsClientId=self.cid):
-                if best is None or cp[8] < best[8]:
-                    best = cp
-        return best
-
-    def _finger_distance(self, finger: str) -> float:
-        """Smallest distance between the finger's links and the object, m (inf beyond 5 cm)."""
-        cp = self._closest_point(finger, 0.05)
-        return math.inf if cp is None else float(cp[8])
-
-    def _point_jacobian(self, link: int, p_palm: np.ndarray, joints: list[str]) -> np.ndarray:
-        """(3, len(joints)) linear Jacobian of a point fixed to ``link``, by central differences
-        of pybullet's forward kinematics (the analytic call prints warnings for unit axes)."""
-        ls = p.getLinkState(self.hand, link, computeForwardKinematics=True, physicsClientId=self.cid)
-        R = np.array(p.getMatrixFromQuaternion(ls[5])).reshape(3, 3)
-        p_link = R.T @ (p_palm - np.asarray(ls[4]))
-        J = np.zeros((3, len(joints)))
-        h = 1e-6
-        for c, j in enumerate(joints):
-            i = self.jidx[j]
-            q0 = p.getJointState(self.hand, i, physicsClientId=self.cid)[0]
-            pts = []
-            for qv in (q0 + h, q0 - h):
-                p.resetJointState(self.hand, i, qv, 0.0, physicsClientId=self.cid)
-                s = p.getLinkState(self.hand, link, computeForwardKinematics=True, physicsClientId=self.cid)
-                Rs = np.array(p.getMatrixFromQuaternion(s[5])).reshape(3, 3)
-                pts.append(np.asarray(s[4]) + Rs @ p_link)
-            p.resetJointState(self.hand, i, q0, 0.0, physicsClientId=self.cid)
-            J[:, c] = (pts[0] - pts[1]) / (2 * h)
-        return J
-
-    def _grasp_forces(self, contacts, F: float) -> list[np.ndarray]:
-        """Contact forces (palm frame) that hold the object still: grasp force optimization.
-
-        Squeezing every finger along its normal leaves a net wrench whenever the normals do
-        not meet (the thumb on the back of a box, the fingertips under its front), and the
-        object turns as soon as it is released. Instead the forces solve
-
-            min  sum_i |f_i - F n_i|_1
-            s.t. sum_i [f_i; (p_i - c) x f_i + t_i n_i] = -[m g; 0]   (the object is in
-                                                                          equilibrium)
-                 |f_i - (f_i.n_i) n_i| <= s mu (f_i.n_i)       (inside the friction cone scaled
-                                                                 by s, 8-sided pyramid)
-                 |t_i| <= s_t gamma (f_i.n_i)                  (torsional friction about n_i)
-                 f_i.n_i >= 0.1 F
-
-        (a linear program, HiGHS), with the margins (s, s_t) of ``GFO_MARGINS`` in turn:
-        (0.5, 0), (0.5, 0.5), (0.75, 0), (0.75, 0.75), (1, 0), (1, 1); a solution with a
-        component above ``GFO_MAX_FORCE * F`` is skipped (internal forces the finger torques
-        would not hold; seen at 50-200 N on near-singular point contacts). The torsion
-        t_i is the soft-finger moment of the plan's closure model (thesis eq. 1), which the
-        simulator provides as spinning friction; it is a reaction, not commanded: only f_i
-        becomes joint torques. When no such forces exist (a grasp without force closure at
-        its contacts) every finger keeps the plain normal squeeze ``F n_i``.
-        """
-        k = len(contacts)
-        if k == 0:
-            return []
-        c = self.T_ref[:3, 3]
-        P = np.array([pt for pt, _ in contacts])
-        N = np.array([n / np.linalg.norm(n) for _, n in contacts])
-        A = np.zeros((6, 3 * k))
-        for i in range(k):
-            A[:3, 3 * i:3 * i + 3] = np.eye(3)
-            r = P[i] - c
-            A[3:, 3 * i:3 * i + 3] = np.array([[0, -r[2], r[1]], [r[2], 0, -r[0]], [-r[1], r[0], 0]])
-        b = np.zeros(6)
-        b[:3] = -self.mass * np.asarray(self.params["gravity"], float)
-        scale = np.array([1.0] * 3 + [1.0 / max(1e-3, float(np.max(np.linalg.norm(P - c, axis=1))))] * 3)
-        A, b = A * scale[:, None], b * scale
-        A_t = np.zeros((6, k))  # the torsional moments t_i n_i
-        A_t[3:, :] = N.T * scale[3]
-        f0 = (F * N).ravel()
-        x = f0  # no balanced forces at these contacts: keep the normal squeeze
-        for margin, torsion in GFO_MARGINS:
-            x_m = self._gfo_lp(A, A_t, b, N, f0, margin * self.friction.mu, torsion * self.friction.gamma, 0.1 * F)
-            if x_m is not None and float(np.abs(x_m).max()) <= GFO_MAX_FORCE * F:
-                x = x_m
-                break
-        return [x[3 * i:3 * i + 3] for i in range(k)]
-
-    @staticmethod
-    def _gfo_lp(A, A_t, b, N, f0, mu, gamma, fn_min):
-        """min |f - f0|_1 over forces f and torsions t s.t. A f + A_t t = b, f_i in the
-        8-sided pyramid of friction ``mu`` about n_i (inscribed), |t_i| <= gamma f_i.n_i,
-        f_i.n_i >= fn_min; the forces f (3k,), or None when infeasible."""
-        from scipy.optimize import linprog
-
-        k = len(N)
-        m = 3 * k
-        rows, h = [], []
-        for i, n in enumerate(N):
-            t1 = np.cross(n, [1.0, 0, 0] if abs(n[0]) < 0.9 else [0, 1.0, 0])
-            t1 /= np.linalg.norm(t1)
-            t2 = np.cross(n, t1)
-            for a in np.linspace(0, 2 * np.pi, 8, endpoint=False):
-                row = np.zeros(m)
-                row[3 * i:3 * i + 3] = mu * math.cos(math.pi / 8) * n - (math.cos(a) * t1 + math.sin(a) * t2)
-                rows.append(row)
-                h.append(0.0)
-            row = np.zeros(m)
-            row[3 * i:3 * i + 3] = n
-            rows.append(row)
-            h.append(fn_min)
-        G, h = np.array(rows), np.array(h)
-        # torsion: t_i - gamma f_i.n_i <= 0 and -t_i - gamma f_i.n_i <= 0
-        T = np.zeros((2 * k, m + k))
-        for i, n in enumerate(N):
-            for r, sign in ((2 * i, 1.0), (2 * i + 1, -1.0)):
-                T[r, 3 * i:3 * i + 3] = -gamma * n
-                T[r, m + i] = sign
-        I, Z = np.eye(m), np.zeros
-        # variables: f (m), t (k), slack (m) with |f - f0| <= slack
-        res = linprog(np.r_[np.zeros(m + k), np.ones(m)],
-                      A_ub=np.block([[-G, Z((len(G), k)), Z((len(G), m))],
-                                     [T, Z((2 * k, m))],
-                                     [I, Z((m, k)), -I], [-I, Z((m, k)), -I]]),
-                      b_ub=np.r_[-h, np.zeros(2 * k), f0, -f0], A_eq=np.c_[A, A_t, Z((6, m))], b_eq=b,
-                      bounds=[(None, None)] * (m + k) + [(0, None)] * m, method="highs")
-        return res.x[:m] if res.status == 0 else None
-
-    # -- simulation -----------------------------------------------------------------
-
-    def _command(self, targets: Mapping[str, float], caps: Mapping[str, float]):
-        idx = [self.jidx[j] for j in self.joints]
-        p.setJointMotorControlArray(self.hand, idx, p.POSITION_CONTROL,
-                                    targetPositions=[targets[j] for j in self.joints],
-                                    forces=[caps[j] for j in self.joints], physicsClientId=self.cid)
 
     def _obj_pose(self) -> np.ndarray:
         pos, quat = p.getBasePositionAndOrientation(self.obj, physicsClientId=self.cid)
         return _T(pos, quat)
 
     def _tick(self):
+        self.ctl.step()
         p.stepSimulation(physicsClientId=self.cid)
         self.steps_done += 1
         T = self._obj_pose()
@@ -900,6 +806,8 @@ class _Sim:
         mm, deg = _drift(self.T_ref, T)
         if self.released:
             self.max_mm, self.max_deg = max(self.max_mm, mm), max(self.max_deg, deg)
+            if self.failure is None and not (mm <= self.params["drift_mm_max"] and deg <= self.params["drift_deg_max"]):
+                self.failure = self._explain(T, mm, deg)
         self.last = (mm, deg)
         if self.recorder is not None and self.steps_done % self.every == 0:
             self.recorder.grab()
@@ -907,15 +815,45 @@ class _Sim:
             time.sleep(self.dt)
         return mm
 
-    def _run_for(self, seconds: float) -> bool:
-        """Step for a duration; False when the object dropped."""
-        for _ in range(max(1, int(round(seconds / self.dt)))):
+    def _explain(self, T: np.ndarray, mm: float, deg: float) -> str:
+        """Where and why the object first left the limits: the phase, lost contacts, slip
+        and the rotation axis (palm frame)."""
+        what = []
+        touching = {self.link_finger.get(cp[3], "palm") for cp in
+                    p.getContactPoints(self.hand, self.obj, physicsClientId=self.cid) if cp[8] <= TOUCH_TOL_M}
+        lost = [f for f in self.ctl.holding if f not in touching]
+        if lost:
+            what.append(f"contact lost: {', '.join(lost)}")
+        now = self.filter.patches(lambda link: self.link_finger.get(link, "palm"))
+        for f, (pts, _) in sorted(self.last_patches.items()):
+            if f in now and len(pts) and len(now[f][0]):
+                slip_mm = 1000.0 * float(np.linalg.norm(np.mean(now[f][0], axis=0) - np.mean(pts, axis=0)))
+                if slip_mm > 1.0:
+                    what.append(f"slip at {f} {slip_mm:.1f} mm")
+        rot = Rotation.from_matrix(T[:3, :3] @ self.T_ref[:3, :3].T).as_rotvec()
+        if deg > self.params["drift_deg_max"] and np.linalg.norm(rot) > 0:
+            axis = rot / np.linalg.norm(rot)
+            what.append(f"rotation {deg:.1f} deg about palm axis [{axis[0]:+.2f} {axis[1]:+.2f} {axis[2]:+.2f}]")
+        if mm > self.params["drift_mm_max"]:
+            d = T[:3, 3] - self.T_ref[:3, 3]
+            g = np.asarray(self.params["gravity"], float)
+            along = float(d @ g / np.linalg.norm(g) * 1000.0) if np.linalg.norm(g) > 0 else 0.0
+            what.append(f"moved {mm:.1f} mm ({along:+.1f} mm along gravity)")
+        return f"{self.phase}: " + (", ".join(what) or f"drift {mm:.1f} mm / {deg:.1f} deg")
+
+    def _run_for(self, seconds: float, each=None) -> bool:
+        """Step for a duration (``each(fraction)`` before every step); False when the object dropped."""
+        n = max(1, int(round(seconds / self.dt)))
+        for k in range(n):
+            if each is not None:
+                each((k + 1) / n)
             if self._tick() > self.params["drop_mm"]:
                 return False
         return True
 
     def _measure(self, index: int, state) -> StateReport:
         patches = self.filter.patches(lambda link: self.link_finger.get(link, "palm"))
+        self.last_patches = patches
         n_pts = sum(len(v[0]) for v in patches.values())
         if patches:
             c = grasp_closure(apply_contact_model(patches, self.params["contact_model"]), self.friction)
@@ -929,72 +867,70 @@ class _Sim:
     def run(self, states, steps, recorder=None, every=8, realtime=False):
         self.recorder, self.every, self.realtime = recorder, every, realtime
         self.released = False
-        targets_of = [self._squeeze(s) for s in states]
+        ctl, prm = self.ctl, self.params
+        g_full = np.asarray(prm["gravity"], float)
         self._reset_q(states[0].q)
         pos, quat = self.T_ref[:3, 3].tolist(), Rotation.from_matrix(self.T_ref[:3, :3]).as_quat().tolist()
         p.resetBasePositionAndOrientation(self.obj, pos, quat, physicsClientId=self.cid)
         p.resetBaseVelocity(self.obj, [0, 0, 0], [0, 0, 0], physicsClientId=self.cid)
-        # hold the object where the plan has it while the fingers squeeze
+        # 1. acquire the planned contacts with gravity off, the object held where the plan has it
         hold = p.createConstraint(self.obj, -1, -1, -1, p.JOINT_FIXED, [0, 0, 0], [0, 0, 0], pos,
                                   childFrameOrientation=quat, physicsClientId=self.cid)
         p.changeConstraint(hold, maxForce=1000.0, physicsClientId=self.cid)
-        p.setGravity(*self.params["gravity"], physicsClientId=self.cid)
-        self._command(*targets_of[0])
-        self._run_for(self.params["squeeze_s"])
+        ctl.set_gravity(np.zeros(3))
+        ctl.command(states[0].q, states[0].fingers)
+        self._run_for(prm["acquire_s"])
+        ctl.latch(states[0].fingers)
         p.removeConstraint(hold, physicsClientId=self.cid)
         self.released = True
+        # 2. gravity comes in gradually; the forces follow the load
+        self.phase = "gravity ramp at state 0"
+        ok = self._run_for(prm["ramp_s"], lambda s: ctl.set_gravity(s * g_full))
+        self.phase = "settling at state 0"
+        ok = ok and self._run_for(prm["settle_s"])
         reports: dict[int, StateReport] = {}
-        ok = self._run_for(self.params["settle_s"])
         if ok:
             reports[0] = self._measure(0, states[0])
-        current = dict(targets_of[0][0]), dict(targets_of[0][1])
-        for st in steps if ok else ():
-            to_targets, to_caps = targets_of[st.to_state]
-            landing = st.action == "land"
-            if landing:
-                # until it touches down, the other fingers keep the forces that balance the
-                # object without it (the from-state's); the to-state's count on its force
-                targets, caps = dict(current[0]), dict(current[1])
-            else:
-                # unload before lifting: the other fingers take the forces that balance the
-                # object without this finger while it still touches, holding its posture
-                targets, caps = dict(to_targets), dict(to_caps)
-                for j in st.joints:
-                    targets[j], caps[j] = current[0][j], HOLD_TORQUE_NM
-                self._command(targets, caps)
-                if not self._run_for(UNLOAD_S):
-                    ok = False
+        for k, st in enumerate(steps if ok else ()):
+            frm, to = states[st.from_state], states[st.to_state]
+            self.phase = f"step {k} ({st.action} {st.finger}, state {st.from_state} -> {st.to_state})"
+            q_ref = dict(ctl.q_ref)
+            if st.action != "land" and st.finger in ctl.holding:
+                # hand the finger's load over to the others while it still touches
+                ok = self._run_for(prm["handover_s"], lambda s: ctl.fade(st.finger, 1.0 - s))
+                if not ok:
                     break
-            # the moving finger tracks its path with the free-finger torque; a landing
-            # finger switches to its squeeze caps once within LANDING_ZONE_M of the object
-            start = np.array([current[0][j] for j in st.joints])
+            holding = [f for f in frm.fingers if f != st.finger]
+            ctl.command(q_ref, holding, moving=st.finger)
+            # the moving finger tracks its path (capped near the squeeze at its pad)
+            start = np.array([q_ref[j] for j in st.joints])
             path = np.vstack([start[None, :], st.path])
-            for j in st.joints:
-                caps[j] = FREE_TORQUE_NM
             for a, b in zip(path[:-1], path[1:]):
-                if landing and self._finger_distance(st.finger) <= LANDING_ZONE_M:
-                    caps.update({j: to_caps[j] for j in st.joints})
-                    landing = False
-                n = max(1, int(math.ceil(float(np.max(np.abs(b - a))) / (self.params["joint_speed_rad_s"] * self.dt))))
-                for k in range(1, n + 1):
-                    wp = a + (b - a) * k / n
-                    full = dict(targets)
-                    full.update({j: float(v) for j, v in zip(st.joints, wp)})
-                    self._command(full, caps)
-                    if self._tick() > self.params["drop_mm"]:
+                n = max(1, int(math.ceil(float(np.max(np.abs(b - a))) / (prm["joint_speed_rad_s"] * self.dt))))
+                for i in range(1, n + 1):
+                    ctl.set_moving_target({j: float(v) for j, v in zip(st.joints, a + (b - a) * i / n)})
+                    if self._tick() > prm["drop_mm"]:
                         ok = False
                         break
                 if not ok:
                     break
             if not ok:
                 break
-            # at the end of the path the finger takes its state target (squeezing if it landed)
-            self._command(to_targets, to_caps)
-            current = dict(to_targets), dict(to_caps)
-            if not self._run_for(self.params["dwell_s"]):
-                ok = False
+            # at the end of the path: the new state's fingers hold; a landed finger takes its
+            # load over gradually
+            q_to = dict(to.q)
+            if st.finger in to.fingers:
+                q_to.update({j: v for j, v in ctl.q_ref.items() if j not in st.joints})
+                ctl.command(q_to, to.fingers, share={st.finger: 0.0})
+                ok = self._run_for(prm["handover_s"], lambda s: ctl.fade(st.finger, s))
+                ctl.latch([st.finger])
+            else:
+                q_to.update({j: v for j, v in ctl.q_ref.items() if j not in st.joints})
+                ctl.command(q_to, to.fingers)
+            ok = ok and self._run_for(prm["dwell_s"])
+            if not ok:
                 break
-            reports[st.to_state] = self._measure(st.to_state, states[st.to_state])
+            reports[st.to_state] = self._measure(st.to_state, to)
         out = []
         for i, s in enumerate(states):
             if i in reports:
@@ -1003,4 +939,4 @@ class _Sim:
                 out.append(StateReport(i, False, self.steps_done * self.dt, tuple(s.fingers), (), s.is_fc, s.metric,
                                        None, None, 0, float("nan"), float("nan")))
         mm, deg = self.last
-        return out, not ok, self.max_mm, self.max_deg, mm, deg, self.steps_done
+        return out, not ok, self.max_mm, self.max_deg, mm, deg, self.steps_done, self.failure

@@ -1,0 +1,468 @@
+"""Grasp controller of the replay: contact forces from the grasp's mechanics, commanded as joint torques.
+
+Position control with capped motor forces is not force control: a saturated finger pushes
+with whatever its caps allow, in whatever direction its position error points, and the
+object is thrown when those pushes do not balance. This controller instead decides the
+force every contact must apply and commands it:
+
+1. **Contacts from the simulator.** Every hand link touching the object
+   (``getContactPoints``, one contact per link at the mean of its manifold points, normal
+   INTO the object) is a contact; links of the fingers the plan holds the object with are
+   *commanded*, the palm's are *passive* (they push back but cannot be commanded). A
+   holding finger that does not touch yet approaches along the normal of its closest point.
+2. **Forces that balance the load** (grasp force optimization, `balance_forces`): the
+   object's weight ``m g`` must be balanced by the contact forces inside the friction
+   cones, shrunk by a safety factor (half the cone first, then 3/4, then the whole cone;
+   point forces first, then with the soft-finger torsion the simulator's spinning friction
+   provides), each commanded force as close as possible (L1) to a squeeze ``F n_i`` along its
+   inward normal.
+3. **Joint torques** ``tau = g(q) + sum_c J_c(q)^T f_c``: ``g(q)`` compensates the hand's own
+   weight (pinocchio's generalized gravity of the same URDF masses) and ``J_c`` is the linear Jacobian of contact point ``c`` over its finger's joints
+   (pinocchio, the planner's hand model). Forces are re-solved every ``UPDATE_EVERY``
+   physics steps at the current contacts and configuration.
+4. **Posture motors, capped at a fraction of the grip.** Every joint also keeps a position
+   motor towards the plan's configuration (pybullet's implicit motor: stable for the
+   millimetre-sized links at any gain), capped so that it can change a contact force by at
+   most ``POSTURE_SHARE`` of the squeeze: joint ``j`` of a finger gets
+   ``POSTURE_SHARE * F * |J_pad[:, j]|`` (the torque of that force at the finger's pad). The
+   motors hold the joints the contact force does not load (the finger's null space) and
+   pull a drifting object back towards the planned pose; they cannot throw it. A moving
+   finger tracks its path with ``FREE_SHARE * F`` at its pad, so a finger that lands on the
+   object touches down with about the squeeze force, never harder.
+
+The squeeze ``F`` comes from the load: ``F = SAFETY * m |g_max| / (n mu)`` for ``n`` holding
+fingers (each contact's friction alone would hold the weight twice over), but never less
+than the weight of the hand's heaviest finger: a grip weaker than the fingers' own weight
+is dominated by errors of the hand model rather than by the object.
+
+Gravity enters gradually (``Controller.gravity_scale``): contacts are acquired with the
+object held and gravity off, then gravity ramps up while the forces follow it. Before a
+finger lifts, its load is handed over (its forces fade to zero while the other fingers'
+forces fade to the solution without it); after a finger lands the reverse.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from planner.closure import Friction
+
+with __import__("planner.sim.render", fromlist=["quiet_native_output"]).quiet_native_output():
+    import pybullet as p
+
+#: Physics steps between two force solutions (at 240 Hz: 60 Hz).
+UPDATE_EVERY = 4
+#: Squeeze force over the force that holds the object's weight by friction alone.
+SAFETY = 2.0
+#: Posture motors may change a contact force by at most this fraction of the squeeze.
+POSTURE_SHARE = 0.3
+#: A moving finger's motors: this multiple of the squeeze at its pad.
+FREE_SHARE = 1.0
+#: Friction-cone fractions tried in turn by `balance_forces`, (lateral, torsional).
+CONE_MARGINS = ((0.5, 0.0), (0.5, 0.5), (0.75, 0.0), (0.75, 0.75), (1.0, 0.0), (1.0, 1.0))
+#: A commanded force above this multiple of the squeeze is rejected (a near-singular
+#: grasp balanced by internal forces the fingers cannot hold).
+MAX_FORCE_RATIO = 5.0
+#: Smallest commanded normal force, as a fraction of the squeeze: contacts stay closed.
+MIN_NORMAL_RATIO = 0.5
+#: Pad travel over which a posture spring reaches its cap, m.
+POSTURE_TRAVEL_M = 0.001
+#: Smallest lever of a posture spring (joints whose axis passes near the pad), m.
+MIN_LEVER_M = 0.005
+#: Explicit springs are integrated stably while omega * dt stays below this.
+ARMATURE_OMEGA_DT = 0.3
+#: A point farther than this outside the object is not a contact (pybullet reports
+#: speculative manifold points with positive distance).
+TOUCH_TOL_M = 0.0005
+#: A holding finger that does not touch approaches the object when it is closer than this.
+APPROACH_M = 0.01
+
+
+# --------------------------------------------------------------------------- force optimization
+
+
+def _tangents(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    t1 = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
+    t1 /= np.linalg.norm(t1)
+    return t1, np.cross(n, t1)
+
+
+def balance_forces(points, normals, targets, load, centre, friction: Friction, fn_min: float,
+                   f_max: float, margins=CONE_MARGINS) -> np.ndarray | None:
+    """Contact forces that balance a load on the object: grasp force optimization.
+
+    Solves, for the margins ``(s, s_t)`` in turn, the linear program (HiGHS)
+
+        min  sum_i |f_i - f0_i|_1
+        s.t. sum_i [f_i ; (p_i - c) x f_i + t_i n_i] = -load    (equilibrium)
+             f_i in the 8-sided pyramid inscribed in the cone of friction s mu about n_i
+             |t_i| <= s_t gamma (f_i . n_i)                       (soft-finger torsion)
+             f_i . n_i >= fn_min
+
+    and returns the first solution whose components stay within ``f_max``. The torsion
+    ``t_i`` is a reaction of the simulator's spinning friction, not commanded.
+
+    Args:
+        points: (k, 3) contact points, any frame F.
+        normals: (k, 3) inward unit normals, frame F.
+        targets: (k, 3) preferred forces ``f0`` (the squeeze; zero for passive contacts).
+        load: (6,) external wrench on the object ``[f ; tau]`` in frame F, torque about ``centre``.
+        centre: (3,) the point torques are taken about (the object's centre of mass).
+        friction: Coulomb ``mu`` and torsional ``gamma`` (m).
+        fn_min: smallest normal force per contact, N.
+        f_max: largest absolute force component, N.
+        margins: friction fractions tried in turn.
+
+    Returns:
+        (k, 3) forces the fingers apply ON the object, or None when no balanced forces exist.
+    """
+    from scipy.optimize import linprog
+
+    P = np.asarray(points, float).reshape(-1, 3)
+    N = np.asarray(normals, float).reshape(-1, 3)
+    N = N / np.linalg.norm(N, axis=1, keepdims=True)
+    k = len(P)
+    if k == 0:
+        return None
+    m = 3 * k
+    r = P - np.asarray(centre, float)
+    # torque rows scaled by 1/lever so force and torque rows weigh alike
+    lever = max(1e-3, float(np.max(np.linalg.norm(r, axis=1))))
+    A = np.zeros((6, m))
+    for i in range(k):
+        A[:3, 3 * i:3 * i + 3] = np.eye(3)
+        x, y, z = r[i]
+        A[3:, 3 * i:3 * i + 3] = np.array([[0, -z, y], [z, 0, -x], [-y, x, 0]]) / lever
+    A_t = np.zeros((6, k))
+    A_t[3:] = N.T / lever
+    b = -np.asarray(load, float).reshape(6).copy()
+    b[3:] /= lever
+    f0 = np.asarray(targets, float).reshape(m)
+    angles = np.linspace(0.0, 2.0 * np.pi, 8, endpoint=False)
+    for s, s_t in margins:
+        mu, gamma = s * friction.mu * math.cos(math.pi / 8), s_t * friction.gamma
+        G = np.zeros((9 * k, m))
+        h = np.zeros(9 * k)
+        for i, n in enumerate(N):
+            t1, t2 = _tangents(n)
+            for a_i, a in enumerate(angles):  # (cos a t1 + sin a t2) . f <= mu n . f
+                G[9 * i + a_i, 3 * i:3 * i + 3] = (math.cos(a) * t1 + math.sin(a) * t2) - mu * n
+            G[9 * i + 8, 3 * i:3 * i + 3] = -n
+            h[9 * i + 8] = -fn_min
+        T = np.zeros((2 * k, m + k))
+        for i, n in enumerate(N):
+            T[2 * i, 3 * i:3 * i + 3] = T[2 * i + 1, 3 * i:3 * i + 3] = -gamma * n
+            T[2 * i, m + i], T[2 * i + 1, m + i] = 1.0, -1.0
+        I, Z = np.eye(m), np.zeros
+        # variables: f (m), t (k), slack (m) with |f - f0| <= slack
+        res = linprog(np.r_[np.zeros(m + k), np.ones(m)],
+                      A_ub=np.block([[G, Z((9 * k, k)), Z((9 * k, m))], [T, Z((2 * k, m))],
+                                     [I, Z((m, k)), -I], [-I, Z((m, k)), -I]]),
+                      b_ub=np.r_[h, np.zeros(2 * k), f0, -f0], A_eq=np.c_[A, A_t, Z((6, m))], b_eq=b,
+                      bounds=[(None, None)] * (m + k) + [(0, None)] * m, method="highs")
+        if res.status == 0 and float(np.abs(res.x[:m]).max()) <= f_max:
+            return res.x[:m].reshape(k, 3)
+    return None
+
+
+def squeeze_force_n(mass_kg: float, g_max_mps2: float, n_fingers: int, mu: float, floor_n: float) -> float:
+    """The squeeze ``F`` (module docstring): ``SAFETY m g / (n mu)``, at least ``floor_n``."""
+    return max(SAFETY * mass_kg * g_max_mps2 / (max(1, n_fingers) * mu), floor_n)
+
+
+# --------------------------------------------------------------------------- controller
+
+
+@dataclass(frozen=True)
+class Contact:
+    """One touching link (or the approach point of a holding finger that does not touch).
+
+    Attributes:
+        finger: the link's finger, or None for the palm (passive).
+        link: pybullet link index of the hand.
+        p_palm: (3,) contact point on the object, palm (= world) frame.
+        n_palm: (3,) unit normal INTO the object, palm frame.
+        touching: False for an approach point (within ``APPROACH_M`` but not touching).
+    """
+
+    finger: str | None
+    link: int
+    p_palm: np.ndarray
+    n_palm: np.ndarray
+    touching: bool = True
+
+
+class Controller:
+    """Torque-level grasp controller on a pybullet hand holding one object (module docstring).
+
+    Args:
+        cid: pybullet client id.
+        body, obj: hand and object body ids.
+        hand: `planner.hand.Hand` (pinocchio) of the same URDF; the palm frame is the world.
+        joints: the plan's joint names (``hand.joint_names``).
+        jidx: joint name -> pybullet joint index.
+        link_finger: pybullet link index -> finger name or "palm".
+        link_name: pybullet link index -> URDF link name.
+        mass_kg: object mass; friction: the plan's friction.
+        g_max_mps2: largest gravity magnitude of the replay (sets the squeeze).
+        force_n: squeeze per holding finger, N; None derives it (`squeeze_force_n`).
+        dt_s: physics time step (sets the armature).
+    """
+
+    def __init__(self, cid: int, body: int, obj: int, hand, joints: Sequence[str], jidx: Mapping[str, int],
+                 link_finger: Mapping[int, str], link_name: Mapping[int, str], mass_kg: float,
+                 friction: Friction, g_max_mps2: float, force_n: float | None = None,
+                 dt_s: float = 1.0 / 240.0):
+        self.cid, self.body, self.obj, self.hand = cid, body, obj, hand
+        self.joints = list(joints)
+        self.jidx = dict(jidx)
+        self.col = {j: i for i, j in enumerate(hand.joint_names)}
+        self.link_finger, self.link_name = dict(link_finger), dict(link_name)
+        self.finger_links = {f: [i for i, g in self.link_finger.items() if g == f] for f in hand.fingers}
+        self.mass, self.friction, self.g_max = float(mass_kg), friction, float(g_max_mps2)
+        n_all = p.getNumJoints(body, physicsClientId=cid)
+        self.movable = [i for i in range(n_all) if p.getJointInfo(body, i, physicsClientId=cid)[2] != p.JOINT_FIXED]
+        self.hand_pos = {i: k for k, i in enumerate(self.movable)}
+        self.floor_n = self._heaviest_finger_weight_n(g_max_mps2)
+        self.force_override = force_n
+        self.gravity = np.zeros(3)
+        # what is commanded: posture targets, holding fingers, finger load fractions (handover)
+        self.q_ref: dict[str, float] = {}
+        self.holding: tuple[str, ...] = ()
+        self.share: dict[str, float] = {}
+        self.moving: str | None = None
+        self.force_n = self.floor_n
+        self.tau = np.zeros(len(self.movable))
+        self.forces: dict[int, np.ndarray] = {}  # link -> commanded force (palm frame)
+        self.balanced = True
+        self._tick = 0
+        for i in self.movable:  # pybullet's default velocity motors off: torques act alone
+            p.setJointMotorControl2(body, i, p.VELOCITY_CONTROL, force=0.0, physicsClientId=cid)
+        self.q_target = np.array([p.getJointState(body, i, physicsClientId=cid)[0] for i in self.movable])
+        self.kp = self.kd = self.cap = np.zeros(len(self.movable))
+        self.armature = self._add_armature(dt_s)
+
+    def _heaviest_finger_weight_n(self, g: float) -> float:
+        mass = {}
+        for link, f in self.link_finger.items():
+            if f in self.hand.fingers and link >= 0:
+                mass[f] = mass.get(f, 0.0) + p.getDynamicsInfo(self.body, link, physicsClientId=self.cid)[0]
+        return max(mass.values(), default=0.0) * max(g, 9.81)
+
+    def _add_armature(self, dt_s: float) -> np.ndarray:
+        """Give every finger link at least the rotational inertia that keeps the explicit
+        posture springs stable (``omega dt <= ARMATURE_OMEGA_DT`` at the stiffest spring a
+        free finger gets, one-finger squeeze), as the reflected rotor inertia of a geared
+        finger motor would; returns (n_movable,) the inertia floor per joint, kg m^2."""
+        F = max(self.force_override or 0.0, squeeze_force_n(self.mass, self.g_max, 1, self.friction.mu, self.floor_n))
+        q = np.array(self.hand.q_open)
+        floor = np.zeros(len(self.movable))
+        for name, finger in self.hand.fingers.items():
+            J = self.hand.frame_jacobian(q, finger.pad_link, finger.pad_p_link)[:3]
+            reach = max([float(np.linalg.norm(J[:, self.col[j]])) for j in finger.joints] + [MIN_LEVER_M])
+            kp_max = max(FREE_SHARE, POSTURE_SHARE) * F / POSTURE_TRAVEL_M * reach ** 2
+            inertia = kp_max * (dt_s / ARMATURE_OMEGA_DT) ** 2
+            for link in self.finger_links.get(name, ()):
+                diag = p.getDynamicsInfo(self.body, link, physicsClientId=self.cid)[2]
+                p.changeDynamics(self.body, link, localInertiaDiagonal=[max(float(d), inertia) for d in diag],
+                                 physicsClientId=self.cid)
+            for j in finger.joints:
+                floor[self.hand_pos[self.jidx[j]]] = inertia
+        return floor
+
+    # -- commands -----------------------------------------------------------------
+
+    def command(self, q_ref: Mapping[str, float], holding: Sequence[str], moving: str | None = None,
+                share: Mapping[str, float] | None = None) -> None:
+        """Set the posture targets, the fingers that hold the object and the one that moves.
+
+        Args:
+            q_ref: joint -> target angle (every plan joint).
+            holding: fingers that press on the object (their planned contacts).
+            moving: the finger that tracks a path (free-finger motor caps), or None.
+            share: finger -> fraction (0..1) of its balanced load it carries (handover);
+                fingers not named carry all of theirs.
+        """
+        self.q_ref = dict(q_ref)
+        self.holding = tuple(holding)
+        self.moving = moving
+        self.share = dict(share or {})
+        self.force_n = self.force_override or squeeze_force_n(self.mass, self.g_max, len(self.holding),
+                                                              self.friction.mu, self.floor_n)
+        self._update()
+
+    def latch(self, fingers: Sequence[str]) -> None:
+        """The fingers' posture targets become their current joint angles (where they
+        touch the object), so the posture springs add no force to the balanced ones."""
+        q = self.q()
+        for f in fingers:
+            for j in self.hand.fingers[f].joints:
+                self.q_ref[j] = float(q[self.col[j]])
+                self.q_target[self.hand_pos[self.jidx[j]]] = self.q_ref[j]
+
+    def fade(self, finger: str, share: float) -> None:
+        """Hand over: the finger carries ``share`` (0..1) of its balanced load (applied at
+        the next force solution)."""
+        self.share[finger] = float(min(1.0, max(0.0, share)))
+
+    def set_gravity(self, g) -> None:
+        """Set the simulator's gravity (palm frame); compensation and load follow it."""
+        self.gravity = np.asarray(g, dtype=float).copy()
+        p.setGravity(*self.gravity.tolist(), physicsClientId=self.cid)
+
+    def set_moving_target(self, q_finger: Mapping[str, float]) -> None:
+        """New path waypoint of the moving finger (posture targets only)."""
+        self.q_ref.update(q_finger)
+        for j, v in q_finger.items():
+            self.q_target[self.hand_pos[self.jidx[j]]] = v
+
+    def step(self) -> None:
+        """Apply the torques for one physics step (forces re-solved every ``UPDATE_EVERY``):
+        ``tau_ff + clip(Kp (q_ref - q), +-cap) - Kd qdot``."""
+        self._tick += 1
+        if self._tick % UPDATE_EVERY == 0:
+            self._update()
+        st = p.getJointStates(self.body, self.movable, physicsClientId=self.cid)
+        q = np.array([s[0] for s in st])
+        qd = np.array([s[1] for s in st])
+        spring = np.clip(self.kp * (self.q_target - q), -self.cap, self.cap)
+        tau = self.tau + spring - self.kd * qd
+        p.setJointMotorControlArray(self.body, self.movable, p.TORQUE_CONTROL, forces=tau.tolist(),
+                                    physicsClientId=self.cid)
+
+    # -- measurement ----------------------------------------------------------------
+
+    def q(self) -> np.ndarray:
+        """Current configuration in ``hand.joint_names`` order."""
+        states = p.getJointStates(self.body, [self.jidx[j] for j in self.hand.joint_names], physicsClientId=self.cid)
+        return np.array([s[0] for s in states])
+
+    def contacts(self) -> list[Contact]:
+        """Touching links (mean point and normal per link) and approach points of holding
+        fingers that do not touch."""
+        per_link: dict[int, list] = {}
+        for cp in p.getContactPoints(self.body, self.obj, physicsClientId=self.cid):
+            if cp[8] <= TOUCH_TOL_M:
+                per_link.setdefault(cp[3], []).append(cp)
+        out = []
+        for link in sorted(per_link):
+            cps = per_link[link]
+            pt = np.mean([c[6] for c in cps], axis=0)
+            n = -np.mean([c[7] for c in cps], axis=0)
+            out.append(Contact(self._finger(link), link, pt, n / np.linalg.norm(n)))
+        touching = {c.finger for c in out}
+        for f in self.holding:
+            if f in touching:
+                continue
+            best = None
+            for link in self.finger_links.get(f, ()):
+                for cp in p.getClosestPoints(self.body, self.obj, APPROACH_M, linkIndexA=link, physicsClientId=self.cid):
+                    if best is None or cp[8] < best[8]:
+                        best = cp
+            if best is not None:
+                n = -np.asarray(best[7], float)
+                if np.linalg.norm(n) > 0.5:
+                    out.append(Contact(f, best[3], np.asarray(best[6], float), n / np.linalg.norm(n), False))
+        return out
+
+    def _finger(self, link: int) -> str | None:
+        f = self.link_finger.get(link, "palm")
+        return None if f == "palm" else f
+
+    # -- control law ------------------------------------------------------------------
+
+    def _jacobian(self, q: np.ndarray, link: int, p_palm: np.ndarray, finger: str) -> np.ndarray:
+        """(3, n_finger_joints) linear Jacobian of the point ``p_palm`` fixed to ``link``."""
+        name = self.link_name[link]
+        T = self.hand.link_pose(q, name)
+        p_link = T[:3, :3].T @ (p_palm - T[:3, 3])
+        J = self.hand.frame_jacobian(q, name, p_link)[:3]
+        return J[:, [self.col[j] for j in self.hand.fingers[finger].joints]]
+
+    def _update(self) -> None:
+        q = self.q()
+        tau = np.zeros(len(self.movable))
+        if self.gravity.any():
+            g_q = self.hand.gravity_torques(q, self.gravity)
+            for j, tj in zip(self.hand.joint_names, g_q):
+                tau[self.hand_pos[self.jidx[j]]] = tj
+        F = self.force_n
+        contacts = [c for c in self.contacts() if c.finger is None or c.finger in self.holding]
+        forces = self._balanced(contacts, F)
+        self.forces = {}
+        for c, f_c in zip(contacts, forces):
+            if c.finger is None or not np.any(f_c):
+                continue
+            self.forces[c.link] = f_c
+            t = self._jacobian(q, c.link, c.p_palm, c.finger).T @ f_c
+            for j, tj in zip(self.hand.fingers[c.finger].joints, t):
+                tau[self.hand_pos[self.jidx[j]]] += tj
+        self.tau = tau
+        self._set_motors(q, F)
+
+    def _balanced(self, contacts: list[Contact], F: float) -> list[np.ndarray]:
+        """Forces of the contacts (zero for passive ones): the balanced solution, blended for
+        the handover of fingers with a share below 1."""
+        if not contacts:
+            return []
+        load = np.r_[self.mass * self.gravity, np.zeros(3)]
+        centre = np.asarray(p.getBasePositionAndOrientation(self.obj, physicsClientId=self.cid)[0], float)
+
+        def solve(active: set) -> list[np.ndarray] | None:
+            idx = [i for i, c in enumerate(contacts) if c.touching and (c.finger is None or c.finger in active)]
+            if not idx:
+                return None
+            per_finger = {}
+            for i in idx:
+                per_finger[contacts[i].finger] = per_finger.get(contacts[i].finger, 0) + 1
+            targets = [np.zeros(3) if contacts[i].finger is None else F / per_finger[contacts[i].finger] * contacts[i].n_palm
+                       for i in idx]
+            fn_min = [0.0 if contacts[i].finger is None else MIN_NORMAL_RATIO * F / per_finger[contacts[i].finger] for i in idx]
+            x = balance_forces([contacts[i].p_palm for i in idx], [contacts[i].n_palm for i in idx], targets, load,
+                               centre, self.friction, min(fn_min) if fn_min else 0.0, MAX_FORCE_RATIO * F)
+            if x is None:
+                return None
+            out = [np.zeros(3) for _ in contacts]
+            for i, f in zip(idx, x):
+                out[i] = f
+            return out
+
+        full = solve(set(self.holding))
+        self.balanced = full is not None
+        if full is None:  # no balanced forces at these contacts: plain squeeze along the normals
+            full = [np.zeros(3) if c.finger is None else F * c.n_palm for c in contacts]
+        # approaching fingers press along their normal (they carry nothing yet)
+        for i, c in enumerate(contacts):
+            if not c.touching and c.finger is not None:
+                full[i] = F * c.n_palm
+        fading = {f: s for f, s in self.share.items() if s < 1.0 and f in self.holding}
+        if not fading:
+            return full
+        without = solve(set(self.holding) - set(fading))
+        if without is None:
+            without = [np.zeros(3) if c.finger in fading else f for c, f in zip(contacts, full)]
+        s = min(fading.values())
+        return [s * a + (1.0 - s) * b for a, b in zip(full, without)]
+
+    def _set_motors(self, q: np.ndarray, F: float) -> None:
+        """Posture springs: a pad displacement of ``POSTURE_TRAVEL_M`` costs ``share * F``
+        (``share``: ``POSTURE_SHARE`` for holding fingers, ``FREE_SHARE`` for the others),
+        i.e. ``Kp_j = share F / travel |J_pad[:, j]|^2``, saturating at ``share F |J_pad[:, j]|``;
+        damping critical for the joint's armature."""
+        kp, cap = np.zeros(len(self.movable)), np.zeros(len(self.movable))
+        for name, finger in self.hand.fingers.items():
+            J = self.hand.frame_jacobian(q, finger.pad_link, finger.pad_p_link)[:3]
+            share = FREE_SHARE if (name == self.moving or name not in self.holding) else POSTURE_SHARE
+            for j in finger.joints:
+                lever = max(float(np.linalg.norm(J[:, self.col[j]])), MIN_LEVER_M)
+                k = self.hand_pos[self.jidx[j]]
+                kp[k] = share * F / POSTURE_TRAVEL_M * lever ** 2
+                cap[k] = share * F * lever
+        self.kp, self.cap = kp, cap
+        self.kd = 2.0 * np.sqrt(kp * self.armature)
+        for j, v in self.q_ref.items():
+            self.q_target[self.hand_pos[self.jidx[j]]] = v
