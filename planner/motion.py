@@ -202,6 +202,66 @@ def _bounding_sphere(geometry) -> tuple[np.ndarray, float]:
     return np.array(geometry.aabb_center, dtype=float), float(geometry.aabb_radius)
 
 
+MESH_CONVEX_TOL_M = 1e-4
+"""A mesh whose vertices and face centroids all lie within this of its convex hull's
+boundary counts as convex: its hull stands for it in signed distances, off by at most
+this (a tenth of the touch tolerance). Meshes of smooth convex shapes are rarely convex
+to the micrometre: the non-planar quads of grasps/meshes/rounded_box.obj fold inward by
+up to 26 um."""
+_SDF_GEOMETRY_CACHE: dict[int, tuple] = {}  # id(geometry) -> (geometry, its signed-distance geometry)
+
+
+def _signed_distance_geometry(obj):
+    """The coal geometry whose signed distance to a finger link is the object's.
+
+    coal's collision query refuses a negative security margin (a tolerated penetration)
+    for a ``BVHModel`` ("Negative security margin are not handled yet for BVHModel"), and
+    its distance query on a mesh is the smallest distance to any one triangle, a thin
+    plate: when a link sinks into the solid it measures how far the link must move to
+    clear one triangle, often sideways off it, so it reports a fraction of the depth (a
+    capsule 2.6 mm deep into a 5 mm gridded box mesh reads 0.7 mm). Primitives
+    (box, cylinder, sphere) are convex and coal's GJK/EPA gives their exact signed
+    distance: they are returned as they are. A mesh is replaced by its convex hull (a
+    ``coal.Convex``, where GJK/EPA is exact too) when the mesh is convex, i.e. the hull is
+    the object (every vertex and face centroid on the hull's boundary within
+    ``MESH_CONVEX_TOL_M``). A non-convex mesh keeps its triangles: its hull would report
+    a finger resting in a concavity as deep inside, so the per-triangle distance (the
+    measure ``planner.contacts`` and the closing procedure use for meshes) is kept: exact
+    while the link is outside, it can under-report the depth once a link sinks in. A link
+    wholly inside a mesh touches no triangle and reads as clear (as in coal's collision
+    query with a positive margin); paths are checked every ``resolution_rad`` from outside,
+    so they cannot get there without crossing the surface.
+    """
+    geometry = obj.geometry
+    if not isinstance(geometry, coal.BVHModelBase):
+        return geometry
+    cached = _SDF_GEOMETRY_CACHE.get(id(geometry))
+    if cached is None:  # the entry holds the geometry, so its id is not reused meanwhile
+        if len(_SDF_GEOMETRY_CACHE) >= 8:
+            _SDF_GEOMETRY_CACHE.pop(next(iter(_SDF_GEOMETRY_CACHE)))
+        cached = _SDF_GEOMETRY_CACHE[id(geometry)] = (geometry, _mesh_signed_distance_geometry(geometry))
+    return cached[1]
+
+
+def _mesh_signed_distance_geometry(geometry):
+    """The convex hull of a convex ``BVHModel`` as a ``coal.Convex``, else the mesh itself."""
+    from scipy.spatial import ConvexHull
+
+    V = np.asarray(geometry.vertices(), dtype=float)
+    F = np.array([[t[0], t[1], t[2]] for t in map(geometry.tri_indices, range(geometry.num_tris))], dtype=np.int64)
+    hull = ConvexHull(V)
+    probes = np.concatenate([V, V[F].mean(axis=1)])
+    gap = -(probes @ hull.equations[:, :3].T + hull.equations[:, 3]).max(axis=1)  # >= 0 inside
+    if gap.max() > MESH_CONVEX_TOL_M:
+        return geometry
+    points = coal.StdVec_Vec3s()
+    for v in V[hull.vertices]:
+        points.append(np.ascontiguousarray(v))
+    convex = coal.Convex.convexHull(points, False, "Qt")
+    convex.computeLocalAABB()
+    return convex
+
+
 @dataclass(frozen=True)
 class _Body:
     name: str  # link name, or "object"
@@ -217,7 +277,8 @@ class _FingerScene:
     Static bodies (palm, other fingers at ``q_ref``, the object) keep their pose; the
     moving finger's geometries are re-posed from forward kinematics per query. A
     configuration is valid when every moving geometry is at least ``object_margin_m``
-    from the object (negative: tolerated penetration) and does not penetrate the palm,
+    from the object (negative: tolerated penetration, measured as a signed distance, on a
+    mesh object too: see :func:`_signed_distance_geometry`) and does not penetrate the palm,
     the other fingers or the non-adjacent links of its own finger (touching is fine; the
     same link pairs and the same 1 um threshold as ``planner.contacts.collisions``).
     """
@@ -289,6 +350,9 @@ class _FingerScene:
             and (moving[i][0].name, moving[j][0].name) not in adjacent
         ]
         self._collide_obj = [coal.ComputeCollision(b.geometry, obj.geometry) for b, _ in moving]
+        # Signed distances to the object (lift/land margins may be negative, which coal's
+        # collision query does not accept for meshes): see _signed_distance_geometry.
+        self._obj_sdf_geometry = _signed_distance_geometry(obj)
         self._collide_static = [
             [coal.ComputeCollision(bm.geometry, bs.geometry) for bs, _, _ in self._static]
             for bm, _ in moving
@@ -383,11 +447,19 @@ class _FingerScene:
 
         # object, with its margin (the cheap bounding-sphere test first)
         d_obj = np.sqrt(((centers - self._obj_center_palm) ** 2).sum(1)) - radii - self._obj_body.radius
-        request = coal.CollisionRequest()
-        request.security_margin = float(object_margin_m)
-        for k in np.flatnonzero(d_obj < object_margin_m):
-            if self._collide_obj[k](tf(k), self._obj_tf, request, coal.CollisionResult()):
-                return False
+        if object_margin_m >= 0 or not isinstance(self.obj.geometry, coal.BVHModelBase):
+            request = coal.CollisionRequest()
+            request.security_margin = float(object_margin_m)
+            for k in np.flatnonzero(d_obj < object_margin_m):
+                if self._collide_obj[k](tf(k), self._obj_tf, request, coal.CollisionResult()):
+                    return False
+        else:  # a mesh and a tolerated penetration: signed distance (_signed_distance_geometry)
+            request = coal.DistanceRequest()
+            for k in np.flatnonzero(d_obj < object_margin_m):
+                d = coal.distance(self._moving[k][0].geometry, tf(k), self._obj_sdf_geometry, self._obj_tf,
+                                  request, coal.DistanceResult())
+                if d < object_margin_m:
+                    return False
         # palm and other fingers
         if len(self._static):
             d = (
@@ -416,7 +488,7 @@ class _FingerScene:
         request = coal.DistanceRequest()
         for k, (body, _) in enumerate(self._moving):
             result = coal.DistanceResult()
-            d = coal.distance(body.geometry, _tf(T[k]), self.obj.geometry, self._obj_tf, request, result)
+            d = coal.distance(body.geometry, _tf(T[k]), self._obj_sdf_geometry, self._obj_tf, request, result)
             out.append((
                 float(d),
                 body.name,
@@ -439,7 +511,7 @@ class _FingerScene:
         T = self._geom_poses(q_finger)
         reasons = []
         for k, (body, _) in enumerate(self._moving):
-            d = coal.distance(body.geometry, _tf(T[k]), self.obj.geometry, self._obj_tf,
+            d = coal.distance(body.geometry, _tf(T[k]), self._obj_sdf_geometry, self._obj_tf,
                               coal.DistanceRequest(), coal.DistanceResult())
             if d < object_margin_m:
                 reasons.append(f"{body.name} is {d * 1000:.1f} mm from the object (needs {object_margin_m * 1000:.1f})")

@@ -10,6 +10,7 @@ posture (shapes joined by design, e.g. consecutive phalanges) are not checked.
 import subprocess
 import sys
 import textwrap
+from pathlib import Path
 
 import coal
 import numpy as np
@@ -345,3 +346,87 @@ def test_planning_prints_nothing():
     assert quiet == ""
     assert "RRTConnect" in verbose  # verbose=True lets OMPL's log through
     assert done.stderr == ""
+
+
+# ------------------------------------------------------------- mesh objects
+
+MESHES = Path(__file__).resolve().parent.parent / "grasps" / "meshes"
+
+
+@pytest.fixture(scope="module")
+def held_box_mesh(held_box):
+    """``held_box`` as a triangle mesh: the library's gridded 35 x 80 x 30 mm box mesh
+    scaled to 50 x 50 x 30 mm, at the same pose (a coal BVHModel, not a coal Box)."""
+    scale = np.array(held_box.size) / np.array([0.035, 0.08, 0.03])
+    mesh = make_object("mesh", scale, held_box.T_palm_obj, mesh_path=MESHES / "box_35x80x30.obj")
+    assert isinstance(mesh.geometry, coal.BVHModelBase)
+    return mesh
+
+
+def test_mesh_box_collision_queries_agree_with_the_primitive_box(hand, held_box, held_box_mesh, contact_qs):
+    """The finger-object queries of the motion planner (signed distances and validity with a
+    tolerated penetration, a contact clearance or a move clearance) give the same answers for
+    a box mesh as for the primitive box, at seeded configurations around the contacts: some
+    clear, some touching, some sunk in by more than the touch tolerance."""
+    from planner.motion import _FingerScene
+
+    rng = np.random.default_rng(7)
+    margins = (-DEFAULT_TOUCH_TOL_M, -0.0003, 0.0, DEFAULT_CLEARANCE_M)
+    depths = []
+    for finger, qs in sorted(contact_qs.items()):
+        idx = list(hand.fingers[finger].q_index)
+        lo, hi = np.asarray(hand.lower)[idx], np.asarray(hand.upper)[idx]
+        prim = _FingerScene(hand, held_box, qs[0], finger, DEFAULT_TOUCH_TOL_M)
+        mesh = _FingerScene(hand, held_box_mesh, qs[0], finger, DEFAULT_TOUCH_TOL_M)
+        for q in qs:
+            for _ in range(12):
+                qf = np.clip(q[idx] + rng.normal(scale=0.06, size=len(idx)), lo, hi)
+                d_prim = [d for d, *_ in prim.object_distances(qf)]
+                d_mesh = [d for d, *_ in mesh.object_distances(qf)]
+                np.testing.assert_allclose(d_mesh, d_prim, atol=1e-7)
+                depths.append(min(d_prim))
+                for m in margins:
+                    if min(abs(d - m) for d in d_prim) > 1e-6:  # not on the fence
+                        assert mesh.is_valid(qf, m) == prim.is_valid(qf, m), (finger, qf, m)
+    depths = np.array(depths)
+    assert (depths < -DEFAULT_TOUCH_TOL_M).any() and ((depths > -DEFAULT_TOUCH_TOL_M) & (depths < 0)).any()
+    assert (depths > DEFAULT_CLEARANCE_M).any()
+
+
+@pytest.mark.parametrize("finger", sorted(CONTACTS))
+def test_gait_step_on_a_mesh_holds_against_the_primitive(hand, held_box, held_box_mesh, contact_qs,
+                                                         overlapping_pairs, finger):
+    """Lift, move and land planned around the box mesh (the lift used to raise coal's
+    "Negative security margin" error for meshes) re-check clear of the primitive box."""
+    q_a, q_b = contact_qs[finger]
+    idx = list(hand.fingers[finger].q_index)
+    gait = plan_gait_step(hand, held_box_mesh, q_a, q_b, finger)
+    np.testing.assert_array_equal(gait["lift"][0], q_a[idx])
+    np.testing.assert_array_equal(gait["land"][-1], q_b[idx])
+    for path in (gait["lift"], gait["move"], gait["land"]):
+        _assert_path_ok(hand, held_box, q_a, finger, path, overlapping_pairs, object_min_m=-DEFAULT_TOUCH_TOL_M)
+    d_move, _ = _worst(hand, held_box, q_a, finger, gait["move"], overlapping_pairs)
+    assert d_move >= DEFAULT_CLEARANCE_M - 1e-6
+
+
+def test_gait_step_on_a_non_convex_mesh(hand, overlapping_pairs):
+    """A non-convex mesh (the library's plus-shaped prism) keeps its own triangles for the
+    tolerated-penetration checks: the thumb lifts off one contact and lands on another, and
+    the paths re-check clear of both arms of the cross (primitive boxes) within the tolerance."""
+    T = _pose([0.045, -0.01, 0.03])
+    prism = make_object("mesh", (1.0,), T, mesh_path=MESHES / "cross_prism.obj")
+    arms = [make_object("box", size, T) for size in ((0.05, 0.016, 0.02), (0.016, 0.05, 0.02))]
+    q_open = np.asarray(hand.q_open)
+    q_a, patch_a = realize_contact(hand, prism, "thumb", np.array([-0.021, 0.004, 0.01]), q_open)
+    q_b, patch_b = realize_contact(hand, prism, "thumb", np.array([-0.012, -0.008, 0.01]), q_open)
+    assert patch_a is not None and patch_b is not None
+    idx = list(hand.fingers["thumb"].q_index)
+    gait = plan_gait_step(hand, prism, q_a, q_b, "thumb")
+    np.testing.assert_array_equal(gait["lift"][0], q_a[idx])
+    np.testing.assert_array_equal(gait["land"][-1], q_b[idx])
+    for path in (gait["lift"], gait["move"], gait["land"]):
+        for arm in arms:
+            _assert_path_ok(hand, arm, q_a, "thumb", path, overlapping_pairs, object_min_m=-DEFAULT_TOUCH_TOL_M)
+    for arm in arms:
+        d_move, _ = _worst(hand, arm, q_a, "thumb", gait["move"], overlapping_pairs)
+        assert d_move >= DEFAULT_CLEARANCE_M - 1e-6

@@ -237,3 +237,61 @@ def test_gravity_budget_too_small_exits_one_and_bad_values_exit_two(capsys):
     assert main(["plan", str(a), str(b), "--no-motion", "--gravity", "0", "0", "9.81", "--max-finger-force", "0"]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "max_finger_force_n" in err
+
+
+MESH_PAIR = (ICUB / "mesh_rounded_box_parallel_extension.yaml", ICUB / "mesh_rounded_box_ir2m.yaml")
+ROUNDED_BOX = {"half_extents_m": np.array([0.0175, 0.04, 0.015]), "radius_m": 0.005, "chord_sag_m": 0.0003}
+"""grasps/meshes/rounded_box.obj (make_meshes.py): its vertices lie on this ideal rounded box
+and its chords at most 0.26 mm inside it (5 mm rounding split in 30 deg arcs)."""
+
+
+def _rounded_box_sdf(p_obj):
+    """Signed distance (m, negative inside) of points (n, 3) to the ideal rounded box."""
+    h, r = ROUNDED_BOX["half_extents_m"], ROUNDED_BOX["radius_m"]
+    q = np.abs(p_obj) - (h - r)
+    return np.linalg.norm(np.maximum(q, 0.0), axis=1) + np.minimum(q.max(axis=1), 0.0) - r
+
+
+def test_mesh_pair_plans_with_finger_paths_and_every_state_rechecks(tmp_path):
+    """A mesh object (rounded box OBJ) plans end to end with OMPL finger paths, as the issue's
+    command line does (coal used to refuse the finger retreat on a mesh, exit 1). The exported
+    plan re-checks from its file: every state force closure, single-finger steps, and no
+    finger link (a capsule) sinks into the object beyond the touch tolerance anywhere along
+    the paths, measured with the rounded box's own signed distance function, not coal."""
+    import coal
+
+    from planner.hand import Hand
+    from planner.motion import DEFAULT_TOUCH_TOL_M
+
+    a, b = MESH_PAIR
+    out = tmp_path / "mesh.yaml"
+    assert main(["plan", str(a), str(b), "-o", str(out), "--contact-model", "mean",
+                 "--gravity", "0", "0", "9.81"]) == 0
+    data = recheck_plan_file(out)
+    assert data["object"]["shape"] == "mesh" and Path(data["object"]["mesh"]).name == "rounded_box.obj"
+    assert data["parameters"]["motion"] is True
+    assert {s["action"] for s in data["steps"]} == {"lift", "move", "land"}
+    assert all(len(s["path"]) >= 2 for s in data["steps"])
+    hand = Hand.load(data["hand"]["name"])
+    names = list(hand.joint_names)
+    T_palm_obj = np.asarray(realize(load_grasp(a)).obj.T_palm_obj)
+    R, t = T_palm_obj[:3, :3], T_palm_obj[:3, 3]
+    s = np.linspace(-1.0, 1.0, 201)  # 0.1 mm along a capsule axis
+    worst = np.inf
+    for step in data["steps"]:
+        q = np.array([data["states"][step["from_state"]]["q"][j] for j in names])
+        idx = [names.index(j) for j in step["joints"]]
+        path = np.array(step["path"])
+        # joint steps of at most 5 mrad between the exported waypoints
+        counts = np.maximum(1, np.ceil(np.abs(np.diff(path, axis=0)).max(axis=1) / 0.005)).astype(int)
+        pieces = [p0 + np.outer(np.arange(1, n + 1) / n, p1 - p0) for p0, p1, n in zip(path[:-1], path[1:], counts)]
+        for wp in np.vstack([path[:1], *pieces]):
+            q[idx] = wp
+            capsules = [(g, tf) for _, f, g, tf in hand.collision_objects(q) if f == step["finger"]]
+            assert all(isinstance(g, coal.Capsule) for g, _ in capsules)
+            for g, tf in capsules:
+                axis_palm = np.asarray(tf.getRotation())[:, 2] * g.halfLength
+                segment_obj = (np.asarray(tf.getTranslation()) + np.outer(s, axis_palm) - t) @ R
+                worst = min(worst, _rounded_box_sdf(segment_obj).min() - g.radius)
+    slack = ROUNDED_BOX["chord_sag_m"] + 0.0001  # chords inside the ideal box; axis sampling
+    assert worst > -(DEFAULT_TOUCH_TOL_M + slack), f"a finger sinks {-worst * 1e3:.2f} mm into the rounded box"
