@@ -1,4 +1,4 @@
-"""Run every experiment (exp1..exp6) in turn; the same options are passed to each.
+"""Run every experiment (exp1..exp7) in turn; the same options are passed to each.
 
     python experiments/run_all.py --quick            # a few minutes on 2 cores
     python experiments/run_all.py --workers 2        # the full sweeps
@@ -16,7 +16,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 EXPERIMENTS = ["exp1_cone_edges", "exp2_mean_vs_all", "exp3_sequences", "exp4_shape_robustness",
-               "exp5_graph_vs_greedy", "exp6_scale"]
+               "exp5_graph_vs_greedy", "exp6_scale", "exp7_execution"]
 
 
 def main(argv=None) -> dict:

@@ -68,3 +68,39 @@ def test_local_pool_keeps_task_order():
 
     args = parser("x").parse_args(["--workers", "2", "--no-progress"])
     assert run_tasks(abs, [-3, 1, -2], args) == [3, 1, 2]
+
+
+def test_exp7_quick_replays_one_pair_per_direction(tmp_path, capsys):
+    """exp7 --quick on one pair (palm down and up): one CSV row per direction with the
+    planning, replay and closure-agreement columns, and the summary PNG."""
+    from experiments import exp7_execution
+
+    summary = exp7_execution.main(["--quick", "--max-pairs", "1", "--directions", "2", "--no-progress",
+                                   "--out", str(tmp_path)])
+    rows = list(csv.DictReader(open(tmp_path / "exp7_execution.csv")))
+    assert [r["direction"] for r in rows] == ["palm_down", "palm_up"]
+    for col in ("pair", "hand", "family", "variant", "mode", "valid_input", "planned", "plan_time_s", "passed",
+                "max_drift_mm", "max_drift_deg", "closure_agree", "closure_reached", "replay_time_s", "verdict"):
+        assert col in rows[0], col
+    assert all(r["pair"] == "icub/box" and r["family"] == "box" and r["planned"] == "True" for r in rows)
+    assert all(r["passed"] in ("True", "False") and int(r["closure_agree"]) <= int(r["closure_reached"]) for r in rows)
+    assert (tmp_path / "exp7_execution.png").stat().st_size > 1000
+    assert summary["pairs"] == 1 and summary["planned"] == "1/1"
+    assert "exp7 execution" in capsys.readouterr().out
+
+
+def test_exp7_pair_list_covers_families_hands_and_sizes():
+    """The full sweep has at least 40 pairs over spheres, boxes, cylinders and the thin rod,
+    on both hands, in several sizes (meshes join when grasps/*/mesh_*.yaml pairs exist)."""
+    from experiments import exp7_execution
+    from experiments.common import load_spec
+
+    tasks = exp7_execution.pair_tasks(quick=False)
+    assert len(tasks) >= 40
+    fams = {exp7_execution.family(exp7_execution.scaled(load_spec(t["initial"]), t["mode"], t["scale"], (0, 0, 1)).object)
+            for t in tasks}
+    assert {"sphere", "box", "cylinder", "rod"} <= fams
+    assert {load_spec(t["initial"]).hand_ref for t in tasks} >= {"icub_right", "allegro_right"}
+    for pair in {t["pair"] for t in tasks}:  # several sizes of every object
+        assert len({(t["mode"], t["scale"]) for t in tasks if t["pair"] == pair}) >= 3, pair
+    assert len(exp7_execution.pair_tasks(quick=True)) in (3, 4)

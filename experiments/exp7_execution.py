@@ -1,0 +1,376 @@
+"""Exp. 7 - execution benchmark: plans replayed in pybullet under every gravity direction.
+
+Grasp pairs of both hands (icub_right, allegro_right) on spheres, boxes, cylinders, a thin
+rod (4-6 mm radius) and mesh objects, in several sizes: the library pairs and size
+variations of them (`experiments.common.scaled_spec`, as exp4 "points": contact points
+keep their tangential position on the new surface, posture fingers are re-closed; the
+object's palm-side extreme stays where it was, along the hand's ``palm_normal``). Mesh
+pairs are every ``grasps/<hand>/mesh_*.yaml`` group sharing hand, object and pose.
+A variant whose grasps are not force closure with one mean contact per finger (or cannot be
+realized) is "invalid input", counted apart from planning failures.
+
+Every valid pair is planned with finger paths (`planner.regrasp.plan_regrasp`): in
+execution mode when the planner has it (``PlanOptions.for_execution``: mean contacts, grip
+ranking, gravity set 6), otherwise with the mean contact model and gravity palm down; the
+``mode`` column says which. Each plan is replayed (`planner.sim.replay`) under the seven
+directions of `planner.gravity.gravity_directions(palm_normal, 7)`: palm down, palm up,
+four sideways (side_1..side_4: iCub palm +x, -x, +y, -y; Allegro +y, -y, +z, -z), off.
+The CSV has one row per pair and direction (a pair not planned has one
+row, direction empty): planned and plan time, passed (the replay's verdict), drift, closure
+agreement (states where the simulator's closure agrees / states reached) and time.
+
+    python experiments/exp7_execution.py [--quick] [--max-pairs N] [--directions 1|2|6|7]
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from dataclasses import fields, replace
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import numpy as np  # noqa: E402
+
+from experiments.common import GRASPS, REPLAY_FINGER_FORCE_N, REPO, load_spec, parser, print_summary, pyplot, run_tasks, save, scaled_spec, write_csv  # noqa: E402
+from experiments.exp4_shape_robustness import MODES, factors  # noqa: E402
+
+#: Library pairs (hand dir, object key) -> (initial, final) file names under grasps/<hand dir>/.
+LIBRARY = {
+    "icub/box": ("box_parallel_extension.yaml", "box_ir2m.yaml"),
+    "icub/cylinder": ("cylinder_parallel_extension.yaml", "cylinder_ir2m.yaml"),
+    "icub/sphere": ("sphere_four_finger.yaml", "sphere_ir2m.yaml"),
+    "icub/pen": ("pen_palmar_pinch.yaml", "pen_writing_tripod.yaml"),
+    "allegro/box": ("box_four_finger.yaml", "box_tripod.yaml"),
+    "allegro/sphere": ("sphere_four_finger.yaml", "sphere_tripod.yaml"),
+    "allegro/cylinder": ("cylinder_four_finger.yaml", "cylinder_tripod.yaml"),
+}
+#: Size variations per pair: (mode of exp4's MODES, or "uniform" for meshes; scale).
+VARIANTS = {
+    "icub/box": [("uniform", s) for s in (0.9, 1.0, 1.1, 1.2)] + [("x", 0.9), ("x", 1.1), ("y", 0.8), ("y", 1.2)],
+    "icub/cylinder": [("uniform", s) for s in (0.9, 1.0, 1.1, 1.2)] + [("length", 0.8), ("length", 1.2)],
+    "icub/sphere": [("radius", s) for s in (0.8, 0.9, 1.0, 1.1, 1.2)],
+    # the pen is the thin rod: 4, 5 and 6 mm radius, 0.9 / 1.1 uniformly (4.5 / 5.5 mm)
+    "icub/pen": [("radius", s) for s in (0.8, 1.0, 1.2)] + [("uniform", 0.9), ("uniform", 1.1)],
+    "allegro/box": [("uniform", s) for s in (0.9, 1.0, 1.1, 1.2)] + [("y", 0.9), ("y", 1.1)],
+    "allegro/sphere": [("radius", s) for s in (0.8, 0.9, 1.0, 1.1, 1.2)],
+    "allegro/cylinder": [("radius", s) for s in (0.8, 1.0, 1.2)] + [("length", 0.8), ("uniform", 0.9)],
+}
+MESH_SCALES = (0.9, 1.0, 1.1)
+#: --quick: the nominal pairs of these (3-4 replays' worth of pairs).
+QUICK = ("icub/box", "icub/sphere", "allegro/sphere", "icub/pen")
+#: A cylinder this thin or thinner is the "rod" family.
+ROD_MAX_RADIUS_M = 0.0065
+INITIAL_HINTS = ("parallel_extension", "four_finger", "pinch", "power")
+
+
+# ------------------------------------------------------------------ pairs
+
+
+def mesh_pairs() -> list[tuple[str, str, str]]:
+    """(key, initial, final) for every group of two ``grasps/<hand>/mesh_*.yaml`` files with
+    the same hand, object and pose (initial: the name with a power-grasp hint, else the first)."""
+    groups: dict[tuple, list[str]] = {}
+    for path in sorted(GRASPS.glob("*/mesh_*.yaml")):
+        rel = str(path.relative_to(REPO))
+        try:
+            s = load_spec(rel)
+        except Exception:  # noqa: BLE001 - a broken file in progress elsewhere: not a pair
+            continue
+        o = s.object
+        groups.setdefault((s.hand_ref, o.shape, o.size, o.position, o.quat_xyzw, o.mesh_path), []).append(rel)
+    out = []
+    for files in groups.values():
+        if len(files) != 2:
+            continue
+        files.sort(key=lambda f: (not any(h in Path(f).stem for h in INITIAL_HINTS), f))
+        hand_dir, stem = Path(files[0]).parent.name, Path(files[0]).stem
+        obj = stem.split("_parallel_extension")[0].split("_four_finger")[0]
+        out.append((f"{hand_dir}/{obj}", files[0], files[1]))
+    return out
+
+
+def pair_tasks(quick: bool) -> list[dict]:
+    tasks = []
+    for key, (a, b) in LIBRARY.items():
+        hand_dir = key.split("/")[0]
+        ini, fin = f"grasps/{hand_dir}/{a}", f"grasps/{hand_dir}/{b}"
+        if not (REPO / ini).exists() or not (REPO / fin).exists():
+            continue
+        variants = [("uniform" if load_spec(ini).object.shape != "sphere" else "radius", 1.0)] if quick else VARIANTS[key]
+        if quick and key not in QUICK:
+            continue
+        for mode, s in variants:
+            tasks.append({"pair": key, "initial": ini, "final": fin, "mode": mode, "scale": s})
+    for key, ini, fin in ([] if quick else mesh_pairs()):  # meshes are not part of the quick sweep
+        for s in MESH_SCALES:
+            tasks.append({"pair": key, "initial": ini, "final": fin, "mode": "uniform", "scale": s})
+    return tasks
+
+
+def _support(obj_spec, size, direction) -> float:
+    """Largest extent of the object (centred at its origin) along a palm-frame direction."""
+    R = obj_spec.T_palm_obj[:3, :3]
+    d = R.T @ np.asarray(direction, float)  # the direction in the object frame
+    if obj_spec.shape == "box":
+        return float(np.abs(d) @ (np.asarray(size) / 2.0))
+    if obj_spec.shape == "cylinder":
+        r, L = size
+        return float(abs(d[2]) * L / 2 + r * np.sqrt(max(0.0, 1 - d[2] ** 2)))
+    if obj_spec.shape == "sphere":
+        return float(size[0])
+    from planner.objects import load_mesh
+
+    s = tuple(size) * 3 if len(size) == 1 else tuple(size)
+    V, _ = load_mesh(obj_spec.mesh_path, s)
+    return float(np.max(V @ d))
+
+
+def scaled(spec, mode: str, scale: float, palm_normal):
+    """The spec on the object scaled by ``scale`` in ``mode``, its palm-side extreme (along
+    -``palm_normal``) kept in place; meshes: uniform scale, contact points scaled with it."""
+    obj = spec.object
+    if obj.shape == "mesh":
+        f = (scale,) * len(obj.size)
+        new = replace(spec, object=replace(obj, size=tuple(s * scale for s in obj.size)),
+                      fingers=tuple(replace(fs, point_obj=tuple(float(v) * scale for v in fs.point_obj))
+                                    if fs.kind == "contact" and fs.point_obj is not None else fs for fs in spec.fingers),
+                      name=f"{spec.name}_x{scale:.2f}")
+    else:
+        f = factors(MODES[obj.shape][mode], scale)
+        new = scaled_spec(spec, f)
+    n = np.asarray(palm_normal, float)
+    shift = n * (_support(obj, new.object.size, -n) - _support(obj, obj.size, -n))
+    return replace(new, object=replace(new.object, position=tuple(float(v) for v in np.asarray(obj.position, float) + shift)))
+
+
+def family(obj) -> str:
+    if obj.shape == "cylinder" and obj.size[0] <= ROD_MAX_RADIUS_M + 1e-12:
+        return "rod"
+    return obj.shape
+
+
+def generic_direction(name: str, names: list[str]) -> str:
+    """A direction name common to both hands: palm_down, palm_up, off, or side_1..side_4 in
+    the order of `planner.gravity.gravity_directions` (iCub: +x, -x, +y, -y; Allegro: +y,
+    -y, +z, -z of the palm frame; the hand-specific name is in the ``gravity_name`` column)."""
+    if not name.startswith("side_"):
+        return name
+    sides = [n for n in names if n.startswith("side_")]
+    return f"side_{sides.index(name) + 1}"
+
+
+# ------------------------------------------------------------------ planning and replay
+
+
+def plan_options(palm_normal):
+    """(PlanOptions, mode label, planned-for direction names): execution mode when the
+    planner has it, else mean contacts with gravity palm down."""
+    from planner.gravity import gravity_directions
+    from planner.regrasp import PlanOptions
+
+    if hasattr(PlanOptions, "for_execution") and "execution" in {f.name for f in fields(PlanOptions)}:
+        opts = PlanOptions.for_execution()
+        n = getattr(opts, "gravity_set", None)
+        if n:
+            names = [name for name, _ in gravity_directions(palm_normal, n)]
+        else:
+            names = ["palm_down"]
+        return opts, f"execution (gravity set {n}, rank {getattr(opts, 'rank', '?')})", names
+    down = gravity_directions(palm_normal, 1)[0][1]
+    return (PlanOptions(contact_model="mean", gravity=down, max_finger_force_n=REPLAY_FINGER_FORCE_N),
+            "mean + gravity palm down", ["palm_down"])
+
+
+def replay_all(plan: dict, hand, n: int) -> list[tuple[str, object, float]]:
+    """(direction name, ReplayReport, wall s) per direction: `replay_gravity_set` when the
+    replay has it, else `replay_plan` per direction of `gravity_directions(palm_normal, n)`."""
+    from planner.sim import replay as rp
+
+    if hasattr(rp, "replay_gravity_set"):
+        rep = rp.replay_gravity_set(plan, n, hand=hand)
+        return [(name, r, r.wall_time_s) for name, _, r in rep.directions]
+    from planner.gravity import gravity_directions
+
+    out = []
+    for name, g in gravity_directions(hand.palm_normal, n):
+        t0 = time.perf_counter()
+        r = rp.replay_plan(plan, hand=hand, gravity=g)
+        out.append((name, r, time.perf_counter() - t0))
+    return out
+
+
+def task(t: dict) -> list[dict]:
+    from planner.closure import apply_contact_model, grasp_closure
+    from planner.grasp import load_hand, realize
+    from planner.regrasp import plan_regrasp
+
+    t0 = time.perf_counter()
+    base_i, base_f = load_spec(t["initial"]), load_spec(t["final"])
+    hand = load_hand(base_i.hand_ref)
+    si = scaled(base_i, t["mode"], t["scale"], hand.palm_normal)
+    sf = scaled(base_f, t["mode"], t["scale"], hand.palm_normal)
+    row = {"pair": t["pair"], "hand": hand.name, "family": family(si.object), "shape": si.object.shape,
+           "variant": f"{t['mode']} {t['scale']:.2f}", "size": " ".join(f"{v:.4f}" for v in si.object.size),
+           "initial": Path(t["initial"]).name, "final": Path(t["final"]).name}
+    opts, mode, planned_for = plan_options(hand.palm_normal)
+    row["mode"] = mode
+    try:
+        gi, gf = realize(si, hand), realize(sf, hand)
+        mi = grasp_closure(apply_contact_model(gi.patches, "mean"), gi.friction)
+        mf = grasp_closure(apply_contact_model(gf.patches, "mean"), gf.friction)
+        row.update(initial_metric=mi.metric, final_metric=mf.metric, missing=" ".join(gi.missing + gf.missing))
+        valid = mi.is_force_closure and mf.is_force_closure
+        reason = "" if valid else "not force closure with mean contacts: " + ", ".join(
+            n for n, c in (("initial", mi), ("final", mf)) if not c.is_force_closure)
+    except Exception as err:  # noqa: BLE001 - PlannerError, or a back end refusing the scaled object
+        valid, reason = False, f"realize: {type(err).__name__}: {str(err).split(': ', 1)[-1]}"
+    row["valid_input"] = valid
+    if not valid:
+        row.update(planned=False, reason=reason[:200], pair_time_s=time.perf_counter() - t0)
+        return [row]
+    tp = time.perf_counter()
+    try:
+        res = plan_regrasp(gi, gf, opts)
+    except Exception as err:  # noqa: BLE001 - a crash (e.g. coal on meshes) is a failed plan, reported
+        row.update(planned=False, plan_time_s=time.perf_counter() - tp,
+                   reason=f"{type(err).__name__}: {err}".replace("\n", " ")[:200], pair_time_s=time.perf_counter() - t0)
+        return [row]
+    row.update(planned=True, plan_time_s=time.perf_counter() - tp, gait_steps=res.sequence.gait_steps,
+               bottleneck=res.sequence.bottleneck, states=len(res.plan.states), planned_for=" ".join(planned_for))
+    rows = []
+    try:
+        reports = replay_all(res.plan.to_dict(), hand, t["directions"])
+    except Exception as err:  # noqa: BLE001 - the replay itself failed: reported per pair
+        row.update(reason=f"replay: {type(err).__name__}: {err}".replace("\n", " ")[:200],
+                   pair_time_s=time.perf_counter() - t0)
+        return [row]
+    for name, rep, wall in reports:
+        agree, reached = rep.closure_agreement
+        r = dict(row)
+        r.update(direction=generic_direction(name, [n for n, _, _ in reports]), gravity_name=name,
+                 planned_for_direction=name in planned_for, passed=bool(rep.passed),
+                 dropped=bool(rep.dropped), max_drift_mm=rep.max_drift_mm, max_drift_deg=rep.max_drift_deg,
+                 closure_agree=agree, closure_reached=reached,
+                 closure_all_agree=bool(reached == len(rep.states) and agree == reached),
+                 passed_and_agree=bool(rep.passed and reached == len(rep.states) and agree == reached),
+                 sim_time_s=rep.sim_time_s, replay_time_s=wall, verdict=rep.verdict.replace("\n", " ")[:160])
+        rows.append(r)
+    for r in rows:
+        r["pair_time_s"] = time.perf_counter() - t0
+    return rows
+
+
+# ------------------------------------------------------------------ summary
+
+
+def summarize(rows: list[dict]) -> dict:
+    """Per pair (grouped by pair + variant) and per direction pass figures."""
+    pairs: dict[tuple, list[dict]] = {}
+    for r in rows:
+        pairs.setdefault((r["pair"], r["variant"]), []).append(r)
+    n_pairs = len(pairs)
+    invalid = [k for k, rs in pairs.items() if not rs[0]["valid_input"]]
+    planned = {k: rs for k, rs in pairs.items() if rs[0].get("planned") and rs[0].get("direction")}
+    directions = list(dict.fromkeys(r["direction"] for rs in planned.values() for r in rs))
+    s = {"pairs": n_pairs, "invalid input": len(invalid), "valid": n_pairs - len(invalid),
+         "planned": f"{len(planned)}/{n_pairs - len(invalid)}",
+         "mode": ", ".join(sorted({r['mode'] for r in rows}))}
+    if planned:
+        all_dir = sum(all(r["passed"] for r in rs) for rs in planned.values())
+        all_strict = sum(all(r["passed_and_agree"] for r in rs) for rs in planned.values())
+        planned_for = sum(all(r["passed"] for r in rs if r["planned_for_direction"]) for rs in planned.values())
+        six = sum(all(r["passed"] for r in rs if r["direction"] != "off") for rs in planned.values())
+        s["pass every direction"] = f"{all_dir}/{len(planned)} ({100 * all_dir / len(planned):.1f} %)"
+        s["pass every direction except off"] = f"{six}/{len(planned)} ({100 * six / len(planned):.1f} %)"
+        s["pass every planned-for direction"] = f"{planned_for}/{len(planned)} ({100 * planned_for / len(planned):.1f} %)"
+        s["pass + closure agrees, every direction"] = f"{all_strict}/{len(planned)} ({100 * all_strict / len(planned):.1f} %)"
+        for d in directions:
+            sub = [r for rs in planned.values() for r in rs if r["direction"] == d]
+            ok = sum(r["passed"] for r in sub)
+            agree = sum(r["closure_all_agree"] for r in sub)
+            s[f"{d}"] = f"{ok}/{len(sub)} pass ({100 * ok / len(sub):.1f} %), closure agrees at every state {agree}/{len(sub)}"
+        fams = sorted({rs[0]["family"] for rs in pairs.values()})
+        for fam in fams:
+            fp = [rs for k, rs in pairs.items() if rs[0]["family"] == fam]
+            fv = [rs for rs in fp if rs[0]["valid_input"]]
+            fpl = [rs for rs in fv if rs[0].get("planned") and rs[0].get("direction")]
+            fa = sum(all(r["passed"] for r in rs) for rs in fpl)
+            s[f"family {fam}"] = f"{len(fp)} pairs, {len(fp) - len(fv)} invalid, {len(fpl)} planned, {fa} pass every direction"
+        for h in sorted({rs[0]["hand"] for rs in pairs.values()}):
+            hp = [rs for rs in planned.values() if rs[0]["hand"] == h]
+            ha = sum(all(r["passed"] for r in rs) for rs in hp)
+            s[f"hand {h}"] = f"{len(hp)} planned, {ha} pass every direction"
+        s["plan time s (median / max)"] = (f"{np.median([rs[0]['plan_time_s'] for rs in planned.values()]):.2f} / "
+                                           f"{max(rs[0]['plan_time_s'] for rs in planned.values()):.2f}")
+        s["replay wall s per direction (median)"] = f"{np.median([r['replay_time_s'] for rs in planned.values() for r in rs]):.2f}"
+    failed_plans = [f"{k[0]} {k[1]}: {rs[0].get('reason', '')[:90]}" for k, rs in pairs.items()
+                    if rs[0]["valid_input"] and not (rs[0].get("planned") and rs[0].get("direction"))]
+    if failed_plans:
+        s["not planned"] = "; ".join(failed_plans)
+    if invalid:
+        s["invalid pairs"] = ", ".join(f"{p} {v}" for p, v in invalid)
+    return s
+
+
+def plot(rows: list[dict], path: Path) -> None:
+    plt = pyplot()
+    planned = [r for r in rows if r.get("direction")]
+    fams = sorted({r["family"] for r in planned})
+    directions = list(dict.fromkeys(r["direction"] for r in planned))
+    fig, ax = plt.subplots(1, 2, figsize=(15, 4.5), gridspec_kw={"width_ratios": [3, 2]})
+    w = 0.8 / max(1, len(directions))
+    for j, d in enumerate(directions):
+        rates, ns = [], []
+        for fam in fams:
+            sub = [r for r in planned if r["family"] == fam and r["direction"] == d]
+            rates.append(100.0 * sum(r["passed"] for r in sub) / len(sub) if sub else np.nan)
+            ns.append(len(sub))
+        ax[0].bar(np.arange(len(fams)) + (j - (len(directions) - 1) / 2) * w, rates, w, label=d)
+    ax[0].set_xticks(range(len(fams)))
+    pairs_per_fam = {fam: len({(r["pair"], r["variant"]) for r in planned if r["family"] == fam}) for fam in fams}
+    ax[0].set_xticklabels([f"{fam}\n({pairs_per_fam[fam]} planned pairs)" for fam in fams])
+    ax[0].set_ylabel("replay pass rate (%)")
+    ax[0].set_ylim(0, 105)
+    ax[0].set_title("pass rate per object family and gravity direction")
+    ax[0].legend(fontsize=7, ncol=4)
+    for i, d in enumerate(directions):
+        sub = [r for r in planned if r["direction"] == d]
+        y = [min(r["max_drift_deg"], 180) if np.isfinite(r["max_drift_deg"]) else 180 for r in sub]
+        ax[1].scatter(np.full(len(sub), i) + np.random.default_rng(i).uniform(-0.25, 0.25, len(sub)), y,
+                      c=["tab:green" if r["passed"] else "tab:red" for r in sub], s=12)
+    ax[1].axhline(5.0, color="k", ls="--", lw=0.8)
+    ax[1].set_yscale("log")
+    ax[1].set_xticks(range(len(directions)))
+    ax[1].set_xticklabels(directions, rotation=30, fontsize=8)
+    ax[1].set_ylabel("max rotation drift (deg; green pass, red fail)")
+    ax[1].set_title("drift per direction (limit 5 deg)")
+    save(fig, path)
+
+
+def main(argv=None) -> dict:
+    ap = parser(__doc__.splitlines()[0])
+    ap.set_defaults(workers=1)  # one pybullet replay at a time unless asked for more
+    ap.add_argument("--max-pairs", type=int, default=None, help="only the first N pairs (tests)")
+    ap.add_argument("--directions", type=int, default=7, choices=(1, 2, 6, 7),
+                    help="gravity set size of the replays (planner.gravity; default 7: with gravity off)")
+    ap.add_argument("--name", default="exp7_execution", help="CSV / PNG file stem in --out")
+    args = ap.parse_args(argv)
+    t0 = time.perf_counter()
+    tasks = pair_tasks(args.quick)[: args.max_pairs]
+    for t in tasks:
+        t["directions"] = args.directions
+    per_pair = run_tasks(task, tasks, args, desc="exp7 execution")
+    rows = [r for rs in per_pair for r in rs]
+    write_csv(args.out / f"{args.name}.csv", rows)
+    plot(rows, args.out / f"{args.name}.png")
+    summary = summarize(rows)
+    summary["mesh pairs found"] = len(mesh_pairs())
+    summary["wall_s"] = time.perf_counter() - t0
+    print_summary("exp7 execution", summary)
+    return summary
+
+
+if __name__ == "__main__":
+    main()
