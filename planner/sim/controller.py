@@ -69,6 +69,8 @@ CONE_MARGINS = ((0.5, 0.0), (0.5, 0.5), (0.75, 0.0), (0.75, 0.75), (1.0, 0.0), (
 MAX_FORCE_RATIO = 5.0
 #: Smallest commanded normal force, as a fraction of the squeeze: contacts stay closed.
 MIN_NORMAL_RATIO = 0.5
+#: Contact points and the object centre are quantized to this in the force cache, m.
+CACHE_M = 0.0002
 #: Pad travel over which a posture spring reaches its cap, m.
 POSTURE_TRAVEL_M = 0.001
 #: Smallest lever of a posture spring (joints whose axis passes near the pad), m.
@@ -78,6 +80,8 @@ ARMATURE_OMEGA_DT = 0.3
 #: A point farther than this outside the object is not a contact (pybullet reports
 #: speculative manifold points with positive distance).
 TOUCH_TOL_M = 0.0005
+#: A link this close to the object counts as a contact for the force solution, m.
+CONTACT_GAP_M = 0.001
 #: A holding finger that does not touch approaches the object when it is closer than this.
 APPROACH_M = 0.01
 
@@ -91,7 +95,7 @@ def _tangents(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return t1, np.cross(n, t1)
 
 
-def balance_forces(points, normals, targets, load, centre, friction: Friction, fn_min: float,
+def balance_forces(points, normals, targets, load, centre, friction: Friction, fn_min,
                    f_max: float, margins=CONE_MARGINS) -> np.ndarray | None:
     """Contact forces that balance a load on the object: grasp force optimization.
 
@@ -113,7 +117,7 @@ def balance_forces(points, normals, targets, load, centre, friction: Friction, f
         load: (6,) external wrench on the object ``[f ; tau]`` in frame F, torque about ``centre``.
         centre: (3,) the point torques are taken about (the object's centre of mass).
         friction: Coulomb ``mu`` and torsional ``gamma`` (m).
-        fn_min: smallest normal force per contact, N.
+        fn_min: smallest normal force per contact, N (a number or (k,)).
         f_max: largest absolute force component, N.
         margins: friction fractions tried in turn.
 
@@ -142,6 +146,7 @@ def balance_forces(points, normals, targets, load, centre, friction: Friction, f
     b = -np.asarray(load, float).reshape(6).copy()
     b[3:] /= lever
     f0 = np.asarray(targets, float).reshape(m)
+    fn_min = np.broadcast_to(np.asarray(fn_min, float), (k,))
     angles = np.linspace(0.0, 2.0 * np.pi, 8, endpoint=False)
     for s, s_t in margins:
         mu, gamma = s * friction.mu * math.cos(math.pi / 8), s_t * friction.gamma
@@ -152,7 +157,7 @@ def balance_forces(points, normals, targets, load, centre, friction: Friction, f
             for a_i, a in enumerate(angles):  # (cos a t1 + sin a t2) . f <= mu n . f
                 G[9 * i + a_i, 3 * i:3 * i + 3] = (math.cos(a) * t1 + math.sin(a) * t2) - mu * n
             G[9 * i + 8, 3 * i:3 * i + 3] = -n
-            h[9 * i + 8] = -fn_min
+            h[9 * i + 8] = -fn_min[i]
         T = np.zeros((2 * k, m + k))
         for i, n in enumerate(N):
             T[2 * i, 3 * i:3 * i + 3] = T[2 * i + 1, 3 * i:3 * i + 3] = -gamma * n
@@ -240,6 +245,8 @@ class Controller:
         self.forces: dict[int, np.ndarray] = {}  # link -> commanded force (palm frame)
         self.balanced = True
         self._tick = 0
+        self._cache: dict = {}
+        self._motors_stale = True
         for i in self.movable:  # pybullet's default velocity motors off: torques act alone
             p.setJointMotorControl2(body, i, p.VELOCITY_CONTROL, force=0.0, physicsClientId=cid)
         self.q_target = np.array([p.getJointState(body, i, physicsClientId=cid)[0] for i in self.movable])
@@ -291,6 +298,7 @@ class Controller:
         self.holding = tuple(holding)
         self.moving = moving
         self.share = dict(share or {})
+        self._motors_stale = True
         self.force_n = self.force_override or squeeze_force_n(self.mass, self.g_max, len(self.holding),
                                                               self.friction.mu, self.floor_n)
         self._update()
@@ -345,9 +353,11 @@ class Controller:
         """Touching links (mean point and normal per link) and approach points of holding
         fingers that do not touch."""
         per_link: dict[int, list] = {}
-        for cp in p.getContactPoints(self.body, self.obj, physicsClientId=self.cid):
-            if cp[8] <= TOUCH_TOL_M:
-                per_link.setdefault(cp[3], []).append(cp)
+        # closest points within a small gap rather than this step's contact points: a contact
+        # that opens for a step (a bounce) keeps its balanced force instead of flipping to
+        # the approach force and back
+        for cp in p.getClosestPoints(self.body, self.obj, CONTACT_GAP_M, physicsClientId=self.cid):
+            per_link.setdefault(cp[3], []).append(cp)
         out = []
         for link in sorted(per_link):
             cps = per_link[link]
@@ -402,7 +412,9 @@ class Controller:
             for j, tj in zip(self.hand.fingers[c.finger].joints, t):
                 tau[self.hand_pos[self.jidx[j]]] += tj
         self.tau = tau
-        self._set_motors(q, F)
+        if self._tick % (16 * UPDATE_EVERY) == 0 or self._motors_stale:
+            self._set_motors(q, F)
+            self._motors_stale = False
 
     def _balanced(self, contacts: list[Contact], F: float) -> list[np.ndarray]:
         """Forces of the contacts (zero for passive ones): the balanced solution, blended for
@@ -422,8 +434,16 @@ class Controller:
             targets = [np.zeros(3) if contacts[i].finger is None else F / per_finger[contacts[i].finger] * contacts[i].n_palm
                        for i in idx]
             fn_min = [0.0 if contacts[i].finger is None else MIN_NORMAL_RATIO * F / per_finger[contacts[i].finger] for i in idx]
-            x = balance_forces([contacts[i].p_palm for i in idx], [contacts[i].n_palm for i in idx], targets, load,
-                               centre, self.friction, min(fn_min) if fn_min else 0.0, MAX_FORCE_RATIO * F)
+            # a static hold meets the same problem step after step: reuse its solution
+            key = (F, tuple(np.round(load / max(self.mass * 9.81, 1e-9), 2)), tuple(np.round(centre / CACHE_M)),
+                   tuple((contacts[i].link, tuple(np.round(contacts[i].p_palm / CACHE_M)),
+                          tuple(np.round(contacts[i].n_palm, 2))) for i in idx))
+            if key not in self._cache:
+                if len(self._cache) > 256:
+                    self._cache.clear()
+                self._cache[key] = balance_forces([contacts[i].p_palm for i in idx], [contacts[i].n_palm for i in idx],
+                                                  targets, load, centre, self.friction, fn_min, MAX_FORCE_RATIO * F)
+            x = self._cache[key]
             if x is None:
                 return None
             out = [np.zeros(3) for _ in contacts]
