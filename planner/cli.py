@@ -25,7 +25,11 @@ def _cmd_plan(args: argparse.Namespace) -> int:
     if args.output:
         plan_format(args.output)  # refuse a bad suffix before any work
     t0 = time.perf_counter()
-    options = PlanOptions(
+    chosen = dict(contact_model=args.contact_model, rank=args.rank,
+                  gravity=tuple(args.gravity) if args.gravity is not None else None, gravity_set=args.gravity_set)
+    if not args.execution:  # the thesis's defaults; --execution brings its own (PlanOptions.for_execution)
+        chosen.update(contact_model=args.contact_model or "patch", rank=args.rank or "metric")
+    options = (PlanOptions.for_execution if args.execution else PlanOptions)(
         strategy=args.strategy,
         alternatives=args.alternatives,
         intermediate=args.intermediate,
@@ -34,9 +38,8 @@ def _cmd_plan(args: argparse.Namespace) -> int:
         motion_planner=args.motion_planner,
         motion_timeout_s=args.motion_timeout,
         max_lifted=args.max_lifted,
-        contact_model=args.contact_model,
-        gravity=tuple(args.gravity) if args.gravity is not None else None,
         max_finger_force_n=args.max_finger_force,
+        **chosen,
     )
     specs = [load_grasp(args.initial), load_grasp(args.final)]
     check_same_setup(*specs)
@@ -44,18 +47,24 @@ def _cmd_plan(args: argparse.Namespace) -> int:
     inputs = {k: {"path": str(p), "sha256": sha256_file(p)} for k, p in (("initial", args.initial), ("final", args.final))}
     result = plan_regrasp(initial, final, options, inputs, verbose=args.verbose)
     plan = result.plan
-    print(f"{'step':>4}  {'finger':<8} {'action':<5} {'state':>5}  {'metric':>10}  removable")
+    gripped = plan.states[0].grip_force_n is not None
+    print(f"{'step':>4}  {'finger':<8} {'action':<5} {'state':>5}  {'metric':>10}  " + ("grip N  " if gripped else "") + "removable")
     for i, step in enumerate(plan.steps):
         st = plan.states[step.to_state]
-        print(f"{i:>4}  {step.finger:<8} {step.action:<5} {step.to_state:>5}  {st.metric:>10.4g}  {','.join(st.removable) or '-'}")
+        grip = f"{st.grip_force_n:>6.3f}  " if gripped else ""
+        print(f"{i:>4}  {step.finger:<8} {step.action:<5} {step.to_state:>5}  {st.metric:>10.4g}  {grip}{','.join(st.removable) or '-'}")
     s = plan.summary
     for rank, alt in enumerate(result.alternatives, start=2):
-        print(f"alternative {rank}: bottleneck {alt.bottleneck:.4g}, {alt.gait_steps} gait steps: {' '.join(alt.order(result.graph.graph['problem']))}")
+        grip = f", grip {alt.bottleneck_grip:.3f} N" if alt.bottleneck_grip is not None else ""
+        print(f"alternative {rank}: bottleneck {alt.bottleneck:.4g}{grip}, {alt.gait_steps} gait steps: "
+              f"{' '.join(alt.order(result.graph.graph['problem']))}")
     if args.output:
         write_plan(plan, args.output)
     print(
         f"{s['strategy']}: {s['gait_steps']} gait steps ({len(plan.steps)} motions), bottleneck metric "
-        f"{s['bottleneck_metric']:.4g}, graph {s['graph_nodes']} states / {s['graph_edges']} edges "
+        f"{s['bottleneck_metric']:.4g}"
+        + (f", largest grip {s['bottleneck_grip_force_n']:.3f} N" if s["bottleneck_grip_force_n"] is not None else "")
+        + f" (ranked by {s['rank']}), graph {s['graph_nodes']} states / {s['graph_edges']} edges "
         f"({s['blocked_states']} blocked), {time.perf_counter() - t0:.2f} s"
         + (f", written to {args.output}" if args.output else "")
     )
@@ -174,15 +183,24 @@ def build_parser() -> argparse.ArgumentParser:
     plan.add_argument("--intermediate", type=int, default=0, metavar="N", help="extra contacts sampled per finger (default 0)")
     plan.add_argument("--strategy", default="graph", help="graph (ranked search, default) or greedy (thesis Algorithm 2)")
     plan.add_argument("--seed", type=int, default=0, help="seed for sampling and motion planning (default 0)")
-    plan.add_argument("--contact-model", default="patch", metavar="MODEL",
+    plan.add_argument("--contact-model", default=None, metavar="MODEL",
                       help="closure from every patch point (patch, default: the thesis) or from one mean contact "
-                           "per finger (mean: what the simulator's rigid fingertips give)")
+                           "per finger (mean: what the simulator's rigid fingertips give; --execution's)")
     plan.add_argument("--max-lifted", type=int, default=None, metavar="N", help="at most N fingers lifted at once")
     plan.add_argument("--gravity", type=float, nargs=3, metavar=("GX", "GY", "GZ"), default=None,
                       help="also require every state to hold the object's weight under this gravity (palm frame, "
                            "m/s^2, e.g. 0 0 9.81 palm down) with each finger pressing at most --max-finger-force")
+    plan.add_argument("--gravity-set", type=int, default=None, metavar="N",
+                      help="like --gravity for several hand orientations at once: 1 palm down, 2 and palm up, "
+                           "6 and the four sideways directions, 7 and gravity off (from the hand's palm_normal)")
     plan.add_argument("--max-finger-force", type=float, default=1.0, metavar="N",
                       help="per-finger normal force budget against gravity, N (default 1, the replay's squeeze)")
+    plan.add_argument("--rank", default=None, metavar="metric|grip",
+                      help="rank sequences by their worst closure metric (metric, default: the thesis) or by the "
+                           "largest grip force they need (grip; needs --gravity or --gravity-set)")
+    plan.add_argument("--execution", action="store_true",
+                      help="plan for execution: --contact-model mean, --gravity-set 6 (unless --gravity or "
+                           "--gravity-set is given) and --rank grip")
     plan.add_argument("--no-motion", action="store_true", help="skip OMPL finger paths (straight joint segments)")
     plan.add_argument("--motion-planner", default="rrtconnect", help="OMPL planner name (default rrtconnect)")
     plan.add_argument("--motion-timeout", type=float, default=2.0, metavar="S", help="time budget per finger path, s")

@@ -4,16 +4,24 @@ A grasp state assigns every finger a contact *slot* (a realized contact: joint v
 and contact patch) or ``LIFTED``. Two states are joined when exactly one finger
 changes: *lift* (slot -> lifted) or *land* (lifted -> slot). A state is a node of the
 graph only when it is valid: its contacts are force closure and no two fingers (nor a
-finger and the palm) collide, and, when the problem carries a load (the object's
-weight), the fingers can hold that load pressing at most ``max_grip_force_n`` each
-(`planner.closure.min_grip_force`). Any path from the initial to the final state is thus a
-finger-gaiting sequence that keeps force closure throughout.
+finger and the palm) collide, and, when the problem carries loads (the object's weight
+under one or several gravity directions), the fingers can hold every load pressing at
+most ``max_grip_force_n`` each (`planner.closure.min_grip_force`; a state's *grip force*
+is the largest of those per-load minima). Any path from the initial to the final state is
+thus a finger-gaiting sequence that keeps force closure throughout.
 
 `build_graph` grows the graph breadth-first from the initial state, evaluating each
 new layer of states in one batch closure call; states that are not force closure are
 recorded as blocked and never expanded, so states that cannot matter are never built.
-`search` ranks paths by (1) the bottleneck: the worst closure metric along the path,
-larger is better; (2) fewer gait steps; (3) a larger mean metric.
+`search` ranks paths in one of two ways (`RANKS`):
+
+* ``metric`` (the thesis): (1) the bottleneck, the worst closure metric along the path,
+  larger is better; (2) fewer gait steps (then fewer edges); (3) a larger mean metric.
+* ``grip`` (for execution): (1) the grip bottleneck, the largest grip force any state of the
+  path needs, smaller is better; (2) fewer gait steps; (3) the metric ranking (larger
+  metric bottleneck, fewer edges, larger mean metric).
+
+The search is exact for both: it returns the k best simple paths under the key.
 `greedy` is the thesis's Algorithm 2, kept as the baseline.
 
 This module is pure numpy/networkx: it knows nothing of hands or simulators. Slots
@@ -32,6 +40,9 @@ import numpy as np
 
 from planner.closure import Closure, Friction, batch_grasp_closure, min_grip_force
 from planner.errors import InputError, NoSequenceError
+
+RANKS = ("metric", "grip")
+"""Sequence rankings of `search` (module docstring)."""
 
 LIFTED = -1
 """Slot index of a finger that does not touch the object."""
@@ -91,7 +102,11 @@ class GaitProblem:
         load: optional (6,) external wrench on the object, object frame (e.g. its weight
             ``[m g_obj ; 0]``); with it a state is valid only if its fingers hold the load
             pressing at most ``max_grip_force_n`` each.
-        max_grip_force_n: per-finger normal force budget for ``load``, N.
+        max_grip_force_n: per-finger normal force budget for the loads, N.
+        loads: optional (m, 6) further loads (e.g. the weight under several gravity
+            directions); a state's grip force is the largest `min_grip_force` over
+            ``load`` and every row of ``loads``, and must stay within the budget.
+        load_names: one name per row of ``loads`` (default "load1", ...).
     """
 
     fingers: tuple[str, ...]
@@ -103,12 +118,23 @@ class GaitProblem:
     max_lifted: int | None = None
     load: np.ndarray | None = None
     max_grip_force_n: float = 1.0
+    loads: np.ndarray | None = None
+    load_names: tuple[str, ...] = ()
 
     def __post_init__(self):
         if self.load is not None:
             object.__setattr__(self, "load", _frozen(self.load, ()))
             if self.load.shape != (6,) or not np.all(np.isfinite(self.load)):
                 raise InputError(f"load must be 6 finite numbers [fx fy fz tx ty tz], got {self.load.tolist()}")
+        if self.loads is not None:
+            object.__setattr__(self, "loads", _frozen(self.loads, (6,)))
+            if not np.all(np.isfinite(self.loads)):
+                raise InputError("loads must be finite rows [fx fy fz tx ty tz]")
+            names = tuple(self.load_names) or tuple(f"load{i + 1}" for i in range(len(self.loads)))
+            if len(names) != len(self.loads):
+                raise InputError(f"load_names has {len(names)} names for {len(self.loads)} loads")
+            object.__setattr__(self, "load_names", names)
+        if self.load is not None or self.loads is not None:
             if not (np.isfinite(self.max_grip_force_n) and self.max_grip_force_n > 0):
                 raise InputError(f"max_grip_force_n must be > 0, got {self.max_grip_force_n!r}")
         n = len(self.fingers)
@@ -118,6 +144,14 @@ class GaitProblem:
             for f, s in zip(self.fingers, node):
                 if s != LIFTED and not 0 <= s < len(self.slots[f]):
                     raise InputError(f"{name} node: finger {f!r} has no slot {s}")
+
+    def all_loads(self) -> list[tuple[str, np.ndarray]]:
+        """(name, (6,) wrench) of every load a state must hold: ``load`` (named "load")
+        then the rows of ``loads``; empty when the problem carries none."""
+        out = [("load", self.load)] if self.load is not None else []
+        if self.loads is not None:
+            out += list(zip(self.load_names, self.loads))
+        return out
 
     def patches(self, node: Node) -> dict[str, tuple[np.ndarray, np.ndarray]]:
         """Touching finger -> (points, normals) of a node."""
@@ -152,7 +186,8 @@ class _Evaluator:
     def __init__(self, problem: GaitProblem):
         self.problem = problem
         self.closure: dict[Node, Closure] = {}
-        self.grip: dict[Node, float] = {}
+        self.grip: dict[Node, tuple[float, ...]] = {}
+        self._loads = problem.all_loads()
         self._pairs: dict[tuple, bool] = {}
 
     def evaluate(self, nodes: Sequence[Node]) -> None:
@@ -176,14 +211,22 @@ class _Evaluator:
                 return False
         return True
 
-    def grip_force(self, node: Node) -> float | None:
-        """Per-finger normal force the state needs to hold the problem's load (None: no load)."""
-        if self.problem.load is None:
+    def grip_forces(self, node: Node) -> tuple[float, ...] | None:
+        """Per-finger normal force the state needs for each of the problem's loads, in
+        `GaitProblem.all_loads` order (None: no load)."""
+        if not self._loads:
             return None
         f = self.grip.get(node)
         if f is None:
-            f = self.grip[node] = min_grip_force(self.problem.patches(node), self.problem.friction, self.problem.load)
+            patches = self.problem.patches(node)
+            f = self.grip[node] = tuple(min_grip_force(patches, self.problem.friction, w) for _, w in self._loads)
         return f
+
+    def grip_force(self, node: Node) -> float | None:
+        """Per-finger normal force the state needs to hold every load: the largest over the
+        loads (None: no load)."""
+        f = self.grip_forces(node)
+        return None if f is None else max(f)
 
     def removable(self, node: Node) -> frozenset[str]:
         """Thesis Algorithm 1 from cached closures: lifted fingers are removable."""
@@ -263,7 +306,10 @@ def build_graph(problem: GaitProblem) -> nx.DiGraph:
 def _add_node(G: nx.DiGraph, ev: _Evaluator, v: Node) -> None:
     p = ev.problem
     c = ev.closure[v]
-    G.add_node(v, labels=p.labels(v), patches=p.patches(v), closure=c, metric=float(c.metric), grip_force=ev.grip_force(v))
+    forces = ev.grip_forces(v)
+    G.add_node(v, labels=p.labels(v), patches=p.patches(v), closure=c, metric=float(c.metric),
+               grip_force=None if forces is None else max(forces),
+               grip_forces=None if forces is None else dict(zip((n for n, _ in p.all_loads()), forces)))
 
 
 @dataclass(frozen=True)
@@ -277,6 +323,9 @@ class GaitSequence:
         mean_metric: mean closure metric over the states.
         gait_steps: finger gaits: a lift and the landing of the same finger right after it
             are one gait; a lift or a landing on its own is one gait too.
+        bottleneck_grip: the largest grip force (N per finger) any state needs to hold the
+            problem's loads; None when the problem has no load.
+        rank: the ranking ``rank_key`` follows (`RANKS`).
     """
 
     nodes: tuple[Node, ...]
@@ -284,10 +333,16 @@ class GaitSequence:
     bottleneck: float
     mean_metric: float
     gait_steps: int = field(default=0)
+    bottleneck_grip: float | None = None
+    rank: str = "metric"
 
     @property
     def rank_key(self) -> tuple:
-        """Sort key: larger bottleneck, then fewer gait steps (then edges), then larger mean."""
+        """Sort key, smaller is better. ``metric``: larger bottleneck, then fewer gait steps
+        (then edges), then larger mean. ``grip``: smaller grip bottleneck, then fewer gait
+        steps, then the metric ranking (larger bottleneck, fewer edges, larger mean)."""
+        if self.rank == "grip":
+            return (self.bottleneck_grip, self.gait_steps, -self.bottleneck, len(self.actions), -self.mean_metric)
         return (-self.bottleneck, self.gait_steps, len(self.actions), -self.mean_metric)
 
     def order(self, problem: GaitProblem) -> tuple[str, ...]:
@@ -306,8 +361,9 @@ def _gait_increment(prev: tuple[str, str] | None, action: tuple[str, str]) -> in
     return 0 if action[1] == "land" and prev == (action[0], "lift") else 1
 
 
-def _sequence(G: nx.DiGraph, nodes: Sequence[Node]) -> GaitSequence:
+def _sequence(G: nx.DiGraph, nodes: Sequence[Node], rank: str = "metric") -> GaitSequence:
     metrics = [G.nodes[v]["metric"] for v in nodes]
+    grips = [G.nodes[v].get("grip_force") for v in nodes]
     actions = tuple((G.edges[u, v]["finger"], G.edges[u, v]["action"]) for u, v in zip(nodes, nodes[1:]))
     return GaitSequence(
         nodes=tuple(nodes),
@@ -315,52 +371,130 @@ def _sequence(G: nx.DiGraph, nodes: Sequence[Node]) -> GaitSequence:
         bottleneck=float(min(metrics)),
         mean_metric=float(np.mean(metrics)),
         gait_steps=sum(_gait_increment(prev, act) for prev, act in zip((None,) + actions, actions)),
+        bottleneck_grip=None if any(g is None for g in grips) else float(max(grips)),
+        rank=rank,
     )
 
 
-def search(G: nx.DiGraph, k: int = 1, *, max_expansions: int = 200_000) -> list[GaitSequence]:
+def _bottleneck_to_goal(G: nx.DiGraph, goal: Node, cost: Mapping[Node, float]) -> dict[Node, float]:
+    """For every node v that reaches the goal: the smallest possible largest ``cost`` over
+    the nodes of a walk from v to the goal (both ends included). Dijkstra on the reversed
+    graph with max in place of +; a lower bound for any simple path too."""
+    best = {goal: cost[goal]}
+    heap = [(cost[goal], goal)]
+    done = set()
+    while heap:
+        d, v = heapq.heappop(heap)
+        if v in done:
+            continue
+        done.add(v)
+        for u in G.predecessors(v):
+            du = max(cost[u], d)
+            if du < best.get(u, np.inf):
+                best[u] = du
+                heapq.heappush(heap, (du, u))
+    return best
+
+
+def search(G: nx.DiGraph, k: int = 1, *, rank: str = "metric", max_expansions: int = 200_000) -> list[GaitSequence]:
     """The best ``k`` distinct gait sequences from the graph's start to its goal.
 
-    Best-first over simple paths with the key (-bottleneck, gait steps, edges): every
-    part can only grow as a path extends, so paths reach the goal in rank order. Each
-    node is expanded at most ``4k`` times (k-shortest-paths label setting); ties are
-    ordered by the mean metric.
+    Ranking (``rank``, `RANKS`): ``metric`` sorts by ``(-bottleneck, gait steps, edges,
+    -mean metric)``, ``grip`` by ``(grip bottleneck, gait steps, -bottleneck, edges, -mean
+    metric)`` (`GaitSequence.rank_key`). ``grip`` needs the nodes' ``grip_force`` (a
+    problem with a load).
+
+    Exact best-first enumeration of simple paths (A*). A partial path is keyed by a lower
+    bound of the key of every goal path extending it, component by component: each
+    bottleneck part is the worse of the path's own and the best bottleneck any walk from
+    its end to the goal can have (`_bottleneck_to_goal`); gait steps add one per finger
+    not yet at its goal slot (less one when the last edge lifted a finger whose landing
+    would complete that gait); edges add the shortest edge count to the goal. Every part
+    is a lower bound and complete paths are keyed exactly, so goal paths come off the heap
+    in key order (every prefix of a goal path is keyed no higher than the path itself).
+    The search stops once the next partial path is keyed above the k-th goal path found;
+    ties on all but the mean metric are all collected, then sorted by the full key. No
+    partial path is dropped for any other reason, so the result is exact unless
+    ``max_expansions`` partial paths were expanded first (then it is the best found and
+    ``G.graph["search_exact"]`` is False; it is True otherwise).
 
     Returns:
         Up to k sequences, best first; empty when the goal is unreachable.
+
+    Raises:
+        InputError: unknown ``rank``, or ``rank="grip"`` on a graph without grip forces.
     """
+    if rank not in RANKS:
+        from planner.errors import UnknownNameError
+
+        raise UnknownNameError("rank", rank, RANKS)
+    G.graph["search_exact"] = True
     start, goal = G.graph["start"], G.graph["goal"]
-    if goal not in G:
+    if goal not in G or start not in G:
         return []
-    metric = {v: G.nodes[v]["metric"] for v in G.nodes}
-    pops: dict[Node, int] = {}
-    limit = 4 * max(k, 1)
+    neg_metric = {v: -G.nodes[v]["metric"] for v in G.nodes}
+    hb_metric = _bottleneck_to_goal(G, goal, neg_metric)
+    if start not in hb_metric:
+        return []
+    grip = hb_grip = None
+    if rank == "grip":
+        grip = {v: G.nodes[v].get("grip_force") for v in G.nodes}
+        if any(g is None for g in grip.values()):
+            raise InputError("grip ranking needs the grip force of every state: plan with a gravity (a load)")
+        hb_grip = _bottleneck_to_goal(G, goal, grip)
+    hops = nx.single_target_shortest_path_length(G, goal)
+    hops = dict(hops) if not isinstance(hops, dict) else hops
+    fingers = G.graph["problem"].fingers if "problem" in G.graph else None
+    index = {f: i for i, f in enumerate(fingers)} if fingers is not None else {}
+
+    def gaits_left(v: Node, last) -> int:
+        differ = [i for i in range(len(v)) if v[i] != goal[i]]
+        free = last is not None and last[1] == "lift" and index.get(last[0]) in differ and goal[index[last[0]]] != LIFTED
+        return len(differ) - int(free)
+
+    def key(neg_b, g_max, gaits, n_edges, v, last) -> tuple:
+        b = max(neg_b, hb_metric[v])
+        g = gaits + gaits_left(v, last)
+        e = n_edges + hops[v]
+        if rank == "grip":
+            return (max(g_max, hb_grip[v]), g, b, e)
+        return (b, g, e)
+
     tie = itertools.count()
-    heap = [(-metric[start], 0, 0, -metric[start], next(tie), (start,), None)]
+    g0 = grip[start] if grip is not None else 0.0
+    heap = [(key(neg_metric[start], g0, 0, 0, start, None), next(tie), neg_metric[start], g0, 0, 0, (start,), None)]
     found: list[GaitSequence] = []
+    bound = None  # key (without the mean) of the k-th goal path found
     expansions = 0
-    while heap and expansions < max_expansions:
-        neg_b, gaits, n_edges, neg_sum, _, path, last = heapq.heappop(heap)
-        if len(found) >= k and (neg_b, gaits, n_edges) > found[k - 1].rank_key[:3]:
+    while heap:
+        f, _, neg_b, g_max, gaits, n_edges, path, last = heapq.heappop(heap)
+        if bound is not None and f > bound:
             break
         v = path[-1]
         if v == goal:
-            found.append(_sequence(G, path))
-            found.sort(key=lambda s: s.rank_key)
+            found.append(_sequence(G, path, rank))
+            if len(found) >= k:
+                found.sort(key=lambda s: s.rank_key)
+                bound = found[k - 1].rank_key[:-1]
             continue
-        pops[v] = pops.get(v, 0) + 1
-        if pops[v] > limit:
-            continue
+        if expansions >= max_expansions:
+            G.graph["search_exact"] = False
+            break
         expansions += 1
         on_path = set(path)
         for w in sorted(G.successors(v)):
-            if w in on_path:
+            if w in on_path or w not in hops:
                 continue
-            b = max(neg_b, -metric[w])
             e = G.edges[v, w]
             act = (e["finger"], e["action"])
-            g = gaits + _gait_increment(last, act)
-            heapq.heappush(heap, (b, g, n_edges + 1, neg_sum - metric[w], next(tie), path + (w,), act))
+            nb = max(neg_b, neg_metric[w])
+            gm = max(g_max, grip[w]) if grip is not None else 0.0
+            gw = gaits + _gait_increment(last, act)
+            fw = key(nb, gm, gw, n_edges + 1, w, act)
+            if bound is not None and fw > bound:
+                continue
+            heapq.heappush(heap, (fw, next(tie), nb, gm, gw, n_edges + 1, path + (w,), act))
+    found.sort(key=lambda s: s.rank_key)
     return found[:k]
 
 

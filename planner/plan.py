@@ -8,6 +8,9 @@ tool can re-check the plan from the file alone. The schema is documented in
 
 Same inputs, parameters and seed give a byte-identical file: floats are rounded to
 ``FLOAT_DIGITS`` significant digits and keys are written in a fixed order.
+
+Schema version 1 grows only by optional keys (e.g. ``states[i].grip_force_n``): files
+written before a key existed lack it and read as if it were null.
 """
 
 from __future__ import annotations
@@ -54,6 +57,11 @@ class PlanState:
         metric: signed closure metric of ``patches`` (see planner.closure).
         removable: fingers removable from this state (thesis Algorithm 1).
         q: joint values in the plan's ``joints`` order, radians.
+        grip_force_n: normal force each finger must be able to press with to hold the
+            object's weight under every gravity direction the plan was made for (the
+            largest `planner.closure.min_grip_force` over them), N; None without gravity.
+        grip_force_by_gravity_n: gravity direction name -> that direction's grip force, N;
+            None without gravity.
     """
 
     fingers: Mapping[str, str]
@@ -62,6 +70,8 @@ class PlanState:
     metric: float
     removable: tuple[str, ...]
     q: tuple[float, ...]
+    grip_force_n: float | None = None
+    grip_force_by_gravity_n: Mapping[str, float] | None = None
 
     def to_dict(self, joints: tuple[str, ...]) -> dict:
         return {
@@ -70,6 +80,9 @@ class PlanState:
                 f: {"points": _vecs(p), "normals": _vecs(n)} for f, (p, n) in self.patches.items()
             },
             "closure": {"is_force_closure": bool(self.is_force_closure), "metric": _num(self.metric)},
+            "grip_force_n": None if self.grip_force_n is None else _num(self.grip_force_n),
+            "grip_force_by_gravity_n": None if self.grip_force_by_gravity_n is None
+            else {str(k): _num(v) for k, v in self.grip_force_by_gravity_n.items()},
             "removable": sorted(self.removable),
             "q": {j: _num(v) for j, v in zip(joints, self.q)},
         }
@@ -107,12 +120,14 @@ class PlanStep:
 
 @dataclass(frozen=True)
 class Alternative:
-    """A ranked gait ordering, compactly: ``order`` is "finger:action>slot" items."""
+    """A ranked gait ordering, compactly: ``order`` is "finger:action>slot" items;
+    ``bottleneck_grip_force_n`` is the largest grip force along it (None without gravity)."""
 
     order: tuple[str, ...]
     bottleneck_metric: float
     gait_steps: int
     mean_metric: float
+    bottleneck_grip_force_n: float | None = None
 
     def to_dict(self) -> dict:
         return {
@@ -120,6 +135,7 @@ class Alternative:
             "bottleneck_metric": _num(self.bottleneck_metric),
             "gait_steps": int(self.gait_steps),
             "mean_metric": _num(self.mean_metric),
+            "bottleneck_grip_force_n": None if self.bottleneck_grip_force_n is None else _num(self.bottleneck_grip_force_n),
         }
 
 
@@ -243,6 +259,9 @@ def read_plan(path: str | os.PathLike) -> dict:
         missing = set(joints) - set(state["q"])
         if missing:
             raise SpecError(str(path), f"states[{i}].q", f"missing joints {sorted(missing)}")
+        grip = state.get("grip_force_n")
+        if grip is not None and (isinstance(grip, bool) or not isinstance(grip, (int, float)) or not grip >= 0):
+            raise SpecError(str(path), f"states[{i}].grip_force_n", f"expected a force >= 0 in newtons or null, got {grip!r}")
         for finger, patch in state["patches"].items():
             pts, nrm = patch.get("points"), patch.get("normals")
             if pts is None or nrm is None or len(pts) != len(nrm):

@@ -21,9 +21,10 @@ from typing import Any, Callable, Mapping
 import networkx as nx
 import numpy as np
 
-from planner.closure import CONTACT_MODELS, apply_contact_model
+from planner.closure import CONTACT_MODELS, GRIP_CONE_SIDES, apply_contact_model
 from planner.errors import MotionError, NoSequenceError, PlannerError, SpecError, UnknownNameError
-from planner.graph import LIFTED, GaitProblem, GaitSequence, Slot, build_graph, explain_failure, greedy, search, seed_graph
+from planner.graph import (LIFTED, RANKS, GaitProblem, GaitSequence, Slot, build_graph, explain_failure, greedy, search,
+                           seed_graph)
 from planner.plan import Alternative, Plan, PlanState, PlanStep
 
 STRATEGIES = ("graph", "greedy")
@@ -55,6 +56,17 @@ class PlanOptions:
             origin).
         max_finger_force_n: per-finger normal force budget against gravity, N (default 1,
             the replay's squeeze force).
+        gravity_set: None or a set size of `planner.gravity.GRAVITY_SET_SIZES` (1, 2, 6, 7):
+            plan for several hand orientations at once, the named gravity directions of
+            `planner.gravity.gravity_directions` (from the hand's ``palm_normal``). A state's
+            grip force is then the largest `min_grip_force` over the directions, and must
+            stay within ``max_finger_force_n``. Exclusive with ``gravity``.
+        rank: how sequences are ranked (`planner.graph.RANKS`): "metric" (the thesis:
+            largest worst-case closure metric first) or "grip" (smallest largest grip force
+            along the sequence first, then fewest gait steps, then the metric ranking;
+            needs ``gravity`` or ``gravity_set``).
+        execution: label of plans meant to be executed (`PlanOptions.for_execution`): it
+            requires the "mean" contact model, the "grip" ranking and a gravity.
     """
 
     strategy: str = "graph"
@@ -69,6 +81,20 @@ class PlanOptions:
     contact_model: str = "patch"
     gravity: tuple[float, float, float] | None = None
     max_finger_force_n: float = 1.0
+    gravity_set: int | None = None
+    rank: str = "metric"
+    execution: bool = False
+
+    @classmethod
+    def for_execution(cls, **overrides) -> "PlanOptions":
+        """Options for a plan that is to be executed: one mean contact per finger (what rigid
+        fingertips give), gravity set 6 (palm down, palm up and the four sideways
+        directions) unless ``gravity`` or ``gravity_set`` is given, grip ranking."""
+        kw = dict(contact_model="mean", rank="grip", execution=True)
+        if overrides.get("gravity") is None and overrides.get("gravity_set") is None:
+            kw["gravity_set"] = 6
+        kw.update({k: v for k, v in overrides.items() if v is not None or k not in kw})
+        return cls(**kw)
 
     def __post_init__(self):
         if self.gravity is not None:
@@ -82,6 +108,22 @@ class PlanOptions:
         if not (isinstance(self.max_finger_force_n, (int, float)) and math.isfinite(self.max_finger_force_n)
                 and self.max_finger_force_n > 0):
             raise PlannerError(f"max_finger_force_n must be a positive number of newtons, got {self.max_finger_force_n!r}")
+        if self.gravity_set is not None:
+            from planner.gravity import GRAVITY_SET_SIZES
+
+            if self.gravity is not None:
+                raise PlannerError("give either a gravity vector or a gravity set, not both")
+            if isinstance(self.gravity_set, bool) or self.gravity_set not in GRAVITY_SET_SIZES:
+                raise PlannerError(f"gravity set size must be one of {', '.join(map(str, GRAVITY_SET_SIZES))}, "
+                                   f"got {self.gravity_set!r}")
+        if self.rank not in RANKS:
+            raise UnknownNameError("rank", self.rank, RANKS)
+        if self.rank == "grip" and self.gravity is None and self.gravity_set is None:
+            raise PlannerError("grip ranking needs a gravity: give --gravity GX GY GZ or --gravity-set N "
+                               "(PlanOptions gravity or gravity_set)")
+        if self.execution and (self.contact_model != "mean" or self.rank != "grip"):
+            raise PlannerError(f"execution mode plans with the 'mean' contact model and grip ranking, got contact "
+                               f"model {self.contact_model!r} and rank {self.rank!r}")
         if self.strategy not in STRATEGIES:
             raise UnknownNameError("strategy", self.strategy, STRATEGIES)
         if self.contact_model not in CONTACT_MODELS:
@@ -225,12 +267,27 @@ def build_problem(initial, final, options: PlanOptions) -> GaitProblem:
         start.append(s_idx)
         goal.append(g_idx)
     compatible = _pairwise_collision_check(initial.hand, slots)
-    load = None
-    if options.gravity is not None:  # the weight at the object origin, in the object frame
+    directions = gravity_directions_of(options, hand)
+    loads = names = None
+    if directions:  # the weight at the object origin, in the object frame, per direction
         R = np.asarray(initial.obj.T_palm_obj, dtype=float)[:3, :3]
-        load = np.r_[initial.obj.mass_kg * (R.T @ np.asarray(options.gravity)), np.zeros(3)]
+        names = tuple(name for name, _ in directions)
+        loads = np.array([np.r_[initial.obj.mass_kg * (R.T @ np.asarray(g, dtype=float)), np.zeros(3)] for _, g in directions])
     return GaitProblem(fingers, slots, tuple(start), tuple(goal), initial.friction, compatible, options.max_lifted,
-                       load=load, max_grip_force_n=float(options.max_finger_force_n))
+                       max_grip_force_n=float(options.max_finger_force_n), loads=loads, load_names=names or ())
+
+
+def gravity_directions_of(options: PlanOptions, hand) -> list[tuple[str, tuple[float, float, float]]]:
+    """The named gravity vectors (palm frame, m/s^2) a plan is made for: ``[("gravity",
+    options.gravity)]``, the set of `planner.gravity.gravity_directions` for
+    ``options.gravity_set`` (from ``hand.palm_normal``), or [] (force closure only)."""
+    if options.gravity is not None:
+        return [("gravity", tuple(float(v) for v in options.gravity))]
+    if options.gravity_set is not None:
+        from planner.gravity import gravity_directions
+
+        return gravity_directions(hand.palm_normal, options.gravity_set)
+    return []
 
 
 def _modelled(slot: Slot, contact_model: str) -> Slot:
@@ -388,9 +445,9 @@ def plan_regrasp(
     failed: list[str] = []
     for _ in range(50):
         if options.strategy == "greedy":
-            candidates = [greedy(G)]
+            candidates = [replace(greedy(G), rank=options.rank)]
         else:
-            candidates = search(G, k=options.alternatives)
+            candidates = search(G, k=options.alternatives, rank=options.rank)
             if not candidates:
                 err = explain_failure(G, intermediate_tried=options.intermediate > 0)
                 if failed:
@@ -428,6 +485,8 @@ def _make_plan(initial, final, options, inputs, problem, G, best, others, motion
                 metric=data["metric"],
                 removable=tuple(sorted(data["removable"])),
                 q=tuple(float(v) for v in q),
+                grip_force_n=data.get("grip_force"),
+                grip_force_by_gravity_n=data.get("grip_forces"),
             )
         )
         return len(states) - 1
@@ -460,18 +519,24 @@ def _make_plan(initial, final, options, inputs, problem, G, best, others, motion
         "graph_edges": G.number_of_edges(),
         "blocked_states": len(G.graph["blocked"]),
         "order": list(best.order(problem)),
+        "rank": options.rank,
+        "bottleneck_grip_force_n": best.bottleneck_grip,
     }
+    parameters = asdict(options)
+    directions = gravity_directions_of(options, hand)
+    parameters["gravity_directions"] = [{"name": n, "gravity": list(g)} for n, g in directions] or None
+    parameters["grip_cone_sides"] = GRIP_CONE_SIDES if directions else None
     return Plan(
         hand={"name": hand.name, "spec": spec.hand},
         object=spec.object.to_dict(),
         friction={"mu": spec.friction.mu, "gamma": spec.friction.gamma, "edges": spec.friction.edges},
         inputs=dict(inputs),
-        parameters=asdict(options),
+        parameters=parameters,
         summary=summary,
         joints=tuple(hand.joint_names),
         states=tuple(states),
         steps=tuple(steps),
         alternatives=tuple(
-            Alternative(s.order(problem), s.bottleneck, s.gait_steps, s.mean_metric) for s in others
+            Alternative(s.order(problem), s.bottleneck, s.gait_steps, s.mean_metric, s.bottleneck_grip) for s in others
         ),
     )

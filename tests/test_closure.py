@@ -555,7 +555,7 @@ def test_grip_force_antipodal_pair_holds_a_weight_with_friction():
     from planner.closure import min_grip_force
 
     for mu, weight in ((0.5, 1.0), (0.9, 0.3)):
-        t = min_grip_force(_antipodal(), Friction(mu, 0.01, edges=64), [0, 0, -weight, 0, 0, 0])
+        t = min_grip_force(_antipodal(), Friction(mu, 0.01, edges=5), [0, 0, -weight, 0, 0, 0], cone_sides=64)
         assert weight / (2 * mu) - 1e-9 <= t <= weight / (2 * mu * math.cos(math.pi / 64)) + 1e-9
 
 
@@ -593,7 +593,7 @@ def test_grip_force_agrees_with_an_independent_check_of_its_forces():
     the explicit wrench rows)."""
     from scipy.optimize import linprog
 
-    from planner.closure import min_grip_force
+    from planner.closure import GRIP_CONE_SIDES, min_grip_force
 
     rng = np.random.default_rng(5)
     patches = random_grasp(rng, 4, 4)
@@ -601,8 +601,9 @@ def test_grip_force_agrees_with_an_independent_check_of_its_forces():
     t = min_grip_force(patches, SOFT, load)
     assert 0 < t < math.inf
 
-    def feasible(limit):
-        blocks = [contact_wrenches(p, n, SOFT) for p, n in patches.values()]
+    def feasible(limit):  # the grip LP's own 16-sided cone polygon, whatever SOFT.edges is
+        fine = Friction(SOFT.mu, SOFT.gamma, GRIP_CONE_SIDES)
+        blocks = [contact_wrenches(p, n, fine) for p, n in patches.values()]
         W = np.vstack(blocks)
         A_ub = np.zeros((len(blocks), len(W)))
         start = 0
@@ -622,3 +623,126 @@ def test_grip_force_rejects_a_bad_load():
     for bad in ([1, 2, 3], [0, 0, math.nan, 0, 0, 0], "down"):
         with pytest.raises(InputError, match="load"):
             min_grip_force(_antipodal(), SOFT, bad)
+
+
+def _tangent_load(phi, weight):
+    """A weight W in the common tangent plane (y-z) of the antipodal pair, at angle phi."""
+    return [0.0, weight * math.cos(phi), weight * math.sin(phi), 0.0, 0.0, 0.0]
+
+
+def test_grip_force_converges_to_the_analytic_value_as_the_cone_polygon_refines():
+    """Two opposed soft fingers holding a weight W along their common tangent need exactly
+    f_n = W / (2 mu) each (circular cone). The grip LP's inscribed N-gon answer lies in
+    [W / (2 mu), W / (2 mu cos(pi / N))] for every load direction in the tangent plane, so
+    its error is bounded by a quantity that vanishes as N grows; the default 16 sides stay
+    within cos(pi/16) (2 %)."""
+    from planner.closure import GRIP_CONE_SIDES, min_grip_force
+
+    mu, weight = 0.6, 0.4
+    exact = weight / (2 * mu)
+    worst = {}
+    for sides in (3, 5, 7, 8, 16, 33, 64, 256):
+        errors = []
+        for phi in np.linspace(0.0, 2 * math.pi, 13)[:-1] + 0.1:
+            t = min_grip_force(_antipodal(), Friction(mu, 0.002, edges=5), _tangent_load(phi, weight), cone_sides=sides)
+            assert exact * (1 - 1e-9) <= t <= exact / math.cos(math.pi / sides) * (1 + 1e-9), (sides, phi, t)
+            errors.append(t / exact - 1)
+        worst[sides] = max(errors)
+    assert worst[256] < 1e-4 < worst[3]  # converges, and the coarse polygon really is off
+    assert worst[256] <= worst[64] <= worst[16] <= worst[5]
+    t16 = min_grip_force(_antipodal(), Friction(mu, 0.002), _tangent_load(0.3, weight))
+    assert GRIP_CONE_SIDES == 16 and exact <= t16 * (1 + 1e-12) <= exact / math.cos(math.pi / 16) * (1 + 1e-9)
+
+
+#: A thin-rod tripod: three point contacts on a 6 mm rod (axis z) and a 10 g weight in an
+#: oblique direction; with the closure's own 5-edge polygon the grip LP needed 1.26 N (and
+#: the closure metric drops to 9e-5), with 4, 6, 8 or 64 edges 0.11-0.14 N (issue 13).
+_ROD_ANGLES_DEG = (104.84, 213.72, 304.12)
+_ROD_Z_M = (-0.00691, 0.01343, 0.01051)
+_ROD_GRAVITY = np.array([-0.4137, 0.9030, 0.1161])
+
+
+def _rod_tripod(radius=0.003):
+    patches = {}
+    for i, (a, z) in enumerate(zip(np.radians(_ROD_ANGLES_DEG), _ROD_Z_M)):
+        d = np.array([math.cos(a), math.sin(a), 0.0])
+        patches[f"f{i}"] = (np.array([radius * d + [0, 0, z]]), -d[None, :])
+    load = np.r_[0.01 * 9.81 * _ROD_GRAVITY / np.linalg.norm(_ROD_GRAVITY), np.zeros(3)]
+    return patches, load
+
+
+def _grip_explicit_cone(patches, mu, gamma, load, sides):
+    """Independent grip LP: per contact, forces sum_k a_k (n + mu d_k) on an inscribed N-gon
+    of its own (random rotation of the tangent frame) and a torsion s n with |s| <= gamma
+    sum_k a_k; per finger sum_k a_k <= t; minimize t (scipy HiGHS)."""
+    from scipy.optimize import linprog
+
+    rng = np.random.default_rng(0)
+    cols, torsion, finger_of = [], [], []
+    for fi, (pts, nrm) in enumerate(patches.values()):
+        for p, n in zip(np.atleast_2d(pts), np.atleast_2d(nrm)):
+            n = n / np.linalg.norm(n)
+            t1 = np.cross(n, rng.normal(size=3))
+            t1 /= np.linalg.norm(t1)
+            t2 = np.cross(n, t1)
+            phase = rng.uniform(0, 2 * math.pi)
+            for k in range(sides):
+                th = phase + 2 * math.pi * k / sides
+                f = n + mu * (math.cos(th) * t1 + math.sin(th) * t2)
+                cols.append(np.r_[f, np.cross(p, f)])
+                finger_of.append(fi)
+            torsion.append((len(cols) - sides, len(cols), np.r_[np.zeros(3), n]))
+    nf, na, ns = len(patches), len(cols), len(torsion)
+    nv = na + ns + 1  # a, s, t
+    A_eq = np.zeros((6, nv))
+    A_eq[:, :na] = np.array(cols).T
+    for j, (_, _, col) in enumerate(torsion):
+        A_eq[:, na + j] = col
+    A_ub = []
+    for fi in range(nf):
+        row = np.zeros(nv)
+        row[:na] = [1.0 if f == fi else 0.0 for f in finger_of]
+        row[-1] = -1.0
+        A_ub.append(row)
+    for j, (a, b, _) in enumerate(torsion):
+        for sign in (1.0, -1.0):
+            row = np.zeros(nv)
+            row[a:b] = -gamma
+            row[na + j] = sign
+            A_ub.append(row)
+    c = np.zeros(nv)
+    c[-1] = 1.0
+    bounds = [(0, None)] * na + [(None, None)] * ns + [(0, None)]
+    res = linprog(c, A_ub=np.array(A_ub), b_ub=np.zeros(len(A_ub)), A_eq=A_eq, b_eq=-np.asarray(load, float),
+                  bounds=bounds, method="highs")
+    assert res.status == 0
+    return float(res.x[-1])
+
+
+def test_grip_force_does_not_depend_on_the_closure_cone_edges():
+    """The thin-rod tripod of issue 13: with friction edges 4, 5, 6 or 8 the grip LP gives the
+    same answer (its own 16-gon), within the cone bound of an independent fine LP:
+    t(mu) <= t16 <= t(mu cos(pi/16)); the closure's 5-edge polygon used to give ~10x that."""
+    from planner.closure import min_grip_force
+
+    patches, load = _rod_tripod()
+    mu, gamma = 0.9, 0.004
+    answers = {e: min_grip_force(patches, Friction(mu, gamma, edges=e), load) for e in (4, 5, 6, 8)}
+    assert len(set(answers.values())) == 1, answers
+    t16 = answers[5]
+    # independent bracket: a circumscribed fine polygon under-estimates the exact t(mu), an
+    # inscribed one with mu cos(pi/16) over-estimates t(mu cos(pi/16))
+    lower = _grip_explicit_cone(patches, mu / math.cos(math.pi / 256), gamma, load, 256)
+    upper = _grip_explicit_cone(patches, mu * math.cos(math.pi / 16), gamma, load, 256)
+    assert lower * (1 - 1e-6) <= t16 <= upper * (1 + 1e-6), (lower, t16, upper)
+    assert 0.10 < t16 < 0.13
+    old5 = min_grip_force(patches, Friction(mu, gamma, edges=5), load, cone_sides=None)
+    assert old5 > 5 * upper  # the artefact this guards against (cone_sides=None: the old behaviour)
+
+
+def test_grip_force_rejects_a_bad_cone_side_count():
+    from planner.closure import min_grip_force
+
+    for bad in (2, 0, 4.5, True, "16"):
+        with pytest.raises(InputError, match="cone_sides"):
+            min_grip_force(_antipodal(), SOFT, [0, 0, -1, 0, 0, 0], cone_sides=bad)
