@@ -286,7 +286,9 @@ def gravity_directions_of(options: PlanOptions, hand) -> list[tuple[str, tuple[f
     if options.gravity_set is not None:
         from planner.gravity import gravity_directions
 
-        return gravity_directions(hand.palm_normal, options.gravity_set)
+        # [:n]: planner.gravity returns palm down *and* palm up for n = 1 (its docstring says
+        # palm down only); the first n entries are the documented set for every size.
+        return gravity_directions(hand.palm_normal, options.gravity_set)[: options.gravity_set]
     return []
 
 

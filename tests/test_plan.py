@@ -90,3 +90,41 @@ def test_malformed_yaml_is_a_spec_error(tmp_path):
     path.write_text("states: [unclosed\n")
     with pytest.raises(SpecError, match="not valid YAML"):
         read_plan(path)
+
+
+def test_grip_force_is_exported_per_state_and_null_without_gravity(tmp_path):
+    """states[i].grip_force_n / grip_force_by_gravity_n and the alternatives' grip bottleneck
+    are written (rounded like every float) when given and null otherwise; both formats."""
+    plan = tiny_plan()
+    s0, s1 = plan.states
+    gripped = Plan(**{**plan.__dict__, "states": (
+        PlanState(s0.fingers, s0.patches, True, s0.metric, s0.removable, s0.q, grip_force_n=0.123456789012345,
+                  grip_force_by_gravity_n={"palm_down": 0.123456789012345, "palm_up": np.float64(0.1)}),
+        s1,
+    ), "alternatives": (Alternative(("b:lift",), -0.5, 1, 0.1, bottleneck_grip_force_n=0.7),)})
+    for suffix in (".yaml", ".json"):
+        data = read_plan(write_plan(gripped, tmp_path / f"g{suffix}"))
+        assert data["states"][0]["grip_force_n"] == 0.123456789
+        assert data["states"][0]["grip_force_by_gravity_n"] == {"palm_down": 0.123456789, "palm_up": 0.1}
+        assert data["states"][1]["grip_force_n"] is None and data["states"][1]["grip_force_by_gravity_n"] is None
+        assert data["alternatives"][0]["bottleneck_grip_force_n"] == 0.7
+    plain = yaml.safe_load(dumps_plan(tiny_plan()))
+    assert plain["states"][0]["grip_force_n"] is None and plain["alternatives"][0]["bottleneck_grip_force_n"] is None
+    assert dumps_plan(gripped) == dumps_plan(gripped)
+
+
+def test_plans_without_grip_keys_still_read_and_bad_grip_is_refused(tmp_path):
+    """schema_version 1 files written before grip_force_n existed read unchanged; a negative
+    or non-numeric grip force is a SpecError naming the key."""
+    data = yaml.safe_load(dumps_plan(tiny_plan()))
+    for state in data["states"]:
+        del state["grip_force_n"], state["grip_force_by_gravity_n"]
+    old = tmp_path / "old.yaml"
+    old.write_text(yaml.safe_dump(data))
+    assert "grip_force_n" not in read_plan(old)["states"][0]
+    for bad in (-0.1, "strong", True):
+        data["states"][1]["grip_force_n"] = bad
+        path = tmp_path / "bad.yaml"
+        path.write_text(yaml.safe_dump(data))
+        with pytest.raises(SpecError, match=r"states\[1\]\.grip_force_n"):
+            read_plan(path)

@@ -295,3 +295,99 @@ def test_mesh_pair_plans_with_finger_paths_and_every_state_rechecks(tmp_path):
                 worst = min(worst, _rounded_box_sdf(segment_obj).min() - g.radius)
     slack = ROUNDED_BOX["chord_sag_m"] + 0.0001  # chords inside the ideal box; axis sampling
     assert worst > -(DEFAULT_TOUCH_TOL_M + slack), f"a finger sinks {-worst * 1e3:.2f} mm into the rounded box"
+
+
+# --------------------------------------------------------------------------- execution mode
+
+#: The iCub hand's six named gravity directions (palm_normal +z), written out independently
+#: of planner.gravity.
+ICUB_GRAVITY_SET_6 = {
+    "palm_down": [0.0, 0.0, 9.81], "palm_up": [0.0, 0.0, -9.81], "side_+x": [9.81, 0.0, 0.0],
+    "side_-x": [-9.81, 0.0, 0.0], "side_+y": [0.0, 9.81, 0.0], "side_-y": [0.0, -9.81, 0.0],
+}
+
+
+def test_execution_mode_plans_the_box_pair_and_every_state_rechecks_closure_and_grip(realized, tmp_path):
+    """--execution (mean contacts, gravity set 6, grip ranking) plans the box pair with OMPL
+    paths; from the file alone every state re-checks as force closure and its recorded grip
+    force is the largest over the six directions of an independent grip LP (own cone
+    polygons, bracketed within the 16-gon's bound); the plan is the grip-best one; a second
+    run is byte-identical."""
+    from scipy.spatial.transform import Rotation
+    from test_closure import _grip_explicit_cone
+
+    from planner.closure import min_grip_force
+
+    a, b = PAIRS["box"]
+    out, again = tmp_path / "exec.yaml", tmp_path / "again.yaml"
+    assert main(["plan", str(a), str(b), "-o", str(out), "--execution"]) == 0
+    data = recheck_plan_file(out)
+    par = data["parameters"]
+    assert par["execution"] and par["contact_model"] == "mean" and par["rank"] == "grip" and par["gravity_set"] == 6
+    assert {d["name"]: d["gravity"] for d in par["gravity_directions"]} == ICUB_GRAVITY_SET_6
+    assert par["grip_cone_sides"] == 16 and data["summary"]["rank"] == "grip"
+    fr = Friction(**data["friction"])
+    R = Rotation.from_quat(data["object"]["quat_xyzw"]).as_matrix()
+    mass = data["object"]["mass_kg"]
+    grips, bracketed = [], set()
+    for i, state in enumerate(data["states"]):
+        patches = {f: (np.array(p["points"]), np.array(p["normals"])) for f, p in state["patches"].items()}
+        assert all(len(p) == 1 for p, _ in patches.values())  # one mean contact per finger
+        per_dir = {}
+        for name, g in ICUB_GRAVITY_SET_6.items():
+            load = np.r_[mass * R.T @ np.array(g), np.zeros(3)]
+            per_dir[name] = min_grip_force(patches, fr, load)
+            key = (repr(state["patches"]), name)  # lift and move states share their contacts
+            if key not in bracketed:
+                bracketed.add(key)
+                lower = _grip_explicit_cone(patches, fr.mu / np.cos(np.pi / 128), fr.gamma, load, 128)
+                upper = _grip_explicit_cone(patches, fr.mu * np.cos(np.pi / 16), fr.gamma, load, 128)
+                assert lower * (1 - 1e-6) - 1e-9 <= state["grip_force_by_gravity_n"][name] <= upper * (1 + 1e-6) + 1e-9
+        assert state["grip_force_by_gravity_n"] == pytest.approx(per_dir, rel=1e-7)
+        assert state["grip_force_n"] == pytest.approx(max(per_dir.values()), rel=1e-7), f"state {i}"
+        assert state["grip_force_n"] <= par["max_finger_force_n"]
+        grips.append(state["grip_force_n"])
+    assert data["summary"]["bottleneck_grip_force_n"] == pytest.approx(max(grips), rel=1e-9)
+    assert all(alt["bottleneck_grip_force_n"] >= max(grips) * (1 - 1e-9) for alt in data["alternatives"])
+    # the metric ranking on the same states does not need less grip than the grip ranking
+    by_metric = plan_regrasp(realized(a), realized(b), PlanOptions(motion=False, contact_model="mean", gravity_set=6))
+    assert by_metric.sequence.bottleneck_grip >= max(grips) * (1 - 1e-9)
+    assert main(["plan", str(a), str(b), "-o", str(again), "--execution"]) == 0
+    assert out.read_bytes() == again.read_bytes()
+
+
+def test_execution_mode_options_and_errors_are_one_line(tmp_path, capsys):
+    """--execution takes --gravity instead of the set; grip ranking without gravity, a
+    gravity vector and a set together, a bad set size, an unknown rank and --execution
+    with another contact model are one-line errors with exit 2."""
+    a, b = PAIRS["box"]
+    out = tmp_path / "g.json"
+    assert main(["plan", str(a), str(b), "-o", str(out), "--no-motion", "--execution", "--gravity", "0", "0", "9.81"]) == 0
+    par = read_plan(out)["parameters"]
+    assert par["gravity_set"] is None and par["gravity_directions"] == [{"name": "gravity", "gravity": [0.0, 0.0, 9.81]}]
+    assert all(s["grip_force_by_gravity_n"].keys() == {"gravity"} for s in read_plan(out)["states"])
+    capsys.readouterr()
+    for args, words in (
+        (["--rank", "grip"], "grip ranking needs a gravity"),
+        (["--gravity", "0", "0", "9.81", "--gravity-set", "6"], "not both"),
+        (["--gravity-set", "3"], "1, 2, 6, 7"),
+        (["--rank", "fastest"], "grip, metric"),
+        (["--execution", "--contact-model", "patch"], "execution mode"),
+    ):
+        assert main(["plan", str(a), str(b), "--no-motion", *args]) == 2, args
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and words in err, err
+
+
+def test_plain_plans_export_null_grip_and_gravity_set_blocks_like_gravity(realized):
+    """Without gravity every state's grip force is None (null in the file); gravity set 1
+    (palm down) gives the same graph and grips as --gravity along the palm normal."""
+    a, b = PAIRS["box"]
+    plain = plan_regrasp(realized(a), realized(b), PlanOptions(motion=False, contact_model="mean"))
+    assert all(s.grip_force_n is None and s.grip_force_by_gravity_n is None for s in plain.plan.states)
+    assert plain.plan.parameters["gravity_directions"] is None and plain.plan.summary["bottleneck_grip_force_n"] is None
+    one = plan_regrasp(realized(a), realized(b), PlanOptions(motion=False, contact_model="mean", gravity_set=1))
+    vec = plan_regrasp(realized(a), realized(b), PlanOptions(motion=False, contact_model="mean", gravity=(0, 0, 9.81)))
+    assert sorted(one.graph.nodes) == sorted(vec.graph.nodes)
+    assert [s.grip_force_n for s in one.plan.states] == [s.grip_force_n for s in vec.plan.states]
+    assert one.plan.states[0].grip_force_by_gravity_n.keys() == {"palm_down"}
