@@ -10,6 +10,7 @@ import argparse
 import sys
 
 from planner.errors import NoSequenceError, PlannerError
+from planner.gravity import GRAVITY_SET_SIZES
 
 DEMO_INITIAL = "grasps/icub/box_parallel_extension.yaml"
 DEMO_FINAL = "grasps/icub/box_ir2m.yaml"
@@ -129,17 +130,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     return verdict
 
 
-def _cmd_replay(args: argparse.Namespace) -> int:
-    """Replay a plan in pybullet; exit 0 pass, 1 fail (dropped or drifted), 2 bad input."""
-    import json
-
-    from planner.sim.replay import replay_plan
-
-    report = replay_plan(
-        args.plan, gui=args.gui, gif=args.gif, gif_every=args.gif_every, mp4=args.mp4,
-        drift_mm_max=args.drift_mm, drift_deg_max=args.drift_deg,
-        **({"gravity": tuple(args.gravity)} if args.gravity else {}),
-    )
+def _print_states(report) -> None:
     print(f"{'state':>5}  {'plan fingers':<24} {'plan FC':>7} {'plan metric':>11}  {'sim fingers':<24} "
           f"{'sim FC':>6} {'sim metric':>10}  {'drift mm':>8} {'drift deg':>9}")
     for s in report.states:
@@ -150,16 +141,40 @@ def _cmd_replay(args: argparse.Namespace) -> int:
         print(f"{s.index:>5}  {','.join(s.planned_fingers) or '-':<24} {str(s.planned_force_closure):>7} "
               f"{s.planned_metric:>11.4g}  {','.join(s.sim_fingers) or '-':<24} {str(s.sim_force_closure):>6} "
               f"{s.sim_metric:>10.4g}  {s.drift_mm:>8.2f} {s.drift_deg:>9.2f}")
-    agree, reached = report.closure_agreement
-    print(f"force closure agrees at {agree}/{reached} states; simulated {report.sim_time_s:.2f} s "
-          f"in {report.wall_time_s:.2f} s" + (f"; GIF {report.gif} ({report.gif_frames} frames)" if report.gif else ""))
-    if args.report:
-        from pathlib import Path
 
+
+def _cmd_replay(args: argparse.Namespace) -> int:
+    """Replay a plan in pybullet; exit 0 pass, 1 fail (dropped, drifted or closure disagrees), 2 bad input."""
+    import json
+    from pathlib import Path
+
+    from planner.sim.replay import replay_gravity_set, replay_plan
+
+    kw = dict(gui=args.gui, gif=args.gif, gif_every=args.gif_every, mp4=args.mp4,
+              drift_mm_max=args.drift_mm, drift_deg_max=args.drift_deg)
+    if args.gravity_set is not None:
+        if args.gravity is not None:
+            raise PlannerError("--gravity and --gravity-set exclude each other: give one")
+        result = replay_gravity_set(args.plan, args.gravity_set, **kw)
+        print(f"{'gravity':<10} {'g (palm frame)':<22} {'verdict':<5} {'drift mm':>8} {'drift deg':>9} {'closure':>8}  why")
+        for name, g, r in result.directions:
+            agree, reached = r.closure_agreement
+            why = r.reasons[0] if r.reasons and not r.passed else ""
+            print(f"{name:<10} {'[' + ' '.join(f'{v:+.2f}' for v in g) + ']':<22} {'PASS' if r.passed else 'FAIL':<5} "
+                  f"{r.max_drift_mm:>8.2f} {r.max_drift_deg:>9.2f} {f'{agree}/{reached}':>8}  {why}")
+        data, passed, verdict = result.to_dict(), result.passed, result.verdict
+    else:
+        report = replay_plan(args.plan, **kw, **({"gravity": tuple(args.gravity)} if args.gravity else {}))
+        _print_states(report)
+        agree, reached = report.closure_agreement
+        print(f"force closure agrees at {agree}/{reached} states; simulated {report.sim_time_s:.2f} s "
+              f"in {report.wall_time_s:.2f} s" + (f"; GIF {report.gif} ({report.gif_frames} frames)" if report.gif else ""))
+        data, passed, verdict = report.to_dict(), report.passed, report.verdict
+    if args.report:
         Path(args.report).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.report).write_text(json.dumps(report.to_dict(), indent=1) + "\n")
-    print(report.verdict)
-    return 0 if report.passed else 1
+        Path(args.report).write_text(json.dumps(data, indent=1) + "\n")
+    print(verdict)
+    return 0 if passed else 1
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -216,7 +231,10 @@ def build_parser() -> argparse.ArgumentParser:
     replay.add_argument("--drift-mm", type=float, default=5.0, metavar="X", help="largest allowed object drift, mm (default 5)")
     replay.add_argument("--drift-deg", type=float, default=5.0, metavar="Y", help="largest allowed object rotation, deg (default 5)")
     replay.add_argument("--gravity", type=float, nargs=3, metavar=("GX", "GY", "GZ"),
-                        help="gravity in the palm frame, m/s^2 (default 0 0 9.81: palm facing down)")
+                        help="gravity in the palm frame, m/s^2 (default: palm facing down, along the hand's palm_normal)")
+    replay.add_argument("--gravity-set", type=int, choices=GRAVITY_SET_SIZES, metavar="N",
+                        help="replay under N gravity directions of the palm frame with a verdict per direction: "
+                             "1 palm down, 2 and palm up, 6 and the four sideways directions, 7 and gravity off")
     replay.set_defaults(func=_cmd_replay)
     return parser
 

@@ -490,7 +490,7 @@ def replay_plan(
     gui: bool = False,
     hand=None,
     dt: float = 1.0 / 240.0,
-    gravity: tuple[float, float, float] = (0.0, 0.0, 9.81),
+    gravity: tuple[float, float, float] | None = None,
     acquire_s: float = 0.3,
     ramp_s: float = 0.5,
     settle_s: float = 0.25,
@@ -519,8 +519,9 @@ def replay_plan(
         gui: open a pybullet GUI window (needs a display) and run in real time.
         hand: a `planner.hand.Hand` to use instead of loading the plan's ``hand``.
         dt: physics time step, s.
-        gravity: gravity vector in the palm (= world) frame, m/s^2. Default +z: palm down
-            for the iCub hand (module docstring); `planner.gravity` names the directions.
+        gravity: gravity vector in the palm (= world) frame, m/s^2. None: palm down, 9.81
+            along the hand's ``palm_normal`` (the object hangs from the fingers);
+            `planner.gravity` names the other directions.
         acquire_s: time the fingers take their planned contacts with gravity off while the
             object is held at its planned pose, s.
         ramp_s: time over which gravity rises from 0 after the object is released, s.
@@ -558,7 +559,8 @@ def replay_plan(
     for name, v in positive:
         if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
             raise InputError(f"{name} must be a positive number, got {v!r}")
-    g_vec = np.asarray(gravity, dtype=float)
+    info = _load_hand(rd, joints, hand)
+    g_vec = 9.81 * np.asarray(info.palm_normal, float) if gravity is None else np.asarray(gravity, dtype=float)
     if g_vec.shape != (3,) or not np.all(np.isfinite(g_vec)):
         raise InputError(f"gravity must be 3 finite numbers (palm frame, m/s^2), got {gravity!r}")
     if int(gif_every) < 1:
@@ -568,7 +570,6 @@ def replay_plan(
         ffmpeg = shutil.which("ffmpeg")
         if ffmpeg is None:
             raise SimulationError("--mp4 needs ffmpeg on PATH and none was found; use --gif instead")
-    info = _load_hand(rd, joints, hand)
     contact_model = rd.get("parameters", "contact_model", default="patch")
     if contact_model not in CONTACT_MODELS:
         raise rd.fail("parameters.contact_model", f"unknown contact model {contact_model!r}; "
