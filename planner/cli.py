@@ -116,10 +116,10 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     plan_path = out / "box_plan.yaml"
-    # one mean contact per finger: the plan must hold with the simulator's rigid fingertips;
-    # gravity-aware for the replay's orientation: every state holds the box's weight at 1 N
+    # execution mode: one mean contact per finger (the simulator's rigid fingertips), every
+    # state holds the box's weight in six hand orientations, least grip ranked first
     code = main(["plan", str(root / DEMO_INITIAL), str(root / DEMO_FINAL), "-o", str(plan_path),
-                 "--contact-model", "mean", "--gravity", "0", "0", "9.81"])
+                 "--execution"])
     if code != 0:
         return code
     # Replay with the default gravity (palm facing down: the box hangs from the fingers, the

@@ -46,7 +46,7 @@ def gravity_directions(palm_normal: Sequence[float], n: int, g_mps2: float = G_M
     if not (math.isfinite(length) and length > 0):
         raise PlannerError(f"palm normal must be a non-zero vector, got {list(nrm)}")
     nrm = nrm / length
-    out = [("palm_down", nrm * g_mps2), ("palm_up", -nrm * g_mps2)]
+    out = [("palm_down", nrm * g_mps2)] + ([("palm_up", -nrm * g_mps2)] if n >= 2 else [])
     if n >= 6:
         names = "xyz"
         axes = [(names[i], np.eye(3)[i]) for i in range(3) if abs(nrm[i]) < 1.0 - 1e-9]

@@ -333,3 +333,20 @@ def test_gravity_set_replays_every_direction_with_its_own_verdict(hand, grasp, t
     assert out.returncode == 1
     rows = [l for l in out.stdout.splitlines() if l.startswith(("palm_down", "palm_up"))]
     assert len(rows) == 2 and "FAIL" in rows[0]
+
+
+@pytest.mark.parametrize("n", [1, 2, 6, 7])
+def test_gravity_sets_have_n_named_directions_of_one_magnitude(n):
+    """Each set size gives exactly n directions: palm down first (along the palm normal),
+    distinct names, magnitude g (0 for "off"), and the sideways ones orthogonal to the normal."""
+    from planner.gravity import gravity_directions
+
+    for normal in ((0.0, 0.0, 1.0), (1.0, 0.0, 0.0)):
+        dirs = gravity_directions(normal, n)
+        assert len(dirs) == n and len({name for name, _ in dirs}) == n
+        assert dirs[0][0] == "palm_down"
+        np.testing.assert_allclose(dirs[0][1], 9.81 * np.asarray(normal))
+        for name, g in dirs:
+            assert np.linalg.norm(g) == pytest.approx(0.0 if name == "off" else 9.81)
+            if name.startswith("side_"):
+                assert abs(np.dot(g, normal)) < 1e-12
