@@ -82,6 +82,8 @@ ARMATURE_OMEGA_DT = 0.3
 TOUCH_TOL_M = 0.0005
 #: A link this close to the object counts as a contact for the force solution, m.
 CONTACT_GAP_M = 0.001
+#: Contact normals of one link closer than this (cosine, ~10 deg) belong to one face.
+FACE_COS = math.cos(math.radians(10.0))
 #: A holding finger that does not touch approaches the object when it is closer than this.
 APPROACH_M = 0.01
 
@@ -350,8 +352,8 @@ class Controller:
         return np.array([s[0] for s in states])
 
     def contacts(self) -> list[Contact]:
-        """Touching links (mean point and normal per link) and approach points of holding
-        fingers that do not touch."""
+        """Touching links (per link and face: mean point and normal) and approach points of
+        holding fingers that do not touch."""
         per_link: dict[int, list] = {}
         # closest points within a small gap rather than this step's contact points: a contact
         # that opens for a step (a bounce) keeps its balanced force instead of flipping to
@@ -360,10 +362,22 @@ class Controller:
             per_link.setdefault(cp[3], []).append(cp)
         out = []
         for link in sorted(per_link):
-            cps = per_link[link]
-            pt = np.mean([c[6] for c in cps], axis=0)
-            n = -np.mean([c[7] for c in cps], axis=0)
-            out.append(Contact(self._finger(link), link, pt, n / np.linalg.norm(n)))
+            # one contact per face the link touches: a manifold on one face shares its normal,
+            # while a link on an edge touches two faces, and the mean of their normals is the
+            # normal of neither (forces along it would slip on both)
+            groups: list[list] = []
+            for c in per_link[link]:
+                n = -np.asarray(c[7], float)
+                for g in groups:
+                    if float(n @ g[0]) >= FACE_COS:
+                        g[1].append(c)
+                        break
+                else:
+                    groups.append((n, [c]))
+            for n0, cps in groups:
+                pt = np.mean([c[6] for c in cps], axis=0)
+                n = -np.mean([c[7] for c in cps], axis=0)
+                out.append(Contact(self._finger(link), link, pt, n / np.linalg.norm(n)))
         touching = {c.finger for c in out}
         for f in self.holding:
             if f in touching:
@@ -407,7 +421,7 @@ class Controller:
         for c, f_c in zip(contacts, forces):
             if c.finger is None or not np.any(f_c):
                 continue
-            self.forces[c.link] = f_c
+            self.forces[c.link] = self.forces.get(c.link, 0.0) + f_c
             t = self._jacobian(q, c.link, c.p_palm, c.finger).T @ f_c
             for j, tj in zip(self.hand.fingers[c.finger].joints, t):
                 tau[self.hand_pos[self.jidx[j]]] += tj

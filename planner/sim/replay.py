@@ -765,10 +765,15 @@ class _Sim:
                 k = parent[k]
             self.link_finger[i] = f or "palm"
 
-        # friction: see the module docstring for Bullet's combination rules
+        # friction: see the module docstring for Bullet's combination rules. Joint damping
+        # off: Bullet applies a URDF's <dynamics damping> explicitly, and the Allegro's 3-10
+        # N m s/rad on links of ~1e-5 kg m^2 diverges within a few steps under torque
+        # control (the controller damps the joints itself, critically for their inertia).
         for link in range(-1, n):
             p.changeDynamics(self.hand, link, lateralFriction=1.0, spinningFriction=0.0, rollingFriction=0.0,
                              restitution=0.0, linearDamping=0.0, angularDamping=0.0, physicsClientId=cid)
+            if link >= 0:
+                p.changeDynamics(self.hand, link, jointDamping=0.0, physicsClientId=cid)
         p.changeDynamics(self.obj, -1, lateralFriction=friction.mu, spinningFriction=friction.gamma,
                          rollingFriction=0.0, restitution=0.0, linearDamping=0.0, angularDamping=0.0,
                          physicsClientId=cid)
@@ -825,6 +830,9 @@ class _Sim:
         lost = [f for f in self.ctl.holding if f not in touching]
         if lost:
             what.append(f"contact lost: {', '.join(lost)}")
+        stray = sorted(f for f in touching if f not in self.ctl.holding)
+        if stray:
+            what.append(f"touched by {', '.join(stray)} (not holding)")
         now = self.filter.patches(lambda link: self.link_finger.get(link, "palm"))
         for f, (pts, _) in sorted(self.last_patches.items()):
             if f in now and len(pts) and len(now[f][0]):
