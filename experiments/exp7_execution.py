@@ -20,6 +20,7 @@ row, direction empty): planned and plan time, passed (the replay's verdict), dri
 agreement (states where the simulator's closure agrees / states reached) and time.
 
     python experiments/exp7_execution.py [--quick] [--max-pairs N] [--directions 1|2|6|7]
+    python experiments/exp7_execution.py --from-csv experiments/results/exp7_execution.csv  # re-plot
 """
 
 from __future__ import annotations
@@ -63,6 +64,8 @@ QUICK = ("icub/box", "icub/sphere", "allegro/sphere", "icub/pen")
 #: A cylinder this thin or thinner is the "rod" family.
 ROD_MAX_RADIUS_M = 0.0065
 INITIAL_HINTS = ("parallel_extension", "four_finger", "pinch", "power")
+#: Where the plot puts replays that dropped the object (drift axis, deg).
+DROPPED_DEG = 180.0
 
 
 # ------------------------------------------------------------------ pairs
@@ -317,7 +320,7 @@ def summarize(rows: list[dict]) -> dict:
 def plot(rows: list[dict], path: Path) -> None:
     plt = pyplot()
     planned = [r for r in rows if r.get("direction")]
-    fams = sorted({r["family"] for r in planned})
+    fams = sorted({r["family"] for r in rows})  # a family with nothing planned shows no bars
     directions = list(dict.fromkeys(r["direction"] for r in planned))
     fig, ax = plt.subplots(1, 2, figsize=(15, 4.5), gridspec_kw={"width_ratios": [3, 2]})
     w = 0.8 / max(1, len(directions))
@@ -337,16 +340,40 @@ def plot(rows: list[dict], path: Path) -> None:
     ax[0].legend(fontsize=7, ncol=4)
     for i, d in enumerate(directions):
         sub = [r for r in planned if r["direction"] == d]
-        y = [min(r["max_drift_deg"], 180) if np.isfinite(r["max_drift_deg"]) else 180 for r in sub]
-        ax[1].scatter(np.full(len(sub), i) + np.random.default_rng(i).uniform(-0.25, 0.25, len(sub)), y,
-                      c=["tab:green" if r["passed"] else "tab:red" for r in sub], s=12)
+        x = np.full(len(sub), i) + np.random.default_rng(i).uniform(-0.25, 0.25, len(sub))
+        y = np.array([DROPPED_DEG if r["dropped"] or not np.isfinite(r["max_drift_deg"])
+                      else min(max(r["max_drift_deg"], 0.1), DROPPED_DEG) for r in sub])
+        ok = np.array([bool(r["passed"]) for r in sub], dtype=bool)
+        drop = np.array([bool(r["dropped"]) for r in sub], dtype=bool)
+        ax[1].scatter(x[ok], y[ok], c="tab:green", s=12, label="pass" if i == 0 else None)
+        ax[1].scatter(x[~ok & ~drop], y[~ok & ~drop], c="tab:red", s=12, label="fail" if i == 0 else None)
+        ax[1].scatter(x[drop], y[drop], c="tab:red", marker="v", s=14, label="dropped" if i == 0 else None)
     ax[1].axhline(5.0, color="k", ls="--", lw=0.8)
     ax[1].set_yscale("log")
     ax[1].set_xticks(range(len(directions)))
     ax[1].set_xticklabels(directions, rotation=30, fontsize=8)
-    ax[1].set_ylabel("max rotation drift (deg; green pass, red fail)")
+    ax[1].set_ylabel(f"max rotation drift (deg; dropped at {DROPPED_DEG:.0f})")
+    ax[1].legend(fontsize=7)
     ax[1].set_title("drift per direction (limit 5 deg)")
     save(fig, path)
+
+
+def read_rows(path: Path) -> list[dict]:
+    """Rows of an exp7 CSV with their types back (for --from-csv)."""
+    import csv
+
+    def conv(k, v):
+        if v in ("True", "False"):
+            return v == "True"
+        if v == "":
+            return np.nan if k.endswith(("_s", "_mm", "_deg", "_metric")) or k == "bottleneck" else v
+        try:
+            return float(v) if any(c in v for c in ".en") else int(v)
+        except ValueError:
+            return v
+
+    with open(path, newline="") as fh:
+        return [{k: conv(k, v) for k, v in r.items()} for r in csv.DictReader(fh)]
 
 
 def main(argv=None) -> dict:
@@ -356,8 +383,16 @@ def main(argv=None) -> dict:
     ap.add_argument("--directions", type=int, default=7, choices=(1, 2, 6, 7),
                     help="gravity set size of the replays (planner.gravity; default 7: with gravity off)")
     ap.add_argument("--name", default="exp7_execution", help="CSV / PNG file stem in --out")
+    ap.add_argument("--from-csv", type=Path, default=None,
+                    help="no run: summary and plot of an existing exp7 CSV (PNG into --out/--name)")
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
+    if args.from_csv is not None:
+        rows = read_rows(args.from_csv)
+        plot(rows, args.out / f"{args.name}.png")
+        summary = summarize(rows)
+        print_summary(f"exp7 execution ({args.from_csv.name})", summary)
+        return summary
     tasks = pair_tasks(args.quick)[: args.max_pairs]
     for t in tasks:
         t["directions"] = args.directions
