@@ -61,7 +61,7 @@ SAFETY = 2.0
 #: Posture motors may change a contact force by at most this fraction of the squeeze.
 POSTURE_SHARE = 0.3
 #: A moving finger's motors: this multiple of the squeeze at its pad.
-FREE_SHARE = 1.0
+FREE_SHARE = 0.15
 #: Friction-cone fractions tried in turn by `balance_forces`, (lateral, torsional).
 CONE_MARGINS = ((0.5, 0.0), (0.5, 0.5), (0.75, 0.0), (0.75, 0.75), (1.0, 0.0), (1.0, 1.0))
 #: A commanded force above this multiple of the squeeze is rejected (a near-singular
@@ -435,10 +435,24 @@ class Controller:
         the handover of fingers with a share below 1."""
         if not contacts:
             return []
-        load = np.r_[self.mass * self.gravity, np.zeros(3)]
         centre = np.asarray(p.getBasePositionAndOrientation(self.obj, physicsClientId=self.cid)[0], float)
+        g_now = float(np.linalg.norm(self.gravity))
+        full_load = np.zeros(6)
+        if g_now > 0:
+            full_load[:3] = self.mass * max(self.g_max, g_now) * self.gravity / g_now
+        scale = g_now / max(self.g_max, g_now) if g_now > 0 else 0.0
 
         def solve(active: set) -> list[np.ndarray] | None:
+            """Balanced forces for the load of the current gravity. While gravity ramps, the
+            solutions for no load and for the full load are blended: a convex combination of
+            two balanced force sets inside the cones balances the blended load inside them."""
+            if 0.0 < scale < 1.0:
+                lo, hi = solve_at(active, np.zeros(6)), solve_at(active, full_load)
+                if lo is not None and hi is not None:
+                    return [(1.0 - scale) * a + scale * b for a, b in zip(lo, hi)]
+            return solve_at(active, scale * full_load)
+
+        def solve_at(active: set, load: np.ndarray) -> list[np.ndarray] | None:
             idx = [i for i, c in enumerate(contacts) if c.touching and (c.finger is None or c.finger in active)]
             if not idx:
                 return None

@@ -784,6 +784,7 @@ class _Sim:
         self.steps_done = 0
         self.max_mm = self.max_deg = 0.0
         self.phase = "acquiring the initial grasp"
+        self.sampling = False
         self.failure: str | None = None
         self.last_patches: Mapping[str, tuple[np.ndarray, np.ndarray]] = {}
 
@@ -793,22 +794,18 @@ class _Sim:
 
     def _obj_pose(self) -> np.ndarray:
         pos, quat = p.getBasePositionAndOrientation(self.obj, physicsClientId=self.cid)
-        return _T(pos, quat)
+        T = np.eye(4)
+        T[:3, :3] = np.reshape(p.getMatrixFromQuaternion(quat, physicsClientId=self.cid), (3, 3))
+        T[:3, 3] = pos
+        return T
 
     def _tick(self):
         self.ctl.step()
         p.stepSimulation(physicsClientId=self.cid)
         self.steps_done += 1
         T = self._obj_pose()
-        R_t = T[:3, :3].T
-        sample = []
-        for cp in p.getContactPoints(self.hand, self.obj, physicsClientId=self.cid):
-            if cp[8] > TOUCH_TOL_M:
-                continue
-            p_obj = R_t @ (np.asarray(cp[6]) - T[:3, 3])  # point on the object (B)
-            n_obj = R_t @ (-np.asarray(cp[7]))  # into the object
-            sample.append((cp[3], p_obj[None, :], n_obj[None, :]))
-        self.filter.update(sample)
+        if self.sampling:  # the temporal filter only needs the samples before a measurement
+            self.filter.update(self._contact_sample(T))
         mm, deg = _drift(self.T_ref, T)
         if self.released:
             self.max_mm, self.max_deg = max(self.max_mm, mm), max(self.max_deg, deg)
@@ -820,6 +817,35 @@ class _Sim:
         if self.realtime:
             time.sleep(self.dt)
         return mm
+
+    def _contact_sample(self, T: np.ndarray) -> list:
+        """This step's contacts as (link, p_obj (1, 3), n_obj (1, 3)), normals INTO the object."""
+        R_t = T[:3, :3].T
+        sample = []
+        for cp in p.getContactPoints(self.hand, self.obj, physicsClientId=self.cid):
+            if cp[8] > TOUCH_TOL_M:
+                continue
+            p_obj = R_t @ (np.asarray(cp[6]) - T[:3, 3])  # point on the object (B)
+            n_obj = R_t @ (-np.asarray(cp[7]))  # into the object
+            sample.append((cp[3], p_obj[None, :], n_obj[None, :]))
+        return sample
+
+    def _dwell_and_measure(self, seconds: float, index: int, state) -> StateReport | None:
+        """Run ``seconds``, feeding the temporal filter during the last ``2 filter_k`` steps
+        (a contact it keeps must have been seen within its last ``filter_k`` samples, so
+        earlier samples cannot change what it reports), then measure the state; None when
+        the object dropped."""
+        window = 2 * self.params["filter_k"]
+        n = max(window, int(round(seconds / self.dt)))
+        if n > window and not self._run_for((n - window) * self.dt):
+            return None
+        self.filter.reset()
+        self.sampling = True
+        try:
+            ok = self._run_for(window * self.dt)
+        finally:
+            self.sampling = False
+        return self._measure(index, state) if ok else None
 
     def _explain(self, T: np.ndarray, mm: float, deg: float) -> str:
         """Where and why the object first left the limits: the phase, lost contacts, slip
@@ -833,10 +859,12 @@ class _Sim:
         stray = sorted(f for f in touching if f not in self.ctl.holding)
         if stray:
             what.append(f"touched by {', '.join(stray)} (not holding)")
-        now = self.filter.patches(lambda link: self.link_finger.get(link, "palm"))
+        now: dict[str, list] = {}
+        for link, pt, _ in self._contact_sample(T):
+            now.setdefault(self.link_finger.get(link, "palm"), []).append(pt[0])
         for f, (pts, _) in sorted(self.last_patches.items()):
-            if f in now and len(pts) and len(now[f][0]):
-                slip_mm = 1000.0 * float(np.linalg.norm(np.mean(now[f][0], axis=0) - np.mean(pts, axis=0)))
+            if f in now and len(pts):
+                slip_mm = 1000.0 * float(np.linalg.norm(np.mean(now[f], axis=0) - np.mean(pts, axis=0)))
                 if slip_mm > 1.0:
                     what.append(f"slip at {f} {slip_mm:.1f} mm")
         rot = Rotation.from_matrix(T[:3, :3] @ self.T_ref[:3, :3].T).as_rotvec()
@@ -896,10 +924,12 @@ class _Sim:
         self.phase = "gravity ramp at state 0"
         ok = self._run_for(prm["ramp_s"], lambda s: ctl.set_gravity(s * g_full))
         self.phase = "settling at state 0"
-        ok = ok and self._run_for(prm["settle_s"])
         reports: dict[int, StateReport] = {}
         if ok:
-            reports[0] = self._measure(0, states[0])
+            r0 = self._dwell_and_measure(prm["settle_s"], 0, states[0])
+            ok = r0 is not None
+            if ok:
+                reports[0] = r0
         for k, st in enumerate(steps if ok else ()):
             frm, to = states[st.from_state], states[st.to_state]
             self.phase = f"step {k} ({st.action} {st.finger}, state {st.from_state} -> {st.to_state})"
@@ -936,10 +966,11 @@ class _Sim:
             else:
                 q_to.update({j: v for j, v in ctl.q_ref.items() if j not in st.joints})
                 ctl.command(q_to, to.fingers)
-            ok = ok and self._run_for(prm["dwell_s"])
-            if not ok:
+            r = self._dwell_and_measure(prm["dwell_s"], st.to_state, to) if ok else None
+            if r is None:
+                ok = False
                 break
-            reports[st.to_state] = self._measure(st.to_state, to)
+            reports[st.to_state] = r
         out = []
         for i, s in enumerate(states):
             if i in reports:
