@@ -71,8 +71,10 @@ MAX_FORCE_RATIO = 5.0
 MIN_NORMAL_RATIO = 0.5
 #: Contact points and the object centre are quantized to this in the force cache, m.
 CACHE_M = 0.0002
-#: Pad travel over which a posture spring reaches its cap, m.
-POSTURE_TRAVEL_M = 0.001
+#: Pad travel over which a posture spring reaches its cap: a tenth of the object's smallest
+#: radius (a pad slipping that far turns the object by ~6 deg), at most ``MAX_TRAVEL_M``.
+TRAVEL_PER_RADIUS = 0.1
+MAX_TRAVEL_M = 0.001
 #: Smallest lever of a posture spring (joints whose axis passes near the pad), m.
 MIN_LEVER_M = 0.005
 #: Explicit springs are integrated stably while omega * dt stays below this.
@@ -218,12 +220,13 @@ class Controller:
         g_max_mps2: largest gravity magnitude of the replay (sets the squeeze).
         force_n: squeeze per holding finger, N; None derives it (`squeeze_force_n`).
         dt_s: physics time step (sets the armature).
+        object_radius_m: the object's smallest half-extent (sets the posture springs' travel).
     """
 
     def __init__(self, cid: int, body: int, obj: int, hand, joints: Sequence[str], jidx: Mapping[str, int],
                  link_finger: Mapping[int, str], link_name: Mapping[int, str], mass_kg: float,
                  friction: Friction, g_max_mps2: float, force_n: float | None = None,
-                 dt_s: float = 1.0 / 240.0):
+                 dt_s: float = 1.0 / 240.0, object_radius_m: float = math.inf):
         self.cid, self.body, self.obj, self.hand = cid, body, obj, hand
         self.joints = list(joints)
         self.jidx = dict(jidx)
@@ -235,6 +238,7 @@ class Controller:
         self.movable = [i for i in range(n_all) if p.getJointInfo(body, i, physicsClientId=cid)[2] != p.JOINT_FIXED]
         self.hand_pos = {i: k for k, i in enumerate(self.movable)}
         self.floor_n = self._heaviest_finger_weight_n(g_max_mps2)
+        self.travel_m = min(MAX_TRAVEL_M, TRAVEL_PER_RADIUS * float(object_radius_m))
         self.force_override = force_n
         self.gravity = np.zeros(3)
         # what is commanded: posture targets, holding fingers, finger load fractions (handover)
@@ -273,7 +277,7 @@ class Controller:
         for name, finger in self.hand.fingers.items():
             J = self.hand.frame_jacobian(q, finger.pad_link, finger.pad_p_link)[:3]
             reach = max([float(np.linalg.norm(J[:, self.col[j]])) for j in finger.joints] + [MIN_LEVER_M])
-            kp_max = max(FREE_SHARE, POSTURE_SHARE) * F / POSTURE_TRAVEL_M * reach ** 2
+            kp_max = max(FREE_SHARE, POSTURE_SHARE) * F / self.travel_m * reach ** 2
             inertia = kp_max * (dt_s / ARMATURE_OMEGA_DT) ** 2
             for link in self.finger_links.get(name, ()):
                 diag = p.getDynamicsInfo(self.body, link, physicsClientId=self.cid)[2]
@@ -497,7 +501,7 @@ class Controller:
         return [s * a + (1.0 - s) * b for a, b in zip(full, without)]
 
     def _set_motors(self, q: np.ndarray, F: float) -> None:
-        """Posture springs: a pad displacement of ``POSTURE_TRAVEL_M`` costs ``share * F``
+        """Posture springs: a pad displacement of ``travel_m`` costs ``share * F``
         (``share``: ``POSTURE_SHARE`` for holding fingers, ``FREE_SHARE`` for the others),
         i.e. ``Kp_j = share F / travel |J_pad[:, j]|^2``, saturating at ``share F |J_pad[:, j]|``;
         damping critical for the joint's armature."""
@@ -508,7 +512,7 @@ class Controller:
             for j in finger.joints:
                 lever = max(float(np.linalg.norm(J[:, self.col[j]])), MIN_LEVER_M)
                 k = self.hand_pos[self.jidx[j]]
-                kp[k] = share * F / POSTURE_TRAVEL_M * lever ** 2
+                kp[k] = share * F / self.travel_m * lever ** 2
                 cap[k] = share * F * lever
         self.kp, self.cap = kp, cap
         self.kd = 2.0 * np.sqrt(kp * self.armature)

@@ -388,7 +388,9 @@ def _object_volume(shape: str, size) -> float | None:
     return None
 
 
-def _create_object(cid: int, rd: _PlanReader, obj: dict, density_kg_m3: float, default_mass_kg: float) -> tuple[int, float]:
+def _create_object(cid: int, rd: _PlanReader, obj: dict, density_kg_m3: float,
+                   default_mass_kg: float) -> tuple[int, float, float]:
+    """The object's pybullet body, its mass (kg) and its smallest half-extent (m)."""
     shape = str(obj["shape"])
     size = [float(v) for v in obj["size"]]
     if shape == "box":
@@ -396,16 +398,19 @@ def _create_object(cid: int, rd: _PlanReader, obj: dict, density_kg_m3: float, d
             raise rd.fail("object.size", "a box needs 3 full extents (x, y, z)")
         kw = dict(shapeType=p.GEOM_BOX, halfExtents=[s / 2 for s in size])
         vkw = dict(kw)
+        radius = min(size) / 2
     elif shape == "cylinder":
         if len(size) != 2:
             raise rd.fail("object.size", "a cylinder needs (radius, length)")
         kw = dict(shapeType=p.GEOM_CYLINDER, radius=size[0], height=size[1])
         vkw = dict(shapeType=p.GEOM_CYLINDER, radius=size[0], length=size[1])
+        radius = min(size[0], size[1] / 2)
     elif shape == "sphere":
         if len(size) != 1:
             raise rd.fail("object.size", "a sphere needs (radius,)")
         kw = dict(shapeType=p.GEOM_SPHERE, radius=size[0])
         vkw = dict(kw)
+        radius = size[0]
     elif shape == "mesh":
         mesh = obj.get("mesh")
         resolved = _resolve(str(mesh), rd.path) if mesh else None
@@ -414,6 +419,10 @@ def _create_object(cid: int, rd: _PlanReader, obj: dict, density_kg_m3: float, d
         scale = size * 3 if len(size) == 1 else size
         kw = dict(shapeType=p.GEOM_MESH, fileName=str(resolved), meshScale=scale)
         vkw = dict(kw)
+        from planner.objects import load_mesh
+
+        V, _ = load_mesh(resolved, scale)
+        radius = float(np.min(V.max(axis=0) - V.min(axis=0))) / 2
     else:
         raise UnknownNameError("object shape", shape, ("box", "cylinder", "sphere", "mesh"))
     mass = obj.get("mass_kg")
@@ -431,7 +440,7 @@ def _create_object(cid: int, rd: _PlanReader, obj: dict, density_kg_m3: float, d
     body = p.createMultiBody(baseMass=mass, baseCollisionShapeIndex=col, baseVisualShapeIndex=vis,
                              basePosition=T[:3, 3].tolist(), baseOrientation=list(obj["quat_xyzw"]),
                              physicsClientId=cid)
-    return body, mass
+    return body, mass, radius
 
 
 class _Recorder:
@@ -736,7 +745,7 @@ class _Sim:
         except p.error as err:
             raise SimulationError(f"pybullet could not load the hand URDF {info.urdf_path}: {err}") from err
         bodies.append(self.hand)
-        self.obj, self.mass = _create_object(cid, rd, obj, density_kg_m3, 0.05)
+        self.obj, self.mass, radius_m = _create_object(cid, rd, obj, density_kg_m3, 0.05)
         bodies.append(self.obj)
         self.T_ref = _T(obj["position"], obj["quat_xyzw"])
 
@@ -779,7 +788,8 @@ class _Sim:
                          physicsClientId=cid)
         g_max = float(np.linalg.norm(params["gravity"]))
         self.ctl = Controller(cid, self.hand, self.obj, info.hand, joints, self.jidx, self.link_finger, link_name,
-                              self.mass, friction, g_max, force_n=params["finger_force_n"], dt_s=self.dt)
+                              self.mass, friction, g_max, force_n=params["finger_force_n"], dt_s=self.dt,
+                              object_radius_m=radius_m)
         self.filter = ContactFilter(params["filter_k"])
         self.steps_done = 0
         self.max_mm = self.max_deg = 0.0
