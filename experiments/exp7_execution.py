@@ -335,9 +335,10 @@ def plot(rows: list[dict], path: Path) -> None:
     pairs_per_fam = {fam: len({(r["pair"], r["variant"]) for r in planned if r["family"] == fam}) for fam in fams}
     ax[0].set_xticklabels([f"{fam}\n({pairs_per_fam[fam]} planned pairs)" for fam in fams])
     ax[0].set_ylabel("replay pass rate (%)")
-    ax[0].set_ylim(0, 105)
+    ax[0].set_ylim(0, 118)
+    ax[0].set_yticks(range(0, 101, 20))
     ax[0].set_title("pass rate per object family and gravity direction")
-    ax[0].legend(fontsize=7, ncol=4)
+    ax[0].legend(fontsize=7, ncol=len(directions), loc="upper center")
     for i, d in enumerate(directions):
         sub = [r for r in planned if r["direction"] == d]
         x = np.full(len(sub), i) + np.random.default_rng(i).uniform(-0.25, 0.25, len(sub))
