@@ -60,7 +60,7 @@ VARIANTS = {
 }
 MESH_SCALES = (0.9, 1.0, 1.1)
 #: --quick: the nominal pairs of these (3-4 replays' worth of pairs).
-QUICK = ("icub/box", "icub/sphere", "allegro/sphere", "icub/pen")
+QUICK = ("icub/cylinder", "icub/sphere", "allegro/sphere", "icub/pen")
 #: A cylinder this thin or thinner is the "rod" family.
 ROD_MAX_RADIUS_M = 0.0065
 INITIAL_HINTS = ("parallel_extension", "four_finger", "pinch", "power")
@@ -338,7 +338,7 @@ def plot(rows: list[dict], path: Path) -> None:
     ax[0].set_ylim(0, 118)
     ax[0].set_yticks(range(0, 101, 20))
     ax[0].set_title("pass rate per object family and gravity direction")
-    ax[0].legend(fontsize=7, ncol=len(directions), loc="upper center")
+    ax[0].legend(fontsize=7, ncol=max(1, len(directions)), loc="upper center")
     for i, d in enumerate(directions):
         sub = [r for r in planned if r["direction"] == d]
         x = np.full(len(sub), i) + np.random.default_rng(i).uniform(-0.25, 0.25, len(sub))

@@ -12,8 +12,8 @@ import sys
 from planner.errors import NoSequenceError, PlannerError
 from planner.gravity import GRAVITY_SET_SIZES
 
-DEMO_INITIAL = "grasps/icub/box_parallel_extension.yaml"
-DEMO_FINAL = "grasps/icub/box_ir2m.yaml"
+DEMO_INITIAL = "grasps/icub/cylinder_parallel_extension.yaml"
+DEMO_FINAL = "grasps/icub/cylinder_ir2m.yaml"
 
 
 def _cmd_plan(args: argparse.Namespace) -> int:
@@ -109,24 +109,26 @@ def _cmd_check(args: argparse.Namespace) -> int:
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
-    """Plan the bundled box example (parallel extension -> IR2M) and replay it."""
+    """Plan the bundled cylinder example (parallel extension -> IR2M) for execution and
+    replay it under the six gravity directions it was planned for, and gravity off."""
     from pathlib import Path
 
     root = Path(__file__).resolve().parent.parent
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    plan_path = out / "box_plan.yaml"
+    plan_path = out / "cylinder_plan.yaml"
     # execution mode: one mean contact per finger (the simulator's rigid fingertips), every
-    # state holds the box's weight in six hand orientations, least grip ranked first
-    code = main(["plan", str(root / DEMO_INITIAL), str(root / DEMO_FINAL), "-o", str(plan_path),
-                 "--execution"])
+    # state holds the weight in six hand orientations with 3/4 of the friction, least grip
+    # ranked first (the box pair needs more friction palm up: execution mode refuses it)
+    code = main(["plan", str(root / DEMO_INITIAL), str(root / DEMO_FINAL), "-o", str(plan_path), "--execution"])
     if code != 0:
         return code
-    # Replay with the default gravity (palm facing down: the box hangs from the fingers, the
-    # hardest orientation) and film it; the demo's exit code is the replay's (1 on FAIL).
-    print(f"\nreplaying {plan_path} in pybullet (palm down, gravity on)")
-    verdict = main(["replay", str(plan_path), "--gif", str(out / "box_replay.gif"), "--report", str(out / "box_report.json")])
-    print(f"demo outputs in {out}/: box_plan.yaml, box_replay.gif, box_report.json (replay {'passed' if verdict == 0 else 'did not pass'})")
+    # the demo's exit code is the replay's (1 when any direction fails); the GIF is palm down
+    print(f"\nreplaying {plan_path} in pybullet under 7 gravity directions (palm down filmed)")
+    verdict = main(["replay", str(plan_path), "--gravity-set", "7", "--gif", str(out / "cylinder_replay.gif"),
+                    "--report", str(out / "cylinder_report.json")])
+    print(f"demo outputs in {out}/: cylinder_plan.yaml, cylinder_replay_<direction>.gif, cylinder_report.json "
+          f"(replay {'passed' if verdict == 0 else 'did not pass'})")
     return verdict
 
 

@@ -107,6 +107,9 @@ class GaitProblem:
             directions); a state's grip force is the largest `min_grip_force` over
             ``load`` and every row of ``loads``, and must stay within the budget.
         load_names: one name per row of ``loads`` (default "load1", ...).
+        grip_friction_margin: the grip force is computed with ``mu`` and ``gamma`` scaled by
+            this (0 < margin <= 1): plans to be executed keep a friction reserve, so a state
+            that holds its load only with the whole friction cone is not accepted.
     """
 
     fingers: tuple[str, ...]
@@ -120,8 +123,11 @@ class GaitProblem:
     max_grip_force_n: float = 1.0
     loads: np.ndarray | None = None
     load_names: tuple[str, ...] = ()
+    grip_friction_margin: float = 1.0
 
     def __post_init__(self):
+        if not (isinstance(self.grip_friction_margin, (int, float)) and 0 < self.grip_friction_margin <= 1):
+            raise InputError(f"grip_friction_margin must be in (0, 1], got {self.grip_friction_margin!r}")
         if self.load is not None:
             object.__setattr__(self, "load", _frozen(self.load, ()))
             if self.load.shape != (6,) or not np.all(np.isfinite(self.load)):
@@ -188,6 +194,8 @@ class _Evaluator:
         self.closure: dict[Node, Closure] = {}
         self.grip: dict[Node, tuple[float, ...]] = {}
         self._loads = problem.all_loads()
+        fr, k = problem.friction, problem.grip_friction_margin
+        self._grip_friction = fr if k == 1 else Friction(fr.mu * k, fr.gamma * k, fr.edges)
         self._pairs: dict[tuple, bool] = {}
 
     def evaluate(self, nodes: Sequence[Node]) -> None:
@@ -219,7 +227,7 @@ class _Evaluator:
         f = self.grip.get(node)
         if f is None:
             patches = self.problem.patches(node)
-            f = self.grip[node] = tuple(min_grip_force(patches, self.problem.friction, w) for _, w in self._loads)
+            f = self.grip[node] = tuple(min_grip_force(patches, self._grip_friction, w) for _, w in self._loads)
         return f
 
     def grip_force(self, node: Node) -> float | None:

@@ -28,6 +28,12 @@ from planner.graph import (LIFTED, RANKS, GaitProblem, GaitSequence, Slot, build
 from planner.plan import Alternative, Plan, PlanState, PlanStep
 
 STRATEGIES = ("graph", "greedy")
+#: Friction fraction execution-mode plans must hold their load with: the replay controller
+#: keeps contact forces inside half, then three quarters of the friction cone
+#: (`planner.sim.controller.CONE_MARGINS`); states that need more are refused. Measured on
+#: exp7 (43 pairs): 1.0 plans 33 pairs, 26 hold in all 7 gravity directions; 0.75 plans 24,
+#: 22 hold; 0.5 plans 17, 17 hold.
+EXECUTION_FRICTION_MARGIN = 0.75
 
 
 @dataclass(frozen=True)
@@ -54,6 +60,10 @@ class PlanOptions:
             Every state must then hold the object's weight with each finger pressing at most
             ``max_finger_force_n`` (`planner.closure.min_grip_force`, weight at the object
             origin).
+        friction_margin: the grip forces against gravity are computed with ``mu`` and
+            ``gamma`` scaled by this (0 < margin <= 1); execution mode uses
+            ``EXECUTION_FRICTION_MARGIN``: a plan for execution must hold its load with a
+            friction reserve, as the replay's controller does.
         max_finger_force_n: per-finger normal force budget against gravity, N (default 1,
             the replay's squeeze force).
         gravity_set: None or a set size of `planner.gravity.GRAVITY_SET_SIZES` (1, 2, 6, 7):
@@ -81,6 +91,7 @@ class PlanOptions:
     contact_model: str = "patch"
     gravity: tuple[float, float, float] | None = None
     max_finger_force_n: float = 1.0
+    friction_margin: float = 1.0
     gravity_set: int | None = None
     rank: str = "metric"
     execution: bool = False
@@ -90,7 +101,7 @@ class PlanOptions:
         """Options for a plan that is to be executed: one mean contact per finger (what rigid
         fingertips give), gravity set 6 (palm down, palm up and the four sideways
         directions) unless ``gravity`` or ``gravity_set`` is given, grip ranking."""
-        kw = dict(contact_model="mean", rank="grip", execution=True)
+        kw = dict(contact_model="mean", rank="grip", execution=True, friction_margin=EXECUTION_FRICTION_MARGIN)
         if overrides.get("gravity") is None and overrides.get("gravity_set") is None:
             kw["gravity_set"] = 6
         kw.update({k: v for k, v in overrides.items() if v is not None or k not in kw})
@@ -105,6 +116,8 @@ class PlanOptions:
             if len(g) != 3 or not all(math.isfinite(v) for v in g):
                 raise PlannerError(f"gravity must be 3 finite numbers (palm frame, m/s^2), got {self.gravity!r}")
             object.__setattr__(self, "gravity", g)
+        if not (isinstance(self.friction_margin, (int, float)) and 0 < self.friction_margin <= 1):
+            raise PlannerError(f"friction_margin must be in (0, 1], got {self.friction_margin!r}")
         if not (isinstance(self.max_finger_force_n, (int, float)) and math.isfinite(self.max_finger_force_n)
                 and self.max_finger_force_n > 0):
             raise PlannerError(f"max_finger_force_n must be a positive number of newtons, got {self.max_finger_force_n!r}")
@@ -274,7 +287,8 @@ def build_problem(initial, final, options: PlanOptions) -> GaitProblem:
         names = tuple(name for name, _ in directions)
         loads = np.array([np.r_[initial.obj.mass_kg * (R.T @ np.asarray(g, dtype=float)), np.zeros(3)] for _, g in directions])
     return GaitProblem(fingers, slots, tuple(start), tuple(goal), initial.friction, compatible, options.max_lifted,
-                       max_grip_force_n=float(options.max_finger_force_n), loads=loads, load_names=names or ())
+                       max_grip_force_n=float(options.max_finger_force_n), loads=loads, load_names=names or (),
+                       grip_friction_margin=float(options.friction_margin))
 
 
 def gravity_directions_of(options: PlanOptions, hand) -> list[tuple[str, tuple[float, float, float]]]:

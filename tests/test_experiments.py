@@ -82,7 +82,7 @@ def test_exp7_quick_replays_one_pair_per_direction(tmp_path, capsys):
     for col in ("pair", "hand", "family", "variant", "mode", "valid_input", "planned", "plan_time_s", "passed",
                 "max_drift_mm", "max_drift_deg", "closure_agree", "closure_reached", "replay_time_s", "verdict"):
         assert col in rows[0], col
-    assert all(r["pair"] == "icub/box" and r["family"] == "box" and r["planned"] == "True" for r in rows)
+    assert all(r["pair"] == "icub/cylinder" and r["family"] == "cylinder" and r["planned"] == "True" for r in rows)
     assert all(r["passed"] in ("True", "False") and int(r["closure_agree"]) <= int(r["closure_reached"]) for r in rows)
     assert (tmp_path / "exp7_execution.png").stat().st_size > 1000
     assert summary["pairs"] == 1 and summary["planned"] == "1/1"

@@ -307,8 +307,9 @@ ICUB_GRAVITY_SET_6 = {
 }
 
 
-def test_execution_mode_plans_the_box_pair_and_every_state_rechecks_closure_and_grip(realized, tmp_path):
-    """--execution (mean contacts, gravity set 6, grip ranking) plans the box pair with OMPL
+def test_execution_mode_plans_the_cylinder_pair_and_every_state_rechecks_closure_and_grip(realized, tmp_path):
+    """--execution (mean contacts, gravity set 6, grip ranking, 3/4 of the friction) plans
+    the cylinder pair with OMPL
     paths; from the file alone every state re-checks as force closure and its recorded grip
     force is the largest over the six directions of an independent grip LP (own cone
     polygons, bracketed within the 16-gon's bound); the plan is the grip-best one; a second
@@ -318,7 +319,7 @@ def test_execution_mode_plans_the_box_pair_and_every_state_rechecks_closure_and_
 
     from planner.closure import min_grip_force
 
-    a, b = PAIRS["box"]
+    a, b = PAIRS["cylinder"]
     out, again = tmp_path / "exec.yaml", tmp_path / "again.yaml"
     assert main(["plan", str(a), str(b), "-o", str(out), "--execution"]) == 0
     data = recheck_plan_file(out)
@@ -326,7 +327,11 @@ def test_execution_mode_plans_the_box_pair_and_every_state_rechecks_closure_and_
     assert par["execution"] and par["contact_model"] == "mean" and par["rank"] == "grip" and par["gravity_set"] == 6
     assert {d["name"]: d["gravity"] for d in par["gravity_directions"]} == ICUB_GRAVITY_SET_6
     assert par["grip_cone_sides"] == 16 and data["summary"]["rank"] == "grip"
-    fr = Friction(**data["friction"])
+    # execution plans keep a friction reserve: their grip is computed with mu and gamma scaled
+    k = par["friction_margin"]
+    assert k == 0.75
+    fr0 = data["friction"]
+    fr = Friction(fr0["mu"] * k, fr0["gamma"] * k, fr0["edges"])
     R = Rotation.from_quat(data["object"]["quat_xyzw"]).as_matrix()
     mass = data["object"]["mass_kg"]
     grips, bracketed = [], set()
@@ -346,11 +351,16 @@ def test_execution_mode_plans_the_box_pair_and_every_state_rechecks_closure_and_
         assert state["grip_force_by_gravity_n"] == pytest.approx(per_dir, rel=1e-7)
         assert state["grip_force_n"] == pytest.approx(max(per_dir.values()), rel=1e-7), f"state {i}"
         assert state["grip_force_n"] <= par["max_finger_force_n"]
+        # the same state needs less grip with the whole cone: the reserve is real
+        full = max(min_grip_force(patches, Friction(**fr0), np.r_[mass * R.T @ np.array(g), np.zeros(3)])
+                   for g in ICUB_GRAVITY_SET_6.values())
+        assert full < state["grip_force_n"]
         grips.append(state["grip_force_n"])
     assert data["summary"]["bottleneck_grip_force_n"] == pytest.approx(max(grips), rel=1e-9)
     assert all(alt["bottleneck_grip_force_n"] >= max(grips) * (1 - 1e-9) for alt in data["alternatives"])
     # the metric ranking on the same states does not need less grip than the grip ranking
-    by_metric = plan_regrasp(realized(a), realized(b), PlanOptions(motion=False, contact_model="mean", gravity_set=6))
+    by_metric = plan_regrasp(realized(a), realized(b), PlanOptions(motion=False, contact_model="mean", gravity_set=6,
+                                                                   friction_margin=k))
     assert by_metric.sequence.bottleneck_grip >= max(grips) * (1 - 1e-9)
     assert main(["plan", str(a), str(b), "-o", str(again), "--execution"]) == 0
     assert out.read_bytes() == again.read_bytes()
@@ -391,3 +401,17 @@ def test_plain_plans_export_null_grip_and_gravity_set_blocks_like_gravity(realiz
     assert sorted(one.graph.nodes) == sorted(vec.graph.nodes)
     assert [s.grip_force_n for s in one.plan.states] == [s.grip_force_n for s in vec.plan.states]
     assert one.plan.states[0].grip_force_by_gravity_n.keys() == {"palm_down"}
+
+
+def test_execution_mode_refuses_a_grasp_that_needs_the_whole_friction_cone(realized):
+    """The bundled box grasps hold palm up only with more than 3/4 of their friction: with
+    the whole cone they plan, in execution mode (3/4 of mu and gamma) the planner refuses
+    them, naming the grip the states would need."""
+    from planner.errors import NoSequenceError
+    from planner.regrasp import EXECUTION_FRICTION_MARGIN, PlanOptions, plan_regrasp
+
+    assert EXECUTION_FRICTION_MARGIN == 0.75
+    initial, final = (realized(f) for f in PAIRS["box"])
+    plan_regrasp(initial, final, PlanOptions.for_execution(friction_margin=1.0, motion=False))
+    with pytest.raises(NoSequenceError, match="need over 1 N per finger"):
+        plan_regrasp(initial, final, PlanOptions.for_execution(motion=False))

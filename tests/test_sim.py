@@ -211,17 +211,50 @@ def test_missing_file_and_mp4_without_ffmpeg_exit_2(tmp_path, hand, grasp, monke
 _LIBRARY_PLANS: dict = {}
 
 
+#: Bundled pairs: name -> (initial, final) under grasps/.
+LIBRARY_PAIRS = {
+    "box": ("icub/box_parallel_extension.yaml", "icub/box_ir2m.yaml"),
+    "cylinder": ("icub/cylinder_parallel_extension.yaml", "icub/cylinder_ir2m.yaml"),
+    "pen": ("icub/pen_palmar_pinch.yaml", "icub/pen_writing_tripod.yaml"),
+    "mesh": ("icub/mesh_rounded_box_parallel_extension.yaml", "icub/mesh_rounded_box_ir2m.yaml"),
+    "allegro_box": ("allegro/box_four_finger.yaml", "allegro/box_tripod.yaml"),
+}
+
+
+FULL_FRICTION_PAIRS = ("box", "allegro_box")
+
+
 def _library_plan(pair: str) -> dict:
-    """The bundled iCub PE -> IR2M pair planned in execution mode (mean contacts, six
-    gravity directions, grip ranking), once per test session."""
+    """A bundled pair planned in execution mode (mean contacts, six gravity directions,
+    grip ranking) with finger paths, once per test session."""
     from planner.grasp import load_grasp, realize
     from planner.regrasp import PlanOptions, plan_regrasp
 
     if pair not in _LIBRARY_PLANS:
-        root = Path(__file__).resolve().parent.parent / "grasps" / "icub"
-        initial, final = (realize(load_grasp(root / f"{pair}_{g}.yaml")) for g in ("parallel_extension", "ir2m"))
-        _LIBRARY_PLANS[pair] = plan_regrasp(initial, final, PlanOptions.for_execution()).plan.to_dict()
+        root = Path(__file__).resolve().parent.parent / "grasps"
+        initial, final = (realize(load_grasp(root / f)) for f in LIBRARY_PAIRS[pair])
+        # the box grasps hold palm up only with more than 3/4 of their friction: execution
+        # mode refuses them, so they are planned with the whole friction cone
+        margin = 1.0 if pair in FULL_FRICTION_PAIRS else None
+        _LIBRARY_PLANS[pair] = plan_regrasp(initial, final, PlanOptions.for_execution(friction_margin=margin)).plan.to_dict()
     return _LIBRARY_PLANS[pair]
+
+
+@pytest.mark.parametrize("pair", ["pen", "mesh", "allegro_box"])
+@pytest.mark.parametrize("direction", ["palm_down", "palm_up", "off"])
+def test_other_bundled_pairs_hold_in_execution_mode(pair, direction):
+    """Issue acceptance on the pen (a 5 mm rod), the rounded-box mesh and the Allegro box:
+    planned in execution mode, the replay keeps the object within 5 mm / 5 deg with gravity
+    off, palm down and palm up (the hand's palm normal), and the closures agree."""
+    from planner.gravity import gravity_directions
+    from planner.hand import Hand
+
+    plan = _library_plan(pair)
+    hand = Hand.load(plan["hand"]["name"])
+    g = dict(gravity_directions(hand.palm_normal, 7))[direction]
+    report = replay_plan(plan, gravity=g, hand=hand)
+    assert report.passed, report.verdict
+    assert report.closure_agreement == (len(plan["states"]), len(plan["states"]))
 
 
 _BOX_PALM_UP = pytest.mark.xfail(strict=True, reason=(

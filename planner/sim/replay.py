@@ -866,6 +866,8 @@ class _Sim:
         lost = [f for f in self.ctl.holding if f not in touching]
         if lost:
             what.append(f"contact lost: {', '.join(lost)}")
+        if not self.ctl.balanced:
+            what.append("no forces at the touching links balance the load inside the friction cones")
         stray = sorted(f for f in touching if f not in self.ctl.holding)
         if stray:
             what.append(f"touched by {', '.join(stray)} (not holding)")
