@@ -1,5 +1,5 @@
 # Two entry points for a fresh machine with only Python:
-#   make demo   install, then plan (and replay) the bundled box example
+#   make demo   install, then plan (and replay) the bundled cylinder example
 #   make test   install, then run the test suite
 PYTHON ?= python3
 VENV := .venv
