@@ -221,7 +221,7 @@ LIBRARY_PAIRS = {
 }
 
 
-FULL_FRICTION_PAIRS = ("box", "allegro_box")
+FULL_FRICTION_PAIRS = ("box",)
 
 
 def _library_plan(pair: str) -> dict:
@@ -233,8 +233,8 @@ def _library_plan(pair: str) -> dict:
     if pair not in _LIBRARY_PLANS:
         root = Path(__file__).resolve().parent.parent / "grasps"
         initial, final = (realize(load_grasp(root / f)) for f in LIBRARY_PAIRS[pair])
-        # the box grasps hold palm up only with more than 3/4 of their friction: execution
-        # mode refuses them, so they are planned with the whole friction cone
+        # the iCub box grasps hold palm up only with more than 3/4 of their friction:
+        # execution mode refuses them, so they are planned with the whole friction cone
         margin = 1.0 if pair in FULL_FRICTION_PAIRS else None
         _LIBRARY_PLANS[pair] = plan_regrasp(initial, final, PlanOptions.for_execution(friction_margin=margin)).plan.to_dict()
     return _LIBRARY_PLANS[pair]
