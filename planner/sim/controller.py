@@ -5,38 +5,41 @@ with whatever its caps allow, in whatever direction its position error points, a
 object is thrown when those pushes do not balance. This controller instead decides the
 force every contact must apply and commands it:
 
-1. **Contacts from the simulator.** Every hand link touching the object
-   (``getContactPoints``, one contact per link at the mean of its manifold points, normal
-   INTO the object) is a contact; links of the fingers the plan holds the object with are
-   *commanded*, the palm's are *passive* (they push back but cannot be commanded). A
-   holding finger that does not touch yet approaches along the normal of its closest point.
+1. **Contacts from the simulator.** Every hand link within ``CONTACT_GAP_M`` of the object
+   (``getClosestPoints``: a contact that opens for one step keeps its force) gives one
+   contact per face it touches, at the mean of that face's points, normal INTO the object;
+   links of the fingers the plan holds the object with are *commanded*, the palm's are
+   *passive* (they push back but cannot be commanded). A holding finger that does not
+   touch yet approaches along the normal of its closest point.
 2. **Forces that balance the load** (grasp force optimization, `balance_forces`): the
    object's weight ``m g`` must be balanced by the contact forces inside the friction
    cones, shrunk by a safety factor (half the cone first, then 3/4, then the whole cone;
    point forces first, then with the soft-finger torsion the simulator's spinning friction
    provides), each commanded force as close as possible (L1) to a squeeze ``F n_i`` along its
-   inward normal.
+   inward normal. Solutions are cached while the hold is static.
 3. **Joint torques** ``tau = g(q) + sum_c J_c(q)^T f_c``: ``g(q)`` compensates the hand's own
-   weight (pinocchio's generalized gravity of the same URDF masses) and ``J_c`` is the linear Jacobian of contact point ``c`` over its finger's joints
-   (pinocchio, the planner's hand model). Forces are re-solved every ``UPDATE_EVERY``
-   physics steps at the current contacts and configuration.
-4. **Posture motors, capped at a fraction of the grip.** Every joint also keeps a position
-   motor towards the plan's configuration (pybullet's implicit motor: stable for the
-   millimetre-sized links at any gain), capped so that it can change a contact force by at
-   most ``POSTURE_SHARE`` of the squeeze: joint ``j`` of a finger gets
-   ``POSTURE_SHARE * F * |J_pad[:, j]|`` (the torque of that force at the finger's pad). The
-   motors hold the joints the contact force does not load (the finger's null space) and
-   pull a drifting object back towards the planned pose; they cannot throw it. A moving
-   finger tracks its path with ``FREE_SHARE * F`` at its pad, so a finger that lands on the
-   object touches down with about the squeeze force, never harder.
+   weight (pinocchio's generalized gravity of the same URDF masses) and ``J_c`` is the
+   linear Jacobian of contact point ``c`` over its finger's joints (pinocchio, the
+   planner's hand model). Forces are re-solved every ``UPDATE_EVERY`` physics steps at the
+   current contacts and configuration.
+4. **Posture springs, capped at a fraction of the grip.** Every joint also gets an explicit
+   spring-damper towards its target (for a holding finger, where it touched: `latch`),
+   saturating at the torque of ``POSTURE_SHARE * F`` at the finger's pad, reached over a pad
+   travel of a tenth of the object's smallest radius (at most ``MAX_TRAVEL_M``). The springs
+   hold the joints the contact force does not load (the finger's null space) and pull a
+   drifting object back; they cannot throw it. A free or moving finger gets
+   ``FREE_SHARE * F``, so a lifting finger cannot drag the object and a landing one touches
+   down softly. An armature floor on the finger links (`_add_armature`, the reflected
+   inertia a geared finger motor has) keeps the explicit springs stable at the time step.
 
 The squeeze ``F`` comes from the load: ``F = SAFETY * m |g_max| / (n mu)`` for ``n`` holding
 fingers (each contact's friction alone would hold the weight twice over), but never less
 than the weight of the hand's heaviest finger: a grip weaker than the fingers' own weight
 is dominated by errors of the hand model rather than by the object.
 
-Gravity enters gradually (``Controller.gravity_scale``): contacts are acquired with the
-object held and gravity off, then gravity ramps up while the forces follow it. Before a
+Gravity enters gradually (`Controller.set_gravity`): contacts are acquired with the object
+held and gravity off, then gravity ramps up while the forces follow it (the solutions for
+no load and for the full load are blended). Before a
 finger lifts, its load is handed over (its forces fade to zero while the other fingers'
 forces fade to the solution without it); after a finger lands the reverse.
 """
@@ -152,14 +155,15 @@ def balance_forces(points, normals, targets, load, centre, friction: Friction, f
     f0 = np.asarray(targets, float).reshape(m)
     fn_min = np.broadcast_to(np.asarray(fn_min, float), (k,))
     angles = np.linspace(0.0, 2.0 * np.pi, 8, endpoint=False)
+    # the pyramid's rim directions (cos a t1 + sin a t2) per contact, the same for every margin
+    rims = [[math.cos(a) * t1 + math.sin(a) * t2 for a in angles] for t1, t2 in map(_tangents, N)]
     for s, s_t in margins:
         mu, gamma = s * friction.mu * math.cos(math.pi / 8), s_t * friction.gamma
         G = np.zeros((9 * k, m))
         h = np.zeros(9 * k)
         for i, n in enumerate(N):
-            t1, t2 = _tangents(n)
-            for a_i, a in enumerate(angles):  # (cos a t1 + sin a t2) . f <= mu n . f
-                G[9 * i + a_i, 3 * i:3 * i + 3] = (math.cos(a) * t1 + math.sin(a) * t2) - mu * n
+            for a_i, rim in enumerate(rims[i]):  # rim . f <= mu n . f
+                G[9 * i + a_i, 3 * i:3 * i + 3] = rim - mu * n
             G[9 * i + 8, 3 * i:3 * i + 3] = -n
             h[9 * i + 8] = -fn_min[i]
         T = np.zeros((2 * k, m + k))
@@ -212,7 +216,6 @@ class Controller:
         cid: pybullet client id.
         body, obj: hand and object body ids.
         hand: `planner.hand.Hand` (pinocchio) of the same URDF; the palm frame is the world.
-        joints: the plan's joint names (``hand.joint_names``).
         jidx: joint name -> pybullet joint index.
         link_finger: pybullet link index -> finger name or "palm".
         link_name: pybullet link index -> URDF link name.
@@ -223,12 +226,11 @@ class Controller:
         object_radius_m: the object's smallest half-extent (sets the posture springs' travel).
     """
 
-    def __init__(self, cid: int, body: int, obj: int, hand, joints: Sequence[str], jidx: Mapping[str, int],
+    def __init__(self, cid: int, body: int, obj: int, hand, jidx: Mapping[str, int],
                  link_finger: Mapping[int, str], link_name: Mapping[int, str], mass_kg: float,
                  friction: Friction, g_max_mps2: float, force_n: float | None = None,
                  dt_s: float = 1.0 / 240.0, object_radius_m: float = math.inf):
         self.cid, self.body, self.obj, self.hand = cid, body, obj, hand
-        self.joints = list(joints)
         self.jidx = dict(jidx)
         self.col = {j: i for i, j in enumerate(hand.joint_names)}
         self.link_finger, self.link_name = dict(link_finger), dict(link_name)

@@ -78,7 +78,6 @@ with quiet_native_output():
     import pybullet as p
 
 _REPO = Path(__file__).resolve().parents[2]
-_ROBOTS_DIR = _REPO / "robots"
 
 
 # --------------------------------------------------------------------------- reports
@@ -522,7 +521,8 @@ def replay_plan(
     """Replay a plan in pybullet with gravity on; re-measure contacts, closure and drift.
 
     Args:
-        plan: plan data (the schema of docs/INTERFACES.md) or a plan file (.yaml/.json).
+        plan: plan data (the schema of docs/INTERFACES.md) or a plan file (.yaml/.json)
+            (or a plan this module has already read).
         client: an existing pybullet client id; the replay adds its bodies there and removes
             them at the end. None: a private DIRECT (or GUI) client, disconnected at the end.
         gui: open a pybullet GUI window (needs a display) and run in real time.
@@ -559,7 +559,7 @@ def replay_plan(
         SpecError: the plan lacks a key or has a bad value (names the file and key).
         SimulationError: pybullet could not set up the scene, or ffmpeg is missing for mp4.
     """
-    rd = _PlanReader(*_read_plan(plan))
+    rd = plan if isinstance(plan, _PlanReader) else _PlanReader(*_read_plan(plan))
     joints, states, steps, obj, friction = _parse(rd)
     positive = [("dt", dt), ("drift_mm_max", drift_mm_max), ("drift_deg_max", drift_deg_max),
                 ("drop_mm", drop_mm), ("joint_speed_rad_s", joint_speed_rad_s)]
@@ -703,8 +703,7 @@ def replay_gravity_set(plan: Mapping | str | os.PathLike, n: int = 6, *, hand=No
 
     if "gravity" in kwargs:
         raise InputError("replay_gravity_set takes no gravity: it replays the set's directions")
-    rd = _PlanReader(*_read_plan(plan))
-    data = rd.data
+    rd = _PlanReader(*_read_plan(plan))  # read and parsed once for every direction
     if hand is None:
         from planner.hand import Hand
 
@@ -716,7 +715,7 @@ def replay_gravity_set(plan: Mapping | str | os.PathLike, n: int = 6, *, hand=No
             if kw.get(key) is not None:
                 path = Path(kw[key])
                 kw[key] = path.with_name(f"{path.stem}_{name}{path.suffix}")
-        out.append((name, g, replay_plan(data if rd.path == "<plan>" else rd.path, hand=hand, gravity=g, **kw)))
+        out.append((name, g, replay_plan(rd, hand=hand, gravity=g, **kw)))
     failed = [(name, r) for name, _, r in out if not r.passed]
     if not failed:
         worst_mm = max(r.max_drift_mm for _, _, r in out)
@@ -787,7 +786,7 @@ class _Sim:
                          rollingFriction=0.0, restitution=0.0, linearDamping=0.0, angularDamping=0.0,
                          physicsClientId=cid)
         g_max = float(np.linalg.norm(params["gravity"]))
-        self.ctl = Controller(cid, self.hand, self.obj, info.hand, joints, self.jidx, self.link_finger, link_name,
+        self.ctl = Controller(cid, self.hand, self.obj, info.hand, self.jidx, self.link_finger, link_name,
                               self.mass, friction, g_max, force_n=params["finger_force_n"], dt_s=self.dt,
                               object_radius_m=radius_m)
         self.filter = ContactFilter(params["filter_k"])
@@ -969,14 +968,14 @@ class _Sim:
                 break
             # at the end of the path: the new state's fingers hold; a landed finger takes its
             # load over gradually
+            # (the other fingers keep the targets they were latched at)
             q_to = dict(to.q)
+            q_to.update({j: v for j, v in ctl.q_ref.items() if j not in st.joints})
             if st.finger in to.fingers:
-                q_to.update({j: v for j, v in ctl.q_ref.items() if j not in st.joints})
                 ctl.command(q_to, to.fingers, share={st.finger: 0.0})
                 ok = self._run_for(prm["handover_s"], lambda s: ctl.fade(st.finger, s))
                 ctl.latch([st.finger])
             else:
-                q_to.update({j: v for j, v in ctl.q_ref.items() if j not in st.joints})
                 ctl.command(q_to, to.fingers)
             r = self._dwell_and_measure(prm["dwell_s"], st.to_state, to) if ok else None
             if r is None:
