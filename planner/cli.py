@@ -44,7 +44,7 @@ def _cmd_plan(args: argparse.Namespace) -> int:
     )
     specs = [load_grasp(args.initial), load_grasp(args.final)]
     check_same_setup(*specs)
-    initial, final = (realize(s) for s in specs)
+    initial, final = (realize(s).require_placed() for s in specs)
     inputs = {k: {"path": str(p), "sha256": sha256_file(p)} for k, p in (("initial", args.initial), ("final", args.final))}
     result = plan_regrasp(initial, final, options, inputs, verbose=args.verbose)
     plan = result.plan
@@ -73,39 +73,10 @@ def _cmd_plan(args: argparse.Namespace) -> int:
 
 
 def _cmd_check(args: argparse.Namespace) -> int:
-    """Realize one grasp and report it; exit 0 force closure, 1 not, 2 bad input."""
-    import json
+    """Realize one grasp and report it; exit 0 force closure and as written, 1 not, 2 bad input."""
+    from planner.grasp import check_grasp
 
-    from planner.grasp import load_grasp, realize
-
-    grasp = realize(load_grasp(args.grasp))
-    if args.png:
-        from planner.sim.render import render_png
-
-        render_png(grasp.hand, grasp.q, grasp.obj, args.png)
-    report = grasp.summary()
-    if args.json:
-        print(json.dumps(report, indent=1))
-    else:
-        print(f"grasp {grasp.spec.name} ({grasp.spec.path})")
-        print(f"hand {grasp.hand.name}, {grasp.obj.shape} {list(grasp.obj.size)} m, "
-              f"mu {grasp.friction.mu:g}, gamma {grasp.friction.gamma:g} m, {grasp.friction.edges} cone edges")
-        print(f"{'finger':<8} {'spec':<8} {'points':>6}  {'removable':<9}  touching links")
-        for name, f in report["fingers"].items():
-            print(f"{name:<8} {f['kind']:<8} {f['contact_points']:>6}  {'yes' if f['removable'] else 'no':<9}  "
-                  f"{', '.join(f['touching_links']) or '-'}")
-        for a, b, depth in grasp.collisions:
-            print(f"collision: {a} - {b}, {depth * 1000:.2f} mm")
-        if grasp.missing:
-            print(f"not touching although the file places them: {', '.join(grasp.missing)}")
-        print(f"force closure: {'yes' if grasp.is_force_closure else 'no'}, metric {grasp.metric:.4g}, "
-              f"removable: {', '.join(sorted(grasp.removable)) or '-'}")
-        mean = report["mean_contact_closure"]
-        print(f"with one mean contact per finger (--contact-model mean): force closure "
-              f"{'yes' if mean['force_closure'] else 'no'}, metric {mean['metric']:.4g}")
-        if args.png:
-            print(f"picture written to {args.png}")
-    return 0 if grasp.is_force_closure else 1
+    return check_grasp(args.grasp, as_json=args.json, png=args.png)
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:

@@ -84,11 +84,16 @@ def _point_link_distance(hand, p_palm, geom_ids) -> float:
     return float(best)
 
 
+def _witness_obj(T_obj_palm, query) -> np.ndarray:
+    """Midpoint of a link-object distance query's witness points, object frame."""
+    _, w_link, w_obj = query[:3]
+    return T_obj_palm[:3, :3] @ (0.5 * (w_link + w_obj)) + T_obj_palm[:3, 3]
+
+
 def _link_patch(hand, obj, T_obj_palm, T_palm_obj, query, touch_tol_m):
     """Patch of one touching link: (points (n,3), inward normals (n,3)) in the object frame."""
-    _, w_link, w_obj, geom_ids = query
-    seed_obj = T_obj_palm[:3, :3] @ (0.5 * (w_link + w_obj)) + T_obj_palm[:3, 3]
-    p0, n0, _ = obj.closest_surface(seed_obj)
+    geom_ids = query[3]
+    p0, n0, _ = obj.closest_surface(_witness_obj(T_obj_palm, query))
     pts, nrm = [p0], [n0]
     a = np.array([1.0, 0.0, 0.0]) if abs(n0[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
     u = np.cross(n0, a)
@@ -171,4 +176,35 @@ def collisions(hand, q, obj=None, touch_tol_m: float = TOUCH_TOL_M, fingers=None
         for link, (d, *_rest) in _link_object_queries(hand, q, obj, links).items():
             if d < -touch_tol_m:
                 out.append((link, "object", -d))
+    return out
+
+
+def link_contacts(hand, q, obj, touch_tol_m: float = TOUCH_TOL_M, fingers=None) -> list[dict]:
+    """One realized contact per touching link: where, with which normal, how deep.
+
+    Args:
+        hand, q, obj: as `contact_patches`.
+        touch_tol_m: a link touches when its signed distance to the object is at most this.
+        fingers: restrict to these fingers (default all).
+    Returns:
+        list (hand finger order, then the finger's contact_links order) of dicts with
+        ``finger``, ``link``, ``point`` (3,) the link's closest object-surface point (object
+        frame), ``normal`` (3,) the inward unit surface normal there (object frame),
+        ``distance_m`` the link-object signed distance (negative: penetration) and
+        ``penetration_m`` = max(0, -distance_m).
+    """
+    T_obj_palm = np.linalg.inv(obj.T_palm_obj)
+    out = []
+    for f in _fingers(hand, fingers):
+        links = hand.fingers[f].contact_links
+        queries = _link_object_queries(hand, q, obj, links)
+        for link in links:
+            qy = queries.get(link)
+            if qy is None or qy[0] > touch_tol_m:
+                continue
+            d = qy[0]
+            p, n_out, _ = obj.closest_surface(_witness_obj(T_obj_palm, qy))
+            out.append({"finger": f, "link": link, "point": np.asarray(p, dtype=float),
+                        "normal": -np.asarray(n_out, dtype=float), "distance_m": float(d),
+                        "penetration_m": max(0.0, -float(d))})
     return out

@@ -65,6 +65,14 @@ APPROACH_M = 0.004
 LANDING_TOL_M = 0.004
 #: Joint values in a posture may exceed the limits by this much (rounding in files).
 LIMIT_TOL_RAD = 1e-6
+#: `check` fails a grasp with a link deeper than this in the object, the palm or another finger.
+PENETRATION_TOL_M = 5e-4
+#: `check` warns when a contact point is realized farther than this from where the file put it.
+CONTACT_WARN_M = 3e-3
+#: A joint within this of a limit is at the limit.
+AT_LIMIT_RAD = 1e-3
+#: `check` warns when a contact's pad faces farther than this from the contact normal.
+NORMAL_WARN_RAD = math.radians(45.0)
 
 _TOP_KEYS = ("schema_version", "name", "description", "hand", "object", "friction", "fingers")
 _OBJECT_KEYS = ("shape", "size", "position", "quat_xyzw", "mesh", "mass_kg")
@@ -201,6 +209,14 @@ class RealizedGrasp:
         removable: fingers whose contacts can all be dropped keeping force closure.
         collisions: (name_a, name_b, depth_m) finger-finger / finger-palm / penetration.
         missing: fingers the file wants on the object that do not touch it.
+        contacts: one dict per touching link (`planner.contacts.link_contacts`: finger, link,
+            point, inward normal in the object frame, distance_m, penetration_m).
+        problems: why the grasp is not what the file asks (a placed finger that does not
+            touch, a penetration beyond `PENETRATION_TOL_M`, a closing joint at its closing
+            limit the file did not ask for): `check` exits 1 when there is any.
+        warnings: what the user should know but does not fail the check (a contact realized
+            more than `CONTACT_WARN_M` from its point or by another link than the pad, IK
+            placed position-only, other joints at a limit).
     """
 
     spec: GraspSpec
@@ -215,6 +231,26 @@ class RealizedGrasp:
     removable: frozenset
     collisions: tuple = field(default=())
     missing: tuple[str, ...] = field(default=())
+    contacts: tuple = field(default=())
+    problems: tuple[str, ...] = field(default=())
+    warnings: tuple[str, ...] = field(default=())
+
+    @property
+    def ok(self) -> bool:
+        """Force closure and as written (no `problems`): what `check` exits 0 for."""
+        return self.is_force_closure and not self.problems
+
+    def require_placed(self) -> "RealizedGrasp":
+        """This grasp, or PlannerError (one line) when a finger the file places does not touch
+        the object: a plan must not treat it as lifted."""
+        if self.missing:
+            name = self.missing[0]
+            gap = self.hand._finger_object_distance(np.asarray(self.q), self.hand.fingers[name], self.obj)
+            raise PlannerError(
+                f"{self.spec.path}: fingers.{name}: the file places it but it does not touch the object "
+                f"(misses it by {gap * 1e3:.1f} mm){'; so do ' + ', '.join(self.missing[1:]) if self.missing[1:] else ''}; "
+                f"run regrasp check on it, then fix its contact/posture or make it free")
+        return self
 
     @property
     def is_force_closure(self) -> bool:
@@ -272,6 +308,15 @@ class RealizedGrasp:
             "missing": list(self.missing),
             "collisions": [[a, b, float(d)] for a, b, d in self.collisions],
             "joints": {n: float(v) for n, v in zip(self.hand.joint_names, self.q)},
+            "object_extents_m": [float(v) for v in object_extents(self.obj)],
+            "contacts": [{"finger": c["finger"], "link": c["link"], "point": [float(v) for v in c["point"]],
+                          "normal": [float(v) for v in c["normal"]], "penetration_m": float(c["penetration_m"])}
+                         for c in self.contacts],
+            "as_written": not self.problems,
+            "problems": list(self.problems),
+            "warnings": list(self.warnings),
+            "tolerances": {"penetration_m": PENETRATION_TOL_M, "contact_warn_m": CONTACT_WARN_M,
+                           "at_limit_rad": AT_LIMIT_RAD},
         }
 
 
@@ -639,7 +684,21 @@ def realize_contact(hand, obj, finger, p_obj, q_seed, link=None):
     Raises:
         KinematicsError: the point is out of the finger's reach.
     """
+    q, patch, _ = place_contact(hand, obj, finger, p_obj, q_seed, link=link)
+    return q, patch
+
+
+def place_contact(hand, obj, finger, p_obj, q_seed, link=None):
+    """`realize_contact` with its notes: ``(q, patch, notes)``.
+
+    ``notes`` are one-line strings about how the placement went: the pad-normal task
+    dropped (position-only IK), the pad facing far from the contact normal. An
+    unreachable point raises `planner.hand.UnreachableError` whose message gives, in the
+    object frame, the closest point the finger reached, the nearest surface point to it and
+    the direction to move the target.
+    """
     from planner.contacts import contact_patches
+    from planner.hand import UnreachableError
 
     f = _finger_of(hand, finger)
     p_surf, n_out, _ = obj.closest_surface(np.asarray(p_obj, dtype=float).reshape(3))
@@ -648,27 +707,52 @@ def realize_contact(hand, obj, finger, p_obj, q_seed, link=None):
     n_out_palm = R @ np.asarray(n_out, dtype=float)
     p_palm = R @ np.asarray(p_surf, dtype=float) + T[:3, 3]
     q_seed = np.asarray(q_seed, dtype=float)
-    q_ik, err = None, None
+    ik, err = None, None
     # a pad that cannot stand off by APPROACH_M (e.g. under a face it only reaches when
     # almost extended) is tried closer to the surface
     for offset in (APPROACH_M, 0.5 * APPROACH_M, 0.25 * APPROACH_M):
         try:
-            q_ik = hand.ik(f, p_palm + offset * n_out_palm, q_seed, link=link, normal_palm=-n_out_palm)
+            ik = hand.ik_solve(f, p_palm + offset * n_out_palm, q_seed, link=link, normal_palm=-n_out_palm)
             break
-        except KinematicsError as e:
+        except UnreachableError as e:
             err = err or e
-    if q_ik is None:
-        raise err
+    if ik is None:
+        raise _unreachable_in_object_frame(err, obj, p_surf)
+    notes = []
+    if ik.normal_dropped:
+        notes.append(f"{f.name}: the pad cannot face the contact normal there; placed position-only "
+                     f"(pad normal {math.degrees(ik.normal_error_rad):.0f} deg from the contact normal)")
+    elif ik.normal_error_rad is not None and ik.normal_error_rad > NORMAL_WARN_RAD:
+        notes.append(f"{f.name}: the pad faces {math.degrees(ik.normal_error_rad):.0f} deg away from the contact normal")
+    q_ik = ik.q
     q = np.asarray(hand.close_finger(f, q_ik, obj), dtype=float)
     patch = contact_patches(hand, q, obj, fingers=[f.name]).get(f.name)
     if patch is not None and _landing_error(patch, p_surf) <= LANDING_TOL_M:
-        return q, patch
+        return q, patch, notes
     q_n = _approach_along_normal(hand, obj, f, p_palm, n_out_palm, q_ik, link)
     if q_n is not None:
         patch_n = contact_patches(hand, q_n, obj, fingers=[f.name]).get(f.name)
         if patch_n is not None and (patch is None or _landing_error(patch_n, p_surf) < _landing_error(patch, p_surf)):
-            return np.asarray(q_n, dtype=float), patch_n
-    return q, patch
+            return np.asarray(q_n, dtype=float), patch_n, notes
+    return q, patch, notes
+
+
+def _unreachable_in_object_frame(err, obj, p_surf):
+    """The IK's `UnreachableError` re-worded in the object frame, with a surface point to try."""
+    from planner.hand import UnreachableError
+
+    T = np.asarray(obj.T_palm_obj)
+    R, t = T[:3, :3], T[:3, 3]
+    closest = R.T @ (err.closest_palm - t)
+    direction = R.T @ err.direction_palm
+    suggest, _, _ = obj.closest_surface(closest)
+    move = float(np.linalg.norm(suggest - np.asarray(p_surf)))
+    f3 = lambda v: "[" + ", ".join(f"{x:.4f}" for x in v) + "]"  # noqa: E731
+    msg = (f"{str(err).split(';')[0]}; the finger gets within {err.distance_m * 1e3:.1f} mm, at {f3(closest)} "
+           f"(object frame): move the point along {f3(direction)} (object frame); the surface point nearest "
+           f"to where it gets is {f3(suggest)}, {move * 1e3:.1f} mm from the requested one")
+    return UnreachableError(msg, target_palm=err.target_palm, closest_palm=err.closest_palm,
+                            direction_palm=err.direction_palm, distance_m=err.distance_m)
 
 
 def _landing_error(patch, p_obj) -> float:
@@ -696,19 +780,21 @@ def realize(spec: GraspSpec, hand=None) -> RealizedGrasp:
             the file and the key).
     """
     from planner.closure import grasp_closure, removable_fingers
-    from planner.contacts import collisions, contact_patches, touching_links
+    from planner.contacts import collisions, contact_patches, link_contacts, touching_links
 
     hand = load_hand(spec.hand_ref) if hand is None else hand
     obj = spec.object.make()
     q = np.array(hand.q_open, dtype=float, copy=True)
+    notes = []
     for fs in spec.fingers:
         f = hand.fingers[fs.name]
         idx = list(f.q_index)
         if fs.kind == "contact":
             try:
-                q, _ = realize_contact(hand, obj, f, fs.point_obj, q, link=fs.link)
+                q, _, n = place_contact(hand, obj, f, fs.point_obj, q, link=fs.link)
             except KinematicsError as err:
                 raise KinematicsError(f"{spec.path}: fingers.{fs.name}.contact.point: {err}") from err
+            notes.extend(f"fingers.{fs.name}.contact: {m.split(': ', 1)[1]}" for m in n)
         elif fs.kind == "posture":
             q[idx] = fs.posture
             q = np.asarray(hand.close_finger(f, q, obj), dtype=float)
@@ -719,12 +805,15 @@ def realize(spec: GraspSpec, hand=None) -> RealizedGrasp:
     patches = contact_patches(hand, q, obj)
     patches = {k: (_ro(p), _ro(n)) for k, (p, n) in patches.items()}
     closure = grasp_closure(patches, spec.friction)
-    removable = frozenset(removable_fingers(patches, spec.friction)) if patches else frozenset(hand.fingers)
+    removable = frozenset(removable_fingers(patches, spec.friction)) if patches else frozenset()
     touching = {k: tuple(v) for k, v in touching_links(hand, q, obj).items()}
     finger_q = {}
     for name, f in hand.fingers.items():
         finger_q[name] = _ro(q[list(f.q_index)])
     missing = tuple(fs.name for fs in spec.fingers if fs.kind != "free" and fs.name not in patches)
+    colls = tuple((str(a), str(b), float(d)) for a, b, d in collisions(hand, q, obj, touch_tol_m=PENETRATION_TOL_M))
+    contacts = tuple({**c, "point": _ro(c["point"]), "normal": _ro(c["normal"])} for c in link_contacts(hand, q, obj))
+    problems, warnings = grasp_findings(spec, hand, obj, q, contacts, missing, colls)
     return RealizedGrasp(
         spec=spec,
         hand=hand,
@@ -736,12 +825,175 @@ def realize(spec: GraspSpec, hand=None) -> RealizedGrasp:
         touching=MappingProxyType(touching),
         closure=closure,
         removable=removable,
-        collisions=tuple((str(a), str(b), float(d)) for a, b, d in collisions(hand, q, obj)),
+        collisions=colls,
         missing=missing,
+        contacts=contacts,
+        problems=tuple(problems),
+        warnings=tuple(notes + warnings),
     )
+
+
+def grasp_findings(spec: GraspSpec, hand, obj, q, contacts, missing, colls) -> tuple[list[str], list[str]]:
+    """What makes a realized grasp differ from its file: (problems, warnings), one line each.
+
+    Problems (``check`` exits 1): a placed finger that does not touch; a link deeper than
+    `PENETRATION_TOL_M` in the object, the palm or another finger; a closing joint of a
+    placed finger at its closing (upper) limit that a posture did not ask for (the finger
+    closed to the end of its range without being stopped by the object: curled past it or
+    into the palm, and it cannot press harder). Warnings: a contact point realized more than
+    `CONTACT_WARN_M` from where the file put it, or by another link than the one asked for
+    (default the pad); other joints of placed fingers at a limit nobody asked for.
+    """
+    problems, warnings = [], []
+    for name in missing:
+        gap = hand._finger_object_distance(np.asarray(q), hand.fingers[name], obj)
+        problems.append(f"fingers.{name}: placed by the file but does not touch the object (misses it by {gap * 1e3:.1f} mm)")
+    for a, b, depth in colls:
+        if depth > PENETRATION_TOL_M:
+            problems.append(f"collision {a} - {b}: {depth * 1e3:.2f} mm deep (tolerance {PENETRATION_TOL_M * 1e3:.1f} mm)")
+    for fs in spec.fingers:
+        if fs.kind == "free":
+            continue
+        f = hand.fingers[fs.name]
+        for k, (joint, i) in enumerate(zip(f.joints, f.q_index)):
+            for side, limit in (("lower", hand.lower[i]), ("upper", hand.upper[i])):
+                if abs(q[i] - limit) > AT_LIMIT_RAD:
+                    continue
+                if fs.kind == "posture" and abs(fs.posture[k] - limit) <= AT_LIMIT_RAD:
+                    continue  # asked for by the file
+                text = f"fingers.{fs.name}: joint {joint} = {q[i]:.4f} rad is at its {side} limit"
+                if side == "upper" and joint in f.close_joints:
+                    problems.append(text + " (closed to the end of its range: the object does not stop it)")
+                else:
+                    warnings.append(text)
+        if fs.kind == "contact":
+            mine = [c for c in contacts if c["finger"] == fs.name]
+            if not mine:
+                continue
+            want = fs.link or f.pad_link
+            d = [float(np.linalg.norm(c["point"] - np.asarray(fs.point_obj))) for c in mine]
+            c = mine[int(np.argmin(d))]
+            where = "[" + ", ".join(f"{v:.4f}" for v in c["point"]) + "]"
+            if min(d) > CONTACT_WARN_M:
+                warnings.append(f"fingers.{fs.name}.contact: realized {min(d) * 1e3:.1f} mm from the file's point, "
+                                f"at {where} (object frame) by {c['link']} (warning beyond {CONTACT_WARN_M * 1e3:.0f} mm)")
+            elif c["link"] != want and want in f.contact_links:
+                warnings.append(f"fingers.{fs.name}.contact: realized by {c['link']}, not {want}, at {where} (object frame)")
+    return problems, warnings
+
+
+def object_extents(obj) -> np.ndarray:
+    """(3,) size of the object's bounding box in its own frame, metres (a mesh's real size)."""
+    if obj.shape == "box":
+        return np.asarray(obj.size, dtype=float)
+    if obj.shape == "cylinder":
+        r, length = obj.size
+        return np.array([2 * r, 2 * r, length])
+    if obj.shape == "sphere":
+        return np.full(3, 2.0 * obj.size[0])
+    from planner.objects import load_mesh
+
+    scale = obj.size if len(obj.size) == 3 else (obj.size[0],) * 3
+    V, _ = load_mesh(obj.mesh_path, scale)
+    return np.asarray(V).max(axis=0) - np.asarray(V).min(axis=0)
+
+
+def object_text(obj) -> str:
+    """One-line description of an object's shape and size (a mesh: its extents, not its scale)."""
+    ext = object_extents(obj)
+    mm = " x ".join(f"{v * 1e3:.1f}" for v in ext)
+    if obj.shape == "box":
+        return f"box {mm} mm"
+    if obj.shape == "cylinder":
+        return f"cylinder radius {obj.size[0] * 1e3:.1f} mm, length {obj.size[1] * 1e3:.1f} mm"
+    if obj.shape == "sphere":
+        return f"sphere radius {obj.size[0] * 1e3:.1f} mm"
+    return f"mesh {Path(obj.mesh_path).name} {mm} mm (scale {list(obj.size)})"
 
 
 def _ro(a) -> np.ndarray:
     a = np.array(a, dtype=float, copy=True)
     a.setflags(write=False)
     return a
+
+
+# --------------------------------------------------------------------------- check
+
+
+def check_text(grasp: RealizedGrasp) -> str:
+    """The text report of ``regrasp check``."""
+    report = grasp.summary()
+    fr = grasp.friction
+    out = [f"grasp {grasp.spec.name} ({grasp.spec.path})",
+           f"hand {grasp.hand.name}, {object_text(grasp.obj)}, mu {fr.mu:g}, gamma {fr.gamma:g} m, {fr.edges} cone edges",
+           f"{'finger':<8} {'spec':<8} {'points':>6}  {'removable':<9}  touching links"]
+    for name, f in report["fingers"].items():
+        out.append(f"{name:<8} {f['kind']:<8} {f['contact_points']:>6}  {'yes' if f['removable'] else 'no':<9}  "
+                   f"{', '.join(f['touching_links']) or '-'}")
+    out.append("realized contacts (object frame, mm; normal into the object):")
+    out.append(f"  {'finger':<8} {'link':<20} {'point':>26}  {'normal':>22}  penetration")
+    for c in grasp.contacts:
+        p = " ".join(f"{v * 1e3:+8.2f}" for v in c["point"])
+        n = " ".join(f"{v:+6.3f}" for v in c["normal"])
+        out.append(f"  {c['finger']:<8} {c['link']:<20} {p:>26}  {n:>22}  {c['penetration_m'] * 1e3:.2f} mm")
+    for a, b, depth in grasp.collisions:
+        out.append(f"collision: {a} - {b}, {depth * 1000:.2f} mm")
+    for w in grasp.warnings:
+        out.append(f"warning: {w}")
+    for p in grasp.problems:
+        out.append(f"NOT AS WRITTEN: {p}")
+    out.append(f"force closure: {'yes' if grasp.is_force_closure else 'no'}, metric {grasp.metric:.4g}, "
+               f"removable: {', '.join(sorted(grasp.removable)) or '-'}")
+    mean = report["mean_contact_closure"]
+    out.append(f"with one mean contact per finger (--contact-model mean): force closure "
+               f"{'yes' if mean['force_closure'] else 'no'}, metric {mean['metric']:.4g}")
+    verdict = "PASS" if grasp.ok else "FAIL"
+    why = [] if grasp.is_force_closure else ["not force closure"]
+    why += [f"{len(grasp.problems)} problem(s)"] if grasp.problems else []
+    out.append(f"{verdict}{': ' + ', '.join(why) if why else ''} (tolerances: penetration "
+               f"{PENETRATION_TOL_M * 1e3:.1f} mm, contact warning {CONTACT_WARN_M * 1e3:.0f} mm, "
+               f"joint at a limit within {AT_LIMIT_RAD:g} rad)")
+    return "\n".join(out)
+
+
+def contact_markers(grasp: RealizedGrasp, highlight: str | None = None, normal_len_m: float = 0.025) -> list:
+    """Contacts to draw: [(point_palm (3,), normal_tip_palm (3,), rgba)] for `render_png(markers=...)`.
+
+    Each realized contact is a dot with its inward normal drawn as a line ending at the
+    point (the direction the finger pushes). Red: a finger with a problem; orange: a
+    finger with a warning; the ``highlight`` finger (e.g. the moving one) yellow; else green.
+    """
+    T = np.asarray(grasp.obj.T_palm_obj)
+    R, t = T[:3, :3], T[:3, 3]
+    bad = {f for f in grasp.hand.fingers if any(f"fingers.{f}" in p for p in grasp.problems)}
+    warn = {f for f in grasp.hand.fingers if any(f"fingers.{f}" in w for w in grasp.warnings)}
+    out = []
+    for c in grasp.contacts:
+        f = c["finger"]
+        rgba = ((1.0, 0.9, 0.0, 1.0) if f == highlight else (0.9, 0.1, 0.1, 1.0) if f in bad
+                else (1.0, 0.5, 0.0, 1.0) if f in warn else (0.1, 0.8, 0.2, 1.0))
+        p = R @ np.asarray(c["point"]) + t
+        out.append((p, p - normal_len_m * (R @ np.asarray(c["normal"])), rgba))
+    return out
+
+
+def check_grasp(path, as_json: bool = False, png=None) -> int:
+    """``regrasp check``: realize a grasp file, print the report (text or JSON), draw it.
+
+    Returns:
+        0 force closure and as written (no `RealizedGrasp.problems`), 1 otherwise.
+    """
+    import json
+
+    grasp = realize(load_grasp(path))
+    if png:
+        from planner.sim.render import render_png
+
+        render_png(grasp.hand, grasp.q, grasp.obj, png, markers=contact_markers(grasp))
+    if as_json:
+        print(json.dumps(grasp.summary(), indent=1))
+    else:
+        print(check_text(grasp))
+        if png:
+            print(f"picture written to {png} (contacts: dots with their inward normals; green ok, orange warning, red problem)")
+    return 0 if grasp.ok else 1

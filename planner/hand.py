@@ -90,6 +90,41 @@ class Finger:
     pad_n_link: tuple[float, float, float] | None = None
 
 
+@dataclass(frozen=True)
+class IKResult:
+    """Outcome of `Hand.ik_solve`.
+
+    Attributes:
+        q: (nq,) configuration (only the finger's joints changed).
+        position_error_m: distance from the placed point to the target.
+        normal_error_rad: angle between the pad's outward normal and the requested contact
+            normal, or None when no normal was requested (or the pad has none).
+        normal_dropped: the target was reached only with the normal task switched off.
+    """
+
+    q: np.ndarray
+    position_error_m: float
+    normal_error_rad: float | None = None
+    normal_dropped: bool = False
+
+
+class UnreachableError(KinematicsError):
+    """An IK target out of reach, with the closest reachable point (palm frame).
+
+    Attributes:
+        target_palm, closest_palm: (3,) the target and the closest point the link reached.
+        direction_palm: (3,) unit vector from the target toward that point: move the target this way.
+        distance_m: how far (m).
+    """
+
+    def __init__(self, message, *, target_palm, closest_palm, direction_palm, distance_m):
+        super().__init__(message)
+        self.target_palm = np.asarray(target_palm, dtype=float)
+        self.closest_palm = np.asarray(closest_palm, dtype=float)
+        self.direction_palm = np.asarray(direction_palm, dtype=float)
+        self.distance_m = float(distance_m)
+
+
 @dataclass
 class _Geom:
     """One collision shape: link it belongs to, finger (None: palm), coal shape, placement."""
@@ -569,9 +604,21 @@ class Hand:
            restarts: int = 8, max_iter: int = 150, seed: int = 0) -> np.ndarray:
         """Place a point of a finger link on a target; only that finger's joints move.
 
+        `ik_solve` without its report: see there. Returns q (nq,); raises `UnreachableError`
+        (a KinematicsError) with the closest reachable point and the direction to move the target.
+        """
+        return self.ik_solve(finger, target_palm, q0, link=link, p_link=p_link, normal_palm=normal_palm,
+                             restarts=restarts, max_iter=max_iter, seed=seed).q
+
+    def ik_solve(self, finger, target_palm, q0, link: str | None = None, p_link=None, normal_palm=None,
+                 restarts: int = 8, max_iter: int = 150, seed: int = 0) -> "IKResult":
+        """Place a point of a finger link on a target; only that finger's joints move.
+
         Damped least squares with joint clamping, restarted from q0, the open posture, mid-range
         and seeded random starts. The pad normal alignment is a secondary task in the null space
-        of the position task (best effort; the fingers have at most 4 joints).
+        of the position task (best effort; the fingers have at most 4 joints). When no start
+        reaches the target with the normal task on (it can drag the clamped joints away from the
+        position), the starts are run again position-only: ``IKResult.normal_dropped`` says so.
 
         Args:
             finger: finger name or Finger.
@@ -583,9 +630,11 @@ class Hand:
             normal_palm: (3,) optional contact normal INTO the object in the palm frame: the link's
                 outward pad normal is turned toward it.
         Returns:
-            q: (nq,) with the point within 0.5 mm of the target.
+            `IKResult`: q (nq,) with the point within 0.5 mm (`IK_TOL_M`) of the target, the
+            position and normal errors, whether the normal task was dropped.
         Raises:
-            KinematicsError: no start reached the target within 0.5 mm inside the joint limits.
+            UnreachableError: no start reached the target within 0.5 mm inside the joint limits, even
+                position-only; it carries the closest point reached and the direction to move the target.
         """
         f = self.finger(finger)
         q0 = self._check_q(q0)
@@ -611,23 +660,44 @@ class Hand:
         rng = np.random.default_rng(seed)
         starts = [q0[idx], np.array(f.q_open), 0.5 * (lo + hi)]
         starts += [rng.uniform(lo, hi) for _ in range(max(0, restarts - len(starts)))]
-        best = None   # (position error, normal error, q)
+        best = self._ik_starts(starts, q0, idx, lo, hi, fid, p_link, target, n_link, n_des, max_iter)
+        dropped = False
+        if best[0] >= IK_TOL_M and n_des is not None:
+            pos_only = self._ik_starts(starts, q0, idx, lo, hi, fid, p_link, target, None, None, max_iter)
+            dropped = pos_only[0] < IK_TOL_M
+            if dropped or pos_only[0] < best[0]:
+                best = pos_only
+        err, nerr, q, p = best
+        if err >= IK_TOL_M:
+            gap = p - target
+            dist = float(np.linalg.norm(gap))
+            direction = gap / dist if dist > 0 else np.zeros(3)
+            raise UnreachableError(
+                f"finger {f.name!r}: target {np.round(target, 4).tolist()} m (palm frame) is out of "
+                f"reach of {link}; closest approach {err * 1e3:.1f} mm after {len(starts)} starts "
+                f"(pad normal task {'on, then off' if n_des is not None else 'off'}); move the target "
+                f"{dist * 1e3:.1f} mm along {np.round(direction, 3).tolist()} (palm frame)",
+                target_palm=target, closest_palm=p, direction_palm=direction, distance_m=dist)
+        if n_des is not None and dropped:
+            nerr = float(np.arccos(np.clip((self._point_jacobian(q, fid, p_link)[2] @ n_link) @ n_des, -1.0, 1.0)))
+        return IKResult(q=q, position_error_m=float(err), normal_error_rad=float(nerr) if n_des is not None else None,
+                        normal_dropped=dropped)
+
+    def _ik_starts(self, starts, q0, idx, lo, hi, fid, p_link, target, n_link, n_des, max_iter):
+        """Best (position error, normal error, q, point reached) over DLS runs from the starts."""
+        best = None
         for s in starts:
             q = q0.copy()
             q[idx] = np.clip(s, lo, hi)
-            q, err, nerr = self._dls(q, idx, lo, hi, fid, p_link, target, n_link, n_des, max_iter)
-            cand = (err, nerr, q)
+            q, err, nerr, p = self._dls(q, idx, lo, hi, fid, p_link, target, n_link, n_des, max_iter)
+            cand = (err, nerr, q, p)
             if err < IK_TOL_M and (best is None or best[0] >= IK_TOL_M or nerr < best[1] - 1e-6):
                 best = cand
             elif best is None or (best[0] >= IK_TOL_M and err < best[0]):
                 best = cand
             if best[0] < IK_TOL_M and (n_des is None or best[1] < 0.05):
                 break
-        if best[0] >= IK_TOL_M:
-            raise KinematicsError(
-                f"finger {f.name!r}: target {np.round(target, 4).tolist()} m (palm frame) is out of "
-                f"reach of {link}; closest approach {best[0] * 1e3:.1f} mm after {len(starts)} starts")
-        return best[2]
+        return best
 
     def _dls(self, q, idx, lo, hi, fid, p_link, target, n_link, n_des, max_iter):
         lam2 = 1e-6        # damping^2 (m^2)
@@ -669,7 +739,7 @@ class Hand:
         nerr = 0.0
         if n_des is not None:
             nerr = float(np.arccos(np.clip((R @ n_link) @ n_des, -1.0, 1.0)))
-        return q, err, nerr
+        return q, err, nerr, p
 
     # ----------------------------------------------------------------- closing
     def close_finger(self, finger, q, obj, steps: int = 20, backoff: float = 1e-3) -> np.ndarray:

@@ -183,6 +183,30 @@ def render_rgb(
     return img[:, :, :3].copy()
 
 
+def _add_markers(markers, T_root_palm: np.ndarray, client: int) -> list[int]:
+    """Visual-only dots and rods (no collision, no mass) for `render_png`'s ``markers``."""
+    out = []
+    for a, b, rgba in markers:
+        a = T_root_palm[:3, :3] @ np.asarray(a, dtype=float) + T_root_palm[:3, 3]
+        b = T_root_palm[:3, :3] @ np.asarray(b, dtype=float) + T_root_palm[:3, 3]
+        dot = p.createVisualShape(p.GEOM_SPHERE, radius=0.0025, rgbaColor=list(rgba), physicsClientId=client)
+        out.append(p.createMultiBody(0, -1, dot, basePosition=a.tolist(), physicsClientId=client))
+        d = b - a
+        length = float(np.linalg.norm(d))
+        if length > 1e-6:
+            z = d / length
+            axis = np.cross([0.0, 0.0, 1.0], z)
+            s_ = float(np.linalg.norm(axis))
+            ang = float(np.arctan2(s_, z[2]))
+            axis = axis / s_ if s_ > 1e-9 else np.array([1.0, 0.0, 0.0])
+            quat = list(axis * np.sin(ang / 2)) + [float(np.cos(ang / 2))]
+            rod = p.createVisualShape(p.GEOM_CYLINDER, radius=0.0006, length=length, rgbaColor=list(rgba),
+                                      physicsClientId=client)
+            out.append(p.createMultiBody(0, -1, rod, basePosition=(0.5 * (a + b)).tolist(), baseOrientation=quat,
+                                         physicsClientId=client))
+    return out
+
+
 def render_png(
     hand,
     q,
@@ -195,6 +219,7 @@ def render_png(
     distance_m: float | None = None,
     yaw_deg: float = 200.0,
     pitch_deg: float = -30.0,
+    markers=None,
 ) -> Path:
     """Save a picture of `hand` at configuration q holding `obj` (palm frame poses).
 
@@ -212,6 +237,8 @@ def render_png(
             afterwards); None opens a private DIRECT client and closes it.
         distance_m: camera distance; None picks one from the object size.
         yaw_deg, pitch_deg: camera orbit angles.
+        markers: optional [(a_palm (3,), b_palm (3,), rgba)]: a dot at ``a`` and a thin rod
+            from ``a`` to ``b`` (e.g. contact points and normals, `planner.grasp.contact_markers`).
 
     Returns:
         The written path.
@@ -230,6 +257,7 @@ def render_png(
         T_palm_root = np.asarray(hand.link_pose(np.asarray(q, dtype=float), root_link_name(hand_body, client)))
         T_root_obj = np.linalg.solve(T_palm_root, np.asarray(obj.T_palm_obj))
         bodies.append(add_object(obj, T_root_obj, client))
+        bodies.extend(_add_markers(markers or (), np.linalg.inv(T_palm_root), client))
         # look between the palm centre and the object so both are in the picture
         T_root_palm = np.linalg.inv(T_palm_root)
         target = 0.5 * (T_root_obj[:3, 3] + T_root_palm[:3, 3])
