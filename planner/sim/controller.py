@@ -143,40 +143,44 @@ def balance_forces(points, normals, targets, load, centre, friction: Friction, f
     r = P - np.asarray(centre, float)
     # torque rows scaled by 1/lever so force and torque rows weigh alike
     lever = max(1e-3, float(np.max(np.linalg.norm(r, axis=1))))
-    A = np.zeros((6, m))
-    for i in range(k):
-        A[:3, 3 * i:3 * i + 3] = np.eye(3)
-        x, y, z = r[i]
-        A[3:, 3 * i:3 * i + 3] = np.array([[0, -z, y], [z, 0, -x], [-y, x, 0]]) / lever
-    A_t = np.zeros((6, k))
-    A_t[3:] = N.T / lever
+    cross = np.zeros((k, 3, 3))  # [r_i]x: cross[i] @ f = r_i x f
+    cross[:, 0, 1], cross[:, 0, 2], cross[:, 1, 2] = -r[:, 2], r[:, 1], -r[:, 0]
+    cross -= cross.transpose(0, 2, 1)
+    A_eq = np.zeros((6, 2 * m + k))
+    A_eq[:3, :m] = np.tile(np.eye(3), k)
+    A_eq[3:, :m] = cross.transpose(1, 0, 2).reshape(3, m) / lever
+    A_eq[3:, m:m + k] = N.T / lever
     b = -np.asarray(load, float).reshape(6).copy()
     b[3:] /= lever
     f0 = np.asarray(targets, float).reshape(m)
     fn_min = np.broadcast_to(np.asarray(fn_min, float), (k,))
     angles = np.linspace(0.0, 2.0 * np.pi, 8, endpoint=False)
     # the pyramid's rim directions (cos a t1 + sin a t2) per contact, the same for every margin
-    rims = [[math.cos(a) * t1 + math.sin(a) * t2 for a in angles] for t1, t2 in map(_tangents, N)]
+    t1, t2 = np.array([_tangents(n) for n in N]).transpose(1, 0, 2)
+    rims = np.cos(angles)[None, :, None] * t1[:, None] + np.sin(angles)[None, :, None] * t2[:, None]  # (k, 8, 3)
+    # variables: f (m), t (k), slack (m) with |f - f0| <= slack; rows: 8 rim + 1 normal per
+    # contact, 2 torsion per contact, then the two slack rows per force component
+    rows = 11 * k + 2 * m
+    G = np.zeros((rows, 2 * m + k))
+    h = np.zeros(rows)
+    blocks = np.arange(k)
+    rim_rows = (9 * blocks[:, None] + np.arange(8)).ravel()
+    cols = 3 * blocks[:, None] + np.arange(3)  # (k, 3) force columns of each contact
+    G[9 * blocks[:, None, None] + np.arange(9)[None, 8:, None], cols[:, None, :]] = -N[:, None, :]
+    h[9 * blocks + 8] = -fn_min
+    tor = 9 * k + 2 * blocks
+    G[tor, m + blocks], G[tor + 1, m + blocks] = 1.0, -1.0
+    I = np.eye(m)
+    G[11 * k:11 * k + m, :m], G[11 * k:11 * k + m, m + k:] = I, -I
+    G[11 * k + m:, :m], G[11 * k + m:, m + k:] = -I, -I
+    h[11 * k:] = np.r_[f0, -f0]
+    c = np.r_[np.zeros(m + k), np.ones(m)]
+    bounds = [(None, None)] * (m + k) + [(0, None)] * m
     for s, s_t in margins:
         mu, gamma = s * friction.mu * math.cos(math.pi / 8), s_t * friction.gamma
-        G = np.zeros((9 * k, m))
-        h = np.zeros(9 * k)
-        for i, n in enumerate(N):
-            for a_i, rim in enumerate(rims[i]):  # rim . f <= mu n . f
-                G[9 * i + a_i, 3 * i:3 * i + 3] = rim - mu * n
-            G[9 * i + 8, 3 * i:3 * i + 3] = -n
-            h[9 * i + 8] = -fn_min[i]
-        T = np.zeros((2 * k, m + k))
-        for i, n in enumerate(N):
-            T[2 * i, 3 * i:3 * i + 3] = T[2 * i + 1, 3 * i:3 * i + 3] = -gamma * n
-            T[2 * i, m + i], T[2 * i + 1, m + i] = 1.0, -1.0
-        I, Z = np.eye(m), np.zeros
-        # variables: f (m), t (k), slack (m) with |f - f0| <= slack
-        res = linprog(np.r_[np.zeros(m + k), np.ones(m)],
-                      A_ub=np.block([[G, Z((9 * k, k)), Z((9 * k, m))], [T, Z((2 * k, m))],
-                                     [I, Z((m, k)), -I], [-I, Z((m, k)), -I]]),
-                      b_ub=np.r_[h, np.zeros(2 * k), f0, -f0], A_eq=np.c_[A, A_t, Z((6, m))], b_eq=b,
-                      bounds=[(None, None)] * (m + k) + [(0, None)] * m, method="highs")
+        G[rim_rows[:, None], np.repeat(cols, 8, axis=0)] = (rims - mu * N[:, None, :]).reshape(8 * k, 3)
+        G[tor[:, None], cols] = G[tor[:, None] + 1, cols] = -gamma * N
+        res = linprog(c, A_ub=G, b_ub=h, A_eq=A_eq, b_eq=b, bounds=bounds, method="highs")
         if res.status == 0 and float(np.abs(res.x[:m]).max()) <= f_max:
             return res.x[:m].reshape(k, 3)
     return None
