@@ -7,7 +7,10 @@ command's own failure code; any other exception is a bug and shows its traceback
 from __future__ import annotations
 
 import argparse
+import contextlib
+import os
 import sys
+import tempfile
 
 from planner.errors import NoSequenceError, PlannerError
 from planner.gravity import GRAVITY_SET_SIZES
@@ -119,7 +122,6 @@ def _print_states(report) -> None:
 def _cmd_replay(args: argparse.Namespace) -> int:
     """Replay a plan in pybullet; exit 0 pass, 1 fail (dropped, drifted or closure disagrees), 2 bad input."""
     import json
-    from pathlib import Path
 
     from planner.sim.replay import replay_gravity_set, replay_plan
 
@@ -144,14 +146,15 @@ def _cmd_replay(args: argparse.Namespace) -> int:
               f"in {report.wall_time_s:.2f} s" + (f"; GIF {report.gif} ({report.gif_frames} frames)" if report.gif else ""))
         data, passed, verdict = report.to_dict(), report.passed, report.verdict
     if args.report:
-        Path(args.report).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.report).write_text(json.dumps(data, indent=1) + "\n")
+        from planner.fileio import write_atomic
+
+        write_atomic(args.report, json.dumps(data, indent=1) + "\n")
     print(verdict)
     return 0 if passed else 1
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="regrasp", description=__doc__.splitlines()[0])
+    parser = _Parser(prog="regrasp", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
     demo = sub.add_parser("demo", help="plan (and replay) the bundled box example")
     demo.add_argument("--out", default="out", help="output folder (default: out)")
@@ -218,14 +221,167 @@ def _has_command(name: str) -> bool:
     return name in sub.choices
 
 
+#: Ranges of the numeric options (README "Hardening / plan integrity"): each bounds a loop
+#: or a size (--alternatives: ranked sequences, --intermediate: sampled contacts per finger,
+#: the graph grows about quadratically with it). (low, high, low is exclusive).
+OPTION_LIMITS = {
+    "seed": (0, 2**32 - 1, False),
+    "alternatives": (1, 100, False),
+    "intermediate": (0, 8, False),
+    "max_lifted": (1, 16, False),
+    "motion_timeout": (0.0, 600.0, True),
+    "max_finger_force": (0.0, 1000.0, True),
+    "gravity": (-1000.0, 1000.0, False),
+    "gif_every": (1, 10000, False),
+    "drift_mm": (0.0, 1000.0, True),
+    "drift_deg": (0.0, 180.0, True),
+}
+#: Files each command reads and writes (argument names): an output may not be an input.
+_INPUTS = {"plan": ("initial", "final"), "check": ("grasp",), "replay": ("plan",), "view": ("source", "report")}
+_OUTPUTS = {"plan": ("output",), "check": ("png",), "replay": ("report", "gif", "mp4"), "view": ("output",)}
+#: Exit code of an interrupted command (128 + SIGINT) and of a closed stdout (128 + SIGPIPE).
+EXIT_INTERRUPTED = 130
+EXIT_BROKEN_PIPE = 141
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with its errors as one line (no usage block) and exit code 2."""
+
+    def error(self, message: str):
+        message = " ".join(str(message).split())
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def _option_name(dest: str) -> str:
+    return "--" + dest.replace("_", "-")
+
+
+def _validate(args: argparse.Namespace) -> None:
+    """Numeric ranges (`OPTION_LIMITS`) and output paths, before any work."""
+    import math
+
+    from planner.fileio import check_output
+
+    for dest, (low, high, open_low) in OPTION_LIMITS.items():
+        value = getattr(args, dest, None)
+        for v in value if isinstance(value, list) else [value]:
+            if isinstance(v, str):
+                continue
+            if v is None:
+                continue
+            ok = math.isfinite(v) and (low < v if open_low else low <= v) and v <= high
+            if not ok:
+                bound = f"({low}, {high}]" if open_low else f"[{low}, {high}]"
+                raise PlannerError(f"{_option_name(dest)}: {v!r} is out of range; valid: {bound}")
+    inputs = [getattr(args, k, None) for k in _INPUTS.get(args.command, ())]
+    outputs = [(getattr(args, k, None), "-o" if k == "output" else "--" + k) for k in _OUTPUTS.get(args.command, ())]
+    named = [o for o, _ in outputs if o is not None]
+    for out, option in outputs:
+        if out is not None:
+            check_output(out, inputs + [o for o in named if o is not out], option)
+    for key in ("initial", "final", "grasp"):
+        if getattr(args, key, None) is not None:
+            from planner.fileio import check_grasp_file
+
+            check_grasp_file(getattr(args, key))
+
+
+_DEPTH = 0  # nesting of main() (demo calls it): only the outermost one redirects stderr
+
+
 def main(argv: list[str] | None = None) -> int:
+    """Run one command; a `PlannerError` is one line on stderr and exit 2 (1 for "no plan"),
+    Ctrl-C exit 130, a closed stdout a quiet exit 141. Without --verbose, what C++ libraries
+    print on stderr (urdfdom, eigen, OMPL) and Python warnings are dropped, except
+    `planner.errors.PlannerWarning`s, printed as one ``warning:`` line each."""
+    global _DEPTH
     parser = build_parser()
     args = parser.parse_args(argv)
+    verbose = bool(getattr(args, "verbose", False))
+    prefix = f"regrasp {args.command}"
+    _DEPTH += 1
     try:
-        return int(args.func(args))
+        with _warnings_as_lines(prefix, verbose), _quiet_stderr(verbose or _DEPTH > 1) as noise:
+            try:
+                _validate(args)
+                code = int(args.func(args))
+                sys.stdout.flush()
+                return code
+            except (PlannerError, KeyboardInterrupt, BrokenPipeError):
+                raise
+            except BaseException:
+                noise.keep = True  # a bug: show what the libraries printed before its traceback
+                raise
     except NoSequenceError as err:
-        print(f"regrasp {args.command}: {err}", file=sys.stderr)
+        _say(f"{prefix}: {err}")
         return 1
     except PlannerError as err:
-        print(f"regrasp {args.command}: error: {err}", file=sys.stderr)
+        _say(f"{prefix}: error: {err}")
         return 2
+    except KeyboardInterrupt:
+        _say(f"{prefix}: interrupted")
+        return EXIT_INTERRUPTED
+    except BrokenPipeError:
+        # like other Unix tools: stop quietly; stdout goes nowhere so the exit flush cannot fail
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+        return EXIT_BROKEN_PIPE
+    finally:
+        _DEPTH -= 1
+
+
+def _say(line: str) -> None:
+    """One line on stderr, whatever the message holds (newlines in names included)."""
+    print(" ".join(line.split("\n")).replace("\r", " "), file=sys.stderr)
+
+
+class _Noise:
+    keep = False  # a bug's traceback keeps what the libraries printed before it
+
+
+@contextlib.contextmanager
+def _quiet_stderr(off: bool):
+    """Send file descriptor 2 (C++ libraries, Python warnings) to a temporary file while
+    a command runs; dropped afterwards unless the command ends in a bug."""
+    noise = _Noise()
+    if off:
+        yield noise
+        return
+    try:
+        fd = sys.stderr.fileno()
+    except (AttributeError, OSError, ValueError):  # stderr replaced (e.g. captured in tests)
+        fd = 2
+    sys.stderr.flush()
+    saved = os.dup(fd)
+    with tempfile.TemporaryFile() as tmp:
+        os.dup2(tmp.fileno(), fd)
+        try:
+            yield noise
+        finally:
+            sys.stderr.flush()
+            os.dup2(saved, fd)
+            os.close(saved)
+            if noise.keep:
+                tmp.seek(0)
+                sys.stderr.write(tmp.read().decode(errors="replace"))
+
+
+@contextlib.contextmanager
+def _warnings_as_lines(prefix: str, verbose: bool):
+    """PlannerWarnings become one ``warning:`` line each; other warnings (numpy
+    RuntimeWarnings...) only show with --verbose."""
+    import warnings
+
+    from planner.errors import PlannerWarning
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            yield
+        finally:
+            for w in caught:
+                if issubclass(w.category, PlannerWarning):
+                    _say(f"{prefix}: warning: {w.message}")
+                elif verbose:
+                    _say(f"{prefix}: {w.category.__name__}: {w.message}")

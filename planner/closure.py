@@ -89,6 +89,16 @@ RANK_RTOL = 1e-9
 #: are reported as exactly 0 (boundary, not force closure).
 METRIC_RTOL = 1e-10
 
+#: Input ranges (README "Hardening / plan integrity"): friction coefficients above
+#: `MU_MAX` are not physical and make the cone rim overflow the wrench scale; torsional
+#: friction is a length (m) of the order of the contact radius; every cone side multiplies
+#: the wrench count (2 edges per point).
+MU_MAX = 100.0
+#: Largest contact point coordinate, m (object frames are centred on the object).
+MAX_COORD_M = 1e3
+GAMMA_MAX_M = 1.0
+EDGES_MAX = 256
+
 _SIMPLEX_FACETS = np.array([[j for j in range(7) if j != i] for i in range(7)])  # (7, 6)
 
 
@@ -97,9 +107,9 @@ class Friction:
     """Soft-finger Coulomb friction (thesis eq. 1).
 
     Args:
-        mu: static friction coefficient (dimensionless, >= 0).
-        gamma: torsional friction, torque per unit normal force (metres, >= 0).
-        edges: number of sides of the friction-cone polygon (>= 3; thesis uses 5).
+        mu: static friction coefficient (dimensionless, 0 <= mu <= `MU_MAX`).
+        gamma: torsional friction, torque per unit normal force (metres, 0 <= gamma <= `GAMMA_MAX_M`).
+        edges: number of sides of the friction-cone polygon (3 <= edges <= `EDGES_MAX`; thesis uses 5).
     """
 
     mu: float
@@ -107,16 +117,17 @@ class Friction:
     edges: int = 5
 
     def __post_init__(self):
-        for name in ("mu", "gamma"):
+        for name, high in (("mu", MU_MAX), ("gamma", GAMMA_MAX_M)):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
-                raise InputError(f"friction {name} must be a number, got {value!r}")
-            if not math.isfinite(value) or value < 0:
-                raise InputError(f"friction {name} must be finite and >= 0, got {value!r}")
+                raise InputError(f"friction {name} must be a number, got {type(value).__name__}")
+            if not (math.isfinite(value) and 0 <= value <= high):
+                raise InputError(f"friction {name} must be in [0, {high:g}], got {float(value):.6g}")
             object.__setattr__(self, name, float(value))
         edges = self.edges
-        if isinstance(edges, bool) or not isinstance(edges, (int, np.integer)) or edges < 3:
-            raise InputError(f"friction edges must be an integer >= 3, got {edges!r}")
+        if isinstance(edges, bool) or not isinstance(edges, (int, np.integer)) or not 3 <= edges <= EDGES_MAX:
+            shown = f"{edges:.6g}" if isinstance(edges, (int, float, np.integer)) else type(edges).__name__
+            raise InputError(f"friction edges must be an integer in [3, {EDGES_MAX}], got {shown}")
         object.__setattr__(self, "edges", int(edges))
 
 
@@ -145,11 +156,7 @@ def _as_points_normals(points, normals) -> tuple[np.ndarray, np.ndarray]:
 
 def _as_arrays(points, normals) -> tuple[np.ndarray, np.ndarray]:
     """Points and normals as float (m, 3) arrays of the same shape (not yet checked finite)."""
-    try:
-        p = np.asarray(points, dtype=float)
-        n = np.asarray(normals, dtype=float)
-    except (TypeError, ValueError) as err:
-        raise InputError(f"points and normals must be numeric arrays: {err}") from err
+    p, n = _real_array(points, "points"), _real_array(normals, "normals")
     if p.size == 0 and n.size == 0:
         return np.zeros((0, 3)), np.zeros((0, 3))
     if p.ndim != 2 or p.shape[1] != 3:
@@ -159,10 +166,30 @@ def _as_arrays(points, normals) -> tuple[np.ndarray, np.ndarray]:
     return p, n
 
 
+def _real_array(value, name: str) -> np.ndarray:
+    """A float array of real numbers; InputError for complex or non-numeric input (numpy
+    would silently drop an imaginary part)."""
+    try:
+        a = np.asarray(value)
+        if a.dtype.kind == "c" or (a.dtype == object and any(isinstance(v, complex) for v in a.ravel())):
+            raise InputError(f"{name} must be real numbers, got complex values")
+        return np.asarray(a, dtype=float)
+    except (TypeError, ValueError) as err:
+        if isinstance(err, InputError):
+            raise
+        raise InputError(f"{name} must be a numeric array: {str(err).splitlines()[0][:80]}") from None
+
+
 def _unit_normals(p: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Check finiteness and non-zero normals of ``_as_arrays`` output; normalize the normals."""
     if not (np.isfinite(p).all() and np.isfinite(n).all()):
         raise InputError("points and normals must be finite (found NaN or inf)")
+    if (np.abs(p) > MAX_COORD_M).any():
+        raise InputError(f"contact points must lie within {MAX_COORD_M:g} m of the object origin")
+    big = np.abs(n).max(axis=1, initial=0.0) > 1e100  # |n|^2 would overflow: scale first (exact: power of 2)
+    if big.any():
+        n = n.copy()
+        n[big] = n[big] * 2.0 ** -400
     length = np.sqrt(np.einsum("ij,ij->i", n, n))
     if (length < 1e-12).any():
         bad = int(np.argmax(length < 1e-12))
@@ -230,10 +257,7 @@ def _wrench_rows(p: np.ndarray, n: np.ndarray, friction: Friction) -> np.ndarray
 
 
 def _check_wrenches(W) -> np.ndarray:
-    try:
-        W = np.asarray(W, dtype=float)
-    except (TypeError, ValueError) as err:
-        raise InputError(f"wrenches must be a numeric array: {err}") from err
+    W = _real_array(W, "wrenches")
     if W.ndim != 2 or W.shape[1] != 6:
         raise InputError(f"wrenches must have shape (k, 6), got {W.shape}")
     if not np.isfinite(W).all():
@@ -576,6 +600,17 @@ def _closure(W: np.ndarray, decide_only: bool = False, warm: _Hull | None = None
     k = len(W)
     if k == 0:
         return Closure(False, 0.0, 0), None
+    # Force closure is scale invariant and the metric scales with W. Far from unit scale
+    # (squares overflow or underflow), solve for W / 2^e, 2^e near the largest |w_i| (exact
+    # in floating point), and scale the metric back; contact wrenches (unit normal force)
+    # never need it, so their numbers and warm-start polytopes are untouched.
+    peak = float(np.abs(W).max())
+    if peak == 0.0:
+        return Closure(False, 0.0, 0), None
+    if not 2.0**-20 <= peak < 2.0**20:
+        e = math.frexp(peak)[1] - 1
+        closure, _ = _closure(np.ldexp(W, -e), decide_only)
+        return Closure(closure.is_force_closure, math.ldexp(closure.metric, e), closure.rank), None
     scale = float(np.sqrt(np.einsum("ij,ij->i", W, W).max()))
     tol = METRIC_RTOL * max(scale, 1e-300)
     if warm is None:

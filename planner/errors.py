@@ -63,3 +63,16 @@ class MotionError(PlannerError):
 
 class SimulationError(PlannerError):
     """The physics back end failed or the replay could not be set up."""
+
+
+class OutputError(PlannerError):
+    """An output file cannot be written: it is an input, a directory, or the OS refused it."""
+
+
+class IntegrityError(SpecError):
+    """A plan file is incomplete or altered: its digest, counts or step chain do not match."""
+
+
+class PlannerWarning(UserWarning):
+    """Something the user should know that does not stop the command (the CLI prints one
+    ``warning:`` line per warning on stderr), e.g. a plan's input file changed since planning."""

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
@@ -204,20 +203,17 @@ def dumps_plan(plan: Plan | Mapping[str, Any], fmt: str = "yaml") -> str:
 
 
 def write_plan(plan: Plan, path: str | os.PathLike) -> Path:
-    """Write a plan as YAML or JSON (by suffix), atomically: never half a file."""
+    """Write a plan as YAML or JSON (by suffix), atomically: never half a file.
+
+    Raises:
+        SpecError: unknown suffix. OutputError: the OS refused the write (nothing is left
+            behind and an existing file is untouched).
+    """
+    from planner.fileio import write_atomic
+
     path = Path(path)
     text = dumps_plan(plan, plan_format(path))
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=".plan-", suffix=path.suffix, dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
+    return write_atomic(path, text)
 
 
 REQUIRED_KEYS = ("schema_version", "hand", "object", "friction", "joints", "states", "steps")
