@@ -599,7 +599,9 @@ def replay_plan(
     bodies: list[int] = []
     t0 = time.perf_counter()
     try:
-        sim = _Sim(cid, rd, info, joints, obj, friction, params, density_kg_m3, bodies)
+        # the hand's visual meshes only matter to a picture or a window (half the URDF load)
+        visual = gui or not own or gif is not None or mp4 is not None
+        sim = _Sim(cid, rd, info, joints, obj, friction, params, density_kg_m3, bodies, visual=visual)
         params["object_mass_kg"] = sim.mass
         recorder = None
         if gif is not None or mp4 is not None:
@@ -730,7 +732,8 @@ def replay_gravity_set(plan: Mapping | str | os.PathLike, n: int = 6, *, hand=No
 class _Sim:
     """The pybullet scene of one replay (hand, object, controller, measurements)."""
 
-    def __init__(self, cid, rd, info: _HandInfo, joints, obj, friction, params, density_kg_m3, bodies):
+    def __init__(self, cid, rd, info: _HandInfo, joints, obj, friction, params, density_kg_m3, bodies,
+                 visual: bool = True):
         self.cid, self.rd, self.params, self.friction = cid, rd, params, friction
         self.dt = params["dt"]
         p.setPhysicsEngineParameter(fixedTimeStep=self.dt, numSolverIterations=params["solver_iterations"],
@@ -740,7 +743,8 @@ class _Sim:
         base_quat = Rotation.from_matrix(info.T_palm_base[:3, :3]).as_quat().tolist()
         try:
             self.hand = p.loadURDF(info.urdf_path, base_pos, base_quat, useFixedBase=True,
-                                   flags=p.URDF_USE_INERTIA_FROM_FILE, physicsClientId=cid)
+                                   flags=p.URDF_USE_INERTIA_FROM_FILE | (0 if visual else p.URDF_IGNORE_VISUAL_SHAPES),
+                                   physicsClientId=cid)
         except p.error as err:
             raise SimulationError(f"pybullet could not load the hand URDF {info.urdf_path}: {err}") from err
         bodies.append(self.hand)
