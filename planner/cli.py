@@ -15,8 +15,9 @@ import tempfile
 from planner.errors import NoSequenceError, PlannerError
 from planner.gravity import GRAVITY_SET_SIZES
 
-DEMO_INITIAL = "grasps/icub/cylinder_parallel_extension.yaml"
-DEMO_FINAL = "grasps/icub/cylinder_ir2m.yaml"
+DEMO_INITIAL = "icub/cylinder_parallel_extension.yaml"  # bundled grasps (planner.resources)
+DEMO_FINAL = "icub/cylinder_ir2m.yaml"
+DEMO_OUT = "regrasp-demo"
 
 
 def _cmd_plan(args: argparse.Namespace) -> int:
@@ -43,6 +44,7 @@ def _cmd_plan(args: argparse.Namespace) -> int:
         motion_timeout_s=args.motion_timeout,
         max_lifted=args.max_lifted,
         max_finger_force_n=args.max_finger_force,
+        time_limit_s=args.time_limit,
         **chosen,
     )
     specs = [load_grasp(args.initial), load_grasp(args.final)]
@@ -82,19 +84,32 @@ def _cmd_check(args: argparse.Namespace) -> int:
     return check_grasp(args.grasp, as_json=args.json, png=args.png)
 
 
+def _cmd_synth(args: argparse.Namespace) -> int:
+    """Synthesize force-closure grasps; exit 0 when -n were written, 1 fewer, 2 bad input."""
+    from planner.synth import run_synth
+
+    return run_synth(args.hand, args.object, args.fingers, args.n, args.output, gravity=args.gravity, seed=args.seed,
+                     max_finger_force_n=args.max_finger_force, mu=args.mu, gamma=args.gamma,
+                     max_attempts=args.max_attempts, quiet=args.quiet)
+
+
 def _cmd_demo(args: argparse.Namespace) -> int:
     """Plan the bundled cylinder example (parallel extension -> IR2M) for execution and
     replay it under the six gravity directions it was planned for, and gravity off."""
     from pathlib import Path
 
-    root = Path(__file__).resolve().parent.parent
+    from planner.resources import bundled_grasp
+
     out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise PlannerError(f"--out {out}: exists and is not a directory; name a directory for the demo's outputs")
     out.mkdir(parents=True, exist_ok=True)
     plan_path = out / "cylinder_plan.yaml"
     # execution mode: one mean contact per finger (the simulator's rigid fingertips), every
     # state holds the weight in six hand orientations with 3/4 of the friction, least grip
     # ranked first (the box pair needs more friction palm up: execution mode refuses it)
-    code = main(["plan", str(root / DEMO_INITIAL), str(root / DEMO_FINAL), "-o", str(plan_path), "--execution"])
+    code = main(["plan", str(bundled_grasp(DEMO_INITIAL)), str(bundled_grasp(DEMO_FINAL)), "-o", str(plan_path),
+                 "--execution"])
     if code != 0:
         return code
     # the demo's exit code is the replay's (1 when any direction fails); the GIF is palm down
@@ -104,6 +119,13 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     print(f"demo outputs in {out}/: cylinder_plan.yaml, cylinder_replay_<direction>.gif, cylinder_report.json "
           f"(replay {'passed' if verdict == 0 else 'did not pass'})")
     return verdict
+
+
+def _cmd_view(args: argparse.Namespace) -> int:
+    """Write the interactive 3D page (one self-contained HTML file) of a plan or a grasp."""
+    from planner.view import view_command
+
+    return view_command(args.source, args.output, report=args.report)
 
 
 def _print_states(report) -> None:
@@ -156,8 +178,9 @@ def _cmd_replay(args: argparse.Namespace) -> int:
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="regrasp", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
-    demo = sub.add_parser("demo", help="plan (and replay) the bundled box example")
-    demo.add_argument("--out", default="out", help="output folder (default: out)")
+    demo = sub.add_parser("demo", help="plan and replay the bundled cylinder example")
+    demo.add_argument("--out", default=DEMO_OUT, metavar="DIR",
+                      help=f"directory for the plan, GIFs and report (default: ./{DEMO_OUT}/)")
     demo.set_defaults(func=_cmd_demo)
 
     check = sub.add_parser("check", help="realize one grasp file and report its contacts and force closure")
@@ -171,7 +194,13 @@ def build_parser() -> argparse.ArgumentParser:
     plan.add_argument("final", help="grasp YAML the hand needs")
     plan.add_argument("-o", "--output", help="write the plan here (.yaml/.yml or .json)")
     plan.add_argument("--alternatives", type=int, default=4, metavar="K", help="ranked sequences to report (default 4)")
-    plan.add_argument("--intermediate", type=int, default=0, metavar="N", help="extra contacts sampled per finger (default 0)")
+    plan.add_argument("--intermediate", type=int, default=0, metavar="N",
+                      help="a fixed number of intermediate contacts per finger (default 0: added in rounds when needed, "
+                           "within --time-limit)")
+    plan.add_argument("--time-limit", type=float, default=10.0, metavar="S",
+                      help="planning budget, s (default 10; finger paths not counted): when no sequence exists, "
+                           "intermediate contacts are added for the fingers that block progress, round after round; "
+                           "0: no rounds")
     plan.add_argument("--strategy", default="graph", help="graph (ranked search, default) or greedy (thesis Algorithm 2)")
     plan.add_argument("--seed", type=int, default=0, help="seed for sampling and motion planning (default 0)")
     plan.add_argument("--contact-model", default=None, metavar="MODEL",
@@ -197,6 +226,22 @@ def build_parser() -> argparse.ArgumentParser:
     plan.add_argument("--motion-timeout", type=float, default=2.0, metavar="S", help="time budget per finger path, s")
     plan.add_argument("--verbose", action="store_true", help="show the motion planner's console output")
     plan.set_defaults(func=_cmd_plan)
+    synth = sub.add_parser("synth", help="generate force-closure grasp files for a hand and an object")
+    synth.add_argument("hand", help="hand name under robots/ (icub_right, allegro_right) or a hand.yaml")
+    synth.add_argument("object", help="object YAML: the object: block of a grasp file (shape, size[, position, "
+                                      "quat_xyzw, mass_kg, mesh]); without position the object pose is sampled too")
+    synth.add_argument("--fingers", required=True, help="comma-separated fingers that grasp, e.g. thumb,index,middle")
+    synth.add_argument("-n", type=int, default=20, help="grasps to write (default 20)")
+    synth.add_argument("-o", "--output", required=True, metavar="DIR", help="folder for the grasp files (never overwritten)")
+    synth.add_argument("--gravity", type=float, nargs=3, metavar=("GX", "GY", "GZ"), default=None,
+                       help="keep grasps that hold the weight under this gravity (palm frame, m/s^2) within --max-finger-force")
+    synth.add_argument("--max-finger-force", type=float, default=1.0, metavar="N", help="per-finger force budget, N (default 1)")
+    synth.add_argument("--seed", type=int, default=0, help="seed (default 0); same seed, same files")
+    synth.add_argument("--mu", type=float, default=None, help="friction coefficient (default: the object file's, else 0.9)")
+    synth.add_argument("--gamma", type=float, default=None, help="torsional friction, m (default: the object file's, else 0.004)")
+    synth.add_argument("--max-attempts", type=int, default=None, metavar="K", help="candidates sampled at most (default 60 n)")
+    synth.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
+    synth.set_defaults(func=_cmd_synth)
     replay = sub.add_parser("replay", help="execute a plan in pybullet with gravity on and check the object stays put")
     replay.add_argument("plan", help="plan file (.yaml/.yml or .json)")
     replay.add_argument("--gif", metavar="FILE", help="write an animated GIF (headless TinyRenderer)")
@@ -212,6 +257,11 @@ def build_parser() -> argparse.ArgumentParser:
                         help="replay under N gravity directions of the palm frame with a verdict per direction: "
                              "1 palm down, 2 and palm up, 6 and the four sideways directions, 7 and gravity off")
     replay.set_defaults(func=_cmd_replay)
+    view = sub.add_parser("view", help="write an interactive 3D page (one offline HTML file) of a plan or a grasp")
+    view.add_argument("source", help="plan file (.yaml/.yml/.json) or grasp YAML")
+    view.add_argument("-o", "--output", required=True, metavar="FILE", help="the page to write (.html)")
+    view.add_argument("--report", metavar="FILE", help="replay report (regrasp replay --report) shown next to the plan")
+    view.set_defaults(func=_cmd_view)
     return parser
 
 
@@ -230,6 +280,7 @@ OPTION_LIMITS = {
     "intermediate": (0, 8, False),
     "max_lifted": (1, 16, False),
     "motion_timeout": (0.0, 600.0, True),
+    "time_limit": (0.0, 3600.0, False),
     "max_finger_force": (0.0, 1000.0, True),
     "gravity": (-1000.0, 1000.0, False),
     "gif_every": (1, 10000, False),

@@ -1,0 +1,436 @@
+"""Grasp synthesis: force-closure grasps of a hand on an object, written as grasp files.
+
+``regrasp synth HAND OBJECT.yaml --fingers thumb,index,middle -n 20 -o DIR`` samples hand
+pre-shapes, closes the chosen fingers onto the object with the thesis's closing procedure
+(eqs. (8)-(9), `planner.hand.Hand.close_finger`: every closing joint advances by the same
+fraction of its range, halving the step and reversing on contact, then backs off 0.1 % until
+free), and keeps a candidate when it passes the same honest check as ``regrasp check``
+(`planner.grasp.realize`: every chosen finger touches, nothing penetrates the object, the
+palm or another finger beyond `planner.grasp.PENETRATION_TOL_M`, no closing joint at its
+limit, force closure) and, with a gravity, holds the object's weight with every finger
+pressing at most the force budget (`planner.closure.min_grip_force`). Near-duplicates are
+removed, the rest ranked by the closure metric and written as grasp YAML files that
+``regrasp check`` accepts unchanged: each file is built first, parsed and realized exactly
+as ``check`` does, and kept only if that passes.
+
+Object file (``OBJECT.yaml``): the ``object:`` block of the grasp schema on its own (keys
+``shape``, ``size``, optional ``position``, ``quat_xyzw``, ``mesh``, ``mass_kg``), either at
+the top level or under an ``object:`` key (so a grasp file works too; its friction is then
+used unless ``--mu``/``--gamma`` are given).
+- Without ``position``: the object pose is sampled too (an "approach"): the object centre
+  is put between the chosen fingers' pads of a random half-closed hand posture, with a
+  random orientation, and the fingers close onto it from the open posture.
+- With ``position`` (and ``quat_xyzw``, default identity): the object stays there (all
+  grasps share the pose, so any two of them can be a regrasp pair) and only the finger
+  pre-shapes are sampled.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from planner.errors import PlannerError, SpecError
+
+#: Two grasps are near-duplicates when every chosen finger's mean contact point (palm frame)
+#: and the object centre differ by less than this, and the contact normals by less than
+#: ``DUPLICATE_TOL_M / 0.01 m`` radians (0.5 rad).
+DUPLICATE_TOL_M = 0.005
+#: Default friction when the object file has none (the bundled grasps' values).
+DEFAULT_FRICTION = {"mu": 0.9, "gamma": 0.004, "edges": 5}
+#: A sampled object pose keeps this clearance from the palm (m).
+PALM_CLEARANCE_M = 0.002
+#: Each finger's pad sweep must pass within this many inner radii of the object centre.
+SWEEP_REACH = 1.5
+#: Fraction of their range the closing joints of a pre-shape start closed by.
+_PRESHAPE_CLOSE = (0.0, 0.3)
+
+
+@dataclass(frozen=True)
+class SynthGrasp:
+    """One synthesized grasp: its file data and the realized grasp that passed the check."""
+
+    data: dict
+    grasp: object           # planner.grasp.RealizedGrasp
+    grip_force_n: float | None
+    attempt: int
+
+
+@dataclass(frozen=True)
+class SynthResult:
+    """Outcome of `synthesize`: the kept grasps (best metric first) and the effort."""
+
+    grasps: tuple
+    attempts: int
+    candidates_passed: int
+    duplicates: int
+    seconds: float
+
+
+def load_object_file(path) -> tuple[dict, dict | None, bool]:
+    """Read an object file: (object block, friction block or None, pose_fixed).
+
+    Raises:
+        SpecError: naming the file and key.
+    """
+    from planner.grasp import _parse_object, _Reader
+
+    path = Path(path)
+    r = _Reader(path)
+    try:
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError) as err:
+        raise r.fail("", f"cannot read object file: {err.strerror if isinstance(err, OSError) else err}") from err
+    except yaml.YAMLError as err:
+        raise r.fail("", f"malformed YAML: {str(err).splitlines()[0]}") from err
+    data = r.mapping(data, "", "a YAML mapping: the object block (shape, size, ...) or a file with an object: key")
+    friction = None
+    key = ""
+    if "object" in data:
+        friction = data.get("friction")
+        data, key = r.mapping(data["object"], "object"), "object"
+    elif "shape" not in data:
+        raise r.fail("", "expected an object block (keys shape, size[, position, quat_xyzw, mesh, mass_kg]) "
+                         "at the top level or under an object: key")
+    fixed = "position" in data
+    block = dict(data)
+    block.setdefault("position", [0.0, 0.0, 0.0])
+    block.setdefault("quat_xyzw", [0.0, 0.0, 0.0, 1.0])
+    try:
+        spec = _parse_object(r, block, path.parent)
+    except SpecError as err:
+        if key:
+            raise
+        # the block sits at the top level: its keys have no "object." prefix there
+        raise SpecError(str(path), err.key.removeprefix("object").lstrip("."), err.message) from err
+    out = {"shape": spec.shape, "size": [float(v) for v in spec.size]}
+    if spec.mesh_path:
+        out["mesh"] = spec.mesh_path
+    if spec.mass_kg is not None:
+        out["mass_kg"] = float(spec.mass_kg)
+    if fixed:
+        out["position"] = [float(v) for v in spec.position]
+        out["quat_xyzw"] = [float(v) for v in spec.quat_xyzw]
+    return out, friction, fixed
+
+
+def _random_quat(rng) -> list[float]:
+    q = rng.normal(size=4)
+    q /= np.linalg.norm(q)
+    return [float(v) for v in q]
+
+
+def _pad_palm(hand, finger, q) -> np.ndarray:
+    T = hand.link_pose(q, finger.pad_link)
+    return T[:3, :3] @ np.asarray(finger.pad_p_link) + T[:3, 3]
+
+
+def _sweep(hand, finger, q, alphas) -> np.ndarray:
+    """(len(alphas), 3) pad positions (palm frame) along the finger's closing motion from q
+    (closing joints at ``start + alpha (upper - start)``, as `Hand.close_finger` moves them)."""
+    cidx = np.array([hand.joint_names.index(j) for j in finger.close_joints])
+    start = q[cidx]
+    out = []
+    for a in alphas:
+        qa = q.copy()
+        qa[cidx] = start + a * (hand.upper[cidx] - start)
+        out.append(_pad_palm(hand, finger, qa))
+    return np.array(out)
+
+
+def _object_of(block):
+    from planner.grasp import ObjectSpec
+
+    return ObjectSpec(block["shape"], tuple(block["size"]), tuple(block["position"]), tuple(block["quat_xyzw"]),
+                      block.get("mesh"), block.get("mass_kg")).make()
+
+
+def _palm_distance(hand, q, block) -> float:
+    """Signed distance (m) between the palm's links and the object of ``block``."""
+    import coal
+
+    obj = _object_of(block)
+    T = obj.T_palm_obj
+    tf = coal.Transform3s(np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3]))
+    req = coal.DistanceRequest()
+    best = np.inf
+    for link, finger, geom, tf_link in hand.collision_objects(q):
+        if finger is None:
+            best = min(best, coal.distance(geom, tf_link, obj.geometry, tf, req, coal.DistanceResult()))
+    return float(best)
+
+
+def _meeting_point(sweeps) -> np.ndarray:
+    """The point where the pad sweeps come closest together: among the centroids of one
+    point per sweep, the one whose largest distance to a sweep is smallest (minimax)."""
+    import itertools
+
+    cents = np.array([np.mean(c, axis=0) for c in itertools.product(*sweeps)])
+    worst = np.max([np.min(np.linalg.norm(cents[:, None, :] - s[None], axis=2), axis=1) for s in sweeps], axis=0)
+    return cents[int(np.argmin(worst))]
+
+
+def _sample_candidate(hand, fingers, obj_block, fixed, rng, obj_radius):
+    """(object block with a pose, {finger: pre-shape}) of one attempt, or (block, None).
+
+    Pre-shape: the joints that do not close (abduction, opposition) uniform in their range,
+    the closing joints a little into theirs. Each finger's closing motion (the thesis's
+    procedure, `Hand.close_finger`) sweeps its pad along a curve; without a fixed pose the
+    object centre is put where those curves come closest together (alternating nearest
+    points and their mean), jittered, with a random orientation. Attempts whose sweeps do
+    not pass within the object's inner radius of the centre are dropped before any
+    collision query.
+    """
+    q = np.array(hand.q_open, dtype=float)
+    for f in fingers:
+        idx = np.array(f.q_index)
+        lo, hi = hand.lower[idx], hand.upper[idx]
+        closing = np.array([j in f.close_joints for j in f.joints])
+        start = np.clip(q[idx], lo, hi)
+        frac = rng.uniform(*_PRESHAPE_CLOSE, size=len(idx))
+        q[idx] = np.where(closing, start + frac * (hi - start), rng.uniform(lo, hi))
+    alphas = np.linspace(0.0, 1.0, 10)
+    sweeps = [_sweep(hand, f, q, alphas) for f in fingers]
+    block = dict(obj_block)
+    if fixed:
+        centre = np.asarray(block["position"], dtype=float)
+    else:
+        centre = _meeting_point(sweeps)
+        centre = centre + rng.normal(scale=0.3 * obj_radius, size=3)
+        block["quat_xyzw"] = [0.0, 0.0, 0.0, 1.0] if block["shape"] == "sphere" else _random_quat(rng)
+        block["position"] = [float(v) for v in centre]
+        # out of the palm: push the object along the palm normal until it clears the palm
+        d = _palm_distance(hand, q, block)
+        if d < PALM_CLEARANCE_M:
+            centre = centre + (PALM_CLEARANCE_M - d) * np.asarray(hand.palm_normal)
+            block["position"] = [float(v) for v in centre]
+    gaps = [float(np.min(np.linalg.norm(s - centre, axis=1))) for s in sweeps]
+    if max(gaps) > SWEEP_REACH * obj_radius:
+        return block, None
+    return block, {f.name: q[list(f.q_index)].copy() for f in fingers}
+
+
+def inner_radius(obj_block) -> float:
+    """Half the smallest extent of the object (m): how close a pad sweep must pass to its centre."""
+    from planner.grasp import object_extents
+
+    block = {**obj_block, "position": (0.0, 0.0, 0.0), "quat_xyzw": (0.0, 0.0, 0.0, 1.0)}
+    return 0.5 * float(np.min(object_extents(_object_of(block))))
+
+
+def _closes_onto(hand, fingers, obj, preshape) -> dict | None:
+    """Cheap pre-filter: close the fingers; the patches if every one touches and they are force closure."""
+    from planner.closure import grasp_closure
+    from planner.contacts import contact_patches
+
+    q = np.array(hand.q_open, dtype=float)
+    for f in fingers:
+        q[list(f.q_index)] = preshape[f.name]
+    for f in fingers:
+        q = np.asarray(hand.close_finger(f, q, obj), dtype=float)
+    patches = contact_patches(hand, q, obj, fingers=[f.name for f in fingers])
+    if len(patches) < len(fingers):
+        return None
+    return patches
+
+
+def _grasp_data(hand_ref, obj_block, friction, fingers, preshape, name, description) -> dict:
+    return {
+        "schema_version": 1,
+        "name": name,
+        "description": description,
+        "hand": hand_ref,
+        "object": {k: obj_block[k] for k in ("shape", "size", "position", "quat_xyzw", "mesh", "mass_kg") if k in obj_block},
+        "friction": dict(friction),
+        "fingers": {f.name: {"posture": [float(v) for v in preshape[f.name]]} for f in fingers},
+    }
+
+
+def _features(grasp, fingers) -> np.ndarray:
+    """Palm-frame mean contact point and mean normal of each chosen finger, and the object centre."""
+    T = np.asarray(grasp.obj.T_palm_obj)
+    R, t = T[:3, :3], T[:3, 3]
+    rows = [t]
+    for f in fingers:
+        p, n = grasp.patches[f.name]
+        rows.append(R @ np.mean(p, axis=0) + t)
+        m = R @ np.mean(n, axis=0)
+        rows.append(0.01 * m / max(np.linalg.norm(m), 1e-12))
+    return np.array(rows)
+
+
+def _is_duplicate(a: np.ndarray, b: np.ndarray) -> bool:
+    return bool(np.max(np.linalg.norm(a - b, axis=1)) < DUPLICATE_TOL_M)
+
+
+def synthesize(hand_ref: str, obj_block: dict, fingers, n: int, *, fixed: bool, friction=None, seed: int = 0,
+               gravity=None, max_finger_force_n: float = 1.0, max_attempts: int | None = None, base_dir=".",
+               progress=None) -> SynthResult:
+    """Sample, close, check, de-duplicate and rank grasps.
+
+    Args:
+        hand_ref: hand name under robots/ or an absolute hand.yaml path.
+        obj_block: the object block (`load_object_file`); with ``position`` when ``fixed``.
+        fingers: names of the fingers that grasp (the others stay open).
+        n: grasps wanted.
+        fixed: keep the object pose of ``obj_block`` (True) or sample it per attempt.
+        friction: {mu, gamma, edges} (default `DEFAULT_FRICTION`).
+        seed: seed of every random choice (the result depends on nothing else).
+        gravity: None or (3,) palm-frame gravity (m/s^2): keep grasps holding the weight with
+            every finger pressing at most ``max_finger_force_n`` (`min_grip_force`).
+        max_attempts: candidates sampled at most (default 60 n).
+        base_dir: where the grasp files will live (anchors relative paths in error messages).
+        progress: None or callable(str) for progress lines.
+
+    Returns:
+        `SynthResult` with up to n grasps, best closure metric first.
+    """
+    from planner.closure import Friction, grasp_closure, min_grip_force
+    from planner.grasp import load_hand, parse_grasp, realize
+
+    t0 = time.perf_counter()
+    hand = load_hand(hand_ref)
+    chosen = [hand.finger(f) for f in fingers]
+    if not chosen:
+        raise PlannerError("synth: give at least one finger (--fingers thumb,index,...)")
+    friction = dict(DEFAULT_FRICTION if friction is None else friction)
+    fr = Friction(friction["mu"], friction["gamma"], friction.get("edges", 5))
+    if n < 1:
+        raise PlannerError(f"synth: -n must be at least 1, got {n}")
+    max_attempts = 60 * n if max_attempts is None else max_attempts
+    rng = np.random.default_rng(seed)
+    inner = inner_radius(obj_block)
+    kept: list[tuple[np.ndarray, SynthGrasp]] = []
+    passed = dups = 0
+    base = Path(base_dir)
+    attempt = 0
+    for attempt in range(1, max_attempts + 1):
+        if len(kept) >= n:
+            attempt -= 1
+            break
+        block, preshape = _sample_candidate(hand, chosen, obj_block, fixed, rng, inner)
+        if preshape is None:
+            continue
+        data = _grasp_data(hand_ref, block, friction, chosen, preshape, "candidate", "")
+        try:
+            spec = parse_grasp(data, base / "candidate.yaml")
+        except SpecError:
+            continue
+        obj = spec.object.make()
+        patches = _closes_onto(hand, chosen, obj, preshape)
+        if patches is None or not grasp_closure(patches, fr).is_force_closure:
+            continue
+        g = realize(spec, hand)
+        if not g.ok:
+            continue
+        grip = None
+        if gravity is not None:
+            R = np.asarray(g.obj.T_palm_obj)[:3, :3]
+            load = np.r_[g.obj.mass_kg * (R.T @ np.asarray(gravity, dtype=float)), np.zeros(3)]
+            grip = min_grip_force(dict(g.patches), fr, load)
+            if not grip <= max_finger_force_n:
+                continue
+        passed += 1
+        feat = _features(g, chosen)
+        cand = SynthGrasp(data=data, grasp=g, grip_force_n=grip, attempt=attempt)
+        twin = next((i for i, (fk, _) in enumerate(kept) if _is_duplicate(fk, feat)), None)
+        if twin is not None:
+            dups += 1
+            if g.metric > kept[twin][1].grasp.metric:
+                kept[twin] = (feat, cand)
+            continue
+        kept.append((feat, cand))
+        if progress is not None:
+            progress(f"synth: {len(kept)}/{n} grasps after {attempt} attempts, {time.perf_counter() - t0:.1f} s")
+    ranked = sorted((c for _, c in kept), key=lambda c: (-c.grasp.metric, c.attempt))
+    return SynthResult(grasps=tuple(ranked), attempts=attempt, candidates_passed=passed, duplicates=dups,
+                       seconds=time.perf_counter() - t0)
+
+
+def output_names(out_dir, hand_name: str, shape: str, n: int) -> list[Path]:
+    """The files `write_grasps` writes: ``DIR/<hand>_<shape>_<rank>.yaml``, rank 01..n."""
+    width = max(2, len(str(n)))
+    return [Path(out_dir) / f"{hand_name}_{shape}_{i:0{width}d}.yaml" for i in range(1, n + 1)]
+
+
+def write_grasps(result: SynthResult, out_dir, hand_name: str, *, seed: int, fingers, inputs=()) -> list[Path]:
+    """Write the ranked grasps; refuse (PlannerError) to overwrite any existing file or an input."""
+    grasps = result.grasps
+    shape = grasps[0].data["object"]["shape"] if grasps else "object"
+    paths = output_names(out_dir, hand_name, shape, len(grasps))
+    _refuse_overwrite(paths, inputs)
+    Path(out_dir).mkdir(parents=True, exist_ok=True)
+    written = []
+    try:
+        for rank, (path, g) in enumerate(zip(paths, grasps), start=1):
+            data = dict(g.data)
+            data["name"] = path.stem
+            grip = f", grip force {g.grip_force_n:.3f} N" if g.grip_force_n is not None else ""
+            data["description"] = (f"synthesized by regrasp synth (seed {seed}, fingers {','.join(fingers)}, "
+                                   f"attempt {g.attempt}): rank {rank}, closure metric {g.grasp.metric:.4g}{grip}")
+            obj = dict(data["object"])
+            if obj.get("mesh"):
+                obj["mesh"] = os.path.relpath(obj["mesh"], Path(out_dir).resolve())
+            data["object"] = obj
+            tmp = path.with_name(path.name + ".tmp")
+            tmp.write_text(yaml.safe_dump(data, sort_keys=False, default_flow_style=None), encoding="utf-8")
+            os.replace(tmp, path)
+            written.append(path)
+    except OSError as err:
+        for p in written:
+            p.unlink(missing_ok=True)
+        raise PlannerError(f"synth: cannot write into {out_dir}: {err}") from err
+    return written
+
+
+def _refuse_overwrite(paths, inputs) -> None:
+    ins = {Path(p).resolve() for p in inputs}
+    for p in paths:
+        if p.resolve() in ins:
+            raise PlannerError(f"synth: {p} is an input file; choose another -o DIR")
+        if p.exists():
+            raise PlannerError(f"synth: {p} exists; refusing to overwrite it (choose an empty -o DIR or remove it)")
+
+
+def run_synth(hand: str, object_path, fingers: str, n: int, out_dir, *, gravity=None, seed: int = 0,
+              max_finger_force_n: float = 1.0, mu=None, gamma=None, max_attempts=None, quiet=False) -> int:
+    """``regrasp synth``: synthesize, write, print a summary. Exit 0 when n grasps were written,
+    1 when fewer (those found are written), 2 (PlannerError) on bad input."""
+    from planner.grasp import load_hand, resolve_hand_ref
+
+    hand_ref = resolve_hand_ref(hand, Path.cwd())
+    h = load_hand(hand_ref)
+    names = [f.strip() for f in fingers.split(",") if f.strip()]
+    for f in names:
+        h.finger(f)
+    obj_block, file_friction, fixed = load_object_file(object_path)
+    friction = dict(DEFAULT_FRICTION)
+    if isinstance(file_friction, dict):
+        friction.update({k: file_friction[k] for k in ("mu", "gamma", "edges") if k in file_friction})
+    if mu is not None:
+        friction["mu"] = mu
+    if gamma is not None:
+        friction["gamma"] = gamma
+    # refuse before any work when the first names are taken
+    _refuse_overwrite(output_names(out_dir, h.name, obj_block["shape"], n), [object_path])
+    progress = None if quiet else (lambda line: print(line, file=sys.stderr, flush=True))
+    result = synthesize(hand_ref, obj_block, names, n, fixed=fixed, friction=friction, seed=seed, gravity=gravity,
+                        max_finger_force_n=max_finger_force_n, max_attempts=max_attempts, base_dir=out_dir,
+                        progress=progress)
+    paths = write_grasps(result, out_dir, h.name, seed=seed, fingers=names, inputs=[object_path])
+    for path, g in zip(paths, result.grasps):
+        grip = f"  grip {g.grip_force_n:.3f} N" if g.grip_force_n is not None else ""
+        print(f"{path}  metric {g.grasp.metric:.4g}{grip}")
+    rate = len(paths) / result.seconds if result.seconds > 0 else math.inf
+    print(f"synth: {len(paths)}/{n} grasps of {obj_block['shape']} with {h.name} ({','.join(names)}) in "
+          f"{result.seconds:.1f} s ({rate:.2f} grasps/s), {result.attempts} attempts, {result.candidates_passed} "
+          f"passed the check, {result.duplicates} near-duplicates removed, pose "
+          f"{'fixed by the object file' if fixed else 'sampled'}, seed {seed}")
+    return 0 if len(paths) >= n else 1
