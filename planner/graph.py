@@ -204,10 +204,21 @@ class _Evaluator:
             results = batch_grasp_closure([self.problem.patches(n) for n in todo], self.problem.friction)
             self.closure.update(zip(todo, results))
 
-    def collision_free(self, node: Node) -> bool:
+    def extend(self, problem: GaitProblem) -> None:
+        """Go on with a problem that only adds slots to this one's (the next round of
+        intermediate contacts): every cached closure, grip force and collision stays valid,
+        because existing slots keep their indices."""
+        old = self.problem
+        if (problem.fingers != old.fingers or problem.start != old.start or problem.goal != old.goal
+                or any(problem.slots[f][: len(old.slots[f])] != old.slots[f] for f in old.fingers)):
+            raise InputError("a problem can only be extended by appending slots")
+        self.problem = problem
+
+    def collision_pair(self, node: Node) -> tuple[str, str] | None:
+        """The first two fingers (in finger order) that collide in a node, or None."""
         check = self.problem.compatible
         if check is None:
-            return True
+            return None
         fingers = self.problem.fingers
         for i, j in itertools.combinations(range(len(fingers)), 2):
             key = (i, node[i], j, node[j])
@@ -216,8 +227,11 @@ class _Evaluator:
                 ok = bool(check(fingers[i], node[i], fingers[j], node[j]))
                 self._pairs[key] = ok
             if not ok:
-                return False
-        return True
+                return fingers[i], fingers[j]
+        return None
+
+    def collision_free(self, node: Node) -> bool:
+        return self.collision_pair(node) is None
 
     def grip_forces(self, node: Node) -> tuple[float, ...] | None:
         """Per-finger normal force the state needs for each of the problem's loads, in
@@ -250,23 +264,30 @@ class _Evaluator:
         p = self.problem
         if not _within_lift_bound(p, node):
             return "too many fingers lifted"
+        pair = self.collision_pair(node)
+        if pair is not None:
+            return f"fingers collide ({pair[0]} and {pair[1]})"
         if not self.closure[node].is_force_closure:
             return "not force closure"
-        if not self.collision_free(node):
-            return "fingers collide"
         f = self.grip_force(node)
         if f is not None and f > p.max_grip_force_n:
             return f"need over {p.max_grip_force_n:g} N per finger to hold the load"
         return None
 
 
-def seed_graph(problem: GaitProblem) -> nx.DiGraph:
-    """A graph holding only the initial state (what `greedy` grows lazily).
+def seed_graph(problem: GaitProblem, evaluator: _Evaluator | None = None) -> nx.DiGraph:
+    """A graph holding only the initial state (what `greedy` and `LazyGraph` grow).
+
+    Args:
+        evaluator: caches to reuse (from an earlier round over fewer slots, see
+            `_Evaluator.extend`); a fresh one when None.
 
     Raises:
         NoSequenceError: the initial grasp itself is not a valid state.
     """
-    ev = _Evaluator(problem)
+    ev = evaluator or _Evaluator(problem)
+    if ev.problem is not problem:
+        ev.extend(problem)
     G = nx.DiGraph(problem=problem, start=problem.start, goal=problem.goal, blocked={}, evaluator=ev)
     ev.evaluate([problem.start, problem.goal])
     reason = ev.blocked_reason(problem.start)
@@ -289,6 +310,7 @@ def build_graph(problem: GaitProblem) -> nx.DiGraph:
     """
     G = seed_graph(problem)
     ev = G.graph["evaluator"]
+    G.graph["blocked_moves"] = []  # (from state, finger index, action, to state) of refused moves
     frontier = [problem.start]
     while frontier:
         moves = [(u, i, action, v) for u in frontier for i, action, v in problem.neighbours(u)]
@@ -297,10 +319,12 @@ def build_graph(problem: GaitProblem) -> nx.DiGraph:
         for u, i, action, v in moves:
             if v not in G:
                 if v in G.graph["blocked"]:
+                    G.graph["blocked_moves"].append((u, i, action, v))
                     continue
                 reason = ev.blocked_reason(v)
                 if reason is not None:
                     G.graph["blocked"][v] = reason
+                    G.graph["blocked_moves"].append((u, i, action, v))
                     continue
                 _add_node(G, ev, v)
                 new.append(v)
@@ -318,6 +342,191 @@ def _add_node(G: nx.DiGraph, ev: _Evaluator, v: Node) -> None:
     G.add_node(v, labels=p.labels(v), patches=p.patches(v), closure=c, metric=float(c.metric),
                grip_force=None if forces is None else max(forces),
                grip_forces=None if forces is None else dict(zip((n for n, _ in p.all_loads()), forces)))
+
+
+def _gaits_lower_bound(start: Node, goal: Node, v: Node) -> int:
+    """Fewest gaits any start-goal path through ``v`` can have: every finger whose slot
+    differs between start and v needs a gait before v, every finger differing between v and
+    goal one after it; at most one gait (a lift right before v and that finger's landing
+    right after it) is counted twice."""
+    before = sum(a != b for a, b in zip(start, v))
+    after = sum(a != b for a, b in zip(v, goal))
+    straddle = any(s == LIFTED and a != LIFTED and g != LIFTED for a, s, g in zip(start, v, goal))
+    return before + after - int(straddle)
+
+
+class LazyGraph:
+    """The state graph grown lazily, best-first, as far as the ranked search needs it.
+
+    States are expanded in order of (their best possible primary cost from the start, a
+    lower bound of the gait steps of any path through them): the primary cost of a path is
+    its ranking's bottleneck (``metric``: minus the worst closure metric; ``grip``: the
+    largest grip force), and a state's is the smallest bottleneck over the paths reaching
+    it (a widest-path Dijkstra). Closure, grip force and collisions are evaluated only for
+    the successors of expanded states (one batch closure call per expansion batch), with
+    the caches of `_Evaluator`.
+
+    Exactness: once every state keyed at most (c, g) is expanded, every path whose
+    (primary, gait steps) is at most (c, g) lies wholly in the explored graph (each of its
+    states has a primary cost <= c and a gait bound <= g). `best` expands until that holds
+    for the k-th sequence `search` finds on the explored graph, so its ranking equals the
+    ranking over the whole graph (`build_graph`), up to ``max_expansions``.
+
+    Attributes:
+        G: the explored graph (same attributes as `build_graph`'s, without ``removable``
+            until `annotate_removable`); ``G.graph["expanded"]`` counts expanded states.
+        complete: True when every reachable valid state has been expanded.
+        timed_out: True when the deadline stopped an expansion.
+    """
+
+    BATCH = 16
+    """States expanded per batch closure call."""
+
+    def __init__(self, problem: GaitProblem, rank: str = "metric", evaluator: _Evaluator | None = None,
+                 deadline: float | None = None):
+        if rank not in RANKS:
+            from planner.errors import UnknownNameError
+
+            raise UnknownNameError("rank", rank, RANKS)
+        if rank == "grip" and not problem.all_loads():
+            raise InputError("grip ranking needs the grip force of every state: plan with a gravity (a load)")
+        self.problem, self.rank, self.deadline = problem, rank, deadline
+        self.G = seed_graph(problem, evaluator)
+        self.ev: _Evaluator = self.G.graph["evaluator"]
+        self.G.graph["expanded"] = 0
+        self.G.graph["blocked_moves"] = []  # (from state, finger index, action, to state) of refused moves
+        self.removed: set[tuple[Node, Node]] = set()
+        self.value = {problem.start: self._cost(problem.start)}
+        self._heap = [self._key(problem.start)]
+        self.expanded: set[Node] = set()
+        self.timed_out = False
+
+    def _cost(self, v: Node) -> float:
+        data = self.G.nodes[v]
+        return -data["metric"] if self.rank == "metric" else data["grip_force"]
+
+    def _key(self, v: Node) -> tuple:
+        return (self.value[v], _gaits_lower_bound(self.problem.start, self.problem.goal, v), v)
+
+    @property
+    def complete(self) -> bool:
+        return self._top() is None
+
+    def _top(self) -> tuple | None:
+        """(value, gait bound) of the next state to expand, dropping stale heap entries."""
+        while self._heap:
+            value, _, v = self._heap[0]
+            if v not in self.expanded and value <= self.value[v]:
+                return self._heap[0][:2]
+            heapq.heappop(self._heap)
+        return None
+
+    def _expand(self, bound: tuple, budget: int | None) -> int:
+        """Expand states keyed at most ``bound`` (value, gait bound); returns how many."""
+        import time
+
+        p, G, ev, done = self.problem, self.G, self.ev, 0
+        blocked = G.graph["blocked"]
+        while self._heap and self._heap[0][:2] <= bound:
+            if budget is not None and done >= budget:
+                break
+            if self.deadline is not None and time.perf_counter() > self.deadline:
+                self.timed_out = True
+                break
+            batch = []
+            while self._heap and self._heap[0][:2] <= bound and len(batch) < self.BATCH:
+                key = heapq.heappop(self._heap)
+                v = key[2]
+                if v in self.expanded or key[0] > self.value[v]:
+                    continue
+                self.expanded.add(v)
+                batch.append(v)
+            moves = [(u, i, a, w) for u in batch for i, a, w in p.neighbours(u) if (u, w) not in self.removed]
+            # collisions first (cached per slot pair): colliding states need no closure
+            ev.evaluate([w for *_, w in moves if w not in G and w not in blocked and _within_lift_bound(p, w)
+                         and ev.collision_free(w)])
+            for u, i, action, w in moves:
+                if w not in G:
+                    reason = blocked.get(w) or ev.blocked_reason(w)
+                    if reason is not None:
+                        blocked[w] = reason
+                        G.graph["blocked_moves"].append((u, i, action, w))
+                        continue
+                    _add_node(G, ev, w)
+                G.add_edge(u, w, finger=p.fingers[i], action=action)
+                c = max(self.value[u], self._cost(w))
+                if c < self.value.get(w, np.inf):
+                    self.value[w] = c
+                    heapq.heappush(self._heap, self._key(w))
+            done += len(batch)
+        G.graph["expanded"] = len(self.expanded)
+        return done
+
+    def _primary(self, s: GaitSequence) -> float:
+        return -s.bottleneck if self.rank == "metric" else s.bottleneck_grip
+
+    def best(self, k: int = 1, *, max_expansions: int = 200_000, alternative_expansions: int = 5_000) -> list[GaitSequence]:
+        """The k best sequences (`search`'s ranking), growing the graph as needed.
+
+        The best one is exact unless ``max_expansions`` states were expanded or the deadline
+        passed first; alternatives 2..k are exact unless completing them needed more than
+        ``alternative_expansions`` further states. ``G.graph["search_exact"]`` says whether
+        all k are. Empty when the goal cannot be reached (then `complete` is True, unless a
+        limit stopped the growth).
+        """
+        G, goal, inf = self.G, self.problem.goal, (np.inf, np.inf)
+
+        def more(bound, budget) -> bool:
+            """Expand up to ``bound``; False when nothing was left to do or a limit stopped it."""
+            left, top = max_expansions - len(self.expanded), self._top()
+            if top is None or top > bound or self.timed_out or left <= 0 or budget <= 0:
+                return False
+            self._expand(bound, min(left, budget))
+            return True
+
+        def key(s: GaitSequence) -> tuple:
+            return (-s.bottleneck if self.rank == "metric" else s.bottleneck_grip, s.gait_steps)
+
+        exact = True
+        while goal not in G and more(inf, self.BATCH):
+            pass
+        found = []
+        while goal in G:  # the best sequence: expand until nothing keyed below it is left
+            found = search(G, k, rank=self.rank, max_expansions=max_expansions)
+            exact = exact and G.graph["search_exact"]
+            if not more(key(found[0]), max_expansions):
+                break
+        budget = alternative_expansions
+        while found:  # alternatives 2..k, within their own budget
+            target = key(found[k - 1]) if len(found) >= k else inf
+            before = len(self.expanded)
+            if not more(target, budget):
+                break
+            budget -= len(self.expanded) - before
+            found = search(G, k, rank=self.rank, max_expansions=max_expansions)
+            exact = exact and G.graph["search_exact"]
+        if found:
+            target = key(found[k - 1]) if len(found) >= k else inf
+            top = self._top()
+            exact = exact and not (top is not None and top <= target)
+        exact = exact and not self.timed_out
+        G.graph["search_exact"] = exact
+        return found
+
+    def remove_edge(self, u: Node, v: Node) -> None:
+        """Drop a move (e.g. a finger path that cannot be planned) for good."""
+        self.removed.add((u, v))
+        if self.G.has_edge(u, v):
+            self.G.remove_edge(u, v)
+
+
+def annotate_removable(G: nx.DiGraph, nodes) -> None:
+    """Set the ``removable`` attribute (thesis Algorithm 1) of the given nodes (`LazyGraph`
+    leaves it unset: it needs the closure of every single-finger lift)."""
+    ev: _Evaluator = G.graph["evaluator"]
+    for v in dict.fromkeys(nodes):
+        if "removable" not in G.nodes[v]:
+            G.nodes[v]["removable"] = ev.removable(v)
 
 
 @dataclass(frozen=True)
@@ -569,38 +778,137 @@ def greedy(G: nx.DiGraph) -> GaitSequence:
     return _sequence(G, path)
 
 
-def explain_failure(G: nx.DiGraph, intermediate_tried: bool) -> NoSequenceError:
-    """Why no sequence connects start and goal: the error the CLI prints.
+def _slot_words(problem: GaitProblem, finger: str, s: int) -> str:
+    if s == LIFTED:
+        return "lifted"
+    label = problem.slots[finger][s].label
+    return {"initial": "its initial contact", "final": "its final contact"}.get(label, f"intermediate contact {label}")
 
-    Names the fingers never removable in any reachable state, the reachable state closest
-    to the goal (and its best path), the count of blocked states by reason, and whether
-    intermediate contacts were tried.
+
+def _state_words(problem: GaitProblem, node: Node) -> str:
+    """'thumb initial, index final, middle lifted' (fingers free in both grasps left out)."""
+    labels = problem.labels(node)
+    keep = [f for i, f in enumerate(problem.fingers) if not (problem.start[i] == problem.goal[i] == node[i] == LIFTED)]
+    return ", ".join(f"{f} {labels[f]}" for f in keep)
+
+
+def _move_words(problem: GaitProblem, u: Node, v: Node) -> str:
+    i = next(j for j in range(len(u)) if u[j] != v[j])
+    f = problem.fingers[i]
+    return f"lift {f}" if v[i] == LIFTED else f"land {f} on {_slot_words(problem, f, v[i])}"
+
+
+def _reason_words(ev: _Evaluator, finger: str, action: str, w: Node, reason: str) -> str:
+    """A refused move in words: what goes wrong in the state it would lead to."""
+    pair = ev.collision_pair(w) if reason.startswith("fingers collide") else None
+    if pair is not None:
+        other = pair[1] if pair[0] == finger else pair[0] if pair[1] == finger else None
+        if other is not None:
+            return f"it would collide with {other}" + (" (in its open posture)" if w[ev.problem.fingers.index(other)] == LIFTED else "")
+        return f"{pair[0]} and {pair[1]} would collide"
+    if reason == "not force closure":
+        c = ev.closure.get(w)
+        metric = f", metric {c.metric:.3g}" if c is not None else ""
+        rest = ", ".join(f for f in ev.problem.patches(w)) or "no finger"
+        return f"{'without it' if action == 'lift' else 'with it'} the grasp ({rest}) is not force closure{metric}"
+    return reason
+
+
+def failure_analysis(G: nx.DiGraph) -> dict:
+    """What stops the graph's start from reaching its goal (for `explain_failure` and for
+    choosing the fingers that get intermediate contacts).
+
+    Returns a dict: ``closest`` (the reached state fewest fingers from the goal, best metric
+    first), ``partial`` (the fewest-move path to it), ``lift_blocked`` (finger that has to
+    move -> (state, why) for a finger never lifted in any reached state where it touches),
+    ``landing_blocked`` (finger -> {why: count of states} for refused landings on the final
+    contact), ``blockers`` (fingers worth giving intermediate contacts, most implicated
+    first), ``goal_reason`` (why the final grasp itself is invalid, or None).
     """
     p: GaitProblem = G.graph["problem"]
-    start, goal = G.graph["start"], G.graph["goal"]
     ev: _Evaluator = G.graph["evaluator"]
+    start, goal = G.graph["start"], G.graph["goal"]
     reach = nx.descendants(G, start) | {start}
-    never = [f for f in p.fingers if not any(f in G.nodes[v]["removable"] for v in reach if G.nodes[v]["labels"][f] != "lifted")]
     dist = {v: sum(a != b for a, b in zip(v, goal)) for v in reach}
     closest = min(reach, key=lambda v: (dist[v], -G.nodes[v]["metric"], v))
     partial = nx.shortest_path(G, start, closest)
+    moves = [m for m in G.graph.get("blocked_moves", []) if m[0] in reach]
+    on_partial = {v: k for k, v in enumerate(partial)}
+    lift_blocked, landing_blocked, score = {}, {}, {f: 0 for f in p.fingers}
+    for i, f in enumerate(p.fingers):
+        if p.start[i] == p.goal[i]:
+            continue
+        touching = [v for v in reach if v[i] != LIFTED]
+        if touching and not any(G.has_edge(v, v[:i] + (LIFTED,) + v[i + 1:]) for v in touching):
+            tried = [m for m in moves if m[1] == i and m[2] == "lift"]
+            if tried:  # the refused lift nearest the end of the best partial sequence
+                u, _, _, w = max(tried, key=lambda m: (on_partial.get(m[0], -1), -dist[m[0]]))
+                lift_blocked[f] = (u, _reason_words(ev, f, "lift", w, G.graph["blocked"][w]))
+                score[f] += 3
+        if p.goal[i] != LIFTED:
+            why: dict[str, int] = {}
+            for u, j, action, w in moves:
+                if j == i and action == "land" and w[i] == p.goal[i]:
+                    text = _reason_words(ev, f, "land", w, G.graph["blocked"][w])
+                    why[text] = why.get(text, 0) + 1
+                    pair = ev.collision_pair(w)
+                    for g in pair or ():
+                        if g != f:
+                            score[g] += 2
+            if why and not any(v[i] == p.goal[i] for v in reach):
+                landing_blocked[f] = dict(sorted(why.items(), key=lambda kv: (-kv[1], kv[0])))
+                score[f] += 1
+        if closest[i] != goal[i]:
+            score[f] += 1
+    goal_reason = None
+    if goal in ev.closure or goal in G.graph["blocked"]:
+        goal_reason = G.graph["blocked"].get(goal) or ev.blocked_reason(goal)
+    blockers = [f for f in sorted(p.fingers, key=lambda f: (-score[f], p.fingers.index(f))) if score[f] > 0]
+    return {"closest": closest, "partial": partial, "lift_blocked": lift_blocked, "landing_blocked": landing_blocked,
+            "blockers": blockers, "goal_reason": goal_reason, "distance": dist[closest]}
+
+
+def explain_failure(G: nx.DiGraph, intermediate_tried: bool, tried: str | None = None) -> NoSequenceError:
+    """Why no sequence connects start and goal, in words: the error the CLI prints.
+
+    Says whether the final grasp itself is invalid, which finger that has to move cannot be
+    lifted in any reached state and why (the grasp without it is not force closure, with its
+    metric, or it would collide with a named finger), which landings on the final contacts
+    are refused and why, the best partial sequence and where it ends, and what was tried
+    (``tried``: a sentence from the caller, e.g. the rounds of intermediate contacts).
+    Fingers free in both grasps are never mentioned.
+    """
+    p: GaitProblem = G.graph["problem"]
+    a = failure_analysis(G)
+    lines = []
+    if a["goal_reason"]:
+        lines.append(f"the final grasp itself is not a valid state ({a['goal_reason']})")
+    for f, (u, why) in a["lift_blocked"].items():
+        where = "the initial grasp" if u == p.start else f"any reached state (e.g. {_state_words(p, u)})"
+        lines.append(f"{f} cannot be lifted in {where}: {why}")
+    for f, why in a["landing_blocked"].items():
+        parts = [text + (f" ({n} states)" if n > 1 else "") for text, n in why.items()]
+        lines.append(f"{f} cannot land on its final contact: {'; '.join(parts)}")
+    steps = [_move_words(p, u, v) for u, v in zip(a["partial"], a["partial"][1:])]
+    lines.append(f"best partial sequence ({len(steps)} moves{': ' + ', '.join(steps) if steps else ''}) ends "
+                 f"{a['distance']} finger(s) from the final grasp in: {_state_words(p, a['closest'])}")
+    if tried:
+        lines.append(tried)
+    elif not intermediate_tried:
+        lines.append("no intermediate contacts were tried (give --intermediate N or a --time-limit)")
+    else:
+        lines.append("intermediate contacts were tried")
     reasons: dict[str, int] = {}
     for r in G.graph["blocked"].values():
         reasons[r] = reasons.get(r, 0) + 1
-    goal_reason = ev.blocked_reason(goal) if goal in ev.closure else None
-    parts = []
-    if goal_reason:
-        parts.append(f"the final grasp itself is invalid ({goal_reason})")
-    if never:
-        parts.append(f"never removable: {', '.join(never)}")
-    parts.append(f"closest state reached ({dist[closest]} finger(s) from the goal): {p.labels(closest)}")
-    parts.append("blocked states: " + (", ".join(f"{n} {r}" for r, n in sorted(reasons.items())) or "none"))
-    parts.append("intermediate contacts were tried" if intermediate_tried else "try intermediate contacts (--intermediate N)")
     report = {
-        "never_removable": never,
-        "closest": p.labels(closest),
-        "partial": [p.labels(v) for v in partial],
+        "never_removable": sorted(a["lift_blocked"]),
+        "lift_blocked": {f: why for f, (_, why) in a["lift_blocked"].items()},
+        "landing_blocked": a["landing_blocked"],
+        "closest": p.labels(a["closest"]),
+        "partial": [p.labels(v) for v in a["partial"]],
         "blocked": reasons,
+        "blockers": a["blockers"],
         "intermediate_tried": intermediate_tried,
     }
-    return NoSequenceError("no finger-gaiting sequence: " + "; ".join(parts), report=report)
+    return NoSequenceError("no finger-gaiting sequence: " + "; ".join(lines), report=report)

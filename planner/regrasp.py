@@ -23,8 +23,8 @@ import numpy as np
 
 from planner.closure import CONTACT_MODELS, GRIP_CONE_SIDES, apply_contact_model
 from planner.errors import MotionError, NoSequenceError, PlannerError, SpecError, UnknownNameError
-from planner.graph import (LIFTED, RANKS, GaitProblem, GaitSequence, Slot, build_graph, explain_failure, greedy, search,
-                           seed_graph)
+from planner.graph import (LIFTED, RANKS, GaitProblem, GaitSequence, LazyGraph, Slot, annotate_removable, explain_failure,
+                           failure_analysis, greedy, seed_graph)
 from planner.plan import Alternative, Plan, PlanState, PlanStep
 
 STRATEGIES = ("graph", "greedy")
@@ -77,6 +77,13 @@ class PlanOptions:
             needs ``gravity`` or ``gravity_set``).
         execution: label of plans meant to be executed (`PlanOptions.for_execution`): it
             requires the "mean" contact model, the "grip" ranking and a gravity.
+        time_limit_s: planning budget (graph strategy), s. With ``intermediate`` 0 the
+            planner is anytime: when no sequence exists with the current contacts, it adds
+            intermediate contacts (`INTERMEDIATE_PER_ROUND` per finger that blocks progress,
+            from `reachable_contacts`) and searches again, round after round, until a
+            sequence is found or the budget is spent. 0 disables the rounds. A plan found
+            within the budget does not depend on it (rounds are deterministic); only
+            whether the budget suffices does. Finger paths are not counted.
     """
 
     strategy: str = "graph"
@@ -95,6 +102,7 @@ class PlanOptions:
     gravity_set: int | None = None
     rank: str = "metric"
     execution: bool = False
+    time_limit_s: float = 10.0
 
     @classmethod
     def for_execution(cls, **overrides) -> "PlanOptions":
@@ -145,6 +153,8 @@ class PlanOptions:
             raise PlannerError(f"alternatives must be >= 1, got {self.alternatives}")
         if self.intermediate < 0:
             raise PlannerError(f"intermediate must be >= 0, got {self.intermediate}")
+        if not (isinstance(self.time_limit_s, (int, float)) and math.isfinite(self.time_limit_s) and self.time_limit_s >= 0):
+            raise PlannerError(f"time limit must be a number of seconds >= 0, got {self.time_limit_s!r}")
 
 
 @dataclass(frozen=True)
@@ -193,61 +203,144 @@ def _finger_q(hand, finger: str, q: np.ndarray) -> np.ndarray:
     return np.asarray(q, float)[list(hand.fingers[finger].q_index)]
 
 
-def _sample_intermediate(initial, finger: str, n: int, rng: np.random.Generator, taken: list[Slot]) -> list[Slot]:
-    """Up to n extra contacts of one finger, sampled on the object surface.
+#: Random in-limit postures per finger from which contact candidates are drawn.
+POOL_POSTURES = 4000
+#: Candidates closed onto the object per finger (spread over the reachable surface).
+POOL_SIZE = 48
+#: A posture is a candidate when its pad is this far outside the surface at most...
+POOL_STANDOFF_M = 0.012
+#: ... and its pad faces the surface: cosine of the pad normal with the inward normal.
+POOL_FACING_COS = 0.3
+#: Intermediate contacts of one finger lie at least this far from its other contacts.
+MIN_SLOT_SPACING_M = 0.01
 
-    A candidate is kept when the finger reaches it (IK), touches without penetrating,
-    does not hit the palm, and lies at least 1 cm from the finger's other slots.
+_POOLS: dict[tuple, tuple] = {}
+
+
+def _object_key(obj) -> tuple:
+    return (obj.shape, tuple(np.round(obj.size, 9)), np.asarray(obj.T_palm_obj).round(9).tobytes(), obj.mesh_path)
+
+
+def reachable_contacts(hand, obj, finger: str, seed: int = 0) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], ...]:
+    """Contacts one finger can make on the object, reachable by construction.
+
+    ``POOL_POSTURES`` seeded random postures of the finger (in its joint limits, the other
+    fingers open) give its pad's reachable workspace; those whose pad lies within
+    ``POOL_STANDOFF_M`` outside the surface and faces it are candidates. ``POOL_SIZE`` of
+    them, spread over the surface by farthest-point sampling of their closest surface
+    points, are closed onto the object with the thesis's closing procedure
+    (`Hand.close_finger`); a closed finger that touches and neither penetrates the object
+    nor hits the palm or its own links is a contact. No IK is needed: every posture is
+    inside the joint limits. Computed once per hand, object (with pose) and finger, then
+    cached; deterministic.
+
+    Returns:
+        (points (n, 3), inward normals (n, 3), the finger's joint values) per contact, in
+        farthest-point order.
     """
-    from planner.contacts import collisions
-    from planner.grasp import realize_contact
+    from planner.contacts import collisions, contact_patches
 
-    hand, obj = initial.hand, initial.obj
+    key = (str(hand.spec_path), hand.name, _object_key(obj), finger, seed)
+    if key in _POOLS:
+        return _POOLS[key]
+    f = hand.fingers[finger]
+    idx = list(f.q_index)
+    lo, hi = np.asarray(hand.lower, float)[idx], np.asarray(hand.upper, float)[idx]
+    rng = np.random.default_rng([seed, list(hand.fingers).index(finger)])
+    postures = rng.uniform(lo, hi, size=(POOL_POSTURES, len(idx)))
+    T = np.asarray(obj.T_palm_obj, float)
+    p_link = np.append(np.asarray(f.pad_p_link, float), 1.0)
+    n_link = np.asarray(f.pad_n_link, float)
+    q = np.array(hand.q_open, dtype=float)
+    kept, surf = [], []
+    for k, qf in enumerate(postures):
+        q[idx] = qf
+        T_pad = hand.link_pose(q, f.pad_link)
+        p_obj = T[:3, :3].T @ ((T_pad @ p_link)[:3] - T[:3, 3])
+        p_s, n_out, d = obj.closest_surface(p_obj)
+        facing = -float((T[:3, :3].T @ (T_pad[:3, :3] @ n_link)) @ n_out)
+        if 0.0 <= d <= POOL_STANDOFF_M and facing >= POOL_FACING_COS:
+            kept.append(k)
+            surf.append(p_s)
+    order = _farthest_points(np.array(surf).reshape(-1, 3), POOL_SIZE)
+    out = []
+    for j in order:
+        q = np.array(hand.q_open, dtype=float)
+        q[idx] = postures[kept[j]]
+        q = np.asarray(hand.close_finger(f, q, obj), dtype=float)
+        patch = contact_patches(hand, q, obj, fingers=[finger]).get(finger)
+        if patch is None or len(patch[0]) == 0 or collisions(hand, q, obj, fingers=(finger,)):
+            continue
+        out.append((np.asarray(patch[0]), np.asarray(patch[1]), q[idx]))
+    _POOLS[key] = tuple(out)
+    return _POOLS[key]
+
+
+def _farthest_points(points: np.ndarray, n: int) -> list[int]:
+    """Indices of up to n points spread by farthest-point sampling, from the first point."""
+    if len(points) == 0:
+        return []
+    chosen = [0]
+    d = np.linalg.norm(points - points[0], axis=1)
+    while len(chosen) < min(n, len(points)):
+        j = int(np.argmax(d))
+        if d[j] <= 0:
+            break
+        chosen.append(j)
+        d = np.minimum(d, np.linalg.norm(points - points[j], axis=1))
+    return chosen
+
+
+def _pick_intermediate(problem: GaitProblem, hand, obj, finger: str, n: int, contact_model: str, seed: int = 0
+                       ) -> list[Slot]:
+    """The n most useful unused contacts of a finger's reachable pool, as new slots.
+
+    Useful: together with the fingers that keep their contact from the initial to the final
+    grasp (the grasp's core), the candidate holds the object best (closure metric), then
+    together with the other fingers' initial contacts. A candidate lies at least
+    ``MIN_SLOT_SPACING_M`` from the finger's other contacts and does not collide with the
+    core fingers.
+    """
+    from planner.closure import batch_grasp_closure
+
+    have = list(problem.slots[finger])
+    i = problem.fingers.index(finger)
+    core = {g: problem.slots[g][s] for j, (g, s, t) in enumerate(zip(problem.fingers, problem.start, problem.goal))
+            if j != i and s == t and s != LIFTED}
+    others0 = {g: problem.slots[g][s] for j, (g, s) in enumerate(zip(problem.fingers, problem.start)) if j != i and s != LIFTED}
+    cands = []
+    for points, normals, qf in reachable_contacts(hand, obj, finger, seed):
+        slot = _modelled(Slot(finger, "candidate", points, normals, qf), contact_model)
+        if any(np.min(np.linalg.norm(s.points[:, None, :] - slot.points[None, :, :], axis=2)) < MIN_SLOT_SPACING_M
+               for s in have):
+            continue
+        cands.append(slot)
+    if not cands:
+        return []
+    score_core = batch_grasp_closure([{**{g: (s.points, s.normals) for g, s in core.items()}, finger: (c.points, c.normals)}
+                                      for c in cands], problem.friction)
+    score_start = batch_grasp_closure([{**{g: (s.points, s.normals) for g, s in others0.items()}, finger: (c.points, c.normals)}
+                                       for c in cands], problem.friction)
+    order = sorted(range(len(cands)), key=lambda j: (-score_core[j].metric, -score_start[j].metric, j))
+    probe = GaitProblem(problem.fingers, {**problem.slots, finger: tuple(have) + tuple(cands)}, problem.start, problem.goal,
+                        problem.friction)
+    compatible = _pairwise_collision_check(hand, probe.slots)
     out: list[Slot] = []
-    p_obj, _ = obj.sample_surface(max(30 * n, 30), rng)
-    T_palm_obj = np.asarray(obj.T_palm_obj)
-    p_palm = p_obj @ T_palm_obj[:3, :3].T + T_palm_obj[:3, 3]
-    # Only IK-test points near the pad's sampled workspace; nearest the current tip first.
-    near = _pad_workspace(hand, finger, rng).query(p_palm)[0] <= WORKSPACE_TOL_M
-    tip_palm = hand.link_pose(initial.q, hand.fingers[finger].tip_frame)[:3, 3]
-    order = [i for i in np.argsort(np.linalg.norm(p_palm - tip_palm, axis=1), kind="stable") if near[i]]
-    for p in p_obj[order][: MAX_IK_TRIES_PER_SLOT * n]:
+    for j in order:
+        c = cands[j]
         if len(out) >= n:
             break
-        if any(np.min(np.linalg.norm(s.points - p, axis=1)) < 0.01 for s in taken + out):
+        if any(np.min(np.linalg.norm(s.points[:, None, :] - c.points[None, :, :], axis=2)) < MIN_SLOT_SPACING_M for s in out):
             continue
-        try:
-            q, patch = realize_contact(hand, obj, finger, p, initial.q)
-        except PlannerError:
+        if not all(compatible(finger, len(have) + j, g, problem.slots[g].index(s)) for g, s in core.items()):
             continue
-        if patch is None or len(patch[0]) == 0:
-            continue
-        hits = collisions(hand, q, obj, fingers=(finger,))
-        if hits:
-            continue
-        out.append(Slot(finger, f"int{len(out)}", patch[0], patch[1], _finger_q(hand, finger, q)))
+        out.append(replace(c, label=f"int{len(have) - _fixed_slots(have) + len(out)}"))
     return out
 
 
-WORKSPACE_TOL_M = 0.006
-"""A sampled surface point is IK-tested only within this distance of the pad's workspace."""
-MAX_IK_TRIES_PER_SLOT = 8
-
-
-def _pad_workspace(hand, finger: str, rng: np.random.Generator, n: int = 2000):
-    """KD-tree of fingertip-pad positions (palm frame) at random in-limit postures."""
-    from scipy.spatial import cKDTree
-
-    f = hand.fingers[finger]
-    idx = list(f.q_index)
-    lo, hi = np.asarray(hand.lower)[idx], np.asarray(hand.upper)[idx]
-    q = np.array(hand.q_open, dtype=float)
-    pts = np.empty((n, 3))
-    p_link = np.append(np.asarray(f.pad_p_link, dtype=float), 1.0)
-    for k in range(n):
-        q[idx] = rng.uniform(lo, hi)
-        pts[k] = (hand.link_pose(q, f.pad_link) @ p_link)[:3]
-    return cKDTree(pts)
+def _fixed_slots(slots) -> int:
+    """How many of a finger's slots are its initial/final contacts."""
+    return sum(s.label in ("initial", "final") for s in slots)
 
 
 def build_problem(initial, final, options: PlanOptions) -> GaitProblem:
@@ -258,7 +351,6 @@ def build_problem(initial, final, options: PlanOptions) -> GaitProblem:
     """
     hand = initial.hand
     fingers = tuple(hand.fingers)
-    rng = np.random.default_rng(options.seed)
     slots: dict[str, tuple[Slot, ...]] = {}
     start, goal = [], []
     for f in fingers:
@@ -274,8 +366,6 @@ def build_problem(initial, final, options: PlanOptions) -> GaitProblem:
             else:
                 fs.append(Slot(f, "final", *final.patches[f], qf))
                 g_idx = len(fs) - 1
-        if options.intermediate:
-            fs.extend(_sample_intermediate(initial, f, options.intermediate, rng, list(fs)))
         slots[f] = tuple(_modelled(s, options.contact_model) for s in fs)
         start.append(s_idx)
         goal.append(g_idx)
@@ -286,9 +376,29 @@ def build_problem(initial, final, options: PlanOptions) -> GaitProblem:
         R = np.asarray(initial.obj.T_palm_obj, dtype=float)[:3, :3]
         names = tuple(name for name, _ in directions)
         loads = np.array([np.r_[initial.obj.mass_kg * (R.T @ np.asarray(g, dtype=float)), np.zeros(3)] for _, g in directions])
-    return GaitProblem(fingers, slots, tuple(start), tuple(goal), initial.friction, compatible, options.max_lifted,
-                       max_grip_force_n=float(options.max_finger_force_n), loads=loads, load_names=names or (),
-                       grip_friction_margin=float(options.friction_margin))
+    problem = GaitProblem(fingers, slots, tuple(start), tuple(goal), initial.friction, compatible, options.max_lifted,
+                          max_grip_force_n=float(options.max_finger_force_n), loads=loads, load_names=names or (),
+                          grip_friction_margin=float(options.friction_margin))
+    if options.intermediate:
+        problem, _ = add_intermediate(problem, initial, {f: options.intermediate for f in fingers}, options)
+    return problem
+
+
+def add_intermediate(problem: GaitProblem, initial, wanted: Mapping[str, int], options: PlanOptions
+                     ) -> tuple[GaitProblem, dict[str, int]]:
+    """The problem with up to ``wanted[finger]`` more intermediate contacts per finger
+    (`_pick_intermediate`), appended after its slots (existing slot indices are kept, so
+    the caches of an earlier search stay valid). Returns the problem and how many were
+    added per finger (fingers with none left out)."""
+    slots, added = dict(problem.slots), {}
+    for f, n in wanted.items():
+        new = _pick_intermediate(problem, initial.hand, initial.obj, f, n, options.contact_model, options.seed)
+        if new:
+            slots[f] = tuple(slots[f]) + tuple(new)
+            added[f] = len(new)
+    if not added:
+        return problem, added
+    return replace(problem, slots=slots, compatible=_pairwise_collision_check(initial.hand, slots)), added
 
 
 def gravity_directions_of(options: PlanOptions, hand) -> list[tuple[str, tuple[float, float, float]]]:
@@ -427,6 +537,64 @@ class _EdgeFailed(Exception):
 # ------------------------------------------------------------------ main entry
 
 
+INTERMEDIATE_PER_ROUND = 2
+"""Intermediate contacts added per blocking finger in each round of the anytime search."""
+
+
+def _failed_words(problem: GaitProblem, bad: "_EdgeFailed") -> str:
+    return f"{bad.finger} {problem.labels(bad.edge[0])[bad.finger]}->{problem.labels(bad.edge[1])[bad.finger]}: {bad.why}"
+
+
+def _anytime_search(problem: GaitProblem, initial, options: PlanOptions, t0: float) -> tuple[LazyGraph, dict]:
+    """Lazy ranked search, then (anytime mode: ``options.intermediate`` 0 and a time limit)
+    rounds of intermediate contacts for the fingers that block progress
+    (`planner.graph.failure_analysis`), until a sequence is found or the time limit passes.
+
+    Returns the last `LazyGraph` and what to record: rounds, contacts added per finger,
+    states expanded, whether the ranking is exact, ``found`` (the sequences) and ``tried``
+    (a sentence for the failure message).
+    """
+    deadline = t0 + options.time_limit_s if options.time_limit_s > 0 else None
+    auto = options.intermediate == 0 and options.time_limit_s > 0
+    evaluator, added, rounds, expanded = None, {}, 0, 0
+    while True:
+        lazy = LazyGraph(problem, options.rank, evaluator=evaluator, deadline=deadline)
+        evaluator = lazy.ev
+        found = lazy.best(options.alternatives)
+        expanded += lazy.G.graph["expanded"]
+        out_of_time = lazy.timed_out or (deadline is not None and time.perf_counter() > deadline)
+        if found or not auto or out_of_time:
+            break
+        # the blocking fingers first; from the second round on every finger touching in either
+        # grasp too (a finger that keeps its contact may have to step aside, e.g. into a pinch)
+        blockers = failure_analysis(lazy.G)["blockers"]
+        wanted = {f: 1 for i, f in enumerate(problem.fingers)
+                  if (rounds or not blockers) and (problem.start[i] != LIFTED or problem.goal[i] != LIFTED)}
+        wanted.update({f: INTERMEDIATE_PER_ROUND for f in blockers})
+        problem, new = add_intermediate(problem, initial, wanted, options)
+        if not new:
+            break
+        rounds += 1
+        for f, n in new.items():
+            added[f] = added.get(f, 0) + n
+    spent = time.perf_counter() - t0
+    what = ", ".join(f"{f} {n}" for f, n in added.items())
+    if not auto:
+        tried = (f"{options.intermediate} intermediate contacts per finger were tried" if options.intermediate else
+                 "no intermediate contacts were tried (no --intermediate N and no --time-limit)")
+    elif rounds == 0 and not out_of_time:
+        tried = "no intermediate contact could be added: the fingers that block progress reach no further contact"
+    else:
+        tried = (f"{rounds} round(s) of intermediate contacts were tried ({what or 'none added'}) in {spent:.1f} s"
+                 + (f"; the time limit of {options.time_limit_s:g} s was reached" if out_of_time else
+                    "; the blocking fingers reach no further contact"))
+    if lazy.timed_out and not found:
+        tried += f" (the search stopped after {lazy.G.graph['expanded']} states)"
+    info = {"rounds": rounds, "intermediate_added": dict(sorted(added.items())), "expanded_states": expanded,
+            "exact": bool(lazy.G.graph["search_exact"]), "found": found, "tried": tried}
+    return lazy, info
+
+
 def plan_regrasp(
     initial, final, options: PlanOptions = PlanOptions(), inputs: Mapping[str, Any] | None = None, verbose: bool = False
 ) -> PlanResult:
@@ -455,38 +623,46 @@ def plan_regrasp(
             model = "" if options.contact_model == "patch" else f" with the {options.contact_model!r} contact model"
             raise NoSequenceError(f"the {which} grasp {g.spec.name!r} is not force closure{model} (metric {c.metric:.3g})")
     problem = build_problem(initial, final, options)
-    # Greedy (thesis Algorithm 2) only visits the states it walks through.
-    G = seed_graph(problem) if options.strategy == "greedy" else build_graph(problem)
-    cache: dict = {}
     failed: list[str] = []
-    for _ in range(50):
-        if options.strategy == "greedy":
-            candidates = [replace(greedy(G), rank=options.rank)]
-        else:
-            candidates = search(G, k=options.alternatives, rank=options.rank)
+    cache: dict = {}
+    if options.strategy == "greedy":  # thesis Algorithm 2: only visits the states it walks through
+        G = seed_graph(problem)
+        candidates = [replace(greedy(G), rank=options.rank)]
+        try:
+            motions = _plan_motions(hand, obj, problem, candidates[0], gait_fn, cache)
+        except _EdgeFailed as bad:
+            raise NoSequenceError(f"greedy sequence has a finger move that cannot be planned: {_failed_words(problem, bad)}") from None
+        search_info = {"rounds": 0}
+    else:
+        lazy, search_info = _anytime_search(problem, initial, options, t0)
+        problem, G = lazy.problem, lazy.G
+        candidates = search_info.pop("found")
+        for _ in range(50):
             if not candidates:
-                err = explain_failure(G, intermediate_tried=options.intermediate > 0)
+                err = explain_failure(G, intermediate_tried=bool(options.intermediate or search_info["rounds"]),
+                                      tried=search_info["tried"])
                 if failed:
                     counts = {m: failed.count(m) for m in dict.fromkeys(failed)}
                     moves = "; ".join(m + (f" (x{n} states)" if n > 1 else "") for m, n in counts.items())
                     err = NoSequenceError(f"{err}; finger moves that could not be planned: {moves}", err.report)
                 raise err
-        try:
-            motions = _plan_motions(hand, obj, problem, candidates[0], gait_fn, cache)
-            break
-        except _EdgeFailed as bad:
-            failed.append(f"{bad.finger} {problem.labels(bad.edge[0])[bad.finger]}->{problem.labels(bad.edge[1])[bad.finger]}: {bad.why}")
-            if options.strategy == "greedy":
-                raise NoSequenceError(f"greedy sequence has a finger move that cannot be planned: {failed[-1]}") from None
-            G.remove_edge(*bad.edge)
-    else:
-        raise NoSequenceError("no executable sequence after 50 re-plans; impossible moves: " + "; ".join(failed))
+            try:
+                motions = _plan_motions(hand, obj, problem, candidates[0], gait_fn, cache)
+                break
+            except _EdgeFailed as bad:
+                failed.append(_failed_words(problem, bad))
+                lazy.remove_edge(*bad.edge)
+                candidates = lazy.best(options.alternatives)
+        else:
+            raise NoSequenceError("no executable sequence after 50 re-plans; impossible moves: " + "; ".join(failed))
+        del search_info["tried"]
+    annotate_removable(G, [v for s in candidates for v in s.nodes])
     best = candidates[0]
-    plan = _make_plan(initial, final, options, inputs or {}, problem, G, best, candidates[1:], motions)
+    plan = _make_plan(initial, final, options, inputs or {}, problem, G, best, candidates[1:], motions, search_info)
     return PlanResult(plan, G, best, tuple(candidates[1:]), time.perf_counter() - t0, tuple(failed))
 
 
-def _make_plan(initial, final, options, inputs, problem, G, best, others, motions) -> Plan:
+def _make_plan(initial, final, options, inputs, problem, G, best, others, motions, search_info) -> Plan:
     hand = initial.hand
     states: list[PlanState] = []
     steps: list[PlanStep] = []
@@ -537,6 +713,7 @@ def _make_plan(initial, final, options, inputs, problem, G, best, others, motion
         "order": list(best.order(problem)),
         "rank": options.rank,
         "bottleneck_grip_force_n": best.bottleneck_grip,
+        "search": search_info,
     }
     parameters = asdict(options)
     directions = gravity_directions_of(options, hand)
