@@ -5,7 +5,7 @@ A grasp file (``grasps/**/*.yaml``, schema_version 1)::
     schema_version: 1
     name: box_parallel_extension          # optional, defaults to the file stem
     description: free text                # optional
-    hand: icub_right                      # a name under robots/ or a path to a hand.yaml
+    hand: icub_right                      # a bundled hand's name or a path to a hand.yaml
                                           # (relative to this file)
     object:
       shape: box                          # box | cylinder | sphere | mesh
@@ -77,7 +77,6 @@ NORMAL_WARN_RAD = math.radians(45.0)
 _TOP_KEYS = ("schema_version", "name", "description", "hand", "object", "friction", "fingers")
 _OBJECT_KEYS = ("shape", "size", "position", "quat_xyzw", "mesh", "mass_kg")
 _FRICTION_KEYS = ("mu", "gamma", "edges")
-_ROBOTS_DIR = Path(__file__).resolve().parent.parent / "robots"
 
 
 # --------------------------------------------------------------------------- data
@@ -159,7 +158,7 @@ class GraspSpec:
         path: the file it came from (absolute), or "" when built in code.
         name: grasp name.
         hand: the hand reference as written in the file.
-        hand_ref: a name under robots/ or an absolute path to a hand.yaml.
+        hand_ref: a bundled hand's name (`planner.resources`) or an absolute path to a hand.yaml.
         object: the object, see `ObjectSpec`.
         friction: `planner.closure.Friction` (mu, gamma in metres, edges).
         fingers: one `FingerSpec` per finger of the hand, in the hand's finger order
@@ -394,7 +393,8 @@ def _describe(value) -> str:
 
 
 def resolve_hand_ref(hand: str, base_dir: Path) -> str:
-    """A hand name under robots/ stays a name; anything else is a path relative to `base_dir`.
+    """A hand name stays a name (`Hand.load` finds the bundled hands from any directory);
+    anything else is a path relative to `base_dir`.
 
     A reference is a path when it contains a path separator or ends in .yaml/.yml.
     """
@@ -781,6 +781,7 @@ def realize(spec: GraspSpec, hand=None) -> RealizedGrasp:
     """
     from planner.closure import grasp_closure, removable_fingers
     from planner.contacts import collisions, contact_patches, link_contacts, touching_links
+    from planner.hand import UnreachableError
 
     hand = load_hand(spec.hand_ref) if hand is None else hand
     obj = spec.object.make()
@@ -792,6 +793,10 @@ def realize(spec: GraspSpec, hand=None) -> RealizedGrasp:
         if fs.kind == "contact":
             try:
                 q, _, n = place_contact(hand, obj, f, fs.point_obj, q, link=fs.link)
+            except UnreachableError as err:
+                raise UnreachableError(f"{spec.path}: fingers.{fs.name}.contact.point: {err}", target_palm=err.target_palm,
+                                       closest_palm=err.closest_palm, direction_palm=err.direction_palm,
+                                       distance_m=err.distance_m) from err
             except KinematicsError as err:
                 raise KinematicsError(f"{spec.path}: fingers.{fs.name}.contact.point: {err}") from err
             notes.extend(f"fingers.{fs.name}.contact: {m.split(': ', 1)[1]}" for m in n)

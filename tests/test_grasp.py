@@ -12,8 +12,8 @@ import yaml
 
 from planner.cli import main
 from planner.closure import apply_contact_model, grasp_closure
-from planner.errors import SpecError
-from planner.grasp import SURFACE_TOL_M, load_grasp, load_hand, realize, realize_contact
+from planner.errors import PlannerError, SpecError
+from planner.grasp import PENETRATION_TOL_M, SURFACE_TOL_M, load_grasp, load_hand, realize, realize_contact
 
 ROOT = Path(__file__).resolve().parent.parent
 GRASPS = sorted((ROOT / "grasps").rglob("*.yaml"))
@@ -313,3 +313,109 @@ def test_check_png_renders_hand_and_object(tmp_path, capsys):
     grey = (abs(img[..., 0] - img[..., 2]) < 25) & (img[..., 0] > 60) & (img[..., 0] < 220)
     assert orange.mean() > 0.02, "object not visible"
     assert grey.mean() > 0.02, "hand not visible"
+
+
+# ---------------------------------------------------------------------------- honest check
+
+SPHERE4 = ROOT / "grasps/icub/sphere_four_finger.yaml"
+
+
+def _sphere4():
+    return yaml.safe_load(SPHERE4.read_text())
+
+
+def _check_out(tmp_path, capsys, data):
+    code = main(["check", str(_write(tmp_path, data))])
+    return code, capsys.readouterr().out
+
+
+def test_check_fails_a_finger_that_misses_and_curls_into_the_palm(tmp_path, capsys):
+    """The little finger closes past the ball into the palm: force closure of the others is not
+    enough, check exits 1 and says the finger does not touch, collides with the palm and ran to
+    its closing limit (the issue's 7.7 mm palm collision that exited 0)."""
+    d = _sphere4()
+    d["fingers"]["little"] = {"posture": [0.0, 0.0, 0.0, 0.0]}
+    code, out = _check_out(tmp_path, capsys, d)
+    assert code == 1
+    assert "force closure: yes" in out  # the other four fingers still hold it: only the new checks fail it
+    assert "fingers.little: placed by the file but does not touch the object" in out
+    assert "collision palm - little_distal" in out and "NOT AS WRITTEN" in out
+    assert "little_1 = 1.5708 rad is at its upper limit" in out
+    g = realize(load_grasp(_write(tmp_path, d)))
+    assert not g.ok and g.missing == ("little",)
+    with pytest.raises(PlannerError, match="fingers.little: the file places it but it does not touch"):
+        g.require_placed()
+
+
+def test_check_fails_a_finger_finger_collision(tmp_path, capsys):
+    """The ring finger spread fully toward the open little finger: their proximal phalanges overlap."""
+    d = _sphere4()
+    d["fingers"]["ring"] = {"posture": [0.349, 0.0, 0.0, 0.0]}
+    d["fingers"]["little"] = "free"
+    g = realize(load_grasp(_write(tmp_path, d)))
+    deep = [c for c in g.collisions if "object" not in c and "palm" not in c[:2] and c[2] > PENETRATION_TOL_M]
+    assert deep and {deep[0][0].split("_")[0], deep[0][1].split("_")[0]} == {"ring", "little"}
+    code, out = _check_out(tmp_path, capsys, d)
+    assert code == 1 and "ring_proximal" in out and "NOT AS WRITTEN: collision" in out
+
+
+def test_check_fails_an_object_in_the_palm(tmp_path, capsys):
+    """The ball moved 13 mm into the hand: links penetrate the object beyond the tolerance."""
+    d = _sphere4()
+    d["object"]["position"] = [0.045, -0.005, 0.015]
+    code, out = _check_out(tmp_path, capsys, d)
+    assert code == 1
+    assert "- object:" in out and f"tolerance {PENETRATION_TOL_M * 1e3:.1f} mm" in out
+
+
+def test_check_lists_realized_contacts_in_text_and_json(capsys):
+    """Every touching link is listed with an on-surface point and a unit inward normal; a mesh
+    reports its extents, not its scale; the thumb placed on the mesh's back edge by the
+    intermediate phalanx is a warning, not a failure."""
+    mesh = ROOT / "grasps/icub/mesh_rounded_box_parallel_extension.yaml"
+    assert main(["check", str(mesh), "--json"]) == 0
+    rep = json.loads(capsys.readouterr().out)
+    assert rep["as_written"] and rep["problems"] == []
+    assert np.allclose(rep["object_extents_m"], [0.035, 0.08, 0.03], atol=1e-3)
+    for path in (mesh, SPHERE4):  # normals checked on the sphere (a mesh's edges have no single normal)
+        g = realize(load_grasp(path))
+        links = {(c["finger"], c["link"]) for c in g.summary()["contacts"]}
+        assert links == {(f, l) for f, ls in g.touching.items() for l in ls}
+    for c in g.summary()["contacts"]:
+        _, n_out, dist = g.obj.closest_surface(np.array(c["point"]))
+        assert abs(dist) < 1e-6 and np.allclose(-n_out, c["normal"], atol=1e-6)
+        assert np.allclose(-np.array(c["point"]) / 0.025, c["normal"], atol=1e-6)  # a ball's inward normal
+    assert any("fingers.thumb.contact: realized" in w and "thumb_intermediate" in w for w in rep["warnings"])
+    assert main(["check", str(mesh)]) == 0
+    out = capsys.readouterr().out
+    assert "35.0 x 80.0 x 30.0 mm" in out and "realized contacts" in out and "warning: fingers.thumb.contact" in out
+
+
+def test_plan_refuses_a_placed_finger_that_does_not_touch(tmp_path, capsys):
+    """`plan` exits 2 with one line instead of treating the missing finger as lifted."""
+    d = _sphere4()
+    d["fingers"]["little"] = {"posture": [0.0, 0.0, 0.0, 0.0]}
+    bad = _write(tmp_path, d)
+    assert main(["plan", str(SPHERE4), str(bad), "--no-motion"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "fingers.little" in err and "does not touch" in err
+
+
+def test_unreachable_contact_says_where_to_move_it(tmp_path):
+    """A contact point out of reach: the error gives the closest approach and the direction to
+    move the point, in the object frame; moving the target that way by that distance reaches the
+    closest point the IK found."""
+    from planner.hand import UnreachableError
+
+    d = _sphere4()
+    d["object"]["position"] = [0.045, -0.005, 0.2]  # far above the hand: ring cannot reach its top
+    d["fingers"]["ring"] = {"contact": {"point": [0.0, 0.0, 0.025]}}
+    for f in ("thumb", "index", "middle"):
+        d["fingers"][f] = "free"
+    spec = load_grasp(_write(tmp_path, d))
+    with pytest.raises(UnreachableError) as info:
+        realize(spec)
+    err = info.value
+    assert "fingers.ring.contact.point" in str(err) and "move the point along" in str(err)
+    assert np.isclose(np.linalg.norm(err.direction_palm), 1.0)
+    np.testing.assert_allclose(err.target_palm + err.distance_m * err.direction_palm, err.closest_palm, atol=1e-9)

@@ -157,6 +157,50 @@ def test_ik_refuses_unreachable_targets(icub):
         icub.ik("thumb", [-0.06, 0.03, -0.05], icub.q_open)   # under the palm, behind it
 
 
+@pytest.mark.parametrize("name", ["allegro_right", "icub_right"])
+def test_ik_falls_back_to_position_only_when_the_normal_task_fails(name):
+    """The pad asked to face away from where it can (the reverse of its normal at an FK
+    posture): the normal task drags the clamped joints off the target, so the combined task
+    misses it; the IK then reaches it position-only and says so (the issue's Allegro contacts
+    refused as out of reach)."""
+    from planner.hand import IK_TOL_M
+
+    hand = Hand.load(name)
+    rng = np.random.default_rng(3)
+    dropped = 0
+    for f in hand.fingers.values():
+        idx = list(f.q_index)
+        q_true = hand.q_open.copy()
+        q_true[idx] = hand.lower[idx] + rng.uniform(0.3, 0.7, len(idx)) * (hand.upper[idx] - hand.lower[idx])
+        target = _pad_palm(hand, f.name, q_true)
+        n_away = -(hand.link_pose(q_true, f.pad_link)[:3, :3] @ np.array(f.pad_n_link))
+        r = hand.ik_solve(f.name, target, hand.q_open, normal_palm=n_away)
+        assert np.linalg.norm(_pad_palm(hand, f.name, r.q) - target) < IK_TOL_M
+        # position-only runs only after the combined task failed; then the normal is far off
+        combined = hand._ik_starts([hand.q_open[idx], np.array(f.q_open), 0.5 * (hand.lower[idx] + hand.upper[idx])],
+                                   hand.q_open, np.array(idx), hand.lower[idx], hand.upper[idx],
+                                   hand._fid(f.pad_link), np.array(f.pad_p_link), target, np.array(f.pad_n_link),
+                                   n_away, 150)
+        if r.normal_dropped:
+            dropped += 1
+            assert combined[0] >= IK_TOL_M
+            assert r.normal_error_rad > np.radians(30)
+    assert dropped >= 1
+
+
+def test_unreachable_target_reports_the_closest_point_and_direction(icub):
+    """The error carries the closest point reached and the unit direction from the target to it."""
+    from planner.hand import UnreachableError
+
+    with pytest.raises(UnreachableError) as info:
+        icub.ik("index", [0.2, 0.0, 0.0], icub.q_open)
+    e = info.value
+    assert np.isclose(np.linalg.norm(e.direction_palm), 1.0) and e.distance_m > 0.05
+    np.testing.assert_allclose(e.target_palm + e.distance_m * e.direction_palm, e.closest_palm, atol=1e-9)
+    assert e.direction_palm[0] < -0.5  # back toward the hand
+    assert "move the target" in str(e)
+
+
 def test_bad_names_and_sizes(icub):
     """Unknown fingers/links list the valid names; wrong q sizes are InputError."""
     with pytest.raises(UnknownNameError, match="index, little, middle, ring, thumb"):
