@@ -116,8 +116,10 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     print(f"\nreplaying {plan_path} in pybullet under 7 gravity directions (palm down filmed)")
     verdict = main(["replay", str(plan_path), "--gravity-set", "7", "--gif", str(out / "cylinder_replay.gif"),
                     "--report", str(out / "cylinder_report.json")])
-    print(f"demo outputs in {out}/: cylinder_plan.yaml, cylinder_replay_<direction>.gif, cylinder_report.json "
-          f"(replay {'passed' if verdict == 0 else 'did not pass'})")
+    # the interactive 3D page of the plan, with the replay's contacts and drift (regrasp view)
+    main(["view", str(plan_path), "-o", str(out / "cylinder_plan.html"), "--report", str(out / "cylinder_report.json")])
+    print(f"demo outputs in {out}/: cylinder_plan.yaml, cylinder_plan.html, cylinder_replay_<direction>.gif, "
+          f"cylinder_report.json (replay {'passed' if verdict == 0 else 'did not pass'})")
     return verdict
 
 
@@ -125,7 +127,7 @@ def _cmd_view(args: argparse.Namespace) -> int:
     """Write the interactive 3D page (one self-contained HTML file) of a plan or a grasp."""
     from planner.view import view_command
 
-    return view_command(args.source, args.output, report=args.report)
+    return view_command(args.source, args.output, report=args.report, gif=args.gif)
 
 
 def _print_states(report) -> None:
@@ -261,6 +263,7 @@ def build_parser() -> argparse.ArgumentParser:
     view.add_argument("source", help="plan file (.yaml/.yml/.json) or grasp YAML")
     view.add_argument("-o", "--output", required=True, metavar="FILE", help="the page to write (.html)")
     view.add_argument("--report", metavar="FILE", help="replay report (regrasp replay --report) shown next to the plan")
+    view.add_argument("--gif", metavar="FILE", help="also a 640x480 GIF: captions, contacts, the moving finger coloured")
     view.set_defaults(func=_cmd_view)
     return parser
 

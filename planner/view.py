@@ -351,6 +351,11 @@ def _load_report(path, n_states: int) -> list[dict]:
     return out
 
 
+def plain_plan(plan) -> dict:
+    """A plan as plain data (the file's content): `read_plan` gives a typed `Plan` or a dict."""
+    return plan.to_dict() if hasattr(plan, "to_dict") else dict(plan)
+
+
 def _hand_of_plan(plan: Mapping, plan_path: Path):
     from planner.hand import Hand
 
@@ -409,7 +414,8 @@ def _state_entry(scene: _Scene, i: int, q, fingers: Mapping, patches: Mapping, c
 
 
 def plan_page_data(plan: Mapping, plan_path, hand=None, report_path=None) -> tuple[_Scene, dict]:
-    """Scene and page data of a plan (as read by `planner.plan.read_plan`)."""
+    """Scene and page data of a plan (`planner.plan.read_plan`'s result, or its plain data)."""
+    plan = plain_plan(plan)
     plan_path = Path(plan_path)
     hand = hand if hand is not None else _hand_of_plan(plan, plan_path)
     obj = _object_of_plan(plan, plan_path)
@@ -555,6 +561,7 @@ def write_view(source, output, report=None) -> dict:
     try:
         with os.fdopen(fd, "w") as fh:
             fh.write(page)
+        os.chmod(tmp, 0o644)  # mkstemp makes it private; a page is for sharing
         os.replace(tmp, output)
     except BaseException:
         if os.path.exists(tmp):
@@ -564,10 +571,41 @@ def write_view(source, output, report=None) -> dict:
             "steps": len(data["steps"]), "kind": data["kind"]}
 
 
-def view_command(source, output, report=None) -> int:
-    """``regrasp view``: write the page and say what it holds; exit 0."""
+def write_film(source, gif, frames_per_step: int = 8, width: int = 640, height: int = 480) -> int:
+    """A GIF of a plan file (`planner.sim.render.plan_frames`: captions, contacts, the moving
+    finger coloured) or the picture of a grasp file as one frame; returns the frame count."""
+    from planner.sim.render import patch_markers, plan_frames, render_image, write_gif
+
+    source = Path(source)
+    if Path(gif).suffix.lower() != ".gif":
+        raise SpecError(str(gif), "", f"unknown film suffix {Path(gif).suffix!r}; use .gif")
+    if _is_plan_file(source):
+        from planner.plan import read_plan
+
+        plan = plain_plan(read_plan(source))
+        frames = plan_frames(plan, _hand_of_plan(plan, source), _object_of_plan(plan, source),
+                             frames_per_step=frames_per_step, width=width, height=height)
+    else:
+        from planner.grasp import load_grasp, realize
+
+        g = realize(load_grasp(source))
+        frames = [render_image(g.hand, g.q, g.obj, width=width, height=height,
+                               markers=patch_markers(g.hand, g.obj, g.patches),
+                               caption=f"{source.name}: {'force closure' if g.is_force_closure else 'NO closure'}, "
+                                       f"metric {g.metric:.4g}\nremovable: {', '.join(sorted(g.removable)) or '-'}")]
+    write_gif(frames, gif)
+    return len(frames)
+
+
+def view_command(source, output, report=None, gif=None) -> int:
+    """``regrasp view``: write the page (and the GIF) and say what they hold; exit 0."""
+    if gif is not None and Path(gif).exists() and Path(gif).resolve() == Path(source).resolve():
+        raise InputError(f"{gif}: refusing to overwrite the input file")
     out = write_view(source, output, report=report)
     what = (f"{out['states']} states, {out['steps']} steps" if out["kind"] == "plan" else "one grasp")
     print(f"wrote {out['path']} ({out['bytes'] / 1e6:.2f} MB, {what}"
           + (f", replay report {report}" if report else "") + "): open it in a browser, no server needed")
+    if gif is not None:
+        n = write_film(source, gif)
+        print(f"wrote {gif} ({n} frames, 640x480)")
     return 0

@@ -8,7 +8,6 @@ import json
 import re
 import shutil
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -191,9 +190,48 @@ def test_grasp_page_renders_without_a_moving_finger(tmp_path):
     assert (np.abs(scene - MOVING).sum(axis=2) < 90).sum() < 20
 
 
-def test_cli_view_writes_the_page(plan_path, tmp_path):
+def test_cli_view_writes_the_page(plan_path, tmp_path, capsys):
     out = tmp_path / "cli.html"
-    r = subprocess.run([sys.executable, "-m", "planner", "view", str(plan_path), "-o", str(out)],
-                       capture_output=True, text=True, cwd=REPO, timeout=120)
-    assert r.returncode == 0, r.stderr
-    assert "9 states, 8 steps" in r.stdout and out.stat().st_size > 100_000
+    assert main(["view", str(plan_path), "-o", str(out)]) == 0
+    assert "9 states, 8 steps" in capsys.readouterr().out and out.stat().st_size > 100_000
+
+
+def test_film_frames_are_readable(plan_path):
+    """640x480 frames with a caption banner, contacts in the fingers' colours and the moving
+    finger coloured only while a step runs; one fixed camera along the palm normal."""
+    from planner.plan import read_plan
+    from planner.sim.render import finger_rgb, plan_frames
+    from planner.view import _hand_of_plan, _object_of_plan, plain_plan
+
+    plan = plain_plan(read_plan(plan_path))
+    hand = _hand_of_plan(plan, plan_path)
+    frames = plan_frames(plan, hand, _object_of_plan(plan, plan_path), frames_per_step=2)
+    assert len(frames) == 1 + 2 * len(plan["steps"])
+    assert all(f.shape == (480, 640, 3) for f in frames)
+
+    def count(img, rgb, tol=60):
+        return int((np.abs(img.astype(int) - np.array(rgb)).sum(axis=2) < tol).sum())
+
+    assert count(frames[0], MOVING) < 20
+    for f in frames[1:]:
+        assert count(f, MOVING) > 300
+    first = frames[0]
+    assert (first[:40].astype(int).sum(axis=2) < 200).sum() > 300   # dark caption text in the top banner
+    for finger in plan["states"][0]["patches"]:
+        assert count(first, finger_rgb(hand, finger), 30) > 10, finger
+
+
+def test_check_png_markers_are_drawn(tmp_path):
+    """`render_png` keeps its signature and draws markers and a caption; the default camera
+    looks at the markers from the grasping side (it sees them: they are inside the image)."""
+    from planner.grasp import load_grasp, realize
+    from planner.sim.render import patch_markers, render_png
+
+    g = realize(load_grasp(INITIAL))
+    plain = np.asarray(__import__("PIL.Image", fromlist=["Image"]).open(
+        render_png(g.hand, g.q, g.obj, tmp_path / "a.png", 640, 480)).convert("RGB"))
+    marked = np.asarray(__import__("PIL.Image", fromlist=["Image"]).open(
+        render_png(g.hand, g.q, g.obj, tmp_path / "b.png", markers=patch_markers(g.hand, g.obj, g.patches),
+                   caption="caption")).convert("RGB"))
+    assert plain.shape == marked.shape == (480, 640, 3)
+    assert (np.abs(plain.astype(int) - marked).sum(axis=2) > 60).sum() > 200

@@ -207,6 +207,97 @@ def _add_markers(markers, T_root_palm: np.ndarray, client: int) -> list[int]:
     return out
 
 
+MOVING_RGBA = (0.90, 0.0, 0.49, 1.0)
+CONTACT_RGBA = (0.10, 0.75, 0.20, 1.0)
+_FINGER_RGB = ((31, 119, 180), (44, 160, 44), (148, 103, 189), (140, 86, 75), (23, 190, 207), (188, 189, 34))
+
+
+def finger_links(body: int, hand, finger: str, client: int) -> list[int]:
+    """pybullet link indices of `finger`: the children of its joints and everything below them."""
+    joints = set(hand.finger(finger).joints)
+    info = [p.getJointInfo(body, j, physicsClientId=client) for j in range(p.getNumJoints(body, physicsClientId=client))]
+    links = {j for j, ji in enumerate(info) if ji[1].decode() in joints}
+    grew = True
+    while grew:
+        extra = {j for j, ji in enumerate(info) if ji[16] in links and j not in links}
+        links |= extra
+        grew = bool(extra)
+    return sorted(links)
+
+
+def contact_camera(hand, T_root_palm: np.ndarray, points_palm=None, target_palm=None, reach_m: float = 0.1):
+    """Camera that sees the contacts, not through the palm: it looks at the contact centroid
+    (or `target_palm`) from the grasping side, along the hand's ``palm_normal`` tilted
+    towards the thumb side (-y) and the fingertips (+x), with the palm normal up.
+
+    Returns:
+        (eye, target, up) in the frame of `T_root_palm` (the pybullet world).
+    """
+    n = np.asarray(getattr(hand, "palm_normal", (0.0, 0.0, 1.0)), float)
+    pts = None if points_palm is None else np.asarray(points_palm, float).reshape(-1, 3)
+    c = pts.mean(axis=0) if pts is not None and len(pts) else np.asarray(target_palm, float)
+    side = np.array([0.35, -0.55, 0.0])
+    side -= n * (side @ n)
+    d = (n + side) / np.linalg.norm(n + side)
+    eye = c + max(0.12, 3.2 * reach_m) * d
+    R, t = T_root_palm[:3, :3], T_root_palm[:3, 3]
+    return R @ eye + t, R @ c + t, R @ n
+
+
+def _project(points_world, view, proj, width: int, height: int) -> np.ndarray:
+    """Pixel coordinates (k, 2) of world points through pybullet's (column-major) matrices."""
+    V = np.asarray(view, float).reshape(4, 4).T
+    P = np.asarray(proj, float).reshape(4, 4).T
+    X = np.c_[np.asarray(points_world, float).reshape(-1, 3), np.ones(len(points_world))]
+    clip = (P @ V @ X.T).T
+    ndc = clip[:, :2] / clip[:, 3:4]
+    return np.c_[(ndc[:, 0] + 1) * 0.5 * width, (1 - ndc[:, 1]) * 0.5 * height]
+
+
+def _font(size: int):
+    from PIL import ImageFont
+
+    try:
+        return ImageFont.load_default(size=size)
+    except TypeError:  # Pillow < 10.1: fixed bitmap font
+        return ImageFont.load_default()
+
+
+def annotate(img: np.ndarray, caption: str | None = None, markers_px=()) -> np.ndarray:
+    """Draw contact markers and a caption banner on an RGB image.
+
+    Args:
+        img: (h, w, 3) uint8.
+        caption: text of the banner at the top (lines split on newlines); None: no banner.
+        markers_px: [(point_px (2,), tip_px (2,) or None, rgb)]: a dot at the point and a line
+            from the tip to it (e.g. the inward contact normal).
+    """
+    from PIL import Image, ImageDraw
+
+    im = Image.fromarray(img)
+    draw = ImageDraw.Draw(im)
+    r = max(3, img.shape[1] // 160)
+    for pt, tip, rgb in markers_px:
+        rgb = tuple(int(v) for v in rgb[:3])
+        if tip is not None:
+            draw.line([tuple(tip), tuple(pt)], fill=rgb, width=max(2, r // 2))
+        draw.ellipse([pt[0] - r, pt[1] - r, pt[0] + r, pt[1] + r], fill=rgb, outline=(0, 0, 0))
+    if caption:
+        size = max(12, img.shape[0] // 30)
+        font = _font(size)
+        lines = caption.split("\n")
+        h = (size + 6) * len(lines) + 6
+        banner = Image.new("RGBA", (im.width, h), (255, 255, 255, 215))
+        im.paste(banner, (0, 0), banner)
+        for i, line in enumerate(lines):
+            draw.text((8, 4 + i * (size + 6)), line, fill=(20, 24, 32), font=font)
+    return np.asarray(im)
+
+
+def _rgb255(rgba) -> tuple[int, int, int]:
+    return tuple(int(round(255 * float(v))) if float(v) <= 1.0 else int(v) for v in rgba[:3])
+
+
 def render_png(
     hand,
     q,
@@ -217,15 +308,19 @@ def render_png(
     client: int | None = None,
     *,
     distance_m: float | None = None,
-    yaw_deg: float = 200.0,
-    pitch_deg: float = -30.0,
+    yaw_deg: float | None = None,
+    pitch_deg: float | None = None,
     markers=None,
+    caption: str | None = None,
+    moving_finger: str | None = None,
 ) -> Path:
     """Save a picture of `hand` at configuration q holding `obj` (palm frame poses).
 
     The hand's URDF root is put at the world origin; the object at
-    ``T_root_obj = inv(T_palm_root) @ obj.T_palm_obj``. The camera looks at the
-    object centre with the palm's +z (grasping face) up.
+    ``T_root_obj = inv(T_palm_root) @ obj.T_palm_obj``. Without ``yaw_deg``/``pitch_deg`` the
+    camera sees the contacts from the grasping side of the palm (`contact_camera`: along
+    the hand's ``palm_normal``, aimed at the markers' centroid or the object), with the
+    palm normal up; with them it orbits the point between palm and object as before.
 
     Args:
         hand: `planner.hand.Hand`.
@@ -235,46 +330,224 @@ def render_png(
         width, height: image size in pixels.
         client: pybullet client to draw into (bodies are added to it and removed
             afterwards); None opens a private DIRECT client and closes it.
-        distance_m: camera distance; None picks one from the object size.
-        yaw_deg, pitch_deg: camera orbit angles.
-        markers: optional [(a_palm (3,), b_palm (3,), rgba)]: a dot at ``a`` and a thin rod
-            from ``a`` to ``b`` (e.g. contact points and normals, `planner.grasp.contact_markers`).
+        distance_m: camera distance; None picks one from the hand and object size.
+        yaw_deg, pitch_deg: camera orbit angles (both or neither).
+        markers: contacts to draw, [(point_palm (3,), tip_palm (3,) or None, rgba)]: a dot at
+            the point and a line from the tip (e.g. the normal's tail) to it.
+        caption: text drawn in a banner at the top of the picture.
+        moving_finger: a finger drawn in `MOVING_RGBA`.
 
     Returns:
         The written path.
     """
     from PIL import Image
 
-    own = client is None
-    if own:
-        client = p.connect(p.DIRECT)
-        if client < 0:
-            raise SimulationError("cannot start a pybullet DIRECT client")
-    bodies = []
-    try:
-        hand_body = load_hand(hand, q, client)
-        bodies.append(hand_body)
-        T_palm_root = np.asarray(hand.link_pose(np.asarray(q, dtype=float), root_link_name(hand_body, client)))
-        T_root_obj = np.linalg.solve(T_palm_root, np.asarray(obj.T_palm_obj))
-        bodies.append(add_object(obj, T_root_obj, client))
-        bodies.extend(_add_markers(markers or (), np.linalg.inv(T_palm_root), client))
-        # look between the palm centre and the object so both are in the picture
-        T_root_palm = np.linalg.inv(T_palm_root)
-        target = 0.5 * (T_root_obj[:3, 3] + T_root_palm[:3, 3])
-        if distance_m is None:
-            reach = np.linalg.norm(T_root_obj[:3, 3] - T_root_palm[:3, 3])
-            distance_m = max(0.16, 1.5 * reach + 2.0 * float(max(obj.size)))
-        img = render_rgb(
-            client, target, width=width, height=height, distance_m=distance_m, yaw_deg=yaw_deg, pitch_deg=pitch_deg
-        )
-    finally:
-        if own:
-            p.disconnect(physicsClientId=client)
-        else:
-            for b in bodies:
-                p.removeBody(b, physicsClientId=client)
+    img = render_image(hand, q, obj, width=width, height=height, client=client, distance_m=distance_m,
+                       yaw_deg=yaw_deg, pitch_deg=pitch_deg, markers=markers, caption=caption,
+                       moving_finger=moving_finger)
     path = Path(path)
     if path.parent and not path.parent.exists():
         path.parent.mkdir(parents=True, exist_ok=True)
     Image.fromarray(img).save(path)
+    return path
+
+
+class HandScene:
+    """A hand and an object in a pybullet client, drawn from a contact-seeing camera.
+
+    Use as a context manager; `image(q, ...)` renders one annotated frame. The bodies are
+    removed (or the private client closed) on exit.
+    """
+
+    def __init__(self, hand, q, obj, client: int | None = None, width: int = 640, height: int = 480):
+        self.hand, self.obj, self.width, self.height = hand, obj, int(width), int(height)
+        self.own = client is None
+        if self.own:
+            client = p.connect(p.DIRECT)
+            if client < 0:
+                raise SimulationError("cannot start a pybullet DIRECT client")
+        self.client, self.bodies = client, []
+        try:
+            self.body = load_hand(hand, q, client)
+            self.bodies.append(self.body)
+            T_palm_root = np.asarray(hand.link_pose(np.asarray(q, float), root_link_name(self.body, client)))
+            self.T_root_palm = np.linalg.inv(T_palm_root)
+            T_root_obj = np.linalg.solve(T_palm_root, np.asarray(obj.T_palm_obj))
+            self.bodies.append(add_object(obj, T_root_obj, client))
+        except BaseException:
+            self.close()
+            raise
+        self.q = np.asarray(q, float)
+        self.colored: list[int] = []
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def close(self):
+        if self.own:
+            with contextlib.suppress(Exception):
+                p.disconnect(physicsClientId=self.client)
+        else:
+            for b in self.bodies:
+                with contextlib.suppress(Exception):
+                    p.removeBody(b, physicsClientId=self.client)
+        self.bodies = []
+
+    def reach_m(self) -> float:
+        """Radius around the object centre that holds the hand's links (camera distance)."""
+        c = np.asarray(self.obj.T_palm_obj)[:3, 3]
+        pts = [np.asarray(self.hand.link_pose(self.q, link))[:3, 3] for link in self.hand.links]
+        return float(max([np.linalg.norm(x - c) for x in pts] + [0.5 * max(float(s) for s in self.obj.size)]))
+
+    def image(self, q=None, *, markers=None, caption=None, moving_finger=None, distance_m=None,
+              yaw_deg=None, pitch_deg=None, camera=None) -> np.ndarray:
+        """(h, w, 3) uint8 picture at q (default: the configuration given at construction)."""
+        if q is not None:
+            self.q = np.asarray(q, float)
+            set_hand_configuration(self.body, self.hand, self.q, self.client)
+        for link in self.colored:
+            p.changeVisualShape(self.body, link, rgbaColor=list(HAND_RGBA), physicsClientId=self.client)
+        self.colored = finger_links(self.body, self.hand, moving_finger, self.client) if moving_finger else []
+        for link in self.colored:
+            p.changeVisualShape(self.body, link, rgbaColor=list(MOVING_RGBA), physicsClientId=self.client)
+        markers = list(markers or [])
+        R, t = self.T_root_palm[:3, :3], self.T_root_palm[:3, 3]
+        if yaw_deg is not None or pitch_deg is not None:
+            T_root_obj = self.T_root_palm @ np.asarray(self.obj.T_palm_obj)
+            target = 0.5 * (T_root_obj[:3, 3] + t)
+            if distance_m is None:
+                reach = np.linalg.norm(T_root_obj[:3, 3] - t)
+                distance_m = max(0.16, 1.5 * reach + 2.0 * float(max(self.obj.size)))
+            view = p.computeViewMatrixFromYawPitchRoll(
+                cameraTargetPosition=[float(v) for v in target], distance=float(distance_m),
+                yaw=float(yaw_deg if yaw_deg is not None else 200.0),
+                pitch=float(pitch_deg if pitch_deg is not None else -30.0), roll=0.0, upAxisIndex=2,
+                physicsClientId=self.client)
+        else:
+            if camera is None:
+                pts = np.array([m[0] for m in markers]) if markers else None
+                camera = contact_camera(self.hand, self.T_root_palm, pts, np.asarray(self.obj.T_palm_obj)[:3, 3],
+                                        self.reach_m())
+            eye, target, up = camera
+            if distance_m is not None:
+                eye = target + distance_m * (eye - target) / np.linalg.norm(eye - target)
+            view = p.computeViewMatrix([float(v) for v in eye], [float(v) for v in target], [float(v) for v in up],
+                                       physicsClientId=self.client)
+        proj = p.computeProjectionMatrixFOV(fov=40.0, aspect=self.width / self.height, nearVal=0.01, farVal=2.0,
+                                            physicsClientId=self.client)
+        _, _, rgba, _, _ = p.getCameraImage(self.width, self.height, viewMatrix=view, projectionMatrix=proj,
+                                            renderer=p.ER_TINY_RENDERER, lightDirection=[0.4, -0.6, 1.0], shadow=0,
+                                            physicsClientId=self.client)
+        img = np.asarray(rgba, dtype=np.uint8).reshape(self.height, self.width, 4)[:, :, :3].copy()
+        px = []
+        if markers:
+            P = np.array([R @ np.asarray(m[0], float) + t for m in markers])
+            uv = _project(P, view, proj, self.width, self.height)
+            tips = [m[1] for m in markers]
+            tip_uv = [None if tp is None else _project([R @ np.asarray(tp, float) + t], view, proj, self.width,
+                                                       self.height)[0] for tp in tips]
+            px = [(uv[i], tip_uv[i], _rgb255(m[2])) for i, m in enumerate(markers)]
+        return annotate(img, caption, px)
+
+
+def render_image(hand, q, obj, *, width=640, height=480, client=None, **kwargs) -> np.ndarray:
+    """One annotated picture (see `render_png` for the arguments) as an (h, w, 3) uint8 array."""
+    with HandScene(hand, q, obj, client=client, width=width, height=height) as scene:
+        return scene.image(**kwargs)
+
+
+def finger_rgb(hand, finger: str) -> tuple[int, int, int]:
+    """The colour a finger's contacts are drawn in (the same palette as `regrasp view`)."""
+    names = list(hand.fingers)
+    return _FINGER_RGB[names.index(finger) % len(_FINGER_RGB)] if finger in names else (90, 90, 90)
+
+
+def patch_markers(hand, obj, patches, normal_len_m: float = 0.015) -> list:
+    """Markers of contact patches (finger -> (p_obj (n,3), n_in_obj (n,3))): one per point,
+    with its inward normal ending at the point, in the finger's colour."""
+    T = np.asarray(obj.T_palm_obj, float)
+    R, t = T[:3, :3], T[:3, 3]
+    out = []
+    for f, (P, N) in patches.items():
+        rgb = finger_rgb(hand, f)
+        for pt, n in zip(np.asarray(P, float).reshape(-1, 3), np.asarray(N, float).reshape(-1, 3)):
+            pp = R @ pt + t
+            out.append((pp, pp - normal_len_m * (R @ n) / np.linalg.norm(n), rgb))
+    return out
+
+
+def plan_frames(plan, hand, obj, *, frames_per_step: int = 8, width: int = 640, height: int = 480,
+                client: int | None = None) -> list[np.ndarray]:
+    """Pictures of a plan (`planner.plan.read_plan` data), step by step along the finger paths,
+    each with a caption (step, finger, action, the state's metric and removable fingers), the
+    state's contacts drawn and the moving finger coloured; one fixed camera for the film."""
+    from planner.view import _resample
+
+    index = {j: i for i, j in enumerate(hand.joint_names)}
+
+    def q_of(st):
+        q = np.array(hand.q_open, dtype=float)
+        for j, v in st["q"].items():
+            if j in index:
+                q[index[j]] = float(v)
+        return q
+
+    def markers(i):
+        pts = {f: (pa["points"], pa["normals"]) for f, pa in plan["states"][i]["patches"].items()}
+        return patch_markers(hand, obj, pts, normal_len_m=0.2 * max(float(s) for s in obj.size))
+
+    def caption(i, head):
+        st = plan["states"][i]
+        c = st["closure"]
+        return (f"{head}\nstate {i}: {'force closure' if c['is_force_closure'] else 'NO closure'}, metric "
+                f"{float(c['metric']):.4g}, removable: {', '.join(st.get('removable') or []) or '-'}")
+
+    states, steps = plan["states"], plan["steps"]
+    frames = []
+    with HandScene(hand, q_of(states[0]), obj, client=client, width=width, height=height) as scene:
+        all_pts = np.array([m[0] for i in range(len(states)) for m in markers(i)])
+        camera = contact_camera(hand, scene.T_root_palm, all_pts if len(all_pts) else None,
+                                np.asarray(obj.T_palm_obj)[:3, 3], scene.reach_m())
+        frames.append(scene.image(q_of(states[0]), markers=markers(0), camera=camera,
+                                  caption=caption(0, f"initial grasp, {len(steps)} steps")))
+        for k, sp in enumerate(steps):
+            a, b = int(sp["from_state"]), int(sp["to_state"])
+            q = q_of(states[a])
+            cols = [index[j] for j in sp["joints"]]
+            path = np.asarray(sp["path"], float).reshape(-1, len(cols)) if sp["path"] else q[cols][None]
+            for j, qf in enumerate(_resample(path, frames_per_step)):
+                q[cols] = qf
+                i = a if j < frames_per_step / 2 else b
+                head = f"step {k + 1}/{len(steps)}: {sp['finger']} {sp['action']} (state {a} -> {b})"
+                frames.append(scene.image(q, markers=markers(i), camera=camera, moving_finger=sp["finger"],
+                                          caption=caption(i, head)))
+    return frames
+
+
+def write_gif(frames: list[np.ndarray], path, frame_ms: int = 120, hold_ms: int = 900) -> Path:
+    """An animated GIF of RGB frames (first and last held `hold_ms`), written atomically."""
+    import tempfile
+
+    from PIL import Image
+
+    if not frames:
+        raise SimulationError("no frames to write")
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    images = [Image.fromarray(f).quantize(colors=128, method=Image.Quantize.MEDIANCUT) for f in frames]
+    durations = [frame_ms] * len(images)
+    durations[0] = durations[-1] = hold_ms
+    fd, tmp = tempfile.mkstemp(prefix=".gif-", suffix=".gif", dir=path.parent)
+    os.close(fd)
+    try:
+        images[0].save(tmp, save_all=True, append_images=images[1:], duration=durations, loop=0)
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
     return path
