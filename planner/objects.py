@@ -18,6 +18,9 @@ from planner.errors import InputError, UnknownNameError
 
 SHAPES = ("box", "cylinder", "sphere", "mesh")
 DEFAULT_DENSITY_KG_M3 = 500.0   # used when mass_kg is not given
+#: Mesh limits (README "Hardening / plan integrity"): file size and triangle count.
+MAX_MESH_BYTES = 50_000_000
+MAX_MESH_TRIANGLES = 1_000_000
 
 
 def _readonly(a) -> np.ndarray:
@@ -36,38 +39,74 @@ def load_mesh(path, scale=(1.0, 1.0, 1.0)) -> tuple[np.ndarray, np.ndarray]:
     if not path.is_file():
         raise InputError(f"mesh file not found: {path}")
     ext = path.suffix.lower()
-    if ext == ".obj":
-        verts, tris = [], []
-        for line in path.read_text(errors="replace").splitlines():
-            parts = line.split()
-            if not parts:
-                continue
-            if parts[0] == "v":
-                verts.append([float(x) for x in parts[1:4]])
-            elif parts[0] == "f":
-                idx = [int(p.split("/")[0]) for p in parts[1:]]
-                idx = [i - 1 if i > 0 else len(verts) + i for i in idx]
-                for k in range(1, len(idx) - 1):   # fan-triangulate polygons
-                    tris.append([idx[0], idx[k], idx[k + 1]])
-        V, F = np.array(verts, dtype=float).reshape(-1, 3), np.array(tris, dtype=int).reshape(-1, 3)
-    elif ext == ".stl":
-        raw = path.read_bytes()
-        if raw[:5].lower() == b"solid" and b"facet" in raw[:1000]:
-            pts = [[float(x) for x in line.split()[1:4]] for line in raw.decode(errors="replace").splitlines()
-                   if line.strip().startswith("vertex")]
-            tri_pts = np.array(pts, dtype=float).reshape(-1, 3, 3)
-        else:
-            (n,) = struct.unpack("<I", raw[80:84])
-            rec = np.frombuffer(raw[84:84 + 50 * n], dtype=np.dtype([("n", "<f4", 3), ("v", "<f4", (3, 3)),
-                                                                      ("a", "<u2")]))
-            tri_pts = rec["v"].astype(float)
-        V, inv = np.unique(tri_pts.reshape(-1, 3), axis=0, return_inverse=True)
-        F = inv.reshape(-1, 3)
-    else:
+    if ext not in (".obj", ".stl"):
         raise InputError(f"unsupported mesh format {ext!r} for {path}; use .obj or .stl")
+    try:
+        if path.stat().st_size > MAX_MESH_BYTES:
+            raise InputError(f"mesh {path} is larger than {MAX_MESH_BYTES} bytes")
+        raw = path.read_bytes()
+    except OSError as err:
+        raise InputError(f"cannot read mesh {path}: {err.strerror}") from err
+    try:
+        V, F = _parse_obj(raw) if ext == ".obj" else _parse_stl(raw)
+    except (ValueError, IndexError, struct.error) as err:
+        raise InputError(f"mesh {path} is malformed: {str(err).splitlines()[0][:80]}") from None
     if len(F) == 0:
         raise InputError(f"mesh {path} has no triangles")
+    if len(F) > MAX_MESH_TRIANGLES:
+        raise InputError(f"mesh {path} has {len(F)} triangles; at most {MAX_MESH_TRIANGLES}")
+    if F.min() < 0 or F.max() >= len(V):
+        raise InputError(f"mesh {path}: a face refers to a vertex that does not exist ({len(V)} vertices)")
+    if not np.isfinite(V).all() or np.abs(V).max() > 1e6:
+        raise InputError(f"mesh {path}: vertex coordinates must be finite and within 1e6")
+    a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
+    if not (np.linalg.norm(np.cross(b - a, c - a), axis=1) > 0).any():
+        raise InputError(f"mesh {path} has no triangle with a non-zero area")
     return V * np.asarray(scale, dtype=float), F
+
+
+def _parse_obj(raw: bytes) -> tuple[np.ndarray, np.ndarray]:
+    verts, tris = [], []
+    for line in raw.decode(errors="replace").splitlines():
+        parts = line.split()
+        if not parts:
+            continue
+        if parts[0] == "v":
+            if len(parts) < 4:
+                raise ValueError("a vertex line needs 3 coordinates")
+            verts.append([float(x) for x in parts[1:4]])
+        elif parts[0] == "f":
+            idx = [int(p.split("/")[0]) for p in parts[1:]]
+            if len(idx) < 3 or 0 in idx:
+                raise ValueError("a face needs at least 3 vertex indices (1-based)")
+            idx = [i - 1 if i > 0 else len(verts) + i for i in idx]
+            for k in range(1, len(idx) - 1):   # fan-triangulate polygons
+                tris.append([idx[0], idx[k], idx[k + 1]])
+            if len(tris) > MAX_MESH_TRIANGLES:
+                raise ValueError(f"more than {MAX_MESH_TRIANGLES} triangles")
+    return np.array(verts, dtype=float).reshape(-1, 3), np.array(tris, dtype=int).reshape(-1, 3)
+
+
+def _parse_stl(raw: bytes) -> tuple[np.ndarray, np.ndarray]:
+    if raw[:5].lower() == b"solid" and b"facet" in raw[:1000]:
+        pts = [[float(x) for x in line.split()[1:4]] for line in raw.decode(errors="replace").splitlines()
+               if line.strip().startswith("vertex")]
+        if len(pts) % 3:
+            raise ValueError("the vertex count is not a multiple of 3")
+        tri_pts = np.array(pts, dtype=float).reshape(-1, 3, 3)
+    else:
+        if len(raw) < 84:
+            raise ValueError(f"a binary STL has an 84-byte header, the file has {len(raw)} bytes")
+        (n,) = struct.unpack("<I", raw[80:84])
+        if len(raw) < 84 + 50 * n:
+            raise ValueError(f"the header announces {n} triangles, the file holds {(len(raw) - 84) // 50}")
+        rec = np.frombuffer(raw[84:84 + 50 * n], dtype=np.dtype([("n", "<f4", 3), ("v", "<f4", (3, 3)),
+                                                                  ("a", "<u2")]))
+        tri_pts = rec["v"].astype(float)
+    if not len(tri_pts):
+        return np.zeros((0, 3)), np.zeros((0, 3), dtype=int)
+    V, inv = np.unique(tri_pts.reshape(-1, 3), axis=0, return_inverse=True)
+    return V, inv.reshape(-1, 3)
 
 
 @dataclass(frozen=True)
@@ -353,3 +392,16 @@ def make_object(shape: str, size, T_palm_obj=None, mesh_path=None, mass_kg=None)
             raise InputError(f"mass_kg must be > 0, got {mass_kg!r}")
     object.__setattr__(obj, "mass_kg", float(mass))
     return obj
+
+
+def default_mass_kg(shape: str, size, mesh_path=None, relative_to=None) -> float:
+    """The mass `make_object` gives an object without ``mass_kg``: volume x
+    `DEFAULT_DENSITY_KG_M3` (the planner's mass, recorded in plans so the replay uses it).
+
+    Args:
+        shape, size, mesh_path: as for `make_object`.
+        relative_to: a file whose folder a relative ``mesh_path`` is relative to.
+    """
+    if shape == "mesh" and mesh_path is not None and relative_to is not None and not Path(mesh_path).is_absolute():
+        mesh_path = Path(relative_to).parent / mesh_path
+    return make_object(shape, size, mesh_path=mesh_path).mass_kg

@@ -9,14 +9,29 @@ tool can re-check the plan from the file alone. The schema is documented in
 Same inputs, parameters and seed give a byte-identical file: floats are rounded to
 ``FLOAT_DIGITS`` significant digits and keys are written in a fixed order.
 
-Schema version 1 grows only by optional keys (e.g. ``states[i].grip_force_n``): files
+Integrity (schema version 2). A plan is what a user hands to a robot, so it proves it is
+complete and unaltered: its last key, ``integrity``, holds the number of states and steps
+and the sha256 of the canonical content (every other key, as compact JSON with sorted
+keys: the same digest for the YAML and the JSON file). `read_plan` refuses a file whose
+record is missing (e.g. truncated), whose counts or digest do not match, or whose
+structure is inconsistent (`plan_from_data`: steps chained in order, each step's finger
+lifted, moved or landed as its action says, the other joints unchanged, paths starting
+and ending at their states, finite numbers within the documented ranges), and re-checks
+every state's force closure from its patches. Inputs are recorded relative to the plan
+file, so a plan moved together with its grasps stays valid and byte-identical. Version 1
+files (no integrity record) are still read, with a `PlannerWarning`.
+
+Schema versions grow only by optional keys (e.g. ``states[i].grip_force_n``): files
 written before a key existed lack it and read as if it were null.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
+import math
 import os
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
@@ -24,13 +39,28 @@ from typing import Any, Mapping
 import numpy as np
 import yaml
 
-from planner.errors import SpecError
+from planner.errors import IntegrityError, PlannerError, PlannerWarning, SpecError
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
+#: Versions `read_plan` reads (1: no integrity record, read with a warning).
+READABLE_VERSIONS = (1, 2)
 PLAN_KIND = "regrasp-plan"
 FLOAT_DIGITS = 10
 ACTIONS = ("lift", "move", "land")
 FORMATS = {".yaml": "yaml", ".yml": "yaml", ".json": "json"}
+
+#: Ranges a plan file must respect (README "Hardening / plan integrity").
+MAX_STATES = 10_000          # states (and steps) per plan
+MAX_WAYPOINTS = 10_000       # waypoints per step path
+MAX_POINTS = 10_000          # points per contact patch
+MAX_JOINTS = 256             # joints per hand
+MAX_JOINT_VALUE = 100.0      # |joint value|, rad or m (the hand's limits are checked by the replay)
+MAX_COORD_M = 10.0           # |object position| and |contact point|, m
+MAX_MASS_KG = 1000.0
+#: A path's ends must equal its states' joint values within this (rad or m).
+PATH_END_TOL = 1e-6
+#: Recorded closure metrics are re-computed within this (relative, absolute).
+METRIC_RTOL, METRIC_ATOL = 1e-6, 1e-9
 
 
 def _num(x: float) -> float:
@@ -71,6 +101,11 @@ class PlanState:
     q: tuple[float, ...]
     grip_force_n: float | None = None
     grip_force_by_gravity_n: Mapping[str, float] | None = None
+
+    @property
+    def touching(self) -> tuple[str, ...]:
+        """The fingers on the object (those with a contact patch)."""
+        return tuple(self.patches)
 
     def to_dict(self, joints: tuple[str, ...]) -> dict:
         return {
@@ -140,7 +175,15 @@ class Alternative:
 
 @dataclass(frozen=True)
 class Plan:
-    """A finger-gaiting plan, ready to export."""
+    """A finger-gaiting plan, ready to export (or read back by `read_plan`).
+
+    ``object["mass_kg"]`` is always the mass the planner used: when the grasp gave none
+    it is filled with `planner.objects.default_mass_kg` (volume x density), so the
+    replay simulates the same object. ``source`` is the file it was read from (None for
+    a plan made in memory); relative paths in it (inputs, mesh, hand spec) are relative
+    to that file's folder. ``plan["states"]`` reads the plan as plain data (the file's
+    content), for code that works on plans as data.
+    """
 
     hand: Mapping[str, Any]
     object: Mapping[str, Any]
@@ -152,16 +195,58 @@ class Plan:
     states: tuple[PlanState, ...]
     steps: tuple[PlanStep, ...]
     alternatives: tuple[Alternative, ...] = field(default_factory=tuple)
+    source: str | None = field(default=None, compare=False)
 
-    def to_dict(self) -> dict:
-        """The plan as plain data in schema order (the file's content)."""
+    def __post_init__(self):
+        obj = dict(self.object)
+        if obj.get("mass_kg") is None and obj.get("shape") is not None:
+            from planner.objects import default_mass_kg
+
+            obj["mass_kg"] = default_mass_kg(obj["shape"], obj["size"], obj.get("mesh"), self.source)
+            object.__setattr__(self, "object", obj)
+
+    def __getitem__(self, key: str):
+        return self.to_dict()[key]
+
+    def __contains__(self, key: str) -> bool:
+        return key in self.to_dict()
+
+    def error(self, key: str, message: str) -> SpecError:
+        """A SpecError about this plan at a key path (names the file it was read from)."""
+        return SpecError(self.source or "<plan>", key, message)
+
+    def q_of(self, state: int) -> dict[str, float]:
+        """Joint name -> value of a state (rad or m)."""
+        return dict(zip(self.joints, self.states[state].q))
+
+    def to_dict(self, relative_to: str | os.PathLike | None = None) -> dict:
+        """The plan as plain data in schema order (the file's content), sealed with its
+        ``integrity`` record.
+
+        Args:
+            relative_to: the folder the file will be written to: input and mesh paths are
+                written relative to it (None: as they are).
+        """
+        data = self._content(relative_to)
+        data["integrity"] = integrity_record(data)
+        return data
+
+    def _content(self, relative_to) -> dict:
+        inputs = _plain(self.inputs)
+        obj = _plain(self.object)
+        if relative_to is not None:
+            for value in inputs.values():
+                if isinstance(value, dict) and isinstance(value.get("path"), str):
+                    value["path"] = _relative(value["path"], relative_to, self.source)
+            if isinstance(obj.get("mesh"), str):
+                obj["mesh"] = _relative(obj["mesh"], relative_to, self.source)
         return {
             "schema_version": SCHEMA_VERSION,
             "kind": PLAN_KIND,
             "hand": _plain(self.hand),
-            "object": _plain(self.object),
+            "object": obj,
             "friction": _plain(self.friction),
-            "inputs": _plain(self.inputs),
+            "inputs": inputs,
             "parameters": _plain(self.parameters),
             "summary": _plain(self.summary),
             "joints": list(self.joints),
@@ -169,6 +254,28 @@ class Plan:
             "steps": [s.to_dict() for s in self.steps],
             "alternatives": [a.to_dict() for a in self.alternatives],
         }
+
+
+def _relative(path: str, folder, source: str | None) -> str:
+    """``path`` (absolute, or relative to the folder of ``source`` / the working
+    directory) relative to ``folder``, with forward slashes."""
+    p = Path(path)
+    if not p.is_absolute():
+        p = (Path(source).parent if source else Path.cwd()) / p
+    return Path(os.path.relpath(os.path.abspath(p), os.path.abspath(folder))).as_posix()
+
+
+def canonical_sha256(content: Mapping[str, Any]) -> str:
+    """sha256 of plan content as compact JSON with sorted keys (format independent)."""
+    text = json.dumps(content, sort_keys=True, separators=(",", ":"), ensure_ascii=True, allow_nan=True)
+    return hashlib.sha256(text.encode("ascii")).hexdigest()
+
+
+def integrity_record(content: Mapping[str, Any]) -> dict:
+    """The ``integrity`` key of a plan: counts and the digest of everything else."""
+    body = {k: v for k, v in content.items() if k != "integrity"}
+    return {"states": len(body.get("states") or ()), "steps": len(body.get("steps") or ()),
+            "sha256": canonical_sha256(body)}
 
 
 def _plain(value: Any) -> Any:
@@ -197,6 +304,8 @@ def plan_format(path: str | os.PathLike) -> str:
 def dumps_plan(plan: Plan | Mapping[str, Any], fmt: str = "yaml") -> str:
     """Serialize a plan deterministically as YAML or JSON text."""
     data = plan.to_dict() if isinstance(plan, Plan) else _plain(plan)
+    if "integrity" not in data:
+        data["integrity"] = integrity_record(data)
     if fmt == "json":
         return json.dumps(data, indent=1) + "\n"
     return yaml.safe_dump(data, sort_keys=False, default_flow_style=None, width=100)
@@ -212,63 +321,361 @@ def write_plan(plan: Plan, path: str | os.PathLike) -> Path:
     from planner.fileio import write_atomic
 
     path = Path(path)
-    text = dumps_plan(plan, plan_format(path))
-    return write_atomic(path, text)
+    fmt = plan_format(path)
+    data = plan.to_dict(relative_to=path.absolute().parent) if isinstance(plan, Plan) else plan
+    return write_atomic(path, dumps_plan(data, fmt))
+
+
+# --------------------------------------------------------------------------- reading
+
+
+def read_plan(path: str | os.PathLike, *, strict: bool = False) -> Plan:
+    """Read, verify and type a plan file (the one plan parser: `regrasp replay` uses it).
+
+    Checks, in order: size and YAML limits (`planner.fileio`), the schema version, the
+    structure (`plan_from_data`), the integrity record (counts, then the sha256 of the
+    content), every state's force closure re-computed from its patches, and the inputs:
+    a recorded input file that is gone or whose sha256 changed is a `PlannerWarning`
+    (the plan carries its own states, so it stays replayable), or an error with ``strict``.
+
+    Returns:
+        The typed `Plan` (``source`` = this file).
+
+    Raises:
+        SpecError: naming the file and the key path of the first problem;
+            `IntegrityError` when the plan is incomplete or altered.
+    """
+    from planner.fileio import MAX_PLAN_BYTES, load_yaml, read_limited
+
+    path = Path(path)
+    fmt = plan_format(path)
+    text = read_limited(path, MAX_PLAN_BYTES, "plan")
+    if fmt == "json":
+        try:
+            data = json.loads(text)
+        except (json.JSONDecodeError, ValueError, RecursionError) as err:
+            first = str(err).splitlines()[0] if isinstance(err, json.JSONDecodeError) else "numbers or nesting out of range"
+            raise SpecError(str(path), "", f"not valid JSON: {first[:120]}") from None
+    else:
+        data = load_yaml(text, path, "plan")
+    plan = plan_from_data(data, path)
+    version = data["schema_version"]
+    if version >= 2:
+        _check_counts(data, str(path))
+    else:
+        warnings.warn(f"{path}: schema_version {version} plan has no integrity record: its completeness cannot be "
+                      f"proven (re-plan to get a version {SCHEMA_VERSION} file)", PlannerWarning, stacklevel=2)
+    _check_closures(plan, str(path))  # before the digest: names the state that does not match
+    if version >= 2:
+        _check_digest(data, str(path))
+    _check_inputs(plan, str(path), strict)
+    return plan
+
+
+def _check_counts(data: Mapping, src: str) -> None:
+    rec = data.get("integrity")
+    if not isinstance(rec, Mapping) or not isinstance(rec.get("sha256"), str):
+        raise IntegrityError(src, "integrity", "missing integrity record: the plan is truncated or was not "
+                                               "written by regrasp plan")
+    for key in ("states", "steps"):
+        if rec.get(key) != len(data[key]):
+            raise IntegrityError(src, key, f"the plan has {len(data[key])} {key}, its integrity record says "
+                                           f"{_shown(rec.get(key))}: truncated or edited")
+
+
+def _check_digest(data: Mapping, src: str) -> None:
+    if canonical_sha256({k: v for k, v in data.items() if k != "integrity"}) != data["integrity"]["sha256"]:
+        raise IntegrityError(src, "integrity.sha256", "the content does not match its sha256 digest: "
+                                                      "the plan was altered or damaged after it was written")
+
+
+def _check_closures(plan: Plan, src: str) -> None:
+    """Every state's recorded closure must be the closure of its patches (ms per state)."""
+    from planner.closure import Friction, grasp_closure
+
+    friction = Friction(**plan.friction)
+    for i, st in enumerate(plan.states):
+        c = grasp_closure(dict(st.patches), friction) if st.patches else None
+        fc = bool(c.is_force_closure) if c is not None else False
+        if fc != st.is_force_closure or (c is not None and not math.isclose(
+                c.metric, st.metric, rel_tol=METRIC_RTOL, abs_tol=METRIC_ATOL)):
+            got = f"{'force closure' if fc else 'not force closure'}, metric {c.metric if c else 0.0:.6g}"
+            raise IntegrityError(src, f"states[{i}].closure", f"does not match the state's patches ({got}; "
+                                 f"recorded {'force closure' if st.is_force_closure else 'not force closure'}, "
+                                 f"metric {st.metric:.6g})")
+
+
+def _check_inputs(plan: Plan, src: str, strict: bool) -> None:
+    base = Path(src).parent
+    for name, rec in plan.inputs.items():
+        if not isinstance(rec, Mapping) or not rec.get("path"):
+            continue
+        p = Path(rec["path"])
+        p = p if p.is_absolute() else base / p
+        problem = None
+        if not p.is_file():
+            problem = f"input file {rec['path']} is gone"
+        elif rec.get("sha256") and hashlib.sha256(p.read_bytes()).hexdigest() != rec["sha256"]:
+            problem = f"input file {rec['path']} changed since planning (sha256 differs)"
+        if problem and strict:
+            raise SpecError(src, f"inputs.{name}", problem)
+        if problem:
+            warnings.warn(f"{src}: inputs.{name}: {problem}; replaying the plan's own states", PlannerWarning,
+                          stacklevel=3)
+
+
+def _shown(value) -> str:
+    """A value for a message: short, one line, never a huge repr."""
+    if value is None:
+        return "null"
+    if isinstance(value, (bool, int, float)):
+        text = repr(value)
+        return text if len(text) <= 24 else text[:21] + "..."
+    return type(value).__name__
+
+
+class _Checker:
+    """Typed access into plan data with SpecError(file, key path) on any problem."""
+
+    def __init__(self, src: str):
+        self.src = src
+
+    def fail(self, key: str, message: str) -> SpecError:
+        return SpecError(self.src, key, message)
+
+    def mapping(self, value, key: str) -> Mapping:
+        if not isinstance(value, Mapping):
+            raise self.fail(key, f"expected a mapping, got {_shown(value)}")
+        return value
+
+    def seq(self, value, key: str, most: int, least: int = 0) -> list:
+        if not isinstance(value, list):
+            raise self.fail(key, f"expected a list, got {_shown(value)}")
+        if not least <= len(value) <= most:
+            raise self.fail(key, f"expected {least} to {most} entries, got {len(value)}")
+        return value
+
+    def string(self, value, key: str) -> str:
+        if not isinstance(value, str) or not value or "\n" in value or len(value) > 200:
+            raise self.fail(key, f"expected a one-line name, got {_shown(value)}")
+        return value
+
+    def number(self, value, key: str, low: float = -math.inf, high: float = math.inf) -> float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise self.fail(key, f"expected a number, got {_shown(value)}")
+        v = float(value) if not isinstance(value, int) or abs(value) < 2**63 else math.inf
+        if not (math.isfinite(v) and low <= v <= high):
+            raise self.fail(key, f"expected a finite number in [{low:g}, {high:g}], got {_shown(value)}")
+        return v
+
+    def index(self, value, key: str, n: int) -> int:
+        if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value < n:
+            raise self.fail(key, f"expected a state index in 0..{n - 1}, got {_shown(value)}")
+        return value
+
+    def vectors(self, value, key: str, most: int, width: int, bound: float) -> np.ndarray:
+        rows = self.seq(value, key, most)
+        for i, row in enumerate(rows):
+            self.seq(row, f"{key}[{i}]", width, width)
+            for j, v in enumerate(row):
+                self.number(v, f"{key}[{i}][{j}]", -bound, bound)
+        return np.array(rows, dtype=float).reshape(len(rows), width)
+
+
+def plan_from_data(data: Any, source: str | os.PathLike | None = None) -> Plan:
+    """Check plan data (the file schema) and build the typed `Plan`.
+
+    Structure only (no integrity record, closure or input check: `read_plan` adds those
+    for files): required keys and types; finite numbers within the module's ranges; every
+    state has a value for every joint; steps chained in order (step k goes from state k to
+    state k + 1, ``len(steps) == len(states) - 1``); a lift takes a touching finger off, a
+    land puts a free finger on, a move keeps it off, and no other finger's contact changes;
+    a step moves only its finger's joints and its path starts and ends at its states.
+
+    Raises:
+        SpecError: naming ``source`` and the key path of the first problem.
+    """
+    src = str(source) if source is not None else "<plan>"
+    ck = _Checker(src)
+    data = ck.mapping(data, "")
+    for key in REQUIRED_KEYS:
+        if key not in data:
+            raise ck.fail(key, "missing key")
+    version = data["schema_version"]
+    if isinstance(version, bool) or version not in READABLE_VERSIONS:
+        raise ck.fail("schema_version", f"unsupported plan version {_shown(version)}; this planner reads "
+                                        f"{', '.join(map(str, READABLE_VERSIONS))} (re-plan the grasps)")
+    if data.get("kind", PLAN_KIND) != PLAN_KIND:
+        raise ck.fail("kind", f"expected {PLAN_KIND!r}, got {_shown(data.get('kind'))}")
+    hand = ck.mapping(data["hand"], "hand")
+    ck.string(hand.get("name"), "hand.name")
+    if hand.get("spec") is not None:
+        ck.string(hand["spec"], "hand.spec")
+    obj = _check_object(ck, data["object"])
+    friction = ck.mapping(data["friction"], "friction")
+    try:
+        from planner.closure import Friction
+
+        Friction(friction.get("mu"), friction.get("gamma"), friction.get("edges", 5))
+    except PlannerError as err:
+        raise ck.fail("friction", str(err)) from None
+    friction = {"mu": float(friction["mu"]), "gamma": float(friction["gamma"]), "edges": int(friction.get("edges", 5))}
+    inputs = ck.mapping(data.get("inputs") or {}, "inputs")
+    for name, rec in inputs.items():
+        rec = ck.mapping(rec, f"inputs.{name}")
+        ck.string(rec.get("path"), f"inputs.{name}.path")
+        sha = rec.get("sha256")
+        if not (isinstance(sha, str) and len(sha) == 64 and all(c in "0123456789abcdef" for c in sha)):
+            raise ck.fail(f"inputs.{name}.sha256", "expected 64 lowercase hex digits")
+    parameters = ck.mapping(data.get("parameters") or {}, "parameters")
+    from planner.closure import CONTACT_MODELS
+
+    if parameters.get("contact_model", "patch") not in CONTACT_MODELS:
+        raise ck.fail("parameters.contact_model", f"unknown contact model {_shown(parameters.get('contact_model'))}; "
+                                                  f"valid: {', '.join(CONTACT_MODELS)}")
+    joints = tuple(ck.string(j, f"joints[{i}]") for i, j in enumerate(ck.seq(data["joints"], "joints", MAX_JOINTS, 1)))
+    if len(set(joints)) != len(joints):
+        raise ck.fail("joints", "joint names repeat")
+    states = tuple(_check_state(ck, s, i, joints) for i, s in enumerate(ck.seq(data["states"], "states", MAX_STATES, 1)))
+    raw_steps = ck.seq(data["steps"], "steps", MAX_STATES)
+    if len(raw_steps) != len(states) - 1:
+        raise ck.fail("steps", f"{len(raw_steps)} steps for {len(states)} states: a plan has one step less than "
+                               f"states (truncated or edited)")
+    steps = tuple(_check_step(ck, s, i, joints, states) for i, s in enumerate(raw_steps))
+    alternatives = []
+    for i, alt in enumerate(ck.seq(data.get("alternatives") or [], "alternatives", 1000)):
+        alt = ck.mapping(alt, f"alternatives[{i}]")
+        order = tuple(ck.string(o, f"alternatives[{i}].order") for o in ck.seq(alt.get("order"), f"alternatives[{i}].order", MAX_STATES))
+        grip = alt.get("bottleneck_grip_force_n")
+        alternatives.append(Alternative(
+            order, ck.number(alt.get("bottleneck_metric"), f"alternatives[{i}].bottleneck_metric"),
+            int(ck.number(alt.get("gait_steps"), f"alternatives[{i}].gait_steps", 0, MAX_STATES)),
+            ck.number(alt.get("mean_metric"), f"alternatives[{i}].mean_metric"),
+            None if grip is None else ck.number(grip, f"alternatives[{i}].bottleneck_grip_force_n", 0)))
+    summary = dict(ck.mapping(data.get("summary") or {}, "summary"))
+    try:
+        return Plan(dict(hand), obj, friction, dict(inputs), dict(parameters), summary, joints, states, steps,
+                    tuple(alternatives), source=None if source is None else src)
+    except PlannerError as err:  # the default mass needs the object (e.g. its mesh file)
+        raise ck.fail("object", str(err)) from None
 
 
 REQUIRED_KEYS = ("schema_version", "hand", "object", "friction", "joints", "states", "steps")
 STATE_KEYS = ("patches", "closure", "removable", "q")
 STEP_KEYS = ("finger", "action", "from_state", "to_state", "joints", "path")
+_SIZES = {"box": 3, "cylinder": 2, "sphere": 1, "mesh": (1, 3)}
 
 
-def read_plan(path: str | os.PathLike) -> dict:
-    """Read and check a plan file; SpecError names the file and key on any problem.
+def _check_object(ck: _Checker, value) -> dict:
+    o = dict(ck.mapping(value, "object"))
+    for key in ("shape", "size", "position", "quat_xyzw"):
+        if key not in o:
+            raise ck.fail(f"object.{key}", "missing key")
+    shape = o["shape"]
+    if shape not in _SIZES:
+        raise ck.fail("object.shape", f"unknown shape {_shown(shape)}; shapes are {', '.join(_SIZES)}")
+    n = _SIZES[shape]
+    size = ck.seq(o["size"], "object.size", max(n) if isinstance(n, tuple) else n, min(n) if isinstance(n, tuple) else n)
+    o["size"] = [ck.number(v, f"object.size[{i}]", 1e-6, MAX_COORD_M) for i, v in enumerate(size)]
+    o["position"] = [ck.number(v, f"object.position[{i}]", -MAX_COORD_M, MAX_COORD_M)
+                     for i, v in enumerate(ck.seq(o["position"], "object.position", 3, 3))]
+    quat = [ck.number(v, f"object.quat_xyzw[{i}]", -1.0 - 1e-6, 1.0 + 1e-6)
+            for i, v in enumerate(ck.seq(o["quat_xyzw"], "object.quat_xyzw", 4, 4))]
+    if abs(math.sqrt(sum(v * v for v in quat)) - 1.0) > 1e-6:
+        raise ck.fail("object.quat_xyzw", "expected a unit quaternion [x, y, z, w]")
+    o["quat_xyzw"] = quat
+    if o.get("mass_kg") is not None:
+        o["mass_kg"] = ck.number(o["mass_kg"], "object.mass_kg", 1e-9, MAX_MASS_KG)
+    if shape == "mesh":
+        ck.string(o.get("mesh"), "object.mesh")
+    return o
 
-    Returns:
-        The plan as plain data (the schema of ``Plan.to_dict``).
-    """
-    path = Path(path)
-    fmt = plan_format(path)
-    try:
-        text = path.read_text()
-    except OSError as err:
-        raise SpecError(str(path), "", f"cannot read plan: {err.strerror}") from err
-    try:
-        data = json.loads(text) if fmt == "json" else yaml.safe_load(text)
-    except (json.JSONDecodeError, yaml.YAMLError) as err:
-        raise SpecError(str(path), "", f"not valid {fmt.upper()}: {str(err).splitlines()[0]}") from err
-    if not isinstance(data, dict):
-        raise SpecError(str(path), "", "expected a mapping at the top level")
-    for key in REQUIRED_KEYS:
-        if key not in data:
-            raise SpecError(str(path), key, "missing key")
-    if data["schema_version"] != SCHEMA_VERSION:
-        raise SpecError(
-            str(path), "schema_version", f"unsupported version {data['schema_version']!r}; supported: {SCHEMA_VERSION}"
-        )
-    joints = data["joints"]
-    n_states = len(data["states"])
-    for i, state in enumerate(data["states"]):
-        for key in STATE_KEYS:
-            if key not in state:
-                raise SpecError(str(path), f"states[{i}].{key}", "missing key")
-        missing = set(joints) - set(state["q"])
-        if missing:
-            raise SpecError(str(path), f"states[{i}].q", f"missing joints {sorted(missing)}")
-        grip = state.get("grip_force_n")
-        if grip is not None and (isinstance(grip, bool) or not isinstance(grip, (int, float)) or not grip >= 0):
-            raise SpecError(str(path), f"states[{i}].grip_force_n", f"expected a force >= 0 in newtons or null, got {grip!r}")
-        for finger, patch in state["patches"].items():
-            pts, nrm = patch.get("points"), patch.get("normals")
-            if pts is None or nrm is None or len(pts) != len(nrm):
-                raise SpecError(str(path), f"states[{i}].patches.{finger}", "needs points and normals of equal length")
-    for i, step in enumerate(data["steps"]):
-        for key in STEP_KEYS:
-            if key not in step:
-                raise SpecError(str(path), f"steps[{i}].{key}", "missing key")
-        if step["action"] not in ACTIONS:
-            raise SpecError(str(path), f"steps[{i}].action", f"unknown action {step['action']!r}; actions are {', '.join(ACTIONS)}")
-        for key in ("from_state", "to_state"):
-            if not (isinstance(step[key], int) and 0 <= step[key] < n_states):
-                raise SpecError(str(path), f"steps[{i}].{key}", f"expected a state index in 0..{n_states - 1}")
-    return data
+
+def _check_state(ck: _Checker, value, i: int, joints: tuple[str, ...]) -> PlanState:
+    key = f"states[{i}]"
+    s = ck.mapping(value, key)
+    for k in STATE_KEYS:
+        if k not in s:
+            raise ck.fail(f"{key}.{k}", "missing key")
+    fingers = {ck.string(f, f"{key}.fingers"): ck.string(v, f"{key}.fingers.{f}")
+               for f, v in ck.mapping(s.get("fingers") or {}, f"{key}.fingers").items()}
+    patches = {}
+    for f, patch in ck.mapping(s["patches"], f"{key}.patches").items():
+        ck.string(f, f"{key}.patches")
+        patch = ck.mapping(patch, f"{key}.patches.{f}")
+        if patch.get("points") is None or patch.get("normals") is None:
+            raise ck.fail(f"{key}.patches.{f}", "needs points and normals of equal length")
+        pts = ck.vectors(patch["points"], f"{key}.patches.{f}.points", MAX_POINTS, 3, MAX_COORD_M)
+        nrm = ck.vectors(patch["normals"], f"{key}.patches.{f}.normals", MAX_POINTS, 3, 1.0 + 1e-6)
+        if len(pts) != len(nrm) or not len(pts):
+            raise ck.fail(f"{key}.patches.{f}", "needs points and normals of equal length")
+        if np.any(np.abs(np.linalg.norm(nrm, axis=1) - 1.0) > 1e-6):
+            raise ck.fail(f"{key}.patches.{f}.normals", "expected unit normals")
+        patches[f] = (pts, nrm)
+    if fingers and not set(patches) <= set(fingers):
+        raise ck.fail(f"{key}.patches", f"fingers {sorted(set(patches) - set(fingers))} are not in {key}.fingers")
+    closure = ck.mapping(s["closure"], f"{key}.closure")
+    fc = closure.get("is_force_closure")
+    if not isinstance(fc, bool):
+        raise ck.fail(f"{key}.closure.is_force_closure", f"expected true or false, got {_shown(fc)}")
+    metric = ck.number(closure.get("metric"), f"{key}.closure.metric")
+    removable = tuple(ck.string(f, f"{key}.removable") for f in ck.seq(s["removable"], f"{key}.removable", MAX_JOINTS))
+    if not set(removable) <= set(patches) | set(fingers):
+        raise ck.fail(f"{key}.removable", "names fingers the state does not have")
+    q = ck.mapping(s["q"], f"{key}.q")
+    missing = [j for j in joints if j not in q]
+    if missing:
+        raise ck.fail(f"{key}.q", f"missing joints {missing[:5]}")
+    qv = tuple(ck.number(q[j], f"{key}.q.{j}", -MAX_JOINT_VALUE, MAX_JOINT_VALUE) for j in joints)
+    grip = s.get("grip_force_n")
+    if grip is not None and (isinstance(grip, bool) or not isinstance(grip, (int, float)) or not 0 <= grip < math.inf):
+        raise ck.fail(f"{key}.grip_force_n", f"expected a force >= 0 in newtons or null, got {_shown(grip)}")
+    by_g = s.get("grip_force_by_gravity_n")
+    if by_g is not None:
+        by_g = {str(k): ck.number(v, f"{key}.grip_force_by_gravity_n.{k}", 0)
+                for k, v in ck.mapping(by_g, f"{key}.grip_force_by_gravity_n").items()}
+    return PlanState(fingers, patches, fc, metric, removable, qv,
+                     None if grip is None else float(grip), by_g)
+
+
+def _check_step(ck: _Checker, value, i: int, joints: tuple[str, ...], states: tuple[PlanState, ...]) -> PlanStep:
+    key = f"steps[{i}]"
+    s = ck.mapping(value, key)
+    for k in STEP_KEYS:
+        if k not in s:
+            raise ck.fail(f"{key}.{k}", "missing key")
+    finger = ck.string(s["finger"], f"{key}.finger")
+    action = s["action"]
+    if action not in ACTIONS:
+        raise ck.fail(f"{key}.action", f"unknown action {_shown(action) if not isinstance(action, str) else repr(action[:20])}; "
+                                       f"actions are {', '.join(ACTIONS)}")
+    frm = ck.index(s["from_state"], f"{key}.from_state", len(states))
+    to = ck.index(s["to_state"], f"{key}.to_state", len(states))
+    if (frm, to) != (i, i + 1):
+        raise ck.fail(f"{key}.from_state", f"step {i} goes from state {frm} to {to}; steps must chain the states "
+                                           f"in order ({i} -> {i + 1})")
+    sj = tuple(ck.string(j, f"{key}.joints") for j in ck.seq(s["joints"], f"{key}.joints", MAX_JOINTS, 1))
+    unknown = [j for j in sj if j not in joints]
+    if unknown:
+        raise ck.fail(f"{key}.joints", f"joints {unknown[:5]} are not in the plan's joints")
+    path = ck.vectors(s["path"], f"{key}.path", MAX_WAYPOINTS, len(sj), MAX_JOINT_VALUE)
+    if not len(path):
+        raise ck.fail(f"{key}.path", "expected at least one waypoint")
+    a, b = states[frm], states[to]
+    idx = [joints.index(j) for j in sj]
+    qa, qb = np.asarray(a.q), np.asarray(b.q)
+    if np.max(np.abs(path[0] - qa[idx])) > PATH_END_TOL or np.max(np.abs(path[-1] - qb[idx])) > PATH_END_TOL:
+        raise ck.fail(f"{key}.path", f"does not start at state {frm} and end at state {to}")
+    others = np.ones(len(joints), bool)
+    others[idx] = False
+    if np.any(np.abs(qa[others] - qb[others]) > PATH_END_TOL):
+        raise ck.fail(f"{key}", f"states {frm} and {to} differ in joints outside the step's joints")
+    on_a, on_b = finger in a.patches, finger in b.patches
+    expect = {"lift": (True, False), "land": (False, True), "move": (False, False)}[action]
+    if (on_a, on_b) != expect:
+        raise ck.fail(f"{key}.action", f"{action} of {finger}, but the finger is "
+                                       f"{'on' if on_a else 'off'} the object in state {frm} and "
+                                       f"{'on' if on_b else 'off'} in state {to}")
+    if set(a.patches) - {finger} != set(b.patches) - {finger}:
+        raise ck.fail(f"{key}", f"fingers other than {finger} change contact between states {frm} and {to}")
+    return PlanStep(finger, action, frm, to, sj, tuple(tuple(float(v) for v in wp) for wp in path))

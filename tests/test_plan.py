@@ -1,28 +1,39 @@
 """Plan export: schema, determinism, atomic writes and validation of plan files."""
 
 import json
+import warnings
 
 import numpy as np
 import pytest
 import yaml
 
-from planner.errors import SpecError
+from planner.closure import Friction, grasp_closure
+from planner.errors import PlannerWarning, SpecError
 from planner.plan import SCHEMA_VERSION, Alternative, Plan, PlanState, PlanStep, dumps_plan, read_plan, write_plan
 
+FRICTION = Friction(0.9, 0.003, 5)
+PTS = np.array([[0.01, 0.0, 0.02], [0.011, 0.001, 0.02]])
+NRM = np.array([[0.0, 0.0, -1.0], [0.0, 0.0, -1.0]])
 
-def tiny_plan(metric=0.0123456789012345):
-    pts = np.array([[0.01, 0.0, 0.02], [0.011, 0.001, 0.02]])
-    nrm = np.array([[0.0, 0.0, -1.0], [0.0, 0.0, -1.0]])
-    s0 = PlanState({"a": "initial", "b": "initial"}, {"a": (pts, nrm), "b": (-pts, -nrm)}, True, metric, ("b",), (0.1, 0.2))
-    s1 = PlanState({"a": "initial", "b": "lifted"}, {"a": (pts, nrm)}, False, -0.5, (), (0.1, 0.0))
+
+def _closure(patches):
+    c = grasp_closure(patches, FRICTION)
+    return bool(c.is_force_closure), float(c.metric)
+
+
+def tiny_plan():
+    """Two states (fingers a, b; then b lifted) whose recorded closures are their patches'."""
+    both, one = {"a": (PTS, NRM), "b": (-PTS, -NRM)}, {"a": (PTS, NRM)}
+    s0 = PlanState({"a": "initial", "b": "initial"}, both, *_closure(both), ("b",), (0.1, 0.2))
+    s1 = PlanState({"a": "initial", "b": "lifted"}, one, *_closure(one), (), (0.1, 0.0))
     step = PlanStep("b", "lift", 0, 1, ("jb",), ((0.2,), (0.1,), (0.0,)))
     return Plan(
         hand={"name": "h", "spec": "robots/h/hand.yaml"},
         object={"shape": "box", "size": [0.03, 0.04, 0.05], "position": [0, 0, 0.05], "quat_xyzw": [0, 0, 0, 1]},
         friction={"mu": 0.9, "gamma": 0.003, "edges": 5},
-        inputs={"initial": {"path": "a.yaml", "sha256": "0" * 64}},
+        inputs={},
         parameters={"seed": 0},
-        summary={"gait_steps": 1, "bottleneck_metric": np.float64(metric)},
+        summary={"gait_steps": 1, "bottleneck_metric": np.float64(s0.metric)},
         joints=("ja", "jb"),
         states=(s0, s1),
         steps=(step,),
@@ -35,11 +46,12 @@ def test_yaml_and_json_carry_the_documented_keys(tmp_path):
     for suffix in (".yaml", ".json"):
         path = write_plan(tiny_plan(), tmp_path / f"plan{suffix}")
         data = read_plan(path)
-        assert data["schema_version"] == SCHEMA_VERSION
+        assert data["schema_version"] == SCHEMA_VERSION == 2
         s0 = data["states"][0]
         assert set(s0["patches"]) == {"a", "b"}
         assert len(s0["patches"]["a"]["points"]) == 2 and len(s0["patches"]["a"]["normals"][0]) == 3
-        assert s0["closure"] == {"is_force_closure": True, "metric": pytest.approx(0.0123456789)}
+        fc, metric = _closure({"a": (PTS, NRM), "b": (-PTS, -NRM)})
+        assert s0["closure"] == {"is_force_closure": fc, "metric": pytest.approx(metric, rel=1e-9)}
         assert s0["removable"] == ["b"] and s0["q"] == {"ja": 0.1, "jb": 0.2}
         assert "b" not in data["states"][1]["patches"]
         assert data["steps"][0]["path"][0] == [0.2] and data["steps"][0]["path"][-1] == [0.0]
@@ -114,14 +126,17 @@ def test_grip_force_is_exported_per_state_and_null_without_gravity(tmp_path):
 
 
 def test_plans_without_grip_keys_still_read_and_bad_grip_is_refused(tmp_path):
-    """schema_version 1 files written before grip_force_n existed read unchanged; a negative
-    or non-numeric grip force is a SpecError naming the key."""
+    """schema_version 1 files (no integrity record) written before grip_force_n existed read
+    as null with a PlannerWarning; a negative or non-numeric grip force is a SpecError naming the key."""
     data = yaml.safe_load(dumps_plan(tiny_plan()))
+    data["schema_version"] = 1
+    del data["integrity"]
     for state in data["states"]:
         del state["grip_force_n"], state["grip_force_by_gravity_n"]
     old = tmp_path / "old.yaml"
     old.write_text(yaml.safe_dump(data))
-    assert "grip_force_n" not in read_plan(old)["states"][0]
+    with pytest.warns(PlannerWarning, match="no integrity record"):
+        assert read_plan(old).states[0].grip_force_n is None
     for bad in (-0.1, "strong", True):
         data["states"][1]["grip_force_n"] = bad
         path = tmp_path / "bad.yaml"

@@ -63,8 +63,9 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from planner.closure import CONTACT_MODELS, Friction, apply_contact_model, grasp_closure
-from planner.errors import InputError, SimulationError, SpecError, UnknownNameError
+from planner.closure import Friction, apply_contact_model, grasp_closure
+from planner.errors import InputError, SimulationError, UnknownNameError
+from planner.plan import Plan, plan_from_data, read_plan
 from planner.sim.contact_filter import ContactFilter
 from planner.sim.controller import TOUCH_TOL_M, Controller
 
@@ -78,6 +79,8 @@ with quiet_native_output():
     import pybullet as p
 
 _REPO = Path(__file__).resolve().parents[2]
+#: A plan's joint values may exceed the hand's limits by this much (rad or m): rounding.
+JOINT_LIMIT_TOL = 1e-3
 
 
 # --------------------------------------------------------------------------- reports
@@ -194,53 +197,15 @@ def _json_default(value):
 # --------------------------------------------------------------------------- plan input
 
 
-class _PlanReader:
-    """Key access into plan data that fails with SpecError(file, key path)."""
-
-    def __init__(self, data: Any, path: str):
-        self.data = data
-        self.path = path
-
-    def get(self, *keys, default=..., parent=None):
-        node = self.data if parent is None else parent[0]
-        where = [] if parent is None else [parent[1]]
-        for key in keys:
-            where.append(f"[{key}]" if isinstance(key, int) else str(key))
-            try:
-                node = node[key]
-            except (KeyError, IndexError, TypeError):
-                if default is not ...:
-                    return default
-                raise SpecError(self.path, ".".join(where).replace(".[", "["), "missing key") from None
-        return node
-
-    def fail(self, key: str, message: str) -> SpecError:
-        return SpecError(self.path, key, message)
-
-
-def _read_plan(plan: Mapping | str | os.PathLike) -> tuple[dict, str]:
+def _read_plan(plan) -> Plan:
+    """The typed plan of `planner.plan` (its one parser): a file is read and verified by
+    `read_plan` (integrity, structure, closures, inputs), plan data is checked by
+    `plan_from_data`, a `Plan` is used as it is."""
+    if isinstance(plan, Plan):
+        return plan
     if isinstance(plan, Mapping):
-        return dict(plan), "<plan>"
-    path = Path(plan)
-    try:
-        from planner.plan import read_plan
-    except ImportError:  # plan module not available: plain YAML/JSON read
-        read_plan = None
-    if read_plan is not None:
-        return read_plan(path), str(path)
-    import yaml
-
-    try:
-        text = path.read_text()
-    except OSError as err:
-        raise SpecError(str(path), "", f"cannot read plan: {err.strerror}") from err
-    try:
-        data = json.loads(text) if path.suffix.lower() == ".json" else yaml.safe_load(text)
-    except (json.JSONDecodeError, yaml.YAMLError) as err:
-        raise SpecError(str(path), "", f"not valid YAML/JSON: {str(err).splitlines()[0]}") from err
-    if not isinstance(data, dict):
-        raise SpecError(str(path), "", "expected a mapping at the top level")
-    return data, str(path)
+        return plan_from_data(dict(plan))
+    return read_plan(plan)
 
 
 @dataclass(frozen=True)
@@ -274,89 +239,51 @@ def _T_palm_root(hand) -> np.ndarray:
     return np.asarray(hand.link_pose(hand.q_open, root_name), dtype=float)
 
 
-def _hand_target(rd: _PlanReader) -> str:
-    """The plan's hand: its spec path when it resolves, else its name."""
-    name = rd.get("hand", "name")
-    spec = rd.get("hand", "spec", default=None)
+def _hand_target(plan: Plan) -> str:
+    """The plan's hand: its spec path when it resolves (checked to be a hand spec without
+    quoting the file), else its name."""
+    name = plan.hand["name"]
+    spec = plan.hand.get("spec")
     if spec:
-        resolved = _resolve(str(spec), rd.path)
+        resolved = _resolve(str(spec), plan.source or "<plan>")
         if resolved is not None:
+            if resolved.is_file():
+                from planner.fileio import check_hand_file
+
+                check_hand_file(resolved, plan.source or "<plan>", "hand.spec")
             return str(resolved)
     return str(name)
 
 
-def _load_hand(rd: _PlanReader, joints: list[str], hand=None) -> _HandInfo:
-    """Hand URDF, finger -> joints and the pinocchio model of the plan's hand."""
+def _load_hand(plan: Plan, joints: list[str], hand=None) -> _HandInfo:
+    """Hand URDF, finger -> joints and the pinocchio model of the plan's hand; every joint
+    value of the plan must lie within the hand's limits (``JOINT_LIMIT_TOL`` beyond)."""
     if hand is None:
         from planner.hand import Hand
 
-        hand = Hand.load(_hand_target(rd))
+        hand = Hand.load(_hand_target(plan))
     missing = [j for j in joints if j not in hand.joint_names]
     if missing:
-        raise rd.fail("joints", f"joints {missing} are not joints of hand {hand.name!r}")
+        raise plan.error("joints", f"joints {missing[:5]} are not joints of hand {hand.name!r}")
+    names = list(hand.joint_names)
+    lo = np.array([hand.lower[names.index(j)] for j in joints]) - JOINT_LIMIT_TOL
+    hi = np.array([hand.upper[names.index(j)] for j in joints]) + JOINT_LIMIT_TOL
+    for i, st in enumerate(plan.states):
+        bad = np.flatnonzero((np.asarray(st.q) < lo) | (np.asarray(st.q) > hi))
+        if len(bad):
+            j = joints[bad[0]]
+            raise plan.error(f"states[{i}].q.{j}", f"{st.q[bad[0]]:.6g} is outside the joint's limits "
+                                                   f"[{lo[bad[0]] + JOINT_LIMIT_TOL:.4g}, {hi[bad[0]] - JOINT_LIMIT_TOL:.4g}]")
+    for i, step in enumerate(plan.steps):
+        k = [joints.index(j) for j in step.joints]
+        path = np.asarray(step.path)
+        bad = np.argwhere((path < lo[k]) | (path > hi[k]))
+        if len(bad):
+            w, c = bad[0]
+            raise plan.error(f"steps[{i}].path[{w}]", f"joint {step.joints[c]} at {path[w, c]:.6g} is outside its "
+                                                      f"limits [{lo[k][c] + JOINT_LIMIT_TOL:.4g}, {hi[k][c] - JOINT_LIMIT_TOL:.4g}]")
     fingers = {f: tuple(fg.joints) for f, fg in hand.fingers.items()}
     return _HandInfo(str(hand.urdf_path), fingers, _T_palm_root(hand), hand, tuple(hand.palm_normal))
-
-
-@dataclass(frozen=True)
-class _State:
-    q: dict[str, float]
-    fingers: tuple[str, ...]  # touching fingers in the plan
-    is_fc: bool
-    metric: float
-
-
-@dataclass(frozen=True)
-class _Step:
-    finger: str
-    action: str
-    from_state: int
-    to_state: int
-    joints: tuple[str, ...]
-    path: np.ndarray  # (m, len(joints))
-
-
-def _parse(rd: _PlanReader) -> tuple[list[str], list[_State], list[_Step], dict, Friction]:
-    joints = [str(j) for j in rd.get("joints")]
-    states_raw = rd.get("states")
-    if not isinstance(states_raw, list) or not states_raw:
-        raise rd.fail("states", "expected a non-empty list of states")
-    states = []
-    for i, s in enumerate(states_raw):
-        q = rd.get("states", i, "q")
-        missing = [j for j in joints if j not in q]
-        if missing:
-            raise rd.fail(f"states[{i}].q", f"missing joints {missing}")
-        patches = rd.get("states", i, "patches", default={}) or {}
-        states.append(_State(
-            q={j: float(q[j]) for j in joints},
-            fingers=tuple(patches),
-            is_fc=bool(rd.get("states", i, "closure", "is_force_closure")),
-            metric=float(rd.get("states", i, "closure", "metric")),
-        ))
-    steps = []
-    for i, st in enumerate(rd.get("steps") or []):
-        sj = tuple(str(j) for j in rd.get("steps", i, "joints"))
-        path = np.asarray(rd.get("steps", i, "path"), dtype=float)
-        if path.ndim != 2 or path.shape[1] != len(sj) or len(path) < 1:
-            raise rd.fail(f"steps[{i}].path", f"expected waypoints of {len(sj)} joint values")
-        unknown = [j for j in sj if j not in joints]
-        if unknown:
-            raise rd.fail(f"steps[{i}].joints", f"joints {unknown} are not in the plan's joints")
-        fs, ts = int(rd.get("steps", i, "from_state")), int(rd.get("steps", i, "to_state"))
-        for key, v in (("from_state", fs), ("to_state", ts)):
-            if not 0 <= v < len(states):
-                raise rd.fail(f"steps[{i}].{key}", f"expected a state index in 0..{len(states) - 1}")
-        steps.append(_Step(str(rd.get("steps", i, "finger")), str(rd.get("steps", i, "action")), fs, ts, sj, path))
-    obj = dict(rd.get("object"))
-    for key in ("shape", "size", "position", "quat_xyzw"):
-        rd.get("object", key)
-    fr = rd.get("friction")
-    try:
-        friction = Friction(rd.get("friction", "mu"), rd.get("friction", "gamma"), fr.get("edges", 5))
-    except InputError as err:
-        raise rd.fail("friction", str(err)) from err
-    return joints, states, steps, obj, friction
 
 
 # --------------------------------------------------------------------------- helpers
@@ -387,34 +314,34 @@ def _object_volume(shape: str, size) -> float | None:
     return None
 
 
-def _create_object(cid: int, rd: _PlanReader, obj: dict, density_kg_m3: float,
+def _create_object(cid: int, rd: Plan, obj: dict, density_kg_m3: float,
                    default_mass_kg: float) -> tuple[int, float, float]:
     """The object's pybullet body, its mass (kg) and its smallest half-extent (m)."""
     shape = str(obj["shape"])
     size = [float(v) for v in obj["size"]]
     if shape == "box":
         if len(size) != 3:
-            raise rd.fail("object.size", "a box needs 3 full extents (x, y, z)")
+            raise rd.error("object.size", "a box needs 3 full extents (x, y, z)")
         kw = dict(shapeType=p.GEOM_BOX, halfExtents=[s / 2 for s in size])
         vkw = dict(kw)
         radius = min(size) / 2
     elif shape == "cylinder":
         if len(size) != 2:
-            raise rd.fail("object.size", "a cylinder needs (radius, length)")
+            raise rd.error("object.size", "a cylinder needs (radius, length)")
         kw = dict(shapeType=p.GEOM_CYLINDER, radius=size[0], height=size[1])
         vkw = dict(shapeType=p.GEOM_CYLINDER, radius=size[0], length=size[1])
         radius = min(size[0], size[1] / 2)
     elif shape == "sphere":
         if len(size) != 1:
-            raise rd.fail("object.size", "a sphere needs (radius,)")
+            raise rd.error("object.size", "a sphere needs (radius,)")
         kw = dict(shapeType=p.GEOM_SPHERE, radius=size[0])
         vkw = dict(kw)
         radius = size[0]
     elif shape == "mesh":
         mesh = obj.get("mesh")
-        resolved = _resolve(str(mesh), rd.path) if mesh else None
+        resolved = _resolve(str(mesh), rd.source or "<plan>") if mesh else None
         if resolved is None:
-            raise rd.fail("object.mesh", f"mesh file {mesh!r} not found")
+            raise rd.error("object.mesh", f"mesh file {mesh!r} not found")
         scale = size * 3 if len(size) == 1 else size
         kw = dict(shapeType=p.GEOM_MESH, fileName=str(resolved), meshScale=scale)
         vkw = dict(kw)
@@ -430,7 +357,7 @@ def _create_object(cid: int, rd: _PlanReader, obj: dict, density_kg_m3: float,
         mass = density_kg_m3 * vol if vol is not None else default_mass_kg
     mass = float(mass)
     if not mass > 0:
-        raise rd.fail("object.mass_kg", f"expected a positive mass, got {mass}")
+        raise rd.error("object.mass_kg", f"expected a positive mass, got {mass}")
     col = p.createCollisionShape(physicsClientId=cid, **kw)
     if col < 0:
         raise SimulationError(f"pybullet could not create the {shape} collision shape")
@@ -559,8 +486,8 @@ def replay_plan(
         SpecError: the plan lacks a key or has a bad value (names the file and key).
         SimulationError: pybullet could not set up the scene, or ffmpeg is missing for mp4.
     """
-    rd = plan if isinstance(plan, _PlanReader) else _PlanReader(*_read_plan(plan))
-    joints, states, steps, obj, friction = _parse(rd)
+    rd = _read_plan(plan)
+    joints, states, steps, obj, friction = list(rd.joints), rd.states, rd.steps, dict(rd.object), Friction(**rd.friction)
     positive = [("dt", dt), ("drift_mm_max", drift_mm_max), ("drift_deg_max", drift_deg_max),
                 ("drop_mm", drop_mm), ("joint_speed_rad_s", joint_speed_rad_s)]
     if finger_force_n is not None:
@@ -579,10 +506,7 @@ def replay_plan(
         ffmpeg = shutil.which("ffmpeg")
         if ffmpeg is None:
             raise SimulationError("--mp4 needs ffmpeg on PATH and none was found; use --gif instead")
-    contact_model = rd.get("parameters", "contact_model", default="patch")
-    if contact_model not in CONTACT_MODELS:
-        raise rd.fail("parameters.contact_model", f"unknown contact model {contact_model!r}; "
-                                                   f"valid: {', '.join(CONTACT_MODELS)}")
+    contact_model = rd.parameters.get("contact_model", "patch")  # checked by plan_from_data
     params = dict(dt=dt, contact_model=contact_model, gravity=g_vec.tolist(), acquire_s=acquire_s, ramp_s=ramp_s,
                   settle_s=settle_s, handover_s=handover_s, dwell_s=dwell_s, joint_speed_rad_s=joint_speed_rad_s,
                   finger_force_n=finger_force_n, solver_iterations=int(solver_iterations), drop_mm=drop_mm,
@@ -705,7 +629,7 @@ def replay_gravity_set(plan: Mapping | str | os.PathLike, n: int = 6, *, hand=No
 
     if "gravity" in kwargs:
         raise InputError("replay_gravity_set takes no gravity: it replays the set's directions")
-    rd = _PlanReader(*_read_plan(plan))  # read and parsed once for every direction
+    rd = _read_plan(plan)  # read and verified once for every direction
     if hand is None:
         from planner.hand import Hand
 
@@ -765,7 +689,7 @@ class _Sim:
                 self.jidx[jname[i]] = i
         unknown = [j for j in joints if j not in self.jidx]
         if unknown:
-            raise rd.fail("joints", f"joints {unknown} are not movable joints of {info.urdf_path}")
+            raise rd.error("joints", f"joints {unknown} are not movable joints of {info.urdf_path}")
         self.joints = joints
         self.fingers = info.fingers
         finger_of_joint = {j: f for f, js in info.fingers.items() for j in js}
@@ -800,6 +724,10 @@ class _Sim:
         self.sampling = False
         self.failure: str | None = None
         self.last_patches: Mapping[str, tuple[np.ndarray, np.ndarray]] = {}
+
+    def _q(self, state) -> dict[str, float]:
+        """Joint name -> value of a plan state."""
+        return dict(zip(self.joints, state.q))
 
     def _reset_q(self, q: Mapping[str, float]):
         for j, v in q.items():
@@ -913,15 +841,15 @@ class _Sim:
         else:
             fc, metric = False, float("nan")
         mm, deg = self.last
-        return StateReport(index, True, self.steps_done * self.dt, tuple(state.fingers), tuple(sorted(patches)),
-                           state.is_fc, state.metric, fc, metric, n_pts, mm, deg, patches)
+        return StateReport(index, True, self.steps_done * self.dt, state.touching, tuple(sorted(patches)),
+                           state.is_force_closure, state.metric, fc, metric, n_pts, mm, deg, patches)
 
     def run(self, states, steps, recorder=None, every=8, realtime=False):
         self.recorder, self.every, self.realtime = recorder, every, realtime
         self.released = False
         ctl, prm = self.ctl, self.params
         g_full = np.asarray(prm["gravity"], float)
-        self._reset_q(states[0].q)
+        self._reset_q(self._q(states[0]))
         pos, quat = self.T_ref[:3, 3].tolist(), Rotation.from_matrix(self.T_ref[:3, :3]).as_quat().tolist()
         p.resetBasePositionAndOrientation(self.obj, pos, quat, physicsClientId=self.cid)
         p.resetBaseVelocity(self.obj, [0, 0, 0], [0, 0, 0], physicsClientId=self.cid)
@@ -930,9 +858,9 @@ class _Sim:
                                   childFrameOrientation=quat, physicsClientId=self.cid)
         p.changeConstraint(hold, maxForce=1000.0, physicsClientId=self.cid)
         ctl.set_gravity(np.zeros(3))
-        ctl.command(states[0].q, states[0].fingers)
+        ctl.command(self._q(states[0]), states[0].touching)
         self._run_for(prm["acquire_s"])
-        ctl.latch(states[0].fingers)
+        ctl.latch(states[0].touching)
         p.removeConstraint(hold, physicsClientId=self.cid)
         self.released = True
         # 2. gravity comes in gradually; the forces follow the load
@@ -954,7 +882,7 @@ class _Sim:
                 ok = self._run_for(prm["handover_s"], lambda s: ctl.fade(st.finger, 1.0 - s))
                 if not ok:
                     break
-            holding = [f for f in frm.fingers if f != st.finger]
+            holding = [f for f in frm.touching if f != st.finger]
             ctl.command(q_ref, holding, moving=st.finger)
             # the moving finger tracks its path (capped near the squeeze at its pad)
             start = np.array([q_ref[j] for j in st.joints])
@@ -973,14 +901,14 @@ class _Sim:
             # at the end of the path: the new state's fingers hold; a landed finger takes its
             # load over gradually
             # (the other fingers keep the targets they were latched at)
-            q_to = dict(to.q)
+            q_to = self._q(to)
             q_to.update({j: v for j, v in ctl.q_ref.items() if j not in st.joints})
-            if st.finger in to.fingers:
-                ctl.command(q_to, to.fingers, share={st.finger: 0.0})
+            if st.finger in to.touching:
+                ctl.command(q_to, to.touching, share={st.finger: 0.0})
                 ok = self._run_for(prm["handover_s"], lambda s: ctl.fade(st.finger, s))
                 ctl.latch([st.finger])
             else:
-                ctl.command(q_to, to.fingers)
+                ctl.command(q_to, to.touching)
             r = self._dwell_and_measure(prm["dwell_s"], st.to_state, to) if ok else None
             if r is None:
                 ok = False
@@ -991,7 +919,7 @@ class _Sim:
             if i in reports:
                 out.append(reports[i])
             else:
-                out.append(StateReport(i, False, self.steps_done * self.dt, tuple(s.fingers), (), s.is_fc, s.metric,
+                out.append(StateReport(i, False, self.steps_done * self.dt, s.touching, (), s.is_force_closure, s.metric,
                                        None, None, 0, float("nan"), float("nan")))
         mm, deg = self.last
         return out, not ok, self.max_mm, self.max_deg, mm, deg, self.steps_done, self.failure

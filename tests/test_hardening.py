@@ -1,0 +1,405 @@
+"""Hardening (issue 17): no input loses data, hangs or ends in a traceback; plans prove
+their integrity. Every case is a small generated input: the command exits 2 (bad input),
+1 or 130 with exactly one stderr line naming the key, and no input file changes."""
+
+import errno
+import hashlib
+import math
+import os
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from planner.cli import main
+from planner.closure import Friction, closure_from_wrenches, contact_wrenches, grasp_closure
+from planner.errors import InputError, IntegrityError, OutputError, PlannerWarning, SpecError
+from planner.plan import dumps_plan, plan_from_data, read_plan, write_plan
+
+ROOT = Path(__file__).resolve().parent.parent
+BOX_PE = ROOT / "grasps/icub/box_parallel_extension.yaml"
+BOX_IR2M = ROOT / "grasps/icub/box_ir2m.yaml"
+
+
+def _sha(path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def _run(capsys, *argv) -> tuple[int, list[str]]:
+    """main(argv) in-process: (exit code, stderr lines)."""
+    try:
+        code = main([str(a) for a in argv])
+    except SystemExit as stop:  # argparse
+        code = stop.code
+    return code, capsys.readouterr().err.strip().splitlines()
+
+
+@pytest.fixture()
+def grasps(tmp_path):
+    """Copies of the box pair in tmp_path: (initial, final)."""
+    a, b = tmp_path / "a.yaml", tmp_path / "b.yaml"
+    shutil.copy(BOX_PE, a)
+    shutil.copy(BOX_IR2M, b)
+    return a, b
+
+
+# ------------------------------------------------------------------ 1. data loss
+
+
+def test_output_onto_an_input_is_refused_before_any_work(tmp_path, grasps, capsys):
+    """-o naming an input, a symlink or a hard link to it: exit 2, one line, input unchanged."""
+    a, b = grasps
+    before = _sha(b)
+    (tmp_path / "link.yaml").symlink_to(b)
+    os.link(b, tmp_path / "hard.yaml")
+    for out in (b, tmp_path / "link.yaml", tmp_path / "hard.yaml", tmp_path / "sub" / ".." / "b.yaml"):
+        code, err = _run(capsys, "plan", a, b, "-o", out, "--no-motion")
+        assert code == 2 and len(err) == 1 and "refusing to overwrite an input" in err[0], err
+    assert _sha(b) == before
+
+
+def test_bad_output_locations_are_one_line(tmp_path, grasps, capsys):
+    """-o onto a directory or under a regular file: exit 2, one line naming -o; nothing written."""
+    a, b = grasps
+    (tmp_path / "file").write_text("x")
+    for out, why in ((tmp_path, "is a directory"), (tmp_path / "file" / "p.yaml", "is not a directory")):
+        code, err = _run(capsys, "plan", a, b, "-o", out, "--no-motion")
+        assert code == 2 and len(err) == 1 and "-o" in err[0] and why in err[0], err
+    code, err = _run(capsys, "replay", tmp_path / "p.yaml", "--report", tmp_path / "p.yaml")
+    assert code == 2 and len(err) == 1 and "--report" in err[0]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.yaml", "b.yaml", "file"]
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only directories")
+def test_read_only_directory_is_refused(tmp_path, grasps, capsys):
+    """-o into a read-only directory: exit 2 before any work."""
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o555)
+    try:
+        code, err = _run(capsys, "plan", *grasps, "-o", ro / "p.yaml", "--no-motion")
+    finally:
+        ro.chmod(0o755)
+    assert code == 2 and len(err) == 1 and "not writable" in err[0]
+
+
+def test_full_disk_leaves_the_old_file_and_no_temp(tmp_path, monkeypatch):
+    """A write that fails (ENOSPC) is an OutputError; the old plan is untouched, no temp file."""
+    from planner.plan import Plan  # noqa: F401 - the tiny plan of test_plan
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from test_plan import tiny_plan
+
+    target = write_plan(tiny_plan(), tmp_path / "plan.yaml")
+    before = target.read_bytes()
+
+    def full(_fd):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(os, "fsync", full)
+    with pytest.raises(OutputError, match="No space left"):
+        write_plan(tiny_plan(), target)
+    assert target.read_bytes() == before and [p.name for p in tmp_path.iterdir()] == ["plan.yaml"]
+
+
+# ------------------------------------------------------------------ 2. plan integrity
+
+
+def _tiny(tmp_path, name="plan.yaml"):
+    sys.path.insert(0, str(Path(__file__).parent))
+    from test_plan import tiny_plan
+
+    return write_plan(tiny_plan(), tmp_path / name)
+
+
+def test_plan_truncated_at_any_line_is_refused(tmp_path):
+    """Cut after every line (still valid YAML for most cuts): read_plan always refuses."""
+    path = _tiny(tmp_path)
+    lines = path.read_text().splitlines(keepends=True)
+    cut = tmp_path / "cut.yaml"
+    for n in range(len(lines)):
+        cut.write_text("".join(lines[:n]))
+        with pytest.raises(SpecError):
+            read_plan(cut)
+    read_plan(path)  # the whole file reads
+
+
+@pytest.mark.parametrize("edit, key", [
+    (lambda d: d["states"][0]["closure"].update(is_force_closure=not d["states"][0]["closure"]["is_force_closure"]),
+     "states[0].closure"),
+    (lambda d: d["states"][0]["patches"]["a"]["normals"][0].__setitem__(2, 1.0), "states[0].closure"),
+    (lambda d: d["states"][1]["patches"].update(b=d["states"][0]["patches"]["b"]), "steps[0].action"),
+    (lambda d: d["steps"][0].update(from_state=1, to_state=0), "steps[0].from_state"),
+    (lambda d: d["states"].pop(), "steps"),
+    (lambda d: d["inputs"].update(x={"path": "x.yaml", "sha256": "1" * 64}), "integrity.sha256"),
+    (lambda d: d["object"].update(mass_kg=1.0), "integrity.sha256"),
+    (lambda d: d["integrity"].update(states=5), "states"),
+])
+def test_altered_plan_is_refused_naming_what_does_not_match(tmp_path, edit, key):
+    """A flipped closure or normal, a finger put back, steps out of order, a state dropped, an
+    edited input or mass, a wrong count: IntegrityError/SpecError naming the key."""
+    data = yaml.safe_load(_tiny(tmp_path).read_text())
+    edit(data)
+    path = tmp_path / "edited.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    with pytest.raises(SpecError) as err:
+        read_plan(path)
+    assert err.value.key == key, str(err.value)
+
+
+def test_replay_refuses_an_altered_plan_with_one_line(tmp_path, capsys):
+    """regrasp replay on an edited plan: exit 2, one line, before pybullet starts."""
+    path = _tiny(tmp_path)
+    text = path.read_text()
+    assert "gait_steps: 1" in text
+    path.write_text(text.replace("gait_steps: 1", "gait_steps: 2", 1))
+    code, err = _run(capsys, "replay", path)
+    assert code == 2 and len(err) == 1 and "sha256" in err[0] and str(path) in err[0]
+
+
+def test_inputs_are_relative_changed_or_missing_inputs_warn(tmp_path, grasps):
+    """Inputs are written relative to the plan (a moved folder gives the same bytes); a changed
+    input is a warning, or an IntegrityError-free SpecError with strict."""
+    sys.path.insert(0, str(Path(__file__).parent))
+    from test_plan import tiny_plan
+
+    a, b = grasps
+    plan = tiny_plan()
+    plan = type(plan)(**{**plan.__dict__, "inputs": {"initial": {"path": str(a), "sha256": _sha(a)}}})
+    path = write_plan(plan, tmp_path / "out" / "plan.yaml")
+    assert "path: ../a.yaml" in path.read_text() and str(tmp_path) not in path.read_text()
+    with __import__("warnings").catch_warnings():
+        __import__("warnings").simplefilter("error")
+        read_plan(path)  # unchanged input: no warning
+    moved = tmp_path.parent / (tmp_path.name + "_moved")
+    shutil.copytree(tmp_path, moved)
+    assert (moved / "out" / "plan.yaml").read_bytes() == path.read_bytes()
+    a.write_text(a.read_text() + "\n# edited\n")
+    with pytest.warns(PlannerWarning, match="inputs.initial: .*changed"):
+        read_plan(path)
+    with pytest.raises(SpecError, match="changed since planning"):
+        read_plan(path, strict=True)
+    a.unlink()
+    with pytest.warns(PlannerWarning, match="is gone"):
+        read_plan(path)
+    shutil.rmtree(moved)
+
+
+def test_mesh_mass_is_recorded_as_the_planner_used_it(tmp_path):
+    """A mesh object without mass_kg is recorded with volume x 500 kg/m^3 (what make_object
+    uses), not left null for the replay to guess."""
+    from planner.objects import DEFAULT_DENSITY_KG_M3, make_object
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from test_plan import tiny_plan
+
+    mesh = ROOT / "grasps/meshes/rounded_box.obj"
+    plan = tiny_plan()
+    obj = {"shape": "mesh", "size": [1.0], "position": [0, 0, 0.05], "quat_xyzw": [0, 0, 0, 1], "mesh": str(mesh)}
+    plan = type(plan)(**{**plan.__dict__, "object": obj})
+    expect = DEFAULT_DENSITY_KG_M3 * make_object("mesh", [1.0], mesh_path=mesh).volume_m3
+    assert plan.object["mass_kg"] == pytest.approx(expect) and expect > 0
+    back = read_plan(write_plan(plan, tmp_path / "p.json"))
+    assert back.object["mass_kg"] == pytest.approx(expect, rel=1e-9)
+    assert back.object["mesh"] == os.path.relpath(mesh, tmp_path)
+
+
+# ------------------------------------------------------------------ 3/4. bounds and bad values
+
+
+@pytest.mark.parametrize("where, bad", [
+    ("q", float("nan")), ("q", float("inf")), ("q", "x"), ("q", None), ("q", 1e6),
+    ("path", float("nan")), ("path", "x"), ("path", None), ("path", 1e6),
+])
+def test_bad_joint_values_are_refused_naming_the_key(where, bad):
+    """NaN, inf, strings, null and out-of-range joint values in states or paths: SpecError
+    naming the exact key."""
+    sys.path.insert(0, str(Path(__file__).parent))
+    from test_plan import tiny_plan
+
+    data = tiny_plan().to_dict()
+    if where == "q":
+        data["states"][1]["q"]["ja"], key = bad, "states[1].q.ja"
+    else:
+        data["steps"][0]["path"][1][0], key = bad, "steps[0].path[1][0]"
+    with pytest.raises(SpecError) as err:
+        plan_from_data(data, "p.yaml")
+    assert err.value.key == key
+
+
+def test_huge_plans_and_nan_object_are_refused_fast():
+    """200 000 waypoints, a NaN object position or a zero size: refused in well under a second."""
+    sys.path.insert(0, str(Path(__file__).parent))
+    from test_plan import tiny_plan
+
+    data = tiny_plan().to_dict()
+    data["steps"][0]["path"] = [[0.2]] * 200_000
+    t0 = time.perf_counter()
+    with pytest.raises(SpecError, match=r"steps\[0\]\.path: expected 0 to 10000"):
+        plan_from_data(data)
+    assert time.perf_counter() - t0 < 1.0
+    for key, value in (("position", [float("nan"), 0, 0]), ("size", [0.0, 0.04, 0.05])):
+        data = tiny_plan().to_dict()
+        data["object"][key] = value
+        with pytest.raises(SpecError, match=f"object.{key}"):
+            plan_from_data(data)
+
+
+def test_nan_object_position_never_replays():
+    """A plan whose object position is NaN is a bad-input error, never a PASS."""
+    from planner.sim.replay import replay_plan
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from test_plan import tiny_plan
+
+    data = tiny_plan().to_dict()
+    data["object"]["position"] = [float("nan"), 0.0, 0.0]
+    with pytest.raises(SpecError, match=r"object.position\[0\]"):
+        replay_plan(data)
+
+
+def test_closure_is_scale_invariant_and_rejects_bad_wrenches():
+    """A force-closure set scaled by 1e-300..1e300 gives the same answer (metric scaled) at
+    once; complex, NaN and inf wrenches and out-of-range friction are InputErrors."""
+    rng = np.random.default_rng(3)
+    p = 0.02 * rng.normal(size=(4, 3))
+    W = contact_wrenches(p, -p, Friction(0.8, 0.002))
+    ref = closure_from_wrenches(W)
+    assert ref.is_force_closure
+    for scale in (1e-300, 1e-150, 1e150, 1e300):
+        t0 = time.perf_counter()
+        c = closure_from_wrenches(W * scale)
+        assert time.perf_counter() - t0 < 1.0
+        assert c.is_force_closure and c.rank == 6 and c.metric / scale == pytest.approx(ref.metric, rel=1e-9)
+    for bad in (W.astype(complex) + 1e-3j, W * np.nan, np.where(W > 0, np.inf, W)):
+        with pytest.raises(InputError):
+            closure_from_wrenches(bad)
+    for kw in (dict(mu=1e154, gamma=0.0), dict(mu=1.0, gamma=1e30), dict(mu=1.0, gamma=0.0, edges=10**10)):
+        with pytest.raises(InputError, match=r"in \["):
+            Friction(**kw)
+    huge = grasp_closure({"a": (p, -p * 1e200)}, Friction(0.8, 0.002))  # normals are directions
+    unit = grasp_closure({"a": (p, -p)}, Friction(0.8, 0.002))
+    assert huge.is_force_closure == unit.is_force_closure and huge.metric == pytest.approx(unit.metric, rel=1e-12)
+
+
+@pytest.mark.parametrize("argv, option", [
+    (["--seed", "-1"], "--seed"), (["--alternatives", "1000000"], "--alternatives"),
+    (["--intermediate", "1000"], "--intermediate"), (["--max-lifted", "-1"], "--max-lifted"),
+    (["--motion-timeout", "nan"], "--motion-timeout"),
+])
+def test_option_ranges_are_one_line(grasps, capsys, argv, option):
+    """Out-of-range options: exit 2, one line naming the option and its valid range."""
+    code, err = _run(capsys, "plan", *grasps, "--no-motion", *argv)
+    assert code == 2 and len(err) == 1 and option in err[0] and "valid: " in err[0], err
+
+
+def test_argparse_errors_are_one_line(capsys):
+    """A missing argument or unknown option: exit 2 and one line, no usage block."""
+    for argv in (["plan"], ["plan", "a.yaml", "b.yaml", "--bogus"], ["nope"]):
+        code, err = _run(capsys, *argv)
+        assert code == 2 and len(err) == 1 and "usage" not in err[0], err
+
+
+def _grasp_variant(tmp_path, name, text):
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+def test_malformed_grasp_files_are_one_line_without_content(tmp_path, capsys):
+    """Deep nesting, a 1 MB integer, an alias bomb, duplicate keys, a 2 MB file, and a hand:
+    path pointing at a non-YAML secret: exit 2, one line, never the secret's content."""
+    base = BOX_IR2M.read_text()
+    bomb = "".join(f"l{i}: &l{i} [" + ",".join([f"*l{i - 1}" if i else "x"] * 9) + "]\n" for i in range(14))
+    secret = tmp_path / "secret.txt"
+    secret.write_text("root:hunter2:0:0\n: : [\n")
+    cases = {
+        "deep.yaml": (base + "extra: " + "[" * 1000 + "]" * 1000 + "\n", "nested deeper"),
+        "int.yaml": (base.replace("edges: 5", "edges: " + "9" * 500), "integer longer"),
+        "bomb.yaml": (base + bomb, "aliases"),
+        "dup.yaml": (base.replace("friction: {mu: 0.9", "friction: {mu: -1, mu: 0.9"), "duplicate key 'mu'"),
+        "big.yaml": (base + "#" * 2_000_000 + "\n", "at most 1000000 bytes"),
+        "hand.yaml": (base.replace("hand: icub_right", f"hand: {secret}"), "hand"),
+    }
+    for name, (text, expect) in cases.items():
+        path = _grasp_variant(tmp_path, name, text)
+        t0 = time.perf_counter()
+        code, err = _run(capsys, "check", path)
+        assert time.perf_counter() - t0 < 10
+        assert code == 2 and len(err) == 1 and expect in err[0] and name in err[0], (name, err)
+        assert "hunter2" not in err[0] and "root:" not in err[0]
+
+
+@pytest.mark.parametrize("name, content, expect", [
+    ("empty.stl", b"", "84-byte header"),
+    ("tiny.stl", b"\0" * 40, "84-byte header"),
+    ("short.stl", b"\0" * 80 + (1000).to_bytes(4, "little") + b"\0" * 50, "announces 1000"),
+    ("range.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n", "does not exist"),
+    ("noface.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf\n", "at least 3"),
+    ("none.obj", b"v 0 0 0\n", "no triangles"),
+])
+def test_malformed_meshes_are_input_errors(tmp_path, name, content, expect):
+    """Empty, tiny and inconsistent STL/OBJ meshes: one InputError, no IndexError/struct.error."""
+    from planner.objects import load_mesh
+
+    path = tmp_path / name
+    path.write_bytes(content)
+    with pytest.raises(InputError, match=expect):
+        load_mesh(path)
+
+
+# ------------------------------------------------------------------ interrupts, pipes, noise
+
+
+def test_ctrl_c_is_one_line_and_exit_130(monkeypatch, grasps, capsys):
+    """KeyboardInterrupt during a command: 'interrupted', exit 130, no traceback."""
+    import planner.cli as cli
+
+    def interrupted(_args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "_cmd_check", interrupted)
+    code, err = _run(capsys, "check", grasps[0])
+    assert code == 130 and err == ["regrasp check: interrupted"]
+
+
+def test_closed_stdout_is_quiet():
+    """`regrasp check --json | head -1`: no BrokenPipeError traceback, exit 141 like Unix tools."""
+    proc = subprocess.Popen([sys.executable, "-m", "planner", "check", str(BOX_IR2M), "--json"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=ROOT)
+    proc.stdout.readline()
+    proc.stdout.close()
+    err = proc.stderr.read().decode()
+    proc.wait(timeout=60)
+    assert proc.returncode in (0, 141) and "Traceback" not in err and err == ""
+
+
+def test_library_chatter_and_warnings_stay_off_stderr(capsys, grasps, monkeypatch):
+    """C-level writes to fd 2 and numpy RuntimeWarnings during a command are dropped; a
+    PlannerWarning is one 'warning:' line."""
+    import warnings
+
+    import planner.cli as cli
+
+    def noisy(_args):
+        os.write(2, b"urdfdom: some chatter\n")
+        np.log(np.zeros(1))  # RuntimeWarning: divide by zero
+        warnings.warn("input changed", PlannerWarning)
+        raise InputError("bad thing")
+
+    monkeypatch.setattr(cli, "_cmd_check", noisy)
+    code, err = _run(capsys, "check", grasps[0])
+    assert code == 2 and err == ["regrasp check: warning: input changed", "regrasp check: error: bad thing"]
+
+
+def test_plan_export_stays_byte_deterministic(tmp_path):
+    """The integrity record is part of the deterministic bytes: same plan, same file."""
+    a, b = _tiny(tmp_path, "a.yaml"), _tiny(tmp_path, "b.yaml")
+    assert a.read_bytes() == b.read_bytes()
+    assert dumps_plan(yaml.safe_load(a.read_text())) == a.read_text()
+    assert math.isfinite(read_plan(a).states[0].metric)
