@@ -170,9 +170,9 @@ def _palm_distance(hand, q, block) -> float:
 def _meeting_point(sweeps) -> np.ndarray:
     """The point where the pad sweeps come closest together: among the centroids of one
     point per sweep, the one whose largest distance to a sweep is smallest (minimax)."""
-    import itertools
-
-    cents = np.array([np.mean(c, axis=0) for c in itertools.product(*sweeps)])
+    S = np.asarray(sweeps)                                     # (fingers, samples, 3)
+    idx = np.indices((S.shape[1],) * len(S)).reshape(len(S), -1)  # one sample per finger
+    cents = np.mean([S[f][idx[f]] for f in range(len(S))], axis=0)
     worst = np.max([np.min(np.linalg.norm(cents[:, None, :] - s[None], axis=2), axis=1) for s in sweeps], axis=0)
     return cents[int(np.argmin(worst))]
 
@@ -234,6 +234,13 @@ def _closes_onto(hand, fingers, obj, preshape) -> dict | None:
     for f in fingers:
         q[list(f.q_index)] = preshape[f.name]
     for f in fingers:
+        if hand._finger_object_distance(q, f, obj) < 0.0:
+            # the closing procedure starts from a finger free of the object: open its closing joints
+            cidx = [hand.joint_names.index(j) for j in f.close_joints]
+            q[cidx] = np.clip(np.asarray(hand.q_open)[cidx], hand.lower[cidx], hand.upper[cidx])
+            if hand._finger_object_distance(q, f, obj) < 0.0:
+                return None
+            preshape[f.name] = q[list(f.q_index)].copy()
         q = np.asarray(hand.close_finger(f, q, obj), dtype=float)
     patches = contact_patches(hand, q, obj, fingers=[f.name for f in fingers])
     if len(patches) < len(fingers):
@@ -318,14 +325,13 @@ def synthesize(hand_ref: str, obj_block: dict, fingers, n: int, *, fixed: bool, 
         block, preshape = _sample_candidate(hand, chosen, obj_block, fixed, rng, inner)
         if preshape is None:
             continue
+        patches = _closes_onto(hand, chosen, _object_of(block), preshape)
+        if patches is None or not grasp_closure(patches, fr).is_force_closure:
+            continue
         data = _grasp_data(hand_ref, block, friction, chosen, preshape, "candidate", "")
         try:
             spec = parse_grasp(data, base / "candidate.yaml")
         except SpecError:
-            continue
-        obj = spec.object.make()
-        patches = _closes_onto(hand, chosen, obj, preshape)
-        if patches is None or not grasp_closure(patches, fr).is_force_closure:
             continue
         g = realize(spec, hand)
         if not g.ok:

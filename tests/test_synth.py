@@ -1,0 +1,138 @@
+"""Grasp synthesis (`regrasp synth`): written files pass `check` unchanged, their force closure
+holds under an independent LP, seeded runs are byte-identical, nothing is overwritten."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from scipy.optimize import linprog
+
+from planner.cli import main
+from planner.closure import min_grip_force
+from planner.grasp import load_grasp, realize
+
+ROOT = Path(__file__).resolve().parent.parent
+BALL = {"shape": "sphere", "size": [0.015], "mass_kg": 0.03}
+
+
+def _object_file(tmp_path, block, name="ball.yaml", wrap=False) -> Path:
+    path = tmp_path / name
+    path.write_text(yaml.safe_dump({"object": block} if wrap else block))
+    return path
+
+
+def _synth(args) -> int:
+    return main(["synth", *map(str, args), "--quiet"])
+
+
+def _independent_force_closure(patches, mu, gamma, sides=8) -> bool:
+    """Force closure by the classic LP, not closure.py: the contact wrenches (inscribed
+    friction pyramid of ``sides`` edges at every patch point, plus +/- gamma torsion about the
+    normal) span R^6 and some strictly positive combination of them is zero
+    (exists lambda >= 1 with W^T lambda = 0) - then the origin is interior to their hull."""
+    rows = []
+    for p, n in patches.values():
+        for pi, ni in zip(np.asarray(p), np.asarray(n)):
+            ni = ni / np.linalg.norm(ni)
+            a = np.array([1.0, 0.0, 0.0]) if abs(ni[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+            t1 = np.cross(ni, a)
+            t1 /= np.linalg.norm(t1)
+            t2 = np.cross(ni, t1)
+            for k in range(sides):
+                th = 2 * np.pi * k / sides
+                f = ni + mu * (np.cos(th) * t1 + np.sin(th) * t2)
+                rows.append(np.r_[f, np.cross(pi, f)])
+            for s in (1.0, -1.0):
+                rows.append(np.r_[ni, np.cross(pi, ni) + s * gamma * ni])
+    W = np.array(rows)
+    if np.linalg.matrix_rank(W, tol=1e-9) < 6:
+        return False
+    res = linprog(np.zeros(len(W)), A_eq=W.T, b_eq=np.zeros(6), bounds=[(1.0, None)] * len(W), method="highs")
+    return res.status == 0
+
+
+def test_synth_writes_grasps_that_check_accepts_and_are_force_closure(tmp_path, capsys):
+    """Each written file passes `regrasp check` (exit 0) on its own, every chosen finger touches
+    and nothing else does, and an independent LP on the re-realized contacts says force closure."""
+    obj = _object_file(tmp_path, BALL)
+    out = tmp_path / "out"
+    assert _synth(["icub_right", obj, "--fingers", "thumb,index,middle", "-n", 3, "-o", out]) == 0
+    files = sorted(out.glob("*.yaml"))
+    assert [f.name for f in files] == [f"icub_right_sphere_0{i}.yaml" for i in (1, 2, 3)]
+    capsys.readouterr()
+    metrics = []
+    for f in files:
+        assert main(["check", str(f)]) == 0, capsys.readouterr().out
+        g = realize(load_grasp(f))
+        assert g.ok and set(g.patches) == {"thumb", "index", "middle"}
+        assert _independent_force_closure(g.patches, g.friction.mu, g.friction.gamma)
+        assert not _independent_force_closure({"index": g.patches["index"]}, g.friction.mu, g.friction.gamma)
+        metrics.append(g.metric)
+    assert metrics == sorted(metrics, reverse=True)  # ranked by the closure metric
+    assert obj.read_text() == yaml.safe_dump(BALL)  # the input is untouched
+
+
+def test_synth_is_deterministic_and_refuses_to_overwrite(tmp_path, capsys):
+    """Same seed, byte-identical files; a second run into a used folder exits 2 and leaves it alone;
+    another seed gives other grasps."""
+    obj = _object_file(tmp_path, BALL)
+    a, b, c = tmp_path / "a", tmp_path / "b", tmp_path / "c"
+    for d, seed in ((a, 5), (b, 5), (c, 6)):
+        assert _synth(["icub_right", obj, "--fingers", "thumb,index", "-n", 2, "-o", d, "--seed", seed]) == 0
+    read = lambda d: [p.read_bytes() for p in sorted(d.glob("*.yaml"))]  # noqa: E731
+    assert read(a) == read(b) and read(a) != read(c)
+    before = read(a)
+    capsys.readouterr()
+    assert _synth(["icub_right", obj, "--fingers", "thumb,index", "-n", 2, "-o", a, "--seed", 7]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "refusing to overwrite" in err
+    assert read(a) == before
+
+
+def test_synth_with_gravity_keeps_grasps_holding_the_weight(tmp_path):
+    """With --gravity every written grasp holds the object's weight within the force budget
+    (min_grip_force re-computed from the re-realized grasp)."""
+    obj = _object_file(tmp_path, BALL)
+    out = tmp_path / "out"
+    g_palm = np.array([0.0, 0.0, 9.81])
+    assert _synth(["icub_right", obj, "--fingers", "thumb,index,middle", "-n", 2, "-o", out, "--gravity", *g_palm,
+                   "--max-finger-force", 0.5]) == 0
+    for f in sorted(out.glob("*.yaml")):
+        g = realize(load_grasp(f))
+        R = np.asarray(g.obj.T_palm_obj)[:3, :3]
+        load = np.r_[0.03 * (R.T @ g_palm), np.zeros(3)]
+        assert min_grip_force(dict(g.patches), g.friction, load) <= 0.5 + 1e-9
+        assert "grip force" in yaml.safe_load(f.read_text())["description"]
+
+
+def test_synth_keeps_a_given_object_pose_and_reads_a_grasp_file(tmp_path):
+    """An object file with a position (here a whole grasp file: its object: block and friction)
+    keeps the pose: every grasp shares it, so any two are a regrasp pair (Allegro hand)."""
+    src = ROOT / "grasps/allegro/sphere_four_finger.yaml"
+    out = tmp_path / "out"
+    assert _synth(["allegro_right", src, "--fingers", "thumb,index,middle", "-n", 2, "-o", out]) == 0
+    want = yaml.safe_load(src.read_text())["object"]
+    for f in sorted(out.glob("*.yaml")):
+        spec = load_grasp(f)
+        np.testing.assert_allclose(spec.object.position, want["position"])
+        np.testing.assert_allclose(spec.object.quat_xyzw, want["quat_xyzw"])
+        assert main(["check", str(f)]) == 0
+
+
+@pytest.mark.parametrize("args,words", [
+    (["icub_right", "OBJ", "--fingers", "thumb,pinky", "-n", 1, "-o", "OUT"], ["pinky", "thumb"]),
+    (["icub_right", "BAD", "--fingers", "thumb", "-n", 1, "-o", "OUT"], ["expected an object block"]),
+    (["icub_right", "OBJ", "--fingers", "thumb", "-n", 0, "-o", "OUT"], ["-n must be at least 1"]),
+])
+def test_synth_bad_input_is_one_line_exit_2(tmp_path, capsys, args, words):
+    obj = _object_file(tmp_path, BALL)
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("size: [0.01]\n")
+    subst = {"OBJ": obj, "BAD": bad, "OUT": tmp_path / "out"}
+    assert _synth([subst.get(a, a) if isinstance(a, str) else a for a in args]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and all(w in err for w in words)
+    assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
