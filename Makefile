@@ -1,12 +1,13 @@
 # Two entry points for a fresh machine with only Python:
 #   make demo   install, then plan (and replay) the bundled cylinder example
 #   make test   install, then run the test suite
+#   make wheel-check   build the wheel, install it in a fresh venv, run the CLI outside the repo
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: install test demo bench clean
+.PHONY: install test demo bench clean wheel-check
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -21,6 +22,9 @@ test: $(STAMP)
 
 demo: $(STAMP)
 	$(BIN)/python -m planner demo
+
+wheel-check: $(STAMP)
+	PYTHON=$(PYTHON) .ci/wheel_check
 
 bench: $(STAMP)
 	for f in benchmarks/bench_*.py; do $(BIN)/python $$f || exit 1; done

@@ -37,8 +37,9 @@ import pinocchio as pin
 import yaml
 
 from planner.errors import InputError, KinematicsError, SpecError, UnknownNameError
+from planner.resources import HAND_SPEC, bundled_hands, hand_dir, robots_dir
 
-ROBOTS_DIR = Path(__file__).resolve().parents[1] / "robots"
+ROBOTS_DIR = robots_dir()  # the bundled hands (planner.resources), wherever the package is installed
 SCHEMA_VERSION = 1
 IK_TOL_M = 5e-4          # accepted fingertip error
 _IK_GOAL_M = 1e-6        # error at which the iterations stop
@@ -194,22 +195,24 @@ class Hand:
     # ------------------------------------------------------------------ loading
     @classmethod
     def load(cls, name_or_path: str | os.PathLike) -> "Hand":
-        """Load a hand by name (a folder under robots/) or by the path of its hand.yaml.
+        """Load a hand by name (a bundled hand, `planner.resources.bundled_hands`, from any
+        directory) or by the path of its hand.yaml or of the folder holding it.
+
+        A bare name (no folder, no .yaml suffix) is a bundled hand when one has that name,
+        else a path.
 
         Raises:
-            UnknownNameError: no such hand under robots/.
-            SpecError: the hand.yaml is invalid (file + key path in the message).
+            UnknownNameError: a bare name that is neither a bundled hand nor a file or folder.
+            SpecError: the hand.yaml is missing or invalid (file + key path in the message).
         """
-        p = Path(name_or_path)
-        if p.suffix in (".yaml", ".yml") or p.is_file():
-            path = p
-        elif p.is_dir():
-            path = p / "hand.yaml"
-        else:
-            path = ROBOTS_DIR / str(name_or_path) / "hand.yaml"
-            if not path.is_file():
-                valid = sorted(d.name for d in ROBOTS_DIR.iterdir() if (d / "hand.yaml").is_file())
-                raise UnknownNameError("hand", str(name_or_path), valid)
+        path = Path(name_or_path)
+        bare = path.suffix not in (".yaml", ".yml") and len(path.parts) == 1
+        if bare and path.name in bundled_hands():
+            path = hand_dir(path.name)
+        if path.is_dir():
+            path = path / HAND_SPEC
+        elif bare and not path.is_file():
+            raise UnknownNameError("hand", str(name_or_path), bundled_hands())
         if not path.is_file():
             raise SpecError(str(path), "", "file not found")
         try:

@@ -1,7 +1,10 @@
-"""Package-level checks: public API and command line wiring."""
+"""Package-level checks: public API, command line wiring, and the bundled data an install ships."""
 
 import subprocess
 import sys
+from pathlib import Path
+
+import pytest
 
 import planner
 
@@ -43,3 +46,105 @@ def test_only_motion_imports_ompl_and_only_sim_imports_pybullet():
             assert rel == "motion.py", rel
         if "import pybullet" in text:
             assert rel.startswith("sim/"), rel
+
+
+# ------------------------------------------------------------------ installs (issue 16)
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _run(code: str, cwd) -> str:
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=cwd)
+    assert out.returncode == 0, out.stderr
+    return out.stdout
+
+
+def test_bundled_hands_and_grasps_resolve_from_any_directory(tmp_path):
+    """From a directory outside the repository, a hand name loads the bundled hand (even
+    with a folder of that name here), an unknown name lists the bundled hands, and a grasp
+    file copied here finds its hand by name."""
+    (tmp_path / "icub_right").mkdir()  # a decoy: a bare name is the bundled hand
+    (tmp_path / "box.yaml").write_text((REPO / "grasps/icub/box_ir2m.yaml").read_text())
+    code = (
+        "from planner import resources as r\n"
+        "from planner.errors import UnknownNameError\n"
+        "from planner.hand import Hand\n"
+        "from planner.grasp import load_grasp\n"
+        "h = Hand.load('icub_right')\n"
+        "print(h.spec_path.resolve() == (r.robots_dir() / 'icub_right' / 'hand.yaml').resolve())\n"
+        "print(Hand.load(r.hand_dir('icub_right')).name)\n"
+        "try:\n    Hand.load('no_such_hand')\nexcept UnknownNameError as e:\n    print(e)\n"
+        "print(load_grasp('box.yaml').hand_ref)\n"
+        "print(r.robots_dir(), r.grasps_dir(), sep='\\n')\n"
+    )
+    lines = _run(code, tmp_path).splitlines()
+    assert lines[:4] == ["True", "icub_right", "unknown hand 'no_such_hand'; hands are allegro_right, icub_right",
+                         "icub_right"]
+    assert lines[4:] == [str(REPO / "robots"), str(REPO / "grasps")]  # this checkout (editable install)
+
+
+def test_bundled_grasp_names():
+    """Bundled grasps are named by their path under grasps/; the name of a bundled file
+    round-trips; unknown names and escapes out of grasps/ are refused with the valid names."""
+    from planner import resources as r
+    from planner.errors import UnknownNameError
+
+    names = r.bundled_grasps()
+    assert "icub/box_ir2m.yaml" in names and "allegro/box_tripod.yaml" in names
+    assert len(names) == len(list((REPO / "grasps").rglob("*.yaml")))
+    path = r.bundled_grasp("icub/box_ir2m.yaml")
+    assert path.read_bytes() == (REPO / "grasps/icub/box_ir2m.yaml").read_bytes()
+    assert r.bundled_grasp_name(path) == "icub/box_ir2m.yaml"
+    assert r.bundled_grasp_name(REPO / "pyproject.toml") is None
+    for bad in ("icub/nope.yaml", "../pyproject.toml", "icub"):
+        with pytest.raises(UnknownNameError, match="icub/box_ir2m.yaml"):
+            r.bundled_grasp(bad)
+    assert r.bundled_hands() == sorted(d.parent.name for d in (REPO / "robots").glob("*/hand.yaml"))
+
+
+def test_source_checkout_without_install_finds_the_top_level_folders(tmp_path):
+    """Without the install's package-dir mapping (a checkout on PYTHONPATH) the resources
+    are the repository's robots/ and grasps/."""
+    code = (
+        "import sys\n"
+        f"sys.path.insert(0, {str(REPO)!r})\n"
+        "sys.meta_path[:] = [f for f in sys.meta_path if 'editable' not in repr(f).lower()]\n"
+        "from planner import resources as r\n"
+        "print(r.robots_dir(), r.grasps_dir(), r.bundled_hands(), sep='\\n')\n"
+    )
+    assert _run(code, tmp_path).splitlines() == [str(REPO / "robots"), str(REPO / "grasps"),
+                                                 "['allegro_right', 'icub_right']"]
+
+
+def test_wheel_ships_every_bundled_file_and_package():
+    """pyproject.toml's package-data globs (expanded the way setuptools does) cover every data
+    file under robots/ and grasps/, and `packages` lists every package under planner/ (the
+    wheel itself is built, installed and run by .ci/wheel_check)."""
+    import glob
+    import os
+
+    tomllib = pytest.importorskip("tomllib")  # Python 3.11+
+    cfg = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]
+    assert cfg["package-dir"] == {"planner.robots": "robots", "planner.grasps": "grasps"}
+    for package, folder in cfg["package-dir"].items():
+        root = REPO / folder
+        shipped = {os.path.relpath(f, root) for pattern in cfg["package-data"][package]
+                   for f in glob.glob(os.path.join(root, pattern), recursive=True) if os.path.isfile(f)}
+        data = {str(p.relative_to(root)) for p in root.rglob("*")
+                if p.is_file() and p.suffix not in (".py", ".pyc") and "__pycache__" not in p.parts}
+        assert data and data <= shipped, sorted(data - shipped)
+        assert (root / "__init__.py").is_file()  # a regular package: the editable finder maps it
+    code_packages = {".".join(p.parent.relative_to(REPO).parts) for p in (REPO / "planner").rglob("__init__.py")}
+    assert set(cfg["packages"]) == code_packages | set(cfg["package-dir"])
+    assert tomllib.loads((REPO / "pyproject.toml").read_text())["project"]["license"] == "BSD-3-Clause"
+
+
+def test_demo_out_names_a_directory(tmp_path):
+    """`regrasp demo` writes into ./regrasp-demo/ by default; an --out that is a file is refused
+    (exit 2, one line) and left as it was."""
+    from planner.cli import build_parser, main
+
+    assert build_parser().parse_args(["demo"]).out == "regrasp-demo"
+    f = tmp_path / "taken"
+    f.write_text("mine")
+    assert main(["demo", "--out", str(f)]) == 2
+    assert f.read_text() == "mine"
