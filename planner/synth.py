@@ -49,6 +49,9 @@ DEFAULT_FRICTION = {"mu": 0.9, "gamma": 0.004, "edges": 5}
 PALM_CLEARANCE_M = 0.002
 #: Each finger's pad sweep must pass within this many inner radii of the object centre.
 SWEEP_REACH = 1.5
+#: Random pre-shapes drawn per attempt; the one whose pad sweeps pass closest to a common
+#: point (or to the fixed object centre) is tried.
+PRESHAPES_PER_ATTEMPT = 6
 #: Fraction of their range the closing joints of a pre-shape start closed by.
 _PRESHAPE_CLOSE = (0.0, 0.3)
 
@@ -72,6 +75,7 @@ class SynthResult:
     candidates_passed: int
     duplicates: int
     seconds: float
+    rejected: dict = None   # reason -> attempts dropped for it
 
 
 def load_object_file(path) -> tuple[dict, dict | None, bool]:
@@ -181,28 +185,34 @@ def _sample_candidate(hand, fingers, obj_block, fixed, rng, obj_radius):
     """(object block with a pose, {finger: pre-shape}) of one attempt, or (block, None).
 
     Pre-shape: the joints that do not close (abduction, opposition) uniform in their range,
-    the closing joints a little into theirs. Each finger's closing motion (the thesis's
+    the closing joints a little into theirs; of `PRESHAPES_PER_ATTEMPT` draws the one whose
+    sweeps meet best is kept. Each finger's closing motion (the thesis's
     procedure, `Hand.close_finger`) sweeps its pad along a curve; without a fixed pose the
-    object centre is put where those curves come closest together (alternating nearest
-    points and their mean), jittered, with a random orientation. Attempts whose sweeps do
+    object centre is put where those curves come closest together (`_meeting_point`), jittered, with a random orientation. Attempts whose sweeps do
     not pass within the object's inner radius of the centre are dropped before any
     collision query.
     """
-    q = np.array(hand.q_open, dtype=float)
-    for f in fingers:
-        idx = np.array(f.q_index)
-        lo, hi = hand.lower[idx], hand.upper[idx]
-        closing = np.array([j in f.close_joints for j in f.joints])
-        start = np.clip(q[idx], lo, hi)
-        frac = rng.uniform(*_PRESHAPE_CLOSE, size=len(idx))
-        q[idx] = np.where(closing, start + frac * (hi - start), rng.uniform(lo, hi))
     alphas = np.linspace(0.0, 1.0, 10)
-    sweeps = [_sweep(hand, f, q, alphas) for f in fingers]
+    best = None
+    for _ in range(PRESHAPES_PER_ATTEMPT):  # keep the pre-shape whose sweeps meet best
+        q = np.array(hand.q_open, dtype=float)
+        for f in fingers:
+            idx = np.array(f.q_index)
+            lo, hi = hand.lower[idx], hand.upper[idx]
+            closing = np.array([j in f.close_joints for j in f.joints])
+            start = np.clip(q[idx], lo, hi)
+            frac = rng.uniform(*_PRESHAPE_CLOSE, size=len(idx))
+            q[idx] = np.where(closing, start + frac * (hi - start), rng.uniform(lo, hi))
+        sweeps = [_sweep(hand, f, q, alphas) for f in fingers]
+        centre = np.asarray(obj_block["position"], dtype=float) if fixed else _meeting_point(sweeps)
+        gap = max(float(np.min(np.linalg.norm(s - centre, axis=1))) for s in sweeps)
+        if best is None or gap < best[0]:
+            best = (gap, q, sweeps, centre)
+    _, q, sweeps, centre = best
     block = dict(obj_block)
     if fixed:
         centre = np.asarray(block["position"], dtype=float)
     else:
-        centre = _meeting_point(sweeps)
         centre = centre + rng.normal(scale=0.3 * obj_radius, size=3)
         block["quat_xyzw"] = [0.0, 0.0, 0.0, 1.0] if block["shape"] == "sphere" else _random_quat(rng)
         block["position"] = [float(v) for v in centre]
@@ -316,6 +326,9 @@ def synthesize(hand_ref: str, obj_block: dict, fingers, n: int, *, fixed: bool, 
     inner = inner_radius(obj_block)
     kept: list[tuple[np.ndarray, SynthGrasp]] = []
     passed = dups = 0
+    from collections import Counter
+
+    rejected = Counter()
     base = Path(base_dir)
     attempt = 0
     for attempt in range(1, max_attempts + 1):
@@ -324,9 +337,14 @@ def synthesize(hand_ref: str, obj_block: dict, fingers, n: int, *, fixed: bool, 
             break
         block, preshape = _sample_candidate(hand, chosen, obj_block, fixed, rng, inner)
         if preshape is None:
+            rejected["sweeps miss the object"] += 1
             continue
         patches = _closes_onto(hand, chosen, _object_of(block), preshape)
-        if patches is None or not grasp_closure(patches, fr).is_force_closure:
+        if patches is None:
+            rejected["a finger starts inside or misses"] += 1
+            continue
+        if not grasp_closure(patches, fr).is_force_closure:
+            rejected["not force closure"] += 1
             continue
         data = _grasp_data(hand_ref, block, friction, chosen, preshape, "candidate", "")
         try:
@@ -335,6 +353,7 @@ def synthesize(hand_ref: str, obj_block: dict, fingers, n: int, *, fixed: bool, 
             continue
         g = realize(spec, hand)
         if not g.ok:
+            rejected["check: " + (g.problems[0].split(":")[0].split(" ")[0] if g.problems else "not force closure")] += 1
             continue
         grip = None
         if gravity is not None:
@@ -342,6 +361,7 @@ def synthesize(hand_ref: str, obj_block: dict, fingers, n: int, *, fixed: bool, 
             load = np.r_[g.obj.mass_kg * (R.T @ np.asarray(gravity, dtype=float)), np.zeros(3)]
             grip = min_grip_force(dict(g.patches), fr, load)
             if not grip <= max_finger_force_n:
+                rejected["weight beyond the force budget"] += 1
                 continue
         passed += 1
         feat = _features(g, chosen)
@@ -357,7 +377,7 @@ def synthesize(hand_ref: str, obj_block: dict, fingers, n: int, *, fixed: bool, 
             progress(f"synth: {len(kept)}/{n} grasps after {attempt} attempts, {time.perf_counter() - t0:.1f} s")
     ranked = sorted((c for _, c in kept), key=lambda c: (-c.grasp.metric, c.attempt))
     return SynthResult(grasps=tuple(ranked), attempts=attempt, candidates_passed=passed, duplicates=dups,
-                       seconds=time.perf_counter() - t0)
+                       seconds=time.perf_counter() - t0, rejected=dict(rejected))
 
 
 def output_names(out_dir, hand_name: str, shape: str, n: int) -> list[Path]:
