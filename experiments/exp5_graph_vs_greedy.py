@@ -10,12 +10,15 @@ grasp other than one anchor is freed with probability --free-prob. Pairs whose t
 are not both force closure, or whose initial state has colliding fingers, are counted as
 invalid and left out of the comparison.
 
-For each valid pair: the full graph (`build_graph` + `search`, k=1) and the greedy baseline
-(`greedy`, run on a fresh lazily evaluated graph so that its time only counts the states
-it visits): solved or not, gait steps, bottleneck metric, time (slot construction with
-pairwise collision checks is shared and timed separately).
+For each valid pair: the ranked graph search over the pair's own contacts (`LazyGraph`,
+k=1: the same best sequence as `build_graph` + `search`), the anytime planner with its
+defaults (`plan_regrasp` without finger paths: intermediate contacts added in rounds within
+--time-limit; its time includes slots and rounds) and the greedy baseline (`greedy`, run on
+a fresh lazily evaluated graph so that its time only counts the states it visits): solved
+or not, gait steps, bottleneck metric, time (slot construction with pairwise collision
+checks is shared and timed separately for the first two).
 
-    python experiments/exp5_graph_vs_greedy.py [--quick] [--pairs N] [--workers N]
+    python experiments/exp5_graph_vs_greedy.py [--quick] [--pairs N] [--workers N] [--time-limit S]
 """
 
 from __future__ import annotations
@@ -85,9 +88,9 @@ def task(t: dict) -> dict:
     import networkx as nx
 
     from planner.errors import NoSequenceError, PlannerError
-    from planner.graph import _add_node, _Evaluator, build_graph, greedy, search
+    from planner.graph import LazyGraph, _add_node, _Evaluator, greedy
     from planner.grasp import load_hand, realize
-    from planner.regrasp import PlanOptions, build_problem
+    from planner.regrasp import PlanOptions, build_problem, plan_regrasp
 
     rng = np.random.default_rng(t["seed"])
     group = t["groups"][int(rng.integers(len(t["groups"])))]
@@ -120,16 +123,28 @@ def task(t: dict) -> dict:
     row["fingers_to_change"] = sum(s != g for s, g in zip(problem.start, problem.goal))
     t0 = time.perf_counter()
     try:
-        G = build_graph(problem)
+        lazy = LazyGraph(problem)
     except NoSequenceError as err:  # the initial state itself is invalid (fingers collide)
         row.update(valid=False, reason=str(err)[:120])
         return row
-    found = search(G, k=1)
+    found = lazy.best(1)
     row["graph_s"] = time.perf_counter() - t0
-    row["graph_nodes"] = G.number_of_nodes()
+    row["graph_nodes"] = lazy.G.number_of_nodes()
     row["graph_solved"] = bool(found)
     if found:
         row.update(graph_steps=found[0].gait_steps, graph_edges=len(found[0].actions), graph_bottleneck=found[0].bottleneck)
+    # the anytime planner with its defaults (intermediate contacts in rounds, time limit),
+    # no finger paths; its time includes slots and rounds (grasp realization excluded)
+    t0 = time.perf_counter()
+    try:
+        res = plan_regrasp(gi, gf, PlanOptions(motion=False, intermediate=t["intermediate"], seed=t["seed"],
+                                               alternatives=1, time_limit_s=t["time_limit_s"]))
+        info = res.plan.summary["search"]
+        row.update(anytime_solved=True, anytime_steps=res.sequence.gait_steps, anytime_bottleneck=res.sequence.bottleneck,
+                   anytime_rounds=info["rounds"], anytime_added=sum(info["intermediate_added"].values()))
+    except NoSequenceError as err:
+        row.update(anytime_solved=False, anytime_reason=str(err)[:300])
+    row["anytime_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     ev = _Evaluator(problem)
     G0 = nx.DiGraph(problem=problem, start=problem.start, goal=problem.goal, blocked={}, evaluator=ev)
@@ -144,6 +159,17 @@ def task(t: dict) -> dict:
     return row
 
 
+def _by_group(rows) -> str:
+    """'hand object: anytime solved / graph solved / valid' per hand and object."""
+    out = defaultdict(lambda: [0, 0, 0])
+    for r in rows:
+        k = f"{r['hand'].split('_')[0]} {r['initial'].split('_')[0]}"
+        out[k][0] += bool(r["anytime_solved"])
+        out[k][1] += bool(r["graph_solved"])
+        out[k][2] += 1
+    return ", ".join(f"{k} {a}/{g}/{n}" for k, (a, g, n) in sorted(out.items()))
+
+
 def main(argv=None) -> dict:
     ap = parser(__doc__.splitlines()[0])
     ap.add_argument("--pairs", type=int, default=None, help="random pairs (default 12 quick, 120 full)")
@@ -151,13 +177,14 @@ def main(argv=None) -> dict:
     ap.add_argument("--posture-sigma-rad", type=float, default=0.1)
     ap.add_argument("--free-prob", type=float, default=0.15)
     ap.add_argument("--intermediate", type=int, default=0, help="intermediate contacts per finger")
+    ap.add_argument("--time-limit", type=float, default=10.0, help="the anytime planner's budget per pair, s")
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
     gs = groups()
     n = args.pairs or (12 if args.quick else 120)
     tasks = [{"seed": args.seed * 1_000_003 + i, "groups": gs, "point_sigma_m": args.point_sigma_mm * 1e-3,
               "posture_sigma_rad": args.posture_sigma_rad, "free_prob": args.free_prob,
-              "intermediate": args.intermediate} for i in range(n)]
+              "intermediate": args.intermediate, "time_limit_s": args.time_limit} for i in range(n)]
     rows = run_tasks(task, tasks, args, desc="exp5 graph vs greedy")
     write_csv(args.out / "exp5_graph_vs_greedy.csv", rows)
     valid = [r for r in rows if r["valid"]]
@@ -165,8 +192,9 @@ def main(argv=None) -> dict:
 
     plt = pyplot()
     fig, ax = plt.subplots(1, 3, figsize=(13, 4))
-    ax[0].bar(["graph", "greedy"], [np.mean([r["graph_solved"] for r in valid]) if valid else 0,
-                                    np.mean([r["greedy_solved"] for r in valid]) if valid else 0], color=["tab:green", "tab:gray"])
+    ax[0].bar(["anytime\n(defaults)", "graph\n(fixed contacts)", "greedy"],
+              [np.mean([r[k] for r in valid]) if valid else 0 for k in ("anytime_solved", "graph_solved", "greedy_solved")],
+              color=["tab:blue", "tab:green", "tab:gray"])
     ax[0].set_ylim(0, 1)
     ax[0].set_ylabel("solved fraction")
     ax[0].set_title(f"{len(valid)} valid random pairs")
@@ -192,6 +220,11 @@ def main(argv=None) -> dict:
         "groups": [" + ".join(Path(p).stem for p in g) for g in gs],
         "pairs": n, "valid_pairs": len(valid),
         "graph_solved": f"{sum(r['graph_solved'] for r in valid)}/{len(valid)}",
+        "anytime_solved": f"{sum(r['anytime_solved'] for r in valid)}/{len(valid)}",
+        "anytime_median_s_solved": float(np.median([r["anytime_s"] for r in valid if r["anytime_solved"]]))
+        if any(r["anytime_solved"] for r in valid) else float("nan"),
+        "anytime_solved_with_intermediate": sum(r["anytime_solved"] and r.get("anytime_rounds", 0) > 0 for r in valid),
+        "anytime_solved_by_group": _by_group(valid),
         "greedy_solved": f"{sum(r['greedy_solved'] for r in valid)}/{len(valid)}",
         "greedy_only": sum(r["greedy_solved"] and not r["graph_solved"] for r in valid),
         "both_solved": len(both),

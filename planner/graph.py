@@ -399,6 +399,7 @@ class LazyGraph:
         self.value = {problem.start: self._cost(problem.start)}
         self._heap = [self._key(problem.start)]
         self.expanded: set[Node] = set()
+        self._pending: dict[Node, list] = {}  # generated, not yet evaluated: its (parent, finger index, action)s
         self.timed_out = False
 
     def _cost(self, v: Node) -> float:
@@ -416,49 +417,66 @@ class LazyGraph:
         """(value, gait bound) of the next state to expand, dropping stale heap entries."""
         while self._heap:
             value, _, v = self._heap[0]
-            if v not in self.expanded and value <= self.value[v]:
+            if v not in self.expanded and v not in self.G.graph["blocked"] and value <= self.value[v]:
                 return self._heap[0][:2]
             heapq.heappop(self._heap)
         return None
 
     def _expand(self, bound: tuple, budget: int | None) -> int:
-        """Expand states keyed at most ``bound`` (value, gait bound); returns how many."""
+        """Pop states keyed at most ``bound`` (value, gait bound): a state not yet evaluated
+        is evaluated (closure, collisions, grip; one batch closure call per batch) and pushed
+        again with its true key, an evaluated one is expanded: its successors are pushed
+        unevaluated, keyed by the best value they can have (their parent's). Returns how many
+        states were expanded."""
         import time
 
         p, G, ev, done = self.problem, self.G, self.ev, 0
-        blocked = G.graph["blocked"]
-        while self._heap and self._heap[0][:2] <= bound:
+        blocked, pending = G.graph["blocked"], self._pending
+        while self._top() is not None and self._top() <= bound:
             if budget is not None and done >= budget:
                 break
             if self.deadline is not None and time.perf_counter() > self.deadline:
                 self.timed_out = True
                 break
-            batch = []
-            while self._heap and self._heap[0][:2] <= bound and len(batch) < self.BATCH:
-                key = heapq.heappop(self._heap)
-                v = key[2]
-                if v in self.expanded or key[0] > self.value[v]:
-                    continue
-                self.expanded.add(v)
-                batch.append(v)
-            moves = [(u, i, a, w) for u in batch for i, a, w in p.neighbours(u) if (u, w) not in self.removed]
+            grow, fresh = [], []
+            while self._top() is not None and self._top() <= bound and len(grow) + len(fresh) < self.BATCH:
+                v = heapq.heappop(self._heap)[2]
+                if v in G:
+                    self.expanded.add(v)
+                    grow.append(v)
+                elif v not in blocked and v not in fresh:
+                    fresh.append(v)
             # collisions first (cached per slot pair): colliding states need no closure
-            ev.evaluate([w for *_, w in moves if w not in G and w not in blocked and _within_lift_bound(p, w)
-                         and ev.collision_free(w)])
-            for u, i, action, w in moves:
-                if w not in G:
-                    reason = blocked.get(w) or ev.blocked_reason(w)
-                    if reason is not None:
-                        blocked[w] = reason
+            ev.evaluate([w for w in fresh if _within_lift_bound(p, w) and ev.collision_free(w)])
+            for w in fresh:
+                reason = ev.blocked_reason(w)
+                parents = pending.pop(w)
+                if reason is not None:
+                    blocked[w] = reason
+                    G.graph["blocked_moves"].extend((u, i, action, w) for u, i, action in parents)
+                    continue
+                _add_node(G, ev, w)
+                for u, i, action in parents:
+                    G.add_edge(u, w, finger=p.fingers[i], action=action)
+                self.value[w] = max(self.value[w], self._cost(w))
+                heapq.heappush(self._heap, self._key(w))
+            for u in grow:
+                for i, action, w in p.neighbours(u):
+                    if (u, w) in self.removed:
+                        continue
+                    if w in blocked:
                         G.graph["blocked_moves"].append((u, i, action, w))
                         continue
-                    _add_node(G, ev, w)
-                G.add_edge(u, w, finger=p.fingers[i], action=action)
-                c = max(self.value[u], self._cost(w))
-                if c < self.value.get(w, np.inf):
-                    self.value[w] = c
-                    heapq.heappush(self._heap, self._key(w))
-            done += len(batch)
+                    if w in G:
+                        G.add_edge(u, w, finger=p.fingers[i], action=action)
+                        c = max(self.value[u], self._cost(w))
+                    else:  # evaluated when popped: its value is at least its parent's
+                        pending.setdefault(w, []).append((u, i, action))
+                        c = self.value[u]
+                    if c < self.value.get(w, np.inf):
+                        self.value[w] = c
+                        heapq.heappush(self._heap, self._key(w))
+            done += len(grow)
         G.graph["expanded"] = len(self.expanded)
         return done
 
@@ -860,11 +878,25 @@ def failure_analysis(G: nx.DiGraph) -> dict:
                 score[f] += 1
         if closest[i] != goal[i]:
             score[f] += 1
+    # the next move of every finger not yet at its final slot, from the closest state
+    stuck = []
+    for i, f in enumerate(p.fingers):
+        if closest[i] == goal[i]:
+            continue
+        action = "lift" if closest[i] != LIFTED else "land"
+        w = closest[:i] + ((LIFTED,) if action == "lift" else (goal[i],)) + closest[i + 1:]
+        if w in G.graph["blocked"]:
+            stuck.append((f, action, _reason_words(ev, f, action, w, G.graph["blocked"][w])))
+            for g in ev.collision_pair(w) or ():
+                score[g] += 2 if g != f else 0
+            if action == "lift":
+                score[f] += 2
     goal_reason = None
     if goal in ev.closure or goal in G.graph["blocked"]:
         goal_reason = G.graph["blocked"].get(goal) or ev.blocked_reason(goal)
     blockers = [f for f in sorted(p.fingers, key=lambda f: (-score[f], p.fingers.index(f))) if score[f] > 0]
     return {"closest": closest, "partial": partial, "lift_blocked": lift_blocked, "landing_blocked": landing_blocked,
+            "stuck": stuck,
             "blockers": blockers, "goal_reason": goal_reason, "distance": dist[closest]}
 
 
@@ -892,6 +924,10 @@ def explain_failure(G: nx.DiGraph, intermediate_tried: bool, tried: str | None =
     steps = [_move_words(p, u, v) for u, v in zip(a["partial"], a["partial"][1:])]
     lines.append(f"best partial sequence ({len(steps)} moves{': ' + ', '.join(steps) if steps else ''}) ends "
                  f"{a['distance']} finger(s) from the final grasp in: {_state_words(p, a['closest'])}")
+    for f, action, why in a["stuck"]:
+        if f not in a["lift_blocked"] and f not in a["landing_blocked"]:
+            move = "be lifted" if action == "lift" else "land on its final contact"
+            lines.append(f"there {f} cannot {move}: {why}")
     if tried:
         lines.append(tried)
     elif not intermediate_tried:
@@ -906,6 +942,7 @@ def explain_failure(G: nx.DiGraph, intermediate_tried: bool, tried: str | None =
         "lift_blocked": {f: why for f, (_, why) in a["lift_blocked"].items()},
         "landing_blocked": a["landing_blocked"],
         "closest": p.labels(a["closest"]),
+        "stuck": [{"finger": f, "action": action, "why": why} for f, action, why in a["stuck"]],
         "partial": [p.labels(v) for v in a["partial"]],
         "blocked": reasons,
         "blockers": a["blockers"],

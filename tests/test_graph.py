@@ -13,7 +13,7 @@ import pytest
 
 from planner.closure import Friction, grasp_closure, min_grip_force
 from planner.errors import InputError, NoSequenceError, UnknownNameError
-from planner.graph import LIFTED, GaitProblem, Slot, build_graph, explain_failure, greedy, search
+from planner.graph import LIFTED, GaitProblem, LazyGraph, Slot, build_graph, explain_failure, greedy, search
 
 R = 0.03
 FRICTION = Friction(mu=0.5, gamma=0.004, edges=5)
@@ -276,3 +276,85 @@ def test_grip_budget_blocks_states_and_grip_ranking_needs_a_load():
         search(plain, k=1, rank="grip")
     with pytest.raises(UnknownNameError):
         search(plain, k=1, rank="fastest")
+
+
+# --------------------------------------------------------------------------- lazy search, explanations
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_lazy_graph_ranks_exactly_like_the_full_graph(seed):
+    """`LazyGraph.best` returns the same k best rank keys as `build_graph` + `search` (both
+    rankings, brute-force-checked above), evaluates no more states than the full graph,
+    and every returned state re-checks force closure."""
+    rng = np.random.default_rng(seed)
+    prob = loaded_deadlock([tuple(rng.normal(size=3)) for _ in range(3)])
+    full = build_graph(prob)
+    for rank in ("metric", "grip"):
+        lazy = LazyGraph(prob, rank)
+        got = lazy.best(6)
+        assert [s.rank_key for s in got] == [s.rank_key for s in search(full, k=6, rank=rank)]
+        assert lazy.G.graph["search_exact"]
+        assert len(lazy.ev.closure) <= len(full.graph["evaluator"].closure)
+        for s in got:
+            recheck(prob, s)
+
+
+def test_lazy_graph_evaluates_only_the_states_the_search_reaches():
+    """Five fingers around a sphere with four slots each (5^5 combinations): the best
+    sequence equals the full graph's, found with fewer closure evaluations."""
+    dirs = [(1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0), (0, 0, 1)]
+    rng = np.random.default_rng(7)
+    slots = {}
+    for k, d in enumerate(dirs):
+        name = "ABCDE"[k]
+        near = [tuple(np.array(d) + 0.35 * rng.normal(size=3)) for _ in range(3)]
+        slots[name] = [slot(name, "initial", d)] + [slot(name, lab, v) for lab, v in zip(("final", "int0", "int1"), near)]
+    prob = problem(slots, {f: 0 for f in slots}, {f: 1 for f in slots})
+    full = build_graph(prob)
+    want = search(full, k=1)
+    lazy = LazyGraph(prob)
+    got = lazy.best(1)
+    assert want and [s.rank_key for s in got] == [s.rank_key for s in want]
+    assert len(lazy.ev.closure) < len(full.graph["evaluator"].closure)
+    recheck(prob, got[0])
+
+
+def test_extended_problem_reuses_caches_and_matches_a_fresh_search():
+    """A round of intermediate contacts (slots appended) on the evaluator of the previous
+    round gives the same ranking as a fresh search; a problem that renumbers slots is refused."""
+    first = LazyGraph(deadlock(with_intermediate=False))
+    assert first.best(1) == [] and first.complete
+    cached = len(first.ev.closure)
+    bigger = deadlock(with_intermediate=True)
+    grown = GaitProblem(bigger.fingers, {f: first.problem.slots[f] + tuple(bigger.slots[f][len(first.problem.slots[f]):])
+                                         for f in bigger.fingers}, bigger.start, bigger.goal, FRICTION)
+    again = LazyGraph(grown, evaluator=first.ev)
+    fresh = LazyGraph(bigger)
+    assert [s.rank_key for s in again.best(3)] == [s.rank_key for s in fresh.best(3)]
+    assert len(again.ev.closure) > cached
+    with pytest.raises(InputError, match="appending slots"):
+        LazyGraph(bigger, evaluator=first.ev)
+
+
+def test_failure_is_explained_in_words():
+    """No Python dicts in the message; the finger that cannot be lifted is named with the
+    grasp left without it and its metric, a refused landing names the finger it would
+    collide with, and a finger free in both grasps is never mentioned."""
+    slots = {**{f: list(s) for f, s in deadlock(False).slots.items()}, "E": []}
+    prob = GaitProblem(tuple(slots), {f: tuple(s) for f, s in slots.items()}, (0, 0, 0, 0, LIFTED),
+                       (1, LIFTED, 1, LIFTED, LIFTED), FRICTION)
+    lazy = LazyGraph(prob)
+    assert lazy.best(1) == []
+    err = explain_failure(lazy.G, intermediate_tried=False)
+    text = str(err)
+    assert "{" not in text and "E " not in text and "E," not in text
+    assert "there A cannot be lifted: without it the grasp (B, C) is not force closure, metric -" in text
+    assert "ends 2 finger(s) from the final grasp in: A initial, B initial, C final, D lifted" in text
+    assert err.report["closest"]["C"] == "final"
+    base = greedy_trap()
+    clash = lambda fa, sa, fb, sb: not ({(fa, sa), (fb, sb)} == {("A", 0), ("B", 1)})
+    lazy = LazyGraph(GaitProblem(base.fingers, base.slots, base.start, base.goal, FRICTION, compatible=clash))
+    assert lazy.best(1) == []
+    err = explain_failure(lazy.G, intermediate_tried=True)
+    assert "B cannot land on its final contact: it would collide with A" in str(err)
+    assert err.report["blockers"][0] in ("A", "B")

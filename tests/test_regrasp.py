@@ -415,3 +415,66 @@ def test_execution_mode_refuses_a_grasp_that_needs_the_whole_friction_cone(reali
     plan_regrasp(initial, final, PlanOptions.for_execution(friction_margin=1.0, motion=False))
     with pytest.raises(NoSequenceError, match="need over 1 N per finger"):
         plan_regrasp(initial, final, PlanOptions.for_execution(motion=False))
+
+
+ALLEGRO_SPHERE = ROOT / "grasps" / "allegro" / "sphere_four_finger.yaml"
+
+
+def _middle_for_ring(tmp_path):
+    """Allegro sphere, four fingers -> a tripod where the middle finger takes the ring
+    finger's place (abducted to -0.3 rad) and the ring finger is freed: the middle finger
+    cannot land while the ring finger is there, and thumb + index alone do not hold the
+    ball, so no sequence exists with the two grasps' contacts alone."""
+    data = yaml.safe_load(ALLEGRO_SPHERE.read_text())
+    data["name"] = "allegro_sphere_middle_for_ring"
+    data["fingers"]["middle"]["posture"][0] = -0.3
+    data["fingers"]["ring"] = "free"
+    path = tmp_path / "middle_for_ring.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return path
+
+
+def test_pair_needing_intermediate_contacts_is_solved_with_defaults_deterministically(tmp_path, capsys):
+    """Without intermediate contacts (--time-limit 0) the pair fails, and the message says
+    in words that the middle finger would collide with the ring finger; with the defaults
+    the anytime planner adds intermediate contacts and solves it; every exported state
+    re-checks force closure; the same inputs give the same plan bytes."""
+    final = _middle_for_ring(tmp_path)
+    assert main(["plan", str(ALLEGRO_SPHERE), str(final), "--no-motion", "--time-limit", "0"]) == 1
+    err = capsys.readouterr().err
+    assert "middle cannot land on its final contact: it would collide with ring" in err and "{" not in err
+    out1, out2 = tmp_path / "p1.yaml", tmp_path / "p2.yaml"
+    assert main(["plan", str(ALLEGRO_SPHERE), str(final), "--no-motion", "-o", str(out1)]) == 0
+    assert main(["plan", str(ALLEGRO_SPHERE), str(final), "--no-motion", "-o", str(out2)]) == 0
+    assert out1.read_bytes() == out2.read_bytes()
+    data = recheck_plan_file(out1)
+    search = data["summary"]["search"]
+    assert search["rounds"] >= 1 and search["exact"]
+    assert any(label.startswith("int") for s in data["states"] for label in s["fingers"].values())
+    assert set(data["states"][-1]["patches"]) == {"thumb", "index", "middle"}
+
+
+def test_reachable_contacts_touch_the_object_within_joint_limits():
+    """Every intermediate-contact candidate of the pool is within the finger's joint limits,
+    lies on the ball's surface and re-measures as the same touching patch at its joint values."""
+    from planner.contacts import collisions, contact_patches
+    from planner.regrasp import reachable_contacts
+
+    g = realize(load_grasp(ALLEGRO_SPHERE))
+    hand, obj = g.hand, g.obj
+    pool = reachable_contacts(hand, obj, "ring")
+    assert len(pool) >= 10
+    idx = list(hand.fingers["ring"].q_index)
+    lo, hi = np.asarray(hand.lower)[idx], np.asarray(hand.upper)[idx]
+    radius = obj.size[0]
+    for points, normals, qf in pool:
+        assert np.all(qf >= lo - 1e-9) and np.all(qf <= hi + 1e-9)
+        assert np.allclose(np.linalg.norm(points, axis=1), radius, atol=1.5e-3)
+        assert np.all(np.einsum("ij,ij->i", normals, -points / np.linalg.norm(points, axis=1, keepdims=True)) > 0.95)
+        q = np.array(hand.q_open, float)
+        q[idx] = qf
+        again = contact_patches(hand, q, obj, fingers=["ring"])["ring"]
+        assert np.allclose(again[0], points, atol=1e-9)
+        assert collisions(hand, q, obj, fingers=("ring",)) == []
+    spread = np.ptp(np.array([p.mean(axis=0) for p, _, _ in pool]), axis=0)
+    assert np.max(spread) > 0.015  # spread over the reachable surface, not one spot
