@@ -533,28 +533,41 @@ def _is_plan_file(path: Path) -> bool:
     return isinstance(data, dict) and (data.get("kind") == "regrasp-plan" or "states" in data)
 
 
-def write_view(source, output, report=None) -> dict:
+def _check_suffix(path, suffixes: tuple[str, ...], what: str) -> None:
+    if Path(path).suffix.lower() not in suffixes:
+        raise SpecError(str(path), "", f"unknown {what} suffix {Path(path).suffix!r}; use {suffixes[0]}")
+
+
+def load_source(source) -> tuple[str, Any]:
+    """("plan", plain plan data) for a plan file, ("grasp", `RealizedGrasp`) for a grasp file."""
+    source = Path(source)
+    if _is_plan_file(source):
+        from planner.plan import read_plan
+
+        return "plan", plain_plan(read_plan(source))
+    from planner.grasp import load_grasp, realize
+
+    return "grasp", realize(load_grasp(source))
+
+
+def write_view(source, output, report=None, loaded=None) -> dict:
     """Write the page of a plan or grasp file; atomic (never half a file), never over the input.
+    ``loaded``: `load_source(source)` when the caller has it already.
 
     Returns:
         {"path", "bytes", "states", "steps", "kind"}.
     """
     source, output = Path(source), Path(output)
-    if output.suffix.lower() not in (".html", ".htm"):
-        raise SpecError(str(output), "", f"unknown page suffix {output.suffix!r}; use .html")
+    _check_suffix(output, (".html", ".htm"), "page")
     if output.exists() and output.resolve() == source.resolve():
         raise InputError(f"{output}: refusing to overwrite the input file")
-    if _is_plan_file(source):
-        from planner.plan import read_plan
-
-        scene, data = plan_page_data(read_plan(source), source, report_path=report)
+    kind, value = loaded or load_source(source)
+    if kind == "plan":
+        scene, data = plan_page_data(value, source, report_path=report)
     else:
         if report is not None:
             raise InputError(f"{report}: --report goes with a plan file, and {source} is a grasp")
-        from planner.grasp import load_grasp, realize
-
-        grasp = realize(load_grasp(source))
-        scene, data = grasp_page_data(grasp, source)
+        scene, data = grasp_page_data(value, source)
     page = scene.html(data, f"regrasp view: {data['title']}")
     output.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=".view-", suffix=".html", dir=output.parent)
@@ -571,24 +584,20 @@ def write_view(source, output, report=None) -> dict:
             "steps": len(data["steps"]), "kind": data["kind"]}
 
 
-def write_film(source, gif, frames_per_step: int = 8, width: int = 640, height: int = 480) -> int:
+def write_film(source, gif, frames_per_step: int = 8, width: int = 640, height: int = 480, loaded=None) -> int:
     """A GIF of a plan file (`planner.sim.render.plan_frames`: captions, contacts, the moving
     finger coloured) or the picture of a grasp file as one frame; returns the frame count."""
     from planner.sim.render import patch_markers, plan_frames, render_image, write_gif
 
     source = Path(source)
-    if Path(gif).suffix.lower() != ".gif":
-        raise SpecError(str(gif), "", f"unknown film suffix {Path(gif).suffix!r}; use .gif")
-    if _is_plan_file(source):
-        from planner.plan import read_plan
-
-        plan = plain_plan(read_plan(source))
+    _check_suffix(gif, (".gif",), "film")
+    kind, value = loaded or load_source(source)
+    if kind == "plan":
+        plan = value
         frames = plan_frames(plan, _hand_of_plan(plan, source), _object_of_plan(plan, source),
                              frames_per_step=frames_per_step, width=width, height=height)
     else:
-        from planner.grasp import load_grasp, realize
-
-        g = realize(load_grasp(source))
+        g = value
         frames = [render_image(g.hand, g.q, g.obj, width=width, height=height,
                                markers=patch_markers(g.hand, g.obj, g.patches),
                                caption=f"{source.name}: {'force closure' if g.is_force_closure else 'NO closure'}, "
@@ -599,13 +608,17 @@ def write_film(source, gif, frames_per_step: int = 8, width: int = 640, height: 
 
 def view_command(source, output, report=None, gif=None) -> int:
     """``regrasp view``: write the page (and the GIF) and say what they hold; exit 0."""
-    if gif is not None and Path(gif).exists() and Path(gif).resolve() == Path(source).resolve():
-        raise InputError(f"{gif}: refusing to overwrite the input file")
-    out = write_view(source, output, report=report)
+    _check_suffix(output, (".html", ".htm"), "page")  # before any work
+    if gif is not None:
+        _check_suffix(gif, (".gif",), "film")
+        if Path(gif).exists() and Path(gif).resolve() == Path(source).resolve():
+            raise InputError(f"{gif}: refusing to overwrite the input file")
+    loaded = load_source(source)
+    out = write_view(source, output, report=report, loaded=loaded)
     what = (f"{out['states']} states, {out['steps']} steps" if out["kind"] == "plan" else "one grasp")
     print(f"wrote {out['path']} ({out['bytes'] / 1e6:.2f} MB, {what}"
           + (f", replay report {report}" if report else "") + "): open it in a browser, no server needed")
     if gif is not None:
-        n = write_film(source, gif)
+        n = write_film(source, gif, loaded=loaded)
         print(f"wrote {gif} ({n} frames, 640x480)")
     return 0
