@@ -419,3 +419,20 @@ def test_unreachable_contact_says_where_to_move_it(tmp_path):
     assert "fingers.ring.contact.point" in str(err) and "move the point along" in str(err)
     assert np.isclose(np.linalg.norm(err.direction_palm), 1.0)
     np.testing.assert_allclose(err.target_palm + err.distance_m * err.direction_palm, err.closest_palm, atol=1e-9)
+
+
+def test_check_png_draws_the_contacts(tmp_path, capsys):
+    """The picture shows the realized contacts as green dots and normals (none without markers)."""
+    from PIL import Image
+
+    from planner.grasp import contact_markers
+    from planner.sim.render import render_png
+
+    g = realize(load_grasp(SPHERE4))
+    assert len(contact_markers(g)) == len(g.contacts) >= 4
+    green = []
+    for markers in (None, contact_markers(g)):
+        render_png(g.hand, g.q, g.obj, tmp_path / "g.png", markers=markers)
+        img = np.asarray(Image.open(tmp_path / "g.png").convert("RGB")).astype(int)
+        green.append(((img[..., 1] > 150) & (img[..., 0] < 100) & (img[..., 2] < 120)).sum())
+    assert green[0] == 0 and green[1] > 30
