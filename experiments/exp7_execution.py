@@ -59,6 +59,11 @@ VARIANTS = {
     "allegro/cylinder": [("radius", s) for s in (0.8, 1.0, 1.2)] + [("length", 0.8), ("uniform", 0.9)],
 }
 MESH_SCALES = (0.9, 1.0, 1.1)
+#: Held-out poses (--turned): every library pair at its nominal size with the object turned
+#: about its centre, (axis, degrees): "palm" is the hand's palm_normal, "tilt_1" / "tilt_2"
+#: the palm-plane axes n x e_x (or n x e_y when n is along e_x) and n x tilt_1. The contact
+#: points stay where they are on the object, so the fingers reach them in new postures.
+TURNS = (("palm", -12.0), ("palm", 12.0), ("tilt_1", 10.0), ("tilt_2", -10.0))
 #: --quick: the nominal pairs of these (3-4 replays' worth of pairs).
 QUICK = ("icub/cylinder", "icub/sphere", "allegro/sphere", "icub/pen")
 #: A cylinder this thin or thinner is the "rod" family.
@@ -94,7 +99,7 @@ def mesh_pairs() -> list[tuple[str, str, str]]:
     return out
 
 
-def pair_tasks(quick: bool) -> list[dict]:
+def pair_tasks(quick: bool, turned: bool = False) -> list[dict]:
     tasks = []
     for key, (a, b) in LIBRARY.items():
         hand_dir = key.split("/")[0]
@@ -106,6 +111,8 @@ def pair_tasks(quick: bool) -> list[dict]:
             continue
         for mode, s in variants:
             tasks.append({"pair": key, "initial": ini, "final": fin, "mode": mode, "scale": s})
+        for axis, deg in (TURNS if turned else ()):
+            tasks.append({"pair": key, "initial": ini, "final": fin, "mode": f"turn {axis}", "scale": deg})
     for key, ini, fin in ([] if quick else mesh_pairs()):  # meshes are not part of the quick sweep
         for s in MESH_SCALES:
             tasks.append({"pair": key, "initial": ini, "final": fin, "mode": "uniform", "scale": s})
@@ -146,6 +153,26 @@ def scaled(spec, mode: str, scale: float, palm_normal):
     n = np.asarray(palm_normal, float)
     shift = n * (_support(obj, new.object.size, -n) - _support(obj, obj.size, -n))
     return replace(new, object=replace(new.object, position=tuple(float(v) for v in np.asarray(obj.position, float) + shift)))
+
+
+def turn_axis(name: str, palm_normal) -> np.ndarray:
+    """Unit axis of a `TURNS` entry in the palm frame."""
+    n = np.asarray(palm_normal, float)
+    n = n / np.linalg.norm(n)
+    t1 = np.cross(n, (1.0, 0.0, 0.0) if abs(n[0]) < 0.9 else (0.0, 1.0, 0.0))
+    t1 /= np.linalg.norm(t1)
+    return {"palm": n, "tilt_1": t1, "tilt_2": np.cross(n, t1)}[name]
+
+
+def turned(spec, axis_name: str, deg: float, palm_normal):
+    """The spec with its object turned by ``deg`` about ``axis_name`` (`turn_axis`) through
+    the object's centre; contact points keep their object-frame coordinates."""
+    from scipy.spatial.transform import Rotation
+
+    obj = spec.object
+    R = Rotation.from_rotvec(np.radians(deg) * turn_axis(axis_name, palm_normal)) * Rotation.from_quat(obj.quat_xyzw)
+    return replace(spec, object=replace(obj, quat_xyzw=tuple(float(v) for v in R.as_quat())),
+                   name=f"{spec.name}_{axis_name}{deg:+.0f}")
 
 
 def family(obj) -> str:
@@ -212,8 +239,11 @@ def task(t: dict) -> list[dict]:
     t0 = time.perf_counter()
     base_i, base_f = load_spec(t["initial"]), load_spec(t["final"])
     hand = load_hand(base_i.hand_ref)
-    si = scaled(base_i, t["mode"], t["scale"], hand.palm_normal)
-    sf = scaled(base_f, t["mode"], t["scale"], hand.palm_normal)
+    if t["mode"].startswith("turn "):
+        si, sf = (turned(b, t["mode"].split()[1], t["scale"], hand.palm_normal) for b in (base_i, base_f))
+    else:
+        si = scaled(base_i, t["mode"], t["scale"], hand.palm_normal)
+        sf = scaled(base_f, t["mode"], t["scale"], hand.palm_normal)
     row = {"pair": t["pair"], "hand": hand.name, "family": family(si.object), "shape": si.object.shape,
            "variant": f"{t['mode']} {t['scale']:.2f}", "size": " ".join(f"{v:.4f}" for v in si.object.size),
            "initial": Path(t["initial"]).name, "final": Path(t["final"]).name}
@@ -301,6 +331,11 @@ def summarize(rows: list[dict]) -> dict:
             fpl = [rs for rs in fv if rs[0].get("planned") and rs[0].get("direction")]
             fa = sum(all(r["passed"] for r in rs) for rs in fpl)
             s[f"family {fam}"] = f"{len(fp)} pairs, {len(fp) - len(fv)} invalid, {len(fpl)} planned, {fa} pass every direction"
+        turned = [rs for k, rs in planned.items() if str(k[1]).startswith("turn ")]
+        if turned:
+            ta = sum(all(r["passed"] for r in rs) for rs in turned)
+            s["held-out poses (--turned)"] = (f"{len(turned)} planned of {sum(str(k[1]).startswith('turn ') for k in pairs)}, "
+                                              f"{ta} pass every direction")
         for h in sorted({rs[0]["hand"] for rs in pairs.values()}):
             hp = [rs for rs in planned.values() if rs[0]["hand"] == h]
             ha = sum(all(r["passed"] for r in rs) for rs in hp)
@@ -384,6 +419,8 @@ def main(argv=None) -> dict:
     ap.add_argument("--directions", type=int, default=7, choices=(1, 2, 6, 7),
                     help="gravity set size of the replays (planner.gravity; default 7: with gravity off)")
     ap.add_argument("--name", default="exp7_execution", help="CSV / PNG file stem in --out")
+    ap.add_argument("--turned", action="store_true",
+                    help="also the held-out poses: every library pair with its object turned (TURNS)")
     ap.add_argument("--from-csv", type=Path, default=None,
                     help="no run: summary and plot of an existing exp7 CSV (PNG into --out/--name)")
     args = ap.parse_args(argv)
@@ -394,7 +431,7 @@ def main(argv=None) -> dict:
         summary = summarize(rows)
         print_summary(f"exp7 execution ({args.from_csv.name})", summary)
         return summary
-    tasks = pair_tasks(args.quick)[: args.max_pairs]
+    tasks = pair_tasks(args.quick, args.turned)[: args.max_pairs]
     for t in tasks:
         t["directions"] = args.directions
     per_pair = run_tasks(task, tasks, args, desc="exp7 execution")
