@@ -143,7 +143,7 @@ def task(t: dict) -> dict:
         row.update(anytime_solved=True, anytime_steps=res.sequence.gait_steps, anytime_bottleneck=res.sequence.bottleneck,
                    anytime_rounds=info["rounds"], anytime_added=sum(info["intermediate_added"].values()))
     except NoSequenceError as err:
-        row.update(anytime_solved=False, anytime_reason=str(err)[:300])
+        row.update(anytime_solved=False, anytime_reason=str(err)[-600:])
     row["anytime_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     ev = _Evaluator(problem)

@@ -22,7 +22,10 @@ recorded as blocked and never expanded, so states that cannot matter are never b
   metric bottleneck, fewer edges, larger mean metric).
 
 The search is exact for both: it returns the k best simple paths under the key.
-`greedy` is the thesis's Algorithm 2, kept as the baseline.
+`LazyGraph` gives the same k best without building the whole graph: a best-first search
+over the implicit graph that evaluates a state only when it is popped (see its docstring
+for why the ranking stays exact). `greedy` is the thesis's Algorithm 2, kept as the
+baseline. `explain_failure` says in words why no sequence exists (`failure_analysis`).
 
 This module is pure numpy/networkx: it knows nothing of hands or simulators. Slots
 carry finger joint values for the caller; collisions come in as a pairwise predicate.
@@ -362,15 +365,18 @@ class LazyGraph:
     lower bound of the gait steps of any path through them): the primary cost of a path is
     its ranking's bottleneck (``metric``: minus the worst closure metric; ``grip``: the
     largest grip force), and a state's is the smallest bottleneck over the paths reaching
-    it (a widest-path Dijkstra). Closure, grip force and collisions are evaluated only for
-    the successors of expanded states (one batch closure call per expansion batch), with
-    the caches of `_Evaluator`.
+    it (a widest-path Dijkstra). A generated state is queued unevaluated, keyed by its
+    parent's value (a lower bound of its own); closure, collisions and grip force are
+    evaluated only when it is popped (one batch closure call per batch, with the caches of
+    `_Evaluator`), then it is queued again with its true key, and expanded when popped
+    again. States keyed above what the ranking needs are never evaluated.
 
-    Exactness: once every state keyed at most (c, g) is expanded, every path whose
+    Exactness: once every queued state keyed at most (c, g) is popped, every path whose
     (primary, gait steps) is at most (c, g) lies wholly in the explored graph (each of its
-    states has a primary cost <= c and a gait bound <= g). `best` expands until that holds
-    for the k-th sequence `search` finds on the explored graph, so its ranking equals the
-    ranking over the whole graph (`build_graph`), up to ``max_expansions``.
+    states has a primary cost <= c and a gait bound <= g, and so had its lower-bound key
+    when its predecessor on the path generated it). `best` goes on until that holds for the
+    k-th sequence `search` finds on the explored graph, so its ranking equals the ranking
+    over the whole graph (`build_graph`), up to ``max_expansions``.
 
     Attributes:
         G: the explored graph (same attributes as `build_graph`'s, without ``removable``
@@ -380,7 +386,7 @@ class LazyGraph:
     """
 
     BATCH = 16
-    """States expanded per batch closure call."""
+    """States popped per batch (evaluated together in one batch closure call)."""
 
     def __init__(self, problem: GaitProblem, rank: str = "metric", evaluator: _Evaluator | None = None,
                  deadline: float | None = None):
@@ -840,8 +846,12 @@ def failure_analysis(G: nx.DiGraph) -> dict:
     first), ``partial`` (the fewest-move path to it), ``lift_blocked`` (finger that has to
     move -> (state, why) for a finger never lifted in any reached state where it touches),
     ``landing_blocked`` (finger -> {why: count of states} for refused landings on the final
-    contact), ``blockers`` (fingers worth giving intermediate contacts, most implicated
-    first), ``goal_reason`` (why the final grasp itself is invalid, or None).
+    contact), ``stuck`` ((finger, action, why) of each refused next move from the closest
+    state), ``blockers`` (fingers worth giving intermediate contacts, most implicated
+    first), ``needs`` ((finger, state) pairs: a new contact of that finger would help if,
+    added to the state, where it is lifted, it made a valid grasp: the other fingers when a
+    lift leaves a state not force closure, the finger in the way of a landing),
+    ``goal_reason`` (why the final grasp itself is invalid, or None).
     """
     p: GaitProblem = G.graph["problem"]
     ev: _Evaluator = G.graph["evaluator"]
@@ -853,6 +863,23 @@ def failure_analysis(G: nx.DiGraph) -> dict:
     moves = [m for m in G.graph.get("blocked_moves", []) if m[0] in reach]
     on_partial = {v: k for k, v in enumerate(partial)}
     lift_blocked, landing_blocked, score = {}, {}, {f: 0 for f in p.fingers}
+    needs: list[tuple[str, Node]] = []
+
+    def need_holders(w: Node, lifted: str) -> None:
+        """Lifting ``lifted`` left ``w`` not force closure: another finger could help by a
+        new contact: a lifted one added to ``w``, a touching one moved within ``w``."""
+        for j, g in enumerate(p.fingers):
+            if g != lifted:
+                needs.append((g, w[:j] + (LIFTED,) + w[j + 1:]))
+
+    def need_room(f: str, w: Node) -> None:
+        """Landing ``f`` gives ``w``, where it collides: the finger in the way could move."""
+        for g in ev.collision_pair(w) or ():
+            if g != f:
+                j = p.fingers.index(g)
+                if w[j] != LIFTED:
+                    needs.append((g, w[:j] + (LIFTED,) + w[j + 1:]))
+
     for i, f in enumerate(p.fingers):
         if p.start[i] == p.goal[i]:
             continue
@@ -863,12 +890,16 @@ def failure_analysis(G: nx.DiGraph) -> dict:
                 u, _, _, w = max(tried, key=lambda m: (on_partial.get(m[0], -1), -dist[m[0]]))
                 lift_blocked[f] = (u, _reason_words(ev, f, "lift", w, G.graph["blocked"][w]))
                 score[f] += 3
+                if G.graph["blocked"][w] == "not force closure":
+                    need_holders(w, f)
         if p.goal[i] != LIFTED:
             why: dict[str, int] = {}
             for u, j, action, w in moves:
                 if j == i and action == "land" and w[i] == p.goal[i]:
                     text = _reason_words(ev, f, "land", w, G.graph["blocked"][w])
                     why[text] = why.get(text, 0) + 1
+                    if why[text] <= 2:
+                        need_room(f, w)
                     pair = ev.collision_pair(w)
                     for g in pair or ():
                         if g != f:
@@ -887,6 +918,9 @@ def failure_analysis(G: nx.DiGraph) -> dict:
         w = closest[:i] + ((LIFTED,) if action == "lift" else (goal[i],)) + closest[i + 1:]
         if w in G.graph["blocked"]:
             stuck.append((f, action, _reason_words(ev, f, action, w, G.graph["blocked"][w])))
+            if G.graph["blocked"][w] == "not force closure" and action == "lift":
+                need_holders(w, f)
+            need_room(f, w)
             for g in ev.collision_pair(w) or ():
                 score[g] += 2 if g != f else 0
             if action == "lift":
@@ -896,7 +930,7 @@ def failure_analysis(G: nx.DiGraph) -> dict:
         goal_reason = G.graph["blocked"].get(goal) or ev.blocked_reason(goal)
     blockers = [f for f in sorted(p.fingers, key=lambda f: (-score[f], p.fingers.index(f))) if score[f] > 0]
     return {"closest": closest, "partial": partial, "lift_blocked": lift_blocked, "landing_blocked": landing_blocked,
-            "stuck": stuck,
+            "stuck": stuck, "needs": list(dict.fromkeys(needs)),
             "blockers": blockers, "goal_reason": goal_reason, "distance": dist[closest]}
 
 

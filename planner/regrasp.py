@@ -1,9 +1,14 @@
 """The regrasp pipeline: two realized grasps in, a finger-gaiting `Plan` out.
 
-1. Contact slots per finger: its initial and final contacts and, on request, up to N
-   intermediate contacts sampled on the object surface within the finger's reach.
-2. `planner.graph.build_graph` / `search` (or the greedy baseline) over those slots,
-   with finger-finger collisions checked pairwise with coal.
+1. Contact slots per finger: its initial and final contacts and, on request
+   (``intermediate`` N), N intermediate contacts from the finger's reachable contacts
+   (`reachable_contacts`: in-limit postures closed onto the object, cached per hand and
+   object).
+2. `planner.graph.LazyGraph` (ranked best-first search evaluating only the states it
+   reaches; or the greedy baseline) over those slots, with finger-finger collisions
+   checked pairwise with coal. Anytime (``intermediate`` 0, ``time_limit_s`` > 0): when no
+   sequence exists, rounds of intermediate contacts for the fingers that block progress
+   (`planner.graph.failure_analysis`) and a new search, until found or out of time.
 3. Finger paths, lazily: only for the gait steps of candidate sequences, best-ranked
    first; a step whose path cannot be planned removes its edge and the search goes on.
 4. The winning sequence expanded into plan states and lift / move / land steps.
@@ -44,7 +49,8 @@ class PlanOptions:
         strategy: "graph" (ranked search) or "greedy" (thesis Algorithm 2).
         alternatives: number of ranked sequences to return (graph strategy).
         intermediate: extra contacts to sample per finger (0 = none).
-        seed: seed for intermediate sampling and motion planning.
+        seed: seed for motion planning (intermediate contacts come from a fixed per-finger
+            pool, `reachable_contacts`).
         motion: plan finger paths with OMPL (False: straight joint-space segments).
         motion_planner: OMPL planner name (see planner.motion).
         motion_timeout_s: time budget per finger path.
@@ -206,11 +212,15 @@ def _finger_q(hand, finger: str, q: np.ndarray) -> np.ndarray:
 #: Random in-limit postures per finger from which contact candidates are drawn.
 POOL_POSTURES = 4000
 #: Candidates closed onto the object per finger (spread over the reachable surface).
-POOL_SIZE = 48
+POOL_SIZE = 32
+#: Seed of the postures (the pool is one per hand, object and finger, whatever the plan's seed).
+POOL_SEED = 15
 #: A posture is a candidate when its pad is this far outside the surface at most...
 POOL_STANDOFF_M = 0.012
 #: ... and its pad faces the surface: cosine of the pad normal with the inward normal.
 POOL_FACING_COS = 0.3
+#: Surface samples the pad distances are measured against.
+POOL_SURFACE_SAMPLES = 6000
 #: Intermediate contacts of one finger lie at least this far from its other contacts.
 MIN_SLOT_SPACING_M = 0.01
 
@@ -221,7 +231,7 @@ def _object_key(obj) -> tuple:
     return (obj.shape, tuple(np.round(obj.size, 9)), np.asarray(obj.T_palm_obj).round(9).tobytes(), obj.mesh_path)
 
 
-def reachable_contacts(hand, obj, finger: str, seed: int = 0) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], ...]:
+def reachable_contacts(hand, obj, finger: str) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], ...]:
     """Contacts one finger can make on the object, reachable by construction.
 
     ``POOL_POSTURES`` seeded random postures of the finger (in its joint limits, the other
@@ -240,29 +250,35 @@ def reachable_contacts(hand, obj, finger: str, seed: int = 0) -> tuple[tuple[np.
     """
     from planner.contacts import collisions, contact_patches
 
-    key = (str(hand.spec_path), hand.name, _object_key(obj), finger, seed)
+    key = (str(hand.spec_path), hand.name, _object_key(obj), finger)
     if key in _POOLS:
         return _POOLS[key]
     f = hand.fingers[finger]
     idx = list(f.q_index)
     lo, hi = np.asarray(hand.lower, float)[idx], np.asarray(hand.upper, float)[idx]
-    rng = np.random.default_rng([seed, list(hand.fingers).index(finger)])
+    rng = np.random.default_rng([POOL_SEED, list(hand.fingers).index(finger)])
     postures = rng.uniform(lo, hi, size=(POOL_POSTURES, len(idx)))
     T = np.asarray(obj.T_palm_obj, float)
     p_link = np.append(np.asarray(f.pad_p_link, float), 1.0)
     n_link = np.asarray(f.pad_n_link, float)
     q = np.array(hand.q_open, dtype=float)
-    kept, surf = [], []
-    for k, qf in enumerate(postures):
+    pads = np.empty((len(postures), 4, 4))
+    for k, qf in enumerate(postures):  # forward kinematics of every posture
         q[idx] = qf
-        T_pad = hand.link_pose(q, f.pad_link)
-        p_obj = T[:3, :3].T @ ((T_pad @ p_link)[:3] - T[:3, 3])
-        p_s, n_out, d = obj.closest_surface(p_obj)
-        facing = -float((T[:3, :3].T @ (T_pad[:3, :3] @ n_link)) @ n_out)
-        if 0.0 <= d <= POOL_STANDOFF_M and facing >= POOL_FACING_COS:
-            kept.append(k)
-            surf.append(p_s)
-    order = _farthest_points(np.array(surf).reshape(-1, 3), POOL_SIZE)
+        pads[k] = hand.link_pose(q, f.pad_link)
+    p_obj = (pads[:, :3, :] @ p_link - T[:3, 3]) @ T[:3, :3]
+    n_obj = (pads[:, :3, :3] @ n_link) @ T[:3, :3]
+    # distance to the surface from a dense sample of it (the nearest sample's tangent
+    # plane): vectorized, for every shape; the closing procedure makes the exact contact
+    from scipy.spatial import cKDTree
+
+    cloud, cloud_n = obj.sample_surface(POOL_SURFACE_SAMPLES, np.random.default_rng(0))
+    _, nearest = cKDTree(cloud).query(p_obj)
+    d = np.einsum("ij,ij->i", p_obj - cloud[nearest], cloud_n[nearest])
+    facing = -np.einsum("ij,ij->i", n_obj, cloud_n[nearest])
+    kept = np.flatnonzero((d >= 0.0) & (d <= POOL_STANDOFF_M) & (facing >= POOL_FACING_COS))
+    surf = p_obj[kept] - d[kept, None] * cloud_n[nearest[kept]]
+    order = _farthest_points(surf, POOL_SIZE)
     out = []
     for j in order:
         q = np.array(hand.q_open, dtype=float)
@@ -291,51 +307,55 @@ def _farthest_points(points: np.ndarray, n: int) -> list[int]:
     return chosen
 
 
-def _pick_intermediate(problem: GaitProblem, hand, obj, finger: str, n: int, contact_model: str, seed: int = 0
-                       ) -> list[Slot]:
+MAX_CONTEXTS = 8
+"""States a finger's intermediate contacts are scored against, at most (`_pick_intermediate`)."""
+
+
+def _pick_intermediate(problem: GaitProblem, hand, obj, finger: str, n: int, contact_model: str, contexts=()) -> list[Slot]:
     """The n most useful unused contacts of a finger's reachable pool, as new slots.
 
-    Useful: together with the fingers that keep their contact from the initial to the final
-    grasp (the grasp's core), the candidate holds the object best (closure metric), then
-    together with the other fingers' initial contacts. A candidate lies at least
-    ``MIN_SLOT_SPACING_M`` from the finger's other contacts and does not collide with the
-    core fingers.
+    Useful: added to one of ``contexts`` (states where the finger is lifted, e.g. from
+    `planner.graph.failure_analysis` "needs"), the candidate makes the best grasp (closure
+    metric) without colliding with the fingers there. Without contexts: the fingers that
+    keep their contact from the initial to the final grasp, and the other fingers'
+    initial contacts. A candidate lies at least ``MIN_SLOT_SPACING_M`` from the finger's
+    other contacts; one that collides in every context is not used.
     """
     from planner.closure import batch_grasp_closure
 
     have = list(problem.slots[finger])
     i = problem.fingers.index(finger)
-    core = {g: problem.slots[g][s] for j, (g, s, t) in enumerate(zip(problem.fingers, problem.start, problem.goal))
-            if j != i and s == t and s != LIFTED}
-    others0 = {g: problem.slots[g][s] for j, (g, s) in enumerate(zip(problem.fingers, problem.start)) if j != i and s != LIFTED}
+    if not contexts:
+        contexts = [tuple(s if j != i and s == t else LIFTED for j, (s, t) in enumerate(zip(problem.start, problem.goal))),
+                    problem.start[:i] + (LIFTED,) + problem.start[i + 1:]]
     cands = []
-    for points, normals, qf in reachable_contacts(hand, obj, finger, seed):
+    for points, normals, qf in reachable_contacts(hand, obj, finger):
         slot = _modelled(Slot(finger, "candidate", points, normals, qf), contact_model)
-        if any(np.min(np.linalg.norm(s.points[:, None, :] - slot.points[None, :, :], axis=2)) < MIN_SLOT_SPACING_M
-               for s in have):
-            continue
-        cands.append(slot)
+        if not any(_near(s, slot) for s in have):
+            cands.append(slot)
     if not cands:
         return []
-    score_core = batch_grasp_closure([{**{g: (s.points, s.normals) for g, s in core.items()}, finger: (c.points, c.normals)}
-                                      for c in cands], problem.friction)
-    score_start = batch_grasp_closure([{**{g: (s.points, s.normals) for g, s in others0.items()}, finger: (c.points, c.normals)}
-                                       for c in cands], problem.friction)
-    order = sorted(range(len(cands)), key=lambda j: (-score_core[j].metric, -score_start[j].metric, j))
-    probe = GaitProblem(problem.fingers, {**problem.slots, finger: tuple(have) + tuple(cands)}, problem.start, problem.goal,
-                        problem.friction)
-    compatible = _pairwise_collision_check(hand, probe.slots)
+    compatible = _pairwise_collision_check(hand, {**problem.slots, finger: tuple(have) + tuple(cands)})
+    score = np.full(len(cands), -np.inf)
+    for ctx in list(dict.fromkeys(contexts))[:MAX_CONTEXTS]:
+        held = [(g, s) for j, (g, s) in enumerate(zip(problem.fingers, ctx)) if j != i and s != LIFTED]
+        ok = [j for j in range(len(cands)) if all(compatible(finger, len(have) + j, g, s) for g, s in held)]
+        base = {g: (problem.slots[g][s].points, problem.slots[g][s].normals) for g, s in held}
+        closures = batch_grasp_closure([{**base, finger: (cands[j].points, cands[j].normals)} for j in ok], problem.friction)
+        for j, c in zip(ok, closures):
+            score[j] = max(score[j], c.metric)
     out: list[Slot] = []
-    for j in order:
-        c = cands[j]
-        if len(out) >= n:
+    for j in sorted(range(len(cands)), key=lambda j: (-score[j], j)):
+        if len(out) >= n or score[j] == -np.inf:
             break
-        if any(np.min(np.linalg.norm(s.points[:, None, :] - c.points[None, :, :], axis=2)) < MIN_SLOT_SPACING_M for s in out):
-            continue
-        if not all(compatible(finger, len(have) + j, g, problem.slots[g].index(s)) for g, s in core.items()):
-            continue
-        out.append(replace(c, label=f"int{len(have) - _fixed_slots(have) + len(out)}"))
+        if not any(_near(s, cands[j]) for s in out):
+            out.append(replace(cands[j], label=f"int{len(have) - _fixed_slots(have) + len(out)}"))
     return out
+
+
+def _near(a: Slot, b: Slot) -> bool:
+    """Two contacts of a finger closer than ``MIN_SLOT_SPACING_M``."""
+    return bool(np.min(np.linalg.norm(a.points[:, None, :] - b.points[None, :, :], axis=2)) < MIN_SLOT_SPACING_M)
 
 
 def _fixed_slots(slots) -> int:
@@ -384,15 +404,16 @@ def build_problem(initial, final, options: PlanOptions) -> GaitProblem:
     return problem
 
 
-def add_intermediate(problem: GaitProblem, initial, wanted: Mapping[str, int], options: PlanOptions
-                     ) -> tuple[GaitProblem, dict[str, int]]:
+def add_intermediate(problem: GaitProblem, initial, wanted: Mapping[str, int], options: PlanOptions,
+                     contexts: Mapping[str, list] | None = None) -> tuple[GaitProblem, dict[str, int]]:
     """The problem with up to ``wanted[finger]`` more intermediate contacts per finger
-    (`_pick_intermediate`), appended after its slots (existing slot indices are kept, so
-    the caches of an earlier search stay valid). Returns the problem and how many were
-    added per finger (fingers with none left out)."""
+    (`_pick_intermediate`, scored against ``contexts[finger]`` when given), appended after
+    its slots (existing slot indices are kept, so the caches of an earlier search stay
+    valid). Returns the problem and how many were added per finger (fingers with none left
+    out)."""
     slots, added = dict(problem.slots), {}
     for f, n in wanted.items():
-        new = _pick_intermediate(problem, initial.hand, initial.obj, f, n, options.contact_model, options.seed)
+        new = _pick_intermediate(problem, initial.hand, initial.obj, f, n, options.contact_model, (contexts or {}).get(f, ()))
         if new:
             slots[f] = tuple(slots[f]) + tuple(new)
             added[f] = len(new)
@@ -565,13 +586,18 @@ def _anytime_search(problem: GaitProblem, initial, options: PlanOptions, t0: flo
         out_of_time = lazy.timed_out or (deadline is not None and time.perf_counter() > deadline)
         if found or not auto or out_of_time:
             break
-        # the blocking fingers first; from the second round on every finger touching in either
-        # grasp too (a finger that keeps its contact may have to step aside, e.g. into a pinch)
-        blockers = failure_analysis(lazy.G)["blockers"]
-        wanted = {f: 1 for i, f in enumerate(problem.fingers)
-                  if (rounds or not blockers) and (problem.start[i] != LIFTED or problem.goal[i] != LIFTED)}
-        wanted.update({f: INTERMEDIATE_PER_ROUND for f in blockers})
-        problem, new = add_intermediate(problem, initial, wanted, options)
+        # contacts for the fingers that could unblock progress, scored against the states
+        # they should complete; then (and when those give none) one for every finger
+        # touching in either grasp (it may have to step aside, e.g. into a pinch)
+        needs: dict[str, list] = {}
+        for f, ctx in failure_analysis(lazy.G)["needs"]:
+            needs.setdefault(f, []).append(ctx)
+        problem, new = add_intermediate(problem, initial, {f: INTERMEDIATE_PER_ROUND for f in needs}, options, needs)
+        if not new or rounds % 2 == 1:
+            touching = [f for i, f in enumerate(problem.fingers) if problem.start[i] != LIFTED or problem.goal[i] != LIFTED]
+            problem, more = add_intermediate(problem, initial, {f: 1 for f in touching}, options)
+            for f, n in more.items():
+                new[f] = new.get(f, 0) + n
         if not new:
             break
         rounds += 1
