@@ -125,9 +125,9 @@ def load_yaml(text: str, path: str | os.PathLike, what: str):
         mark = err.problem_mark or err.context_mark
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
         problem = (err.problem or "syntax error").splitlines()[0]
-        raise SpecError(str(path), "", f"{what} is not valid YAML{where}: {problem}") from None
+        raise SpecError(str(path), "", f"{what} is malformed YAML{where}: {problem}") from None
     except yaml.YAMLError as err:
-        raise SpecError(str(path), "", f"{what} is not valid YAML: {str(err).splitlines()[0]}") from None
+        raise SpecError(str(path), "", f"{what} is malformed YAML: {str(err).splitlines()[0]}") from None
     except RecursionError:
         raise SpecError(str(path), "", f"{what} is nested too deeply") from None
 
@@ -226,9 +226,14 @@ def check_hand_file(path: str | os.PathLike, source: str, key: str = "hand") -> 
         raise SpecError(source, key, f"hand spec {path} is not a YAML mapping (a hand.yaml)")
 
 
-def check_grasp_file(path: str | os.PathLike) -> None:
-    """Bounds of a grasp file before the grasp parser sees it: size, YAML limits, and a
-    ``hand:`` path that must be a hand spec (checked without echoing the file)."""
+def check_grasp_file(path: str | os.PathLike):
+    """Read a grasp file within bounds, for the grasp parser (`planner.grasp.load_grasp`):
+    size, YAML limits, and a ``hand:`` path that must be a hand spec (checked without
+    echoing the file).
+
+    Returns:
+        The parsed YAML (any type: the grasp parser says what it expected).
+    """
     data = read_yaml(path, MAX_GRASP_BYTES, "grasp file")
     hand = data.get("hand") if isinstance(data, dict) else None
     if isinstance(hand, str) and ("/" in hand or "\\" in hand or hand.endswith((".yaml", ".yml"))):
@@ -238,3 +243,4 @@ def check_grasp_file(path: str | os.PathLike) -> None:
         if p.is_dir():
             p = p / "hand.yaml"
         check_hand_file(p, str(path))
+    return data

@@ -44,7 +44,6 @@ from types import MappingProxyType
 from typing import Any, Mapping
 
 import numpy as np
-import yaml
 
 from planner.errors import KinematicsError, PlannerError, SpecError
 
@@ -436,17 +435,9 @@ def load_grasp(path) -> GraspSpec:
     """
     path = Path(path).resolve() if Path(path).exists() else Path(path)
     r = _Reader(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as err:
-        raise r.fail("", f"cannot read grasp file: {err.strerror if isinstance(err, OSError) else err}") from err
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as err:
-        mark = getattr(err, "problem_mark", None)
-        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
-        problem = getattr(err, "problem", None) or str(err).splitlines()[0]
-        raise r.fail("", f"malformed YAML{where}: {problem}") from err
+    from planner.fileio import check_grasp_file
+
+    data = check_grasp_file(path)  # size, nesting, aliases, duplicate keys, integer digits, hand: path
     data = r.mapping(data, "", "a YAML mapping at the top level")
     return parse_grasp(data, path)
 
@@ -495,7 +486,10 @@ def parse_grasp(data: Mapping, path) -> GraspSpec:
         raise r.fail("friction.edges", f"expected an integer >= 3 (friction cone sides), got {edges!r}")
     from planner.closure import Friction
 
-    friction = Friction(mu=mu, gamma=gamma, edges=edges)
+    try:
+        friction = Friction(mu=mu, gamma=gamma, edges=edges)
+    except PlannerError as err:  # Friction's ranges: name the file and key too
+        raise r.fail("friction", str(err)) from None
 
     # -- fingers
     fingers_data = r.mapping(data["fingers"], "fingers")

@@ -335,6 +335,40 @@ def test_malformed_grasp_files_are_one_line_without_content(tmp_path, capsys):
         assert "hunter2" not in err[0] and "root:" not in err[0]
 
 
+def test_load_grasp_api_reads_within_the_same_bounds(tmp_path):
+    """planner.grasp.load_grasp (no CLI in front) refuses the same malformed files with a
+    SpecError naming the file, fast; a friction value out of Friction's range names the
+    file, the key and the range."""
+    from planner.grasp import load_grasp
+
+    base = BOX_IR2M.read_text()
+    bomb = "".join(f"l{i}: &l{i} [" + ",".join([f"*l{i - 1}" if i else "x"] * 9) + "]\n" for i in range(14))
+    secret = tmp_path / "secret.txt"
+    secret.write_text("root:hunter2:0:0\n: : [\n")
+    cases = {
+        "deep.yaml": (base + "extra: " + "[" * 1000 + "]" * 1000 + "\n", "nested deeper"),
+        "int.yaml": (base.replace("edges: 5", "edges: " + "9" * 500), "integer longer"),
+        "bomb.yaml": (base + bomb, "aliases"),
+        "dup.yaml": (base.replace("friction: {mu: 0.9", "friction: {mu: -1, mu: 0.9"), "duplicate key 'mu'"),
+        "big.yaml": (base + "#" * 2_000_000 + "\n", "at most 1000000 bytes"),
+        "hand.yaml": (base.replace("hand: icub_right", f"hand: {secret}"), "hand spec"),
+        "mu.yaml": (base.replace("mu: 0.9", "mu: 200.0"), "friction mu must be in [0, 100], got 200"),
+        "edges.yaml": (base.replace("edges: 5", "edges: 1000"), "edges must be an integer in [3, 256]"),
+    }
+    for name, (text, expect) in cases.items():
+        assert text != base, name
+        path = _grasp_variant(tmp_path, name, text)
+        t0 = time.perf_counter()
+        with pytest.raises(SpecError) as err:
+            load_grasp(path)
+        assert time.perf_counter() - t0 < 10
+        msg = str(err.value)
+        assert msg.startswith(str(path)) and expect in msg and "\n" not in msg, (name, msg)
+        assert "hunter2" not in msg
+        if name in ("mu.yaml", "edges.yaml"):
+            assert err.value.key == "friction"
+
+
 @pytest.mark.parametrize("name, content, expect", [
     ("empty.stl", b"", "84-byte header"),
     ("tiny.stl", b"\0" * 40, "84-byte header"),

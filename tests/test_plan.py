@@ -100,7 +100,7 @@ def test_malformed_yaml_is_a_spec_error(tmp_path):
     """Unparseable YAML is reported as such, with the file name."""
     path = tmp_path / "bad.yaml"
     path.write_text("states: [unclosed\n")
-    with pytest.raises(SpecError, match="not valid YAML"):
+    with pytest.raises(SpecError, match="malformed YAML"):
         read_plan(path)
 
 
