@@ -170,9 +170,60 @@ def test_gif_and_report_written_by_cli(hand, grasp, tmp_path):
     assert out.stdout.splitlines()[-1].startswith("PASS")
     with Image.open(gif) as im:
         assert im.n_frames >= 5
-        assert im.size == (320, 240)
+        assert im.size == (640, 480)
     data = json.loads(rep.read_text())
     assert data["passed"] is True and len(data["states"]) == 2 and data["gif_frames"] >= 5
+
+
+def test_replay_gif_reads_like_the_plan_film(hand, grasp, tmp_path):
+    """The replay's GIF is drawn like `regrasp view --gif`: 640x480, a caption band, the
+    simulator's contacts in the fingers' colours, the lifting finger in magenta while it
+    unloads and moves, frames timed by the simulated clock; filming only reads the
+    simulation (the same drifts, closures and steps as without a GIF)."""
+    from PIL import Image
+
+    from planner.sim.render import MOVING_RGBA, finger_rgb
+
+    plan = _plan(hand, grasp, lift="index")
+    gif = tmp_path / "r.gif"
+    filmed = replay_plan(plan, gif=gif, gif_every=24)  # one frame per 0.1 s of simulated time
+    plain = replay_plan(plan)
+    assert (filmed.max_drift_mm, filmed.max_drift_deg, filmed.final_drift_mm, filmed.sim_steps) == \
+        (plain.max_drift_mm, plain.max_drift_deg, plain.final_drift_mm, plain.sim_steps)
+    assert [(s.sim_fingers, s.sim_metric, s.drift_mm) for s in filmed.states] == \
+        [(s.sim_fingers, s.sim_metric, s.drift_mm) for s in plain.states]
+    frames, durations = [], []
+    with Image.open(gif) as im:
+        assert im.size == (640, 480) and im.n_frames == filmed.gif_frames == filmed.sim_steps // 24
+        for i in range(im.n_frames):
+            im.seek(i)
+            frames.append(np.asarray(im.convert("RGB")).astype(int))
+            durations.append(im.info["duration"])
+    assert durations[:-1] == [100] * (len(frames) - 1)  # 24 steps of 1/240 s
+
+    def count(img, rgb, tol=30):
+        return int((np.abs(img - np.array(rgb)).sum(axis=2) < tol).sum())
+
+    moving = [count(f, [255 * v for v in MOVING_RGBA[:3]], 60) for f in frames]
+    t = 0.1 * (1 + np.arange(len(frames)))  # the time of each frame
+    settled = frames[int(np.flatnonzero(t > 0.9)[0])]  # state 0 held under gravity, before the lift
+    assert (settled[:60].sum(axis=2) < 200).sum() > 300  # dark caption text in the top band
+    assert moving[0] < 20 and count(settled, [255 * v for v in MOVING_RGBA[:3]], 60) < 20
+    for finger in GRASP_FINGERS:  # contact dots and normals in each touching finger's colour
+        assert count(settled, finger_rgb(hand, finger)) > 40, finger
+    lift = [m for m, ti in zip(moving, t) if 1.1 <= ti <= 1.4]
+    assert lift and min(lift) > 300  # the index finger while it unloads and lifts
+    assert moving[-1] < 20  # dwell at state 1: nothing moves
+
+
+def test_gif_frames_keep_the_simulated_clock():
+    """Frame delays are whole centiseconds adding up to the simulated time (no drift): 30 fps
+    of simulation gives 30/40 ms delays; the last frame is held before the loop restarts."""
+    from planner.sim.render import gif_durations_ms
+
+    d = gif_durations_ms(np.arange(31) * 8 / 240.0, hold_ms=1000)
+    assert set(d[:-1]) == {30, 40} and sum(d[:-1]) == 1000 and d[-1] == 1000
+    assert gif_durations_ms([0.0, 0.05, 0.13], hold_ms=500) == [50, 80, 500]
 
 
 def test_report_to_dict_is_strict_json(hand, grasp):

@@ -70,9 +70,14 @@ def load_hand(hand, q, client: int, color_rgba=HAND_RGBA) -> int:
         raise SimulationError(f"pybullet cannot load {hand.urdf_path}: {err}") from err
     set_hand_configuration(body, hand, q, client)
     if color_rgba is not None:
-        for link in range(-1, p.getNumJoints(body, physicsClientId=client)):
-            p.changeVisualShape(body, link, rgbaColor=list(color_rgba), physicsClientId=client)
+        paint(body, color_rgba, client)
     return body
+
+
+def paint(body: int, rgba, client: int) -> None:
+    """Give every link of `body` the colour `rgba` (visual only: no physics changes)."""
+    for link in range(-1, p.getNumJoints(body, physicsClientId=client)):
+        p.changeVisualShape(body, link, rgbaColor=list(rgba), physicsClientId=client)
 
 
 def set_hand_configuration(body: int, hand, q, client: int) -> None:
@@ -263,14 +268,19 @@ def _font(size: int):
         return ImageFont.load_default()
 
 
-def annotate(img: np.ndarray, caption: str | None = None, markers_px=()) -> np.ndarray:
-    """Draw contact markers and a caption banner on an RGB image.
+def annotate(img: np.ndarray, caption: str | None = None, markers_px=(), arrow=None, legend=()) -> np.ndarray:
+    """Draw contact markers, a caption banner and a direction arrow on an RGB image.
 
     Args:
         img: (h, w, 3) uint8.
         caption: text of the banner at the top (lines split on newlines); None: no banner.
         markers_px: [(point_px (2,), tip_px (2,) or None, rgb)]: a dot at the point and a line
             from the tip to it (e.g. the inward contact normal).
+        arrow: (dx, dy, label): an arrow along the image direction (dx, dy) (pixels, y down;
+            length 1 = in the image plane, shorter = partly along the view), drawn with its
+            label in the bottom-right corner (e.g. gravity); None: no arrow.
+        legend: [(label, rgb, filled)]: a row of dots (filled, or rings) and labels along the
+            bottom-left (e.g. each finger's colour, filled when it touches).
     """
     from PIL import Image, ImageDraw
 
@@ -291,7 +301,41 @@ def annotate(img: np.ndarray, caption: str | None = None, markers_px=()) -> np.n
         im.paste(banner, (0, 0), banner)
         for i, line in enumerate(lines):
             draw.text((8, 4 + i * (size + 6)), line, fill=(20, 24, 32), font=font)
+    if arrow is not None:
+        _draw_arrow(draw, im.width, im.height, *arrow)
+    if legend:
+        size = max(12, img.shape[0] // 30)
+        font, x, y = _font(size), 8, im.height - size - 10
+        for label, rgb, filled in legend:
+            rgb = tuple(int(v) for v in rgb[:3])
+            box = [x, y + size // 2 - r - 1, x + 2 * r + 2, y + size // 2 + r + 1]
+            draw.ellipse(box, fill=rgb if filled else (255, 255, 255), outline=rgb, width=max(2, r // 2))
+            draw.text((x + 2 * r + 6, y), label, fill=(20, 24, 32), font=font)
+            x += 2 * r + 16 + int(draw.textlength(label, font=font))
     return np.asarray(im)
+
+
+def _draw_arrow(draw, width: int, height: int, dx: float, dy: float, label: str) -> None:
+    """A dark arrow in a white disc in the bottom-right corner, labelled below it."""
+    size = max(12, height // 30)
+    r = max(18, height // 14)
+    cx, cy = width - r - 10, height - r - size - 14
+    draw.ellipse([cx - r, cy - r, cx + r, cy + r], fill=(255, 255, 255), outline=(20, 24, 32), width=2)
+    ink = (20, 24, 32)
+    d = np.array([dx, dy], float)
+    if np.linalg.norm(d) < 0.2:  # along the view: a dot (the label says which way)
+        draw.ellipse([cx - 4, cy - 4, cx + 4, cy + 4], fill=ink)
+    else:
+        tip = np.array([cx, cy]) + 0.8 * r * d
+        tail = np.array([cx, cy]) - 0.8 * r * d
+        draw.line([tuple(tail), tuple(tip)], fill=ink, width=3)
+        u = d / np.linalg.norm(d)
+        side = np.array([-u[1], u[0]])
+        head = [tuple(tip), tuple(tip - 9 * u + 6 * side), tuple(tip - 9 * u - 6 * side)]
+        draw.polygon(head, fill=ink)
+    font = _font(size)
+    w = draw.textlength(label, font=font)
+    draw.text((max(2, min(cx - w / 2, width - w - 4)), cy + r + 3), label, fill=ink, font=font)
 
 
 def _rgb255(rgba) -> tuple[int, int, int]:
@@ -357,6 +401,9 @@ class HandScene:
 
     Use as a context manager; `image(q, ...)` renders one annotated frame. The bodies are
     removed (or the private client closed) on exit.
+
+    `HandScene.adopt` draws bodies that already exist (e.g. the replay's simulation): it
+    only reads their state and changes colours, and leaves the bodies in place on exit.
     """
 
     def __init__(self, hand, q, obj, client: int | None = None, width: int = 640, height: int = 480):
@@ -380,6 +427,22 @@ class HandScene:
         self.q = np.asarray(q, float)
         self.colored: list[int] = []
 
+    @classmethod
+    def adopt(cls, hand, hand_body: int, object_body: int, client: int, T_root_palm=None, width: int = 640,
+              height: int = 480) -> "HandScene":
+        """A scene of existing bodies: the hand and the object are painted in the colours of
+        every other picture (visual shapes only) and never moved; pass ``camera=`` to
+        `image`. ``T_root_palm``: pose of the palm frame in the client's world (identity when
+        the world is the palm frame, as in the replay)."""
+        self = cls.__new__(cls)
+        self.hand, self.obj, self.width, self.height = hand, None, int(width), int(height)
+        self.own, self.client, self.bodies, self.body = False, int(client), [], int(hand_body)
+        self.T_root_palm = np.eye(4) if T_root_palm is None else np.asarray(T_root_palm, float)
+        self.q, self.colored = None, []
+        paint(self.body, HAND_RGBA, self.client)
+        p.changeVisualShape(int(object_body), -1, rgbaColor=list(OBJECT_RGBA), physicsClientId=self.client)
+        return self
+
     def __enter__(self):
         return self
 
@@ -398,13 +461,18 @@ class HandScene:
 
     def reach_m(self) -> float:
         """Radius around the object centre that holds the hand's links (camera distance)."""
-        c = np.asarray(self.obj.T_palm_obj)[:3, 3]
-        pts = [np.asarray(self.hand.link_pose(self.q, link))[:3, 3] for link in self.hand.links]
-        return float(max([np.linalg.norm(x - c) for x in pts] + [0.5 * max(float(s) for s in self.obj.size)]))
+        return hand_reach_m(self.hand, self.q, np.asarray(self.obj.T_palm_obj)[:3, 3], self.obj.size)
 
     def image(self, q=None, *, markers=None, caption=None, moving_finger=None, distance_m=None,
-              yaw_deg=None, pitch_deg=None, camera=None) -> np.ndarray:
-        """(h, w, 3) uint8 picture at q (default: the configuration given at construction)."""
+              yaw_deg=None, pitch_deg=None, camera=None, gravity=None, gravity_label="g",
+              touching=None) -> np.ndarray:
+        """(h, w, 3) uint8 picture at q (default: the configuration given at construction;
+        an adopted scene is drawn as it is). ``gravity``: (3,) palm-frame vector drawn as an
+        arrow in the bottom-right corner with ``gravity_label``; None or zero: no arrow.
+        ``touching``: fingers (or other links, e.g. "palm") in contact: a legend of every
+        finger's colour, filled when it touches; None: no legend."""
+        if self.obj is None and camera is None:
+            raise ValueError("a scene of existing bodies is drawn with camera=")
         if q is not None:
             self.q = np.asarray(q, float)
             set_hand_configuration(self.body, self.hand, self.q, self.client)
@@ -450,7 +518,26 @@ class HandScene:
             tip_uv = [None if tp is None else _project([R @ np.asarray(tp, float) + t], view, proj, self.width,
                                                        self.height)[0] for tp in tips]
             px = [(uv[i], tip_uv[i], _rgb255(m[2])) for i, m in enumerate(markers)]
-        return annotate(img, caption, px)
+        arrow = None
+        if gravity is not None and np.linalg.norm(gravity) > 0:
+            # camera coordinates (x right, y up, looking along -z) of the gravity direction
+            d = np.asarray(view, float).reshape(4, 4).T[:3, :3] @ (R @ np.asarray(gravity, float))
+            d /= np.linalg.norm(d)
+            if np.hypot(d[0], d[1]) < 0.2:
+                gravity_label += " (into view)" if d[2] < 0 else " (out of view)"
+            arrow = (float(d[0]), float(-d[1]), gravity_label)
+        legend = () if touching is None else [
+            (f + (" (moving)" if f == moving_finger else ""), finger_rgb(self.hand, f), f in touching)
+            for f in [*self.hand.fingers, *sorted(set(touching) - set(self.hand.fingers))]]
+        return annotate(img, caption, px, arrow, legend)
+
+
+def hand_reach_m(hand, q, centre, size) -> float:
+    """Radius around `centre` (palm frame) that holds the hand's links at q and an object
+    of `size` (the distance `contact_camera` keeps)."""
+    c = np.asarray(centre, float)
+    pts = [np.asarray(hand.link_pose(np.asarray(q, float), link))[:3, 3] for link in hand.links]
+    return float(max([np.linalg.norm(x - c) for x in pts] + [0.5 * max(float(v) for v in size)]))
 
 
 def render_image(hand, q, obj, *, width=640, height=480, client=None, **kwargs) -> np.ndarray:
@@ -465,10 +552,12 @@ def finger_rgb(hand, finger: str) -> tuple[int, int, int]:
     return _FINGER_RGB[names.index(finger) % len(_FINGER_RGB)] if finger in names else (90, 90, 90)
 
 
-def patch_markers(hand, obj, patches, normal_len_m: float = 0.015) -> list:
+def patch_markers(hand, obj, patches, normal_len_m: float = 0.015, T_palm_obj=None) -> list:
     """Markers of contact patches (finger -> (p_obj (n,3), n_in_obj (n,3))): one per point,
-    with its inward normal ending at the point, in the finger's colour."""
-    T = np.asarray(obj.T_palm_obj, float)
+    with its inward normal ending at the point, in the finger's colour (grey for a link that
+    is no finger, e.g. "palm"). ``T_palm_obj``: the object's pose (default ``obj.T_palm_obj``;
+    the replay passes where the object is now)."""
+    T = np.asarray(obj.T_palm_obj if T_palm_obj is None else T_palm_obj, float)
     R, t = T[:3, :3], T[:3, 3]
     out = []
     for f, (P, N) in patches.items():
@@ -512,7 +601,8 @@ def plan_frames(plan, hand, obj, *, frames_per_step: int = 8, width: int = 640, 
         camera = contact_camera(hand, scene.T_root_palm, all_pts if len(all_pts) else None,
                                 np.asarray(obj.T_palm_obj)[:3, 3], scene.reach_m())
         frames.append(scene.image(q_of(states[0]), markers=markers(0), camera=camera,
-                                  caption=caption(0, f"initial grasp, {len(steps)} steps")))
+                                  caption=caption(0, f"initial grasp, {len(steps)} steps"),
+                                  touching=set(states[0]["patches"])))
         for k, sp in enumerate(steps):
             a, b = int(sp["from_state"]), int(sp["to_state"])
             q = q_of(states[a])
@@ -523,12 +613,57 @@ def plan_frames(plan, hand, obj, *, frames_per_step: int = 8, width: int = 640, 
                 i = a if j < frames_per_step / 2 else b
                 head = f"step {k + 1}/{len(steps)}: {sp['finger']} {sp['action']} (state {a} -> {b})"
                 frames.append(scene.image(q, markers=markers(i), camera=camera, moving_finger=sp["finger"],
-                                          caption=caption(i, head)))
+                                          caption=caption(i, head), touching=set(states[i]["patches"])))
     return frames
 
 
-def write_gif(frames: list[np.ndarray], path, frame_ms: int = 120, hold_ms: int = 900) -> Path:
-    """An animated GIF of RGB frames (first and last held `hold_ms`), written atomically."""
+def gif_palette(frame: np.ndarray, colors: int = 128):
+    """A palette for a whole film, from its first frame: the frame's own colours (median
+    cut), every shade of the finger, moving-finger and object colours (they appear later),
+    and the exact marker and text colours. One palette for every frame: no flicker between
+    frames, and quantizing a frame to it costs ~1 ms instead of a median cut's ~30 ms."""
+    from PIL import Image
+
+    exact = [*_FINGER_RGB, _rgb255(MOVING_RGBA), (90, 90, 90), (20, 24, 32), (0, 0, 0), (255, 255, 255)]
+    bases = [np.array(c, float) for c in (*_FINGER_RGB, _rgb255(MOVING_RGBA), _rgb255(OBJECT_RGBA),
+                                          _rgb255(HAND_RGBA))]
+    shades = [b * k for b in bases for k in np.linspace(0.3, 1.0, 8)]
+    shades += [b + (255 - b) * a for b in bases for a in (0.25, 0.5)]
+    h, w = frame.shape[:2]
+    block = max(1, (h * w) // (4 * len(shades)))  # the shades weigh a fifth of the sample
+    swatch = np.repeat(np.clip(np.round(shades), 0, 255).astype(np.uint8), block, axis=0)
+    sample = np.concatenate([frame.reshape(-1, 3), swatch])[None]
+    cut = Image.fromarray(sample).quantize(colors=colors - len(exact), method=Image.Quantize.MEDIANCUT)
+    rgb = list(cut.getpalette()[: 3 * (colors - len(exact))]) + [int(v) for c in exact for v in c]
+    pal = Image.new("P", (1, 1))
+    pal.putpalette(rgb)
+    return pal
+
+
+def gif_frame(frame: np.ndarray, palette=None):
+    """An RGB frame as a GIF palette image (a third of the memory), quantized to `palette`
+    (`gif_palette`; None: the frame's own)."""
+    from PIL import Image
+
+    im = Image.fromarray(frame)
+    return im.quantize(palette=palette if palette is not None else gif_palette(frame), dither=Image.Dither.NONE)
+
+
+def gif_durations_ms(times_s, hold_ms: int = 1000) -> list[int]:
+    """Display time of each frame shot at `times_s` (seconds, increasing) so the film runs
+    at the clock's speed: GIF delays are whole centiseconds, so each frame ends at its
+    successor's time rounded to 10 ms (no drift over the film); the last frame is held
+    `hold_ms` (the pause before the loop restarts)."""
+    t = np.asarray(times_s, float)
+    ends = np.round((t - t[0]) * 100.0).astype(int) * 10
+    return [int(v) for v in np.diff(ends)] + [int(hold_ms)]
+
+
+def write_gif(frames: list, path, frame_ms: int = 120, hold_ms: int = 900, durations_ms=None) -> Path:
+    """An animated GIF of RGB frames (arrays, or `gif_frame` images), written atomically.
+
+    Without ``durations_ms`` every frame shows `frame_ms`, the first and last `hold_ms`;
+    with it (one per frame, e.g. `gif_durations_ms`) those times."""
     import tempfile
 
     from PIL import Image
@@ -537,9 +672,20 @@ def write_gif(frames: list[np.ndarray], path, frame_ms: int = 120, hold_ms: int 
         raise SimulationError("no frames to write")
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    images = [Image.fromarray(f).quantize(colors=128, method=Image.Quantize.MEDIANCUT) for f in frames]
-    durations = [frame_ms] * len(images)
-    durations[0] = durations[-1] = hold_ms
+    palette = None
+    images = []
+    for f in frames:
+        if not isinstance(f, Image.Image):
+            palette = gif_palette(f) if palette is None else palette
+            f = gif_frame(f, palette)
+        images.append(f)
+    if durations_ms is None:
+        durations = [frame_ms] * len(images)
+        durations[0] = durations[-1] = hold_ms
+    else:
+        durations = [int(d) for d in durations_ms]
+        if len(durations) != len(images):
+            raise SimulationError(f"{len(durations)} frame durations for {len(images)} frames")
     fd, tmp = tempfile.mkstemp(prefix=".gif-", suffix=".gif", dir=path.parent)
     os.close(fd)
     try:

@@ -65,7 +65,7 @@ from scipy.spatial.transform import Rotation
 
 from planner.closure import Friction, apply_contact_model, grasp_closure
 from planner.errors import InputError, SimulationError, UnknownNameError
-from planner.plan import Plan, plan_from_data, read_plan
+from planner.plan import Plan, plan_file, plan_from_data, read_plan
 from planner.sim.contact_filter import ContactFilter
 from planner.sim.controller import TOUCH_TOL_M, Controller
 
@@ -78,7 +78,6 @@ except ImportError:  # pragma: no cover - render helper not present
 with quiet_native_output():
     import pybullet as p
 
-_REPO = Path(__file__).resolve().parents[2]
 #: A plan's joint values may exceed the hand's limits by this much (rad or m): rounding.
 JOINT_LIMIT_TOL = 1e-3
 
@@ -218,14 +217,9 @@ class _HandInfo:
 
 
 def _resolve(path_str: str, plan_path: str) -> Path | None:
-    cand = [Path(path_str)]
-    if plan_path != "<plan>":
-        cand.append(Path(plan_path).resolve().parent / path_str)
-    cand += [Path.cwd() / path_str, _REPO / path_str]
-    for c in cand:
-        if c.exists():
-            return c.resolve()
-    return None
+    """A file the plan names (`planner.plan.plan_file`: relative to the plan file)."""
+    found = plan_file(path_str, plan_path)
+    return None if found is None else found.resolve()
 
 
 def _T_palm_root(hand) -> np.ndarray:
@@ -370,36 +364,118 @@ def _create_object(cid: int, rd: Plan, obj: dict, density_kg_m3: float,
 
 
 class _Recorder:
-    """Frames from TinyRenderer (headless) for GIF/MP4 output."""
+    """The replay's frames, drawn by `planner.sim.render` as `regrasp view --gif` draws a
+    plan: the contact-seeing camera along the hand's ``palm_normal`` aimed at the plan's
+    contacts, the simulator's contacts with their inward normals in the fingers' colours,
+    the moving finger in magenta, a gravity arrow, and a caption with the phase, the state,
+    the plan's metric, the drift and the gravity direction.
 
-    def __init__(self, cid: int, width: int, height: int, target, up):
-        self.cid, self.width, self.height = cid, int(width), int(height)
-        up = np.asarray(up, float)
-        target = np.asarray(target, float)
-        # look from the thumb side, slightly above the hand, with "up" against gravity
-        side = np.array([0.35, -1.0, 0.0])
-        side -= up * side.dot(up)
-        eye = target + 0.17 * side / np.linalg.norm(side) + 0.09 * up
-        self.view = p.computeViewMatrix(eye.tolist(), target.tolist(), up.tolist(), physicsClientId=cid)
-        self.proj = p.computeProjectionMatrixFOV(45.0, self.width / self.height, 0.01, 2.0, physicsClientId=cid)
-        self.frames: list[np.ndarray] = []
+    It only reads the simulation (poses, contacts, the controller's commands) and changes
+    colours of visual shapes; it never steps, resets or commands anything.
+    """
+
+    #: GIF viewers show a frame for at least 20 ms: a GIF alone gets no closer frames.
+    GIF_MIN_S = 0.02
+
+    def __init__(self, sim: "_Sim", rd: Plan, info: _HandInfo, width: int, height: int, keep_rgb: bool):
+        from planner.gravity import gravity_directions
+        from planner.sim import render
+
+        self.sim, self.rd, self.render, self.keep_rgb = sim, rd, render, keep_rgb
+        hand = info.hand
+        q0 = np.array(hand.q_open, dtype=float)
+        names = list(hand.joint_names)
+        for j, v in zip(rd.joints, rd.states[0].q):
+            q0[names.index(j)] = v
+        T = sim.T_ref
+        pts = np.array([T[:3, :3] @ x + T[:3, 3] for st in rd.states for P, _ in st.patches.values()
+                        for x in np.asarray(P, float).reshape(-1, 3)]).reshape(-1, 3)
+        extent = float(np.ptp(pts, axis=0).max()) if len(pts) > 1 else 0.03
+        self.normal_len_m = 0.2 * extent
+        self.scene = render.HandScene.adopt(hand, sim.hand, sim.obj, sim.cid, width=width, height=height)
+        self.camera = render.contact_camera(hand, np.eye(4), pts if len(pts) else None, T[:3, 3],
+                                            render.hand_reach_m(hand, q0, T[:3, 3], (extent,)))
+        self.g = np.asarray(sim.params["gravity"], float)
+        g = float(np.linalg.norm(self.g))
+        self.g_name = "off" if g == 0 else "[" + " ".join(f"{v:+.2f}" for v in self.g / g) + "]"
+        for name, v in gravity_directions(info.palm_normal, 7, g):
+            if g > 0 and np.linalg.norm(v) > 0 and float(np.dot(v, self.g)) / (g * np.linalg.norm(v)) > 1 - 1e-6:
+                self.g_name = name
+        self.frames: list = []
+        self.times: list[float] = []
+        self.palette = None
+        self._phase, self._moved = None, False
+
+    def _doing(self) -> tuple[str, int, str | None]:
+        """(what happens, the state it concerns, the finger to colour) from the simulation."""
+        sim, ctl = self.sim, self.sim.ctl
+        phase = sim.phase
+        if phase != self._phase:
+            self._phase, self._moved = phase, False
+        if phase.startswith("acquiring"):
+            return "acquire: the fingers take state 0's contacts (gravity off, object held)", 0, None
+        if phase.startswith("gravity ramp"):
+            g = float(np.linalg.norm(self.g))
+            if g == 0:
+                return "object released (gravity off)", 0, None
+            share = float(np.linalg.norm(ctl.gravity)) / g
+            return f"gravity ramp: {100 * share:.0f}% of {g:.2f} m/s^2, object released", 0, None
+        if phase.startswith("settling"):
+            return "settle at state 0", 0, None
+        k = phase.split(" ", 2)[1] if phase.startswith("step ") else ""
+        if not k.isdigit() or int(k) >= len(self.rd.steps):
+            return phase, 0, None
+        st = self.rd.steps[int(k)]
+        head = f"step {int(k) + 1}/{len(self.rd.steps)}: {st.finger} {st.action} (state {st.from_state} -> {st.to_state})"
+        if ctl.moving == st.finger:
+            self._moved = True
+            return f"{head}: moving", st.from_state, st.finger
+        share = ctl.share.get(st.finger, 1.0)
+        if not self._moved:
+            return f"{head}: unloading", st.from_state, st.finger
+        if share < 1.0:
+            return f"{head}: loading", st.to_state, st.finger
+        return f"{head}: dwell at state {st.to_state}", st.to_state, None
 
     def grab(self):
-        _, _, rgba, _, _ = p.getCameraImage(self.width, self.height, self.view, self.proj,
-                                            renderer=p.ER_TINY_RENDERER, physicsClientId=self.cid)
-        img = np.reshape(np.asarray(rgba, dtype=np.uint8), (self.height, self.width, 4))[:, :, :3]
-        self.frames.append(img.copy())
+        """Draw the simulation as it is now (called every ``gif_every`` physics steps)."""
+        sim = self.sim
+        t = sim.steps_done * sim.dt
+        if not self.keep_rgb and self.times and t - self.times[-1] < self.GIF_MIN_S - 1e-9:
+            return
+        doing, i, finger = self._doing()
+        state = self.rd.states[i]
+        mm, deg = sim.last
+        over = not (mm <= sim.params["drift_mm_max"] and deg <= sim.params["drift_deg_max"])
+        caption = (f"{doing}\nstate {i}: plan metric {state.metric:.4g}, "
+                   f"{'force closure' if state.is_force_closure else 'NO closure'}\n"
+                   f"drift {mm:.2f} mm / {deg:.2f} deg{' OVER LIMIT' if over else ''}, gravity {self.g_name}, "
+                   f"t {t:.2f} s")
+        T = sim._obj_pose()
+        patches: dict[str, tuple[list, list]] = {}
+        for link, pt, n in sim._contact_sample(T):
+            P, N = patches.setdefault(sim.link_finger.get(link, "palm"), ([], []))
+            P.append(pt[0])
+            N.append(n[0])
+        markers = self.render.patch_markers(self.scene.hand, None, patches, self.normal_len_m, T_palm_obj=T)
+        img = self.scene.image(markers=markers, caption=caption, moving_finger=finger, camera=self.camera,
+                               gravity=self.g, gravity_label=f"g {self.g_name}", touching=set(patches))
+        if not self.keep_rgb:  # a GIF alone: palette frames, one palette for the film
+            self.palette = self.palette or self.render.gif_palette(img)
+            img = self.render.gif_frame(img, self.palette)
+        self.frames.append(img)
+        self.times.append(t)
 
-
-def _write_gif(frames: list[np.ndarray], path: str, frame_dt_s: float) -> None:
-    from PIL import Image
-
-    if not frames:
-        raise SimulationError("no frames were rendered for the GIF")
-    images = [Image.fromarray(f) for f in frames]
-    duration_ms = max(20, int(round(frame_dt_s * 1000)))
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    images[0].save(path, save_all=True, append_images=images[1:], duration=duration_ms, loop=0, optimize=False)
+    def write_gif(self, path) -> int:
+        """The GIF at the simulation's speed (frames at least ``GIF_MIN_S`` apart); its frame count."""
+        keep, last = [], None
+        for k, t in enumerate(self.times):
+            if last is None or t - last >= self.GIF_MIN_S - 1e-9:
+                keep.append(k)
+                last = t
+        frames = [self.frames[k] for k in keep]
+        self.render.write_gif(frames, path, durations_ms=self.render.gif_durations_ms([self.times[k] for k in keep]))
+        return len(frames)
 
 
 def _write_mp4(frames: list[np.ndarray], path: str, fps: float, ffmpeg: str) -> None:
@@ -442,8 +518,8 @@ def replay_plan(
     gif: str | os.PathLike | None = None,
     gif_every: int = 8,
     mp4: str | os.PathLike | None = None,
-    width: int = 320,
-    height: int = 240,
+    width: int = 640,
+    height: int = 480,
 ) -> ReplayReport:
     """Replay a plan in pybullet with gravity on; re-measure contacts, closure and drift.
 
@@ -473,9 +549,12 @@ def replay_plan(
         drop_mm: displacement beyond which the object counts as dropped; the replay stops.
         filter_k: contact filter: a contact is removed after this many missing samples.
         density_kg_m3: density used when the plan gives no ``object.mass_kg``.
-        gif: write an animated GIF here (TinyRenderer, headless).
-        gif_every: render one frame every this many physics steps.
-        mp4: write an MP4 here (needs ``ffmpeg`` on PATH).
+        gif: write an animated GIF here (TinyRenderer, headless; drawn like `regrasp view
+            --gif`: contact-seeing camera, the simulator's contacts, the moving finger
+            coloured, a caption per frame), playing at the simulation's speed.
+        gif_every: render one frame every this many physics steps (a GIF alone: frames at
+            least 20 ms of simulated time apart, the shortest delay GIF viewers show).
+        mp4: write an MP4 here (needs ``ffmpeg`` on PATH), every rendered frame.
         width, height: frame size in pixels.
 
     Returns:
@@ -529,9 +608,7 @@ def replay_plan(
         params["object_mass_kg"] = sim.mass
         recorder = None
         if gif is not None or mp4 is not None:
-            up = -g_vec
-            up = up / np.linalg.norm(up) if np.linalg.norm(up) > 0 else -np.asarray(info.palm_normal, float)
-            recorder = _Recorder(cid, width, height, sim.T_ref[:3, 3], up)
+            recorder = _Recorder(sim, rd, info, width, height, keep_rgb=mp4 is not None)
         result = sim.run(states, steps, recorder=recorder, every=int(gif_every), realtime=gui and own)
         params["squeeze_force_n"] = sim.ctl.force_n if finger_force_n is None else float(finger_force_n)
     finally:
@@ -544,12 +621,10 @@ def replay_plan(
 
     gif_frames = 0
     if recorder is not None:
-        frame_dt = dt * int(gif_every)
         if gif is not None:
-            _write_gif(recorder.frames, str(gif), frame_dt)
-            gif_frames = len(recorder.frames)
+            gif_frames = recorder.write_gif(gif)
         if mp4 is not None:
-            _write_mp4(recorder.frames, str(mp4), 1.0 / frame_dt, ffmpeg)
+            _write_mp4(recorder.frames, str(mp4), 1.0 / (dt * int(gif_every)), ffmpeg)
 
     reports, dropped, max_mm, max_deg, fin_mm, fin_deg, n_steps, failure = result
     reached = [r for r in reports if r.reached]
