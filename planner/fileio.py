@@ -27,6 +27,7 @@ from pathlib import Path
 import yaml
 
 from planner.errors import OutputError, SpecError
+from planner.resources import is_hand_path
 
 #: Largest grasp or hand YAML file read, bytes (the bundled ones are under 5 kB).
 MAX_GRASP_BYTES = 1_000_000
@@ -236,7 +237,7 @@ def check_grasp_file(path: str | os.PathLike):
     """
     data = read_yaml(path, MAX_GRASP_BYTES, "grasp file")
     hand = data.get("hand") if isinstance(data, dict) else None
-    if isinstance(hand, str) and ("/" in hand or "\\" in hand or hand.endswith((".yaml", ".yml"))):
+    if isinstance(hand, str) and is_hand_path(hand):
         p = Path(hand)
         if not p.is_absolute():
             p = Path(path).resolve().parent / p

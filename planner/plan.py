@@ -17,9 +17,14 @@ record is missing (e.g. truncated), whose counts or digest do not match, or whos
 structure is inconsistent (`plan_from_data`: steps chained in order, each step's finger
 lifted, moved or landed as its action says, the other joints unchanged, paths starting
 and ending at their states, finite numbers within the documented ranges), and re-checks
-every state's force closure from its patches. Inputs are recorded relative to the plan
-file, so a plan moved together with its grasps stays valid and byte-identical. Version 1
-files (no integrity record) are still read, with a `PlannerWarning`.
+every state's force closure from its patches. Files are never recorded by an absolute
+path: an input that is a bundled grasp (`planner.resources`) is recorded by name
+(``inputs.initial: {bundled: icub/box_ir2m.yaml, sha256: ..}``), any other by its path
+relative to the plan file (``{path: ../a.yaml, sha256: ..}``); ``hand.spec`` is a bundled
+hand's name or the path of a hand.yaml relative to the plan file; ``object.mesh`` is
+relative to the plan file. So a plan of bundled grasps replays from anywhere, a plan moved
+together with its files stays valid, and both stay byte-identical. Version 1 files (no
+integrity record) are still read, with a `PlannerWarning`.
 
 Schema versions grow only by optional keys (e.g. ``states[i].grip_force_n``): files
 written before a key existed lack it and read as if it were null.
@@ -232,18 +237,17 @@ class Plan:
         return data
 
     def _content(self, relative_to) -> dict:
-        inputs = _plain(self.inputs)
+        inputs = {k: _input_record(v, relative_to, self.source) for k, v in _plain(self.inputs).items()}
+        hand = _plain(self.hand)
         obj = _plain(self.object)
-        if relative_to is not None:
-            for value in inputs.values():
-                if isinstance(value, dict) and isinstance(value.get("path"), str):
-                    value["path"] = _relative(value["path"], relative_to, self.source)
-            if isinstance(obj.get("mesh"), str):
-                obj["mesh"] = _relative(obj["mesh"], relative_to, self.source)
+        if isinstance(hand.get("spec"), str):
+            hand["spec"] = _hand_spec(hand["spec"], relative_to, self.source)
+        if relative_to is not None and isinstance(obj.get("mesh"), str):
+            obj["mesh"] = _relative(obj["mesh"], relative_to, self.source)
         return {
             "schema_version": SCHEMA_VERSION,
             "kind": PLAN_KIND,
-            "hand": _plain(self.hand),
+            "hand": hand,
             "object": obj,
             "friction": _plain(self.friction),
             "inputs": inputs,
@@ -256,13 +260,67 @@ class Plan:
         }
 
 
-def _relative(path: str, folder, source: str | None) -> str:
-    """``path`` (absolute, or relative to the folder of ``source`` / the working
-    directory) relative to ``folder``, with forward slashes."""
+def _absolute(path: str, source: str | None) -> Path:
+    """``path`` as written in a plan: absolute, or relative to the folder of ``source`` (the
+    plan file; the working directory for a plan made in memory)."""
     p = Path(path)
-    if not p.is_absolute():
-        p = (Path(source).parent if source else Path.cwd()) / p
-    return Path(os.path.relpath(os.path.abspath(p), os.path.abspath(folder))).as_posix()
+    return Path(os.path.abspath(p if p.is_absolute() else (Path(source).parent if source else Path.cwd()) / p))
+
+
+def _relative(path: str, folder, source: str | None) -> str:
+    """``path`` (see `_absolute`) relative to ``folder``, with forward slashes."""
+    return Path(os.path.relpath(_absolute(path, source), os.path.abspath(folder))).as_posix()
+
+
+def _input_record(value, relative_to, source: str | None):
+    """An ``inputs`` entry as written: a bundled grasp by name (``bundled``), any other file
+    by its path (relative to ``relative_to`` when given)."""
+    if not isinstance(value, dict) or not isinstance(value.get("path"), str):
+        return value
+    from planner.resources import bundled_grasp_name
+
+    name = bundled_grasp_name(_absolute(value["path"], source))
+    if name is not None:
+        return {"bundled": name, **{k: v for k, v in value.items() if k != "path"}}
+    if relative_to is not None:
+        value["path"] = _relative(value["path"], relative_to, source)
+    return value
+
+
+def _hand_spec(spec: str, relative_to, source: str | None) -> str:
+    """``hand.spec`` as written: a bundled hand by name, any other hand.yaml (or its folder)
+    by its path (relative to ``relative_to`` when given)."""
+    from planner.resources import bundled_hand_name, is_hand_path
+
+    if not is_hand_path(spec):
+        return spec
+    name = bundled_hand_name(_absolute(spec, source))
+    if name is not None:
+        return name
+    return _relative(spec, relative_to, source) if relative_to is not None else spec
+
+
+def plan_file(ref: str, source: str | os.PathLike | None) -> Path | None:
+    """A file a plan refers to (``hand.spec``, ``object.mesh``, an input's ``path``): absolute,
+    or relative to the plan file's folder (the working directory for a plan made in memory);
+    None when no such file or folder exists."""
+    p = _absolute(ref, None if source in (None, "<plan>") else str(source))
+    return p if p.exists() else None
+
+
+def plan_hand_ref(hand: Mapping[str, Any], source: str | os.PathLike | None) -> str:
+    """What to load the plan's hand from (`planner.hand.Hand.load`): ``hand.spec`` as a bundled
+    hand's name or the path it names, else the hand's name (a bundled hand)."""
+    from planner.resources import is_hand_path
+
+    spec = hand.get("spec")
+    if isinstance(spec, str) and spec:
+        if not is_hand_path(spec):
+            return spec
+        found = plan_file(spec, source)
+        if found is not None:
+            return str(found)
+    return str(hand.get("name"))
 
 
 def canonical_sha256(content: Mapping[str, Any]) -> str:
@@ -406,17 +464,27 @@ def _check_closures(plan: Plan, src: str) -> None:
 
 
 def _check_inputs(plan: Plan, src: str, strict: bool) -> None:
-    base = Path(src).parent
+    from planner.errors import UnknownNameError
+    from planner.resources import bundled_grasp
+
     for name, rec in plan.inputs.items():
-        if not isinstance(rec, Mapping) or not rec.get("path"):
+        if not isinstance(rec, Mapping):
             continue
-        p = Path(rec["path"])
-        p = p if p.is_absolute() else base / p
+        if rec.get("bundled"):
+            shown = f"bundled grasp {rec['bundled']}"
+            try:
+                p = bundled_grasp(rec["bundled"])
+            except UnknownNameError:
+                p = None
+        elif rec.get("path"):
+            shown, p = f"input file {rec['path']}", plan_file(rec["path"], src)
+        else:
+            continue
         problem = None
-        if not p.is_file():
-            problem = f"input file {rec['path']} is gone"
+        if p is None or not p.is_file():
+            problem = f"{shown} is gone"
         elif rec.get("sha256") and hashlib.sha256(p.read_bytes()).hexdigest() != rec["sha256"]:
-            problem = f"input file {rec['path']} changed since planning (sha256 differs)"
+            problem = f"{shown} changed since planning (sha256 differs)"
         if problem and strict:
             raise SpecError(src, f"inputs.{name}", problem)
         if problem:
@@ -523,7 +591,11 @@ def plan_from_data(data: Any, source: str | os.PathLike | None = None) -> Plan:
     inputs = ck.mapping(data.get("inputs") or {}, "inputs")
     for name, rec in inputs.items():
         rec = ck.mapping(rec, f"inputs.{name}")
-        ck.string(rec.get("path"), f"inputs.{name}.path")
+        if ("path" in rec) == ("bundled" in rec):
+            raise ck.fail(f"inputs.{name}", "expected either path (a file, relative to the plan) or bundled "
+                                            "(a bundled grasp's name)")
+        kind = "path" if "path" in rec else "bundled"
+        ck.string(rec[kind], f"inputs.{name}.{kind}")
         sha = rec.get("sha256")
         if not (isinstance(sha, str) and len(sha) == 64 and all(c in "0123456789abcdef" for c in sha)):
             raise ck.fail(f"inputs.{name}.sha256", "expected 64 lowercase hex digits")

@@ -746,7 +746,7 @@ def _make_plan(initial, final, options, inputs, problem, G, best, others, motion
     parameters["gravity_directions"] = [{"name": n, "gravity": list(g)} for n, g in directions] or None
     parameters["grip_cone_sides"] = GRIP_CONE_SIDES if directions else None
     return Plan(
-        hand={"name": hand.name, "spec": spec.hand},
+        hand={"name": hand.name, "spec": spec.hand_ref},
         object=spec.object.to_dict(),
         friction={"mu": spec.friction.mu, "gamma": spec.friction.gamma, "edges": spec.friction.edges},
         inputs=dict(inputs),

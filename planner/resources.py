@@ -48,6 +48,24 @@ def bundled_hands() -> list[str]:
     return sorted(d.name for d in robots_dir().iterdir() if (d / HAND_SPEC).is_file())
 
 
+def is_hand_path(ref: str) -> bool:
+    """A hand reference is a path when it contains a path separator or ends in .yaml/.yml;
+    otherwise it is a name (a bare name is the bundled hand of that name)."""
+    return "/" in ref or "\\" in ref or ref.endswith((".yaml", ".yml"))
+
+
+def bundled_hand_name(path: str | os.PathLike) -> str | None:
+    """The name of the bundled hand whose folder `path` is (or whose ``hand.yaml`` it is),
+    else None: a plan records a bundled hand by name, not by this machine's path."""
+    try:
+        rel = Path(path).resolve().relative_to(robots_dir().resolve())
+    except ValueError:
+        return None
+    if len(rel.parts) == 1 or rel.parts[1:] == (HAND_SPEC,):
+        return rel.parts[0] if rel.parts[0] in bundled_hands() else None
+    return None
+
+
 def hand_dir(name: str) -> Path:
     """The folder of the bundled hand `name` (it holds ``hand.yaml``).
 

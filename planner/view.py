@@ -358,14 +358,9 @@ def plain_plan(plan) -> dict:
 
 def _hand_of_plan(plan: Mapping, plan_path: Path):
     from planner.hand import Hand
+    from planner.plan import plan_hand_ref
 
-    spec = (plan.get("hand") or {}).get("spec")
-    if spec:
-        for cand in (Path(spec), plan_path.resolve().parent / spec, Path.cwd() / spec,
-                     Path(__file__).resolve().parents[1] / spec):
-            if cand.is_file():
-                return Hand.load(cand)
-    return Hand.load(str((plan.get("hand") or {}).get("name")))
+    return Hand.load(plan_hand_ref(plan.get("hand") or {}, plan_path))
 
 
 def _object_of_plan(plan: Mapping, plan_path: Path):
@@ -377,11 +372,9 @@ def _object_of_plan(plan: Mapping, plan_path: Path):
     T = _T(Rotation.from_quat(o["quat_xyzw"]).as_matrix(), o["position"])
     mesh = o.get("mesh")
     if mesh:
-        for cand in (Path(mesh), plan_path.resolve().parent / mesh, Path.cwd() / mesh,
-                     Path(__file__).resolve().parents[1] / mesh):
-            if cand.is_file():
-                mesh = str(cand)
-                break
+        from planner.plan import plan_file
+
+        mesh = str(plan_file(mesh, plan_path) or mesh)
     return make_object(o["shape"], tuple(o["size"]), T, mesh_path=mesh, mass_kg=o.get("mass_kg"))
 
 

@@ -151,3 +151,102 @@ def test_demo_out_names_a_directory(tmp_path):
     f.write_text("mine")
     assert main(["demo", "--out", str(f)]) == 2
     assert f.read_text() == "mine"
+
+
+# ------------------------------------------------------------------ plans name their files portably
+
+
+def _no_machine_paths(text: str, *roots) -> None:
+    for root in (REPO, *roots):
+        assert str(root) not in text
+    assert "\ninputs:\n" in text and "path: /" not in text and "spec: /" not in text
+
+
+def test_plan_of_bundled_grasps_names_them_and_replays_from_anywhere(tmp_path, monkeypatch, capsys):
+    """Bundled grasps are recorded by name (``bundled:``) and the bundled hand by its name: the
+    same bytes whatever folder the plan is written to, and the plan copied alone elsewhere
+    reads strictly (inputs found, sha256 equal) and replays, its bytes unchanged."""
+    import warnings
+
+    from planner.cli import main
+    from planner.plan import plan_hand_ref, read_plan
+    from planner.resources import bundled_grasp
+
+    a, b = (bundled_grasp(n) for n in ("icub/cylinder_parallel_extension.yaml", "icub/cylinder_ir2m.yaml"))
+    monkeypatch.chdir(tmp_path)
+    for out in ("one/p.yaml", "two/deeper/p.yaml"):
+        assert main(["plan", str(a), str(b), "--no-motion", "-o", out]) == 0
+    text = (tmp_path / "one/p.yaml").read_text()
+    assert (tmp_path / "two/deeper/p.yaml").read_text() == text
+    assert "initial: {bundled: icub/cylinder_parallel_extension.yaml, sha256: " in text
+    assert "final: {bundled: icub/cylinder_ir2m.yaml, sha256: " in text
+    assert "hand: {name: icub_right, spec: icub_right}" in text
+    _no_machine_paths(text, tmp_path)
+    far = tmp_path / "far" / "away"
+    far.mkdir(parents=True)
+    (far / "p.yaml").write_bytes((tmp_path / "one/p.yaml").read_bytes())
+    monkeypatch.chdir(far.parent)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        plan = read_plan("away/p.yaml", strict=True)
+    assert plan_hand_ref(plan.hand, plan.source) == "icub_right"
+    assert main(["replay", "away/p.yaml"]) == 0
+    assert capsys.readouterr().out.rstrip().splitlines()[-1].startswith("PASS")
+    assert (far / "p.yaml").read_text() == text
+
+
+def test_plan_records_other_files_relative_to_itself(tmp_path):
+    """A grasp outside the bundle and a hand.yaml outside the bundle are recorded relative to
+    the plan file (a folder moved whole replays the same bytes); a hand.yaml given by the path
+    of a bundled hand is recorded by the hand's name."""
+    import shutil
+
+    from planner.grasp import load_grasp, realize
+    from planner.plan import plan_hand_ref, read_plan, write_plan
+    from planner.regrasp import PlanOptions, plan_regrasp, sha256_file
+    from planner.resources import bundled_grasp, hand_dir
+
+    shutil.copytree(hand_dir("icub_right"), tmp_path / "hands" / "mine")
+    grasps = []
+    for name in ("cylinder_parallel_extension", "cylinder_ir2m"):
+        text = bundled_grasp(f"icub/{name}.yaml").read_text()
+        assert "hand: icub_right\n" in text
+        path = tmp_path / "g" / f"{name}.yaml"
+        path.parent.mkdir(exist_ok=True)
+        path.write_text(text.replace("hand: icub_right\n", "hand: ../hands/mine/hand.yaml\n"))
+        grasps.append(path)
+    specs = [load_grasp(p) for p in grasps]
+    inputs = {k: {"path": str(p), "sha256": sha256_file(p)} for k, p in zip(("initial", "final"), grasps)}
+    result = plan_regrasp(*(realize(s) for s in specs), PlanOptions(motion=False), inputs)
+    out = write_plan(result.plan, tmp_path / "out" / "p.yaml")
+    text = out.read_text()
+    assert "initial: {path: ../g/cylinder_parallel_extension.yaml, sha256: " in text
+    assert "spec: ../hands/mine/hand.yaml}" in text
+    _no_machine_paths(text, tmp_path)
+    moved = tmp_path.parent / (tmp_path.name + "-moved")
+    shutil.copytree(tmp_path, moved)
+    try:
+        plan = read_plan(moved / "out" / "p.yaml", strict=True)
+        assert plan_hand_ref(plan.hand, plan.source) == str(moved / "hands" / "mine" / "hand.yaml")
+        assert (moved / "out" / "p.yaml").read_text() == text
+    finally:
+        shutil.rmtree(moved)
+    bundled = type(result.plan)(**{**result.plan.__dict__, "hand": {"name": "icub_right",
+                                                                    "spec": str(hand_dir("icub_right") / "hand.yaml")}})
+    assert "hand: {name: icub_right, spec: icub_right}" in write_plan(bundled, tmp_path / "b.yaml").read_text()
+
+
+def test_data_is_found_only_through_planner_resources():
+    """No module but planner/resources.py locates data from its own file (a repo-root fallback
+    works in a checkout and breaks in a wheel); a plan's relative file is looked up next to
+    the plan only, never in the repository."""
+    from planner.plan import plan_file, plan_hand_ref
+
+    root = Path(planner.__file__).parent
+    users = sorted(p.relative_to(root).as_posix() for p in root.rglob("*.py")
+                   if "Path(__file__)" in p.read_text() and p.name != "resources.py")
+    assert users == []
+    plan_path = REPO.parent / "no-such-dir" / "p.yaml"
+    assert plan_file("robots/icub_right/hand.yaml", plan_path) is None
+    assert plan_file("robots/icub_right/hand.yaml", REPO / "p.yaml") == REPO / "robots/icub_right/hand.yaml"
+    assert plan_hand_ref({"name": "icub_right", "spec": "robots/icub_right/hand.yaml"}, plan_path) == "icub_right"
