@@ -413,6 +413,47 @@ def test_closed_stdout_is_quiet():
     assert proc.returncode in (0, 141) and "Traceback" not in err and err == ""
 
 
+@pytest.mark.parametrize("argv", [
+    ["check", str(BOX_IR2M), "--json"],
+    ["plan", str(ROOT / "grasps/icub/cylinder_parallel_extension.yaml"), str(ROOT / "grasps/icub/cylinder_ir2m.yaml"),
+     "--no-motion"],
+], ids=["check-json", "plan"])
+def test_stdout_closed_before_the_first_line_is_quiet(argv):
+    """`regrasp check --json | head -1` and `regrasp plan ... | head -1` when the reader is gone
+    before the command prints (the worst case, whatever the buffering): exit 141 (128 +
+    SIGPIPE), nothing on stderr."""
+    read_end, write_end = os.pipe()
+    os.close(read_end)
+    try:
+        proc = subprocess.run([sys.executable, "-m", "planner", *argv], stdout=write_end, stderr=subprocess.PIPE,
+                              cwd=ROOT, timeout=120)
+    finally:
+        os.close(write_end)
+    assert proc.returncode == 141 and proc.stderr.decode() == ""
+
+
+def test_gif_is_written_atomically(tmp_path, monkeypatch):
+    """`render.write_gif` (`regrasp view --gif`, `regrasp replay --gif`): a save that fails
+    half-way (disk full) leaves the old GIF and no temporary file."""
+    from PIL import Image
+
+    from planner.sim.render import write_gif
+
+    frames = [np.full((8, 8, 3), v, np.uint8) for v in (0, 128, 255)]
+    gif = write_gif(frames, tmp_path / "film.gif")
+    before = gif.read_bytes()
+    assert before[:6] == b"GIF89a"
+
+    def full(self, fp, *args, **kwargs):
+        Path(fp).write_bytes(b"GIF89a half")
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(Image.Image, "save", full)
+    with pytest.raises(OSError):
+        write_gif(frames[::-1], gif)
+    assert gif.read_bytes() == before and [p.name for p in tmp_path.iterdir()] == ["film.gif"]
+
+
 def test_library_chatter_and_warnings_stay_off_stderr(capsys, grasps, monkeypatch):
     """C-level writes to fd 2 and numpy RuntimeWarnings during a command are dropped; a
     PlannerWarning is one 'warning:' line."""
