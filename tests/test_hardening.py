@@ -305,42 +305,9 @@ def test_argparse_errors_are_one_line(capsys):
         assert code == 2 and len(err) == 1 and "usage" not in err[0], err
 
 
-def _grasp_variant(tmp_path, name, text):
-    path = tmp_path / name
-    path.write_text(text)
-    return path
-
-
-def test_malformed_grasp_files_are_one_line_without_content(tmp_path, capsys):
-    """Deep nesting, a 1 MB integer, an alias bomb, duplicate keys, a 2 MB file, and a hand:
-    path pointing at a non-YAML secret: exit 2, one line, never the secret's content."""
-    base = BOX_IR2M.read_text()
-    bomb = "".join(f"l{i}: &l{i} [" + ",".join([f"*l{i - 1}" if i else "x"] * 9) + "]\n" for i in range(14))
-    secret = tmp_path / "secret.txt"
-    secret.write_text("root:hunter2:0:0\n: : [\n")
-    cases = {
-        "deep.yaml": (base + "extra: " + "[" * 1000 + "]" * 1000 + "\n", "nested deeper"),
-        "int.yaml": (base.replace("edges: 5", "edges: " + "9" * 500), "integer longer"),
-        "bomb.yaml": (base + bomb, "aliases"),
-        "dup.yaml": (base.replace("friction: {mu: 0.9", "friction: {mu: -1, mu: 0.9"), "duplicate key 'mu'"),
-        "big.yaml": (base + "#" * 2_000_000 + "\n", "at most 1000000 bytes"),
-        "hand.yaml": (base.replace("hand: icub_right", f"hand: {secret}"), "hand"),
-    }
-    for name, (text, expect) in cases.items():
-        path = _grasp_variant(tmp_path, name, text)
-        t0 = time.perf_counter()
-        code, err = _run(capsys, "check", path)
-        assert time.perf_counter() - t0 < 10
-        assert code == 2 and len(err) == 1 and expect in err[0] and name in err[0], (name, err)
-        assert "hunter2" not in err[0] and "root:" not in err[0]
-
-
-def test_load_grasp_api_reads_within_the_same_bounds(tmp_path):
-    """planner.grasp.load_grasp (no CLI in front) refuses the same malformed files with a
-    SpecError naming the file, fast; a friction value out of Friction's range names the
-    file, the key and the range."""
-    from planner.grasp import load_grasp
-
+def _malformed_grasps(tmp_path) -> dict:
+    """Malformed variants of a bundled grasp written to tmp_path: name -> (path, expected
+    words of the error). ``secret.txt`` is a non-YAML file a ``hand:`` path points at."""
     base = BOX_IR2M.read_text()
     bomb = "".join(f"l{i}: &l{i} [" + ",".join([f"*l{i - 1}" if i else "x"] * 9) + "]\n" for i in range(14))
     secret = tmp_path / "secret.txt"
@@ -355,9 +322,33 @@ def test_load_grasp_api_reads_within_the_same_bounds(tmp_path):
         "mu.yaml": (base.replace("mu: 0.9", "mu: 200.0"), "friction mu must be in [0, 100], got 200"),
         "edges.yaml": (base.replace("edges: 5", "edges: 1000"), "edges must be an integer in [3, 256]"),
     }
+    out = {}
     for name, (text, expect) in cases.items():
         assert text != base, name
-        path = _grasp_variant(tmp_path, name, text)
+        out[name] = (tmp_path / name, expect)
+        out[name][0].write_text(text)
+    return out
+
+
+def test_malformed_grasp_files_are_one_line_without_content(tmp_path, capsys):
+    """Deep nesting, a 1 MB integer, an alias bomb, duplicate keys, a 2 MB file, a hand: path
+    pointing at a non-YAML secret, friction out of range: exit 2, one line, never the
+    secret's content."""
+    for name, (path, expect) in _malformed_grasps(tmp_path).items():
+        t0 = time.perf_counter()
+        code, err = _run(capsys, "check", path)
+        assert time.perf_counter() - t0 < 10
+        assert code == 2 and len(err) == 1 and expect in err[0] and name in err[0], (name, err)
+        assert "hunter2" not in err[0] and "root:" not in err[0]
+
+
+def test_load_grasp_api_reads_within_the_same_bounds(tmp_path):
+    """planner.grasp.load_grasp (no CLI in front) refuses the same malformed files with a
+    SpecError naming the file, fast; a friction value out of Friction's range names the
+    file, the key and the range."""
+    from planner.grasp import load_grasp
+
+    for name, (path, expect) in _malformed_grasps(tmp_path).items():
         t0 = time.perf_counter()
         with pytest.raises(SpecError) as err:
             load_grasp(path)
