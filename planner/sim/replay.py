@@ -461,7 +461,8 @@ class _Recorder:
         img = self.scene.image(markers=markers, caption=caption, moving_finger=finger, camera=self.camera,
                                gravity=self.g, gravity_label=f"g {self.g_name}", touching=set(patches))
         if not self.keep_rgb:  # a GIF alone: palette frames, one palette for the film
-            self.palette = self.palette or self.render.gif_palette(img)
+            if self.palette is None:
+                self.palette = self.render.gif_palette(img)
             img = self.render.gif_frame(img, self.palette)
         self.frames.append(img)
         self.times.append(t)
@@ -936,6 +937,7 @@ class _Sim:
         ctl.command(self._q(states[0]), states[0].touching)
         self._run_for(prm["acquire_s"])
         ctl.latch(states[0].touching)
+        ctl.target_pose = self.T_ref
         p.removeConstraint(hold, physicsClientId=self.cid)
         self.released = True
         # 2. gravity comes in gradually; the forces follow the load
