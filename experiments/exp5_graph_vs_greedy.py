@@ -129,6 +129,9 @@ def task(t: dict) -> dict:
         return row
     found = lazy.best(1)
     row["graph_s"] = time.perf_counter() - t0
+    # a final grasp whose fingers collide (or that cannot hold) is no state at all: no
+    # planner can reach it
+    row["final_state_valid"] = lazy.ev.blocked_reason(problem.goal) is None
     row["graph_nodes"] = lazy.G.number_of_nodes()
     row["graph_solved"] = bool(found)
     if found:
@@ -221,6 +224,12 @@ def main(argv=None) -> dict:
         "pairs": n, "valid_pairs": len(valid),
         "graph_solved": f"{sum(r['graph_solved'] for r in valid)}/{len(valid)}",
         "anytime_solved": f"{sum(r['anytime_solved'] for r in valid)}/{len(valid)}",
+        "final_state_invalid": sum(not r["final_state_valid"] for r in valid),
+        "solved_with_a_valid_final_state_graph_vs_anytime": (
+            f"{sum(r['graph_solved'] for r in valid if r['final_state_valid'])}/{sum(r['final_state_valid'] for r in valid)}",
+            f"{sum(r['anytime_solved'] for r in valid if r['final_state_valid'])}/{sum(r['final_state_valid'] for r in valid)}"),
+        "graph_median_s_solved": float(np.median([r["graph_s"] + r["slots_s"] for r in valid if r["graph_solved"]]))
+        if any(r["graph_solved"] for r in valid) else float("nan"),
         "anytime_median_s_solved": float(np.median([r["anytime_s"] for r in valid if r["anytime_solved"]]))
         if any(r["anytime_solved"] for r in valid) else float("nan"),
         "anytime_solved_with_intermediate": sum(r["anytime_solved"] and r.get("anytime_rounds", 0) > 0 for r in valid),

@@ -74,7 +74,9 @@ def task(t: dict) -> dict:
     lazy = LazyGraph(prob)  # the same best sequence, growing only the states the search reaches
     best = lazy.best(1)
     t3 = time.perf_counter()
-    assert [s.rank_key for s in best] == [s.rank_key for s in found], "lazy and full search disagree"
+    # same keys up to rounding: a state's metric depends (last digits) on the batch it was evaluated in
+    assert np.allclose([s.rank_key for s in best], [s.rank_key for s in found], rtol=1e-9, atol=1e-15), \
+        "lazy and full search disagree"
     return {
         "lazy_s": t3 - t2, "lazy_nodes": lazy.G.number_of_nodes(), "lazy_expanded": lazy.G.graph["expanded"],
         "lazy_closure_evaluations": len(lazy.ev.closure),

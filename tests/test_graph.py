@@ -292,7 +292,8 @@ def test_lazy_graph_ranks_exactly_like_the_full_graph(seed):
     for rank in ("metric", "grip"):
         lazy = LazyGraph(prob, rank)
         got = lazy.best(6)
-        assert [s.rank_key for s in got] == [s.rank_key for s in search(full, k=6, rank=rank)]
+        # equal up to the last digits (a state's metric depends on the batch it was evaluated in)
+        assert [s.rank_key for s in got] == [pytest.approx(s.rank_key, rel=1e-9, abs=1e-15) for s in search(full, k=6, rank=rank)]
         assert lazy.G.graph["search_exact"]
         assert len(lazy.ev.closure) <= len(full.graph["evaluator"].closure)
         for s in got:
@@ -314,7 +315,7 @@ def test_lazy_graph_evaluates_only_the_states_the_search_reaches():
     want = search(full, k=1)
     lazy = LazyGraph(prob)
     got = lazy.best(1)
-    assert want and [s.rank_key for s in got] == [s.rank_key for s in want]
+    assert want and [s.rank_key for s in got] == [pytest.approx(s.rank_key, rel=1e-9, abs=1e-15) for s in want]
     assert len(lazy.ev.closure) < len(full.graph["evaluator"].closure)
     recheck(prob, got[0])
 
@@ -330,7 +331,7 @@ def test_extended_problem_reuses_caches_and_matches_a_fresh_search():
                                          for f in bigger.fingers}, bigger.start, bigger.goal, FRICTION)
     again = LazyGraph(grown, evaluator=first.ev)
     fresh = LazyGraph(bigger)
-    assert [s.rank_key for s in again.best(3)] == [s.rank_key for s in fresh.best(3)]
+    assert [s.rank_key for s in again.best(3)] == [pytest.approx(s.rank_key, rel=1e-9, abs=1e-15) for s in fresh.best(3)]
     assert len(again.ev.closure) > cached
     with pytest.raises(InputError, match="appending slots"):
         LazyGraph(bigger, evaluator=first.ev)

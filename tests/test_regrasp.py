@@ -422,16 +422,15 @@ ALLEGRO_SPHERE = ROOT / "grasps" / "allegro" / "sphere_four_finger.yaml"
 
 def _middle_for_ring(tmp_path):
     """Allegro sphere, four fingers -> a tripod where the middle finger takes the ring
-    finger's place (abducted to -0.3 rad) and the ring finger is freed: the middle finger
-    cannot land while the ring finger is there, and thumb + index alone do not hold the
-    ball, so no sequence exists with the two grasps' contacts alone."""
-    data = yaml.safe_load(ALLEGRO_SPHERE.read_text())
-    data["name"] = "allegro_sphere_middle_for_ring"
-    data["fingers"]["middle"]["posture"][0] = -0.3
-    data["fingers"]["ring"] = "free"
-    path = tmp_path / "middle_for_ring.yaml"
-    path.write_text(yaml.safe_dump(data, sort_keys=False))
-    return path
+    finger's place and the ring finger is freed (the pair `benchmarks/bench_plan.py` times):
+    the middle finger cannot land while the ring finger is there, and thumb + index alone
+    do not hold the ball, so no sequence exists with the two grasps' contacts alone."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("bench_plan", ROOT / "benchmarks" / "bench_plan.py")
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    return bench.middle_for_ring_pair(tmp_path)[1]
 
 
 def test_pair_needing_intermediate_contacts_is_solved_with_defaults_deterministically(tmp_path, capsys):
