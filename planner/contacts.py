@@ -11,22 +11,24 @@ object frame; normals point INTO the object (minus the outward surface normal).
 
 from __future__ import annotations
 
-import coal
 import numpy as np
 
-from planner.errors import UnknownNameError
+from planner.collision import HandState
+from planner.errors import InputError, UnknownNameError
 
 TOUCH_TOL_M = 1e-3
 RING_RADII_M = (1.5e-3, 3.0e-3)
 RING_DIRECTIONS = 8
-_LINK_EPS_M = 1e-6        # finger-finger/palm penetration below this is not a collision
-_POINT = coal.Sphere(1e-7)  # a point for point-to-link distances
 _MIN_SPACING_M = 2e-4
 
 
-def _obj_tf(obj) -> coal.Transform3s:
-    T = obj.T_palm_obj
-    return coal.Transform3s(np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3]))
+def _state(hand, q) -> HandState:
+    """``q`` as a state of ``hand``: a `HandState` is used as it is (its queries are cached)."""
+    if isinstance(q, HandState):
+        if q.model is not hand.collision:
+            raise InputError("the HandState given as q belongs to another hand")
+        return q
+    return hand.state(q)
 
 
 def _fingers(hand, fingers):
@@ -40,59 +42,34 @@ def _fingers(hand, fingers):
     return out
 
 
-def _link_object_queries(hand, q, obj, links):
-    """Per link: (signed distance, witness on link (palm), witness on object (palm), geom indices)."""
-    hand._update(hand._check_q(q))
-    tf_obj = _obj_tf(obj)
-    req = coal.DistanceRequest()
-    out = {}
-    for link in links:
-        best = None
-        for i in hand._link_geoms.get(link, ()):
-            res = coal.DistanceResult()
-            d = coal.distance(hand._geoms[i].shape, hand._geom_tf(i), obj.geometry, tf_obj, req, res)
-            if best is None or d < best[0]:
-                best = (float(d), np.array(res.getNearestPoint1()), np.array(res.getNearestPoint2()))
-        if best is not None:
-            out[link] = best + (hand._link_geoms[link],)
-    return out
-
-
 def touching_links(hand, q, obj, touch_tol_m: float = TOUCH_TOL_M, fingers=None) -> dict[str, tuple[str, ...]]:
     """Contact links within ``touch_tol_m`` of the object (or penetrating), per finger.
 
+    Args:
+        hand: planner.hand.Hand.
+        q: (nq,) joint angles, or a `planner.collision.HandState` of ``hand`` (as in every
+            function here: one state queried several times computes FK and distances once).
     Returns:
         finger -> tuple of touching links (only fingers that touch).
     """
+    state = _state(hand, q)
     out = {}
     for f in _fingers(hand, fingers):
         links = hand.fingers[f].contact_links
-        res = _link_object_queries(hand, q, obj, links)
-        touching = tuple(l for l in links if l in res and res[l][0] <= touch_tol_m)
+        res = state.link_object(obj, links)
+        touching = tuple(l for l in links if l in res and res[l].distance_m <= touch_tol_m)
         if touching:
             out[f] = touching
     return out
 
 
-def _point_link_distance(hand, p_palm, geom_ids) -> float:
-    tf_p = coal.Transform3s(np.eye(3), p_palm)
-    req = coal.DistanceRequest()
-    best = np.inf
-    for i in geom_ids:
-        res = coal.DistanceResult()
-        best = min(best, coal.distance(_POINT, tf_p, hand._geoms[i].shape, hand._geom_tf(i), req, res))
-    return float(best)
-
-
 def _witness_obj(T_obj_palm, query) -> np.ndarray:
-    """Midpoint of a link-object distance query's witness points, object frame."""
-    _, w_link, w_obj = query[:3]
-    return T_obj_palm[:3, :3] @ (0.5 * (w_link + w_obj)) + T_obj_palm[:3, 3]
+    """Midpoint of a link-object distance query's witness points (`LinkDistance`), object frame."""
+    return T_obj_palm[:3, :3] @ (0.5 * (query.p_link_palm + query.p_obj_palm)) + T_obj_palm[:3, 3]
 
 
-def _link_patch(hand, obj, T_obj_palm, T_palm_obj, query, touch_tol_m):
+def _link_patch(state, obj, T_obj_palm, T_palm_obj, query, touch_tol_m):
     """Patch of one touching link: (points (n,3), inward normals (n,3)) in the object frame."""
-    geom_ids = query[3]
     p0, n0, _ = obj.closest_surface(_witness_obj(T_obj_palm, query))
     pts, nrm = [p0], [n0]
     a = np.array([1.0, 0.0, 0.0]) if abs(n0[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
@@ -106,7 +83,7 @@ def _link_patch(hand, obj, T_obj_palm, T_palm_obj, query, touch_tol_m):
             ps, ns, _ = obj.closest_surface(p0 + rho * (np.cos(th) * u + np.sin(th) * v))
             if min(np.linalg.norm(ps - p) for p in pts) < _MIN_SPACING_M:
                 continue
-            if _point_link_distance(hand, R @ ps + t, geom_ids) <= touch_tol_m:
+            if state.point_distance(R @ ps + t, query.geometries) <= touch_tol_m:
                 pts.append(ps)
                 nrm.append(ns)
     return np.array(pts), -np.array(nrm)
@@ -118,7 +95,7 @@ def contact_patches(hand, q, obj, touch_tol_m: float = TOUCH_TOL_M, fingers=None
 
     Args:
         hand: planner.hand.Hand.
-        q: (nq,) joint angles.
+        q: (nq,) joint angles, or a `planner.collision.HandState` of ``hand``.
         obj: planner.objects.GraspObject.
         touch_tol_m: a link touches when its distance to the object is at most this.
         fingers: restrict to these fingers (default all).
@@ -127,18 +104,19 @@ def contact_patches(hand, q, obj, touch_tol_m: float = TOUCH_TOL_M, fingers=None
         touching link; normals are unit and point into the object. Ready for
         planner.closure.grasp_closure.
     """
+    state = _state(hand, q)
     T_palm_obj = obj.T_palm_obj
     T_obj_palm = np.linalg.inv(T_palm_obj)
     out = {}
     for f in _fingers(hand, fingers):
         links = hand.fingers[f].contact_links
-        queries = _link_object_queries(hand, q, obj, links)
+        queries = state.link_object(obj, links)
         P, N = [], []
         for link in links:
             qy = queries.get(link)
-            if qy is None or qy[0] > touch_tol_m:
+            if qy is None or qy.distance_m > touch_tol_m:
                 continue
-            p, n = _link_patch(hand, obj, T_obj_palm, T_palm_obj, qy, touch_tol_m)
+            p, n = _link_patch(state, obj, T_obj_palm, T_palm_obj, qy, touch_tol_m)
             P.append(p)
             N.append(n)
         if P:
@@ -159,23 +137,18 @@ def collisions(hand, q, obj=None, touch_tol_m: float = TOUCH_TOL_M, fingers=None
     Returns:
         list of (name_a, name_b, depth_m), names are link names or "object"; depth > 0.
     """
-    q = hand._check_q(q)
+    state = _state(hand, q)
     sel = None if fingers is None else set(_fingers(hand, fingers))
-    worst: dict[tuple[str, str], float] = {}
-    for a, b, d in hand._link_pair_distances(q, hand._pairs, fingers=sel):
-        if d < -_LINK_EPS_M:
-            key = (a, b)
-            worst[key] = max(worst.get(key, 0.0), -d)
-    out = [(a, b, depth) for (a, b), depth in worst.items()]
+    out = state.self_collisions(fingers=sel)
     if obj is not None:
         links = []
         for f in _fingers(hand, fingers):
             links.extend(hand.fingers[f].links)
         if fingers is None:
-            links.extend(l for l in hand.links if hand._geoms[hand._link_geoms[l][0]].finger is None)
-        for link, (d, *_rest) in _link_object_queries(hand, q, obj, links).items():
-            if d < -touch_tol_m:
-                out.append((link, "object", -d))
+            links.extend(hand.collision.finger_links(None))
+        for link, ld in state.link_object(obj, links).items():
+            if ld.distance_m < -touch_tol_m:
+                out.append((link, "object", -ld.distance_m))
     return out
 
 
@@ -193,16 +166,17 @@ def link_contacts(hand, q, obj, touch_tol_m: float = TOUCH_TOL_M, fingers=None) 
         ``distance_m`` the link-object signed distance (negative: penetration) and
         ``penetration_m`` = max(0, -distance_m).
     """
+    state = _state(hand, q)
     T_obj_palm = np.linalg.inv(obj.T_palm_obj)
     out = []
     for f in _fingers(hand, fingers):
         links = hand.fingers[f].contact_links
-        queries = _link_object_queries(hand, q, obj, links)
+        queries = state.link_object(obj, links)
         for link in links:
             qy = queries.get(link)
-            if qy is None or qy[0] > touch_tol_m:
+            if qy is None or qy.distance_m > touch_tol_m:
                 continue
-            d = qy[0]
+            d = qy.distance_m
             p, n_out, _ = obj.closest_surface(_witness_obj(T_obj_palm, qy))
             out.append({"finger": f, "link": link, "point": np.asarray(p, dtype=float),
                         "normal": -np.asarray(n_out, dtype=float), "distance_m": float(d),

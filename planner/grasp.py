@@ -243,7 +243,7 @@ class RealizedGrasp:
         the object: a plan must not treat it as lifted."""
         if self.missing:
             name = self.missing[0]
-            gap = self.hand._finger_object_distance(np.asarray(self.q), self.hand.fingers[name], self.obj)
+            gap = self.hand.state(self.q).finger_object_distance(self.obj, name)
             raise PlannerError(
                 f"{self.spec.path}: fingers.{name}: the file places it but it does not touch the object "
                 f"(misses it by {gap * 1e3:.1f} mm){'; so do ' + ', '.join(self.missing[1:]) if self.missing[1:] else ''}; "
@@ -609,23 +609,6 @@ def _finger_of(hand, finger):
     return finger
 
 
-def _finger_object_distance(hand, q, obj, finger) -> float:
-    """Signed distance (m) between the finger's links and the object (negative: penetration)."""
-    import coal
-
-    T = np.asarray(obj.T_palm_obj)
-    tf_obj = coal.Transform3s(T[:3, :3], T[:3, 3])
-    req = coal.DistanceRequest()
-    req.enable_signed_distance = True
-    best = np.inf
-    for link, fname, geom, tf in hand.collision_objects(q):
-        if fname != finger.name:
-            continue
-        res = coal.DistanceResult()
-        best = min(best, coal.distance(geom, tf, obj.geometry, tf_obj, req, res))
-    return float(best)
-
-
 def _approach_along_normal(hand, obj, f, p_palm, n_out_palm, q, link, iters: int = 12):
     """Slide the IK target along the surface normal until the finger just touches.
 
@@ -642,7 +625,7 @@ def _approach_along_normal(hand, obj, f, p_palm, n_out_palm, q, link, iters: int
             q = hand.ik(f, p_palm + offset * n_out_palm, q, link=link, normal_palm=-n_out_palm)
         except KinematicsError:
             break
-        d = _finger_object_distance(hand, q, obj, f)
+        d = hand.state(q).finger_object_distance(obj, f.name)
         if 0.0 <= d <= 0.5 * TOUCH_TOL_M:
             return q
         if d >= 0.0:
@@ -799,20 +782,21 @@ def realize(spec: GraspSpec, hand=None) -> RealizedGrasp:
             q = np.asarray(hand.close_finger(f, q, obj), dtype=float)
         else:
             q[idx] = np.asarray(hand.q_open)[idx]
-    q = np.array(q, dtype=float, copy=True)
-    q.setflags(write=False)
-    patches = contact_patches(hand, q, obj)
+    # one state, queried once: link-object distances are computed once for all four queries
+    state = hand.state(q)
+    q = state.q
+    patches = contact_patches(hand, state, obj)
     patches = {k: (_ro(p), _ro(n)) for k, (p, n) in patches.items()}
     closure = grasp_closure(patches, spec.friction)
     removable = frozenset(removable_fingers(patches, spec.friction)) if patches else frozenset()
-    touching = {k: tuple(v) for k, v in touching_links(hand, q, obj).items()}
+    touching = {k: tuple(v) for k, v in touching_links(hand, state, obj).items()}
     finger_q = {}
     for name, f in hand.fingers.items():
         finger_q[name] = _ro(q[list(f.q_index)])
     missing = tuple(fs.name for fs in spec.fingers if fs.kind != "free" and fs.name not in patches)
-    colls = tuple((str(a), str(b), float(d)) for a, b, d in collisions(hand, q, obj, touch_tol_m=PENETRATION_TOL_M))
-    contacts = tuple({**c, "point": _ro(c["point"]), "normal": _ro(c["normal"])} for c in link_contacts(hand, q, obj))
-    problems, warnings = grasp_findings(spec, hand, obj, q, contacts, missing, colls)
+    colls = tuple((str(a), str(b), float(d)) for a, b, d in collisions(hand, state, obj, touch_tol_m=PENETRATION_TOL_M))
+    contacts = tuple({**c, "point": _ro(c["point"]), "normal": _ro(c["normal"])} for c in link_contacts(hand, state, obj))
+    problems, warnings = grasp_findings(spec, hand, obj, state, contacts, missing, colls)
     return RealizedGrasp(
         spec=spec,
         hand=hand,
@@ -832,8 +816,10 @@ def realize(spec: GraspSpec, hand=None) -> RealizedGrasp:
     )
 
 
-def grasp_findings(spec: GraspSpec, hand, obj, q, contacts, missing, colls) -> tuple[list[str], list[str]]:
+def grasp_findings(spec: GraspSpec, hand, obj, state, contacts, missing, colls) -> tuple[list[str], list[str]]:
     """What makes a realized grasp differ from its file: (problems, warnings), one line each.
+
+    ``state`` is the realized hand (`planner.collision.HandState`, ``hand.state(q)``).
 
     Problems (``check`` exits 1): a placed finger that does not touch; a link deeper than
     `PENETRATION_TOL_M` in the object, the palm or another finger; a closing joint of a
@@ -844,8 +830,9 @@ def grasp_findings(spec: GraspSpec, hand, obj, q, contacts, missing, colls) -> t
     (default the pad); other joints of placed fingers at a limit nobody asked for.
     """
     problems, warnings = [], []
+    q = state.q
     for name in missing:
-        gap = hand._finger_object_distance(np.asarray(q), hand.fingers[name], obj)
+        gap = state.finger_object_distance(obj, name)
         problems.append(f"fingers.{name}: placed by the file but does not touch the object (misses it by {gap * 1e3:.1f} mm)")
     for a, b, depth in colls:
         if depth > PENETRATION_TOL_M:

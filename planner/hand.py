@@ -28,7 +28,7 @@ import glob
 import os
 import site
 import sys
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import coal
@@ -36,6 +36,7 @@ import numpy as np
 import pinocchio as pin
 import yaml
 
+from planner.collision import CollisionModel, Geometry, HandState, checked_q
 from planner.errors import InputError, KinematicsError, SpecError, UnknownNameError
 from planner.resources import HAND_SPEC, bundled_hands, hand_dir, robots_dir
 
@@ -43,7 +44,6 @@ ROBOTS_DIR = robots_dir()  # the bundled hands (planner.resources), wherever the
 SCHEMA_VERSION = 1
 IK_TOL_M = 5e-4          # accepted fingertip error
 _IK_GOAL_M = 1e-6        # error at which the iterations stop
-_CONTACT_EPS_M = 1e-6    # penetration below this is not a collision between links
 
 
 def _share_dirs() -> list[str]:
@@ -124,19 +124,6 @@ class UnreachableError(KinematicsError):
         self.closest_palm = np.asarray(closest_palm, dtype=float)
         self.direction_palm = np.asarray(direction_palm, dtype=float)
         self.distance_m = float(distance_m)
-
-
-@dataclass
-class _Geom:
-    """One collision shape: link it belongs to, finger (None: palm), coal shape, placement."""
-
-    link: str
-    finger: str | None
-    shape: coal.CollisionGeometry
-    joint_id: int
-    placement: pin.SE3          # shape pose in its parent joint frame
-    radius: float               # bounding sphere radius about ``center`` (joint frame)
-    center: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
 
 def _as_list(spec_path, key, value, kind=str):
@@ -335,15 +322,15 @@ class Hand:
             link = self.model.frames[go.parentFrame].name
             entries.append((link, finger_of_joint(go.parentJoint), go.geometry, go.parentJoint,
                             pin.SE3(go.placement)))
-        self._geoms: list[_Geom] = []
+        geoms: list[Geometry] = []
         for link, fname, shape, jid, plc in _merge_capsules(entries):
             shape.computeLocalAABB()
             center = plc.act(np.asarray(shape.aabb_center, dtype=float))
-            self._geoms.append(_Geom(link, fname, shape, jid, plc, float(shape.aabb_radius), center))
-        self._link_geoms: dict[str, list[int]] = {}
-        for i, g in enumerate(self._geoms):
-            self._link_geoms.setdefault(g.link, []).append(i)
-        self.links = tuple(self._link_geoms)
+            geoms.append(Geometry(len(geoms), link, fname, shape, jid, plc, center, float(shape.aabb_radius)))
+        link_geoms: dict[str, list[int]] = {}
+        for g in geoms:
+            link_geoms.setdefault(g.link, []).append(g.index)
+        self.links = tuple(link_geoms)
 
         # fingers
         self.fingers: dict[str, Finger] = {}
@@ -351,7 +338,7 @@ class Hand:
             key = f"fingers.{fname}"
             joints = tuple(fs["joints"])
             q_index = tuple(self.joint_names.index(j) for j in joints)
-            flinks = tuple(l for l in self._link_geoms if self._geoms[self._link_geoms[l][0]].finger == fname)
+            flinks = tuple(l for l in link_geoms if geoms[link_geoms[l][0]].finger == fname)
             contact = fs.get("contact_links", list(flinks))
             for l in _as_list(sp, f"{key}.contact_links", contact):
                 if l not in flinks:
@@ -390,27 +377,24 @@ class Hand:
 
         # collision pairs between links: skip adjacent bodies and pairs touching at q = 0 or
         # at the open posture (shapes that overlap by design, like MoveIt's "default" pairs)
-        disabled = set()
+        allowed = set()
         for pair in spec.get("disabled_collisions", []) or []:
             if not (isinstance(pair, list) and len(pair) == 2):
                 raise SpecError(sp, "disabled_collisions", f"expected [link_a, link_b], got {pair!r}")
             for l in pair:
-                if l not in self._link_geoms:
+                if l not in link_geoms:
                     raise SpecError(sp, "disabled_collisions", str(UnknownNameError("link", l, self.links)))
-            disabled.add(frozenset(pair))
-        link_joint = {l: self._geoms[ix[0]].joint_id for l, ix in self._link_geoms.items()}
+            allowed.add(frozenset(pair))
+        link_joint = {l: geoms[ix[0]].joint_id for l, ix in link_geoms.items()}
         for a in self.links:
             for b in self.links:
                 ja, jb = link_joint[a], link_joint[b]
                 if a < b and (ja == jb or self.model.parents[ja] == jb or self.model.parents[jb] == ja):
-                    disabled.add(frozenset((a, b)))
-        self._disabled = disabled
-        pairs = self._candidate_link_pairs()
-        for q in (np.clip(np.zeros(self.model.nq), self.lower, self.upper), self.q_open):
-            for a, b, d in self._link_pair_distances(q, pairs):
-                if d < _CONTACT_EPS_M:
-                    self._disabled.add(frozenset((a, b)))
-        self._pairs = self._candidate_link_pairs()
+                    allowed.add(frozenset((a, b)))
+        self.collision = CollisionModel(
+            self.model, self._T_palm_world, geoms, {n: f.q_index for n, f in self.fingers.items()}, allowed,
+            by_design_qs=(np.clip(np.zeros(self.model.nq), self.lower, self.upper), self.q_open))
+        self._disabled = set(self.collision.allowed)  # TEMPORARY for motion.py until step 3
 
     def _resolve_urdf(self, urdf: str) -> str:
         if urdf.startswith("package://"):
@@ -448,11 +432,12 @@ class Hand:
         return fid
 
     def _check_q(self, q) -> np.ndarray:
-        q = np.asarray(q, dtype=float)
-        if q.shape != (self.model.nq,) or not np.all(np.isfinite(q)):
-            raise InputError(f"q must be {self.model.nq} finite numbers in the order of "
-                             f"hand.joint_names, got shape {q.shape}")
-        return q
+        return checked_q(self.model.nq, q)
+
+    def state(self, q) -> HandState:
+        """The hand at ``q`` (nq,): the kinematic state every collision query reads
+        (`planner.collision.HandState`; FK once, lazily)."""
+        return HandState(self.collision, q)
 
     # --------------------------------------------------------------- kinematics
     def link_pose(self, q, link: str) -> np.ndarray:
@@ -522,85 +507,17 @@ class Hand:
         return J, p, R
 
     # ----------------------------------------------------------------- geometry
-    def _update(self, q) -> None:
-        pin.forwardKinematics(self.model, self.data, q)
-
-    def _geom_pose(self, i: int) -> pin.SE3:
-        g = self._geoms[i]
-        M = self.data.oMi[g.joint_id] * g.placement
-        if not self._palm_is_root:
-            M = self._T_palm_world * M
-        return M
-
-    def _geom_tf(self, i: int) -> coal.Transform3s:
-        M = self._geom_pose(i)
-        return coal.Transform3s(M.rotation, M.translation)
-
-    def _geom_center(self, i: int) -> np.ndarray:
-        g = self._geoms[i]
-        c = self.data.oMi[g.joint_id].act(g.center)
-        return self._T_palm_world.act(c) if not self._palm_is_root else c
-
     def collision_objects(self, q) -> list[tuple[str, str | None, coal.CollisionGeometry, coal.Transform3s]]:
-        """Every collision shape of the hand posed at q.
+        """Every collision shape of the hand posed at q (`HandState.collision_objects`).
 
         Returns:
             list of (link, finger name or None for the palm, coal shape, Transform3s in the palm frame).
         """
-        q = self._check_q(q)
-        self._update(q)
-        return [(g.link, g.finger, g.shape, self._geom_tf(i)) for i, g in enumerate(self._geoms)]
+        return self.state(q).collision_objects()
 
-    def _candidate_link_pairs(self):
-        """Geometry index pairs of different links, at least one on a finger, not disabled."""
-        out = []
-        n = len(self._geoms)
-        for i in range(n):
-            for j in range(i + 1, n):
-                a, b = self._geoms[i], self._geoms[j]
-                if a.link == b.link or (a.finger is None and b.finger is None):
-                    continue
-                if frozenset((a.link, b.link)) in getattr(self, "_disabled", set()):
-                    continue
-                out.append((i, j))
-        return out
-
-    def _link_pair_distances(self, q, pairs, fingers=None, margin=0.0):
-        """Signed distances of geometry pairs whose bounding spheres come within ``margin``."""
-        self._update(q)
-        centers = {}
-        out = []
-        req = coal.DistanceRequest()
-        for i, j in pairs:
-            gi, gj = self._geoms[i], self._geoms[j]
-            if fingers is not None and gi.finger not in fingers and gj.finger not in fingers:
-                continue
-            ci = centers.get(i)
-            if ci is None:
-                ci = centers[i] = self._geom_center(i)
-            cj = centers.get(j)
-            if cj is None:
-                cj = centers[j] = self._geom_center(j)
-            if np.linalg.norm(ci - cj) > gi.radius + gj.radius + margin:
-                continue
-            res = coal.DistanceResult()
-            d = coal.distance(gi.shape, self._geom_tf(i), gj.shape, self._geom_tf(j), req, res)
-            out.append((gi.link, gj.link, float(d)))
-        return out
-
-    def _finger_object_distance(self, q, finger: Finger, obj, links=None) -> float:
-        """Smallest signed distance between the finger's links and the object (m)."""
-        self._update(q)
-        T = obj.T_palm_obj
-        tf_obj = coal.Transform3s(T[:3, :3], T[:3, 3])
-        req = coal.DistanceRequest()
-        best = np.inf
-        for link in (links or finger.links):
-            for i in self._link_geoms.get(link, ()):
-                res = coal.DistanceResult()
-                best = min(best, coal.distance(self._geoms[i].shape, self._geom_tf(i), obj.geometry,
-                                               tf_obj, req, res))
-        return float(best)
+    def _finger_object_distance(self, q, finger: Finger, obj) -> float:
+        """Kept for planner/synth.py only: use ``hand.state(q).finger_object_distance(obj, name)``."""
+        return self.state(q).finger_object_distance(obj, self.finger(finger).name)
 
     # ---------------------------------------------------------------------- IK
     def ik(self, finger, target_palm, q0, link: str | None = None, p_link=None, normal_palm=None,
@@ -774,15 +691,18 @@ class Hand:
             qa[cidx] = start + alpha * span
             return qa
 
+        def gap(qa):
+            return self.state(qa).finger_object_distance(obj, f.name)
+
         def colliding(alpha):
-            return self._finger_object_distance(at(alpha), f, obj) < 0.0
+            return gap(at(alpha)) < 0.0
 
         step = backoff * (self.upper[cidx] - self.lower[cidx])
         if colliding(0.0):
             # already penetrating (e.g. an IK placement): open by 0.1 % steps until free
             qb = q.copy()
             for _ in range(int(np.ceil(1.0 / backoff))):
-                if self._finger_object_distance(qb, f, obj) >= 0.0:
+                if gap(qb) >= 0.0:
                     return qb
                 qb[cidx] = np.maximum(qb[cidx] - step, self.lower[cidx])
             return qb
@@ -793,7 +713,7 @@ class Hand:
             else:
                 alpha = min(alpha + 0.5 ** n, 1.0)
         qc = at(alpha)
-        while self._finger_object_distance(qc, f, obj) < 0.0 and np.any(qc[cidx] > start):
+        while gap(qc) < 0.0 and np.any(qc[cidx] > start):
             qc[cidx] = np.maximum(qc[cidx] - step, start)
         return qc
 

@@ -46,7 +46,7 @@ def test_closing_stops_at_touch(icub, box_grasp):
     assert set(touching) == {"thumb", "index", "middle"}
     assert collisions(icub, q, obj) == []
     for f in ("thumb", "index", "middle"):
-        d = icub._finger_object_distance(q, icub.fingers[f], obj)
+        d = icub.state(q).finger_object_distance(obj, f)
         assert 0.0 <= d <= TOUCH_TOL_M
 
 
@@ -156,6 +156,6 @@ def test_ik_placement_then_closing_touches_without_penetration(icub, box_grasp):
     p_obj = np.array([0.012, y_plane - t[1], 0.0])
     q1 = icub.ik("middle", R @ p_obj + t, q0, normal_palm=R @ [-1.0, 0.0, 0.0])
     q2 = icub.close_finger("middle", q1, obj)
-    d = icub._finger_object_distance(q2, icub.fingers["middle"], obj)
+    d = icub.state(q2).finger_object_distance(obj, "middle")
     assert 0.0 <= d <= TOUCH_TOL_M
     assert "middle" in contact_patches(icub, q2, obj)

@@ -1,0 +1,653 @@
+"""One collision layer over one kinematic state (coal, pinocchio; no pybullet, no OMPL).
+
+Two types serve every distance and collision query of the planner (contacts, the closing
+procedure, realization, the graph's finger checks and the OMPL validity check):
+
+- `CollisionModel`, built once per hand (`Hand.collision`): the collision geometries (link,
+  owner finger or palm, coal shape, placement in the parent joint frame, bounding sphere),
+  the **allowed pairs** (link pairs never checked: adjacent links, pairs the hand spec
+  lists, and shapes overlapping by design at q = 0 or at the open posture, as MoveIt's
+  "default" allowed-collision matrix) and the geometry pairs that are checked, in a fixed
+  order (plans record contacts and collisions in that order).
+- `HandState`, a hand at a configuration ``q`` (in the spirit of pink's ``Configuration``):
+  ``q`` is copied and read-only; forward kinematics and the geometry transforms are computed
+  lazily, once, on the first query that needs them. `HandState.with_finger` moves one finger
+  and re-poses only that finger's geometries.
+
+All poses are in the palm frame. Signed distances are negative for penetration.
+The pybullet replay is not built on this on purpose: its contacts are the simulator's
+measurement, which the replay compares with the plan.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from types import MappingProxyType
+from typing import Iterable, Mapping
+
+import coal
+import numpy as np
+import pinocchio as pin
+
+from planner.errors import InputError, UnknownNameError
+
+LINK_EPS_M = 1e-6
+"""Penetration between two links below this is not a collision (also: shapes closer than
+this at q = 0 or the open posture overlap by design and their pair is allowed)."""
+MESH_CONVEX_TOL_M = 1e-4
+"""A mesh whose vertices and face centroids all lie within this of its convex hull's
+boundary counts as convex: its hull stands for it in signed distances, off by at most
+this (a tenth of the touch tolerance). Meshes of smooth convex shapes are rarely convex
+to the micrometre: the non-planar quads of grasps/meshes/rounded_box.obj fold inward by
+up to 26 um."""
+
+_POINT = coal.Sphere(1e-7)  # a point, for point-to-link distances
+_SDF_GEOMETRY_CACHE: dict[int, tuple] = {}  # id(geometry) -> (geometry, its signed-distance geometry)
+
+
+@dataclass(frozen=True, eq=False)
+class Geometry:
+    """One collision shape of a hand.
+
+    Attributes:
+        index: position in `CollisionModel.geometries`.
+        link: the link it belongs to.
+        finger: the finger owning the link, None for the palm.
+        shape: coal geometry in its own frame.
+        joint_id: pinocchio id of its parent joint.
+        placement: T_joint_geom, the shape's pose in its parent joint frame.
+        center: (3,) bounding sphere centre in the parent joint frame.
+        radius_m: bounding sphere radius.
+    """
+
+    index: int
+    link: str
+    finger: str | None
+    shape: coal.CollisionGeometry
+    joint_id: int
+    placement: pin.SE3
+    center: np.ndarray
+    radius_m: float
+
+
+@dataclass(frozen=True, eq=False)
+class LinkDistance:
+    """Signed distance between one link (its nearest geometry) and the object.
+
+    Attributes:
+        distance_m: signed distance (negative: penetration).
+        p_link_palm, p_obj_palm: (3,) witness points on the link and on the object, palm frame.
+        geometries: indices of the link's geometries.
+    """
+
+    distance_m: float
+    p_link_palm: np.ndarray
+    p_obj_palm: np.ndarray
+    geometries: tuple[int, ...]
+
+
+def checked_q(nq: int, q, copy: bool = False) -> np.ndarray:
+    """``q`` as a float array of shape (nq,) (a copy when ``copy``), or InputError."""
+    q = np.array(q, dtype=float) if copy else np.asarray(q, dtype=float)
+    # q @ q is finite only when every entry is (squares cannot cancel); 4x cheaper than isfinite
+    if q.shape != (nq,) or not (math.isfinite(q @ q) or np.isfinite(q).all()):
+        raise InputError(f"q must be {nq} finite numbers in the order of hand.joint_names, got shape {q.shape}")
+    return q
+
+
+def transform(T: np.ndarray) -> coal.Transform3s:
+    """A (4, 4) pose as a coal transform."""
+    return coal.Transform3s(np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3]))
+
+
+def object_transform(obj) -> coal.Transform3s:
+    """The object's pose in the palm frame as a coal transform."""
+    return transform(np.asarray(obj.T_palm_obj))
+
+
+def bounding_sphere(geometry) -> tuple[np.ndarray, float]:
+    """(centre (3,) in the geometry frame, radius) of a coal geometry's local AABB."""
+    geometry.computeLocalAABB()
+    return np.array(geometry.aabb_center, dtype=float), float(geometry.aabb_radius)
+
+
+def signed_distance_geometry(obj):
+    """The coal geometry whose signed distance to a finger link is the object's.
+
+    coal's collision query refuses a negative security margin (a tolerated penetration)
+    for a ``BVHModel`` ("Negative security margin are not handled yet for BVHModel"), and
+    its distance query on a mesh is the smallest distance to any one triangle, a thin
+    plate: when a link sinks into the solid it measures how far the link must move to
+    clear one triangle, often sideways off it, so it reports a fraction of the depth (a
+    capsule 2.6 mm deep into a 5 mm gridded box mesh reads 0.7 mm). Primitives
+    (box, cylinder, sphere) are convex and coal's GJK/EPA gives their exact signed
+    distance: they are returned as they are. A mesh is replaced by its convex hull (a
+    ``coal.Convex``, where GJK/EPA is exact too) when the mesh is convex, i.e. the hull is
+    the object (every vertex and face centroid on the hull's boundary within
+    ``MESH_CONVEX_TOL_M``). A non-convex mesh keeps its triangles: its hull would report
+    a finger resting in a concavity as deep inside, so the per-triangle distance (the
+    measure the contacts and the closing procedure use for meshes) is kept: exact
+    while the link is outside, it can under-report the depth once a link sinks in. A link
+    wholly inside a mesh touches no triangle and reads as clear (as in coal's collision
+    query with a positive margin); paths are checked every ``resolution_rad`` from outside,
+    so they cannot get there without crossing the surface.
+    """
+    geometry = obj.geometry
+    if not isinstance(geometry, coal.BVHModelBase):
+        return geometry
+    cached = _SDF_GEOMETRY_CACHE.get(id(geometry))
+    if cached is None:  # the entry holds the geometry, so its id is not reused meanwhile
+        if len(_SDF_GEOMETRY_CACHE) >= 8:
+            _SDF_GEOMETRY_CACHE.pop(next(iter(_SDF_GEOMETRY_CACHE)))
+        cached = _SDF_GEOMETRY_CACHE[id(geometry)] = (geometry, _mesh_signed_distance_geometry(geometry))
+    return cached[1]
+
+
+def _mesh_signed_distance_geometry(geometry):
+    """The convex hull of a convex ``BVHModel`` as a ``coal.Convex``, else the mesh itself."""
+    from scipy.spatial import ConvexHull
+
+    V = np.asarray(geometry.vertices(), dtype=float)
+    F = np.array([[t[0], t[1], t[2]] for t in map(geometry.tri_indices, range(geometry.num_tris))], dtype=np.int64)
+    hull = ConvexHull(V)
+    probes = np.concatenate([V, V[F].mean(axis=1)])
+    gap = -(probes @ hull.equations[:, :3].T + hull.equations[:, 3]).max(axis=1)  # >= 0 inside
+    if gap.max() > MESH_CONVEX_TOL_M:
+        return geometry
+    points = coal.StdVec_Vec3s()
+    for v in V[hull.vertices]:
+        points.append(np.ascontiguousarray(v))
+    convex = coal.Convex.convexHull(points, False, "Qt")
+    convex.computeLocalAABB()
+    return convex
+
+
+class CollisionModel:
+    """The collision geometry of one hand and its allowed pairs; built once per hand.
+
+    Attributes:
+        model: the pinocchio model the geometries hang on.
+        geometries: every `Geometry`, in URDF order (capsules merged).
+        links: links with geometry, in order of first geometry.
+        link_geometries: link -> indices of its geometries.
+        allowed: link pairs never checked (frozensets of two link names).
+        pairs: checked geometry index pairs (i < j): different links, not both on the palm,
+            not allowed; in a fixed order.
+    """
+
+    def __init__(self, model, T_palm_world: pin.SE3, geometries: Iterable[Geometry],
+                 finger_joints: Mapping[str, tuple[int, ...]], allowed, by_design_qs: Iterable[np.ndarray] = ()):
+        """Args:
+            model: pinocchio model.
+            T_palm_world: pose of the pinocchio root frame in the palm frame.
+            geometries: the hand's geometries (their ``index`` is their position).
+            finger_joints: finger -> positions of its joints in q (the finger's joint order).
+            allowed: link pairs allowed from the spec and the kinematic tree.
+            by_design_qs: configurations at which overlapping pairs (distance below
+                `LINK_EPS_M`) are allowed too (q = 0, the open posture).
+        """
+        self.model = model
+        self.T_palm_world = pin.SE3(T_palm_world)
+        self.palm_is_root = self.T_palm_world.isIdentity(1e-12)
+        self._T_palm_world_h = np.linalg.inv(self.T_palm_world.inverse().homogeneous)
+        self.geometries = tuple(geometries)
+        self.finger_joints: Mapping[str, tuple[int, ...]] = MappingProxyType(
+            {f: tuple(int(i) for i in ix) for f, ix in finger_joints.items()})
+        link_geoms: dict[str, list[int]] = {}
+        for g in self.geometries:
+            link_geoms.setdefault(g.link, []).append(g.index)
+        self.link_geometries: Mapping[str, tuple[int, ...]] = MappingProxyType(
+            {k: tuple(v) for k, v in link_geoms.items()})
+        self.links = tuple(self.link_geometries)
+        self._finger_geoms = {f: tuple(g.index for g in self.geometries if g.finger == f)
+                              for f in dict.fromkeys(g.finger for g in self.geometries)}
+        self._finger_links = {f: tuple(dict.fromkeys(self.geometries[i].link for i in ids))
+                              for f, ids in self._finger_geoms.items()}
+        self._data = model.createData()  # scratch forward kinematics, see HandState._fk
+        self._fk_owner = None
+        self.allowed = frozenset(frozenset(p) for p in allowed)
+        self.pairs = self._checked_pairs()
+        by_design = set()
+        for q in by_design_qs:
+            for a, b, d in HandState(self, q).link_pair_distances(self.pairs):
+                if d < LINK_EPS_M:
+                    by_design.add(frozenset((a, b)))
+        if by_design:
+            self.allowed = self.allowed | by_design
+            self.pairs = self._checked_pairs()
+        self._checked = frozenset(self.pairs)
+        self._compute: dict[tuple[int, int], coal.ComputeCollision] = {}
+
+    def _checked_pairs(self) -> tuple[tuple[int, int], ...]:
+        out = []
+        n = len(self.geometries)
+        for i in range(n):
+            for j in range(i + 1, n):
+                a, b = self.geometries[i], self.geometries[j]
+                if a.link == b.link or (a.finger is None and b.finger is None):
+                    continue
+                if frozenset((a.link, b.link)) in self.allowed:
+                    continue
+                out.append((i, j))
+        return tuple(out)
+
+    def is_checked(self, i: int, j: int) -> bool:
+        """True when the geometry pair (i, j) is checked (not allowed to touch)."""
+        return (min(i, j), max(i, j)) in self._checked
+
+    def is_allowed(self, link_a: str, link_b: str) -> bool:
+        """True when the two links may overlap (symmetric)."""
+        return frozenset((link_a, link_b)) in self.allowed
+
+    def finger_geometries(self, finger: str | None) -> tuple[int, ...]:
+        """Indices of the geometries owned by a finger (None: the palm), in order."""
+        return self._finger_geoms.get(finger, ())
+
+    def finger_links(self, finger: str | None) -> tuple[str, ...]:
+        """Links with geometry owned by a finger (None: the palm), in order."""
+        return self._finger_links.get(finger, ())
+
+    def compute_collision(self, i: int, j: int) -> coal.ComputeCollision:
+        """coal's cached collision functor for the geometry pair (i, j) (built once)."""
+        c = self._compute.get((i, j))
+        if c is None:
+            c = self._compute[(i, j)] = coal.ComputeCollision(self.geometries[i].shape, self.geometries[j].shape)
+        return c
+
+    def state(self, q) -> "HandState":
+        """The hand at ``q`` (nq,)."""
+        return HandState(self, q)
+
+
+
+class HandState:
+    """A hand at a configuration: immutable; FK and geometry transforms computed once, lazily.
+
+    Build with ``hand.state(q)`` (or ``hand.collision.state(q)``). Every query reads this
+    state: nobody calls a function that silently recomputes or reads a stale
+    ``pinocchio.Data``. Not thread-safe (the lazy FK uses the model's scratch data).
+
+    Attributes:
+        model: the hand's `CollisionModel`.
+        q: (nq,) read-only joint configuration (order ``hand.joint_names``).
+    """
+
+    __slots__ = ("model", "q", "_tf", "_centers", "_links", "_origin", "_moved", "_moved_T", "_cache")
+
+    def __init__(self, model: CollisionModel, q):
+        self.model = model
+        q = checked_q(model.model.nq, q, copy=True)
+        q.flags.writeable = False
+        self.q = q
+        self._tf: dict[int, coal.Transform3s] = {}
+        self._centers: dict[int, np.ndarray] = {}
+        self._links: dict[int, tuple] = {}  # id(obj) -> (obj, {link: LinkDistance})
+        self._origin = self  # the state whose other fingers this one shares (see with_finger)
+        self._moved: str | None = None
+        self._moved_T: np.ndarray | None = None
+        self._cache: dict = {}  # per-finger kinematics and clearance scenes built on this state
+
+    # ------------------------------------------------------------------ kinematics
+    def _fk(self):
+        """The model's scratch data holding this state's forward kinematics (run when needed)."""
+        m = self.model
+        if m._fk_owner is not self:
+            pin.forwardKinematics(m.model, m._data, self.q)
+            m._fk_owner = self
+        return m._data
+
+    def transform(self, i: int) -> coal.Transform3s:
+        """T_palm_geom of geometry ``i`` as a coal transform (computed once)."""
+        tf = self._tf.get(i)
+        if tf is None:
+            g = self.model.geometries[i]
+            if self._moved is not None and g.finger == self._moved:
+                kin = self._origin._finger_kinematics(self._moved)
+                tf = transform(self._finger_poses(self._moved)[kin["geoms"].index(i)])
+            else:
+                M = self._fk().oMi[g.joint_id] * g.placement
+                if not self.model.palm_is_root:
+                    M = self.model.T_palm_world * M
+                tf = coal.Transform3s(M.rotation, M.translation)
+            self._tf[i] = tf
+        return tf
+
+    def center(self, i: int) -> np.ndarray:
+        """(3,) bounding sphere centre of geometry ``i``, palm frame."""
+        c = self._centers.get(i)
+        if c is None:
+            g = self.model.geometries[i]
+            c = self._fk().oMi[g.joint_id].act(g.center)
+            if not self.model.palm_is_root:
+                c = self.model.T_palm_world.act(c)
+            self._centers[i] = c
+        return c
+
+    def link_pose(self, link: str) -> np.ndarray:
+        """T_palm_link (4, 4) of a link or frame."""
+        m = self.model.model
+        if not m.existFrame(link):
+            raise UnknownNameError("link", str(link), sorted({f.name for f in m.frames}))
+        M = pin.updateFramePlacement(m, self._fk(), m.getFrameId(link))
+        if not self.model.palm_is_root:
+            M = self.model.T_palm_world * M
+        return M.homogeneous
+
+    def collision_objects(self) -> list[tuple[str, str | None, coal.CollisionGeometry, coal.Transform3s]]:
+        """Every shape posed: (link, finger or None for the palm, coal shape, T_palm_geom)."""
+        return [(g.link, g.finger, g.shape, self.transform(g.index)) for g in self.model.geometries]
+
+    # --------------------------------------------------------------- one finger moved
+    def with_finger(self, finger: str, q_finger) -> "HandState":
+        """This hand with one finger's joints set to ``q_finger`` (the finger's joint order).
+
+        Only that finger's geometries are re-posed: one frame-placement FK of its links, and
+        each geometry placed on its link as in the first state of a chain of ``with_finger``
+        calls on this finger (``T_link_geom`` measured there, once). Every other geometry is
+        where it is in this state. Equal to a fresh state at the same q to rounding.
+        """
+        joints = self.model.finger_joints.get(finger)
+        if joints is None:
+            raise UnknownNameError("finger", str(finger), list(self.model.finger_joints))
+        origin = self._origin if self._moved in (None, finger) else self
+        q = np.array(self.q)
+        q[list(joints)] = q_finger
+        child = HandState(self.model, q)
+        child._origin = origin
+        child._moved = finger
+        return child
+
+    def _finger_kinematics(self, finger: str) -> dict:
+        """A finger's link frames and T_link_geom, measured once in this state."""
+        kin = self._cache.get(("kin", finger))
+        if kin is None:
+            geoms = self.model.finger_geometries(finger)
+            if not geoms:
+                raise UnknownNameError("finger with collision geometry", str(finger),
+                                       [f for f in self.model.finger_joints if self.model.finger_geometries(f)])
+            links = self.model.finger_links(finger)
+            m = self.model.model
+            kin = self._cache[("kin", finger)] = {
+                "geoms": geoms,
+                "links": links,
+                "frames": [m.getFrameId(link) for link in links],
+                "link_of": np.array([links.index(self.model.geometries[i].link) for i in geoms]),
+                "T_link_geom": np.array([np.linalg.inv(self.link_pose(self.model.geometries[i].link))
+                                         @ _matrix(self.transform(i)) for i in geoms]),  # (k, 4, 4)
+            }
+        return kin
+
+    def finger_link_poses(self, finger: str) -> np.ndarray:
+        """T_palm_link (k, 4, 4) of the finger's links with geometry (`CollisionModel.finger_links`)."""
+        kin = self._origin._finger_kinematics(finger) if self._moved == finger else self._finger_kinematics(finger)
+        m = self.model
+        pin.framesForwardKinematics(m.model, m._data, self.q)
+        m._fk_owner = self
+        oMf = m._data.oMf
+        return m._T_palm_world_h @ np.array([oMf[f].homogeneous for f in kin["frames"]])
+
+    def _finger_poses(self, finger: str) -> np.ndarray:
+        """T_palm_geom (k, 4, 4) of a finger's geometries, from its link poses."""
+        if self._moved == finger:
+            if self._moved_T is None:
+                kin = self._origin._finger_kinematics(finger)
+                self._moved_T = self.finger_link_poses(finger)[kin["link_of"]] @ kin["T_link_geom"]
+            return self._moved_T
+        kin = self._finger_kinematics(finger)
+        return self.finger_link_poses(finger)[kin["link_of"]] @ kin["T_link_geom"]
+
+    # --------------------------------------------------------------------- queries
+    def link_object(self, obj, links: Iterable[str]) -> dict[str, LinkDistance]:
+        """Signed distance of each link to the object (its nearest geometry), computed once.
+
+        Args:
+            obj: `planner.objects.GraspObject` (its own coal geometry).
+            links: link names; links without geometry are left out.
+        Returns:
+            link -> `LinkDistance`, in the order of ``links``.
+        """
+        entry = self._links.get(id(obj))
+        if entry is None or entry[0] is not obj:
+            entry = self._links[id(obj)] = (obj, {})
+        known = entry[1]
+        tf_obj = None
+        req = coal.DistanceRequest()
+        out = {}
+        for link in links:
+            ld = known.get(link)
+            if ld is None:
+                ids = self.model.link_geometries.get(link, ())
+                if not ids:
+                    continue
+                tf_obj = tf_obj or object_transform(obj)
+                best = None
+                for i in ids:
+                    res = coal.DistanceResult()
+                    d = coal.distance(self.model.geometries[i].shape, self.transform(i), obj.geometry, tf_obj, req, res)
+                    if best is None or d < best[0]:
+                        best = (float(d), np.array(res.getNearestPoint1()), np.array(res.getNearestPoint2()))
+                ld = known[link] = LinkDistance(best[0], best[1], best[2], ids)
+            out[link] = ld
+        return out
+
+    def finger_object_distance(self, obj, finger: str) -> float:
+        """Smallest signed distance between a finger's links and the object (m).
+
+        The closing procedure's test (thesis eqs. 8-9): no witness points, nothing cached.
+        """
+        ids = self.model.finger_geometries(finger)
+        if not ids:
+            raise UnknownNameError("finger with collision geometry", str(finger),
+                                   [f for f in self.model.finger_joints if self.model.finger_geometries(f)])
+        tf_obj = object_transform(obj)
+        req = coal.DistanceRequest()
+        best = np.inf
+        for i in ids:
+            best = min(best, coal.distance(self.model.geometries[i].shape, self.transform(i), obj.geometry, tf_obj,
+                                           req, coal.DistanceResult()))
+        return float(best)
+
+    def point_distance(self, p_palm, geometries: Iterable[int]) -> float:
+        """Distance from a palm-frame point to the nearest of the given geometries (m)."""
+        tf_p = coal.Transform3s(np.eye(3), p_palm)
+        req = coal.DistanceRequest()
+        best = np.inf
+        for i in geometries:
+            res = coal.DistanceResult()
+            best = min(best, coal.distance(_POINT, tf_p, self.model.geometries[i].shape, self.transform(i), req, res))
+        return float(best)
+
+    def link_pair_distances(self, pairs=None, fingers=None, margin_m: float = 0.0) -> list[tuple[str, str, float]]:
+        """Signed distances of geometry pairs whose bounding spheres come within ``margin_m``.
+
+        Args:
+            pairs: geometry index pairs (default `CollisionModel.pairs`, the checked ones).
+            fingers: only pairs with a geometry on one of these fingers (default all).
+        Returns:
+            [(link_a, link_b, distance_m)] in the order of ``pairs``.
+        """
+        geoms = self.model.geometries
+        out = []
+        req = coal.DistanceRequest()
+        for i, j in self.model.pairs if pairs is None else pairs:
+            gi, gj = geoms[i], geoms[j]
+            if fingers is not None and gi.finger not in fingers and gj.finger not in fingers:
+                continue
+            if np.linalg.norm(self.center(i) - self.center(j)) > gi.radius_m + gj.radius_m + margin_m:
+                continue
+            res = coal.DistanceResult()
+            d = coal.distance(gi.shape, self.transform(i), gj.shape, self.transform(j), req, res)
+            out.append((gi.link, gj.link, float(d)))
+        return out
+
+    def self_collisions(self, fingers=None) -> list[tuple[str, str, float]]:
+        """Link pairs of the hand that interpenetrate (allowed pairs excluded).
+
+        Args:
+            fingers: only pairs involving these fingers (default all).
+        Returns:
+            [(link_a, link_b, depth_m)], the deepest geometry pair per link pair, depth above
+            `LINK_EPS_M`, in the order of `CollisionModel.pairs`.
+        """
+        worst: dict[tuple[str, str], float] = {}
+        for a, b, d in self.link_pair_distances(fingers=fingers):
+            if d < -LINK_EPS_M:
+                worst[(a, b)] = max(worst.get((a, b), 0.0), -d)
+        return [(a, b, depth) for (a, b), depth in worst.items()]
+
+    def object_distances(self, obj, finger: str) -> list[tuple[float, str, np.ndarray, np.ndarray]]:
+        """Signed distance of each of a finger's geometries to the object's signed-distance
+        geometry (`signed_distance_geometry`; negative: penetration).
+
+        Returns:
+            [(distance_m, link, p_link_palm (3,), p_object_palm (3,))] in geometry order.
+        """
+        T = self._finger_poses(finger)
+        kin = self._origin._finger_kinematics(finger) if self._moved == finger else self._finger_kinematics(finger)
+        sdf, tf_obj = signed_distance_geometry(obj), object_transform(obj)
+        out = []
+        request = coal.DistanceRequest()
+        for k, i in enumerate(kin["geoms"]):
+            result = coal.DistanceResult()
+            d = coal.distance(self.model.geometries[i].shape, transform(T[k]), sdf, tf_obj, request, result)
+            out.append((float(d), self.model.geometries[i].link, np.array(result.getNearestPoint1(), dtype=float),
+                        np.array(result.getNearestPoint2(), dtype=float)))
+        return out
+
+    def clearance(self, obj, finger: str, object_margin_m: float) -> bool:
+        """True when the finger keeps ``object_margin_m`` from the object (negative: a tolerated
+        penetration, a signed distance on a mesh too, `signed_distance_geometry`) and does not
+        penetrate the palm, the other fingers or its own non-adjacent links (by more than
+        `LINK_EPS_M`; allowed pairs excluded).
+
+        The OMPL validity check: a vectorised bounding-sphere broad phase, then coal's cached
+        collision functors. The rest of the hand is taken as posed in the state this one was
+        made from by `with_finger` (its scene is built there once).
+        """
+        return self._clearance_scene(obj, finger).is_clear(self._finger_poses(finger), object_margin_m)
+
+    def clearance_violations(self, obj, finger: str, object_margin_m: float) -> list[str]:
+        """Why `clearance` fails, in words: one line per offending link pair (empty when clear)."""
+        return self._clearance_scene(obj, finger).violations(self._finger_poses(finger), object_margin_m)
+
+    def _clearance_scene(self, obj, finger: str) -> "_ClearanceScene":
+        base = self._origin if self._moved == finger else self
+        key = ("clearance", finger, id(obj))
+        entry = base._cache.get(key)
+        if entry is None or entry[0] is not obj:
+            entry = base._cache[key] = (obj, _ClearanceScene(base, obj, finger))
+        return entry[1]
+
+
+def _matrix(tf: coal.Transform3s) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = tf.getRotation()
+    T[:3, 3] = tf.getTranslation()
+    return T
+
+
+class _ClearanceScene:
+    """One moving finger against the object and the rest of the hand, as posed in ``base``.
+
+    Everything that does not depend on the finger's joints is built once: the static
+    geometries' transforms and bounding spheres (palm frame), the checked pairs as masks,
+    the object's bounding sphere, coal's collision functors.
+    """
+
+    def __init__(self, base: HandState, obj, finger: str):
+        model = base.model
+        geoms = model.geometries
+        self.moving = base._finger_kinematics(finger)["geoms"]
+        self.static = tuple(g.index for g in geoms if g.finger != finger)
+        spheres = [bounding_sphere(g.shape) for g in geoms]
+        self.moving_centers = np.array([spheres[i][0] for i in self.moving])  # (k, 3) geometry frames
+        self.moving_radii = np.array([spheres[i][1] for i in self.moving])
+        self.static_tf = [base.transform(s) for s in self.static]
+        T_static = [_matrix(tf) for tf in self.static_tf]
+        self.static_centers = (np.array([T[:3, :3] @ spheres[s][0] + T[:3, 3] for s, T in zip(self.static, T_static)])
+                               if self.static else np.zeros((0, 3)))
+        self.static_radii = np.array([spheres[s][1] for s in self.static])
+        self.static_mask = np.array([[model.is_checked(i, s) for s in self.static] for i in self.moving],
+                                    dtype=bool).reshape(len(self.moving), len(self.static))
+        self.self_pairs = [(a, b) for a in range(len(self.moving)) for b in range(a + 1, len(self.moving))
+                           if model.is_checked(self.moving[a], self.moving[b])]
+        self.model = model
+        self.obj = obj
+        T_palm_obj = np.asarray(obj.T_palm_obj, dtype=float)
+        o_center, self.obj_radius = bounding_sphere(obj.geometry)
+        self.obj_tf = transform(T_palm_obj)
+        self.obj_center = T_palm_obj[:3, :3] @ o_center + T_palm_obj[:3, 3]
+        self.obj_is_mesh = isinstance(obj.geometry, coal.BVHModelBase)
+        self.obj_sdf = signed_distance_geometry(obj)
+        self.collide_obj = [coal.ComputeCollision(geoms[i].shape, obj.geometry) for i in self.moving]
+        self.touch_request = coal.CollisionRequest()
+        self.touch_request.security_margin = -LINK_EPS_M
+
+    def is_clear(self, T: np.ndarray, object_margin_m: float) -> bool:
+        """T: (k, 4, 4) poses of the moving geometries, palm frame."""
+        centers = np.einsum("kij,kj->ki", T[:, :3, :3], self.moving_centers) + T[:, :3, 3]
+        radii = self.moving_radii
+        tfs = [None] * len(T)
+
+        def tf(k):
+            if tfs[k] is None:
+                tfs[k] = transform(T[k])
+            return tfs[k]
+
+        # object, with its margin (the cheap bounding-sphere test first)
+        d_obj = np.sqrt(((centers - self.obj_center) ** 2).sum(1)) - radii - self.obj_radius
+        if object_margin_m >= 0 or not self.obj_is_mesh:
+            request = coal.CollisionRequest()
+            request.security_margin = float(object_margin_m)
+            for k in np.flatnonzero(d_obj < object_margin_m):
+                if self.collide_obj[k](tf(k), self.obj_tf, request, coal.CollisionResult()):
+                    return False
+        else:  # a mesh and a tolerated penetration: signed distance (signed_distance_geometry)
+            request = coal.DistanceRequest()
+            for k in np.flatnonzero(d_obj < object_margin_m):
+                d = coal.distance(self.model.geometries[self.moving[k]].shape, tf(k), self.obj_sdf, self.obj_tf,
+                                  request, coal.DistanceResult())
+                if d < object_margin_m:
+                    return False
+        # palm and other fingers
+        if len(self.static):
+            d = (np.sqrt(((centers[:, None, :] - self.static_centers[None]) ** 2).sum(2))
+                 - radii[:, None] - self.static_radii[None])
+            for k, s in zip(*np.nonzero((d < 0.0) & self.static_mask)):
+                i, j = self.moving[k], self.static[s]
+                if self.model.compute_collision(i, j)(tf(k), self.static_tf[s], self.touch_request,
+                                                      coal.CollisionResult()):
+                    return False
+        # own non-adjacent links
+        for a, b in self.self_pairs:
+            if ((centers[a] - centers[b]) ** 2).sum() < (radii[a] + radii[b]) ** 2:
+                if self.model.compute_collision(self.moving[a], self.moving[b])(
+                        tf(a), tf(b), self.touch_request, coal.CollisionResult()):
+                    return False
+        return True
+
+    def violations(self, T: np.ndarray, object_margin_m: float) -> list[str]:
+        """Reasons (one line each, no repeats) why the moving geometries at T are not clear."""
+        geoms = self.model.geometries
+        reasons = []
+        for k, i in enumerate(self.moving):
+            gi = geoms[i]
+            d = coal.distance(gi.shape, transform(T[k]), self.obj_sdf, self.obj_tf,
+                              coal.DistanceRequest(), coal.DistanceResult())
+            if d < object_margin_m:
+                reasons.append(f"{gi.link} is {d * 1000:.1f} mm from the object (needs {object_margin_m * 1000:.1f})")
+            for s, j in enumerate(self.static):
+                if not self.static_mask[k, s]:
+                    continue
+                d = coal.distance(gi.shape, transform(T[k]), geoms[j].shape, self.static_tf[s],
+                                  coal.DistanceRequest(), coal.DistanceResult())
+                if d < -LINK_EPS_M:
+                    reasons.append(f"{gi.link} penetrates {geoms[j].link} by {-d * 1000:.2f} mm")
+        for a, b in self.self_pairs:
+            ga, gb = geoms[self.moving[a]], geoms[self.moving[b]]
+            d = coal.distance(ga.shape, transform(T[a]), gb.shape, transform(T[b]),
+                              coal.DistanceRequest(), coal.DistanceResult())
+            if d < -LINK_EPS_M:
+                reasons.append(f"{ga.link} penetrates {gb.link} by {-d * 1000:.2f} mm")
+        return list(dict.fromkeys(reasons))
