@@ -53,6 +53,8 @@ def _cmd_plan(args: argparse.Namespace) -> int:
     inputs = {k: {"path": str(p), "sha256": sha256_file(p)} for k, p in (("initial", args.initial), ("final", args.final))}
     result = plan_regrasp(initial, final, options, inputs, verbose=args.verbose)
     plan = result.plan
+    if args.output:  # written before anything is printed: a closed pipe (| head) cannot lose it
+        write_plan(plan, args.output)
     gripped = plan.states[0].grip_force_n is not None
     print(f"{'step':>4}  {'finger':<8} {'action':<5} {'state':>5}  {'metric':>10}  " + ("grip N  " if gripped else "") + "removable")
     for i, step in enumerate(plan.steps):
@@ -64,8 +66,6 @@ def _cmd_plan(args: argparse.Namespace) -> int:
         grip = f", grip {alt.bottleneck_grip:.3f} N" if alt.bottleneck_grip is not None else ""
         print(f"alternative {rank}: bottleneck {alt.bottleneck:.4g}{grip}, {alt.gait_steps} gait steps: "
               f"{' '.join(alt.order(result.graph.graph['problem']))}")
-    if args.output:
-        write_plan(plan, args.output)
     print(
         f"{s['strategy']}: {s['gait_steps']} gait steps ({len(plan.steps)} motions), bottleneck metric "
         f"{s['bottleneck_metric']:.4g}"
@@ -115,10 +115,11 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     # the demo's exit code is the replay's (1 when any direction fails); the GIF is palm down
     print(f"\nreplaying {plan_path} in pybullet under 7 gravity directions (palm down filmed)")
     verdict = main(["replay", str(plan_path), "--gravity-set", "7", "--gif", str(out / "cylinder_replay.gif"),
+                    "--film", "palm_down",
                     "--report", str(out / "cylinder_report.json")])
     # the interactive 3D page of the plan, with the replay's contacts and drift (regrasp view)
     main(["view", str(plan_path), "-o", str(out / "cylinder_plan.html"), "--report", str(out / "cylinder_report.json")])
-    print(f"demo outputs in {out}/: cylinder_plan.yaml, cylinder_plan.html, cylinder_replay_<direction>.gif, "
+    print(f"demo outputs in {out}/: cylinder_plan.yaml, cylinder_plan.html, cylinder_replay_palm_down.gif, "
           f"cylinder_report.json (replay {'passed' if verdict == 0 else 'did not pass'})")
     return verdict
 
@@ -151,10 +152,13 @@ def _cmd_replay(args: argparse.Namespace) -> int:
 
     kw = dict(gui=args.gui, gif=args.gif, gif_every=args.gif_every, mp4=args.mp4,
               drift_mm_max=args.drift_mm, drift_deg_max=args.drift_deg)
+    if args.film and args.gravity_set is None:
+        raise PlannerError("--film names directions of --gravity-set: give --gravity-set N too")
     if args.gravity_set is not None:
         if args.gravity is not None:
             raise PlannerError("--gravity and --gravity-set exclude each other: give one")
-        result = replay_gravity_set(args.plan, args.gravity_set, **kw)
+        film = [d.strip() for d in args.film.split(",") if d.strip()] if args.film else None
+        result = replay_gravity_set(args.plan, args.gravity_set, film=film, **kw)
         print(f"{'gravity':<10} {'g (palm frame)':<22} {'verdict':<5} {'drift mm':>8} {'drift deg':>9} {'closure':>8}  why")
         for name, g, r in result.directions:
             agree, reached = r.closure_agreement
@@ -258,6 +262,9 @@ def build_parser() -> argparse.ArgumentParser:
     replay.add_argument("--gravity-set", type=int, choices=GRAVITY_SET_SIZES, metavar="N",
                         help="replay under N gravity directions of the palm frame with a verdict per direction: "
                              "1 palm down, 2 and palm up, 6 and the four sideways directions, 7 and gravity off")
+    replay.add_argument("--film", metavar="NAMES",
+                        help="with --gravity-set and --gif/--mp4: film only these directions (comma-separated, "
+                             "e.g. palm_down; default all, one file per direction)")
     replay.set_defaults(func=_cmd_replay)
     view = sub.add_parser("view", help="write an interactive 3D page (one offline HTML file) of a plan or a grasp")
     view.add_argument("source", help="plan file (.yaml/.yml/.json) or grasp YAML")

@@ -423,6 +423,24 @@ def test_stdout_closed_before_the_first_line_is_quiet(argv):
     assert proc.returncode == 141 and proc.stderr.decode() == ""
 
 
+def test_plan_is_written_even_when_the_reader_is_gone(tmp_path):
+    """`regrasp plan A B -o p.yaml | head -1`: the plan is on disk (and whole) although the
+    table could not be printed."""
+    from planner.plan import read_plan
+
+    read_end, write_end = os.pipe()
+    os.close(read_end)
+    out = tmp_path / "p.yaml"
+    try:
+        proc = subprocess.run([sys.executable, "-m", "planner", "plan", str(ROOT / "grasps/icub/cylinder_parallel_extension.yaml"),
+                               str(ROOT / "grasps/icub/cylinder_ir2m.yaml"), "--no-motion", "-o", str(out)],
+                              stdout=write_end, stderr=subprocess.PIPE, cwd=ROOT, timeout=120)
+    finally:
+        os.close(write_end)
+    assert proc.returncode == 141 and proc.stderr.decode() == ""
+    assert len(read_plan(out).states) > 1
+
+
 def test_gif_is_written_atomically(tmp_path, monkeypatch):
     """`render.write_gif` (`regrasp view --gif`, `regrasp replay --gif`): a save that fails
     half-way (disk full) leaves the old GIF and no temporary file."""

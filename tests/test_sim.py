@@ -419,6 +419,20 @@ def test_gravity_set_replays_every_direction_with_its_own_verdict(hand, grasp, t
     assert len(rows) == 2 and "FAIL" in rows[0]
 
 
+def test_gravity_set_films_only_the_directions_asked_for(hand, grasp, tmp_path):
+    """--film palm_down with --gravity-set 2 and --gif writes the palm-down film only; a
+    direction outside the set, or --film without --gravity-set, is refused naming the choices."""
+    path = _write(tmp_path, _plan(hand, grasp))
+    out = _cli(path, "--gravity-set", "2", "--gif", tmp_path / "g.gif", "--gif-every", "48", "--film", "palm_down")
+    assert out.returncode == 0, out.stderr
+    assert sorted(p.name for p in tmp_path.glob("*.gif")) == ["g_palm_down.gif"]
+    bad = _cli(path, "--gravity-set", "2", "--gif", tmp_path / "h.gif", "--film", "side_+x")
+    assert bad.returncode == 2 and "side_+x" in bad.stderr and "palm_down, palm_up" in bad.stderr
+    lone = _cli(path, "--gif", tmp_path / "i.gif", "--film", "palm_down")
+    assert lone.returncode == 2 and "--gravity-set" in lone.stderr
+    assert not list(tmp_path.glob("[hi]*.gif"))
+
+
 @pytest.mark.parametrize("n", [1, 2, 6, 7])
 def test_gravity_sets_have_n_named_directions_of_one_magnitude(n):
     """Each set size gives exactly n directions: palm down first (along the palm normal),

@@ -55,7 +55,7 @@ import shutil
 import subprocess
 import tempfile
 import time
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -686,7 +686,7 @@ class GravitySetReport:
 
 
 def replay_gravity_set(plan: Mapping | str | os.PathLike, n: int = 6, *, hand=None, g_mps2: float = 9.81,
-                       **kwargs) -> GravitySetReport:
+                       film: Sequence[str] | None = None, **kwargs) -> GravitySetReport:
     """Replay a plan under several gravity directions of the palm frame (`planner.gravity`).
 
     Args:
@@ -695,6 +695,7 @@ def replay_gravity_set(plan: Mapping | str | os.PathLike, n: int = 6, *, hand=No
             6 with the four sideways directions, 7 with gravity off too.
         hand: the plan's `planner.hand.Hand` (loaded from the plan when None).
         g_mps2: gravity magnitude.
+        film: the direction names filmed when ``gif`` or ``mp4`` is given (default: all).
         **kwargs: passed to `replay_plan` (not ``gravity``; a ``gif`` path gets the direction
             name inserted before its suffix).
 
@@ -710,11 +711,18 @@ def replay_gravity_set(plan: Mapping | str | os.PathLike, n: int = 6, *, hand=No
         from planner.hand import Hand
 
         hand = Hand.load(_hand_target(rd))
+    directions = gravity_directions(hand.palm_normal, n, g_mps2)
+    names = [name for name, _ in directions]
+    unknown = sorted(set(film or ()) - set(names))
+    if unknown:
+        raise InputError(f"cannot film {', '.join(unknown)}: the gravity set of {n} has {', '.join(names)}")
     out = []
-    for name, g in gravity_directions(hand.palm_normal, n, g_mps2):
+    for name, g in directions:
         kw = dict(kwargs)
         for key in ("gif", "mp4"):
-            if kw.get(key) is not None:
+            if film is not None and name not in film:
+                kw.pop(key, None)
+            elif kw.get(key) is not None:
                 path = Path(kw[key])
                 kw[key] = path.with_name(f"{path.stem}_{name}{path.suffix}")
         out.append((name, g, replay_plan(rd, hand=hand, gravity=g, **kw)))
@@ -937,7 +945,6 @@ class _Sim:
         ctl.command(self._q(states[0]), states[0].touching)
         self._run_for(prm["acquire_s"])
         ctl.latch(states[0].touching)
-        ctl.target_pose = self.T_ref
         p.removeConstraint(hold, physicsClientId=self.cid)
         self.released = True
         # 2. gravity comes in gradually; the forces follow the load
