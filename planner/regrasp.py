@@ -48,7 +48,8 @@ class PlanOptions:
     Attributes:
         strategy: "graph" (ranked search) or "greedy" (thesis Algorithm 2).
         alternatives: number of ranked sequences to return (graph strategy).
-        intermediate: extra contacts to sample per finger (0 = none).
+        intermediate: intermediate contacts per finger, fixed (0: none, or added in rounds
+            when needed: see ``time_limit_s``).
         seed: seed for motion planning (intermediate contacts come from a fixed per-finger
             pool, `reachable_contacts`).
         motion: plan finger paths with OMPL (False: straight joint-space segments).
