@@ -359,3 +359,27 @@ def test_failure_is_explained_in_words():
     err = explain_failure(lazy.G, intermediate_tried=True)
     assert "B cannot land on its final contact: it would collide with A" in str(err)
     assert err.report["blockers"][0] in ("A", "B")
+
+
+def test_lazy_graph_honours_removed_edges_and_the_lift_bound():
+    """A move removed for good (a finger path that cannot be planned) is never used again,
+    and the ranking then equals the full graph's without that edge; with ``max_lifted`` no
+    explored state has more fingers lifted."""
+    prob = greedy_trap()
+    lazy = LazyGraph(prob)
+    first = lazy.best(3)[0]
+    u, v = first.nodes[0], first.nodes[1]
+    lazy.remove_edge(u, v)
+    again = lazy.best(3)
+    full = build_graph(prob)
+    full.remove_edge(u, v)
+    assert again and all((u, v) not in zip(s.nodes, s.nodes[1:]) for s in again)
+    assert [s.rank_key for s in again] == [pytest.approx(s.rank_key, rel=1e-9, abs=1e-15) for s in search(full, k=3)]
+    bound = GaitProblem(prob.fingers, prob.slots, prob.start, prob.goal, FRICTION, max_lifted=1)
+    bounded = LazyGraph(bound)
+    found = bounded.best(2)
+    assert found and all(sum(s == LIFTED for s in v) <= 1 for v in bounded.G.nodes)
+    assert [s.rank_key for s in found] == [pytest.approx(s.rank_key, rel=1e-9, abs=1e-15)
+                                           for s in search(build_graph(bound), k=2)]
+    for s in found:
+        recheck(prob, s)
