@@ -273,7 +273,7 @@ class HandState:
         q: (nq,) read-only joint configuration (order ``hand.joint_names``).
     """
 
-    __slots__ = ("model", "q", "_tf", "_centers", "_links", "_origin", "_moved", "_moved_T", "_cache")
+    __slots__ = ("model", "q", "_tf", "_origin", "_moved", "_moved_T", "_cache")
 
     def __init__(self, model: CollisionModel, q):
         self.model = model
@@ -281,12 +281,12 @@ class HandState:
         q.flags.writeable = False
         self.q = q
         self._tf: dict[int, coal.Transform3s] = {}
-        self._centers: dict[int, np.ndarray] = {}
-        self._links: dict[int, tuple] = {}  # id(obj) -> (obj, {link: LinkDistance})
         self._origin = self  # the state whose other fingers this one shares (see with_finger)
         self._moved: str | None = None
         self._moved_T: np.ndarray | None = None
-        self._cache: dict = {}  # per-finger kinematics and clearance scenes built on this state
+        # computed once: ("center", i), ("links", id(obj)) -> (obj, {link: LinkDistance}),
+        # ("kin", finger), ("clearance", finger, id(obj)) -> (obj, scene)
+        self._cache: dict = {}
 
     # ------------------------------------------------------------------ kinematics
     def _fk(self):
@@ -315,13 +315,13 @@ class HandState:
 
     def center(self, i: int) -> np.ndarray:
         """(3,) bounding sphere centre of geometry ``i``, palm frame."""
-        c = self._centers.get(i)
+        c = self._cache.get(("center", i))
         if c is None:
             g = self.model.geometries[i]
             c = self._fk().oMi[g.joint_id].act(g.center)
             if not self.model.palm_is_root:
                 c = self.model.T_palm_world.act(c)
-            self._centers[i] = c
+            self._cache[("center", i)] = c
         return c
 
     def link_pose(self, link: str) -> np.ndarray:
@@ -407,9 +407,9 @@ class HandState:
         Returns:
             link -> `LinkDistance`, in the order of ``links``.
         """
-        entry = self._links.get(id(obj))
+        entry = self._cache.get(("links", id(obj)))
         if entry is None or entry[0] is not obj:
-            entry = self._links[id(obj)] = (obj, {})
+            entry = self._cache[("links", id(obj))] = (obj, {})
         known = entry[1]
         tf_obj = None
         req = coal.DistanceRequest()

@@ -394,7 +394,6 @@ class Hand:
         self.collision = CollisionModel(
             self.model, self._T_palm_world, geoms, {n: f.q_index for n, f in self.fingers.items()}, allowed,
             by_design_qs=(np.clip(np.zeros(self.model.nq), self.lower, self.upper), self.q_open))
-        self._disabled = set(self.collision.allowed)  # TEMPORARY for motion.py until step 3
 
     def _resolve_urdf(self, urdf: str) -> str:
         if urdf.startswith("package://"):

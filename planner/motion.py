@@ -25,10 +25,8 @@ from __future__ import annotations
 import contextlib
 import math
 from collections.abc import Iterator, Mapping
-from dataclasses import dataclass
 from types import MappingProxyType
 
-import coal
 import numpy as np
 
 from planner.contacts import TOUCH_TOL_M
@@ -38,8 +36,6 @@ DEFAULT_CLEARANCE_M = 0.002
 """Distance a moving finger keeps from the object outside the lift/land steps."""
 DEFAULT_TOUCH_TOL_M = TOUCH_TOL_M
 """Finger-object penetration tolerated at a contact (the lift/land ends), as in contacts."""
-_LINK_EPS_M = 1e-6
-"""Finger-finger / finger-palm penetration below this is not a collision (as in contacts)."""
 DEFAULT_LIFT_M = 0.005
 """Retreat of the contact point along the outward normal in a lift (and approach in a land)."""
 MAX_LIFT_M = 0.03
@@ -186,236 +182,36 @@ def _solve_ompl(
 # ---------------------------------------------------------------- collision scene
 
 
-def _tf(T: np.ndarray) -> coal.Transform3s:
-    return coal.Transform3s(np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3]))
-
-
-def _mat(tf: coal.Transform3s) -> np.ndarray:
-    T = np.eye(4)
-    T[:3, :3] = tf.getRotation()
-    T[:3, 3] = tf.getTranslation()
-    return T
-
-
-def _bounding_sphere(geometry) -> tuple[np.ndarray, float]:
-    geometry.computeLocalAABB()
-    return np.array(geometry.aabb_center, dtype=float), float(geometry.aabb_radius)
-
-
-MESH_CONVEX_TOL_M = 1e-4
-"""A mesh whose vertices and face centroids all lie within this of its convex hull's
-boundary counts as convex: its hull stands for it in signed distances, off by at most
-this (a tenth of the touch tolerance). Meshes of smooth convex shapes are rarely convex
-to the micrometre: the non-planar quads of grasps/meshes/rounded_box.obj fold inward by
-up to 26 um."""
-_SDF_GEOMETRY_CACHE: dict[int, tuple] = {}  # id(geometry) -> (geometry, its signed-distance geometry)
-
-
-def _signed_distance_geometry(obj):
-    """The coal geometry whose signed distance to a finger link is the object's.
-
-    coal's collision query refuses a negative security margin (a tolerated penetration)
-    for a ``BVHModel`` ("Negative security margin are not handled yet for BVHModel"), and
-    its distance query on a mesh is the smallest distance to any one triangle, a thin
-    plate: when a link sinks into the solid it measures how far the link must move to
-    clear one triangle, often sideways off it, so it reports a fraction of the depth (a
-    capsule 2.6 mm deep into a 5 mm gridded box mesh reads 0.7 mm). Primitives
-    (box, cylinder, sphere) are convex and coal's GJK/EPA gives their exact signed
-    distance: they are returned as they are. A mesh is replaced by its convex hull (a
-    ``coal.Convex``, where GJK/EPA is exact too) when the mesh is convex, i.e. the hull is
-    the object (every vertex and face centroid on the hull's boundary within
-    ``MESH_CONVEX_TOL_M``). A non-convex mesh keeps its triangles: its hull would report
-    a finger resting in a concavity as deep inside, so the per-triangle distance (the
-    measure ``planner.contacts`` and the closing procedure use for meshes) is kept: exact
-    while the link is outside, it can under-report the depth once a link sinks in. A link
-    wholly inside a mesh touches no triangle and reads as clear (as in coal's collision
-    query with a positive margin); paths are checked every ``resolution_rad`` from outside,
-    so they cannot get there without crossing the surface.
-    """
-    geometry = obj.geometry
-    if not isinstance(geometry, coal.BVHModelBase):
-        return geometry
-    cached = _SDF_GEOMETRY_CACHE.get(id(geometry))
-    if cached is None:  # the entry holds the geometry, so its id is not reused meanwhile
-        if len(_SDF_GEOMETRY_CACHE) >= 8:
-            _SDF_GEOMETRY_CACHE.pop(next(iter(_SDF_GEOMETRY_CACHE)))
-        cached = _SDF_GEOMETRY_CACHE[id(geometry)] = (geometry, _mesh_signed_distance_geometry(geometry))
-    return cached[1]
-
-
-def _mesh_signed_distance_geometry(geometry):
-    """The convex hull of a convex ``BVHModel`` as a ``coal.Convex``, else the mesh itself."""
-    from scipy.spatial import ConvexHull
-
-    V = np.asarray(geometry.vertices(), dtype=float)
-    F = np.array([[t[0], t[1], t[2]] for t in map(geometry.tri_indices, range(geometry.num_tris))], dtype=np.int64)
-    hull = ConvexHull(V)
-    probes = np.concatenate([V, V[F].mean(axis=1)])
-    gap = -(probes @ hull.equations[:, :3].T + hull.equations[:, 3]).max(axis=1)  # >= 0 inside
-    if gap.max() > MESH_CONVEX_TOL_M:
-        return geometry
-    points = coal.StdVec_Vec3s()
-    for v in V[hull.vertices]:
-        points.append(np.ascontiguousarray(v))
-    convex = coal.Convex.convexHull(points, False, "Qt")
-    convex.computeLocalAABB()
-    return convex
-
-
-@dataclass(frozen=True)
-class _Body:
-    name: str  # link name, or "object"
-    finger: str | None
-    geometry: object  # coal.CollisionGeometry in its own frame
-    center: np.ndarray  # bounding sphere centre in the body frame (3,)
-    radius: float
-
-
 class _FingerScene:
-    """Collision world for one moving finger; coal geometry built once.
+    """One moving finger of a hand held at ``q_ref``: its paths' view of the collision layer.
 
-    Static bodies (palm, other fingers at ``q_ref``, the object) keep their pose; the
-    moving finger's geometries are re-posed from forward kinematics per query. A
-    configuration is valid when every moving geometry is at least ``object_margin_m``
-    from the object (negative: tolerated penetration, measured as a signed distance, on a
-    mesh object too: see :func:`_signed_distance_geometry`) and does not penetrate the palm,
-    the other fingers or the non-adjacent links of its own finger (touching is fine; the
-    same link pairs and the same 1 um threshold as ``planner.contacts.collisions``).
+    The queries are `planner.collision.HandState` queries on ``hand.state(q_ref)`` with the
+    finger moved by `HandState.with_finger` (only its chain re-posed; the palm, the other
+    fingers and the object keep their pose, and their side of the clearance check is built
+    once). A configuration is valid (`HandState.clearance`) when every link of the finger
+    is at least ``object_margin_m`` from the object (negative: tolerated penetration, a
+    signed distance on a mesh object too, `planner.collision.signed_distance_geometry`) and
+    does not penetrate the palm, the other fingers or the non-adjacent links of its own
+    finger (touching is fine; the allowed pairs and the 1 um threshold of
+    ``planner.contacts.collisions``).
     """
 
     def __init__(self, hand, obj, q_ref: np.ndarray, finger: str, touch_tol_m: float):
-        import pinocchio as pin
-
         self.hand = hand
         self.finger = hand.fingers[finger]
         self.idx = np.asarray(self.finger.q_index, dtype=int)
         self.q_ref = np.array(q_ref, dtype=float)
         self.touch_tol_m = float(touch_tol_m)
-        model = hand.model
-        self._model = model
-        self._data = model.createData()
-        self._pin = pin
-
-        moving: list[tuple[_Body, np.ndarray]] = []  # (body, T_link_geom)
-        static: list[tuple[_Body, np.ndarray]] = []  # (body, T_palm_geom)
-        for link, owner, geometry, tf_palm in hand.collision_objects(self.q_ref):
-            center, radius = _bounding_sphere(geometry)
-            body = _Body(link, owner, geometry, center, radius)
-            T_palm_geom = _mat(tf_palm)
-            if owner == finger:
-                T_palm_link = np.asarray(hand.link_pose(self.q_ref, link), dtype=float)
-                moving.append((body, np.linalg.inv(T_palm_link) @ T_palm_geom))
-            else:
-                static.append((body, T_palm_geom))
-        if not moving:
-            raise MotionError(f"finger {finger!r} has no collision geometry")
-        self.moving_links = tuple(dict.fromkeys(b.name for b, _ in moving))
-        self._moving = moving
-        self._T_link_geom = np.array([T for _, T in moving])  # (k, 4, 4)
-        self._moving_centers = np.array([b.center for b, _ in moving])  # (k, 3) geometry frames
-        self._moving_radii = np.array([b.radius for b, _ in moving])
-        self._link_of = np.array([self.moving_links.index(b.name) for b, _ in moving])
-
         self.obj = obj
         self._T_palm_obj = np.asarray(obj.T_palm_obj, dtype=float)
-        o_center, o_radius = _bounding_sphere(obj.geometry)
-        self._obj_body = _Body("object", None, obj.geometry, o_center, o_radius)
-        self._obj_tf = _tf(self._T_palm_obj)
-        self._obj_center_palm = self._T_palm_obj[:3, :3] @ o_center + self._T_palm_obj[:3, 3]
+        self.moving_links = hand.collision.finger_links(finger)
+        if not self.moving_links:
+            raise MotionError(f"finger {finger!r} has no collision geometry")
+        self.base = hand.state(self.q_ref)
 
-        # Pairs never checked: a link and its parent or child link, and the pairs the hand
-        # disables (shapes overlapping by design at q = 0 or at the open posture, as in
-        # MoveIt's "default" allowed-collision pairs) so that this agrees with contacts.
-        adjacent = set()
-        for body, _ in moving:
-            par = self._parent_link(body.name)
-            adjacent.update({(body.name, par), (par, body.name)})
-        for pair in getattr(hand, "_disabled", ()):
-            a, b = tuple(pair)
-            adjacent.update({(a, b), (b, a)})
-        self._static = [(b, _tf(T), T[:3, :3] @ b.center + T[:3, 3]) for b, T in static]
-        self._static_centers = (
-            np.array([c for _, _, c in self._static]) if self._static else np.zeros((0, 3))
-        )
-        self._static_radii = np.array([b.radius for b, _, _ in self._static])
-        self._static_mask = np.array(
-            [[(bm.name, bs.name) not in adjacent for bs, _, _ in self._static] for bm, _ in moving],
-            dtype=bool,
-        ).reshape(len(moving), len(self._static))
-        self._self_pairs = [
-            (i, j)
-            for i in range(len(moving))
-            for j in range(i + 1, len(moving))
-            if moving[i][0].name != moving[j][0].name
-            and (moving[i][0].name, moving[j][0].name) not in adjacent
-        ]
-        self._collide_obj = [coal.ComputeCollision(b.geometry, obj.geometry) for b, _ in moving]
-        # Signed distances to the object (lift/land margins may be negative, which coal's
-        # collision query does not accept for meshes): see _signed_distance_geometry.
-        self._obj_sdf_geometry = _signed_distance_geometry(obj)
-        self._collide_static = [
-            [coal.ComputeCollision(bm.geometry, bs.geometry) for bs, _, _ in self._static]
-            for bm, _ in moving
-        ]
-        self._collide_self = {
-            (i, j): coal.ComputeCollision(moving[i][0].geometry, moving[j][0].geometry)
-            for i, j in self._self_pairs
-        }
-        self._touch_request = coal.CollisionRequest()
-        self._touch_request.security_margin = -_LINK_EPS_M
-
-        # Fast forward kinematics straight from pinocchio when the hand's q vector
-        # maps onto the model's; checked once against hand.link_pose.
-        self._frame_ids = [model.getFrameId(link) for link in self.moving_links]
-        self._palm_id = model.getFrameId(hand.palm_frame) if hasattr(hand, "palm_frame") else None
-        self._q_map = self._pin_q_map()
-        self._q_pin = pin.neutral(model)
-        self._T_palm_world = None
-        self._fast = self._q_map is not None and self._palm_id is not None and all(
-            np.allclose(
-                self._link_poses_fast(self.q_ref)[k],
-                np.asarray(hand.link_pose(self.q_ref, link)),
-                atol=1e-9,
-            )
-            for k, link in enumerate(self.moving_links)
-        )
-
-    # -- kinematics
-    def _parent_link(self, link: str) -> str:
-        model = self._model
-        frames = model.frames
-        fid = model.getFrameId(link)
-        f = frames[fid].parentFrame
-        for _ in range(len(frames)):
-            if frames[f].type == self._pin.FrameType.BODY or f == 0:
-                break
-            f = frames[f].parentFrame
-        return frames[f].name
-
-    def _pin_q_map(self) -> np.ndarray | None:
-        model = self._model
-        names = list(getattr(self.hand, "joint_names", ()))
-        if not names:
-            return None
-        out = []
-        for name in names:
-            if not model.existJointName(name):
-                return None
-            joint = model.joints[model.getJointId(name)]
-            if joint.nq != 1:
-                return None
-            out.append(joint.idx_q)
-        return np.asarray(out, dtype=int)
-
-    def _link_poses_fast(self, q: np.ndarray) -> np.ndarray:
-        pin = self._pin
-        q_pin = self._q_pin
-        q_pin[self._q_map] = q
-        pin.framesForwardKinematics(self._model, self._data, q_pin)
-        oMf = self._data.oMf
-        if self._T_palm_world is None:  # the palm is rigidly attached to the hand's root
-            self._T_palm_world = np.linalg.inv(oMf[self._palm_id].homogeneous)
-        return self._T_palm_world @ np.array([oMf[f].homogeneous for f in self._frame_ids])
+    def state(self, q_finger: np.ndarray):
+        """The hand with this finger at ``q_finger`` (`HandState.with_finger`)."""
+        return self.base.with_finger(self.finger.name, q_finger)
 
     def full_q(self, q_finger: np.ndarray) -> np.ndarray:
         q = self.q_ref.copy()
@@ -424,58 +220,12 @@ class _FingerScene:
 
     def link_poses(self, q_finger: np.ndarray) -> np.ndarray:
         """``T_palm_link`` of the moving links, (k, 4, 4)."""
-        q = self.full_q(q_finger)
-        if self._fast:
-            return self._link_poses_fast(q)
-        return np.array([np.asarray(self.hand.link_pose(q, link)) for link in self.moving_links])
-
-    def _geom_poses(self, q_finger: np.ndarray) -> np.ndarray:
-        return self.link_poses(q_finger)[self._link_of] @ self._T_link_geom
+        return self.state(q_finger).finger_link_poses(self.finger.name)
 
     # -- queries
     def is_valid(self, q_finger: np.ndarray, object_margin_m: float) -> bool:
         """True when the finger at ``q_finger`` respects the margins (see class doc)."""
-        T = self._geom_poses(q_finger)
-        centers = np.einsum("kij,kj->ki", T[:, :3, :3], self._moving_centers) + T[:, :3, 3]
-        radii = self._moving_radii
-        tfs = [None] * len(T)
-
-        def tf(k):
-            if tfs[k] is None:
-                tfs[k] = _tf(T[k])
-            return tfs[k]
-
-        # object, with its margin (the cheap bounding-sphere test first)
-        d_obj = np.sqrt(((centers - self._obj_center_palm) ** 2).sum(1)) - radii - self._obj_body.radius
-        if object_margin_m >= 0 or not isinstance(self.obj.geometry, coal.BVHModelBase):
-            request = coal.CollisionRequest()
-            request.security_margin = float(object_margin_m)
-            for k in np.flatnonzero(d_obj < object_margin_m):
-                if self._collide_obj[k](tf(k), self._obj_tf, request, coal.CollisionResult()):
-                    return False
-        else:  # a mesh and a tolerated penetration: signed distance (_signed_distance_geometry)
-            request = coal.DistanceRequest()
-            for k in np.flatnonzero(d_obj < object_margin_m):
-                d = coal.distance(self._moving[k][0].geometry, tf(k), self._obj_sdf_geometry, self._obj_tf,
-                                  request, coal.DistanceResult())
-                if d < object_margin_m:
-                    return False
-        # palm and other fingers
-        if len(self._static):
-            d = (
-                np.sqrt(((centers[:, None, :] - self._static_centers[None]) ** 2).sum(2))
-                - radii[:, None]
-                - self._static_radii[None]
-            )
-            for k, s in zip(*np.nonzero((d < 0.0) & self._static_mask)):
-                if self._collide_static[k][s](tf(k), self._static[s][1], self._touch_request, coal.CollisionResult()):
-                    return False
-        # own non-adjacent links
-        for i, j in self._self_pairs:
-            if ((centers[i] - centers[j]) ** 2).sum() < (radii[i] + radii[j]) ** 2:
-                if self._collide_self[(i, j)](tf(i), tf(j), self._touch_request, coal.CollisionResult()):
-                    return False
-        return True
+        return self.state(q_finger).clearance(self.obj, self.finger.name, object_margin_m)
 
     def object_distances(self, q_finger: np.ndarray) -> list[tuple[float, str, np.ndarray, np.ndarray]]:
         """Signed distance of every moving geometry to the object (negative: penetration).
@@ -483,19 +233,7 @@ class _FingerScene:
         Returns a list of ``(distance_m, link, p_link_palm (3,), p_object_palm (3,))``:
         the nearest points on the link and on the object, palm frame.
         """
-        T = self._geom_poses(q_finger)
-        out = []
-        request = coal.DistanceRequest()
-        for k, (body, _) in enumerate(self._moving):
-            result = coal.DistanceResult()
-            d = coal.distance(body.geometry, _tf(T[k]), self._obj_sdf_geometry, self._obj_tf, request, result)
-            out.append((
-                float(d),
-                body.name,
-                np.array(result.getNearestPoint1(), dtype=float),
-                np.array(result.getNearestPoint2(), dtype=float),
-            ))
-        return out
+        return self.state(q_finger).object_distances(self.obj, self.finger.name)
 
     def object_distance(self, q_finger: np.ndarray) -> tuple[float, str, np.ndarray, np.ndarray]:
         """The entry of :meth:`object_distances` nearest to the object."""
@@ -508,27 +246,8 @@ class _FingerScene:
 
     def explain(self, q_finger: np.ndarray, object_margin_m: float) -> str:
         """A short human-readable reason why ``q_finger`` is invalid."""
-        T = self._geom_poses(q_finger)
-        reasons = []
-        for k, (body, _) in enumerate(self._moving):
-            d = coal.distance(body.geometry, _tf(T[k]), self._obj_sdf_geometry, self._obj_tf,
-                              coal.DistanceRequest(), coal.DistanceResult())
-            if d < object_margin_m:
-                reasons.append(f"{body.name} is {d * 1000:.1f} mm from the object (needs {object_margin_m * 1000:.1f})")
-            for s, (other, tf_other, _) in enumerate(self._static):
-                if not self._static_mask[k, s]:
-                    continue
-                d = coal.distance(body.geometry, _tf(T[k]), other.geometry, tf_other,
-                                  coal.DistanceRequest(), coal.DistanceResult())
-                if d < -_LINK_EPS_M:
-                    reasons.append(f"{body.name} penetrates {other.name} by {-d * 1000:.2f} mm")
-        for i, j in self._self_pairs:
-            bi, bj = self._moving[i][0], self._moving[j][0]
-            d = coal.distance(bi.geometry, _tf(T[i]), bj.geometry, _tf(T[j]),
-                              coal.DistanceRequest(), coal.DistanceResult())
-            if d < -_LINK_EPS_M:
-                reasons.append(f"{bi.name} penetrates {bj.name} by {-d * 1000:.2f} mm")
-        return "; ".join(dict.fromkeys(reasons)) or "no collision found"
+        reasons = self.state(q_finger).clearance_violations(self.obj, self.finger.name, object_margin_m)
+        return "; ".join(reasons) or "no collision found"
 
 
 # ------------------------------------------------------------------- path helpers
