@@ -18,8 +18,9 @@ Object file (``OBJECT.yaml``): the ``object:`` block of the grasp schema on its 
 the top level or under an ``object:`` key (so a grasp file works too; its friction is then
 used unless ``--mu``/``--gamma`` are given).
 - Without ``position``: the object pose is sampled too (an "approach"): the object centre
-  is put between the chosen fingers' pads of a random half-closed hand posture, with a
-  random orientation, and the fingers close onto it from the open posture.
+  is put where the chosen fingers' pads of a random pre-shape would all touch a ball of the
+  object's inner radius (`_sample_candidate`), with a random orientation, and the fingers
+  close onto it from the pre-shape.
 - With ``position`` (and ``quat_xyzw``, default identity): the object stays there (all
   grasps share the pose, so any two of them can be a regrasp pair) and only the finger
   pre-shapes are sampled.
