@@ -104,3 +104,61 @@ def test_exp7_pair_list_covers_families_hands_and_sizes():
     for pair in {t["pair"] for t in tasks}:  # several sizes of every object
         assert len({(t["mode"], t["scale"]) for t in tasks if t["pair"] == pair}) >= 3, pair
     assert len(exp7_execution.pair_tasks(quick=True)) in (3, 4)
+
+
+def test_exp8_quick_plans_a_synthesized_pair_three_ways(tmp_path, capsys):
+    """exp8 --quick: grasps synthesized at one fixed pose, one pair planned with defaults, with the
+    graph only and in execution mode; one CSV row with a reason for every mode that failed."""
+    from experiments import exp8_random_pairs as exp8
+
+    summary = exp8.main(["--quick", "--workers", "1", "--directions", "1", "--no-progress", "--out", str(tmp_path)])
+    rows = list(csv.DictReader(open(tmp_path / "exp8_random_pairs.csv")))
+    assert len(rows) == 1 and summary["pairs"] == 1
+    r = rows[0]
+    assert r["hand"] == "allegro_right" and r["family"] == "box" and r["initial"] != r["final"]
+    for mode in exp8.MODES:
+        assert r[f"{mode}_solved"] in ("True", "False") and float(r[f"{mode}_time_s"]) > 0
+        assert (r[f"{mode}_solved"] == "True") == (r.get(f"{mode}_why", "") == "")  # a failure says why
+    assert (r["reason"] == "") == (r["default_solved"] == r["execution_solved"] == "True" and r.get("exec_all") == "True")
+    synth = list(csv.DictReader(open(tmp_path / "exp8_random_pairs_synth.csv")))
+    assert len({s["pose"] for s in synth}) == 1 and len(synth) == 2  # one fixed pose, two finger sets
+    assert (tmp_path / "exp8_random_pairs.png").stat().st_size > 1000
+    assert "exp8 random pairs" in capsys.readouterr().out
+
+
+def test_exp8_pairs_replay_rows_and_reasons():
+    """Pairs: distinct grasps, never the same two twice, across finger sets first, seeded.
+    Replay rows: pass per generic direction, all / sideways, the first failing verdict."""
+    from types import SimpleNamespace
+
+    from experiments import exp8_random_pairs as exp8
+    from planner.errors import NoSequenceError
+
+    grasps = [{"fingers": f} for f in ("a", "a", "b", "b", "c")]
+    pairs = exp8.draw_pairs(grasps, 6, seed=3)
+    assert pairs == exp8.draw_pairs(grasps, 6, seed=3) and len(pairs) == 6
+    assert all(i != j for i, j in pairs) and len({frozenset(p) for p in pairs}) == 6
+    assert all(grasps[i]["fingers"] != grasps[j]["fingers"] for i, j in pairs)  # 8 cross-set pairs exist
+    assert len(exp8.draw_pairs(grasps[:2], 5, seed=0)) == 1
+
+    def rep(ok, verdict="PASS"):
+        return SimpleNamespace(passed=ok, max_drift_deg=1.0 if ok else 40.0, verdict=verdict)
+
+    names = ["palm_down", "palm_up", "side_+y", "side_-y", "side_+z", "side_-z", "off"]
+    fake = [(n, rep(n != "side_-y", "FAIL: dropped at step 2" if n == "side_-y" else "PASS"), 0.5) for n in names]
+    orig = exp8.replay_all
+    exp8.replay_all = lambda plan, hand, n: fake
+    try:
+        row = exp8.replay_row({}, None, 7)
+    finally:
+        exp8.replay_all = orig
+    assert row["exec_palm_down"] and row["exec_palm_up"] and row["exec_off"] and not row["exec_side_2"]
+    assert not row["exec_all"] and not row["exec_sideways"] and row["replay_s"] == 3.5
+    assert row["replay_fail"] == "replay side_2: FAIL: dropped at step 2"
+    err = NoSequenceError("no finger-gaiting sequence: ...; the time limit of 10 s was reached",
+                          report={"never_removable": ["thumb"], "landing_blocked": {"ring": {}}})
+    assert exp8._why(err) == "never removable: thumb; cannot land: ring; time limit reached"
+    assert exp8._why(NoSequenceError("the final grasp 'x' is not force closure with the 'mean' contact model "
+                                     "(metric -0.01)")) == "final grasp not force closure with mean contacts"
+    assert exp8.reason({"replay_fail": "replay side_2: x"}, {"execution": "cannot land: ring"}) == \
+        "execution: cannot land: ring"

@@ -1,0 +1,402 @@
+"""Exp. 8 - the planner's coverage: random pairs of synthesized grasps, planned three ways.
+
+Issue 14's regrasp benchmark. For both hands (icub_right, allegro_right) and objects of
+several shapes and sizes (spheres of 15-30 mm radius, boxes, cylinders, a 5 mm rod), the
+object gets ONE pose per hand (so any two grasps of it form a regrasp pair): the pose of the
+first grasp `planner.synth` finds with the object pose sampled (largest finger set first).
+With that pose fixed, `planner.synth` (seeded) writes up to ``GRASPS_PER_SET`` grasps for
+each finger set of the hand (e.g. thumb-index-middle, thumb-index-middle-ring, all fingers);
+the grasp that gave the pose joins its set as rank 0 (a near-duplicate of it may too).
+Pairs (initial, final) of distinct grasps of the same object are drawn, seeded, preferring
+different finger sets; each pair is planned (`planner.regrasp.plan_regrasp`, finger paths on):
+
+- **default**: `PlanOptions()` - the anytime planner: intermediate contacts in rounds within
+  its default time limit;
+- **graph**: `PlanOptions(intermediate=0, time_limit_s=0)` - the thesis's graph of the two
+  grasps' contacts only, no intermediate contacts;
+- **execution**: `PlanOptions.for_execution()` (mean contacts, gravity set 6, grip
+  ranking, friction reserve), and that plan replayed in pybullet under the 7 gravity
+  directions of `planner.gravity` (`experiments.exp7_execution.replay_all`).
+
+The CSV has one row per pair: solved and time per mode, gait steps, intermediate contacts
+added, execution pass per direction (palm down, palm up, side_1..4, off; generic names as in
+exp7), and ``reason``: one line saying why the pair fell short (the first of: default not
+solved, execution not planned, replay failed in a direction), empty when everything passed.
+
+``--quick`` (tests, seconds): the Allegro on the 45x45x60 mm box, two finger sets, one pair, straight
+joint-space finger paths instead of OMPL (``--no-motion``).
+
+    python experiments/exp8_random_pairs.py [--quick] [--workers N] [--pairs-per-object K] [--directions 1|2|6|7] [--no-motion]
+    python experiments/exp8_random_pairs.py --from-csv experiments/results/exp8_random_pairs.csv   # re-plot
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections import Counter
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import numpy as np  # noqa: E402
+
+from experiments.common import parser, print_summary, pyplot, run_tasks, save, write_csv  # noqa: E402
+from experiments.exp7_execution import family, generic_direction, read_rows, replay_all  # noqa: E402
+
+#: Finger sets per hand, the largest first (the pose is taken from the first that yields a grasp).
+FINGER_SETS = {
+    "icub_right": ("thumb,index,middle,ring,little", "thumb,index,middle,ring", "thumb,index,middle"),
+    "allegro_right": ("thumb,index,middle,ring", "thumb,index,middle", "thumb,middle,ring"),
+}
+#: (label, object block without pose); masses: about 500 kg/m^3, at least 10 g.
+OBJECTS = (
+    ("sphere r15", {"shape": "sphere", "size": [0.015], "mass_kg": 0.02}),
+    ("sphere r22", {"shape": "sphere", "size": [0.022], "mass_kg": 0.03}),
+    ("sphere r30", {"shape": "sphere", "size": [0.03], "mass_kg": 0.05}),
+    ("box 30x40x50", {"shape": "box", "size": [0.03, 0.04, 0.05], "mass_kg": 0.03}),
+    ("box 45x45x60", {"shape": "box", "size": [0.045, 0.045, 0.06], "mass_kg": 0.06}),
+    ("cylinder r15 l80", {"shape": "cylinder", "size": [0.015, 0.08], "mass_kg": 0.03}),
+    ("cylinder r25 l100", {"shape": "cylinder", "size": [0.025, 0.1], "mass_kg": 0.1}),
+    ("rod r5 l120", {"shape": "cylinder", "size": [0.005, 0.12], "mass_kg": 0.01}),
+)
+#: --quick: one hand, one object, two finger sets, one pair.
+QUICK = {"hands": ("allegro_right",), "objects": ("box 45x45x60",), "sets": 2, "pairs": 1}
+GRASPS_PER_SET = 3
+PAIRS_PER_OBJECT = 3
+#: Attempts of the pose search (per finger set) and of each fixed-pose synthesis.
+POSE_ATTEMPTS = 200
+SYNTH_ATTEMPTS = 120
+MODES = ("default", "graph", "execution")
+
+
+# ------------------------------------------------------------------ synthesis
+
+
+def synth_task(t: dict) -> dict:
+    """One hand and object: the fixed pose and every finger set's grasps (plain data)."""
+    from planner.synth import synthesize
+
+    t0 = time.perf_counter()
+    block = dict(t["block"])
+    out = {"hand": t["hand"], "object": t["object"], "pose_from": "", "grasps": [], "synth": []}
+    for fs in t["sets"]:  # the pose: the first grasp found with the pose sampled, largest set first
+        r = synthesize(t["hand"], block, fs.split(","), 1, fixed=False, seed=t["seed"], max_attempts=POSE_ATTEMPTS)
+        if r.grasps:
+            o = r.grasps[0].data["object"]
+            block.update(position=o["position"], quat_xyzw=o["quat_xyzw"])
+            out["pose_from"] = fs
+            pose_grasp = {"fingers": fs, "rank": 0, "metric": float(r.grasps[0].grasp.metric), "data": r.grasps[0].data}
+            break
+    if not out["pose_from"]:
+        out["synth_s"] = time.perf_counter() - t0
+        return out
+    out["pose"] = [block["position"], block["quat_xyzw"]]
+    for k, fs in enumerate(t["sets"]):
+        r = synthesize(t["hand"], block, fs.split(","), t["per_set"], fixed=True, seed=t["seed"] + 1 + k,
+                       max_attempts=SYNTH_ATTEMPTS)
+        out["synth"].append({"fingers": fs, "found": len(r.grasps), "attempts": r.attempts, "seconds": r.seconds})
+        if fs == out["pose_from"]:  # the grasp that gave the pose is one of them (rank 0)
+            out["grasps"].append(pose_grasp)
+        for rank, g in enumerate(r.grasps, start=1):
+            out["grasps"].append({"fingers": fs, "rank": rank, "metric": float(g.grasp.metric), "data": g.data})
+    out["synth_s"] = time.perf_counter() - t0
+    return out
+
+
+def draw_pairs(grasps: list[dict], k: int, seed: int) -> list[tuple[int, int]]:
+    """Up to k (initial, final) index pairs of distinct grasps, seeded: pairs across finger
+    sets first (in random order), then within a set; no pair twice, either way round."""
+    rng = np.random.default_rng(seed)
+    n = len(grasps)
+    cands = [(i, j) for i in range(n) for j in range(n) if i != j]
+    order = rng.permutation(len(cands))
+    across = [cands[c] for c in order if grasps[cands[c][0]]["fingers"] != grasps[cands[c][1]]["fingers"]]
+    within = [cands[c] for c in order if grasps[cands[c][0]]["fingers"] == grasps[cands[c][1]]["fingers"]]
+    out: list[tuple[int, int]] = []
+    for i, j in across + within:
+        if len(out) >= k:
+            break
+        if (i, j) not in out and (j, i) not in out:
+            out.append((i, j))
+    return out
+
+
+# ------------------------------------------------------------------ planning
+
+
+def _why(err: Exception) -> str:
+    """A short reason for a failed plan: the NoSequenceError's report in words."""
+    import re
+
+    msg = str(err).replace("\n", " ")
+    rep = getattr(err, "report", None) or {}
+    m = re.match(r"the (initial|final) grasp .* is not force closure( with the 'mean' contact model)?", msg)
+    if m and not rep:
+        return f"{m.group(1)} grasp not force closure{' with mean contacts' if m.group(2) else ''}"
+    parts = []
+    if rep.get("never_removable"):
+        parts.append("never removable: " + ", ".join(rep["never_removable"]))
+    if rep.get("landing_blocked"):
+        parts.append("cannot land: " + ", ".join(rep["landing_blocked"]))
+    if not parts and rep.get("stuck"):
+        parts.append("stuck: " + ", ".join(f"{s['finger']} {s['action']}" for s in rep["stuck"]))
+    if "time limit" in msg:
+        parts.append("time limit reached")
+    if "could not be planned" in msg or "impossible moves" in msg:
+        parts.append("finger path not planned")
+    return "; ".join(parts) if parts else msg.removeprefix("no finger-gaiting sequence: ")[:120]
+
+
+def _plan(gi, gf, opts):
+    """(PlanResult or None, seconds, reason)."""
+    from planner.errors import PlannerError
+    from planner.regrasp import plan_regrasp
+
+    t0 = time.perf_counter()
+    try:
+        res = plan_regrasp(gi, gf, opts)
+    except PlannerError as err:
+        return None, time.perf_counter() - t0, _why(err)
+    except Exception as err:  # noqa: BLE001 - a planner crash is a failed pair, reported as such
+        return None, time.perf_counter() - t0, f"crash: {type(err).__name__}: {err}".replace("\n", " ")[:120]
+    return res, time.perf_counter() - t0, ""
+
+
+def options(mode: str, seed: int, motion: bool = True):
+    """The PlanOptions of a mode (`MODES`); ``motion`` False: straight joint-space finger paths."""
+    from planner.regrasp import PlanOptions
+
+    if mode == "default":
+        return PlanOptions(seed=seed, motion=motion)
+    if mode == "graph":
+        return PlanOptions(seed=seed, motion=motion, intermediate=0, time_limit_s=0)
+    return PlanOptions.for_execution(seed=seed, motion=motion)
+
+
+def pair_task(t: dict) -> dict:
+    from planner.grasp import load_hand, parse_grasp, realize
+
+    t0 = time.perf_counter()
+    a, b = t["initial"], t["final"]
+    row = {"hand": t["hand"], "object": t["object"], "pair": t["pair"],
+           "initial": f"{a['fingers']} #{a['rank']}", "final": f"{b['fingers']} #{b['rank']}"}
+    hand = load_hand(t["hand"])
+    gi = realize(parse_grasp(a["data"], Path(f"{t['hand']}_initial.yaml")), hand)
+    gf = realize(parse_grasp(b["data"], Path(f"{t['hand']}_final.yaml")), hand)
+    row["family"] = family(gi.spec.object)
+    row["mean_fc"] = bool(gi.closure_under("mean").is_force_closure and gf.closure_under("mean").is_force_closure)
+    reasons = {}
+    for mode in MODES:
+        res, s, why = _plan(gi, gf, options(mode, t["seed"], t.get("motion", True)))
+        row[f"{mode}_solved"] = res is not None
+        row[f"{mode}_time_s"] = s
+        if res is None:
+            row[f"{mode}_why"] = why
+            reasons[mode] = why
+            continue
+        row[f"{mode}_steps"] = res.sequence.gait_steps
+        row[f"{mode}_intermediate"] = sum((res.plan.summary.get("search") or {}).get("intermediate_added", {}).values())
+        if mode == "execution":
+            row.update(replay_row(res.plan.to_dict(), hand, t["directions"]))
+    row["reason"] = reason(row, reasons)
+    row["pair_time_s"] = time.perf_counter() - t0
+    return row
+
+
+def replay_row(plan: dict, hand, n: int) -> dict:
+    """The execution plan replayed under n gravity directions (exp7's `replay_all`): pass and
+    drift per generic direction, all-directions pass, the first failing verdict."""
+    reports = replay_all(plan, hand, n)
+    names = [name for name, _, _ in reports]
+    out, first_fail = {}, ""
+    for name, rep, wall in reports:
+        d = generic_direction(name, names)
+        out[f"exec_{d}"] = bool(rep.passed)
+        out[f"drift_deg_{d}"] = rep.max_drift_deg
+        if not rep.passed and not first_fail:
+            first_fail = f"replay {d}: {rep.verdict}".replace("\n", " ")[:160]
+    out["exec_all"] = all(out[f"exec_{generic_direction(n_, names)}"] for n_ in names)
+    sides = [v for k, v in out.items() if k.startswith("exec_side_")]
+    if sides:
+        out["exec_sideways"] = all(sides)
+    out["replay_s"] = sum(w for _, _, w in reports)
+    out["replay_fail"] = first_fail
+    return out
+
+
+def reason(row: dict, reasons: dict) -> str:
+    """One line per pair: why it fell short (empty when default and execution both succeeded
+    and the replay passed everywhere)."""
+    if "default" in reasons:
+        return f"default: {reasons['default']}"
+    if "execution" in reasons:
+        return f"execution: {reasons['execution']}"
+    return row.get("replay_fail", "")
+
+
+# ------------------------------------------------------------------ summary and plot
+
+
+def _frac(k: int, n: int) -> str:
+    return f"{k}/{n} ({100 * k / n:.1f} %)" if n else "0/0"
+
+
+def summarize(rows: list[dict], synth: list[dict] | None = None) -> dict:
+    n = len(rows)
+    s: dict = {"pairs": n}
+    if synth is not None:
+        s["objects with a pose"] = f"{sum(1 for o in synth if o['pose_from'])}/{len(synth)}"
+        s["grasps synthesized"] = sum(len(o["grasps"]) for o in synth)
+        no_pairs = [f"{o['hand']} {o['object']}" for o in synth if len(o["grasps"]) < 2]
+        if no_pairs:
+            s["objects without a pair"] = ", ".join(no_pairs)
+    if not n:
+        return s
+    for mode in MODES:
+        ok = [r for r in rows if r[f"{mode}_solved"]]
+        times = [r[f"{mode}_time_s"] for r in ok]
+        s[f"{mode} solved"] = _frac(len(ok), n)
+        if times:
+            s[f"{mode} plan time s (median / max, solved)"] = f"{np.median(times):.2f} / {max(times):.2f}"
+    mean_fc = sum(bool(r["mean_fc"]) for r in rows)
+    s["both grasps force closure with mean contacts (execution can plan)"] = _frac(mean_fc, n)
+    s["execution solved, of those"] = _frac(sum(bool(r["execution_solved"]) for r in rows if r["mean_fc"]), mean_fc)
+    ex = [r for r in rows if r["execution_solved"] and "exec_all" in r]
+    if ex:
+        s["execution: pass all directions"] = _frac(sum(bool(r["exec_all"]) for r in ex), len(ex))
+        for d, key in (("palm_down", "exec_palm_down"), ("palm_up", "exec_palm_up"), ("all 4 sideways", "exec_sideways"),
+                       ("off", "exec_off")):
+            replayed = [r for r in ex if r.get(key) not in (None, "") and r.get(key) == r.get(key)]  # not NaN
+            if replayed:
+                s[f"execution: pass {d}"] = _frac(sum(bool(r[key]) for r in replayed), len(replayed))
+        s["execution: pass all directions, of all pairs"] = _frac(sum(bool(r["exec_all"]) for r in ex), n)
+    for h in sorted({r["hand"] for r in rows}):
+        hr = [r for r in rows if r["hand"] == h]
+        s[f"hand {h}"] = (f"{len(hr)} pairs: default {sum(r['default_solved'] for r in hr)}, graph "
+                          f"{sum(r['graph_solved'] for r in hr)}, execution {sum(r['execution_solved'] for r in hr)}, "
+                          f"pass all directions {sum(bool(r.get('exec_all')) for r in hr)}")
+    for fam in sorted({r["family"] for r in rows}):
+        fr = [r for r in rows if r["family"] == fam]
+        s[f"family {fam}"] = (f"{len(fr)} pairs: default {sum(r['default_solved'] for r in fr)}, graph "
+                              f"{sum(r['graph_solved'] for r in fr)}, execution {sum(r['execution_solved'] for r in fr)}, "
+                              f"pass all directions {sum(bool(r.get('exec_all')) for r in fr)}")
+    why = Counter(_category(r["reason"]) for r in rows if r.get("reason"))
+    if why:
+        s["reasons"] = "; ".join(f"{k} x{v}" for k, v in why.most_common())
+    return s
+
+
+def _category(reason: str) -> str:
+    """The reason without its details (finger names, numbers): for counting."""
+    head = reason.split(":")[0]
+    for key in ("not force closure", "need over", "never removable", "cannot land", "time limit", "finger path",
+                "stuck", "crash", "dropped", "drift", "closure disagree"):
+        if key in reason:
+            return f"{head}: {key}"
+    return head
+
+
+def plot(rows: list[dict], path: Path) -> None:
+    plt = pyplot()
+    fig, ax = plt.subplots(1, 2, figsize=(13, 4.5), gridspec_kw={"width_ratios": [3, 2]})
+    groups = [(h, fam) for h in sorted({r["hand"] for r in rows}) for fam in sorted({r["family"] for r in rows})
+              if any(r["hand"] == h and r["family"] == fam for r in rows)]
+    bars = [("default", "default_solved"), ("graph only", "graph_solved"), ("execution", "execution_solved"),
+            ("executes in all 7", "exec_all")]
+    w = 0.8 / len(bars)
+    for j, (label, key) in enumerate(bars):
+        rates = []
+        for h, fam in groups:
+            sub = [r for r in rows if r["hand"] == h and r["family"] == fam]
+            rates.append(100.0 * sum(bool(r.get(key)) for r in sub) / len(sub))
+        ax[0].bar(np.arange(len(groups)) + (j - (len(bars) - 1) / 2) * w, rates, w, label=label)
+    ax[0].set_xticks(range(len(groups)))
+    ax[0].set_xticklabels([f"{h.split('_')[0]}\n{fam}\n({sum(r['hand'] == h and r['family'] == fam for r in rows)})"
+                           for h, fam in groups], fontsize=8)
+    ax[0].set_ylabel("pairs (%)")
+    ax[0].set_ylim(0, 118)
+    ax[0].set_yticks(range(0, 101, 20))
+    ax[0].legend(fontsize=8, ncol=len(bars), loc="upper center")
+    ax[0].set_title("synthesized pairs solved per hand and object family (pairs)")
+    for j, (mode, marker) in enumerate((("default", "o"), ("graph", "s"), ("execution", "^"))):
+        t = np.array([r[f"{mode}_time_s"] for r in rows], float)
+        ok = np.array([bool(r[f"{mode}_solved"]) for r in rows])
+        x = np.full(len(rows), j) + np.random.default_rng(j).uniform(-0.25, 0.25, len(rows))
+        ax[1].scatter(x[ok], t[ok], c="tab:green", marker=marker, s=14, label="solved" if j == 0 else None)
+        ax[1].scatter(x[~ok], t[~ok], c="tab:red", marker=marker, s=14, label="not solved" if j == 0 else None)
+    ax[1].set_yscale("log")
+    ax[1].set_xticks(range(3))
+    ax[1].set_xticklabels(["default (anytime)", "graph only", "execution"])
+    ax[1].set_ylabel("plan time incl. finger paths (s)")
+    ax[1].legend(fontsize=8)
+    ax[1].set_title("plan time per pair")
+    save(fig, path)
+
+
+# ------------------------------------------------------------------ main
+
+
+def object_tasks(quick: bool, seed: int) -> list[dict]:
+    tasks = []
+    for h, sets in FINGER_SETS.items():
+        if quick and h not in QUICK["hands"]:
+            continue
+        for k, (label, block) in enumerate(OBJECTS):
+            if quick and label not in QUICK["objects"]:
+                continue
+            use = sets[-QUICK["sets"]:] if quick else sets
+            tasks.append({"hand": h, "object": label, "block": block, "sets": list(use),
+                          "per_set": 1 if quick else GRASPS_PER_SET, "seed": seed + 1000 * k})
+    return tasks
+
+
+def pair_tasks(synth: list[dict], k: int, seed: int, directions: int, motion: bool = True) -> list[dict]:
+    tasks = []
+    for o in synth:
+        for n, (i, j) in enumerate(draw_pairs(o["grasps"], k, seed)):
+            tasks.append({"hand": o["hand"], "object": o["object"], "pair": f"{o['hand']} {o['object']} {n + 1}",
+                          "initial": o["grasps"][i], "final": o["grasps"][j], "seed": seed, "directions": directions,
+                          "motion": motion})
+    return tasks
+
+
+def main(argv=None) -> dict:
+    ap = parser(__doc__.splitlines()[0])
+    ap.add_argument("--pairs-per-object", type=int, default=None, help=f"pairs per hand and object (default {PAIRS_PER_OBJECT})")
+    ap.add_argument("--directions", type=int, default=7, choices=(1, 2, 6, 7),
+                    help="gravity set size of the execution replays (default 7: with gravity off)")
+    ap.add_argument("--no-motion", action="store_true",
+                    help="straight joint-space finger paths instead of OMPL (implied by --quick)")
+    ap.add_argument("--name", default="exp8_random_pairs", help="CSV / PNG file stem in --out")
+    ap.add_argument("--from-csv", type=Path, default=None, help="no run: summary and plot of an existing exp8 CSV")
+    args = ap.parse_args(argv)
+    t0 = time.perf_counter()
+    if args.from_csv is not None:
+        rows = read_rows(args.from_csv)
+        plot(rows, args.out / f"{args.name}.png")
+        summary = summarize(rows)
+        print_summary(f"exp8 random pairs ({args.from_csv.name})", summary)
+        return summary
+    synth = run_tasks(synth_task, object_tasks(args.quick, args.seed), args, desc="exp8 synth")
+    t_synth = time.perf_counter() - t0
+    k = args.pairs_per_object or (QUICK["pairs"] if args.quick else PAIRS_PER_OBJECT)
+    motion = not (args.quick or args.no_motion)
+    rows = run_tasks(pair_task, pair_tasks(synth, k, args.seed, args.directions, motion), args, desc="exp8 pairs")
+    write_csv(args.out / f"{args.name}.csv", rows)
+    write_csv(args.out / f"{args.name}_synth.csv",
+              [{"hand": o["hand"], "object": o["object"], "pose_from": o["pose_from"],
+                "pose": " ".join(f"{v:.4f}" for v in sum(o.get("pose", []), [])), **s, "object_synth_s": o["synth_s"]}
+               for o in synth for s in (o["synth"] or [{}])])
+    if rows:
+        plot(rows, args.out / f"{args.name}.png")
+    summary = summarize(rows, synth)
+    summary["finger paths"] = "OMPL" if motion else "straight joint-space segments (--quick / --no-motion)"
+    summary["synthesis wall s"] = t_synth
+    summary["wall s"] = time.perf_counter() - t0
+    print_summary("exp8 random pairs", summary)
+    return summary
+
+
+if __name__ == "__main__":
+    main()
