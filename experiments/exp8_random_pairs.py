@@ -4,6 +4,10 @@ Issue 14's regrasp benchmark. For both hands (icub_right, allegro_right) and obj
 several shapes and sizes (spheres of 15-30 mm radius, boxes, cylinders, a 5 mm rod), the
 object gets ONE pose per hand (so any two grasps of it form a regrasp pair): the pose of the
 first grasp `planner.synth` finds with the object pose sampled (largest finger set first).
+Every grasp is synthesized **execution-ready** (`execution_ready`): force closure with one mean
+contact per finger too, and holding the object's weight in the six gravity directions of
+execution mode with at most 1 N per finger and 3/4 of the friction, so that a pair's failure
+in execution mode is the planner's, not a grasp execution mode refuses outright.
 With that pose fixed, `planner.synth` (seeded) writes up to ``GRASPS_PER_SET`` grasps for
 each finger set of the hand (e.g. thumb-index-middle, thumb-index-middle-ring, all fingers);
 the grasp that gave the pose joins its set as rank 0 (a near-duplicate of it may too).
@@ -23,7 +27,7 @@ added, execution pass per direction (palm down, palm up, side_1..4, off; generic
 exp7), and ``reason``: one line saying why the pair fell short (the first of: default not
 solved, execution not planned, replay failed in a direction), empty when everything passed.
 
-``--quick`` (tests, seconds): the Allegro on the 45x45x60 mm box, two finger sets, one pair, straight
+``--quick`` (tests, seconds): the Allegro on the 30 mm-radius ball, two finger sets, one pair, straight
 joint-space finger paths instead of OMPL (``--no-motion``).
 
     python experiments/exp8_random_pairs.py [--quick] [--workers N] [--pairs-per-object K] [--directions 1|2|6|7] [--no-motion]
@@ -49,7 +53,7 @@ FINGER_SETS = {
     "icub_right": ("thumb,index,middle,ring,little", "thumb,index,middle,ring", "thumb,index,middle"),
     "allegro_right": ("thumb,index,middle,ring", "thumb,index,middle", "thumb,middle,ring"),
 }
-#: (label, object block without pose); masses: about 500 kg/m^3, at least 10 g.
+#: (label, object block without pose); masses 10-60 g (the library's balls weigh 50 g).
 OBJECTS = (
     ("sphere r15", {"shape": "sphere", "size": [0.015], "mass_kg": 0.02}),
     ("sphere r22", {"shape": "sphere", "size": [0.022], "mass_kg": 0.03}),
@@ -57,16 +61,16 @@ OBJECTS = (
     ("box 30x40x50", {"shape": "box", "size": [0.03, 0.04, 0.05], "mass_kg": 0.03}),
     ("box 45x45x60", {"shape": "box", "size": [0.045, 0.045, 0.06], "mass_kg": 0.06}),
     ("cylinder r15 l80", {"shape": "cylinder", "size": [0.015, 0.08], "mass_kg": 0.03}),
-    ("cylinder r25 l100", {"shape": "cylinder", "size": [0.025, 0.1], "mass_kg": 0.1}),
+    ("cylinder r25 l100", {"shape": "cylinder", "size": [0.025, 0.1], "mass_kg": 0.06}),
     ("rod r5 l120", {"shape": "cylinder", "size": [0.005, 0.12], "mass_kg": 0.01}),
 )
 #: --quick: one hand, one object, two finger sets, one pair.
-QUICK = {"hands": ("allegro_right",), "objects": ("box 45x45x60",), "sets": 2, "pairs": 1}
+QUICK = {"hands": ("allegro_right",), "objects": ("sphere r30",), "sets": 2, "pairs": 1}
 GRASPS_PER_SET = 3
 PAIRS_PER_OBJECT = 3
 #: Attempts of the pose search (per finger set) and of each fixed-pose synthesis.
 POSE_ATTEMPTS = 200
-SYNTH_ATTEMPTS = 120
+SYNTH_ATTEMPTS = 150
 MODES = ("default", "graph", "execution")
 
 
@@ -80,8 +84,9 @@ def synth_task(t: dict) -> dict:
     t0 = time.perf_counter()
     block = dict(t["block"])
     out = {"hand": t["hand"], "object": t["object"], "pose_from": "", "grasps": [], "synth": []}
+    kw = execution_ready(t["hand"])
     for fs in t["sets"]:  # the pose: the first grasp found with the pose sampled, largest set first
-        r = synthesize(t["hand"], block, fs.split(","), 1, fixed=False, seed=t["seed"], max_attempts=POSE_ATTEMPTS)
+        r = synthesize(t["hand"], block, fs.split(","), 1, fixed=False, seed=t["seed"], max_attempts=POSE_ATTEMPTS, **kw)
         if r.grasps:
             o = r.grasps[0].data["object"]
             block.update(position=o["position"], quat_xyzw=o["quat_xyzw"])
@@ -94,7 +99,7 @@ def synth_task(t: dict) -> dict:
     out["pose"] = [block["position"], block["quat_xyzw"]]
     for k, fs in enumerate(t["sets"]):
         r = synthesize(t["hand"], block, fs.split(","), t["per_set"], fixed=True, seed=t["seed"] + 1 + k,
-                       max_attempts=SYNTH_ATTEMPTS)
+                       max_attempts=SYNTH_ATTEMPTS, **kw)
         out["synth"].append({"fingers": fs, "found": len(r.grasps), "attempts": r.attempts, "seconds": r.seconds})
         if fs == out["pose_from"]:  # the grasp that gave the pose is one of them (rank 0)
             out["grasps"].append(pose_grasp)
@@ -102,6 +107,20 @@ def synth_task(t: dict) -> dict:
             out["grasps"].append({"fingers": fs, "rank": rank, "metric": float(g.grasp.metric), "data": g.data})
     out["synth_s"] = time.perf_counter() - t0
     return out
+
+
+def execution_ready(hand_ref: str) -> dict:
+    """`planner.synth.synthesize` keywords for grasps that execution mode can plan with: force
+    closure with one mean contact per finger, and the weight held in the 6 gravity directions
+    of ``PlanOptions.for_execution()`` within its force budget, with its friction reserve."""
+    from planner.grasp import load_hand
+    from planner.gravity import gravity_directions
+    from planner.regrasp import PlanOptions
+
+    o = PlanOptions.for_execution()
+    dirs = [g for _, g in gravity_directions(load_hand(hand_ref).palm_normal, o.gravity_set)]
+    return {"gravity": dirs, "max_finger_force_n": o.max_finger_force_n, "contact_model": o.contact_model,
+            "friction_margin": o.friction_margin}
 
 
 def draw_pairs(grasps: list[dict], k: int, seed: int) -> list[tuple[int, int]]:

@@ -356,7 +356,7 @@ def _is_duplicate(a: np.ndarray, b: np.ndarray) -> bool:
 
 def synthesize(hand_ref: str, obj_block: dict, fingers, n: int, *, fixed: bool, friction=None, seed: int = 0,
                gravity=None, max_finger_force_n: float = 1.0, max_attempts: int | None = None, base_dir=".",
-               progress=None) -> SynthResult:
+               progress=None, contact_model: str = "patch", friction_margin: float = 1.0) -> SynthResult:
     """Sample, close, check, de-duplicate and rank grasps.
 
     Args:
@@ -367,8 +367,14 @@ def synthesize(hand_ref: str, obj_block: dict, fingers, n: int, *, fixed: bool, 
         fixed: keep the object pose of ``obj_block`` (True) or sample it per attempt.
         friction: {mu, gamma, edges} (default `DEFAULT_FRICTION`).
         seed: seed of every random choice (the result depends on nothing else).
-        gravity: None or (3,) palm-frame gravity (m/s^2): keep grasps holding the weight with
-            every finger pressing at most ``max_finger_force_n`` (`min_grip_force`).
+        gravity: None, a (3,) palm-frame gravity (m/s^2) or several, (k, 3): keep grasps holding
+            the weight in every one with each finger pressing at most ``max_finger_force_n``
+            (`min_grip_force`; the grip force is the largest over the directions).
+        contact_model: "patch" (the check's closure) or "mean": also require force closure with
+            one contact per finger at its patch mean, and compute the grip force with those
+            contacts (what `PlanOptions.for_execution` plans with).
+        friction_margin: the grip force is computed with ``mu`` and ``gamma`` scaled by this
+            (execution mode's friction reserve: `planner.regrasp.EXECUTION_FRICTION_MARGIN`).
         max_attempts: candidates sampled at most (default 60 n).
         base_dir: where the grasp files will live (anchors relative paths in error messages).
         progress: None or callable(str) for progress lines.
@@ -376,7 +382,7 @@ def synthesize(hand_ref: str, obj_block: dict, fingers, n: int, *, fixed: bool, 
     Returns:
         `SynthResult` with up to n grasps, best closure metric first.
     """
-    from planner.closure import Friction, grasp_closure, min_grip_force
+    from planner.closure import Friction, apply_contact_model, grasp_closure, min_grip_force
     from planner.grasp import load_hand, parse_grasp, realize
 
     t0 = time.perf_counter()
@@ -388,6 +394,13 @@ def synthesize(hand_ref: str, obj_block: dict, fingers, n: int, *, fixed: bool, 
     fr = Friction(friction["mu"], friction["gamma"], friction.get("edges", 5))
     if n < 1:
         raise PlannerError(f"synth: -n must be at least 1, got {n}")
+    from planner.closure import CONTACT_MODELS
+    from planner.errors import UnknownNameError
+
+    if contact_model not in CONTACT_MODELS:
+        raise UnknownNameError("contact model", contact_model, CONTACT_MODELS)
+    if not 0 < friction_margin <= 1:
+        raise PlannerError(f"synth: friction_margin must be in (0, 1], got {friction_margin!r}")
     max_attempts = 60 * n if max_attempts is None else max_attempts
     rng = np.random.default_rng(seed)
     inner = inner_radius(obj_block)
@@ -422,11 +435,18 @@ def synthesize(hand_ref: str, obj_block: dict, fingers, n: int, *, fixed: bool, 
         if not g.ok:
             rejected["check: " + (g.problems[0].split(":")[0].split(" ")[0] if g.problems else "not force closure")] += 1
             continue
+        patches = dict(g.patches)
+        if contact_model != "patch":
+            if not g.closure_under(contact_model).is_force_closure:
+                rejected[f"not force closure with {contact_model} contacts"] += 1
+                continue
+            patches = apply_contact_model(patches, contact_model)
         grip = None
         if gravity is not None:
             R = np.asarray(g.obj.T_palm_obj)[:3, :3]
-            load = np.r_[g.obj.mass_kg * (R.T @ np.asarray(gravity, dtype=float)), np.zeros(3)]
-            grip = min_grip_force(dict(g.patches), fr, load)
+            grip_fr = Friction(fr.mu * friction_margin, fr.gamma * friction_margin, fr.edges)
+            grip = max(min_grip_force(patches, grip_fr, np.r_[g.obj.mass_kg * (R.T @ gv), np.zeros(3)])
+                       for gv in np.asarray(gravity, dtype=float).reshape(-1, 3))
             if not grip <= max_finger_force_n:
                 rejected["weight beyond the force budget"] += 1
                 continue

@@ -115,7 +115,7 @@ def test_exp8_quick_plans_a_synthesized_pair_three_ways(tmp_path, capsys):
     rows = list(csv.DictReader(open(tmp_path / "exp8_random_pairs.csv")))
     assert len(rows) == 1 and summary["pairs"] == 1
     r = rows[0]
-    assert r["hand"] == "allegro_right" and r["family"] == "box" and r["initial"] != r["final"]
+    assert r["hand"] == "allegro_right" and r["family"] == "sphere" and r["initial"] != r["final"]
     for mode in exp8.MODES:
         assert r[f"{mode}_solved"] in ("True", "False") and float(r[f"{mode}_time_s"]) > 0
         assert (r[f"{mode}_solved"] == "True") == (r.get(f"{mode}_why", "") == "")  # a failure says why
