@@ -216,15 +216,17 @@ def write_atomic(path: str | os.PathLike, data: str | bytes) -> Path:
     return path
 
 
-def check_hand_file(path: str | os.PathLike, source: str, key: str = "hand") -> None:
+def check_hand_file(path: str | os.PathLike, source: str, key: str = "hand") -> dict:
     """A hand spec file must be a YAML mapping within the limits; the message names
-    ``source`` (the file that refers to it) and ``key``, never the hand file's content."""
+    ``source`` (the file that refers to it) and ``key``, never the hand file's content.
+    Returns the parsed mapping (`planner.hand.Hand` takes it: the file is read once)."""
     try:
         data = read_yaml(path, MAX_GRASP_BYTES, "hand spec")
     except SpecError as err:
         raise SpecError(source, key, f"hand spec {path}: {err.message}") from None
     if not isinstance(data, dict):
         raise SpecError(source, key, f"hand spec {path} is not a YAML mapping (a hand.yaml)")
+    return data
 
 
 def check_grasp_file(path: str | os.PathLike):

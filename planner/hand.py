@@ -470,6 +470,30 @@ class Hand:
         J, _, _ = self._point_jacobian(q, self._fid(link), p_link)
         return J
 
+    def point_jacobians(self, q, points) -> list[np.ndarray]:
+        """Linear Jacobians of points fixed to links, palm frame, with one kinematics pass.
+
+        Args:
+            q: (nq,) joint angles.
+            points: (link or frame name, (3,) point in the PALM frame) pairs.
+        Returns:
+            one (3, nq) ``d(p_palm)/dq`` per point, as ``frame_jacobian(q, link, p_link)[:3]``
+            with ``p_link`` the point in the link's frame.
+        """
+        q = self._check_q(q)
+        pin.computeJointJacobians(self.model, self.data, q)
+        out = []
+        for link, p_palm in points:
+            fid = self._fid(link)
+            M = pin.updateFramePlacement(self.model, self.data, fid)
+            J = pin.getFrameJacobian(self.model, self.data, fid, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
+            Jv, Jw, o = J[:3], J[3:], M.translation
+            if not self._palm_is_root:
+                Rp = self._T_palm_world.rotation
+                Jv, Jw, o = Rp @ Jv, Rp @ Jw, self._T_palm_world.act(o)
+            out.append(Jv - _skew(np.asarray(p_palm, dtype=float) - o) @ Jw)  # v_p = v_o + w x (p - o)
+        return out
+
     def gravity_torques(self, q, g_palm) -> np.ndarray:
         """Joint torques that hold the hand's own links still under gravity.
 

@@ -116,6 +116,31 @@ def test_frame_jacobian_matches_finite_differences(name):
 
 
 @pytest.mark.parametrize("name", ["icub_right", "allegro_right"])
+def test_point_jacobians_of_palm_points_match_finite_differences(name):
+    """point_jacobians (one pass, points given in the palm frame) equal central differences of
+    the points carried by their links, for every finger's pad and distal link at once."""
+    hand = Hand.load(name)
+    rng = np.random.default_rng(1)
+    q = rng.uniform(hand.lower, hand.upper)
+    points = []
+    for f in hand.fingers.values():
+        T = hand.link_pose(q, f.pad_link)
+        points.append((f.pad_link, T[:3, :3] @ (np.array(f.pad_p_link) + [0.002, -0.001, 0.003]) + T[:3, 3]))
+    Js = hand.point_jacobians(q, points)
+    eps = 1e-6
+    for (link, p_palm), J in zip(points, Js):
+        T = hand.link_pose(q, link)
+        p_link = T[:3, :3].T @ (p_palm - T[:3, 3])
+        Jn = np.zeros((3, hand.model.nq))
+        for i in range(hand.model.nq):
+            dq = np.zeros(hand.model.nq)
+            dq[i] = eps
+            Tp, Tm = hand.link_pose(q + dq, link), hand.link_pose(q - dq, link)
+            Jn[:, i] = ((Tp[:3, :3] - Tm[:3, :3]) @ p_link + Tp[:3, 3] - Tm[:3, 3]) / (2 * eps)
+        assert J.shape == (3, hand.model.nq) and np.allclose(J, Jn, atol=1e-6), link
+
+
+@pytest.mark.parametrize("name", ["icub_right", "allegro_right"])
 def test_ik_reaches_fk_targets(name):
     """Targets made by FK of random in-limit postures are reached within 0.5 mm, only the
     finger's joints move and the solution stays inside the limits."""

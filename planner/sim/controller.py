@@ -409,13 +409,11 @@ class Controller:
 
     # -- control law ------------------------------------------------------------------
 
-    def _jacobian(self, q: np.ndarray, link: int, p_palm: np.ndarray, finger: str) -> np.ndarray:
-        """(3, n_finger_joints) linear Jacobian of the point ``p_palm`` fixed to ``link``."""
-        name = self.link_name[link]
-        T = self.hand.link_pose(q, name)
-        p_link = T[:3, :3].T @ (p_palm - T[:3, 3])
-        J = self.hand.frame_jacobian(q, name, p_link)[:3]
-        return J[:, [self.col[j] for j in self.hand.fingers[finger].joints]]
+    def _finger_jacobians(self, q: np.ndarray, contacts: Sequence[Contact]) -> list[np.ndarray]:
+        """(3, n_finger_joints) linear Jacobian of each contact point (fixed to its link)
+        over its finger's joints, one kinematics pass for all."""
+        Js = self.hand.point_jacobians(q, [(self.link_name[c.link], c.p_palm) for c in contacts])
+        return [J[:, [self.col[j] for j in self.hand.fingers[c.finger].joints]] for c, J in zip(contacts, Js)]
 
     def _update(self) -> None:
         q = self.q()
@@ -428,11 +426,10 @@ class Controller:
         contacts = [c for c in self.contacts() if c.finger is None or c.finger in self.holding]
         forces = self._balanced(contacts, F)
         self.forces = {}
-        for c, f_c in zip(contacts, forces):
-            if c.finger is None or not np.any(f_c):
-                continue
+        pushing = [(c, f_c) for c, f_c in zip(contacts, forces) if c.finger is not None and np.any(f_c)]
+        for (c, f_c), J in zip(pushing, self._finger_jacobians(q, [c for c, _ in pushing])):
             self.forces[c.link] = self.forces.get(c.link, 0.0) + f_c
-            t = self._jacobian(q, c.link, c.p_palm, c.finger).T @ f_c
+            t = J.T @ f_c
             for j, tj in zip(self.hand.fingers[c.finger].joints, t):
                 tau[self.hand_pos[self.jidx[j]]] += tj
         self.tau = tau

@@ -233,10 +233,11 @@ def _T_palm_root(hand) -> np.ndarray:
     return np.asarray(hand.link_pose(hand.q_open, root_name), dtype=float)
 
 
-def _hand_target(plan: Plan) -> str:
-    """The plan's hand: its spec path when it resolves (checked to be a hand spec without
-    quoting the file), else its name."""
-    name = plan.hand["name"]
+def _plan_hand(plan: Plan):
+    """The plan's `planner.hand.Hand`: from its spec file when it resolves (read once, checked
+    to be a hand spec without quoting the file), else by its name."""
+    from planner.hand import Hand
+
     spec = plan.hand.get("spec")
     if spec:
         resolved = _resolve(str(spec), plan.source or "<plan>")
@@ -244,18 +245,16 @@ def _hand_target(plan: Plan) -> str:
             if resolved.is_file():
                 from planner.fileio import check_hand_file
 
-                check_hand_file(resolved, plan.source or "<plan>", "hand.spec")
-            return str(resolved)
-    return str(name)
+                return Hand(resolved, check_hand_file(resolved, plan.source or "<plan>", "hand.spec"))
+            return Hand.load(resolved)
+    return Hand.load(str(plan.hand["name"]))
 
 
 def _load_hand(plan: Plan, joints: list[str], hand=None) -> _HandInfo:
     """Hand URDF, finger -> joints and the pinocchio model of the plan's hand; every joint
     value of the plan must lie within the hand's limits (``JOINT_LIMIT_TOL`` beyond)."""
     if hand is None:
-        from planner.hand import Hand
-
-        hand = Hand.load(_hand_target(plan))
+        hand = _plan_hand(plan)
     missing = [j for j in joints if j not in hand.joint_names]
     if missing:
         raise plan.error("joints", f"joints {missing[:5]} are not joints of hand {hand.name!r}")
@@ -708,9 +707,7 @@ def replay_gravity_set(plan: Mapping | str | os.PathLike, n: int = 6, *, hand=No
         raise InputError("replay_gravity_set takes no gravity: it replays the set's directions")
     rd = _read_plan(plan)  # read and verified once for every direction
     if hand is None:
-        from planner.hand import Hand
-
-        hand = Hand.load(_hand_target(rd))
+        hand = _plan_hand(rd)
     directions = gravity_directions(hand.palm_normal, n, g_mps2)
     names = [name for name, _ in directions]
     unknown = sorted(set(film or ()) - set(names))
