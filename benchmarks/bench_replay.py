@@ -2,7 +2,10 @@
 
 A simple held-object scene: the iCub hand holds a 3 cm box in a thumb-opposing
 three-finger grasp (palm down, gravity on) and lifts the index finger. Each setting
-is replayed several times and the median is reported.
+is replayed several times and the median is reported. The baseline, measured in the same
+run, is pybullet alone: the same hand and box loaded and stepped for the same simulated
+time with no controller, no measurement and no set-up beyond loading; the ratio says how
+much of the replay's time the controller, the measurements and the set-up take.
 
 Run: ``.venv/bin/python benchmarks/bench_replay.py [--repeats N]``
 """
@@ -79,6 +82,29 @@ def measure(plan: dict, repeats: int, **kwargs) -> tuple[float, float, float]:
     return statistics.median(rates), statistics.median(walls), sim_s
 
 
+def physics_only(sim_s: float, repeats: int) -> float:
+    """Median sim-s per wall-s of pybullet alone: connect, load the hand and a box, step."""
+    import pybullet as p
+
+    from planner.hand import Hand
+
+    urdf = str(Hand.load("icub_right").urdf_path)
+    rates = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        cid = p.connect(p.DIRECT)
+        p.setPhysicsEngineParameter(fixedTimeStep=1 / 240, numSolverIterations=150, physicsClientId=cid)
+        p.loadURDF(urdf, useFixedBase=True, flags=p.URDF_USE_INERTIA_FROM_FILE | p.URDF_IGNORE_VISUAL_SHAPES,
+                   physicsClientId=cid)
+        box = p.createCollisionShape(p.GEOM_BOX, halfExtents=[s / 2 for s in BOX_SIZE], physicsClientId=cid)
+        p.createMultiBody(0.03, box, basePosition=BOX_POS, physicsClientId=cid)
+        for _ in range(round(sim_s * 240)):
+            p.stepSimulation(physicsClientId=cid)
+        p.disconnect(physicsClientId=cid)
+        rates.append(sim_s / (time.perf_counter() - t0))
+    return statistics.median(rates)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=5)
@@ -87,13 +113,17 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         rows = [
             ("no rendering", {}),
-            ("GIF 320x240, every 8 steps", {"gif": Path(tmp) / "a.gif", "gif_every": 8}),
-            ("GIF 320x240, every step", {"gif": Path(tmp) / "b.gif", "gif_every": 1}),
+            ("GIF 640x480, every 8 steps", {"gif": Path(tmp) / "a.gif", "gif_every": 8}),
+            ("GIF 640x480, every step", {"gif": Path(tmp) / "b.gif", "gif_every": 1}),
         ]
-        print(f"{'setting':<30} {'sim s / wall s':>15} {'wall s':>8} {'sim s':>7}   (median of {args.repeats})")
-        for name, kw in rows:
-            rate, wall, sim_s = measure(plan, args.repeats, **kw)
-            print(f"{name:<30} {rate:>15.2f} {wall:>8.3f} {sim_s:>7.2f}")
+        print(f"{'setting':<30} {'sim s / wall s':>15} {'wall s':>8} {'sim s':>7} {'vs physics':>11}   "
+              f"(median of {args.repeats})")
+        results = [(name, *measure(plan, args.repeats, **kw)) for name, kw in rows]
+        base = physics_only(results[0][3], args.repeats)
+        print(f"{'pybullet alone (baseline)':<30} {base:>15.2f} {results[0][3] / base:>8.3f} {results[0][3]:>7.2f} "
+              f"{1.0:>10.2f}x")
+        for name, rate, wall, sim_s in results:
+            print(f"{name:<30} {rate:>15.2f} {wall:>8.3f} {sim_s:>7.2f} {rate / base:>10.2f}x")
 
 
 if __name__ == "__main__":
