@@ -281,18 +281,10 @@ def _has_command(name: str) -> bool:
     return name in sub.choices
 
 
-#: Ranges of the numeric options (README "Hardening / plan integrity"): each bounds a loop
-#: or a size (--alternatives: ranked sequences, --intermediate: sampled contacts per finger,
-#: the graph grows about quadratically with it). (low, high, low is exclusive).
+#: Ranges of the numeric options (README "Hardening / plan integrity"), (low, high, low is
+#: exclusive): the planner's are `planner.regrasp.PLAN_OPTION_LIMITS` (checked by
+#: `PlanOptions` too; `option_limits` gives them their option names), these are replay's.
 OPTION_LIMITS = {
-    "seed": (0, 2**32 - 1, False),
-    "alternatives": (1, 100, False),
-    "intermediate": (0, 8, False),
-    "max_lifted": (1, 16, False),
-    "motion_timeout": (0.0, 600.0, True),
-    "time_limit": (0.0, 3600.0, False),
-    "max_finger_force": (0.0, 1000.0, True),
-    "gravity": (-1000.0, 1000.0, False),
     "gif_every": (1, 10000, False),
     "drift_mm": (0.0, 1000.0, True),
     "drift_deg": (0.0, 180.0, True),
@@ -317,23 +309,28 @@ def _option_name(dest: str) -> str:
     return "--" + dest.replace("_", "-")
 
 
+def option_limits() -> dict:
+    """Every numeric option's range by argparse dest: the planner's (`PlanOptions`'s
+    table under its option names) and `OPTION_LIMITS`."""
+    from planner.regrasp import PLAN_OPTION_FLAGS, PLAN_OPTION_LIMITS
+
+    return {**{PLAN_OPTION_FLAGS.get(k, k): v for k, v in PLAN_OPTION_LIMITS.items()}, **OPTION_LIMITS}
+
+
 def _validate(args: argparse.Namespace) -> None:
-    """Numeric ranges (`OPTION_LIMITS`) and output paths, before any work."""
-    import math
-
+    """Numeric ranges (`option_limits`) and output paths, before any work."""
     from planner.fileio import check_output
+    from planner.regrasp import in_range, option_range
 
-    for dest, (low, high, open_low) in OPTION_LIMITS.items():
+    for dest, (low, high, open_low) in option_limits().items():
         value = getattr(args, dest, None)
         for v in value if isinstance(value, list) else [value]:
             if isinstance(v, str):
                 continue
             if v is None:
                 continue
-            ok = math.isfinite(v) and (low < v if open_low else low <= v) and v <= high
-            if not ok:
-                bound = f"({low}, {high}]" if open_low else f"[{low}, {high}]"
-                raise PlannerError(f"{_option_name(dest)}: {v!r} is out of range; valid: {bound}")
+            if not in_range(v, low, high, open_low):
+                raise PlannerError(f"{_option_name(dest)}: {v!r} is out of range; valid: {option_range(low, high, open_low)}")
     inputs = [getattr(args, k, None) for k in _INPUTS.get(args.command, ())]
     outputs = [(getattr(args, k, None), "-o" if k == "output" else "--" + k) for k in _OUTPUTS.get(args.command, ())]
     named = [o for o, _ in outputs if o is not None]

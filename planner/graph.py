@@ -200,6 +200,8 @@ class _Evaluator:
         fr, k = problem.friction, problem.grip_friction_margin
         self._grip_friction = fr if k == 1 else Friction(fr.mu * k, fr.gamma * k, fr.edges)
         self._pairs: dict[tuple, bool] = {}
+        self._refusals = [0] * len(self._loads)  # states each load refused (`_over_budget`)
+        self._over: set[Node] = set()
 
     def evaluate(self, nodes: Sequence[Node]) -> None:
         todo = [n for n in dict.fromkeys(nodes) if n not in self.closure]
@@ -272,10 +274,31 @@ class _Evaluator:
             return f"fingers collide ({pair[0]} and {pair[1]})"
         if not self.closure[node].is_force_closure:
             return "not force closure"
-        f = self.grip_force(node)
-        if f is not None and f > p.max_grip_force_n:
+        if self._over_budget(node):
             return f"need over {p.max_grip_force_n:g} N per finger to hold the load"
         return None
+
+    def _over_budget(self, node: Node) -> bool:
+        """Some load needs more than ``max_grip_force_n`` per finger. Stops at the first such
+        load (one grip LP instead of all for most refused states), trying first the load that
+        has refused most states so far; a state within the budget gets all its grip forces."""
+        if not self._loads:
+            return False
+        if node in self.grip:
+            return max(self.grip[node]) > self.problem.max_grip_force_n
+        if node in self._over:
+            return True
+        patches = self.problem.patches(node)
+        order = sorted(range(len(self._loads)), key=lambda j: (-self._refusals[j], j))
+        forces = {}
+        for j in order:
+            forces[j] = min_grip_force(patches, self._grip_friction, self._loads[j][1])
+            if forces[j] > self.problem.max_grip_force_n:
+                self._refusals[j] += 1
+                self._over.add(node)
+                return True
+        self.grip[node] = tuple(forces[j] for j in range(len(self._loads)))
+        return False
 
 
 def seed_graph(problem: GaitProblem, evaluator: _Evaluator | None = None) -> nx.DiGraph:
@@ -518,7 +541,7 @@ class LazyGraph:
         while goal in G:  # the best sequence: expand until nothing keyed below it is left
             found = search(G, k, rank=self.rank, max_expansions=max_expansions)
             exact = exact and G.graph["search_exact"]
-            if not more(key(found[0]), max_expansions):
+            if not found or not more(key(found[0]), max_expansions):  # none: search's own limit
                 break
         budget = alternative_expansions
         while found:  # alternatives 2..k, within their own budget
@@ -637,6 +660,37 @@ def _bottleneck_to_goal(G: nx.DiGraph, goal: Node, cost: Mapping[Node, float]) -
     return best
 
 
+def _gaits_to_goal(G: nx.DiGraph, goal: Node, allowed=None) -> dict[tuple[Node, str | None], int]:
+    """Fewest gaits from each state to the goal (within ``allowed`` states when given),
+    keyed (state, finger whose lift led to it or None): a landing right after the same
+    finger's lift is free (`_gait_increment`). Look a state up under its lifted finger and
+    under None, and take the smaller (a 0-1 Dijkstra on the reversed graph)."""
+    if allowed is not None and goal not in allowed:
+        return {}
+    dist = {(goal, None): 0}
+    heap = [(0, 0, goal, None)]
+    tie = itertools.count(1)
+    done = set()
+    while heap:
+        d, _, w, lw = heapq.heappop(heap)
+        if (w, lw) in done:
+            continue
+        done.add((w, lw))
+        for u in G.predecessors(w):
+            if allowed is not None and u not in allowed:
+                continue
+            e = G.edges[u, w]
+            f, action = e["finger"], e["action"]
+            if lw is not None and (action, f) != ("lift", lw):  # (w, None) bounds every (w, f) too
+                continue
+            steps = [((u, None), d + 1)] + ([((u, f), d)] if action == "land" else [])
+            for state, du in steps:
+                if du < dist.get(state, np.inf):
+                    dist[state] = du
+                    heapq.heappush(heap, (du, next(tie), *state))
+    return dist
+
+
 def search(G: nx.DiGraph, k: int = 1, *, rank: str = "metric", max_expansions: int = 200_000) -> list[GaitSequence]:
     """The best ``k`` distinct gait sequences from the graph's start to its goal.
 
@@ -653,8 +707,11 @@ def search(G: nx.DiGraph, k: int = 1, *, rank: str = "metric", max_expansions: i
     would complete that gait); edges add the shortest edge count to the goal. Every part
     is a lower bound and complete paths are keyed exactly, so goal paths come off the heap
     in key order (every prefix of a goal path is keyed no higher than the path itself).
-    The search stops once the next partial path is keyed above the k-th goal path found;
-    ties on all but the mean metric are all collected, then sorted by the full key. No
+    The mean metric is keyed too (for paths of the same edge count: the metrics so far plus
+    the graph's best metric for each state still to come), so that the many orderings of
+    the same moves that tie on everything else are cut once k paths are found; among equal
+    keys the longer partial path goes first. The search stops once the next partial path
+    is keyed above the k-th goal path found; results are sorted by the full key. No
     partial path is dropped for any other reason, so the result is exact unless
     ``max_expansions`` partial paths were expanded first (then it is the best found and
     ``G.graph["search_exact"]`` is False; it is True otherwise).
@@ -685,30 +742,42 @@ def search(G: nx.DiGraph, k: int = 1, *, rank: str = "metric", max_expansions: i
         hb_grip = _bottleneck_to_goal(G, goal, grip)
     hops = nx.single_target_shortest_path_length(G, goal)
     hops = dict(hops) if not isinstance(hops, dict) else hops
-    fingers = G.graph["problem"].fingers if "problem" in G.graph else None
-    index = {f: i for i, f in enumerate(fingers)} if fingers is not None else {}
+    # fewest gaits to the goal, over the whole graph and over the states whose primary cost
+    # (the first ranking component) is at most the best bottleneck's: a path that can still
+    # reach the goal with that bottleneck is bounded by the second, tighter table
+    primary, hb_primary = (neg_metric, hb_metric) if grip is None else (grip, hb_grip)
+    best_primary = hb_primary[start]
+    gaits_all = _gaits_to_goal(G, goal)
+    gaits_best = _gaits_to_goal(G, goal, {v for v, c in primary.items() if c <= best_primary})
 
-    def gaits_left(v: Node, last) -> int:
-        differ = [i for i in range(len(v)) if v[i] != goal[i]]
-        free = last is not None and last[1] == "lift" and index.get(last[0]) in differ and goal[index[last[0]]] != LIFTED
-        return len(differ) - int(free)
+    def gaits_left(v: Node, last, p: float) -> int:
+        table = gaits_best if max(p, hb_primary[v]) <= best_primary else gaits_all
+        lifted = last[0] if last is not None and last[1] == "lift" else None
+        return min(table.get((v, lifted), np.inf), table.get((v, None), np.inf))
 
-    def key(neg_b, g_max, gaits, n_edges, v, last) -> tuple:
+    top_metric = max(-m for m in neg_metric.values())
+
+    def key(neg_b, g_max, gaits, n_edges, total, v, last) -> tuple:
         b = max(neg_b, hb_metric[v])
-        g = gaits + gaits_left(v, last)
+        g = gaits + gaits_left(v, last, neg_b if grip is None else g_max)
         e = n_edges + hops[v]
+        # the mean metric can be at most: the path's metrics so far, the best metric of the
+        # graph for each state still to come (exact once the path is complete)
+        mean = -(total + hops[v] * top_metric) / (e + 1)
         if rank == "grip":
-            return (max(g_max, hb_grip[v]), g, b, e)
-        return (b, g, e)
+            return (max(g_max, hb_grip[v]), g, b, e, mean)
+        return (b, g, e, mean)
 
     tie = itertools.count()
     g0 = grip[start] if grip is not None else 0.0
-    heap = [(key(neg_metric[start], g0, 0, 0, start, None), next(tie), neg_metric[start], g0, 0, 0, (start,), None)]
+    m0 = -neg_metric[start]
+    # equal keys: the longer partial path first (depth-first along a plateau of equal keys)
+    heap = [(key(neg_metric[start], g0, 0, 0, m0, start, None), 0, next(tie), neg_metric[start], g0, 0, 0, m0, (start,), None)]
     found: list[GaitSequence] = []
-    bound = None  # key (without the mean) of the k-th goal path found
+    bound = None  # key of the k-th goal path found (its mean a hair lower: float sums)
     expansions = 0
     while heap:
-        f, _, neg_b, g_max, gaits, n_edges, path, last = heapq.heappop(heap)
+        f, _, _, neg_b, g_max, gaits, n_edges, total, path, last = heapq.heappop(heap)
         if bound is not None and f > bound:
             break
         v = path[-1]
@@ -716,7 +785,7 @@ def search(G: nx.DiGraph, k: int = 1, *, rank: str = "metric", max_expansions: i
             found.append(_sequence(G, path, rank))
             if len(found) >= k:
                 found.sort(key=lambda s: s.rank_key)
-                bound = found[k - 1].rank_key[:-1]
+                bound = found[k - 1].rank_key[:-1] + (found[k - 1].rank_key[-1] + 1e-9,)
             continue
         if expansions >= max_expansions:
             G.graph["search_exact"] = False
@@ -731,10 +800,11 @@ def search(G: nx.DiGraph, k: int = 1, *, rank: str = "metric", max_expansions: i
             nb = max(neg_b, neg_metric[w])
             gm = max(g_max, grip[w]) if grip is not None else 0.0
             gw = gaits + _gait_increment(last, act)
-            fw = key(nb, gm, gw, n_edges + 1, w, act)
+            tw = total - neg_metric[w]
+            fw = key(nb, gm, gw, n_edges + 1, tw, w, act)
             if bound is not None and fw > bound:
                 continue
-            heapq.heappush(heap, (fw, next(tie), nb, gm, gw, n_edges + 1, path + (w,), act))
+            heapq.heappush(heap, (fw, -(n_edges + 1), next(tie), nb, gm, gw, n_edges + 1, tw, path + (w,), act))
     found.sort(key=lambda s: s.rank_key)
     return found[:k]
 
@@ -838,6 +908,12 @@ def _reason_words(ev: _Evaluator, finger: str, action: str, w: Node, reason: str
     return reason
 
 
+def _cannot_hold(reason: str) -> bool:
+    """A state refused because its contacts cannot hold the object (not force closure, or
+    over the grip force budget), not because fingers collide or too many are lifted."""
+    return reason == "not force closure" or reason.startswith("need over")
+
+
 def failure_analysis(G: nx.DiGraph) -> dict:
     """What stops the graph's start from reaching its goal (for `explain_failure` and for
     choosing the fingers that get intermediate contacts).
@@ -850,7 +926,8 @@ def failure_analysis(G: nx.DiGraph) -> dict:
     state), ``blockers`` (fingers worth giving intermediate contacts, most implicated
     first), ``needs`` ((finger, state) pairs: a new contact of that finger would help if,
     added to the state, where it is lifted, it made a valid grasp: the other fingers when a
-    lift leaves a state not force closure, the finger in the way of a landing),
+    lift leaves a state that cannot hold the object (not force closure, or over the grip
+    force budget), the finger in the way of a landing),
     ``goal_reason`` (why the final grasp itself is invalid, or None).
     """
     p: GaitProblem = G.graph["problem"]
@@ -866,7 +943,7 @@ def failure_analysis(G: nx.DiGraph) -> dict:
     needs: list[tuple[str, Node]] = []
 
     def need_holders(w: Node, lifted: str) -> None:
-        """Lifting ``lifted`` left ``w`` not force closure: another finger could help by a
+        """Lifting ``lifted`` left ``w`` unable to hold the object: another finger could help by a
         new contact: a lifted one added to ``w``, a touching one moved within ``w``."""
         for j, g in enumerate(p.fingers):
             if g != lifted:
@@ -890,7 +967,7 @@ def failure_analysis(G: nx.DiGraph) -> dict:
                 u, _, _, w = max(tried, key=lambda m: (on_partial.get(m[0], -1), -dist[m[0]]))
                 lift_blocked[f] = (u, _reason_words(ev, f, "lift", w, G.graph["blocked"][w]))
                 score[f] += 3
-                if G.graph["blocked"][w] == "not force closure":
+                if _cannot_hold(G.graph["blocked"][w]):
                     need_holders(w, f)
         if p.goal[i] != LIFTED:
             why: dict[str, int] = {}
@@ -918,7 +995,7 @@ def failure_analysis(G: nx.DiGraph) -> dict:
         w = closest[:i] + ((LIFTED,) if action == "lift" else (goal[i],)) + closest[i + 1:]
         if w in G.graph["blocked"]:
             stuck.append((f, action, _reason_words(ev, f, action, w, G.graph["blocked"][w])))
-            if G.graph["blocked"][w] == "not force closure" and action == "lift":
+            if _cannot_hold(G.graph["blocked"][w]) and action == "lift":
                 need_holders(w, f)
             need_room(f, w)
             for g in ev.collision_pair(w) or ():

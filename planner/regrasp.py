@@ -27,7 +27,7 @@ import networkx as nx
 import numpy as np
 
 from planner.closure import CONTACT_MODELS, GRIP_CONE_SIDES, apply_contact_model
-from planner.errors import MotionError, NoSequenceError, PlannerError, SpecError, UnknownNameError
+from planner.errors import InputError, MotionError, NoSequenceError, PlannerError, SpecError, UnknownNameError
 from planner.graph import (LIFTED, RANKS, GaitProblem, GaitSequence, LazyGraph, Slot, annotate_removable, explain_failure,
                            failure_analysis, greedy, seed_graph)
 from planner.plan import Alternative, Plan, PlanState, PlanStep
@@ -39,6 +39,39 @@ STRATEGIES = ("graph", "greedy")
 #: exp7 (43 pairs): 1.0 plans 33 pairs, 26 hold in all 7 gravity directions; 0.75 plans 24,
 #: 22 hold; 0.5 plans 17, 17 hold.
 EXECUTION_FRICTION_MARGIN = 0.75
+
+
+#: Ranges of the numeric planner options, checked by `PlanOptions` and, under their
+#: command-line names (`PLAN_OPTION_FLAGS`), by the CLI (``planner.cli``): each bounds a loop
+#: or a size (alternatives: ranked sequences; intermediate: contacts per finger, the graph
+#: grows about quadratically with it). field -> (low, high, low is exclusive); a field with
+#: several values (gravity) bounds each.
+PLAN_OPTION_LIMITS = {
+    "seed": (0, 2**32 - 1, False),
+    "alternatives": (1, 100, False),
+    "intermediate": (0, 8, False),
+    "max_lifted": (1, 16, False),
+    "motion_timeout_s": (0.0, 600.0, True),
+    "time_limit_s": (0.0, 3600.0, False),
+    "max_finger_force_n": (0.0, 1000.0, True),
+    "gravity": (-1000.0, 1000.0, False),
+}
+#: `regrasp plan` option of each `PLAN_OPTION_LIMITS` field named differently (``--time-limit``).
+PLAN_OPTION_FLAGS = {"motion_timeout_s": "motion_timeout", "time_limit_s": "time_limit", "max_finger_force_n": "max_finger_force"}
+
+
+def option_range(low, high, open_low: bool) -> str:
+    """'[low, high]' or '(low, high]'."""
+    return f"{'(' if open_low else '['}{low}, {high}]"
+
+
+def in_range(value, low, high, open_low: bool) -> bool:
+    """A real number (an integer when ``low`` is one; never a bool) within the range."""
+    import numbers
+
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral if isinstance(low, int) else numbers.Real):
+        return False
+    return math.isfinite(value) and (low < value if open_low else low <= value) and value <= high
 
 
 @dataclass(frozen=True)
@@ -125,17 +158,14 @@ class PlanOptions:
     def __post_init__(self):
         if self.gravity is not None:
             try:
-                g = tuple(float(v) for v in self.gravity)
-            except (TypeError, ValueError):
+                g = tuple(self.gravity)
+            except TypeError:
                 raise PlannerError(f"gravity must be 3 numbers (palm frame, m/s^2), got {self.gravity!r}") from None
-            if len(g) != 3 or not all(math.isfinite(v) for v in g):
-                raise PlannerError(f"gravity must be 3 finite numbers (palm frame, m/s^2), got {self.gravity!r}")
-            object.__setattr__(self, "gravity", g)
+            if len(g) != 3:
+                raise PlannerError(f"gravity must be 3 numbers (palm frame, m/s^2), got {self.gravity!r}")
+            object.__setattr__(self, "gravity", g)  # as floats once their range is checked, below
         if not (isinstance(self.friction_margin, (int, float)) and 0 < self.friction_margin <= 1):
             raise PlannerError(f"friction_margin must be in (0, 1], got {self.friction_margin!r}")
-        if not (isinstance(self.max_finger_force_n, (int, float)) and math.isfinite(self.max_finger_force_n)
-                and self.max_finger_force_n > 0):
-            raise PlannerError(f"max_finger_force_n must be a positive number of newtons, got {self.max_finger_force_n!r}")
         if self.gravity_set is not None:
             from planner.gravity import GRAVITY_SET_SIZES
 
@@ -156,12 +186,15 @@ class PlanOptions:
             raise UnknownNameError("strategy", self.strategy, STRATEGIES)
         if self.contact_model not in CONTACT_MODELS:
             raise UnknownNameError("contact model", self.contact_model, CONTACT_MODELS)
-        if self.alternatives < 1:
-            raise PlannerError(f"alternatives must be >= 1, got {self.alternatives}")
-        if self.intermediate < 0:
-            raise PlannerError(f"intermediate must be >= 0, got {self.intermediate}")
-        if not (isinstance(self.time_limit_s, (int, float)) and math.isfinite(self.time_limit_s) and self.time_limit_s >= 0):
-            raise PlannerError(f"time limit must be a number of seconds >= 0, got {self.time_limit_s!r}")
+        for name, (low, high, open_low) in PLAN_OPTION_LIMITS.items():
+            value = getattr(self, name)
+            optional = value is None and name in ("max_lifted", "gravity")
+            for v in () if optional else value if isinstance(value, tuple) else (value,):
+                if not in_range(v, low, high, open_low):
+                    kind = "an integer" if isinstance(low, int) else "a number"
+                    raise InputError(f"PlanOptions.{name} must be {kind} in {option_range(low, high, open_low)}, got {v!r}")
+        if self.gravity is not None:
+            object.__setattr__(self, "gravity", tuple(float(v) for v in self.gravity))
 
 
 @dataclass(frozen=True)
@@ -224,6 +257,13 @@ POOL_FACING_COS = 0.3
 POOL_SURFACE_SAMPLES = 6000
 #: Intermediate contacts of one finger lie at least this far from its other contacts.
 MIN_SLOT_SPACING_M = 0.01
+#: ... unless their mean normals differ by this much at least (`_near`).
+MIN_SLOT_ANGLE_DEG = 10.0
+#: Local candidates (`local_contacts`): postures facing the surface at most this far from
+#: one of the finger's own contacts...
+LOCAL_RADIUS_M = 0.025
+#: ... this many of them, spread, closed onto the object.
+LOCAL_SIZE = 6
 
 _POOLS: dict[tuple, tuple] = {}
 
@@ -232,26 +272,12 @@ def _object_key(obj) -> tuple:
     return (obj.shape, tuple(np.round(obj.size, 9)), np.asarray(obj.T_palm_obj).round(9).tobytes(), obj.mesh_path)
 
 
-def reachable_contacts(hand, obj, finger: str) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], ...]:
-    """Contacts one finger can make on the object, reachable by construction.
-
-    ``POOL_POSTURES`` seeded random postures of the finger (in its joint limits, the other
-    fingers open) give its pad's reachable workspace; those whose pad lies within
-    ``POOL_STANDOFF_M`` outside the surface and faces it are candidates. ``POOL_SIZE`` of
-    them, spread over the surface by farthest-point sampling of their closest surface
-    points, are closed onto the object with the thesis's closing procedure
-    (`Hand.close_finger`); a closed finger that touches and neither penetrates the object
-    nor hits the palm or its own links is a contact. No IK is needed: every posture is
-    inside the joint limits. Computed once per hand, object (with pose) and finger, then
-    cached; deterministic.
-
-    Returns:
-        (points (n, 3), inward normals (n, 3), the finger's joint values) per contact, in
-        farthest-point order.
-    """
-    from planner.contacts import collisions, contact_patches
-
-    key = (str(hand.spec_path), hand.name, _object_key(obj), finger)
+def _pool_postures(hand, obj, finger: str) -> tuple[np.ndarray, np.ndarray]:
+    """The finger's in-limit postures whose pad faces the surface from just outside it:
+    (postures (m, n_joints), the surface points they face (m, 3), object frame), from
+    ``POOL_POSTURES`` seeded random postures (forward kinematics only; distances from a
+    ``POOL_SURFACE_SAMPLES`` surface sample). Cached per hand, object (with pose) and finger."""
+    key = (str(hand.spec_path), hand.name, _object_key(obj), finger, "postures")
     if key in _POOLS:
         return _POOLS[key]
     f = hand.fingers[finger]
@@ -279,17 +305,71 @@ def reachable_contacts(hand, obj, finger: str) -> tuple[tuple[np.ndarray, np.nda
     facing = -np.einsum("ij,ij->i", n_obj, cloud_n[nearest])
     kept = np.flatnonzero((d >= 0.0) & (d <= POOL_STANDOFF_M) & (facing >= POOL_FACING_COS))
     surf = p_obj[kept] - d[kept, None] * cloud_n[nearest[kept]]
-    order = _farthest_points(surf, POOL_SIZE)
+    _POOLS[key] = (postures[kept], surf)
+    return _POOLS[key]
+
+
+def _closed_contacts(hand, obj, finger: str, postures) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Each posture closed onto the object (`Hand.close_finger`), kept when the finger
+    touches and neither penetrates the object nor hits the palm or its own links:
+    (points, inward normals, the finger's joint values) per contact, in order."""
+    from planner.contacts import collisions, contact_patches
+
+    f = hand.fingers[finger]
+    idx = list(f.q_index)
     out = []
-    for j in order:
+    for qf in postures:
         q = np.array(hand.q_open, dtype=float)
-        q[idx] = postures[kept[j]]
+        q[idx] = qf
         q = np.asarray(hand.close_finger(f, q, obj), dtype=float)
         patch = contact_patches(hand, q, obj, fingers=[finger]).get(finger)
         if patch is None or len(patch[0]) == 0 or collisions(hand, q, obj, fingers=(finger,)):
             continue
         out.append((np.asarray(patch[0]), np.asarray(patch[1]), q[idx]))
-    _POOLS[key] = tuple(out)
+    return out
+
+
+def reachable_contacts(hand, obj, finger: str) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], ...]:
+    """Contacts one finger can make on the object, reachable by construction.
+
+    ``POOL_POSTURES`` seeded random postures of the finger (in its joint limits, the other
+    fingers open) give its pad's reachable workspace; those whose pad lies within
+    ``POOL_STANDOFF_M`` outside the surface and faces it are candidates (`_pool_postures`).
+    ``POOL_SIZE`` of them, spread over the surface by farthest-point sampling of their
+    closest surface points, are closed onto the object with the thesis's closing procedure
+    (`Hand.close_finger`); a closed finger that touches and neither penetrates the object
+    nor hits the palm or its own links is a contact. No IK is needed: every posture is
+    inside the joint limits. Computed once per hand, object (with pose) and finger, then
+    cached; deterministic.
+
+    Returns:
+        (points (n, 3), inward normals (n, 3), the finger's joint values) per contact, in
+        farthest-point order.
+    """
+    key = (str(hand.spec_path), hand.name, _object_key(obj), finger)
+    if key not in _POOLS:
+        postures, surf = _pool_postures(hand, obj, finger)
+        _POOLS[key] = tuple(_closed_contacts(hand, obj, finger, postures[_farthest_points(surf, POOL_SIZE)]))
+    return _POOLS[key]
+
+
+def local_contacts(hand, obj, finger: str, anchor: np.ndarray) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], ...]:
+    """Contacts of one finger a short step from one of its own contacts (``anchor``, its
+    patch points): the postures of `_pool_postures` facing the surface between
+    ``MIN_SLOT_SPACING_M`` and ``LOCAL_RADIUS_M`` from the anchor, ``LOCAL_SIZE`` of them
+    spread by farthest-point sampling from the nearest, closed onto the object like
+    `reachable_contacts`. The spread pool covers the whole reachable surface coarsely; these
+    are the small steps a finger makes to let another one go (what sampling near the
+    current contacts found before the pool). Cached per hand, object, finger and anchor."""
+    anchor = np.asarray(anchor, float).reshape(-1, 3)
+    key = (str(hand.spec_path), hand.name, _object_key(obj), finger, anchor.round(6).tobytes())
+    if key not in _POOLS:
+        postures, surf = _pool_postures(hand, obj, finger)
+        d = np.min(np.linalg.norm(surf[:, None, :] - anchor[None, :, :], axis=2), axis=1) if len(surf) else np.zeros(0)
+        ring = np.flatnonzero((d >= MIN_SLOT_SPACING_M) & (d <= LOCAL_RADIUS_M))
+        ring = ring[np.argsort(d[ring], kind="stable")]
+        chosen = ring[_farthest_points(surf[ring], LOCAL_SIZE)]
+        _POOLS[key] = tuple(_closed_contacts(hand, obj, finger, postures[chosen]))
     return _POOLS[key]
 
 
@@ -330,7 +410,10 @@ def _pick_intermediate(problem: GaitProblem, hand, obj, finger: str, n: int, con
         contexts = [tuple(s if j != i and s == t else LIFTED for j, (s, t) in enumerate(zip(problem.start, problem.goal))),
                     problem.start[:i] + (LIFTED,) + problem.start[i + 1:]]
     cands = []
-    for points, normals, qf in reachable_contacts(hand, obj, finger):
+    pool = list(reachable_contacts(hand, obj, finger))
+    for s in have[: _fixed_slots(have)]:  # small steps from its initial and final contacts
+        pool += local_contacts(hand, obj, finger, s.points)
+    for points, normals, qf in pool:
         slot = _modelled(Slot(finger, "candidate", points, normals, qf), contact_model)
         if not any(_near(s, slot) for s in have):
             cands.append(slot)
@@ -355,8 +438,14 @@ def _pick_intermediate(problem: GaitProblem, hand, obj, finger: str, n: int, con
 
 
 def _near(a: Slot, b: Slot) -> bool:
-    """Two contacts of a finger closer than ``MIN_SLOT_SPACING_M``."""
-    return bool(np.min(np.linalg.norm(a.points[:, None, :] - b.points[None, :, :], axis=2)) < MIN_SLOT_SPACING_M)
+    """Two contacts of a finger that are one: closer than ``MIN_SLOT_SPACING_M`` with mean
+    normals less than ``MIN_SLOT_ANGLE_DEG`` apart (near a box's edge a finger curled
+    differently touches another face at the same place: another contact)."""
+    if np.min(np.linalg.norm(a.points[:, None, :] - b.points[None, :, :], axis=2)) >= MIN_SLOT_SPACING_M:
+        return False
+    na, nb = a.normals.mean(axis=0), b.normals.mean(axis=0)
+    cos = float(na @ nb) / max(float(np.linalg.norm(na) * np.linalg.norm(nb)), 1e-12)
+    return cos > math.cos(math.radians(MIN_SLOT_ANGLE_DEG))
 
 
 def _fixed_slots(slots) -> int:
@@ -567,6 +656,14 @@ def _failed_words(problem: GaitProblem, bad: "_EdgeFailed") -> str:
     return f"{bad.finger} {problem.labels(bad.edge[0])[bad.finger]}->{problem.labels(bad.edge[1])[bad.finger]}: {bad.why}"
 
 
+def _goal_invalid(lazy: LazyGraph) -> bool:
+    """The final grasp is no valid state (its fingers collide, it cannot hold the load...):
+    no intermediate contact can change that."""
+    goal = lazy.problem.goal
+    lazy.ev.evaluate([goal])
+    return lazy.ev.blocked_reason(goal) is not None
+
+
 def _anytime_search(problem: GaitProblem, initial, options: PlanOptions, t0: float) -> tuple[LazyGraph, dict]:
     """Lazy ranked search, then (anytime mode: ``options.intermediate`` 0 and a time limit)
     rounds of intermediate contacts for the fingers that block progress
@@ -585,7 +682,7 @@ def _anytime_search(problem: GaitProblem, initial, options: PlanOptions, t0: flo
         found = lazy.best(options.alternatives)
         expanded += lazy.G.graph["expanded"]
         out_of_time = lazy.timed_out or (deadline is not None and time.perf_counter() > deadline)
-        if found or not auto or out_of_time:
+        if found or not auto or out_of_time or _goal_invalid(lazy):
             break
         # contacts for the fingers that could unblock progress, scored against the states
         # they should complete; then (and when those give none) one for every finger
@@ -609,6 +706,8 @@ def _anytime_search(problem: GaitProblem, initial, options: PlanOptions, t0: flo
     if not auto:
         tried = (f"{options.intermediate} intermediate contacts per finger were tried" if options.intermediate else
                  "no intermediate contacts were tried (no --intermediate N and no --time-limit)")
+    elif _goal_invalid(lazy):
+        tried = "no intermediate contacts were tried: they cannot make the final grasp valid"
     elif rounds == 0 and not out_of_time:
         tried = "no intermediate contact could be added: the fingers that block progress reach no further contact"
     else:

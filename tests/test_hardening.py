@@ -298,6 +298,34 @@ def test_option_ranges_are_one_line(grasps, capsys, argv, option):
     assert code == 2 and len(err) == 1 and option in err[0] and "valid: " in err[0], err
 
 
+def test_plan_options_api_checks_the_cli_ranges():
+    """PlanOptions refuses what the CLI refuses, from the same table (PLAN_OPTION_LIMITS):
+    each field just outside its range, the wrong type (a bool, a fraction for an integer, a
+    string, NaN) is one InputError line naming the field and its valid range; each end of
+    every range is accepted; the CLI's table holds every field under its option name."""
+    from planner.cli import option_limits
+    from planner.regrasp import PLAN_OPTION_FLAGS, PLAN_OPTION_LIMITS, PlanOptions
+
+    assert {PLAN_OPTION_FLAGS.get(k, k): v for k, v in PLAN_OPTION_LIMITS.items()}.items() <= option_limits().items()
+    for name, (low, high, open_low) in PLAN_OPTION_LIMITS.items():
+        step = 1 if isinstance(low, int) else 1e-9 * max(1.0, abs(high))
+        wrap = (lambda v: (0.0, 0.0, v)) if name == "gravity" else (lambda v: v)
+        ends = [high] + ([] if open_low else [low])
+        for v in ends:
+            assert getattr(PlanOptions(**{name: wrap(v)}), name) == wrap(v)
+        bad = [high + step, low if open_low else low - step, True, float("nan"), "1"]
+        bad += [0.5] if isinstance(low, int) else []
+        for v in bad:
+            with pytest.raises(InputError) as err:
+                PlanOptions(**{name: wrap(v)})
+            text = str(err.value)
+            assert "\n" not in text and f"PlanOptions.{name} must be" in text, text
+            assert f"{'(' if open_low else '['}{low}, {high}]" in text and repr(v) in text, text
+    assert PlanOptions(max_lifted=None, gravity=None).max_lifted is None  # optional fields
+    with pytest.raises(InputError, match="seed must be an integer"):
+        PlanOptions(seed=None)
+
+
 def test_argparse_errors_are_one_line(capsys):
     """A missing argument or unknown option: exit 2 and one line, no usage block."""
     for argv in (["plan"], ["plan", "a.yaml", "b.yaml", "--bogus"], ["nope"]):

@@ -403,18 +403,24 @@ def test_plain_plans_export_null_grip_and_gravity_set_blocks_like_gravity(realiz
     assert one.plan.states[0].grip_force_by_gravity_n.keys() == {"palm_down"}
 
 
-def test_execution_mode_refuses_a_grasp_that_needs_the_whole_friction_cone(realized):
-    """The bundled box grasps hold palm up only with more than 3/4 of their friction: with
-    the whole cone they plan, in execution mode (3/4 of mu and gamma) the planner refuses
-    them, naming the grip the states would need."""
+def test_execution_mode_box_needs_an_intermediate_contact(realized):
+    """With 3/4 of their friction (execution mode) the bundled box grasps' own contacts do
+    not hold palm up once the index finger is lifted: --time-limit 0 refuses the pair,
+    naming the grip. The anytime defaults plan it: the little finger first steps onto an
+    intermediate contact (at its initial place, facing another side of the box's edge), and
+    every state holds within the 1 N budget in the six directions."""
     from planner.errors import NoSequenceError
     from planner.regrasp import EXECUTION_FRICTION_MARGIN, PlanOptions, plan_regrasp
 
     assert EXECUTION_FRICTION_MARGIN == 0.75
     initial, final = (realized(f) for f in PAIRS["box"])
-    plan_regrasp(initial, final, PlanOptions.for_execution(friction_margin=1.0, motion=False))
     with pytest.raises(NoSequenceError, match="need over 1 N per finger"):
-        plan_regrasp(initial, final, PlanOptions.for_execution(motion=False))
+        plan_regrasp(initial, final, PlanOptions.for_execution(motion=False, time_limit_s=0))
+    res = plan_regrasp(initial, final, PlanOptions.for_execution(motion=False, time_limit_s=60))
+    assert any(o.startswith("little:land>int") for o in res.plan.summary["order"]), res.plan.summary["order"]
+    assert all(s.is_force_closure and s.grip_force_n <= 1.0 and len(s.grip_force_by_gravity_n) == 6
+               for s in res.plan.states)
+    assert res.plan.summary["search"]["rounds"] >= 1 and res.plan.summary["bottleneck_grip_force_n"] <= 1.0
 
 
 ALLEGRO_SPHERE = ROOT / "grasps" / "allegro" / "sphere_four_finger.yaml"
