@@ -151,7 +151,7 @@ def _cmd_replay(args: argparse.Namespace) -> int:
     from planner.sim.replay import replay_gravity_set, replay_plan
 
     kw = dict(gui=args.gui, gif=args.gif, gif_every=args.gif_every, mp4=args.mp4,
-              drift_mm_max=args.drift_mm, drift_deg_max=args.drift_deg)
+              drift_mm_max=args.drift_mm, drift_deg_max=args.drift_deg, strict=args.strict)
     if args.film and args.gravity_set is None:
         raise PlannerError("--film names directions of --gravity-set: give --gravity-set N too")
     if args.gravity_set is not None:
@@ -255,6 +255,8 @@ def build_parser() -> argparse.ArgumentParser:
     replay.add_argument("--mp4", metavar="FILE", help="write an MP4 (needs ffmpeg on PATH)")
     replay.add_argument("--gui", action="store_true", help="open the pybullet GUI (needs a display)")
     replay.add_argument("--report", metavar="FILE", help="write the replay report as JSON")
+    replay.add_argument("--strict", action="store_true",
+                        help="refuse a plan whose recorded input files changed or are gone (default: a warning)")
     replay.add_argument("--drift-mm", type=float, default=5.0, metavar="X", help="largest allowed object drift, mm (default 5)")
     replay.add_argument("--drift-deg", type=float, default=5.0, metavar="Y", help="largest allowed object rotation, deg (default 5)")
     replay.add_argument("--gravity", type=float, nargs=3, metavar=("GX", "GY", "GZ"),

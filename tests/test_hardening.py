@@ -515,3 +515,28 @@ def test_plan_export_stays_byte_deterministic(tmp_path):
     assert a.read_bytes() == b.read_bytes()
     assert dumps_plan(yaml.safe_load(a.read_text())) == a.read_text()
     assert math.isfinite(read_plan(a).states[0].metric)
+
+
+# ------------------------------------------------------------------ replay --strict, setup, names
+
+
+def test_replay_strict_refuses_changed_or_missing_inputs(tmp_path, grasps, capsys):
+    """`regrasp replay --strict` (alone and with --gravity-set): a plan whose recorded input
+    changed or is gone is exit 2 and one line naming inputs.<name>, before pybullet starts;
+    the plan file is untouched."""
+    sys.path.insert(0, str(Path(__file__).parent))
+    from test_plan import tiny_plan
+
+    a, _ = grasps
+    plan = tiny_plan()
+    plan = type(plan)(**{**plan.__dict__, "inputs": {"initial": {"path": str(a), "sha256": _sha(a)}}})
+    path = write_plan(plan, tmp_path / "plan.yaml")
+    before = _sha(path)
+    a.write_text(a.read_text() + "# edited\n")
+    for problem in ("changed since planning", "is gone"):
+        for extra in ([], ["--gravity-set", "2"]):
+            code, err = _run(capsys, "replay", path, "--strict", *extra)
+            assert code == 2 and len(err) == 1, err
+            assert "inputs.initial" in err[0] and problem in err[0] and "error:" in err[0], err
+        a.unlink(missing_ok=True)
+    assert _sha(path) == before

@@ -196,15 +196,16 @@ def _json_default(value):
 # --------------------------------------------------------------------------- plan input
 
 
-def _read_plan(plan) -> Plan:
+def _read_plan(plan, strict: bool = False) -> Plan:
     """The typed plan of `planner.plan` (its one parser): a file is read and verified by
-    `read_plan` (integrity, structure, closures, inputs), plan data is checked by
-    `plan_from_data`, a `Plan` is used as it is."""
+    `read_plan` (integrity, structure, closures, inputs; ``strict``: a changed or missing
+    input is an error, not a warning), plan data is checked by `plan_from_data`, a `Plan`
+    is used as it is."""
     if isinstance(plan, Plan):
         return plan
     if isinstance(plan, Mapping):
         return plan_from_data(dict(plan))
-    return read_plan(plan)
+    return read_plan(plan, strict=strict)
 
 
 @dataclass(frozen=True)
@@ -520,6 +521,7 @@ def replay_plan(
     mp4: str | os.PathLike | None = None,
     width: int = 640,
     height: int = 480,
+    strict: bool = False,
 ) -> ReplayReport:
     """Replay a plan in pybullet with gravity on; re-measure contacts, closure and drift.
 
@@ -556,6 +558,8 @@ def replay_plan(
             least 20 ms of simulated time apart, the shortest delay GIF viewers show).
         mp4: write an MP4 here (needs ``ffmpeg`` on PATH), every rendered frame.
         width, height: frame size in pixels.
+        strict: a plan file whose recorded inputs changed or are gone is refused
+            (`planner.plan.read_plan`'s ``strict``) instead of a warning.
 
     Returns:
         ReplayReport with a pass/fail verdict (drift and closure agreement), per-state
@@ -565,7 +569,7 @@ def replay_plan(
         SpecError: the plan lacks a key or has a bad value (names the file and key).
         SimulationError: pybullet could not set up the scene, or ffmpeg is missing for mp4.
     """
-    rd = _read_plan(plan)
+    rd = _read_plan(plan, strict)
     joints, states, steps, obj, friction = list(rd.joints), rd.states, rd.steps, dict(rd.object), Friction(**rd.friction)
     positive = [("dt", dt), ("drift_mm_max", drift_mm_max), ("drift_deg_max", drift_deg_max),
                 ("drop_mm", drop_mm), ("joint_speed_rad_s", joint_speed_rad_s)]
@@ -685,7 +689,7 @@ class GravitySetReport:
 
 
 def replay_gravity_set(plan: Mapping | str | os.PathLike, n: int = 6, *, hand=None, g_mps2: float = 9.81,
-                       film: Sequence[str] | None = None, **kwargs) -> GravitySetReport:
+                       film: Sequence[str] | None = None, strict: bool = False, **kwargs) -> GravitySetReport:
     """Replay a plan under several gravity directions of the palm frame (`planner.gravity`).
 
     Args:
@@ -695,6 +699,7 @@ def replay_gravity_set(plan: Mapping | str | os.PathLike, n: int = 6, *, hand=No
         hand: the plan's `planner.hand.Hand` (loaded from the plan when None).
         g_mps2: gravity magnitude.
         film: the direction names filmed when ``gif`` or ``mp4`` is given (default: all).
+        strict: refuse a plan file whose recorded inputs changed or are gone (`replay_plan`).
         **kwargs: passed to `replay_plan` (not ``gravity``; a ``gif`` path gets the direction
             name inserted before its suffix).
 
@@ -705,7 +710,7 @@ def replay_gravity_set(plan: Mapping | str | os.PathLike, n: int = 6, *, hand=No
 
     if "gravity" in kwargs:
         raise InputError("replay_gravity_set takes no gravity: it replays the set's directions")
-    rd = _read_plan(plan)  # read and verified once for every direction
+    rd = _read_plan(plan, strict)  # read and verified once for every direction
     if hand is None:
         hand = _plan_hand(rd)
     directions = gravity_directions(hand.palm_normal, n, g_mps2)
