@@ -228,6 +228,7 @@ def check_same_setup(initial, final) -> None:
         ("object.mesh", a.object.mesh_path, b.object.mesh_path),
         ("object.position", a.object.position, b.object.position),
         ("object.quat_xyzw", a.object.quat_xyzw, b.object.quat_xyzw),
+        ("object.mass_kg", a.object.mass_kg, b.object.mass_kg),  # None (volume x density) differs from a number
         ("friction", (a.friction.mu, a.friction.gamma, a.friction.edges), (b.friction.mu, b.friction.gamma, b.friction.edges)),
     ]
     for key, va, vb in checks:

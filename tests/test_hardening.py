@@ -540,3 +540,24 @@ def test_replay_strict_refuses_changed_or_missing_inputs(tmp_path, grasps, capsy
             assert "inputs.initial" in err[0] and problem in err[0] and "error:" in err[0], err
         a.unlink(missing_ok=True)
     assert _sha(path) == before
+
+
+def test_final_grasp_with_another_mass_is_refused(grasps, capsys):
+    """A final grasp whose object.mass_kg differs from the initial's (another number, or none:
+    volume x density) is exit 2, one line naming object.mass_kg and both values; it was
+    silently planned with the first. The unchanged pair passes check_same_setup."""
+    from planner.grasp import load_grasp
+    from planner.regrasp import check_same_setup
+
+    a, b = grasps
+    check_same_setup(load_grasp(a), load_grasp(b))
+    text = b.read_text()
+    assert "mass_kg: 0.04" in text
+    for edited, shown in ((text.replace("mass_kg: 0.04", "mass_kg: 0.05"), "0.04 vs 0.05"),
+                          (text.replace("mass_kg: 0.04", ""), "0.04 vs None")):
+        b.write_text(edited)
+        code, err = _run(capsys, "plan", a, b, "--no-motion")
+        assert code == 2 and len(err) == 1 and "object.mass_kg" in err[0] and shown in err[0], err
+        with pytest.raises(SpecError) as info:
+            check_same_setup(load_grasp(b), load_grasp(a))  # either order
+        assert info.value.key == "object.mass_kg"
