@@ -142,6 +142,31 @@ def _vec3(spec_path, key, value) -> np.ndarray:
     return v
 
 
+#: URDF collision shape -> (coal attribute, URDF attribute, factor from coal's value to the URDF's).
+_URDF_SIZES = {
+    "Sphere": (("radius", "radius", 1.0),),
+    "Cylinder": (("radius", "radius", 1.0), ("halfLength", "length", 2.0)),
+    "Cone": (("radius", "radius", 1.0), ("halfLength", "length", 2.0)),
+    "Capsule": (("radius", "radius", 1.0), ("halfLength", "length", 2.0)),
+    "Box": (("halfSide", "size", 2.0),),
+}
+
+
+def _check_urdf_sizes(spec_path: str, urdf_path: str, link: str, go) -> None:
+    """A collision shape's radius, length, size (and a mesh's scale) must be finite and > 0:
+    pinocchio and coal take a negative or zero one and answer nonsense distances."""
+    kind = type(go.geometry).__name__
+    sizes = [(getattr(go.geometry, a), u, f) for a, u, f in _URDF_SIZES.get(kind, ())]
+    if kind not in _URDF_SIZES:
+        kind, sizes = "mesh", [(go.meshScale, "scale", 1.0)]
+    for value, attr, factor in sizes:
+        v = np.atleast_1d(np.asarray(value, dtype=float)) * factor
+        if not np.all(np.isfinite(v) & (v > 0)):
+            shown = " ".join(f"{x:g}" for x in v)
+            raise SpecError(spec_path, "urdf", f"{urdf_path}: link {link!r}: collision {kind.lower()} {attr} must be "
+                                               f"> 0, got {shown}")
+
+
 def _merge_capsules(entries):
     """Replace cylinder + 2 end spheres of equal radius on one link by one coal.Capsule.
 
@@ -320,6 +345,7 @@ class Hand:
         entries = []
         for go in gm.geometryObjects:
             link = self.model.frames[go.parentFrame].name
+            _check_urdf_sizes(sp, self.urdf_path, link, go)
             entries.append((link, finger_of_joint(go.parentJoint), go.geometry, go.parentJoint,
                             pin.SE3(go.placement)))
         geoms: list[Geometry] = []

@@ -561,3 +561,33 @@ def test_final_grasp_with_another_mass_is_refused(grasps, capsys):
         with pytest.raises(SpecError) as info:
             check_same_setup(load_grasp(b), load_grasp(a))  # either order
         assert info.value.key == "object.mass_kg"
+
+
+@pytest.mark.parametrize("old, new, expect", [
+    ('<sphere radius="0.0065"/>', '<sphere radius="-0.0065"/>', "collision sphere radius must be > 0, got -0.0065"),
+    ('<cylinder radius="0.0065" length="0.0103"/>', '<cylinder radius="0.0065" length="0"/>',
+     "collision cylinder length must be > 0, got 0"),
+    ('<box size="0.079 0.067 0.03"/>', '<box size="0.079 -0.067 0.03"/>', "collision box size must be > 0, got 0.079 -0.067"),
+    ('<cylinder radius="0.0065" length="0.022"/>', '<cylinder radius="0.0065" length="-0.022"/>', "length must be > 0, got -0.022"),
+])
+def test_urdf_with_a_non_positive_size_is_refused_when_the_hand_loads(tmp_path, grasps, capsys, old, new, expect):
+    """A negative or zero radius/length/size in a URDF collision shape (pinocchio and coal
+    accept them): the hand does not load; the message names the URDF, the link and the
+    attribute; `regrasp check` on a grasp of that hand is exit 2 and one line."""
+    from planner.hand import Hand
+
+    src = ROOT / "robots/icub_right"
+    urdf = (src / "icub_right.urdf").read_text()
+    assert old in urdf
+    hand_dir = tmp_path / "hand"
+    hand_dir.mkdir()
+    shutil.copy(src / "hand.yaml", hand_dir / "hand.yaml")
+    (hand_dir / "icub_right.urdf").write_text(urdf.replace(old, new, 1))
+    with pytest.raises(SpecError) as err:
+        Hand.load(hand_dir)
+    msg = str(err.value)
+    assert err.value.key == "urdf" and str(hand_dir / "icub_right.urdf") in msg and "link '" in msg and expect in msg, msg
+    a = grasps[0]
+    a.write_text(a.read_text().replace("hand: icub_right", f"hand: {hand_dir}"))
+    code, lines = _run(capsys, "check", a)
+    assert code == 2 and len(lines) == 1 and expect in lines[0], lines
