@@ -310,7 +310,7 @@ def _category(reason: str) -> str:
     """The reason without its details (finger names, numbers): for counting."""
     head = reason.split(":")[0]
     for key in ("not force closure", "need over", "never removable", "cannot land", "time limit", "finger path",
-                "stuck", "crash", "dropped", "drift", "closure disagree"):
+                "stuck", "crash", "collide", "dropped", "drift", "closure disagree"):
         if key in reason:
             return f"{head}: {key}"
     return head
