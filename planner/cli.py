@@ -12,7 +12,7 @@ import os
 import sys
 import tempfile
 
-from planner.errors import NoSequenceError, PlannerError
+from planner.errors import NoSequenceError, PlannerError, one_line
 from planner.gravity import GRAVITY_SET_SIZES
 
 DEMO_INITIAL = "icub/cylinder_parallel_extension.yaml"  # bundled grasps (planner.resources)
@@ -303,7 +303,7 @@ class _Parser(argparse.ArgumentParser):
     """argparse with its errors as one line (no usage block) and exit code 2."""
 
     def error(self, message: str):
-        message = " ".join(str(message).split())
+        message = one_line(str(message).strip())  # a user's option may hold a line break or an escape
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
@@ -392,8 +392,9 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _say(line: str) -> None:
-    """One line on stderr, whatever the message holds (newlines in names included)."""
-    print(" ".join(line.split("\n")).replace("\r", " "), file=sys.stderr)
+    """One line on stderr, whatever the message holds (newlines in names included; other
+    control characters, e.g. a terminal escape in a file name, shown escaped)."""
+    print(one_line(" ".join(line.split("\n")).replace("\r", " ")), file=sys.stderr)
 
 
 class _Noise:

@@ -7,6 +7,16 @@ any other exception is a bug and keeps its traceback.
 from __future__ import annotations
 
 
+def one_line(text) -> str:
+    """``text`` fit for a one-line message: line breaks and every other control or
+    non-printing character (a file, key or option name may hold any: form feed, U+2028,
+    a terminal escape) shown escaped, e.g. ``\\n``, ``\\x1b``, ``\\u2028``."""
+    text = str(text)
+    if text.isprintable():
+        return text
+    return "".join(ch if ch.isprintable() else ch.encode("unicode_escape").decode("ascii") for ch in text)
+
+
 class PlannerError(Exception):
     """Root of every error the planner raises on purpose."""
 
@@ -28,7 +38,7 @@ class SpecError(PlannerError):
         self.path = str(path)
         self.key = key
         self.message = message
-        where = f"{self.path}: {key}: " if key else f"{self.path}: "
+        where = f"{one_line(self.path)}: {one_line(key)}: " if key else f"{one_line(self.path)}: "
         super().__init__(where + message)
 
 
@@ -39,7 +49,7 @@ class UnknownNameError(PlannerError, KeyError):
         self.kind = kind
         self.name = name
         self.valid = sorted(valid)
-        super().__init__(f"unknown {kind} {name!r}; {kind}s are {', '.join(self.valid)}")
+        super().__init__(f"unknown {kind} {one_line(repr(name))}; {kind}s are {', '.join(map(one_line, self.valid))}")
 
     def __str__(self) -> str:  # KeyError would otherwise quote the message
         return self.args[0]

@@ -591,3 +591,27 @@ def test_urdf_with_a_non_positive_size_is_refused_when_the_hand_loads(tmp_path, 
     a.write_text(a.read_text().replace("hand: icub_right", f"hand: {hand_dir}"))
     code, lines = _run(capsys, "check", a)
     assert code == 2 and len(lines) == 1 and expect in lines[0], lines
+
+
+@pytest.mark.parametrize("bad", ["\n", "\r", "\x0b", "\x0c", "\x1c", "\x85", "\u2028", "\x1b[2J", "\t", "\0"])
+def test_control_characters_in_names_do_not_split_the_line(tmp_path, capsys, bad):
+    """A file name, a YAML key or a command-line value holding a line break or another
+    control character (form feed, escape, U+2028...) is shown escaped: the error stays one
+    line (also by str.splitlines, which splits at more than newline) and holds no control
+    character."""
+    base = BOX_IR2M.read_text()
+    key = f"in{bad}dex"
+    cases = [
+        (["check", tmp_path / "key.yaml"], base.replace("  index:  {posture", f'  "{key.encode("unicode_escape").decode()}":  {{posture')),
+        (["plan", BOX_IR2M, BOX_IR2M, f"--bo{bad}gus"], None),
+    ]
+    if bad != "\0":  # never in a file name
+        cases.append((["check", tmp_path / f"no{bad}such.yaml"], None))
+        cases.append((["check", tmp_path / f"bad{bad}name.yaml"], base.replace("mu: 0.9", "mu: -1")))
+    for argv, text in cases:
+        if text is not None:
+            argv[1].write_text(text)
+        code, err = _run(capsys, *argv)
+        assert code == 2 and len(err) == 1, (argv, err)
+        assert all(ch == " " or ch.isprintable() for ch in err[0]), (argv, err)
+        assert "\\" in err[0], (argv, err)  # the character is shown, escaped
