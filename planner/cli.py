@@ -277,12 +277,6 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _has_command(name: str) -> bool:
-    parser = build_parser()
-    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
-    return name in sub.choices
-
-
 #: Ranges of the numeric options (README "Hardening / plan integrity"), (low, high, low is
 #: exclusive): the planner's are `planner.regrasp.PLAN_OPTION_LIMITS` (checked by
 #: `PlanOptions` too; `option_limits` gives them their option names), these are replay's.

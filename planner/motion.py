@@ -40,6 +40,12 @@ DEFAULT_LIFT_M = 0.005
 """Retreat of the contact point along the outward normal in a lift (and approach in a land)."""
 MAX_LIFT_M = 0.03
 """A lift gives up when the finger is not clear of the object after this retreat."""
+_ROTATION_WEIGHT_M = 0.03
+"""Rigid retreat: a link rotation error of 1 rad weighs as much as this translation error."""
+_LIFT_LAG_M = 0.002
+"""A retreat step whose contact point trails its target by more than this is stuck (it slides)."""
+_REPEL_MARGIN_M = 0.003
+"""`_retreat_repel` pushes away every link within the clearance plus this of the object."""
 
 # name -> OMPL geometric planner class. Asymptotically optimal planners stop at their
 # first solution (cost threshold +inf): the path is then shortened by PathSimplifier.
@@ -476,7 +482,7 @@ def _retreat_dls(
             ew = W[:, 0] * err
             dq = np.linalg.solve(Jw.T @ Jw + damping**2 * np.eye(len(q)), Jw.T @ ew)
             q = np.clip(q + dq, lo, hi)
-        if float(np.dot(p0 - point(q), n_in)) < s - 0.002 or not scene.is_valid(q, touch_margin):
+        if float(np.dot(p0 - point(q), n_in)) < s - _LIFT_LAG_M or not scene.is_valid(q, touch_margin):
             return None
         path.append(q.copy())
         if s >= lift_m - 1e-12 and scene.is_valid(q, clearance_m):
@@ -498,7 +504,7 @@ def _retreat_repel(
     """Push every link near the object away along its own surface normal; None if stuck.
 
     For a finger wrapped around an edge, backing off the contact point alone drags
-    another phalanx along the object. Here each link within ``clearance_m + 3 mm`` (and
+    another phalanx along the object. Here each link within ``clearance_m + _REPEL_MARGIN_M`` (and
     the contact link) asks its nearest point to gain ``step_m`` of distance per step:
     one row ``n_out . J_point`` each, solved by damped least squares. Ends when the
     contact link is ``lift_m`` and every link ``clearance_m`` away from the object.
@@ -512,7 +518,7 @@ def _retreat_repel(
     for _ in range(int(MAX_LIFT_M / step_m)):
         rows = []
         for d, link, p_link_palm, p_object_palm in scene.object_distances(q):
-            if d >= clearance_m + 0.003 and link != contact_link:
+            if d >= clearance_m + _REPEL_MARGIN_M and link != contact_link:
                 continue
             n_out = -_inward_normal(scene, p_object_palm)
             p_link = scene.point_on_link(q, link, p_link_palm)
@@ -572,7 +578,7 @@ def _retreat(
     n_in = n_in / norm
     touch_margin = min(-scene.touch_tol_m, d0 - 1e-6)  # never deeper than the contact
     p_link = scene.point_on_link(a, link, p_palm)
-    for rotation_weight_m in (0.03, 0.0):
+    for rotation_weight_m in (_ROTATION_WEIGHT_M, 0.0):
         path = _retreat_dls(
             scene, a, n_in, link, p_link, rotation_weight_m=rotation_weight_m,
             touch_margin=touch_margin, lift_m=lift_m, clearance_m=clearance_m, step_m=step_m,

@@ -31,9 +31,9 @@ Squeeze (grasp force optimization). At every state the contact of each touching 
 is in equilibrium under gravity: ``min sum |f_i - F n_i|_1`` subject to the net wrench
 balancing ``m g``, every ``f_i`` inside half the friction cone (then 3/4, then the whole
 cone if needed; at each step point forces first, then with the soft-finger torsion that
-the simulator's spinning friction provides: ``GFO_MARGINS``), no component above
-``GFO_MAX_FORCE * F`` and a normal force of at least ``0.1 F`` (``F = finger_force_n``;
-`_Sim._grasp_forces`). Plain normal squeezing is kept only when no balanced forces exist
+the simulator's spinning friction provides: `planner.sim.controller.CONE_MARGINS`), no
+component above ``MAX_FORCE_RATIO * F`` and a normal force of at least ``MIN_NORMAL_RATIO * F``
+(``F = finger_force_n``; `planner.sim.controller.balance_forces`). Plain normal squeezing is kept only when no balanced forces exist
 at those contacts. The finger then presses with joint torques ``tau = J_f^T f_i``
 (``J_f``: linear Jacobian of the contact point over the finger's joints): its position
 target lies ``squeeze_m`` beyond the contact along ``tau`` and each joint's torque is
@@ -69,13 +69,9 @@ from planner.plan import Plan, plan_file, plan_from_data, read_plan
 from planner.sim.contact_filter import ContactFilter
 from planner.sim.controller import TOUCH_TOL_M, Controller
 
-try:  # pybullet prints a build banner on import: keep a command's stdout clean
-    from planner.sim.render import quiet_native_output
-except ImportError:  # pragma: no cover - render helper not present
-    import contextlib
+from planner.sim.render import quiet_native_output
 
-    quiet_native_output = contextlib.nullcontext
-with quiet_native_output():
+with quiet_native_output():  # pybullet prints a build banner on import: keep a command's stdout clean
     import pybullet as p
 
 #: A plan's joint values may exceed the hand's limits by this much (rad or m): rounding.
