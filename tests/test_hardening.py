@@ -615,3 +615,56 @@ def test_control_characters_in_names_do_not_split_the_line(tmp_path, capsys, bad
         assert code == 2 and len(err) == 1, (argv, err)
         assert all(ch == " " or ch.isprintable() for ch in err[0]), (argv, err)
         assert "\\" in err[0], (argv, err)  # the character is shown, escaped
+
+
+# ------------------------------------------------------------------ the malformed-input corpus
+
+MALFORMED = ROOT / "tests/data/malformed"
+#: Every file of tests/data/malformed and words its one error line must hold (the cases built
+#: in code above are not repeated there: deep nesting, long integers, alias bombs and
+#: duplicate keys in grasps, 2 MB files, a hand: path at a secret, bad friction, altered plans).
+MALFORMED_EXPECT = {
+    "grasp_empty.yaml": "expected a YAML mapping",
+    "grasp_hand_missing.yaml": "no_such_hand/hand.yaml",
+    "grasp_inf_size.yaml": "object.size[1]: expected a finite number",
+    "grasp_latin1.yaml": "not UTF-8",
+    "grasp_nan_position.yaml": "object.position[0]: expected a finite number",
+    "grasp_posture_length.yaml": "fingers.index.posture: expected 4 numbers",
+    "grasp_string_mu.yaml": "friction.mu: expected a number",
+    "grasp_syntax.yaml": "malformed YAML at line 14",
+    "grasp_unknown_finger.yaml": "unknown finger 'pinky'",
+    "grasp_unknown_shape.yaml": "unknown shape 'torus'",
+    "grasp_zero_quat.yaml": "object.quat_xyzw",
+    "plan_alias_bomb.yaml": "aliases",
+    "plan_bad.json": "not valid JSON",
+    "plan_binary.yaml": "not UTF-8",
+    "plan_deep.json": "nesting",
+    "plan_empty.yaml": "expected a mapping",
+    "plan_inf_metric.yaml": "states[0].closure.metric",
+    "plan_list.yaml": "expected a mapping",
+    "plan_nan_position.yaml": "object.position[0]",
+    "plan_schema_99.yaml": "unsupported plan version 99",
+    "plan_step_out_of_range.yaml": "steps[0].to_state",
+    "plan_truncated.yaml": "missing key",
+    "plan_truncated_steps.yaml": "integrity",
+}
+
+
+def test_the_malformed_corpus_is_listed_whole():
+    """Every corpus file has its expectation (a file added without one would not be run)."""
+    assert sorted(p.name for p in MALFORMED.iterdir()) == sorted(MALFORMED_EXPECT)
+
+
+@pytest.mark.parametrize("name", sorted(MALFORMED_EXPECT))
+def test_malformed_corpus_file_is_one_line_exit_2(name, capsys):
+    """`regrasp check` on each malformed grasp and `regrasp replay` on each malformed plan of
+    tests/data/malformed: exit 2, exactly one stderr line naming the file and the problem,
+    no traceback, within 10 s, the file's bytes unchanged."""
+    path = MALFORMED / name
+    before = _sha(path)
+    t0 = time.perf_counter()
+    code, err = _run(capsys, "check" if name.startswith("grasp_") else "replay", path)
+    assert time.perf_counter() - t0 < 10
+    assert code == 2 and len(err) == 1, err
+    assert name in err[0] and MALFORMED_EXPECT[name] in err[0] and "Traceback" not in err[0], err
+    assert _sha(path) == before
