@@ -6,16 +6,18 @@ medians. The greedy baseline runs on the same realized grasps in the same proces
 Target from the issue: the box pair planned (without paths) in under 1 s on 2 cores.
 
 Then the box pair in execution mode (`PlanOptions.for_execution`: mean contacts, six
-gravity directions, grip ranking: six grip LPs per state; with the whole friction cone, as
-the box needs it palm up) against the default planner and
+gravity directions, grip ranking: six grip LPs per state; here with the whole friction
+cone, where its own contacts suffice: with 3/4 of it the little finger needs an
+intermediate contact, timed in the last table) against the default planner and
 the mean-contact planner without gravity, without and with OMPL finger paths, as a ratio
 to the default measured in the same run.
 
-Last, the anytime planner on a pair that needs intermediate contacts (Allegro sphere: four
-fingers -> a tripod where the middle finger takes the ring finger's place): with the
-defaults (rounds of intermediate contacts within the time limit) and with --time-limit 0
-(the pair's own contacts only: no sequence), grasp realization excluded; the first run also
-computes the reachable contact pools, which later runs reuse (cached per hand and object).
+Last, the anytime planner on two pairs that need intermediate contacts (Allegro sphere: four
+fingers -> a tripod where the middle finger takes the ring finger's place; the box pair in
+execution mode): with the defaults (rounds of intermediate contacts within the time limit)
+and with --time-limit 0 (the pair's own contacts only: no sequence), grasp realization
+excluded; the first run also computes the reachable contact pools, which later runs reuse
+(cached per hand and object).
 
 Usage: python benchmarks/bench_plan.py [--repeats N]
 """
@@ -82,8 +84,8 @@ def main() -> int:
         "default (patch, metric)": lambda **kw: PlanOptions(**kw),
         "mean contacts": lambda **kw: PlanOptions(contact_model="mean", **kw),
         "mean + gravity palm down": lambda **kw: PlanOptions(contact_model="mean", gravity=(0.0, 0.0, 9.81), **kw),
-        # the box holds palm up only with more than 3/4 of its friction: execution mode's
-        # reserve refuses it (README), so it is planned here with the whole cone
+        # with the whole cone the box pair's own contacts suffice (with 3/4 of it, execution
+        # mode's reserve, it needs an intermediate contact: see anytime())
         "execution (set 6, grip, mu)": lambda **kw: PlanOptions.for_execution(friction_margin=1.0, **kw),
     }
     for motion in (False, True):
@@ -122,21 +124,31 @@ def middle_for_ring_pair(directory: Path) -> tuple[Path, Path]:
 
 
 def anytime(repeats: int) -> None:
+    """The anytime planner on two pairs that need intermediate contacts: the Allegro
+    middle-for-ring pair and the box pair in execution mode (3/4 of the friction: the
+    little finger must step onto another face of the box's edge first), with the defaults
+    and with --time-limit 0."""
     import tempfile
 
-    print(f"{'allegro middle-for-ring':<26} {'plan s (median)':>16} {'first s':>7} {'solved':>6} {'rounds':>6} {'added':>5} {'steps':>5} {'expanded':>8}")
     with tempfile.TemporaryDirectory() as tmp:
         a, b = middle_for_ring_pair(Path(tmp))
-        initial, final = realize(load_grasp(a)), realize(load_grasp(b))
-    for name, limit in (("defaults (10 s budget)", 10.0), ("--time-limit 0", 0.0)):
-        times, result = timed_plans(initial, final, PlanOptions(motion=False, time_limit_s=limit), repeats)
-        med = statistics.median(times)
-        if result is None:
-            print(f"{name:<26} {med:>16.4f} {times[0]:>7.3f} {'no':>6}")
-            continue
-        info = result.plan.summary["search"]
-        print(f"{name:<26} {med:>16.4f} {times[0]:>7.3f} {'yes':>6} {info['rounds']:>6} {sum(info['intermediate_added'].values()):>5} "
-              f"{result.sequence.gait_steps:>5} {info['expanded_states']:>8}")
+        allegro = realize(load_grasp(a)), realize(load_grasp(b))
+    box = realize(load_grasp(ROOT / PAIRS["box"][0])), realize(load_grasp(ROOT / PAIRS["box"][1]))
+    cases = {"allegro middle-for-ring": (allegro, lambda **kw: PlanOptions(motion=False, **kw)),
+             "box --execution": (box, lambda **kw: PlanOptions.for_execution(motion=False, **kw))}
+    print(f"{'anytime pair':<24} {'mode':<16} {'plan s (median)':>16} {'first s':>7} {'solved':>6} {'rounds':>6} "
+          f"{'added':>5} {'steps':>5} {'expanded':>8} {'grip N':>6}")
+    for pair, ((initial, final), make) in cases.items():
+        for name, limit in (("defaults (10 s)", 10.0), ("--time-limit 0", 0.0)):
+            times, result = timed_plans(initial, final, make(time_limit_s=limit), repeats)
+            med = statistics.median(times)
+            if result is None:
+                print(f"{pair:<24} {name:<16} {med:>16.4f} {times[0]:>7.3f} {'no':>6}")
+                continue
+            info, grip = result.plan.summary["search"], result.plan.summary["bottleneck_grip_force_n"]
+            print(f"{pair:<24} {name:<16} {med:>16.4f} {times[0]:>7.3f} {'yes':>6} {info['rounds']:>6} "
+                  f"{sum(info['intermediate_added'].values()):>5} {result.sequence.gait_steps:>5} "
+                  f"{info['expanded_states']:>8} {'-' if grip is None else f'{grip:.3f}':>6}")
 
 
 if __name__ == "__main__":

@@ -234,6 +234,11 @@ def main(argv=None) -> dict:
         if any(r["anytime_solved"] for r in valid) else float("nan"),
         "anytime_solved_with_intermediate": sum(r["anytime_solved"] and r.get("anytime_rounds", 0) > 0 for r in valid),
         "anytime_solved_by_group": _by_group(valid),
+        # what the anytime planner says on the pairs it does not solve although their final
+        # grasp is a valid state (the end of its message: what was tried)
+        "anytime_unsolved_with_a_valid_final_state": [
+            f"seed {r['seed']} {r['initial']} -> {r['final']}: {r['anytime_reason'].rsplit('; ', 1)[-1]}"
+            for r in valid if r["final_state_valid"] and not r["anytime_solved"]],
         "greedy_solved": f"{sum(r['greedy_solved'] for r in valid)}/{len(valid)}",
         "greedy_only": sum(r["greedy_solved"] and not r["graph_solved"] for r in valid),
         "both_solved": len(both),

@@ -665,7 +665,7 @@ def _gaits_to_goal(G: nx.DiGraph, goal: Node, allowed=None) -> dict[tuple[Node, 
     keyed (state, finger whose lift led to it or None): a landing right after the same
     finger's lift is free (`_gait_increment`). Look a state up under its lifted finger and
     under None, and take the smaller (a 0-1 Dijkstra on the reversed graph)."""
-    if allowed is not None and goal not in allowed:
+    if goal not in G or (allowed is not None and goal not in allowed):
         return {}
     dist = {(goal, None): 0}
     heap = [(0, 0, goal, None)]
@@ -921,9 +921,10 @@ def failure_analysis(G: nx.DiGraph) -> dict:
     Returns a dict: ``closest`` (the reached state fewest fingers from the goal, best metric
     first), ``partial`` (the fewest-move path to it), ``lift_blocked`` (finger that has to
     move -> (state, why) for a finger never lifted in any reached state where it touches),
-    ``landing_blocked`` (finger -> {why: count of states} for refused landings on the final
-    contact), ``stuck`` ((finger, action, why) of each refused next move from the closest
-    state), ``blockers`` (fingers worth giving intermediate contacts, most implicated
+    ``unheld`` (those of them refused because the other fingers cannot hold the object
+    without them), ``landing_blocked`` (finger -> {why: count of states} for refused
+    landings on the final contact), ``stuck`` ((finger, action, why) of each refused next
+    move from the closest state), ``blockers`` (fingers worth giving intermediate contacts, most implicated
     first), ``needs`` ((finger, state) pairs: a new contact of that finger would help if,
     added to the state, where it is lifted, it made a valid grasp: the other fingers when a
     lift leaves a state that cannot hold the object (not force closure, or over the grip
@@ -941,6 +942,7 @@ def failure_analysis(G: nx.DiGraph) -> dict:
     on_partial = {v: k for k, v in enumerate(partial)}
     lift_blocked, landing_blocked, score = {}, {}, {f: 0 for f in p.fingers}
     needs: list[tuple[str, Node]] = []
+    unheld: list[str] = []
 
     def need_holders(w: Node, lifted: str) -> None:
         """Lifting ``lifted`` left ``w`` unable to hold the object: another finger could help by a
@@ -969,6 +971,8 @@ def failure_analysis(G: nx.DiGraph) -> dict:
                 score[f] += 3
                 if _cannot_hold(G.graph["blocked"][w]):
                     need_holders(w, f)
+                if any(_cannot_hold(G.graph["blocked"][m[3]]) for m in tried):
+                    unheld.append(f)
         if p.goal[i] != LIFTED:
             why: dict[str, int] = {}
             for u, j, action, w in moves:
@@ -1006,7 +1010,8 @@ def failure_analysis(G: nx.DiGraph) -> dict:
     if goal in ev.closure or goal in G.graph["blocked"]:
         goal_reason = G.graph["blocked"].get(goal) or ev.blocked_reason(goal)
     blockers = [f for f in sorted(p.fingers, key=lambda f: (-score[f], p.fingers.index(f))) if score[f] > 0]
-    return {"closest": closest, "partial": partial, "lift_blocked": lift_blocked, "landing_blocked": landing_blocked,
+    return {"closest": closest, "partial": partial, "lift_blocked": lift_blocked, "unheld": unheld,
+            "landing_blocked": landing_blocked,
             "stuck": stuck, "needs": list(dict.fromkeys(needs)),
             "blockers": blockers, "goal_reason": goal_reason, "distance": dist[closest]}
 

@@ -410,14 +410,7 @@ def _pick_intermediate(problem: GaitProblem, hand, obj, finger: str, n: int, con
     if not contexts:
         contexts = [tuple(s if j != i and s == t else LIFTED for j, (s, t) in enumerate(zip(problem.start, problem.goal))),
                     problem.start[:i] + (LIFTED,) + problem.start[i + 1:]]
-    cands = []
-    pool = list(reachable_contacts(hand, obj, finger))
-    for s in have[: _fixed_slots(have)]:  # small steps from its initial and final contacts
-        pool += local_contacts(hand, obj, finger, s.points)
-    for points, normals, qf in pool:
-        slot = _modelled(Slot(finger, "candidate", points, normals, qf), contact_model)
-        if not any(_near(s, slot) for s in have):
-            cands.append(slot)
+    cands = _candidates(problem, hand, obj, finger, contact_model)
     if not cands:
         return []
     compatible = _pairwise_collision_check(hand, {**problem.slots, finger: tuple(have) + tuple(cands)})
@@ -436,6 +429,86 @@ def _pick_intermediate(problem: GaitProblem, hand, obj, finger: str, n: int, con
         if not any(_near(s, cands[j]) for s in out):
             out.append(replace(cands[j], label=f"int{len(have) - _fixed_slots(have) + len(out)}"))
     return out
+
+
+def _candidates(problem: GaitProblem, hand, obj, finger: str, contact_model: str, spaced: bool = True) -> list[Slot]:
+    """A finger's candidate contacts not yet among its slots: its reachable pool and the
+    small steps from its initial and final contacts (`local_contacts`), as the closure
+    test sees them (``contact_model``), labelled "candidate"; ``spaced``: only those that
+    are not `_near` one of its slots."""
+    have = problem.slots[finger]
+    pool = list(reachable_contacts(hand, obj, finger))
+    for s in have[: _fixed_slots(have)]:
+        pool += local_contacts(hand, obj, finger, s.points)
+    out = []
+    for points, normals, qf in pool:
+        slot = _modelled(Slot(finger, "candidate", points, normals, qf), contact_model)
+        if not spaced or not any(_near(s, slot) for s in have):
+            out.append(slot)
+    return out
+
+
+#: Partial grasps kept per finger by `_holding_grasp`'s beam search.
+HOLDING_BEAM = 12
+
+
+def _holding_grasp(problem: GaitProblem, hand, obj, lifted: str, contact_model: str) -> dict[str, Slot]:
+    """New contacts with which the fingers other than ``lifted`` hold the object without
+    it, when no single new contact does (e.g. the thumb must move and the four fingers
+    opposite it must first spread around the object).
+
+    A beam search over the other fingers, in hand order: each is lifted, kept on one of its
+    slots or put on one of its candidates (`_candidates`, near its slots too: a small
+    change may be what closes the grasp), without colliding with the
+    fingers chosen before (lifted ones at the open posture); the ``HOLDING_BEAM`` partial
+    grasps with the best closure metric go on. The best complete grasp that is force
+    closure (and within the grip budget, for a problem with loads) is returned: finger ->
+    its slot (one of its own, or a new contact labelled as the next intermediate slot) for
+    every finger touching in it; {} when there is none.
+    """
+    from planner.closure import Friction, batch_grasp_closure, min_grip_force
+
+    others = [f for f in problem.fingers if f != lifted]
+    options = {f: list(problem.slots[f]) + _candidates(problem, hand, obj, f, contact_model, spaced=False) for f in others}
+    check = _pairwise_collision_check(hand, {**problem.slots, **{f: tuple(v) for f, v in options.items()}})
+    memo: dict[tuple, bool] = {}
+
+    def compatible(f, j, g, t) -> bool:
+        key = (f, j, g, t) if (f, j) <= (g, t) else (g, t, f, j)
+        if key not in memo:
+            memo[key] = check(f, j, g, t)
+        return memo[key]
+
+    beam: list[dict[str, int]] = [{lifted: LIFTED}]
+    closures: list = []
+    for f in others:
+        grown = [{**a, f: j} for a in beam for j in [LIFTED] + list(range(len(options[f])))]
+        touching = [k for k, a in enumerate(grown) if any(t != LIFTED for t in a.values())]
+        found = batch_grasp_closure([{g: (options[g][t].points, options[g][t].normals) for g, t in grown[k].items()
+                                      if t != LIFTED} for k in touching], problem.friction)
+        closures = [None] * len(grown)
+        for k, c in zip(touching, found):
+            closures[k] = c
+        ranked = []  # best metric first; collisions checked only until the beam is full
+        for k in sorted(range(len(grown)), key=lambda k: (-closures[k].metric if closures[k] else np.inf, k)):
+            if len(ranked) >= HOLDING_BEAM:
+                break
+            if all(compatible(f, grown[k][f], g, t) for g, t in grown[k].items() if g != f):
+                ranked.append(k)
+        beam, closures = [grown[k] for k in ranked], [closures[k] for k in ranked]
+    loads = problem.all_loads()
+    m = problem.grip_friction_margin
+    friction = Friction(problem.friction.mu * m, problem.friction.gamma * m, problem.friction.edges)
+    for a, c in zip(beam, closures):
+        if c is None or not c.is_force_closure:
+            break
+        patches = {g: (options[g][t].points, options[g][t].normals) for g, t in a.items() if t != LIFTED}
+        if any(min_grip_force(patches, friction, w) > problem.max_grip_force_n for _, w in loads):
+            continue
+        have = problem.slots
+        return {g: options[g][t] if t < len(have[g]) else replace(options[g][t], label=f"int{len(have[g]) - _fixed_slots(have[g])}")
+                for g, t in a.items() if t != LIFTED}
+    return {}
 
 
 def _near(a: Slot, b: Slot) -> bool:
@@ -496,18 +569,32 @@ def build_problem(initial, final, options: PlanOptions) -> GaitProblem:
 
 
 def add_intermediate(problem: GaitProblem, initial, wanted: Mapping[str, int], options: PlanOptions,
-                     contexts: Mapping[str, list] | None = None) -> tuple[GaitProblem, dict[str, int]]:
+                     contexts: Mapping[str, list] | None = None, deadline: float | None = None
+                     ) -> tuple[GaitProblem, dict[str, int]]:
     """The problem with up to ``wanted[finger]`` more intermediate contacts per finger
     (`_pick_intermediate`, scored against ``contexts[finger]`` when given), appended after
-    its slots (existing slot indices are kept, so the caches of an earlier search stay
-    valid). Returns the problem and how many were added per finger (fingers with none left
+    its slots (`add_slots`). Fingers are skipped once ``deadline`` (perf_counter) has passed.
+    Returns the problem and how many were added per finger (fingers with none left out)."""
+    new = {}
+    for f, n in wanted.items():
+        if deadline is not None and time.perf_counter() > deadline:
+            break
+        new[f] = _pick_intermediate(problem, initial.hand, initial.obj, f, n, options.contact_model,
+                                    (contexts or {}).get(f, ()))
+    return add_slots(problem, initial, new)
+
+
+def add_slots(problem: GaitProblem, initial, new: Mapping[str, Slot | list[Slot]]) -> tuple[GaitProblem, dict[str, int]]:
+    """The problem with the ``new`` slots (one or a list per finger) appended after each
+    finger's slots: existing slot indices are kept, so the caches of an earlier search stay
+    valid. Returns the problem and how many were added per finger (fingers with none left
     out)."""
     slots, added = dict(problem.slots), {}
-    for f, n in wanted.items():
-        new = _pick_intermediate(problem, initial.hand, initial.obj, f, n, options.contact_model, (contexts or {}).get(f, ()))
-        if new:
-            slots[f] = tuple(slots[f]) + tuple(new)
-            added[f] = len(new)
+    for f, more in new.items():
+        more = [more] if isinstance(more, Slot) else list(more)
+        if more:
+            slots[f] = tuple(slots[f]) + tuple(more)
+            added[f] = len(more)
     if not added:
         return problem, added
     return replace(problem, slots=slots, compatible=_pairwise_collision_check(initial.hand, slots)), added
@@ -657,6 +744,11 @@ def _failed_words(problem: GaitProblem, bad: "_EdgeFailed") -> str:
     return f"{bad.finger} {problem.labels(bad.edge[0])[bad.finger]}->{problem.labels(bad.edge[1])[bad.finger]}: {bad.why}"
 
 
+def _count(total: dict[str, int], more: Mapping[str, int]) -> None:
+    for f, n in more.items():
+        total[f] = total.get(f, 0) + n
+
+
 def _goal_invalid(lazy: LazyGraph) -> bool:
     """The final grasp is no valid state (its fingers collide, it cannot hold the load...):
     no intermediate contact can change that."""
@@ -676,7 +768,7 @@ def _anytime_search(problem: GaitProblem, initial, options: PlanOptions, t0: flo
     """
     deadline = t0 + options.time_limit_s if options.time_limit_s > 0 else None
     auto = options.intermediate == 0 and options.time_limit_s > 0
-    evaluator, added, rounds, expanded = None, {}, 0, 0
+    evaluator, added, rounds, expanded, unheld, held = None, {}, 0, 0, {}, set()
     while True:
         lazy = LazyGraph(problem, options.rank, evaluator=evaluator, deadline=deadline)
         evaluator = lazy.ev
@@ -686,22 +778,31 @@ def _anytime_search(problem: GaitProblem, initial, options: PlanOptions, t0: flo
         if found or not auto or out_of_time or _goal_invalid(lazy):
             break
         # contacts for the fingers that could unblock progress, scored against the states
-        # they should complete; then (and when those give none) one for every finger
-        # touching in either grasp (it may have to step aside, e.g. into a pinch)
+        # they should complete; every second round (and when those give none) one more for
+        # every finger, scored as --intermediate N scores them (after m such rounds every
+        # finger has had the m contacts of --intermediate m, or contacts at their places);
+        # a finger the other fingers cannot hold the object without, in its second such
+        # round (or when nothing else is left), gets a grasp of the others without it:
+        # several new contacts at once (`_holding_grasp`)
+        analysis = failure_analysis(lazy.G)
         needs: dict[str, list] = {}
-        for f, ctx in failure_analysis(lazy.G)["needs"]:
+        for f, ctx in analysis["needs"]:
             needs.setdefault(f, []).append(ctx)
         problem, new = add_intermediate(problem, initial, {f: INTERMEDIATE_PER_ROUND for f in needs}, options, needs)
         if not new or rounds % 2 == 1:
-            touching = [f for i, f in enumerate(problem.fingers) if problem.start[i] != LIFTED or problem.goal[i] != LIFTED]
-            problem, more = add_intermediate(problem, initial, {f: 1 for f in touching}, options)
-            for f, n in more.items():
-                new[f] = new.get(f, 0) + n
+            problem, more = add_intermediate(problem, initial, {f: 1 for f in problem.fingers}, options, deadline=deadline)
+            _count(new, more)
+        for f in analysis["unheld"]:
+            unheld[f] = unheld.get(f, 0) + 1
+            if f not in held and (unheld[f] == 2 or not new) and time.perf_counter() <= (deadline or math.inf):
+                held.add(f)
+                grasp = _holding_grasp(problem, initial.hand, initial.obj, f, options.contact_model)
+                problem, more = add_slots(problem, initial, {g: s for g, s in grasp.items() if s not in problem.slots[g]})
+                _count(new, more)
         if not new:
             break
         rounds += 1
-        for f, n in new.items():
-            added[f] = added.get(f, 0) + n
+        _count(added, new)
     spent = time.perf_counter() - t0
     what = ", ".join(f"{f} {n}" for f, n in added.items())
     if not auto:

@@ -1,5 +1,6 @@
 """End-to-end planning on the grasp library: plans re-checked from their exported files."""
 
+import itertools
 from pathlib import Path
 
 import numpy as np
@@ -483,3 +484,68 @@ def test_reachable_contacts_touch_the_object_within_joint_limits():
         assert collisions(hand, q, obj, fingers=("ring",)) == []
     spread = np.ptp(np.array([p.mean(axis=0) for p, _, _ in pool]), axis=0)
     assert np.max(spread) > 0.015  # spread over the reachable surface, not one spot
+
+
+def test_local_contacts_are_small_steps_from_the_anchor_and_near_counts_normals():
+    """local_contacts: every contact is within the finger's joint limits, touches the ball
+    (re-measured at its joint values) and lies a short step from the anchor contact
+    (between the spacing and the radius, plus the closing's slide); the same call is cached.
+    _near: a contact 0.5 mm away is the same one unless its normal turned 10 deg or more;
+    11 mm away it is another one."""
+    from planner.contacts import contact_patches
+    from planner.graph import Slot
+    from planner.regrasp import LOCAL_RADIUS_M, MIN_SLOT_SPACING_M, _near, local_contacts
+
+    g = realize(load_grasp(ALLEGRO_SPHERE))
+    hand, obj = g.hand, g.obj
+    anchor = g.patches["ring"][0]
+    near = local_contacts(hand, obj, "ring", anchor)
+    assert len(near) >= 3 and local_contacts(hand, obj, "ring", anchor) is near
+    idx = list(hand.fingers["ring"].q_index)
+    lo, hi = np.asarray(hand.lower)[idx], np.asarray(hand.upper)[idx]
+    for points, normals, qf in near:
+        assert np.all(qf >= lo - 1e-9) and np.all(qf <= hi + 1e-9)
+        q = np.array(hand.q_open, float)
+        q[idx] = qf
+        assert np.allclose(contact_patches(hand, q, obj, fingers=["ring"])["ring"][0], points, atol=1e-9)
+        d = np.min(np.linalg.norm(points[:, None, :] - anchor[None, :, :], axis=2))
+        assert MIN_SLOT_SPACING_M - 0.006 <= d <= LOCAL_RADIUS_M + 0.006, d
+
+    def one(p, n):
+        return Slot("ring", "x", [p], [np.asarray(n, float) / np.linalg.norm(n)])
+
+    a = one((0.0, 0.0, 0.0), (0.0, 0.0, 1.0))
+    for deg, same in ((5.0, True), (9.5, True), (10.5, False), (30.0, False)):
+        t = np.radians(deg)
+        assert _near(a, one((0.0005, 0.0, 0.0), (np.sin(t), 0.0, np.cos(t)))) is same, deg
+    assert not _near(a, one((0.011, 0.0, 0.0), (0.0, 0.0, 1.0)))
+
+
+def test_holding_grasp_lets_a_finger_go_and_the_rounds_use_it(realized):
+    """The bundled cylinder pair: _holding_grasp(thumb) gives the other fingers contacts with
+    which they hold the cylinder without the thumb: re-checked force closure, no two fingers
+    colliding (the thumb at its open posture), every new contact from the finger's reach."""
+    from planner.contacts import contact_patches
+    from planner.graph import LIFTED
+    from planner.regrasp import _holding_grasp, _pairwise_collision_check, build_problem
+
+    a, b = PAIRS["cylinder"]
+    initial, final = realized(a), realized(b)
+    problem = build_problem(initial, final, PlanOptions(motion=False))
+    grasp = _holding_grasp(problem, initial.hand, initial.obj, "thumb", "patch")
+    assert grasp and "thumb" not in grasp
+    assert grasp_closure({f: (s.points, s.normals) for f, s in grasp.items()}, problem.friction).is_force_closure
+    fingers = dict(grasp, thumb=None)
+    check = _pairwise_collision_check(initial.hand, {f: (s,) for f, s in grasp.items()} | {"thumb": ()})
+    for f, g in itertools.combinations(fingers, 2):
+        assert check(f, LIFTED if fingers[f] is None else 0, g, LIFTED if fingers[g] is None else 0), (f, g)
+    hand = initial.hand
+    assert any(s not in problem.slots[f] for f, s in grasp.items())
+    for f, s in grasp.items():
+        if s not in problem.slots[f]:  # a new contact: re-measured at its joint values, in limits
+            assert s.label == f"int{len(problem.slots[f]) - sum(t.label in ('initial', 'final') for t in problem.slots[f])}"
+            idx = list(hand.fingers[f].q_index)
+            assert np.all(s.q >= np.asarray(hand.lower)[idx] - 1e-9) and np.all(s.q <= np.asarray(hand.upper)[idx] + 1e-9)
+            q = np.array(hand.q_open, float)
+            q[idx] = s.q
+            assert np.allclose(contact_patches(hand, q, initial.obj, fingers=[f])[f][0], s.points, atol=1e-9)
