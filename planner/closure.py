@@ -59,7 +59,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg.lapack import dgeqp3 as _dgeqp3
 
-from planner.errors import InputError
+from planner.errors import InputError, PlannerError
 
 __all__ = [
     "CONTACT_MODELS",
@@ -839,10 +839,14 @@ def min_grip_force(patches: Mapping[str, tuple], friction: Friction, load, *,
             (the closure's own linearization, the behaviour before ``cone_sides`` existed).
 
     Returns:
-        t in newtons (0 for a zero load); ``inf`` when no contact forces balance the load.
+        t in newtons (0 for a zero load); ``inf`` when no contact forces balance the load
+        (no contacts, or HiGHS proves the program infeasible): "infeasible" is the only
+        meaning of ``inf``.
 
     Raises:
         InputError: bad patches, a load that is not 6 finite numbers, or a bad ``cone_sides``.
+        PlannerError: HiGHS stopped without an answer (iteration limit, numerical trouble):
+            the grip force is unknown, which is neither a value nor infeasible.
     """
     from scipy.optimize import linprog
 
@@ -873,7 +877,15 @@ def min_grip_force(patches: Mapping[str, tuple], friction: Friction, load, *,
     c[k] = 1.0
     res = linprog(c, A_ub=A_ub, b_ub=np.zeros(len(sizes)), A_eq=np.c_[W.T, np.zeros(6)], b_eq=-w_ext,
                   bounds=[(0, None)] * (k + 1), method="highs")
-    return float(res.x[k]) if res.status == 0 else math.inf
+    if res.status == 0:
+        return float(res.x[k])
+    # The program cannot be unbounded (t >= 0 is minimized): HiGHS's "unbounded or
+    # infeasible" (scipy status 4, e.g. from presolve) means infeasible too.
+    if res.status == 2 or (res.status == 4 and "unbounded or infeasible" in res.message):
+        return math.inf
+    # any other status (iteration limit, numerical trouble) is a solver failure
+    raise PlannerError(f"grip force LP failed (HiGHS status {res.status}: {res.message}) for {len(sizes)} "
+                       f"finger(s) and load {np.round(w_ext, 6).tolist()}; the grip force is unknown")
 
 
 #: Inner polytopes kept by ``batch_grasp_closure`` for warm starts (each holds ~1-3k facets).

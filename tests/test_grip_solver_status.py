@@ -1,0 +1,58 @@
+"""`planner.closure.min_grip_force`: infeasible (``inf``) and a solver failure (an error) never look the same."""
+
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+import scipy.optimize
+
+from planner.closure import Friction, min_grip_force
+from planner.errors import PlannerError
+
+WEIGHT = [0.0, 0.0, -1.0, 0.0, 0.0, 0.0]
+
+
+def _antipodal(r=0.02):
+    return {"a": (np.array([[r, 0.0, 0.0]]), np.array([[-1.0, 0.0, 0.0]])),
+            "b": (np.array([[-r, 0.0, 0.0]]), np.array([[1.0, 0.0, 0.0]]))}
+
+
+def _solver_says(monkeypatch, status: int, message: str):
+    """Make HiGHS (through scipy's linprog) answer with this status and no solution."""
+    monkeypatch.setattr(scipy.optimize, "linprog", lambda *a, **k: SimpleNamespace(status=status, message=message, x=None))
+
+
+def test_an_infeasible_load_is_inf_and_a_feasible_one_is_finite():
+    """Without torsional friction no normal force resists a moment about the contact axis
+    (infeasible: inf); with friction a weight across the axis is held by W / (2 mu) or a bit more."""
+    moment = [0.0, 0.0, 0.0, 0.01, 0.0, 0.0]
+    assert min_grip_force(_antipodal(), Friction(0.5, 0.0), moment) == math.inf
+    assert min_grip_force({}, Friction(0.5, 0.0), WEIGHT) == math.inf  # no contact holds anything
+    t = min_grip_force(_antipodal(), Friction(0.5, 0.0), WEIGHT)
+    assert 1.0 / (2 * 0.5) <= t <= 1.0 / (2 * 0.5 * math.cos(math.pi / 16)) + 1e-9
+
+
+def test_the_solver_proving_infeasibility_is_inf(monkeypatch):
+    """scipy status 2 is HiGHS's proof of infeasibility: the documented ``inf``."""
+    _solver_says(monkeypatch, 2, "The problem is infeasible. (HiGHS Status 8: ...)")
+    assert min_grip_force(_antipodal(), Friction(0.5, 0.0), WEIGHT) == math.inf
+
+
+def test_unbounded_or_infeasible_is_infeasible_for_this_bounded_program(monkeypatch):
+    """HiGHS's 'unbounded or infeasible' (scipy status 4) can only be infeasible: t >= 0 is minimized."""
+    _solver_says(monkeypatch, 4, "The problem is unbounded or infeasible. (HiGHS Status 10: ...)")
+    assert min_grip_force(_antipodal(), Friction(0.5, 0.0), WEIGHT) == math.inf
+
+
+@pytest.mark.parametrize("status, message", [
+    (1, "Iteration limit reached. (HiGHS Status 14: ...)"),
+    (4, "The HiGHS status code was not recognized. (HiGHS Status 99: ...)"),
+    (4, "(HiGHS Status 4: numerical difficulties)"),
+])
+def test_a_solver_failure_raises_instead_of_reading_as_infeasible(monkeypatch, status, message):
+    """An iteration limit or numerical trouble is an unknown grip force: a PlannerError
+    naming the solver's status, not ``inf`` (which callers read as 'cannot hold')."""
+    _solver_says(monkeypatch, status, message)
+    with pytest.raises(PlannerError, match=f"grip force LP failed \\(HiGHS status {status}: "):
+        min_grip_force(_antipodal(), Friction(0.5, 0.0), WEIGHT)
