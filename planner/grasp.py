@@ -46,16 +46,9 @@ from typing import Any, Mapping
 import numpy as np
 
 from planner.errors import KinematicsError, PlannerError, SpecError
+from planner.objects import SHAPES, SIZE_LENGTHS, SIZE_MEANING
 
 SCHEMA_VERSION = 1
-SHAPES = ("box", "cylinder", "sphere", "mesh")
-SIZE_LENGTHS = {"box": (3,), "cylinder": (2,), "sphere": (1,), "mesh": (1, 3)}
-SIZE_MEANING = {
-    "box": "[x, y, z] full extents in metres",
-    "cylinder": "[radius, length] in metres",
-    "sphere": "[radius] in metres",
-    "mesh": "[scale] or [sx, sy, sz]",
-}
 #: A contact point may lie this far from the object surface (it is projected onto it).
 SURFACE_TOL_M = 0.002
 #: Contact fingers are placed this far out along the surface normal, then closed onto it.

@@ -8,15 +8,31 @@ contact code flips them to get contact normals into the object.
 from __future__ import annotations
 
 import struct
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import MappingProxyType
+from typing import TYPE_CHECKING
 
-import coal
 import numpy as np
 
 from planner.errors import InputError, UnknownNameError
 
-SHAPES = ("box", "cylinder", "sphere", "mesh")
+if TYPE_CHECKING:  # coal is imported where geometry is built: the shape table needs no coal
+    import coal
+
+#: The object model, the one table every reader of ``object.shape``/``object.size`` uses
+#: (grasp files, plan files, the replay): shape -> number(s) of ``size`` entries allowed.
+SIZE_LENGTHS: Mapping[str, tuple[int, ...]] = MappingProxyType(
+    {"box": (3,), "cylinder": (2,), "sphere": (1,), "mesh": (1, 3)})
+#: shape -> what its ``size`` entries mean (error messages name it).
+SIZE_MEANING: Mapping[str, str] = MappingProxyType({
+    "box": "[x, y, z] full extents in metres",
+    "cylinder": "[radius, length] in metres, axis = object z",
+    "sphere": "[radius] in metres",
+    "mesh": "[scale] or [sx, sy, sz]",
+})
+SHAPES: tuple[str, ...] = tuple(SIZE_LENGTHS)
 DEFAULT_DENSITY_KG_M3 = 500.0   # used when mass_kg is not given
 #: Mesh limits (README "Hardening / plan integrity"): file size and triangle count.
 MAX_MESH_BYTES = 50_000_000
@@ -350,17 +366,16 @@ def make_object(shape: str, size, T_palm_obj=None, mesh_path=None, mass_kg=None)
     Raises:
         UnknownNameError: unknown shape. InputError: bad size, pose, mass or mesh.
     """
+    import coal
+
     if shape not in SHAPES:
         raise UnknownNameError("shape", str(shape), SHAPES)
     try:
         s = tuple(float(x) for x in np.atleast_1d(np.asarray(size, dtype=float)))
     except (TypeError, ValueError) as err:
         raise InputError(f"{shape} size must be numbers, got {size!r}") from err
-    n_expected = {"box": (3,), "cylinder": (2,), "sphere": (1,), "mesh": (1, 3)}[shape]
-    meaning = {"box": "(x, y, z) full extents", "cylinder": "(radius, length)", "sphere": "(radius,)",
-               "mesh": "(scale,) or (sx, sy, sz)"}[shape]
-    if len(s) not in n_expected:
-        raise InputError(f"{shape} size must be {meaning}, got {size!r}")
+    if len(s) not in SIZE_LENGTHS[shape]:
+        raise InputError(f"{shape} size must be {SIZE_MEANING[shape]}, got {size!r}")
     if not all(np.isfinite(x) and x > 0 for x in s):
         raise InputError(f"{shape} size entries must be finite and > 0 (metres), got {size!r}")
     T = _check_pose(np.eye(4) if T_palm_obj is None else T_palm_obj)

@@ -45,6 +45,7 @@ import numpy as np
 import yaml
 
 from planner.errors import IntegrityError, PlannerError, PlannerWarning, SpecError
+from planner.objects import SHAPES, SIZE_LENGTHS, SIZE_MEANING
 
 SCHEMA_VERSION = 2
 #: Versions `read_plan` reads (1: no integrity record, read with a warning).
@@ -635,7 +636,6 @@ def plan_from_data(data: Any, source: str | os.PathLike | None = None) -> Plan:
 REQUIRED_KEYS = ("schema_version", "hand", "object", "friction", "joints", "states", "steps")
 STATE_KEYS = ("patches", "closure", "removable", "q")
 STEP_KEYS = ("finger", "action", "from_state", "to_state", "joints", "path")
-_SIZES = {"box": 3, "cylinder": 2, "sphere": 1, "mesh": (1, 3)}
 
 
 def _check_object(ck: _Checker, value) -> dict:
@@ -644,10 +644,11 @@ def _check_object(ck: _Checker, value) -> dict:
         if key not in o:
             raise ck.fail(f"object.{key}", "missing key")
     shape = o["shape"]
-    if shape not in _SIZES:
-        raise ck.fail("object.shape", f"unknown shape {_shown(shape)}; shapes are {', '.join(_SIZES)}")
-    n = _SIZES[shape]
-    size = ck.seq(o["size"], "object.size", max(n) if isinstance(n, tuple) else n, min(n) if isinstance(n, tuple) else n)
+    if shape not in SHAPES:
+        raise ck.fail("object.shape", f"unknown shape {_shown(shape)}; shapes are {', '.join(SHAPES)}")
+    size = ck.seq(o["size"], "object.size", max(SIZE_LENGTHS[shape]), min(SIZE_LENGTHS[shape]))
+    if len(size) not in SIZE_LENGTHS[shape]:  # a mesh: 1 or 3, never 2
+        raise ck.fail("object.size", f"a {shape} size is {SIZE_MEANING[shape]}, got {len(size)} entries")
     o["size"] = [ck.number(v, f"object.size[{i}]", 1e-6, MAX_COORD_M) for i, v in enumerate(size)]
     o["position"] = [ck.number(v, f"object.position[{i}]", -MAX_COORD_M, MAX_COORD_M)
                      for i, v in enumerate(ck.seq(o["position"], "object.position", 3, 3))]

@@ -65,6 +65,7 @@ from scipy.spatial.transform import Rotation
 
 from planner.closure import Friction, apply_contact_model, grasp_closure
 from planner.errors import InputError, SimulationError, UnknownNameError
+from planner.objects import SHAPES, SIZE_LENGTHS, SIZE_MEANING, load_mesh, make_object
 from planner.plan import Plan, plan_file, plan_from_data, read_plan
 from planner.sim.contact_filter import ContactFilter
 from planner.sim.controller import TOUCH_TOL_M, Controller
@@ -294,40 +295,29 @@ def _drift(T_ref: np.ndarray, T: np.ndarray) -> tuple[float, float]:
     return d_mm, ang
 
 
-def _object_volume(shape: str, size) -> float | None:
-    if shape == "box":
-        return float(np.prod(size[:3]))
-    if shape == "cylinder":
-        return math.pi * size[0] ** 2 * size[1]
-    if shape == "sphere":
-        return 4.0 / 3.0 * math.pi * size[0] ** 3
-    return None
-
-
-def _create_object(cid: int, rd: Plan, obj: dict, density_kg_m3: float,
-                   default_mass_kg: float) -> tuple[int, float, float]:
-    """The object's pybullet body, its mass (kg) and its smallest half-extent (m)."""
+def _create_object(cid: int, rd: Plan, obj: dict, density_kg_m3: float) -> tuple[int, float, float]:
+    """The object's pybullet body, its mass (kg: ``obj["mass_kg"]``, else volume x
+    ``density_kg_m3``) and its smallest half-extent (m)."""
     shape = str(obj["shape"])
     size = [float(v) for v in obj["size"]]
+    if shape not in SHAPES:
+        raise UnknownNameError("object shape", shape, SHAPES)
+    if len(size) not in SIZE_LENGTHS[shape]:
+        raise rd.error("object.size", f"a {shape} size is {SIZE_MEANING[shape]}")
+    resolved = None
     if shape == "box":
-        if len(size) != 3:
-            raise rd.error("object.size", "a box needs 3 full extents (x, y, z)")
         kw = dict(shapeType=p.GEOM_BOX, halfExtents=[s / 2 for s in size])
         vkw = dict(kw)
         radius = min(size) / 2
     elif shape == "cylinder":
-        if len(size) != 2:
-            raise rd.error("object.size", "a cylinder needs (radius, length)")
         kw = dict(shapeType=p.GEOM_CYLINDER, radius=size[0], height=size[1])
         vkw = dict(shapeType=p.GEOM_CYLINDER, radius=size[0], length=size[1])
         radius = min(size[0], size[1] / 2)
     elif shape == "sphere":
-        if len(size) != 1:
-            raise rd.error("object.size", "a sphere needs (radius,)")
         kw = dict(shapeType=p.GEOM_SPHERE, radius=size[0])
         vkw = dict(kw)
         radius = size[0]
-    elif shape == "mesh":
+    else:  # mesh
         mesh = obj.get("mesh")
         resolved = _resolve(str(mesh), rd.source or "<plan>") if mesh else None
         if resolved is None:
@@ -335,16 +325,11 @@ def _create_object(cid: int, rd: Plan, obj: dict, density_kg_m3: float,
         scale = size * 3 if len(size) == 1 else size
         kw = dict(shapeType=p.GEOM_MESH, fileName=str(resolved), meshScale=scale)
         vkw = dict(kw)
-        from planner.objects import load_mesh
-
         V, _ = load_mesh(resolved, scale)
         radius = float(np.min(V.max(axis=0) - V.min(axis=0))) / 2
-    else:
-        raise UnknownNameError("object shape", shape, ("box", "cylinder", "sphere", "mesh"))
-    mass = obj.get("mass_kg")
+    mass = obj.get("mass_kg")  # a `Plan` always records one: the planner's
     if mass is None:
-        vol = _object_volume(shape, size)
-        mass = density_kg_m3 * vol if vol is not None else default_mass_kg
+        mass = density_kg_m3 * make_object(shape, size, mesh_path=resolved).volume_m3
     mass = float(mass)
     if not mass > 0:
         raise rd.error("object.mass_kg", f"expected a positive mass, got {mass}")
@@ -754,7 +739,7 @@ class _Sim:
         except p.error as err:
             raise SimulationError(f"pybullet could not load the hand URDF {info.urdf_path}: {err}") from err
         bodies.append(self.hand)
-        self.obj, self.mass, radius_m = _create_object(cid, rd, obj, density_kg_m3, 0.05)
+        self.obj, self.mass, radius_m = _create_object(cid, rd, obj, density_kg_m3)
         bodies.append(self.obj)
         self.T_ref = _T(obj["position"], obj["quat_xyzw"])
 
