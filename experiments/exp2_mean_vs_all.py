@@ -132,13 +132,15 @@ def noisy_task(t: dict) -> list[dict]:
 
 def sim_metrics(a, b) -> tuple[dict, str]:
     """test label -> (all, mean) metrics from replay contacts, and a status line."""
+    from planner.errors import PlannerError
+
     try:
         from planner.regrasp import PlanOptions, plan_regrasp
         from planner.sim.replay import replay_plan
 
         res = plan_regrasp(a, b, PlanOptions(contact_model=REPLAY_CONTACT_MODEL))
         report = replay_plan(res.plan.to_dict(), gravity=REPLAY_GRAVITY)
-    except Exception as err:  # the replay is optional here
+    except (ImportError, PlannerError) as err:  # optional: no pybullet, no sequence, a failed replay
         return {}, f"replay unavailable: {type(err).__name__}: {err}"
     problem_states = {tuple(sorted(s.fingers.items())): i for i, s in enumerate(res.plan.states)}
     _, problem = _problem()

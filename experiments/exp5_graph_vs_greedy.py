@@ -38,11 +38,13 @@ from experiments.common import library_grasps, load_spec, realized, parser, prin
 
 def groups() -> list[list[str]]:
     """Library grasp files grouped by (hand, object, pose, friction)."""
+    from planner.errors import PlannerError
+
     out = defaultdict(list)
     for path in library_grasps():
         try:
             s = load_spec(path)
-        except Exception:  # a file another engineer is still writing
+        except PlannerError:  # a file being written or gone (SpecError: malformed, unreadable, invalid)
             continue
         o = s.object
         key = (s.hand_ref, o.shape, tuple(np.round(o.size, 6)), tuple(np.round(o.position, 6)),
