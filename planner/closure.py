@@ -708,11 +708,8 @@ class _WrenchCache:
         hit = self._by_id.get(ident)
         if hit is not None:
             return hit
-        try:
-            p = np.ascontiguousarray(points, dtype=float)
-            n = np.ascontiguousarray(normals, dtype=float)
-        except (TypeError, ValueError) as err:
-            raise InputError(f"patch of finger {finger!r}: points and normals must be numeric: {err}") from err
+        p = np.ascontiguousarray(_real_array(points, f"patch of finger {finger!r}: points"))
+        n = np.ascontiguousarray(_real_array(normals, f"patch of finger {finger!r}: normals"))
         key = hashlib.blake2b(repr((p.shape, n.shape)).encode() + p.tobytes() + n.tobytes(), digest_size=16).hexdigest()
         W = self._by_key.get(key)
         if W is None:
@@ -875,10 +872,13 @@ def min_grip_force(patches: Mapping[str, tuple], friction: Friction, load, *,
     A_ub[:, k] = -1.0
     c = np.zeros(k + 1)
     c[k] = 1.0
-    res = linprog(c, A_ub=A_ub, b_ub=np.zeros(len(sizes)), A_eq=np.c_[W.T, np.zeros(6)], b_eq=-w_ext,
+    # the program is homogeneous in the load: solve for the unit load and scale t back, so
+    # HiGHS's absolute tolerances cannot decide feasibility for a tiny (or huge) load
+    scale = float(np.abs(w_ext).max())
+    res = linprog(c, A_ub=A_ub, b_ub=np.zeros(len(sizes)), A_eq=np.c_[W.T, np.zeros(6)], b_eq=-w_ext / scale,
                   bounds=[(0, None)] * (k + 1), method="highs")
     if res.status == 0:
-        return float(res.x[k])
+        return float(res.x[k]) * scale
     # The program cannot be unbounded (t >= 0 is minimized): HiGHS's "unbounded or
     # infeasible" (scipy status 4, e.g. from presolve) means infeasible too.
     if res.status == 2 or (res.status == 4 and "unbounded or infeasible" in res.message):

@@ -232,8 +232,7 @@ def test_bad_patches_are_input_errors(patches, data):
     if kind == "not a pair":
         bad[finger] = (p.real,)
     calls = [lambda: grasp_closure(bad, Friction(0.5, 0.01)), lambda: removable_fingers(bad, Friction(0.5, 0.01))]
-    if kind != "complex":  # batch_grasp_closure drops the imaginary part: test_known_gaps
-        calls.append(lambda: batch_grasp_closure([bad], Friction(0.5, 0.01)))
+    calls.append(lambda: batch_grasp_closure([bad], Friction(0.5, 0.01)))
     for call in calls:
         with pytest.raises(InputError, match=repr(finger)):
             call()
@@ -278,7 +277,7 @@ def test_mean_contact_model_is_one_unit_normal_per_finger(patches, model, rnd):
 def test_grip_force_is_linear_in_the_load(patches, factor, data):
     """The grip LP is homogeneous: a load scaled by c > 0 needs c times the force (inf stays
     inf); no load needs 0; a NaN load is an InputError. (Loads of 0.01-10 N: below ~1e-5 N
-    HiGHS's absolute tolerances decide, test_known_gaps.)"""
+    HiGHS's absolute tolerances decided before the load was normalized.)"""
     friction = Friction(data.draw(st.floats(0.1, 2.0)), 0.005)
     load = np.r_[data.draw(st.lists(st.floats(-1.0, 1.0), min_size=3, max_size=3)), 0.0, 0.0, 0.0]
     assume(np.abs(load).max() > 0.1)
@@ -290,25 +289,22 @@ def test_grip_force_is_linear_in_the_load(patches, factor, data):
         min_grip_force(patches, friction, np.r_[load[:5], np.nan])
 
 
-# --------------------------------------------------------------------------- found, not fixed here
+# --------------------------------------------------------------------------- found by the properties above, fixed
 
 
 def _one_contact():
     return {"f0": (np.array([[0.006, -0.008, 0.030]]), np.array([[-0.189, 0.198, -0.962]]))}
 
 
-@pytest.mark.xfail(strict=True, reason="batch_grasp_closure casts complex patches to real (ComplexWarning) "
-                                       "instead of an InputError as grasp_closure gives (closure._WrenchCache.block)")
-def test_known_gaps_batch_closure_accepts_complex_patches():
+def test_batch_closure_refuses_complex_patches():
     p, n = _one_contact()["f0"]
     with pytest.raises(InputError, match="complex"):
         batch_grasp_closure([{"f0": (p + 1e-9j, n)}], Friction(0.5, 0.01))
 
 
-@pytest.mark.xfail(strict=True, reason="min_grip_force is not scale free: one contact cannot hold 0.5 N along z "
-                                       "(inf) but 'holds' 5e-7 N with 4.8e-7 N, within HiGHS's absolute tolerances; "
-                                       "solving for the unit load and scaling t back would make it exact")
-def test_known_gaps_grip_force_of_a_tiny_load():
+def test_grip_force_of_a_tiny_load_is_infeasible_too():
+    """One contact cannot hold 0.5 N along z, nor 5e-7 N (HiGHS's absolute tolerances once
+    'held' it with 4.8e-7 N: the load is now solved at unit scale)."""
     friction, load = Friction(1.0, 0.005), np.array([0.0, 0.0, 0.5, 0.0, 0.0, 0.0])
     assert min_grip_force(_one_contact(), friction, load) == math.inf
     assert min_grip_force(_one_contact(), friction, 1e-6 * load) == math.inf
