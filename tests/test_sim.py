@@ -45,6 +45,24 @@ def grasp(hand):
     return q, obj
 
 
+@pytest.fixture(scope="module")
+def held(hand, grasp):
+    """The replay of the grasp alone (default parameters), shared by the tests that only read it."""
+    return replay_plan(_plan(hand, grasp))
+
+
+@pytest.fixture(scope="module")
+def index_lifted(hand, grasp):
+    """The replay of the grasp then a lift of the index (removable): shared, it is read only."""
+    return replay_plan(_plan(hand, grasp, lift="index"))
+
+
+@pytest.fixture(scope="module")
+def thumb_lifted(hand, grasp):
+    """The replay of the grasp then a lift of the opposing thumb (drops the box): shared."""
+    return replay_plan(_plan(hand, grasp, lift="thumb"))
+
+
 def _state(hand, q, obj, fingers):
     patches = {f: v for f, v in contact_patches(hand, q, obj).items() if f in fingers}
     closure = grasp_closure(patches, FRICTION)
@@ -107,10 +125,10 @@ def _cli(*args):
                           capture_output=True, text=True, cwd=Path(__file__).resolve().parent.parent)
 
 
-def test_stable_grasp_holds_with_small_drift(hand, grasp):
+def test_stable_grasp_holds_with_small_drift(held):
     """Holding the thumb-opposing grasp under gravity (palm down) passes with < 5 mm / 5 deg drift,
     and the simulator finds force closure with the same three fingers."""
-    report = replay_plan(_plan(hand, grasp))
+    report = held
     assert report.passed, report.verdict
     assert not report.dropped
     assert report.max_drift_mm < 5.0 and report.max_drift_deg < 5.0
@@ -119,21 +137,21 @@ def test_stable_grasp_holds_with_small_drift(hand, grasp):
     assert set(s0.sim_fingers) == set(GRASP_FINGERS)
 
 
-def test_safe_lift_of_index_passes(hand, grasp):
+def test_safe_lift_of_index_passes(hand, grasp, index_lifted):
     """Lifting the index (removable in the simulator's and the plan's contacts) keeps the box."""
     plan = _plan(hand, grasp, lift="index")
     assert "index" in plan["states"][0]["removable"]
-    report = replay_plan(plan)
+    report = index_lifted
     assert report.passed, report.verdict
     s1 = report.states[1]
     assert s1.reached and "index" not in s1.sim_fingers and s1.sim_force_closure
 
 
-def test_lifting_the_thumb_drops_the_object(hand, grasp, tmp_path):
+def test_lifting_the_thumb_drops_the_object(hand, grasp, thumb_lifted, tmp_path):
     """Lifting the opposing thumb leaves nothing against gravity: the replay fails, and the CLI
     exits 1 with a FAIL verdict."""
     plan = _plan(hand, grasp, lift="thumb")
-    report = replay_plan(plan)
+    report = thumb_lifted
     assert not report.passed
     assert report.dropped or report.max_drift_mm > 5.0
     assert "lift thumb" in report.verdict  # where: the step that lifted it
@@ -142,9 +160,9 @@ def test_lifting_the_thumb_drops_the_object(hand, grasp, tmp_path):
     assert "FAIL" in out.stdout.splitlines()[-1]
 
 
-def test_sim_normals_point_into_the_object(hand, grasp):
+def test_sim_normals_point_into_the_object(held):
     """Filtered sim contacts are in the object frame on the box surface, normals pointing inward."""
-    s0 = replay_plan(_plan(hand, grasp)).states[0]
+    s0 = held.states[0]
     assert s0.sim_patches
     for points, normals in s0.sim_patches.values():
         assert np.all(np.max(np.abs(points), axis=1) < BOX_SIZE[0] / 2 + 2e-3)  # on the box surface
@@ -152,9 +170,10 @@ def test_sim_normals_point_into_the_object(hand, grasp):
         assert np.all(np.einsum("ij,ij->i", points, normals) < 0.0)  # inward: against the position
 
 
-def test_replay_is_deterministic(hand, grasp):
-    """The same plan and parameters give the same drift to the last digit."""
-    a = replay_plan(_plan(hand, grasp, lift="index"))
+def test_replay_is_deterministic(hand, grasp, index_lifted):
+    """The same plan and parameters give the same drift to the last digit (a second replay
+    against the shared one, in the same process)."""
+    a = index_lifted
     b = replay_plan(_plan(hand, grasp, lift="index"))
     assert (a.max_drift_mm, a.max_drift_deg, a.sim_steps) == (b.max_drift_mm, b.max_drift_deg, b.sim_steps)
 
@@ -175,7 +194,7 @@ def test_gif_and_report_written_by_cli(hand, grasp, tmp_path):
     assert data["passed"] is True and len(data["states"]) == 2 and data["gif_frames"] >= 5
 
 
-def test_replay_gif_reads_like_the_plan_film(hand, grasp, tmp_path):
+def test_replay_gif_reads_like_the_plan_film(hand, grasp, index_lifted, tmp_path):
     """The replay's GIF is drawn like `regrasp view --gif`: 640x480, a caption band, the
     simulator's contacts in the fingers' colours, the lifting finger in magenta while it
     unloads and moves, frames timed by the simulated clock; filming only reads the
@@ -187,7 +206,7 @@ def test_replay_gif_reads_like_the_plan_film(hand, grasp, tmp_path):
     plan = _plan(hand, grasp, lift="index")
     gif = tmp_path / "r.gif"
     filmed = replay_plan(plan, gif=gif, gif_every=24)  # one frame per 0.1 s of simulated time
-    plain = replay_plan(plan)
+    plain = index_lifted  # the same plan replayed without a film
     assert (filmed.max_drift_mm, filmed.max_drift_deg, filmed.final_drift_mm, filmed.sim_steps) == \
         (plain.max_drift_mm, plain.max_drift_deg, plain.final_drift_mm, plain.sim_steps)
     assert [(s.sim_fingers, s.sim_metric, s.drift_mm) for s in filmed.states] == \
@@ -226,9 +245,9 @@ def test_gif_frames_keep_the_simulated_clock():
     assert gif_durations_ms([0.0, 0.05, 0.13], hold_ms=500) == [50, 80, 500]
 
 
-def test_report_to_dict_is_strict_json(hand, grasp):
+def test_report_to_dict_is_strict_json(thumb_lifted):
     """ReplayReport.to_dict() round-trips through strict JSON (no NaN) for a failed replay too."""
-    report = replay_plan(_plan(hand, grasp, lift="thumb"))
+    report = thumb_lifted
     assert isinstance(report, ReplayReport)
     text = json.dumps(report.to_dict(), allow_nan=False)
     assert json.loads(text)["passed"] is False
