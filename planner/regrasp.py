@@ -394,7 +394,9 @@ MAX_CONTEXTS = 8
 
 
 def _pick_intermediate(problem: GaitProblem, hand, obj, finger: str, n: int, contact_model: str, contexts=()) -> list[Slot]:
-    """The n most useful unused contacts of a finger's reachable pool, as new slots.
+    """The n most useful unused contacts of a finger's reachable pool (and of the small
+    steps from its own contacts, `local_contacts`, when the pool has fewer than n usable
+    ones), as new slots.
 
     Useful: added to one of ``contexts`` (states where the finger is lifted, e.g. from
     `planner.graph.failure_analysis` "needs"), the candidate makes the best grasp (closure
@@ -410,18 +412,29 @@ def _pick_intermediate(problem: GaitProblem, hand, obj, finger: str, n: int, con
     if not contexts:
         contexts = [tuple(s if j != i and s == t else LIFTED for j, (s, t) in enumerate(zip(problem.start, problem.goal))),
                     problem.start[:i] + (LIFTED,) + problem.start[i + 1:]]
-    cands = _candidates(problem, hand, obj, finger, contact_model)
+    contexts = list(dict.fromkeys(contexts))[:MAX_CONTEXTS]
+
+    def scored(cands: list[Slot]) -> np.ndarray:
+        compatible = _pairwise_collision_check(hand, {**problem.slots, finger: tuple(have) + tuple(cands)})
+        score = np.full(len(cands), -np.inf)
+        for ctx in contexts:
+            held = [(g, s) for j, (g, s) in enumerate(zip(problem.fingers, ctx)) if j != i and s != LIFTED]
+            ok = [j for j in range(len(cands)) if all(compatible(finger, len(have) + j, g, s) for g, s in held)]
+            base = {g: (problem.slots[g][s].points, problem.slots[g][s].normals) for g, s in held}
+            closures = batch_grasp_closure([{**base, finger: (cands[j].points, cands[j].normals)} for j in ok],
+                                           problem.friction)
+            for j, c in zip(ok, closures):
+                score[j] = max(score[j], c.metric)
+        return score
+
+    # the spread pool first; the small steps from its own contacts when it gives fewer than n
+    cands = _candidates(problem, hand, obj, finger, contact_model, local=False)
+    score = scored(cands)
+    if np.isfinite(score).sum() < n:
+        more = _candidates(problem, hand, obj, finger, contact_model)[len(cands):]
+        cands, score = cands + more, np.r_[score, scored(more)]
     if not cands:
         return []
-    compatible = _pairwise_collision_check(hand, {**problem.slots, finger: tuple(have) + tuple(cands)})
-    score = np.full(len(cands), -np.inf)
-    for ctx in list(dict.fromkeys(contexts))[:MAX_CONTEXTS]:
-        held = [(g, s) for j, (g, s) in enumerate(zip(problem.fingers, ctx)) if j != i and s != LIFTED]
-        ok = [j for j in range(len(cands)) if all(compatible(finger, len(have) + j, g, s) for g, s in held)]
-        base = {g: (problem.slots[g][s].points, problem.slots[g][s].normals) for g, s in held}
-        closures = batch_grasp_closure([{**base, finger: (cands[j].points, cands[j].normals)} for j in ok], problem.friction)
-        for j, c in zip(ok, closures):
-            score[j] = max(score[j], c.metric)
     out: list[Slot] = []
     for j in sorted(range(len(cands)), key=lambda j: (-score[j], j)):
         if len(out) >= n or score[j] == -np.inf:
@@ -431,14 +444,15 @@ def _pick_intermediate(problem: GaitProblem, hand, obj, finger: str, n: int, con
     return out
 
 
-def _candidates(problem: GaitProblem, hand, obj, finger: str, contact_model: str, spaced: bool = True) -> list[Slot]:
-    """A finger's candidate contacts not yet among its slots: its reachable pool and the
-    small steps from its initial and final contacts (`local_contacts`), as the closure
-    test sees them (``contact_model``), labelled "candidate"; ``spaced``: only those that
-    are not `_near` one of its slots."""
+def _candidates(problem: GaitProblem, hand, obj, finger: str, contact_model: str, spaced: bool = True,
+                local: bool = True) -> list[Slot]:
+    """A finger's candidate contacts not yet among its slots: its reachable pool and
+    (``local``) the small steps from its initial and final contacts (`local_contacts`), in
+    that order, as the closure test sees them (``contact_model``), labelled "candidate";
+    ``spaced``: only those that are not `_near` one of its slots."""
     have = problem.slots[finger]
     pool = list(reachable_contacts(hand, obj, finger))
-    for s in have[: _fixed_slots(have)]:
+    for s in have[: _fixed_slots(have)] if local else ():
         pool += local_contacts(hand, obj, finger, s.points)
     out = []
     for points, normals, qf in pool:
