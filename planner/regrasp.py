@@ -802,7 +802,8 @@ def _anytime_search(problem: GaitProblem, initial, options: PlanOptions, t0: flo
         needs: dict[str, list] = {}
         for f, ctx in analysis["needs"]:
             needs.setdefault(f, []).append(ctx)
-        problem, new = add_intermediate(problem, initial, {f: INTERMEDIATE_PER_ROUND for f in needs}, options, needs)
+        problem, new = add_intermediate(problem, initial, {f: INTERMEDIATE_PER_ROUND for f in needs}, options, needs,
+                                        deadline=deadline)
         if not new or rounds % 2 == 1:
             problem, more = add_intermediate(problem, initial, {f: 1 for f in problem.fingers}, options, deadline=deadline)
             _count(new, more)
