@@ -275,6 +275,33 @@ def write_csv(path: Path, rows: Sequence[dict]) -> Path:
     return path
 
 
+def read_rows(path: Path) -> list[dict]:
+    """Rows of a CSV written by `write_csv`, with their types back (booleans, numbers; an
+    empty cell is NaN in a time, drift or metric column, else empty)."""
+
+    def conv(k, v):
+        if v in ("True", "False"):
+            return v == "True"
+        if v == "":
+            return np.nan if k.endswith(("_s", "_mm", "_deg", "_metric")) or k == "bottleneck" else v
+        try:
+            return float(v) if any(c in v for c in ".en") else int(v)
+        except ValueError:
+            return v
+
+    with open(path, newline="") as fh:
+        return [{k: conv(k, v) for k, v in r.items()} for r in csv.DictReader(fh)]
+
+
+def replot(csv_path: Path, png_path: Path, title: str, plot, summarize) -> dict:
+    """``--from-csv``: no run, the plot and summary of an existing CSV."""
+    rows = read_rows(csv_path)
+    plot(rows, png_path)
+    summary = summarize(rows)
+    print_summary(f"{title} ({csv_path.name})", summary)
+    return summary
+
+
 def _fmt(v):
     if isinstance(v, float):
         return "" if math.isnan(v) else f"{v:.6g}"

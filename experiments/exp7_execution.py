@@ -34,7 +34,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np  # noqa: E402
 
-from experiments.common import GRASPS, REPLAY_FINGER_FORCE_N, REPO, load_spec, parser, print_summary, pyplot, run_tasks, save, scaled_spec, write_csv  # noqa: E402
+from experiments.common import GRASPS, REPLAY_FINGER_FORCE_N, REPO, load_spec, parser, print_summary, pyplot, replot, run_tasks, save, scaled_spec, write_csv  # noqa: E402
 from experiments.exp4_shape_robustness import MODES, factors  # noqa: E402
 
 #: Library pairs (hand dir, object key) -> (initial, final) file names under grasps/<hand dir>/.
@@ -394,24 +394,6 @@ def plot(rows: list[dict], path: Path) -> None:
     save(fig, path)
 
 
-def read_rows(path: Path) -> list[dict]:
-    """Rows of an exp7 CSV with their types back (for --from-csv)."""
-    import csv
-
-    def conv(k, v):
-        if v in ("True", "False"):
-            return v == "True"
-        if v == "":
-            return np.nan if k.endswith(("_s", "_mm", "_deg", "_metric")) or k == "bottleneck" else v
-        try:
-            return float(v) if any(c in v for c in ".en") else int(v)
-        except ValueError:
-            return v
-
-    with open(path, newline="") as fh:
-        return [{k: conv(k, v) for k, v in r.items()} for r in csv.DictReader(fh)]
-
-
 def main(argv=None) -> dict:
     ap = parser(__doc__.splitlines()[0])
     ap.set_defaults(workers=1)  # one pybullet replay at a time unless asked for more
@@ -426,11 +408,7 @@ def main(argv=None) -> dict:
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
     if args.from_csv is not None:
-        rows = read_rows(args.from_csv)
-        plot(rows, args.out / f"{args.name}.png")
-        summary = summarize(rows)
-        print_summary(f"exp7 execution ({args.from_csv.name})", summary)
-        return summary
+        return replot(args.from_csv, args.out / f"{args.name}.png", "exp7 execution", plot, summarize)
     tasks = pair_tasks(args.quick, args.turned)[: args.max_pairs]
     for t in tasks:
         t["directions"] = args.directions

@@ -45,8 +45,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np  # noqa: E402
 
-from experiments.common import parser, print_summary, pyplot, run_tasks, save, write_csv  # noqa: E402
-from experiments.exp7_execution import family, generic_direction, read_rows, replay_all  # noqa: E402
+from experiments.common import parser, print_summary, pyplot, replot, run_tasks, save, write_csv  # noqa: E402
+from experiments.exp7_execution import family, generic_direction, replay_all  # noqa: E402
 
 #: Finger sets per hand, the largest first (the pose is taken from the first that yields a grasp).
 FINGER_SETS = {
@@ -392,11 +392,7 @@ def main(argv=None) -> dict:
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
     if args.from_csv is not None:
-        rows = read_rows(args.from_csv)
-        plot(rows, args.out / f"{args.name}.png")
-        summary = summarize(rows)
-        print_summary(f"exp8 random pairs ({args.from_csv.name})", summary)
-        return summary
+        return replot(args.from_csv, args.out / f"{args.name}.png", "exp8 random pairs", plot, summarize)
     synth = run_tasks(synth_task, object_tasks(args.quick, args.seed), args, desc="exp8 synth")
     t_synth = time.perf_counter() - t0
     k = args.pairs_per_object or (QUICK["pairs"] if args.quick else PAIRS_PER_OBJECT)

@@ -287,14 +287,11 @@ def _object_extent(obj) -> float:
         return max(2 * s[0], s[1])
     if obj.shape == "sphere":
         return 2 * s[0]
-    if obj.shape == "mesh":
-        try:
-            from planner.objects import load_mesh
+    if obj.shape == "mesh":  # the mesh was read when the grasp or plan was: a failure here is a bug
+        from planner.objects import load_mesh
 
-            V, _ = load_mesh(obj.mesh_path, s * 3 if len(s) == 1 else s)
-            return float(np.ptp(np.asarray(V), axis=0).max())
-        except Exception:  # noqa: BLE001 - a drawing size only
-            return 0.05
+        V, _ = load_mesh(obj.mesh_path, s * 3 if len(s) == 1 else s)
+        return float(np.ptp(np.asarray(V), axis=0).max())
     return max(s)
 
 
