@@ -30,7 +30,8 @@ force every contact must apply and commands it:
    drifting object back; they cannot throw it. A free or moving finger gets
    ``FREE_SHARE * F``, so a lifting finger cannot drag the object and a landing one touches
    down softly. An armature floor on the finger links (`_add_armature`, the reflected
-   inertia a geared finger motor has) keeps the explicit springs stable at the time step.
+   inertia a geared finger motor has) keeps the explicit springs stable at the time step,
+   and no heavier: a heavier finger lags an object that moves and lets go of it.
 
 The squeeze ``F`` comes from the load: ``F = SAFETY * m |g_max| / (n mu)`` for ``n`` holding
 fingers (each contact's friction alone would hold the weight twice over), but never less
@@ -80,8 +81,16 @@ TRAVEL_PER_RADIUS = 0.1
 MAX_TRAVEL_M = 0.001
 #: Smallest lever of a posture spring (joints whose axis passes near the pad), m.
 MIN_LEVER_M = 0.005
-#: Explicit springs are integrated stably while omega * dt stays below this.
-ARMATURE_OMEGA_DT = 0.3
+#: The armature floor puts the stiffest posture spring at this omega * dt. Bullet integrates
+#: an explicit, critically damped spring stably up to omega dt ~ 0.83 (spectral radius of
+#: the semi-implicit Euler step: 0.83 at 0.3, 0.72 at 0.6, 0.68 at its optimum 0.73, > 1
+#: past 0.83); 0.5 leaves room for 2.7x the stiffness (contacts add some). Every bit of
+#: inertia above the floor makes the fingers slower to follow the object: with the floor at
+#: omega dt = 0.3 (2.8x the inertia) the bundled box, held at its edges, broke away from
+#: the thumb at 82 % of the palm-up gravity ramp, and held with it at 0.5 or 0.6, or at
+#: half the time step (which also quarters the floor). At 0.75 (near the limit) thin pens
+#: started to fail.
+ARMATURE_OMEGA_DT = 0.5
 #: A point farther than this outside the object is not a contact (pybullet reports
 #: speculative manifold points with positive distance).
 TOUCH_TOL_M = 0.0005
