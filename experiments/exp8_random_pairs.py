@@ -18,19 +18,29 @@ different finger sets; each pair is planned (`planner.regrasp.plan_regrasp`, fin
   its default time limit;
 - **graph**: `PlanOptions(intermediate=0, time_limit_s=0)` - the thesis's graph of the two
   grasps' contacts only, no intermediate contacts;
-- **execution**: `PlanOptions.for_execution()` (mean contacts, gravity set 6, grip
-  ranking, friction reserve), and that plan replayed in pybullet under the 7 gravity
-  directions of `planner.gravity` (`experiments.exp7_execution.replay_all`).
+- **execution**: `PlanOptions.for_execution(gravity_set=N)` (mean contacts, grip ranking,
+  friction reserve; ``--execution-set N``: 6 by default, 1 plans for palm down only, 2 for
+  palm down and up), and that plan replayed in pybullet under the 7 gravity directions of
+  `planner.gravity` (`experiments.exp7_execution.replay_all`). The grasps are synthesized
+  execution-ready for set 6 whatever N, so runs with different N plan the same pairs.
 
 The CSV has one row per pair: solved and time per mode, gait steps, intermediate contacts
 added, execution pass per direction (palm down, palm up, side_1..4, off; generic names as in
 exp7), and ``reason``: one line saying why the pair fell short (the first of: default not
 solved, execution not planned, replay failed in a direction), empty when everything passed.
+Also: ``execution_set`` (N), ``planned_for`` (the generic names of the N directions the
+execution plan was made for), ``exec_planned_for`` (the replay passed in every one of them
+that was replayed; gravity off is ``exec_off``, never planned for), ``planned_for_fail`` (the
+first failing verdict among them), ``verdict_<direction>`` (each replay's verdict line) and,
+with ``--save-plans DIR``, ``plan_file``: the execution plan written (`planner.plan.write_plan`,
+JSON, replayable with ``regrasp replay``) to DIR/<hand>_<object>_<pair>.json, the object label
+with ``_`` for spaces and the pair numbered from 1 per hand and object as in the ``pair`` column.
 
 ``--quick`` (tests, seconds): the Allegro on the 30 mm-radius ball, two finger sets, one pair, straight
 joint-space finger paths instead of OMPL (``--no-motion``).
 
     python experiments/exp8_random_pairs.py [--quick] [--workers N] [--pairs-per-object K] [--directions 1|2|6|7] [--no-motion]
+        [--execution-set 1|2|6] [--save-plans DIR]
     python experiments/exp8_random_pairs.py --from-csv experiments/results/exp8_random_pairs.csv   # re-plot
 """
 
@@ -72,6 +82,9 @@ PAIRS_PER_OBJECT = 3
 POSE_ATTEMPTS = 200
 SYNTH_ATTEMPTS = 150
 MODES = ("default", "graph", "execution")
+#: ``--execution-set`` choices: the gravity set sizes execution mode can plan for (7 adds
+#: gravity off, which holds nothing).
+EXECUTION_SETS = (1, 2, 6)
 
 
 # ------------------------------------------------------------------ synthesis
@@ -182,15 +195,28 @@ def _plan(gi, gf, opts):
     return res, time.perf_counter() - t0, ""
 
 
-def options(mode: str, seed: int, motion: bool = True):
-    """The PlanOptions of a mode (`MODES`); ``motion`` False: straight joint-space finger paths."""
+def options(mode: str, seed: int, motion: bool = True, gravity_set: int = 6):
+    """The PlanOptions of a mode (`MODES`); ``motion`` False: straight joint-space finger paths;
+    ``gravity_set``: the directions execution mode plans for (`EXECUTION_SETS`)."""
     from planner.regrasp import PlanOptions
 
     if mode == "default":
         return PlanOptions(seed=seed, motion=motion)
     if mode == "graph":
         return PlanOptions(seed=seed, motion=motion, intermediate=0, time_limit_s=0)
-    return PlanOptions.for_execution(seed=seed, motion=motion)
+    return PlanOptions.for_execution(seed=seed, motion=motion, gravity_set=gravity_set)
+
+
+def planned_for(hand, gravity_set: int) -> list[str]:
+    """Names (`planner.gravity`, hand-specific) of the directions execution mode plans for."""
+    from planner.gravity import gravity_directions
+
+    return [name for name, _ in gravity_directions(hand.palm_normal, gravity_set)]
+
+
+def plan_path(folder: Path, hand: str, obj: str, n: int) -> Path:
+    """Where ``--save-plans`` writes pair n (from 1) of a hand and object label."""
+    return Path(folder) / f"{hand}_{obj.replace(' ', '_')}_{n}.json"
 
 
 def pair_task(t: dict) -> dict:
@@ -205,9 +231,13 @@ def pair_task(t: dict) -> dict:
     gf = realize(parse_grasp(b["data"], Path(f"{t['hand']}_final.yaml")), hand)
     row["family"] = family(gi.spec.object)
     row["mean_fc"] = bool(gi.closure_under("mean").is_force_closure and gf.closure_under("mean").is_force_closure)
+    n_set = t.get("execution_set", 6)
+    names = planned_for(hand, n_set)
+    row["execution_set"] = n_set
+    row["planned_for"] = " ".join(generic_direction(n, names) for n in names)
     reasons = {}
     for mode in MODES:
-        res, s, why = _plan(gi, gf, options(mode, t["seed"], t.get("motion", True)))
+        res, s, why = _plan(gi, gf, options(mode, t["seed"], t.get("motion", True), n_set))
         row[f"{mode}_solved"] = res is not None
         row[f"{mode}_time_s"] = s
         if res is None:
@@ -217,28 +247,40 @@ def pair_task(t: dict) -> dict:
         row[f"{mode}_steps"] = res.sequence.gait_steps
         row[f"{mode}_intermediate"] = sum((res.plan.summary.get("search") or {}).get("intermediate_added", {}).values())
         if mode == "execution":
-            row.update(replay_row(res.plan.to_dict(), hand, t["directions"]))
+            if t.get("save_plans"):
+                from planner.plan import write_plan
+
+                row["plan_file"] = str(write_plan(res.plan, plan_path(t["save_plans"], t["hand"], t["object"], t["index"])))
+            row.update(replay_row(res.plan.to_dict(), hand, t["directions"], names))
     row["reason"] = reason(row, reasons)
     row["pair_time_s"] = time.perf_counter() - t0
     return row
 
 
-def replay_row(plan: dict, hand, n: int) -> dict:
-    """The execution plan replayed under n gravity directions (exp7's `replay_all`): pass and
-    drift per generic direction, all-directions pass, the first failing verdict."""
+def replay_row(plan: dict, hand, n: int, planned: list[str] = ()) -> dict:
+    """The execution plan replayed under n gravity directions (exp7's `replay_all`): pass,
+    drift and verdict per generic direction, all-directions pass, the first failing verdict;
+    with ``planned`` (hand-specific names, `planned_for`): the pass over those of them that
+    were replayed (``exec_planned_for``) and their first failing verdict."""
     reports = replay_all(plan, hand, n)
     names = [name for name, _, _ in reports]
-    out, first_fail = {}, ""
+    out, first_fail, planned_fail = {}, "", ""
     for name, rep, wall in reports:
         d = generic_direction(name, names)
         out[f"exec_{d}"] = bool(rep.passed)
         out[f"drift_deg_{d}"] = rep.max_drift_deg
+        out[f"verdict_{d}"] = rep.verdict.replace("\n", " ")[:400]
         if not rep.passed and not first_fail:
             first_fail = f"replay {d}: {rep.verdict}".replace("\n", " ")[:160]
+        if not rep.passed and name in planned and not planned_fail:
+            planned_fail = f"replay {d}: {rep.verdict}".replace("\n", " ")[:400]
     out["exec_all"] = all(out[f"exec_{generic_direction(n_, names)}"] for n_ in names)
     sides = [v for k, v in out.items() if k.startswith("exec_side_")]
     if sides:
         out["exec_sideways"] = all(sides)
+    if planned:
+        out["exec_planned_for"] = all(out[f"exec_{generic_direction(n_, names)}"] for n_ in names if n_ in planned)
+        out["planned_for_fail"] = planned_fail
     out["replay_s"] = sum(w for _, _, w in reports)
     out["replay_fail"] = first_fail
     return out
@@ -281,8 +323,14 @@ def summarize(rows: list[dict], synth: list[dict] | None = None) -> dict:
     mean_fc = sum(bool(r["mean_fc"]) for r in rows)
     s["both grasps force closure with mean contacts (execution can plan)"] = _frac(mean_fc, n)
     s["execution solved, of those"] = _frac(sum(bool(r["execution_solved"]) for r in rows if r["mean_fc"]), mean_fc)
+    sets = sorted({str(r["execution_set"]) for r in rows if r.get("execution_set") not in (None, "")})
+    if sets:
+        s["execution gravity set"] = ", ".join(sets) + " (" + "; ".join(sorted({str(r.get("planned_for")) for r in rows})) + ")"
     ex = [r for r in rows if r["execution_solved"] and "exec_all" in r]
     if ex:
+        pf = [r for r in ex if _bool(r.get("exec_planned_for")) is not None]
+        if pf:
+            s["execution: pass every planned-for direction"] = _frac(sum(bool(r["exec_planned_for"]) for r in pf), len(pf))
         s["execution: pass all directions"] = _frac(sum(bool(r["exec_all"]) for r in ex), len(ex))
         for d, key in (("palm_down", "exec_palm_down"), ("palm_up", "exec_palm_up"), ("all 4 sideways", "exec_sideways"),
                        ("off", "exec_off")):
@@ -290,20 +338,35 @@ def summarize(rows: list[dict], synth: list[dict] | None = None) -> dict:
             if replayed:
                 s[f"execution: pass {d}"] = _frac(sum(bool(r[key]) for r in replayed), len(replayed))
         s["execution: pass all directions, of all pairs"] = _frac(sum(bool(r["exec_all"]) for r in ex), n)
-    for h in sorted({r["hand"] for r in rows}):
-        hr = [r for r in rows if r["hand"] == h]
-        s[f"hand {h}"] = (f"{len(hr)} pairs: default {sum(r['default_solved'] for r in hr)}, graph "
-                          f"{sum(r['graph_solved'] for r in hr)}, execution {sum(r['execution_solved'] for r in hr)}, "
-                          f"pass all directions {sum(bool(r.get('exec_all')) for r in hr)}")
-    for fam in sorted({r["family"] for r in rows}):
-        fr = [r for r in rows if r["family"] == fam]
-        s[f"family {fam}"] = (f"{len(fr)} pairs: default {sum(r['default_solved'] for r in fr)}, graph "
-                              f"{sum(r['graph_solved'] for r in fr)}, execution {sum(r['execution_solved'] for r in fr)}, "
-                              f"pass all directions {sum(bool(r.get('exec_all')) for r in fr)}")
+    for key, label in (("hand", "hand"), ("family", "family")):
+        for v in sorted({r[key] for r in rows}):
+            s[f"{label} {v}"] = _group(rows, key, v)
+    failed = [r for r in ex if _bool(r.get("exec_planned_for")) is False]
+    if failed:
+        s["execution replay failures in planned-for directions"] = " | ".join(
+            f"{r['pair']}: {r['planned_for_fail']}" + (f" [{r['plan_file']}]" if r.get("plan_file") else "") for r in failed)
     why = Counter(_category(r["reason"]) for r in rows if r.get("reason"))
     if why:
         s["reasons"] = "; ".join(f"{k} x{v}" for k, v in why.most_common())
     return s
+
+
+def _bool(v):
+    """A pass column's value as True / False, None when absent (empty or NaN read back)."""
+    return v if isinstance(v, bool) else None
+
+
+def _group(rows: list[dict], key: str, value) -> str:
+    """One summary line for the rows of a hand or family: solved per mode, replay passes."""
+    g = [r for r in rows if r[key] == value]
+    line = (f"{len(g)} pairs: default {sum(bool(r['default_solved']) for r in g)}, graph "
+            f"{sum(bool(r['graph_solved']) for r in g)}, execution {sum(bool(r['execution_solved']) for r in g)}, "
+            f"pass all directions {sum(bool(r.get('exec_all')) for r in g)}")
+    if any(_bool(r.get("exec_planned_for")) is not None for r in g):
+        line += (f", pass planned-for {sum(_bool(r.get('exec_planned_for')) is True for r in g)}, "
+                 f"palm down {sum(_bool(r.get('exec_palm_down')) is True for r in g)}, "
+                 f"off {sum(_bool(r.get('exec_off')) is True for r in g)}")
+    return line
 
 
 def _category(reason: str) -> str:
@@ -323,6 +386,8 @@ def plot(rows: list[dict], path: Path) -> None:
               if any(r["hand"] == h and r["family"] == fam for r in rows)]
     bars = [("default", "default_solved"), ("graph only", "graph_solved"), ("execution", "execution_solved"),
             ("executes in all 7", "exec_all")]
+    if any(_bool(r.get("exec_planned_for")) is not None for r in rows):
+        bars.insert(3, ("executes planned-for", "exec_planned_for"))
     w = 0.8 / len(bars)
     for j, (label, key) in enumerate(bars):
         rates = []
@@ -370,13 +435,15 @@ def object_tasks(quick: bool, seed: int) -> list[dict]:
     return tasks
 
 
-def pair_tasks(synth: list[dict], k: int, seed: int, directions: int, motion: bool = True) -> list[dict]:
+def pair_tasks(synth: list[dict], k: int, seed: int, directions: int, motion: bool = True, execution_set: int = 6,
+               save_plans: Path | None = None) -> list[dict]:
     tasks = []
     for o in synth:
         for n, (i, j) in enumerate(draw_pairs(o["grasps"], k, seed)):
             tasks.append({"hand": o["hand"], "object": o["object"], "pair": f"{o['hand']} {o['object']} {n + 1}",
-                          "initial": o["grasps"][i], "final": o["grasps"][j], "seed": seed, "directions": directions,
-                          "motion": motion})
+                          "index": n + 1, "initial": o["grasps"][i], "final": o["grasps"][j], "seed": seed,
+                          "directions": directions, "motion": motion, "execution_set": execution_set,
+                          "save_plans": str(save_plans) if save_plans is not None else None})
     return tasks
 
 
@@ -387,17 +454,26 @@ def main(argv=None) -> dict:
                     help="gravity set size of the execution replays (default 7: with gravity off)")
     ap.add_argument("--no-motion", action="store_true",
                     help="straight joint-space finger paths instead of OMPL (implied by --quick)")
+    ap.add_argument("--execution-set", type=int, default=6, choices=EXECUTION_SETS,
+                    help="gravity set execution mode plans for (planner.gravity; default 6; 1: palm down only)")
+    ap.add_argument("--save-plans", type=Path, default=None, metavar="DIR",
+                    help="write each execution-mode plan to DIR/<hand>_<object>_<pair>.json")
     ap.add_argument("--name", default="exp8_random_pairs", help="CSV / PNG file stem in --out")
     ap.add_argument("--from-csv", type=Path, default=None, help="no run: summary and plot of an existing exp8 CSV")
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
     if args.from_csv is not None:
         return replot(args.from_csv, args.out / f"{args.name}.png", "exp8 random pairs", plot, summarize)
+    if args.save_plans is not None:
+        if args.save_plans.exists() and not args.save_plans.is_dir():
+            ap.error(f"--save-plans {args.save_plans}: exists and is not a directory")
+        args.save_plans.mkdir(parents=True, exist_ok=True)
     synth = run_tasks(synth_task, object_tasks(args.quick, args.seed), args, desc="exp8 synth")
     t_synth = time.perf_counter() - t0
     k = args.pairs_per_object or (QUICK["pairs"] if args.quick else PAIRS_PER_OBJECT)
     motion = not (args.quick or args.no_motion)
-    rows = run_tasks(pair_task, pair_tasks(synth, k, args.seed, args.directions, motion), args, desc="exp8 pairs")
+    rows = run_tasks(pair_task, pair_tasks(synth, k, args.seed, args.directions, motion, args.execution_set,
+                                           args.save_plans), args, desc="exp8 pairs")
     write_csv(args.out / f"{args.name}.csv", rows)
     write_csv(args.out / f"{args.name}_synth.csv",
               [{"hand": o["hand"], "object": o["object"], "pose_from": o["pose_from"],

@@ -111,11 +111,15 @@ def test_exp8_quick_plans_a_synthesized_pair_three_ways(tmp_path, capsys):
     graph only and in execution mode; one CSV row with a reason for every mode that failed."""
     from experiments import exp8_random_pairs as exp8
 
-    summary = exp8.main(["--quick", "--workers", "1", "--directions", "1", "--no-progress", "--out", str(tmp_path)])
+    summary = exp8.main(["--quick", "--workers", "1", "--directions", "1", "--no-progress", "--out", str(tmp_path),
+                         "--execution-set", "1", "--save-plans", str(tmp_path / "plans")])
     rows = list(csv.DictReader(open(tmp_path / "exp8_random_pairs.csv")))
     assert len(rows) == 1 and summary["pairs"] == 1
     r = rows[0]
     assert r["hand"] == "allegro_right" and r["family"] == "sphere" and r["initial"] != r["final"]
+    assert r["execution_set"] == "1" and r["planned_for"] == "palm_down"
+    saved = sorted(p.name for p in (tmp_path / "plans").iterdir())  # a plan file exactly when execution planned one
+    assert saved == (["allegro_right_sphere_r30_1.json"] if r["execution_solved"] == "True" else [])
     for mode in exp8.MODES:
         assert r[f"{mode}_solved"] in ("True", "False") and float(r[f"{mode}_time_s"]) > 0
         assert (r[f"{mode}_solved"] == "True") == (r.get(f"{mode}_why", "") == "")  # a failure says why
@@ -126,9 +130,11 @@ def test_exp8_quick_plans_a_synthesized_pair_three_ways(tmp_path, capsys):
     assert "exp8 random pairs" in capsys.readouterr().out
 
 
-def test_exp8_pairs_replay_rows_and_reasons():
+def test_exp8_pairs_replay_rows_and_reasons(tmp_path, capsys):
     """Pairs: distinct grasps, never the same two twice, across finger sets first, seeded.
-    Replay rows: pass per generic direction, all / sideways, the first failing verdict."""
+    Replay rows: pass per generic direction, all / sideways, the first failing verdict; the
+    pass over the directions the plan was made for (--execution-set) and its first failure."""
+    from pathlib import Path
     from types import SimpleNamespace
 
     from experiments import exp8_random_pairs as exp8
@@ -155,6 +161,31 @@ def test_exp8_pairs_replay_rows_and_reasons():
     assert row["exec_palm_down"] and row["exec_palm_up"] and row["exec_off"] and not row["exec_side_2"]
     assert not row["exec_all"] and not row["exec_sideways"] and row["replay_s"] == 3.5
     assert row["replay_fail"] == "replay side_2: FAIL: dropped at step 2"
+    assert row["verdict_side_2"] == "FAIL: dropped at step 2" and row["verdict_off"] == "PASS"
+    assert "exec_planned_for" not in row  # no planned-for directions given: no column
+    exp8.replay_all = lambda plan, hand, n: fake
+    try:  # planned for palm down and up (set 2): the sideways failure is not a planned-for one
+        two = exp8.replay_row({}, None, 7, ["palm_down", "palm_up"])
+        six = exp8.replay_row({}, None, 7, names[:6])
+    finally:
+        exp8.replay_all = orig
+    assert two["exec_planned_for"] and two["planned_for_fail"] == "" and not two["exec_all"]
+    assert not six["exec_planned_for"] and six["planned_for_fail"] == "replay side_2: FAIL: dropped at step 2"
+    assert exp8.options("execution", 0, gravity_set=1).gravity_set == 1 and exp8.options("execution", 0).gravity_set == 6
+    assert exp8.plan_path(Path("d"), "icub_right", "box 30x40x50", 2) == Path("d/icub_right_box_30x40x50_2.json")
+    summary = exp8.summarize([{"pair": "p", "hand": "h", "family": "f", "default_solved": True, "graph_solved": False,
+                               "execution_solved": True, "mean_fc": True, "default_time_s": 1.0, "graph_time_s": 0.1,
+                               "execution_time_s": 2.0, "execution_set": 6, "planned_for": "palm_down",
+                               "reason": six["replay_fail"], **six, "exec_planned_for": False, "plan_file": "d/p.json"}])
+    assert summary["execution: pass every planned-for direction"] == "0/1 (0.0 %)"
+    assert summary["hand h"].endswith("pass planned-for 0, palm down 1, off 1")
+    assert summary["execution replay failures in planned-for directions"] == \
+        "p: replay side_2: FAIL: dropped at step 2 [d/p.json]"
+    (tmp_path / "f").write_text("x")
+    with pytest.raises(SystemExit) as exc:  # a file where the plans' folder should be: refused before any work
+        exp8.main(["--save-plans", str(tmp_path / "f"), "--out", str(tmp_path)])
+    assert exc.value.code == 2 and "is not a directory" in capsys.readouterr().err
+    assert (tmp_path / "f").read_text() == "x"
     err = NoSequenceError("no finger-gaiting sequence: ...; the time limit of 10 s was reached",
                           report={"never_removable": ["thumb"], "landing_blocked": {"ring": {}}})
     assert exp8._why(err) == "never removable: thumb; cannot land: ring; time limit reached"
