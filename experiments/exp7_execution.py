@@ -19,7 +19,9 @@ The CSV has one row per pair and direction (a pair not planned has one
 row, direction empty): planned and plan time, passed (the replay's verdict), drift, closure
 agreement (states where the simulator's closure agrees / states reached) and time.
 
-    python experiments/exp7_execution.py [--quick] [--max-pairs N] [--directions 1|2|6|7]
+``--turned`` adds held-out poses (`TURNS`), ``--heavy`` heavier objects (`HEAVY_FACTORS`).
+
+    python experiments/exp7_execution.py [--quick] [--max-pairs N] [--directions 1|2|6|7] [--turned] [--heavy]
     python experiments/exp7_execution.py --from-csv experiments/results/exp7_execution.csv  # re-plot
 """
 
@@ -64,6 +66,11 @@ MESH_SCALES = (0.9, 1.0, 1.1)
 #: the palm-plane axes n x e_x (or n x e_y when n is along e_x) and n x tilt_1. The contact
 #: points stay where they are on the object, so the fingers reach them in new postures.
 TURNS = (("palm", -12.0), ("palm", 12.0), ("tilt_1", 10.0), ("tilt_2", -10.0))
+#: Heavy objects (--heavy): every library pair at its nominal size and pose with the object's
+#: mass times each of these, planned with the execution budget per finger times it too: the
+#: same planning problem in units of the object's weight, so what changes is what the
+#: replay's controller must hold (up to 4x the forces: 10-60 g objects become 25-240 g).
+HEAVY_FACTORS = (2.5, 4.0)
 #: --quick: the nominal pairs of these (3-4 replays' worth of pairs).
 QUICK = ("icub/cylinder", "icub/sphere", "allegro/sphere", "icub/pen")
 #: A cylinder this thin or thinner is the "rod" family.
@@ -99,7 +106,7 @@ def mesh_pairs() -> list[tuple[str, str, str]]:
     return out
 
 
-def pair_tasks(quick: bool, turned: bool = False) -> list[dict]:
+def pair_tasks(quick: bool, turned: bool = False, heavy: bool = False) -> list[dict]:
     tasks = []
     for key, (a, b) in LIBRARY.items():
         hand_dir = key.split("/")[0]
@@ -113,6 +120,8 @@ def pair_tasks(quick: bool, turned: bool = False) -> list[dict]:
             tasks.append({"pair": key, "initial": ini, "final": fin, "mode": mode, "scale": s})
         for axis, deg in (TURNS if turned else ()):
             tasks.append({"pair": key, "initial": ini, "final": fin, "mode": f"turn {axis}", "scale": deg})
+        for k in (HEAVY_FACTORS if heavy else ()):
+            tasks.append({"pair": key, "initial": ini, "final": fin, "mode": "mass", "scale": k})
     for key, ini, fin in ([] if quick else mesh_pairs()):  # meshes are not part of the quick sweep
         for s in MESH_SCALES:
             tasks.append({"pair": key, "initial": ini, "final": fin, "mode": "uniform", "scale": s})
@@ -153,6 +162,14 @@ def scaled(spec, mode: str, scale: float, palm_normal):
     n = np.asarray(palm_normal, float)
     shift = n * (_support(obj, new.object.size, -n) - _support(obj, obj.size, -n))
     return replace(new, object=replace(new.object, position=tuple(float(v) for v in np.asarray(obj.position, float) + shift)))
+
+
+def heavier(spec, factor: float):
+    """The spec with its object's ``mass_kg`` (every library grasp gives it) times ``factor``."""
+    obj = spec.object
+    if obj.mass_kg is None:
+        raise ValueError(f"{spec.name}: --heavy needs object.mass_kg in the grasp file")
+    return replace(spec, object=replace(obj, mass_kg=float(obj.mass_kg) * factor), name=f"{spec.name}_m{factor:g}")
 
 
 def turn_axis(name: str, palm_normal) -> np.ndarray:
@@ -241,6 +258,8 @@ def task(t: dict) -> list[dict]:
     hand = load_hand(base_i.hand_ref)
     if t["mode"].startswith("turn "):
         si, sf = (turned(b, t["mode"].split()[1], t["scale"], hand.palm_normal) for b in (base_i, base_f))
+    elif t["mode"] == "mass":
+        si, sf = (heavier(b, t["scale"]) for b in (base_i, base_f))
     else:
         si = scaled(base_i, t["mode"], t["scale"], hand.palm_normal)
         sf = scaled(base_f, t["mode"], t["scale"], hand.palm_normal)
@@ -248,6 +267,8 @@ def task(t: dict) -> list[dict]:
            "variant": f"{t['mode']} {t['scale']:.2f}", "size": " ".join(f"{v:.4f}" for v in si.object.size),
            "initial": Path(t["initial"]).name, "final": Path(t["final"]).name}
     opts, mode, planned_for = plan_options(hand.palm_normal)
+    if t["mode"] == "mass":  # the same budget in units of the object's weight
+        opts = replace(opts, max_finger_force_n=opts.max_finger_force_n * t["scale"])
     row["mode"] = mode
     try:
         gi, gf = realize(si, hand), realize(sf, hand)
@@ -332,6 +353,10 @@ def summarize(rows: list[dict]) -> dict:
             fa = sum(all(r["passed"] for r in rs) for rs in fpl)
             s[f"family {fam}"] = f"{len(fp)} pairs, {len(fp) - len(fv)} invalid, {len(fpl)} planned, {fa} pass every direction"
         turned = [rs for k, rs in planned.items() if str(k[1]).startswith("turn ")]
+        heavy = [rs for k, rs in planned.items() if str(k[1]).startswith("mass ")]
+        if heavy:
+            s["heavy objects (--heavy)"] = (f"{len(heavy)} planned of {sum(str(k[1]).startswith('mass ') for k in pairs)}, "
+                                            f"{sum(all(r['passed'] for r in rs) for rs in heavy)} pass every direction")
         if turned:
             ta = sum(all(r["passed"] for r in rs) for rs in turned)
             s["held-out poses (--turned)"] = (f"{len(turned)} planned of {sum(str(k[1]).startswith('turn ') for k in pairs)}, "
@@ -403,13 +428,16 @@ def main(argv=None) -> dict:
     ap.add_argument("--name", default="exp7_execution", help="CSV / PNG file stem in --out")
     ap.add_argument("--turned", action="store_true",
                     help="also the held-out poses: every library pair with its object turned (TURNS)")
+    ap.add_argument("--heavy", action="store_true",
+                    help="also every library pair with its object's mass (and the budget per finger) times "
+                         + " and ".join(f"{k:g}" for k in HEAVY_FACTORS))
     ap.add_argument("--from-csv", type=Path, default=None,
                     help="no run: summary and plot of an existing exp7 CSV (PNG into --out/--name)")
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
     if args.from_csv is not None:
         return replot(args.from_csv, args.out / f"{args.name}.png", "exp7 execution", plot, summarize)
-    tasks = pair_tasks(args.quick, args.turned)[: args.max_pairs]
+    tasks = pair_tasks(args.quick, args.turned, args.heavy)[: args.max_pairs]
     for t in tasks:
         t["directions"] = args.directions
     per_pair = run_tasks(task, tasks, args, desc="exp7 execution")

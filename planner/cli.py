@@ -220,7 +220,8 @@ def build_parser() -> argparse.ArgumentParser:
                       help="like --gravity for several hand orientations at once: 1 palm down, 2 and palm up, "
                            "6 and the four sideways directions, 7 and gravity off (from the hand's palm_normal)")
     plan.add_argument("--max-finger-force", type=float, default=1.0, metavar="N",
-                      help="per-finger normal force budget against gravity, N (default 1, the replay's squeeze)")
+                      help="per-finger normal force budget against gravity, N (default 1, for the 10-60 g "
+                           "library objects; scale it with the object's weight)")
     plan.add_argument("--rank", default=None, metavar="metric|grip",
                       help="rank sequences by their worst closure metric (metric, default: the thesis) or by the "
                            "largest grip force they need (grip; needs --gravity or --gravity-set)")

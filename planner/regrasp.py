@@ -105,7 +105,10 @@ class PlanOptions:
             ``EXECUTION_FRICTION_MARGIN``: a plan for execution must hold its load with a
             friction reserve, as the replay's controller does.
         max_finger_force_n: per-finger normal force budget against gravity, N (default 1,
-            the replay's squeeze force).
+            what exp7 validates on the 10-60 g library objects; the grasp's need scales with
+            the object's weight, so scale the budget with it: exp7 ``--heavy`` plans 2.5x
+            and 4x the mass with 2.5 and 4 N). The replay's controller derives its own
+            squeeze from the mass (`planner.sim.controller.squeeze_force_n`).
         gravity_set: None or a set size of `planner.gravity.GRAVITY_SET_SIZES` (1, 2, 6, 7):
             plan for several hand orientations at once, the named gravity directions of
             `planner.gravity.gravity_directions` (from the hand's ``palm_normal``). A state's
