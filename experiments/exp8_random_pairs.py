@@ -91,16 +91,17 @@ EXECUTION_SETS = (1, 2, 6)
 
 
 def synth_task(t: dict) -> dict:
-    """One hand and object: the fixed pose and every finger set's grasps (plain data)."""
-    from planner.synth import synthesize
-
+    """One hand and object: the fixed pose and every finger set's grasps (plain data). A
+    synthesis that crashes finds nothing for its finger set; the error is kept in ``errors``
+    (the sweep goes on, and the summary names it)."""
     t0 = time.perf_counter()
     block = dict(t["block"])
-    out = {"hand": t["hand"], "object": t["object"], "pose_from": "", "grasps": [], "synth": []}
+    out = {"hand": t["hand"], "object": t["object"], "pose_from": "", "grasps": [], "synth": [], "errors": []}
     kw = execution_ready(t["hand"])
     for fs in t["sets"]:  # the pose: the first grasp found with the pose sampled, largest set first
-        r = synthesize(t["hand"], block, fs.split(","), 1, fixed=False, seed=t["seed"], max_attempts=POSE_ATTEMPTS, **kw)
-        if r.grasps:
+        r = _synthesize(out, f"pose {fs}", t["hand"], block, fs.split(","), 1, fixed=False, seed=t["seed"],
+                        max_attempts=POSE_ATTEMPTS, **kw)
+        if r is not None and r.grasps:
             o = r.grasps[0].data["object"]
             block.update(position=o["position"], quat_xyzw=o["quat_xyzw"])
             out["pose_from"] = fs
@@ -111,15 +112,28 @@ def synth_task(t: dict) -> dict:
         return out
     out["pose"] = [block["position"], block["quat_xyzw"]]
     for k, fs in enumerate(t["sets"]):
-        r = synthesize(t["hand"], block, fs.split(","), t["per_set"], fixed=True, seed=t["seed"] + 1 + k,
-                       max_attempts=SYNTH_ATTEMPTS, **kw)
-        out["synth"].append({"fingers": fs, "found": len(r.grasps), "attempts": r.attempts, "seconds": r.seconds})
+        r = _synthesize(out, fs, t["hand"], block, fs.split(","), t["per_set"], fixed=True, seed=t["seed"] + 1 + k,
+                        max_attempts=SYNTH_ATTEMPTS, **kw)
+        out["synth"].append({"fingers": fs, "found": len(r.grasps), "attempts": r.attempts, "seconds": r.seconds}
+                            if r is not None else {"fingers": fs, "found": 0, "error": out["errors"][-1]})
         if fs == out["pose_from"]:  # the grasp that gave the pose is one of them (rank 0)
             out["grasps"].append(pose_grasp)
-        for rank, g in enumerate(r.grasps, start=1):
+        for rank, g in enumerate(r.grasps if r is not None else (), start=1):
             out["grasps"].append({"fingers": fs, "rank": rank, "metric": float(g.grasp.metric), "data": g.data})
     out["synth_s"] = time.perf_counter() - t0
     return out
+
+
+def _synthesize(out: dict, what: str, *args, **kw):
+    """`planner.synth.synthesize`, or None when it raised: the error is appended to
+    ``out["errors"]`` as one line naming ``what`` (the finger set, or the pose search)."""
+    from planner.synth import synthesize
+
+    try:
+        return synthesize(*args, **kw)
+    except Exception as err:  # noqa: BLE001 - a synthesis crash loses one finger set, not the sweep
+        out["errors"].append(f"{what}: {type(err).__name__}: {err}".replace("\n", " ")[:300])
+        return None
 
 
 def execution_ready(hand_ref: str) -> dict:
@@ -312,6 +326,9 @@ def summarize(rows: list[dict], synth: list[dict] | None = None) -> dict:
         no_pairs = [f"{o['hand']} {o['object']}" for o in synth if len(o["grasps"]) < 2]
         if no_pairs:
             s["objects without a pair"] = ", ".join(no_pairs)
+        crashed = [f"{o['hand']} {o['object']} {e}" for o in synth for e in o.get("errors", ())]
+        if crashed:
+            s["synthesis crashes (finger set lost)"] = " | ".join(crashed)
     if not n:
         return s
     for mode in MODES:
@@ -478,7 +495,7 @@ def main(argv=None) -> dict:
     write_csv(args.out / f"{args.name}_synth.csv",
               [{"hand": o["hand"], "object": o["object"], "pose_from": o["pose_from"],
                 "pose": " ".join(f"{v:.4f}" for v in sum(o.get("pose", []), [])), **s, "object_synth_s": o["synth_s"]}
-               for o in synth for s in (o["synth"] or [{}])])
+               for o in synth for s in (o["synth"] or [{"error": " | ".join(o.get("errors", ()))}])])
     if rows:
         plot(rows, args.out / f"{args.name}.png")
     summary = summarize(rows, synth)

@@ -130,6 +130,37 @@ def test_exp8_quick_plans_a_synthesized_pair_three_ways(tmp_path, capsys):
     assert "exp8 random pairs" in capsys.readouterr().out
 
 
+def test_exp8_synthesis_crash_loses_one_finger_set_not_the_sweep(monkeypatch):
+    """A finger set whose synthesis raises (e.g. a solver failure) finds nothing, its error is
+    kept and named in the summary; the pose search goes on to the next set, the other sets'
+    grasps are kept."""
+    from types import SimpleNamespace
+
+    import planner.synth
+    from experiments import exp8_random_pairs as exp8
+    from planner.errors import PlannerError
+
+    pose = {"object": {"position": [0.0, 0.0, 0.1], "quat_xyzw": [0.0, 0.0, 0.0, 1.0]}}
+
+    def fake(hand, block, fingers, n, *, fixed, seed, max_attempts, **kw):
+        if fingers == ["a", "b", "c"]:  # the largest set: the pose search and the fixed-pose synthesis crash
+            raise PlannerError("grip force LP failed (HiGHS status 4)\nfor 3 finger(s)")
+        g = SimpleNamespace(data=dict(pose, fingers=fingers, seed=seed), grasp=SimpleNamespace(metric=0.5))
+        return SimpleNamespace(grasps=[g] * n, attempts=7, seconds=0.1)
+
+    monkeypatch.setattr(planner.synth, "synthesize", fake)
+    out = exp8.synth_task({"hand": "allegro_right", "object": "x", "block": {"shape": "sphere", "size": [0.02]},
+                           "sets": ["a,b,c", "a,b"], "per_set": 2, "seed": 5})
+    assert out["pose_from"] == "a,b" and out["pose"] == [[0.0, 0.0, 0.1], [0.0, 0.0, 0.0, 1.0]]
+    assert out["errors"] == ["pose a,b,c: PlannerError: grip force LP failed (HiGHS status 4) for 3 finger(s)",
+                             "a,b,c: PlannerError: grip force LP failed (HiGHS status 4) for 3 finger(s)"]
+    assert out["synth"] == [{"fingers": "a,b,c", "found": 0, "error": out["errors"][1]},
+                            {"fingers": "a,b", "found": 2, "attempts": 7, "seconds": 0.1}]
+    assert [(g["fingers"], g["rank"]) for g in out["grasps"]] == [("a,b", 0), ("a,b", 1), ("a,b", 2)]
+    s = exp8.summarize([], [out])
+    assert s["objects with a pose"] == "1/1" and s["synthesis crashes (finger set lost)"].count("allegro_right x") == 2
+
+
 def test_exp8_pairs_replay_rows_and_reasons(tmp_path, capsys):
     """Pairs: distinct grasps, never the same two twice, across finger sets first, seeded.
     Replay rows: pass per generic direction, all / sideways, the first failing verdict; the
