@@ -875,14 +875,18 @@ def min_grip_force(patches: Mapping[str, tuple], friction: Friction, load, *,
     # the program is homogeneous in the load: solve for the unit load and scale t back, so
     # HiGHS's absolute tolerances cannot decide feasibility for a tiny (or huge) load
     scale = float(np.abs(w_ext).max())
-    res = linprog(c, A_ub=A_ub, b_ub=np.zeros(len(sizes)), A_eq=np.c_[W.T, np.zeros(6)], b_eq=-w_ext / scale,
-                  bounds=[(0, None)] * (k + 1), method="highs")
-    if res.status == 0:
-        return float(res.x[k]) * scale
-    # The program cannot be unbounded (t >= 0 is minimized): HiGHS's "unbounded or
-    # infeasible" (scipy status 4, e.g. from presolve) means infeasible too.
-    if res.status == 2 or (res.status == 4 and "unbounded or infeasible" in res.message):
-        return math.inf
+    problem = dict(A_ub=A_ub, b_ub=np.zeros(len(sizes)), A_eq=np.c_[W.T, np.zeros(6)], b_eq=-w_ext / scale,
+                   bounds=[(0, None)] * (k + 1))
+    for method in ("highs", "highs-ipm"):
+        res = linprog(c, method=method, **problem)
+        if res.status == 0:
+            return float(res.x[k]) * scale
+        # The program cannot be unbounded (t >= 0 is minimized): HiGHS's "unbounded or
+        # infeasible" (scipy status 4, e.g. from presolve) means infeasible too
+        if res.status == 2 or (res.status == 4 and "unbounded or infeasible" in res.message):
+            return math.inf
+        # else HiGHS's default ended unsure (e.g. "model_status is Unknown; primal_status is
+        # Infeasible", seen on a synthesized Allegro grasp): the interior-point method decides
     # any other status (iteration limit, numerical trouble) is a solver failure
     raise PlannerError(f"grip force LP failed (HiGHS status {res.status}: {res.message}) for {len(sizes)} "
                        f"finger(s) and load {np.round(w_ext, 6).tolist()}; the grip force is unknown")

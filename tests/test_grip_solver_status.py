@@ -56,3 +56,38 @@ def test_a_solver_failure_raises_instead_of_reading_as_infeasible(monkeypatch, s
     _solver_says(monkeypatch, status, message)
     with pytest.raises(PlannerError, match=f"grip force LP failed \\(HiGHS status {status}: "):
         min_grip_force(_antipodal(), Friction(0.5, 0.0), WEIGHT)
+
+
+def test_an_unsure_end_is_decided_by_the_interior_point_method(monkeypatch):
+    """HiGHS's default can end 'model_status is Unknown' (scipy status 4); the interior-point
+    method then decides: its optimum is the answer, not an error."""
+    calls = []
+
+    def linprog(*a, method="highs", **k):
+        calls.append(method)
+        if method == "highs":
+            return SimpleNamespace(status=4, message="model_status is Unknown; primal_status is Infeasible", x=None)
+        return SimpleNamespace(status=0, message="Optimization terminated successfully.", x=np.full(500, 0.7))  # t = x[k] = 0.7 whatever k is
+
+    monkeypatch.setattr(scipy.optimize, "linprog", linprog)
+    assert min_grip_force(_antipodal(), Friction(0.5, 0.0), WEIGHT) == pytest.approx(0.7)
+    assert calls == ["highs", "highs-ipm"]
+
+
+def test_the_recorded_unsure_grasp_is_infeasible_and_nnls_agrees():
+    """A synthesized Allegro thumb-index-middle grasp on which HiGHS's default ended unsure
+    (it crashed exp8's synthesis): inf, and a non-negative least-squares fit of the weight by
+    the contact wrenches (another algorithm) leaves a residual, so no contact forces hold it."""
+    import json
+    from pathlib import Path
+
+    from planner.closure import _finger_wrenches
+
+    d = json.loads((Path(__file__).parent / "data" / "grip_lp_unsure.json").read_text())
+    patches = {f: (np.array(v["points"]), np.array(v["normals"])) for f, v in d["patches"].items()}
+    fr = Friction(**d["friction"])
+    assert min_grip_force(patches, fr, d["load"]) == math.inf
+    W, _ = _finger_wrenches(patches, Friction(fr.mu, fr.gamma, 16))
+    load = np.asarray(d["load"])
+    residual = scipy.optimize.nnls(W.T, -load / np.abs(load).max())[1]
+    assert residual > 1e-3
