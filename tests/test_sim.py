@@ -493,3 +493,24 @@ def test_armature_floor_keeps_the_stiffest_spring_stable_with_margin():
         assert np.max(w) == pytest.approx(C.ARMATURE_OMEGA_DT, rel=0.02)
     finally:
         p.disconnect(cid)
+
+
+def test_pose_drift_matches_the_rotation_matrix_angle():
+    """The replay's per-step drift (quaternions) equals the translation distance and the
+    angle of R_ref^T R from its trace, on seeded random poses (q and -q alike)."""
+    from scipy.spatial.transform import Rotation
+
+    from planner.sim.replay import pose_drift
+
+    rng = np.random.default_rng(3)
+    for _ in range(50):
+        Ra, Rb = Rotation.random(random_state=rng), Rotation.random(random_state=rng)
+        pa, pb = rng.normal(size=3) * 0.01, rng.normal(size=3) * 0.01
+        qb = Rb.as_quat() * (1 if rng.random() < 0.5 else -1)
+        mm, deg = pose_drift(tuple(pa), tuple(Ra.as_quat()), tuple(pb), tuple(qb))
+        R = Ra.as_matrix().T @ Rb.as_matrix()
+        expected = np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1)))
+        assert mm == pytest.approx(1000 * np.linalg.norm(pb - pa), rel=1e-12)
+        assert deg == pytest.approx(expected, abs=1e-6)
+    assert pose_drift((0, 0, 0), (0, 0, 0, 1), (0, 0, 0.002), (0, 0, np.sin(np.radians(5)), np.cos(np.radians(5)))) == \
+        pytest.approx((2.0, 10.0))
