@@ -514,3 +514,21 @@ def test_pose_drift_matches_the_rotation_matrix_angle():
         assert deg == pytest.approx(expected, abs=1e-6)
     assert pose_drift((0, 0, 0), (0, 0, 0, 1), (0, 0, 0.002), (0, 0, np.sin(np.radians(5)), np.cos(np.radians(5)))) == \
         pytest.approx((2.0, 10.0))
+
+
+def test_a_lift_retreats_from_where_the_finger_touches_and_ends_where_planned():
+    """`lift_path`: starts at the finger's current configuration (twice: the start, then the
+    shifted first waypoint), ends at the planned lift end, and every step is the planned step
+    plus an equal share of the offset, so the retreat keeps its direction."""
+    from planner.sim.replay import lift_path
+
+    rng = np.random.default_rng(5)
+    planned = np.cumsum(rng.normal(scale=0.01, size=(12, 4)), axis=0)
+    start = planned[0] + np.array([0.08, -0.03, 0.0, 0.02])
+    out = lift_path(start, planned)
+    assert out.shape == (13, 4)
+    assert np.allclose(out[0], start) and np.allclose(out[1], start)
+    assert np.allclose(out[-1], planned[-1])
+    share = (start - planned[0]) / (len(planned) - 1)
+    assert np.allclose(np.diff(out[1:], axis=0), np.diff(planned, axis=0) - share)
+    assert np.allclose(lift_path(planned[0], planned)[1:], planned)  # no offset: the plan itself

@@ -287,6 +287,19 @@ def _T(pos, quat_xyzw) -> np.ndarray:
     return T
 
 
+def lift_path(start: np.ndarray, path: np.ndarray) -> np.ndarray:
+    """The waypoints a lifting finger follows: its planned retreat, started from where the
+    finger touches now rather than from the planned contact (the object may have moved a
+    little, and the planned contact configuration is then inside it: the way there would
+    push the object), the offset fading out along the retreat so that it ends where the
+    plan's does. (m + 1, n) for a planned (m, n) path."""
+    path = np.asarray(path, float)
+    if not len(path):
+        return np.asarray(start, float)[None, :]
+    fade = np.linspace(1.0, 0.0, len(path))[:, None]
+    return np.vstack([np.asarray(start, float)[None, :], path + fade * (np.asarray(start, float) - path[0])])
+
+
 def pose_drift(pos_ref, quat_ref, pos, quat) -> tuple[float, float]:
     """(translation mm, rotation deg) of a pose relative to a reference, positions in m and
     unit quaternions (x, y, z, w): the angle of the relative rotation is 2 acos |q_ref . q|.
@@ -955,7 +968,7 @@ class _Sim:
             ctl.command(q_ref, holding, moving=st.finger)
             # the moving finger tracks its path (capped near the squeeze at its pad)
             start = np.array([q_ref[j] for j in st.joints])
-            path = np.vstack([start[None, :], st.path])
+            path = lift_path(start, st.path) if st.action == "lift" else np.vstack([start[None, :], st.path])
             for a, b in zip(path[:-1], path[1:]):
                 n = max(1, int(math.ceil(float(np.max(np.abs(b - a))) / (prm["joint_speed_rad_s"] * self.dt))))
                 for i in range(1, n + 1):
