@@ -106,6 +106,26 @@ def test_exp7_pair_list_covers_families_hands_and_sizes():
     assert len(exp7_execution.pair_tasks(quick=True)) in (3, 4)
 
 
+def test_exp7_heavy_set_scales_mass_and_budget_together():
+    """--heavy adds every library pair once per factor; `heavier` multiplies the object's
+    mass and nothing else, and refuses a grasp without mass_kg with the grasp's name."""
+    from dataclasses import replace
+
+    from experiments import exp7_execution as e7
+    from experiments.common import load_spec
+
+    plain, heavy = e7.pair_tasks(quick=False), e7.pair_tasks(quick=False, heavy=True)
+    extra = [t for t in heavy if t["mode"] == "mass"]
+    assert len(heavy) == len(plain) + len(extra) == len(plain) + len(e7.LIBRARY) * len(e7.HEAVY_FACTORS)
+    assert sorted({t["scale"] for t in extra}) == sorted(e7.HEAVY_FACTORS)
+    spec = load_spec(extra[0]["initial"])
+    h = e7.heavier(spec, 4.0)
+    assert h.object.mass_kg == pytest.approx(4.0 * spec.object.mass_kg)
+    assert replace(h.object, mass_kg=spec.object.mass_kg) == spec.object and h.fingers == spec.fingers
+    with pytest.raises(ValueError, match="mass_kg"):
+        e7.heavier(replace(spec, object=replace(spec.object, mass_kg=None)), 2.0)
+
+
 def test_exp8_quick_plans_a_synthesized_pair_three_ways(tmp_path, capsys):
     """exp8 --quick: grasps synthesized at one fixed pose, one pair planned with defaults, with the
     graph only and in execution mode; one CSV row with a reason for every mode that failed."""
