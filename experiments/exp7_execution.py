@@ -352,15 +352,11 @@ def summarize(rows: list[dict]) -> dict:
             fpl = [rs for rs in fv if rs[0].get("planned") and rs[0].get("direction")]
             fa = sum(all(r["passed"] for r in rs) for rs in fpl)
             s[f"family {fam}"] = f"{len(fp)} pairs, {len(fp) - len(fv)} invalid, {len(fpl)} planned, {fa} pass every direction"
-        turned = [rs for k, rs in planned.items() if str(k[1]).startswith("turn ")]
-        heavy = [rs for k, rs in planned.items() if str(k[1]).startswith("mass ")]
-        if heavy:
-            s["heavy objects (--heavy)"] = (f"{len(heavy)} planned of {sum(str(k[1]).startswith('mass ') for k in pairs)}, "
-                                            f"{sum(all(r['passed'] for r in rs) for rs in heavy)} pass every direction")
-        if turned:
-            ta = sum(all(r["passed"] for r in rs) for rs in turned)
-            s["held-out poses (--turned)"] = (f"{len(turned)} planned of {sum(str(k[1]).startswith('turn ') for k in pairs)}, "
-                                              f"{ta} pass every direction")
+        for prefix, label in (("mass ", "heavy objects (--heavy)"), ("turn ", "held-out poses (--turned)")):
+            sub = [rs for k, rs in planned.items() if str(k[1]).startswith(prefix)]
+            if sub:
+                s[label] = (f"{len(sub)} planned of {sum(str(k[1]).startswith(prefix) for k in pairs)}, "
+                            f"{sum(all(r['passed'] for r in rs) for rs in sub)} pass every direction")
         for h in sorted({rs[0]["hand"] for rs in pairs.values()}):
             hp = [rs for rs in planned.values() if rs[0]["hand"] == h]
             ha = sum(all(r["passed"] for r in rs) for rs in hp)

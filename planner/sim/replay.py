@@ -293,11 +293,11 @@ def lift_path(start: np.ndarray, path: np.ndarray) -> np.ndarray:
     little, and the planned contact configuration is then inside it: the way there would
     push the object), the offset fading out along the retreat so that it ends where the
     plan's does. (m + 1, n) for a planned (m, n) path."""
-    path = np.asarray(path, float)
+    start, path = np.asarray(start, float), np.asarray(path, float)
     if not len(path):
-        return np.asarray(start, float)[None, :]
+        return start[None, :]
     fade = np.linspace(1.0, 0.0, len(path))[:, None]
-    return np.vstack([np.asarray(start, float)[None, :], path + fade * (np.asarray(start, float) - path[0])])
+    return np.vstack([start[None, :], path + fade * (start - path[0])])
 
 
 def pose_drift(pos_ref, quat_ref, pos, quat) -> tuple[float, float]:
@@ -815,8 +815,9 @@ class _Sim:
         for j, v in q.items():
             p.resetJointState(self.hand, self.jidx[j], v, 0.0, physicsClientId=self.cid)
 
-    def _obj_pose(self) -> np.ndarray:
-        pos, quat = p.getBasePositionAndOrientation(self.obj, physicsClientId=self.cid)
+    def _obj_pose(self, pose=None) -> np.ndarray:
+        """The object's pose (4, 4); ``pose``: its (position, quaternion) when already read."""
+        pos, quat = pose or p.getBasePositionAndOrientation(self.obj, physicsClientId=self.cid)
         T = np.eye(4)
         T[:3, :3] = np.reshape(p.getMatrixFromQuaternion(quat, physicsClientId=self.cid), (3, 3))
         T[:3, 3] = pos
@@ -828,12 +829,12 @@ class _Sim:
         self.steps_done += 1
         pos, quat = p.getBasePositionAndOrientation(self.obj, physicsClientId=self.cid)
         if self.sampling:  # the temporal filter only needs the samples before a measurement
-            self.filter.update(self._contact_sample(self._obj_pose()))
+            self.filter.update(self._contact_sample(self._obj_pose((pos, quat))))
         mm, deg = pose_drift(self._p_ref, self._quat_ref, pos, quat)
         if self.released:
             self.max_mm, self.max_deg = max(self.max_mm, mm), max(self.max_deg, deg)
             if self.failure is None and not (mm <= self.params["drift_mm_max"] and deg <= self.params["drift_deg_max"]):
-                self.failure = self._explain(self._obj_pose(), mm, deg)
+                self.failure = self._explain(self._obj_pose((pos, quat)), mm, deg)
         self.last = (mm, deg)
         if self.recorder is not None and self.steps_done % self.every == 0:
             self.recorder.grab()
@@ -932,7 +933,7 @@ class _Sim:
         ctl, prm = self.ctl, self.params
         g_full = np.asarray(prm["gravity"], float)
         self._reset_q(self._q(states[0]))
-        pos, quat = self.T_ref[:3, 3].tolist(), Rotation.from_matrix(self.T_ref[:3, :3]).as_quat().tolist()
+        pos, quat = list(self._p_ref), list(self._quat_ref)
         p.resetBasePositionAndOrientation(self.obj, pos, quat, physicsClientId=self.cid)
         p.resetBaseVelocity(self.obj, [0, 0, 0], [0, 0, 0], physicsClientId=self.cid)
         # 1. acquire the planned contacts with gravity off, the object held where the plan has it
