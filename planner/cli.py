@@ -45,6 +45,7 @@ def _cmd_plan(args: argparse.Namespace) -> int:
         max_lifted=args.max_lifted,
         max_finger_force_n=args.max_finger_force,
         time_limit_s=args.time_limit,
+        **({"verify": False} if args.no_verify else {}),
         **chosen,
     )
     specs = [load_grasp(args.initial), load_grasp(args.final)]
@@ -214,20 +215,22 @@ def build_parser() -> argparse.ArgumentParser:
                            "per finger (mean: what the simulator's rigid fingertips give; --execution's)")
     plan.add_argument("--max-lifted", type=int, default=None, metavar="N", help="at most N fingers lifted at once")
     plan.add_argument("--gravity", type=float, nargs=3, metavar=("GX", "GY", "GZ"), default=None,
-                      help="also require every state to hold the object's weight under this gravity (palm frame, "
-                           "m/s^2, e.g. 0 0 9.81 palm down) with each finger pressing at most --max-finger-force")
+                      help="also require every state to hold twice the object's weight under this gravity (palm "
+                           "frame, m/s^2, e.g. 0 0 9.81 palm down) within the hand's joint torque limits")
     plan.add_argument("--gravity-set", type=int, default=None, metavar="N",
                       help="like --gravity for several hand orientations at once: 1 palm down, 2 and palm up, "
                            "6 and the four sideways directions, 7 and gravity off (from the hand's palm_normal)")
-    plan.add_argument("--max-finger-force", type=float, default=1.0, metavar="N",
-                      help="per-finger normal force budget against gravity, N (default 1, for the 10-60 g "
-                           "library objects; scale it with the object's weight)")
+    plan.add_argument("--max-finger-force", type=float, default=None, metavar="N",
+                      help="optional extra cap on every finger's normal force against gravity, N (default none: "
+                           "the hand's joint torque limits bound the grip)")
     plan.add_argument("--rank", default=None, metavar="metric|grip",
                       help="rank sequences by their worst closure metric (metric, default: the thesis) or by the "
                            "largest grip force they need (grip; needs --gravity or --gravity-set)")
     plan.add_argument("--execution", action="store_true",
                       help="plan for execution: --contact-model mean, --gravity-set 6 (unless --gravity or "
-                           "--gravity-set is given) and --rank grip")
+                           "--gravity-set is given) and --rank grip, and verify the plan in pybullet")
+    plan.add_argument("--no-verify", action="store_true",
+                      help="with --execution: return the best sequence without replaying it in pybullet first")
     plan.add_argument("--no-motion", action="store_true", help="skip OMPL finger paths (straight joint segments)")
     plan.add_argument("--motion-planner", default="rrtconnect", help="OMPL planner name (default rrtconnect)")
     plan.add_argument("--motion-timeout", type=float, default=2.0, metavar="S", help="time budget per finger path, s")

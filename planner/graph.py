@@ -43,6 +43,7 @@ import numpy as np
 
 from planner.closure import Closure, Friction, batch_grasp_closure, min_grip_force
 from planner.errors import InputError, NoSequenceError
+from planner.grip import HOLD_FACTOR, Capacity, FingerStatics, hold_capacity, torque_demand
 
 RANKS = ("metric", "grip")
 """Sequence rankings of `search` (module docstring)."""
@@ -69,6 +70,9 @@ class Slot:
         points: (n, 3) contact points of the finger's patch, object frame, metres.
         normals: (n, 3) unit normals pointing INTO the object, object frame.
         q: the finger's joint values (radians) realizing the contact, or None.
+        statics: the finger's contact Jacobians, gravity torques and joint limits at this
+            contact (`planner.grip.FingerStatics`), or None: with them a problem with loads
+            bounds the grip by the joints (`GaitProblem`).
     """
 
     finger: str
@@ -76,6 +80,7 @@ class Slot:
     points: np.ndarray
     normals: np.ndarray
     q: np.ndarray | None = None
+    statics: FingerStatics | None = None
 
     def __post_init__(self):
         object.__setattr__(self, "points", _frozen(self.points))
@@ -105,7 +110,8 @@ class GaitProblem:
         load: optional (6,) external wrench on the object, object frame (e.g. its weight
             ``[m g_obj ; 0]``); with it a state is valid only if its fingers hold the load
             pressing at most ``max_grip_force_n`` each.
-        max_grip_force_n: per-finger normal force budget for the loads, N.
+        max_grip_force_n: per-finger normal force budget for the loads, N (None: none, only
+            with ``load_gravity``).
         loads: optional (m, 6) further loads (e.g. the weight under several gravity
             directions); a state's grip force is the largest `min_grip_force` over
             ``load`` and every row of ``loads``, and must stay within the budget.
@@ -113,6 +119,14 @@ class GaitProblem:
         grip_friction_margin: the grip force is computed with ``mu`` and ``gamma`` scaled by
             this (0 < margin <= 1): plans to be executed keep a friction reserve, so a state
             that holds its load only with the whole friction cone is not accepted.
+        load_gravity: optional (m, 3) gravity vector of each load of `all_loads`, object
+            frame, m/s^2. With it the grip is bounded by the hand's joints (the torque
+            model, `planner.grip.hold_capacity`, every slot carrying its ``statics``): a
+            state is valid when its fingers hold ``hold_factor`` times every load within
+            their joint torque limits (and ``max_grip_force_n`` when given), with the
+            friction scaled by ``grip_friction_margin``.
+        hold_factor: the multiple of each load the torque model requires (default
+            `planner.grip.HOLD_FACTOR`).
     """
 
     fingers: tuple[str, ...]
@@ -127,6 +141,8 @@ class GaitProblem:
     loads: np.ndarray | None = None
     load_names: tuple[str, ...] = ()
     grip_friction_margin: float = 1.0
+    load_gravity: np.ndarray | None = None
+    hold_factor: float = HOLD_FACTOR
 
     def __post_init__(self):
         if not (isinstance(self.grip_friction_margin, (int, float)) and 0 < self.grip_friction_margin <= 1):
@@ -144,8 +160,16 @@ class GaitProblem:
                 raise InputError(f"load_names has {len(names)} names for {len(self.loads)} loads")
             object.__setattr__(self, "load_names", names)
         if self.load is not None or self.loads is not None:
-            if not (np.isfinite(self.max_grip_force_n) and self.max_grip_force_n > 0):
+            if self.max_grip_force_n is None and self.load_gravity is None:
+                raise InputError("max_grip_force_n is needed without load_gravity (the torque model)")
+            if self.max_grip_force_n is not None and not (np.isfinite(self.max_grip_force_n) and self.max_grip_force_n > 0):
                 raise InputError(f"max_grip_force_n must be > 0, got {self.max_grip_force_n!r}")
+        if self.load_gravity is not None:
+            object.__setattr__(self, "load_gravity", _frozen(self.load_gravity))
+            if len(self.load_gravity) != len(self.all_loads()) or not np.all(np.isfinite(self.load_gravity)):
+                raise InputError(f"load_gravity must be one finite (3,) vector per load, got {self.load_gravity.shape}")
+            if not (isinstance(self.hold_factor, (int, float)) and 0 < self.hold_factor <= 100):
+                raise InputError(f"hold_factor must be in (0, 100], got {self.hold_factor!r}")
         n = len(self.fingers)
         for name, node in (("start", self.start), ("goal", self.goal)):
             if len(node) != n:
@@ -160,6 +184,14 @@ class GaitProblem:
         out = [("load", self.load)] if self.load is not None else []
         if self.loads is not None:
             out += list(zip(self.load_names, self.loads))
+        return out
+
+    def statics(self, node: Node) -> dict[str, FingerStatics]:
+        """Touching finger -> its slot's `FingerStatics` (fingers whose slot has none left out)."""
+        out = {}
+        for f, s in zip(self.fingers, node):
+            if s != LIFTED and self.slots[f][s].statics is not None:
+                out[f] = self.slots[f][s].statics
         return out
 
     def patches(self, node: Node) -> dict[str, tuple[np.ndarray, np.ndarray]]:
@@ -201,7 +233,8 @@ class _Evaluator:
         self._grip_friction = fr if k == 1 else Friction(fr.mu * k, fr.gamma * k, fr.edges)
         self._pairs: dict[tuple, bool] = {}
         self._refusals = [0] * len(self._loads)  # states each load refused (`_over_budget`)
-        self._over: set[Node] = set()
+        self._over: dict[Node, tuple[int, Capacity] | None] = {}  # refused: (load index, capacity)
+        self.hold: dict[Node, tuple[float, ...]] = {}  # torque model: capacity factor per load
 
     def evaluate(self, nodes: Sequence[Node]) -> None:
         todo = [n for n in dict.fromkeys(nodes) if n not in self.closure]
@@ -275,8 +308,21 @@ class _Evaluator:
         if not self.closure[node].is_force_closure:
             return "not force closure"
         if self._over_budget(node):
-            return f"need over {p.max_grip_force_n:g} N per finger to hold the load"
+            return self.refusal(node)
         return None
+
+    def refusal(self, node: Node) -> str:
+        """Why a node's fingers cannot hold a load (after `_over_budget` refused it)."""
+        p = self.problem
+        why = self._over.get(node)
+        if why is None:
+            return f"need over {p.max_grip_force_n:g} N per finger to hold the load"
+        j, cap = why
+        name, w = self._loads[j]
+        g = p.load_gravity[j]
+        dem = torque_demand(p.patches(node), p.statics(node), self.problem.friction, w, g, factor=p.hold_factor,
+                            margin=p.grip_friction_margin, force_cap_n=p.max_grip_force_n)
+        return f"{name}: {cap.words(p.hold_factor)}; to hold {p.hold_factor:g}x, {dem.words()}"
 
     def _over_budget(self, node: Node) -> bool:
         """Some load needs more than ``max_grip_force_n`` per finger. Stops at the first such
@@ -284,6 +330,8 @@ class _Evaluator:
         has refused most states so far; a state within the budget gets all its grip forces."""
         if not self._loads:
             return False
+        if self.problem.load_gravity is not None:
+            return self._over_torque(node)
         if node in self.grip:
             return max(self.grip[node]) > self.problem.max_grip_force_n
         if node in self._over:
@@ -295,9 +343,32 @@ class _Evaluator:
             forces[j] = min_grip_force(patches, self._grip_friction, self._loads[j][1])
             if forces[j] > self.problem.max_grip_force_n:
                 self._refusals[j] += 1
-                self._over.add(node)
+                self._over[node] = None
                 return True
         self.grip[node] = tuple(forces[j] for j in range(len(self._loads)))
+        return False
+
+    def _over_torque(self, node: Node) -> bool:
+        """The torque model (`GaitProblem.load_gravity`): some load is held less than
+        ``hold_factor`` times within the joints' limits. Loads are tried most-refusing first;
+        a state that holds them all gets every capacity and grip force."""
+        if node in self.hold:
+            return False
+        if node in self._over:
+            return True
+        p = self.problem
+        patches, statics = p.patches(node), p.statics(node)
+        order = sorted(range(len(self._loads)), key=lambda j: (-self._refusals[j], j))
+        factors = {}
+        for j in order:
+            cap = hold_capacity(patches, statics, p.friction, self._loads[j][1], p.load_gravity[j],
+                                margin=p.grip_friction_margin, force_cap_n=p.max_grip_force_n)
+            if cap.factor < p.hold_factor:
+                self._refusals[j] += 1
+                self._over[node] = (j, cap)
+                return True
+            factors[j] = cap.factor
+        self.hold[node] = tuple(factors[j] for j in range(len(self._loads)))
         return False
 
 
@@ -367,7 +438,8 @@ def _add_node(G: nx.DiGraph, ev: _Evaluator, v: Node) -> None:
     forces = ev.grip_forces(v)
     G.add_node(v, labels=p.labels(v), patches=p.patches(v), closure=c, metric=float(c.metric),
                grip_force=None if forces is None else max(forces),
-               grip_forces=None if forces is None else dict(zip((n for n, _ in p.all_loads()), forces)))
+               grip_forces=None if forces is None else dict(zip((n for n, _ in p.all_loads()), forces)),
+               hold_factors=dict(zip((n for n, _ in p.all_loads()), ev.hold[v])) if v in ev.hold else None)
 
 
 def _gaits_lower_bound(start: Node, goal: Node, v: Node) -> int:

@@ -19,6 +19,8 @@ Hand spec (schema_version 1)::
         tip_frame: index_tip
         pad: {link: index_distal, point: [x, y, z], normal: [x, y, z]}  # optional, link frame
     open: {joint: value, ...}       # optional, rad; others 0 clipped into the limits
+    effort: 0.7                     # optional, N m: joint torque limits, one for all or
+                                    # {joint: N m}; default the URDF's <limit effort>
     disabled_collisions: [[link_a, link_b], ...]  # optional, besides the automatic ones
 """
 
@@ -286,6 +288,7 @@ class Hand:
         self.upper = np.array(self.model.upperPositionLimit, dtype=float)
         self.lower.flags.writeable = False
         self.upper.flags.writeable = False
+        self.effort, self.effort_source = self._effort_limits(sp, spec.get("effort"))
         frame_names = [f.name for f in self.model.frames]
         body_names = sorted({f.name for f in self.model.frames if f.type == pin.FrameType.BODY})
 
@@ -421,6 +424,28 @@ class Hand:
             self.model, self._T_palm_world, geoms, {n: f.q_index for n, f in self.fingers.items()}, allowed,
             by_design_qs=(np.clip(np.zeros(self.model.nq), self.lower, self.upper), self.q_open))
 
+    def _effort_limits(self, sp: str, spec) -> tuple[np.ndarray, tuple[str, ...]]:
+        """Joint torque limits (N m, inf: none) and where each comes from ("urdf",
+        "hand.yaml", "none"). The URDF's ``<limit effort>`` unless the hand.yaml's
+        ``effort:`` (one number for every joint, or joint -> N m) overrides it."""
+        urdf = np.array(self.model.effortLimit, dtype=float)
+        tau = np.where(np.isfinite(urdf) & (urdf > 0), urdf, np.inf)
+        source = ["urdf" if np.isfinite(t) else "none" for t in tau]
+        if spec is not None:
+            if isinstance(spec, bool) or not isinstance(spec, (int, float, dict)):
+                raise SpecError(sp, "effort", f"expected a torque in N m or a mapping joint -> N m, got {type(spec).__name__}")
+            items = spec.items() if isinstance(spec, dict) else ((j, spec) for j in self.joint_names)
+            for j, v in items:
+                if j not in self.joint_names:
+                    raise SpecError(sp, "effort", str(UnknownNameError("joint", str(j), self.joint_names)))
+                key = "effort" if not isinstance(spec, dict) else f"effort.{j}"
+                if isinstance(v, bool) or not isinstance(v, (int, float)) or not (np.isfinite(v) and 0 < v <= 1e4):
+                    raise SpecError(sp, key, f"expected a joint torque limit in (0, 1e4] N m, got {v!r}")
+                i = self.joint_names.index(j)
+                tau[i], source[i] = float(v), "hand.yaml"
+        tau.flags.writeable = False
+        return tau, tuple(source)
+
     def _resolve_urdf(self, urdf: str) -> str:
         if urdf.startswith("package://"):
             rel = urdf[len("package://"):]
@@ -496,15 +521,17 @@ class Hand:
         J, _, _ = self._point_jacobian(q, self._fid(link), p_link)
         return J
 
-    def point_jacobians(self, q, points) -> list[np.ndarray]:
+    def point_jacobians(self, q, points, angular: bool = False) -> list[np.ndarray]:
         """Linear Jacobians of points fixed to links, palm frame, with one kinematics pass.
 
         Args:
             q: (nq,) joint angles.
             points: (link or frame name, (3,) point in the PALM frame) pairs.
+            angular: also return the link's angular rows.
         Returns:
             one (3, nq) ``d(p_palm)/dq`` per point, as ``frame_jacobian(q, link, p_link)[:3]``
-            with ``p_link`` the point in the link's frame.
+            with ``p_link`` the point in the link's frame; (6, nq) with ``angular`` (rows 3-5
+            the link's angular velocity, palm frame).
         """
         q = self._check_q(q)
         pin.computeJointJacobians(self.model, self.data, q)
@@ -517,7 +544,8 @@ class Hand:
             if not self._palm_is_root:
                 Rp = self._T_palm_world.rotation
                 Jv, Jw, o = Rp @ Jv, Rp @ Jw, self._T_palm_world.act(o)
-            out.append(Jv - _skew(np.asarray(p_palm, dtype=float) - o) @ Jw)  # v_p = v_o + w x (p - o)
+            Jp = Jv - _skew(np.asarray(p_palm, dtype=float) - o) @ Jw  # v_p = v_o + w x (p - o)
+            out.append(np.vstack([Jp, Jw]) if angular else Jp)
         return out
 
     def gravity_torques(self, q, g_palm) -> np.ndarray:

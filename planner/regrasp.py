@@ -27,18 +27,18 @@ import networkx as nx
 import numpy as np
 
 from planner.closure import CONTACT_MODELS, GRIP_CONE_SIDES, apply_contact_model
+from planner.grip import FRICTION_MARGIN, HOLD_FACTOR, finger_statics
 from planner.errors import InputError, MotionError, NoSequenceError, PlannerError, SpecError, UnknownNameError
 from planner.graph import (LIFTED, RANKS, GaitProblem, GaitSequence, LazyGraph, Slot, annotate_removable, explain_failure,
                            failure_analysis, greedy, seed_graph)
 from planner.plan import Alternative, Plan, PlanState, PlanStep
 
 STRATEGIES = ("graph", "greedy")
-#: Friction fraction execution-mode plans must hold their load with: the replay controller
-#: keeps contact forces inside half, then three quarters of the friction cone
-#: (`planner.sim.controller.CONE_MARGINS`); states that need more are refused. Measured on
-#: exp7 (43 pairs): 1.0 plans 33 pairs, 26 hold in all 7 gravity directions; 0.75 plans 24,
-#: 22 hold; 0.5 plans 17, 17 hold.
-EXECUTION_FRICTION_MARGIN = 0.75
+#: Friction fraction execution-mode plans must hold their load with: the grip model's
+#: (`planner.grip.FRICTION_MARGIN`), which the replay controller uses too. Measured on exp7
+#: (43 pairs, with the 1 N budget of before): 1.0 plans 33 pairs, 26 hold in all 7 gravity
+#: directions; 0.75 plans 24, 22 hold; 0.5 plans 17, 17 hold.
+EXECUTION_FRICTION_MARGIN = FRICTION_MARGIN
 
 
 #: Ranges of the numeric planner options, checked by `PlanOptions` and, under their
@@ -54,6 +54,7 @@ PLAN_OPTION_LIMITS = {
     "motion_timeout_s": (0.0, 600.0, True),
     "time_limit_s": (0.0, 3600.0, False),
     "max_finger_force_n": (0.0, 1000.0, True),
+    "hold_factor": (0.0, 100.0, True),
     "gravity": (-1000.0, 1000.0, False),
 }
 #: `regrasp plan` option of each `PLAN_OPTION_LIMITS` field named differently (``--time-limit``).
@@ -97,23 +98,25 @@ class PlanOptions:
             closure, removability and exported patches use it.
         gravity: None (default: force closure only, as in the thesis) or the gravity
             vector in the palm frame, m/s^2, e.g. (0, 0, 9.81) with the palm facing down.
-            Every state must then hold the object's weight with each finger pressing at most
-            ``max_finger_force_n`` (`planner.closure.min_grip_force`, weight at the object
-            origin).
+            Every state must then hold ``hold_factor`` times the object's weight within the
+            hand's joint torque limits (`planner.grip.hold_capacity`: contact forces in the
+            friction cones scaled by ``friction_margin``, ``|g(q) + J^T f| <= tau_max`` at
+            every joint of the touching fingers, weight at the object origin).
         friction_margin: the grip forces against gravity are computed with ``mu`` and
             ``gamma`` scaled by this (0 < margin <= 1); execution mode uses
             ``EXECUTION_FRICTION_MARGIN``: a plan for execution must hold its load with a
             friction reserve, as the replay's controller does.
-        max_finger_force_n: per-finger normal force budget against gravity, N (default 1,
-            what exp7 validates on the 10-60 g library objects; the grasp's need scales with
-            the object's weight, so scale the budget with it: exp7 ``--heavy`` plans 2.5x
-            and 4x the mass with 2.5 and 4 N). The replay's controller derives its own
-            squeeze from the mass (`planner.sim.controller.squeeze_force_n`).
+        max_finger_force_n: optional extra cap on every finger's normal force against
+            gravity, N (default None: the joints' torque limits alone bound the grip).
+        hold_factor: the multiple of the weight every state must hold (default
+            `planner.grip.HOLD_FACTOR`, the replay controller's squeeze safety factor).
+        verify: replay the best sequence in pybullet under every planned-for gravity
+            direction before returning it (`planner.verify`); a transition that fails is
+            removed and the search goes on (execution mode's default).
         gravity_set: None or a set size of `planner.gravity.GRAVITY_SET_SIZES` (1, 2, 6, 7):
             plan for several hand orientations at once, the named gravity directions of
             `planner.gravity.gravity_directions` (from the hand's ``palm_normal``). A state's
-            grip force is then the largest `min_grip_force` over the directions, and must
-            stay within ``max_finger_force_n``. Exclusive with ``gravity``.
+            state must then hold the weight in each of them. Exclusive with ``gravity``.
         rank: how sequences are ranked (`planner.graph.RANKS`): "metric" (the thesis:
             largest worst-case closure metric first) or "grip" (smallest largest grip force
             along the sequence first, then fewest gait steps, then the metric ranking;
@@ -140,19 +143,22 @@ class PlanOptions:
     same_slot_tol_rad: float = 1e-3
     contact_model: str = "patch"
     gravity: tuple[float, float, float] | None = None
-    max_finger_force_n: float = 1.0
+    max_finger_force_n: float | None = None
     friction_margin: float = 1.0
     gravity_set: int | None = None
     rank: str = "metric"
     execution: bool = False
     time_limit_s: float = 10.0
+    hold_factor: float = HOLD_FACTOR
+    verify: bool = False
 
     @classmethod
     def for_execution(cls, **overrides) -> "PlanOptions":
         """Options for a plan that is to be executed: one mean contact per finger (what rigid
         fingertips give), gravity set 6 (palm down, palm up and the four sideways
         directions) unless ``gravity`` or ``gravity_set`` is given, grip ranking."""
-        kw = dict(contact_model="mean", rank="grip", execution=True, friction_margin=EXECUTION_FRICTION_MARGIN)
+        kw = dict(contact_model="mean", rank="grip", execution=True, friction_margin=EXECUTION_FRICTION_MARGIN,
+                  verify=True)
         if overrides.get("gravity") is None and overrides.get("gravity_set") is None:
             kw["gravity_set"] = 6
         kw.update({k: v for k, v in overrides.items() if v is not None or k not in kw})
@@ -191,7 +197,7 @@ class PlanOptions:
             raise UnknownNameError("contact model", self.contact_model, CONTACT_MODELS)
         for name, (low, high, open_low) in PLAN_OPTION_LIMITS.items():
             value = getattr(self, name)
-            optional = value is None and name in ("max_lifted", "gravity")
+            optional = value is None and name in ("max_lifted", "gravity", "max_finger_force_n")
             for v in () if optional else value if isinstance(value, tuple) else (value,):
                 if not in_range(v, low, high, open_low):
                     kind = "an integer" if isinstance(low, int) else "a number"
@@ -484,6 +490,7 @@ def _holding_grasp(problem: GaitProblem, hand, obj, lifted: str, contact_model: 
     every finger touching in it; {} when there is none.
     """
     from planner.closure import Friction, batch_grasp_closure, min_grip_force
+    from planner.grip import hold_capacity
 
     others = [f for f in problem.fingers if f != lifted]
     options = {f: list(problem.slots[f]) + _candidates(problem, hand, obj, f, contact_model, spaced=False) for f in others}
@@ -520,7 +527,13 @@ def _holding_grasp(problem: GaitProblem, hand, obj, lifted: str, contact_model: 
         if c is None or not c.is_force_closure:
             break
         patches = {g: (options[g][t].points, options[g][t].normals) for g, t in a.items() if t != LIFTED}
-        if any(min_grip_force(patches, friction, w) > problem.max_grip_force_n for _, w in loads):
+        if problem.load_gravity is not None:
+            statics = {g: with_statics(hand, obj, options[g][t]).statics for g, t in a.items() if t != LIFTED}
+            if any(hold_capacity(patches, statics, problem.friction, w, g_obj, margin=m,
+                                 force_cap_n=problem.max_grip_force_n).factor < problem.hold_factor
+                   for (_, w), g_obj in zip(loads, problem.load_gravity)):
+                continue
+        elif any(min_grip_force(patches, friction, w) > problem.max_grip_force_n for _, w in loads):
             continue
         have = problem.slots
         return {g: options[g][t] if t < len(have[g]) else replace(options[g][t], label=f"int{len(have[g]) - _fixed_slots(have[g])}")
@@ -570,16 +583,20 @@ def build_problem(initial, final, options: PlanOptions) -> GaitProblem:
         slots[f] = tuple(_modelled(s, options.contact_model) for s in fs)
         start.append(s_idx)
         goal.append(g_idx)
-    compatible = _pairwise_collision_check(initial.hand, slots)
     directions = gravity_directions_of(options, hand)
-    loads = names = None
+    loads = names = gravities = None
     if directions:  # the weight at the object origin, in the object frame, per direction
         R = np.asarray(initial.obj.T_palm_obj, dtype=float)[:3, :3]
         names = tuple(name for name, _ in directions)
-        loads = np.array([np.r_[initial.obj.mass_kg * (R.T @ np.asarray(g, dtype=float)), np.zeros(3)] for _, g in directions])
+        gravities = np.array([R.T @ np.asarray(g, dtype=float) for _, g in directions])
+        loads = np.array([np.r_[initial.obj.mass_kg * g, np.zeros(3)] for g in gravities])
+        slots = {f: tuple(with_statics(hand, initial.obj, s) for s in ss) for f, ss in slots.items()}
+    compatible = _pairwise_collision_check(initial.hand, slots)
+    cap = None if options.max_finger_force_n is None else float(options.max_finger_force_n)
     problem = GaitProblem(fingers, slots, tuple(start), tuple(goal), initial.friction, compatible, options.max_lifted,
-                          max_grip_force_n=float(options.max_finger_force_n), loads=loads, load_names=names or (),
-                          grip_friction_margin=float(options.friction_margin))
+                          max_grip_force_n=cap, loads=loads, load_names=names or (),
+                          grip_friction_margin=float(options.friction_margin), load_gravity=gravities,
+                          hold_factor=float(options.hold_factor))
     if options.intermediate:
         problem, _ = add_intermediate(problem, initial, {f: options.intermediate for f in fingers}, options)
     return problem
@@ -609,6 +626,8 @@ def add_slots(problem: GaitProblem, initial, new: Mapping[str, Slot | list[Slot]
     slots, added = dict(problem.slots), {}
     for f, more in new.items():
         more = [more] if isinstance(more, Slot) else list(more)
+        if problem.load_gravity is not None:
+            more = [with_statics(initial.hand, initial.obj, s) for s in more]
         if more:
             slots[f] = tuple(slots[f]) + tuple(more)
             added[f] = len(more)
@@ -630,6 +649,17 @@ def gravity_directions_of(options: PlanOptions, hand) -> list[tuple[str, tuple[f
         # palm down only); the first n entries are the documented set for every size.
         return gravity_directions(hand.palm_normal, options.gravity_set)[: options.gravity_set]
     return []
+
+
+def with_statics(hand, obj, slot: Slot) -> Slot:
+    """The slot with its `planner.grip.FingerStatics` (Jacobians at its points, gravity
+    torques and joint limits of its finger at its configuration): what the torque model of
+    a problem with loads needs."""
+    if slot.statics is not None:
+        return slot
+    q = np.array(hand.q_open, dtype=float)
+    q[list(hand.fingers[slot.finger].q_index)] = slot.q
+    return replace(slot, statics=finger_statics(hand, slot.finger, q, slot.points, obj.T_palm_obj))
 
 
 def _modelled(slot: Slot, contact_model: str) -> Slot:
