@@ -75,6 +75,14 @@ def _cmd_plan(args: argparse.Namespace) -> int:
         f"({s['blocked_states']} blocked), {time.perf_counter() - t0:.2f} s"
         + (f", written to {args.output}" if args.output else "")
     )
+    check = s.get("verification")
+    if check is not None:
+        names = ", ".join(check["directions"])
+        print(f"verified in pybullet: held in {len(check['directions'])} gravity directions ({names}), "
+              f"{check['attempts']} sequence(s) replayed in {result.verify_s:.1f} s"
+              + (f" ({len(check['rejected'])} rejected: " + "; ".join(f"{r['direction']} at step {r['step']}"
+                                                                    for r in check['rejected']) + ")"
+                 if check["rejected"] else "") + "; --no-verify skips it")
     return 0
 
 
@@ -145,6 +153,25 @@ def _print_states(report) -> None:
               f"{s.sim_metric:>10.4g}  {s.drift_mm:>8.2f} {s.drift_deg:>9.2f}")
 
 
+def _compare_verification(plan_path, result) -> None:
+    """Say whether this replay gives the verdicts the planner's verification recorded."""
+    from planner.plan import read_plan
+
+    try:
+        recorded = (read_plan(plan_path).summary or {}).get("verification")
+    except PlannerError:
+        return
+    if not isinstance(recorded, dict) or not isinstance(recorded.get("directions"), dict):
+        return
+    now = {name: r.passed for name, _, r in result.directions}
+    common = [n for n in recorded["directions"] if n in now]
+    differ = [n for n in common if bool(recorded["directions"][n].get("passed")) != now[n]]
+    if differ:
+        print(f"warning: verdicts differ from the plan's verification in {', '.join(differ)}")
+    elif common:
+        print(f"same verdicts as the plan's verification in {len(common)} direction(s)")
+
+
 def _cmd_replay(args: argparse.Namespace) -> int:
     """Replay a plan in pybullet; exit 0 pass, 1 fail (dropped, drifted or closure disagrees), 2 bad input."""
     import json
@@ -159,7 +186,10 @@ def _cmd_replay(args: argparse.Namespace) -> int:
         if args.gravity is not None:
             raise PlannerError("--gravity and --gravity-set exclude each other: give one")
         film = [d.strip() for d in args.film.split(",") if d.strip()] if args.film else None
-        result = replay_gravity_set(args.plan, args.gravity_set, film=film, **kw)
+        if args.workers is not None and args.workers < 1:
+            raise PlannerError(f"--workers must be >= 1, got {args.workers}")
+        workers = 1 if args.gui else args.workers
+        result = replay_gravity_set(args.plan, args.gravity_set, film=film, workers=workers, **kw)
         print(f"{'gravity':<10} {'g (palm frame)':<22} {'verdict':<5} {'drift mm':>8} {'drift deg':>9} {'closure':>8}  why")
         for name, g, r in result.directions:
             agree, reached = r.closure_agreement
@@ -167,6 +197,7 @@ def _cmd_replay(args: argparse.Namespace) -> int:
             print(f"{name:<10} {'[' + ' '.join(f'{v:+.2f}' for v in g) + ']':<22} {'PASS' if r.passed else 'FAIL':<5} "
                   f"{r.max_drift_mm:>8.2f} {r.max_drift_deg:>9.2f} {f'{agree}/{reached}':>8}  {why}")
         data, passed, verdict = result.to_dict(), result.passed, result.verdict
+        _compare_verification(args.plan, result)
     else:
         report = replay_plan(args.plan, **kw, **({"gravity": tuple(args.gravity)} if args.gravity else {}))
         _print_states(report)
@@ -268,6 +299,9 @@ def build_parser() -> argparse.ArgumentParser:
     replay.add_argument("--gravity-set", type=int, choices=GRAVITY_SET_SIZES, metavar="N",
                         help="replay under N gravity directions of the palm frame with a verdict per direction: "
                              "1 palm down, 2 and palm up, 6 and the four sideways directions, 7 and gravity off")
+    replay.add_argument("--workers", type=int, default=None, metavar="N",
+                        help="with --gravity-set: replay the directions in N processes (default: the cores "
+                             "available; the verdicts are those of a serial run)")
     replay.add_argument("--film", metavar="NAMES",
                         help="with --gravity-set and --gif/--mp4: film only these directions (comma-separated, "
                              "e.g. palm_down; default all, one file per direction)")

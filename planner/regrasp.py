@@ -51,6 +51,7 @@ PLAN_OPTION_LIMITS = {
     "alternatives": (1, 100, False),
     "intermediate": (0, 8, False),
     "max_lifted": (1, 16, False),
+    "verify_attempts": (1, 100, False),
     "motion_timeout_s": (0.0, 600.0, True),
     "time_limit_s": (0.0, 3600.0, False),
     "max_finger_force_n": (0.0, 1000.0, True),
@@ -111,8 +112,11 @@ class PlanOptions:
         hold_factor: the multiple of the weight every state must hold (default
             `planner.grip.HOLD_FACTOR`, the replay controller's squeeze safety factor).
         verify: replay the best sequence in pybullet under every planned-for gravity
-            direction before returning it (`planner.verify`); a transition that fails is
-            removed and the search goes on (execution mode's default).
+            direction before returning it (`planner.sim.verify`, directions in parallel
+            processes); the transition that failed first is removed and the search goes on
+            (execution mode's default; needs ``gravity`` or ``gravity_set``).
+        verify_attempts: sequences replayed at most before giving up (a bound on the work,
+            not on the time, so the plan does not depend on the machine's load).
         gravity_set: None or a set size of `planner.gravity.GRAVITY_SET_SIZES` (1, 2, 6, 7):
             plan for several hand orientations at once, the named gravity directions of
             `planner.gravity.gravity_directions` (from the hand's ``palm_normal``). A state's
@@ -151,6 +155,7 @@ class PlanOptions:
     time_limit_s: float = 10.0
     hold_factor: float = HOLD_FACTOR
     verify: bool = False
+    verify_attempts: int = 6
 
     @classmethod
     def for_execution(cls, **overrides) -> "PlanOptions":
@@ -216,6 +221,7 @@ class PlanResult:
     alternatives: tuple[GaitSequence, ...]
     elapsed_s: float
     failed_moves: tuple[str, ...]
+    verify_s: float | None = None
 
 
 def sha256_file(path: str | Path) -> str:
@@ -774,6 +780,20 @@ def _plan_motions(hand, obj, problem, seq: GaitSequence, gait_fn, cache: dict) -
     return out
 
 
+def _step_edges(seq: GaitSequence, motions) -> list[tuple]:
+    """The graph edge of every plan step `_make_plan` writes for these motions: a lift and
+    the move after it are the lift's edge, a landing its own (a move with no lift before it
+    belongs to the landing)."""
+    out = []
+    for i_lift, i_land, _finger, paths in motions:
+        lift = (seq.nodes[i_lift], seq.nodes[i_lift + 1]) if i_lift is not None else None
+        land = (seq.nodes[i_land], seq.nodes[i_land + 1]) if i_land is not None else None
+        for action in ("lift", "move", "land"):
+            if action in paths:
+                out.append(land if action == "land" or lift is None else lift)
+    return out
+
+
 class _EdgeFailed(Exception):
     def __init__(self, edge, finger, why):
         self.edge, self.finger, self.why = edge, finger, why
@@ -901,6 +921,13 @@ def plan_regrasp(
     problem = build_problem(initial, final, options)
     failed: list[str] = []
     cache: dict = {}
+    directions = gravity_directions_of(options, hand)
+    verifying = options.verify and bool(directions) and options.strategy == "graph"
+    verified, rejected, verify_s, workers = None, [], 0.0, None
+    if verifying:
+        from planner.sim.verify import default_workers, verify_plan
+
+        workers = default_workers()
     if options.strategy == "greedy":  # thesis Algorithm 2: only visits the states it walks through
         G = seed_graph(problem)
         candidates = [replace(greedy(G), rank=options.rank)]
@@ -924,18 +951,48 @@ def plan_regrasp(
                 raise err
             try:
                 motions = _plan_motions(hand, obj, problem, candidates[0], gait_fn, cache)
-                break
             except _EdgeFailed as bad:
                 failed.append(_failed_words(problem, bad))
                 lazy.remove_edge(*bad.edge)
                 candidates = lazy.best(options.alternatives)
+                continue
+            if not verifying:
+                break
+            annotate_removable(G, [v for s in candidates for v in s.nodes])
+            plan = _make_plan(initial, final, options, inputs or {}, problem, G, candidates[0], candidates[1:], motions,
+                              search_info)
+            check = verify_plan(plan, hand, directions, workers=workers)
+            verify_s += check.wall_time_s
+            if check.passed:
+                verified = check
+                break
+            name, step, verdict = check.first_failure()
+            seq = candidates[0]
+            rejected.append({"order": list(seq.order(problem)), "direction": name, "step": step, "verdict": verdict})
+            if verbose:
+                print(f"verify: sequence {' '.join(seq.order(problem))} failed {name} at step {step}: {verdict}")
+            if step < 0:
+                raise NoSequenceError(f"the initial grasp {initial.spec.name!r} does not hold in the simulator ({name}: "
+                                      f"{verdict}); no sequence starting from it can pass (--no-verify returns one anyway)")
+            if len(rejected) >= options.verify_attempts:
+                raise NoSequenceError(
+                    f"no sequence held in the simulator in {len(rejected)} attempt(s) (--verify-attempts; "
+                    f"{verify_s:.1f} s of replays): " + "; ".join(
+                        f"{' '.join(r['order'])}: {r['direction']} at step {r['step']}: {r['verdict']}" for r in rejected[:3])
+                    + "; --no-verify returns the best sequence unverified")
+            lazy.remove_edge(*_step_edges(seq, motions)[step])
+            candidates = lazy.best(options.alternatives)
         else:
             raise NoSequenceError("no executable sequence after 50 re-plans; impossible moves: " + "; ".join(failed))
         del search_info["tried"]
     annotate_removable(G, [v for s in candidates for v in s.nodes])
     best = candidates[0]
     plan = _make_plan(initial, final, options, inputs or {}, problem, G, best, candidates[1:], motions, search_info)
-    return PlanResult(plan, G, best, tuple(candidates[1:]), time.perf_counter() - t0, tuple(failed))
+    if verifying:
+        record = {**verified.record(), "attempts": len(rejected) + 1, "rejected": rejected}
+        plan = replace(plan, summary={**plan.summary, "verification": record})
+    return PlanResult(plan, G, best, tuple(candidates[1:]), time.perf_counter() - t0, tuple(failed),
+                      verify_s if verifying else None)
 
 
 def _make_plan(initial, final, options, inputs, problem, G, best, others, motions, search_info) -> Plan:

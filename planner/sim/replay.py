@@ -77,6 +77,11 @@ with quiet_native_output():  # pybullet prints a build banner on import: keep a 
 
 #: A plan's joint values may exceed the hand's limits by this much (rad or m): rounding.
 JOINT_LIMIT_TOL = 1e-3
+#: A finger (or the palm) carries the object when it presses with a mean normal force of at
+#: least this share of the larger of the object's weight and the controller's squeeze: every
+#: holding finger is commanded at least half the squeeze (`planner.sim.controller
+#: .MIN_NORMAL_RATIO`), so a tenth of it is a touch that takes part of the load, not a graze.
+CARRY_SHARE = 0.1
 
 
 # --------------------------------------------------------------------------- reports
@@ -99,6 +104,10 @@ class StateReport:
         drift_mm, drift_deg: object displacement and rotation since the start of the replay.
         sim_patches: finger (or "palm") -> (p_obj (n, 3), n_in_obj (n, 3)): the filtered sim
             contacts in the object frame, normals INTO the object.
+        carried_n: finger (or "palm") -> mean normal force it pressed on the object with
+            over the measurement window, N (the simulator's contact forces).
+        carriers: the fingers (or "palm") that carry the object: a mean normal force of at
+            least ``CARRY_SHARE`` of the larger of the object's weight and the squeeze.
     """
 
     index: int
@@ -114,6 +123,14 @@ class StateReport:
     drift_mm: float
     drift_deg: float
     sim_patches: Mapping[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    carried_n: Mapping[str, float] = field(default_factory=dict)
+    carriers: tuple[str, ...] = ()
+
+    @property
+    def holds_as_planned(self) -> bool:
+        """The object is carried by exactly the plan's touching fingers (not the palm, not
+        another finger, none of them missing)."""
+        return self.reached and set(self.carriers) == set(self.planned_fingers)
 
 
 @dataclass(frozen=True)
@@ -134,8 +151,12 @@ class ReplayReport:
         gif, gif_frames, mp4: output files written (None when not asked).
         parameters: the physics and control parameters used.
         reasons: why it failed: where the object first left the limits (the phase: step,
-            finger, action; contacts lost, slip, rotation axis) and every state whose
-            simulated closure disagrees with the plan's.
+            finger, action; contacts lost, slip, rotation axis), every state whose
+            simulated closure disagrees with the plan's and every state carried by other
+            links than the plan's fingers.
+        failed_step: index of the plan step during which the replay first failed (the drift
+            left the limits, or it led into a state that failed), -1 when it failed at state
+            0 (acquiring, gravity ramp, settling), None when it passed.
     """
 
     passed: bool
@@ -157,6 +178,7 @@ class ReplayReport:
     mp4: str | None = None
     parameters: Mapping[str, Any] = field(default_factory=dict)
     reasons: tuple[str, ...] = ()
+    failed_step: int | None = None
 
     def to_dict(self) -> dict:
         """Plain data for JSON (``json.dumps(report.to_dict())``)."""
@@ -624,12 +646,13 @@ def replay_plan(
         if mp4 is not None:
             _write_mp4(recorder.frames, str(mp4), 1.0 / (dt * int(gif_every)), ffmpeg)
 
-    reports, dropped, max_mm, max_deg, fin_mm, fin_deg, n_steps, failure = result
+    reports, dropped, max_mm, max_deg, fin_mm, fin_deg, n_steps, failure, fail_step = result
     reached = [r for r in reports if r.reached]
     agree = sum(1 for r in reached if r.sim_force_closure == r.planned_force_closure)
     disagree = [r for r in reached if r.sim_force_closure != r.planned_force_closure]
+    other = [r for r in reached if not r.holds_as_planned]
     within = math.isfinite(max_mm) and math.isfinite(max_deg) and max_mm <= drift_mm_max and max_deg <= drift_deg_max
-    passed = (not dropped) and within and not disagree and len(reached) == len(reports)
+    passed = (not dropped) and within and not disagree and not other and len(reached) == len(reports)
     limits = f"limits {drift_mm_max:g} mm / {drift_deg_max:g} deg"
     if dropped:
         verdict = f"FAIL: object dropped (moved more than {drop_mm:g} mm)"
@@ -638,6 +661,9 @@ def replay_plan(
     elif disagree:
         verdict = (f"FAIL: the simulator's force closure disagrees with the plan at "
                    f"{len(disagree)}/{len(reached)} states (max drift {max_mm:.1f} mm / {max_deg:.1f} deg)")
+    elif other:
+        verdict = (f"FAIL: other links than the plan's fingers carry the object at {len(other)}/{len(reached)} "
+                   f"states (max drift {max_mm:.1f} mm / {max_deg:.1f} deg)")
     else:
         verdict = f"PASS: max drift {max_mm:.1f} mm / {max_deg:.1f} deg ({limits}); closure agrees at {agree}/{len(reached)} states"
     reasons = []
@@ -649,6 +675,20 @@ def replay_plan(
         missing = sorted(set(r.planned_fingers) - set(r.sim_fingers))
         reasons.append(f"state {r.index}: plan {plan_fc}, simulator {sim_fc} (touching: "
                        f"{', '.join(r.sim_fingers) or 'nothing'}" + (f"; lost: {', '.join(missing)}" if missing else "") + ")")
+    for r in other:
+        if r in disagree:
+            continue
+        extra = sorted(set(r.carriers) - set(r.planned_fingers))
+        idle = sorted(set(r.planned_fingers) - set(r.carriers))
+        words = ([f"carried by {', '.join(extra)} too"] if extra else []) + ([f"{', '.join(idle)} carry nothing"] if idle else [])
+        reasons.append(f"state {r.index}: the plan holds with {', '.join(r.planned_fingers)}; in the simulator "
+                       + "; ".join(words) + f" (forces: {', '.join(f'{f} {v:.2f} N' for f, v in sorted(r.carried_n.items()))})")
+    failed_step = None
+    if not passed:
+        bad_states = [r.index for r in disagree + other] + [r.index for r in reports if not r.reached]
+        first_bad = min(bad_states) if bad_states else None
+        candidates = [k for k in (fail_step, None if first_bad is None else first_bad - 1) if k is not None]
+        failed_step = min(candidates) if candidates else -1
     if reasons and not passed:
         verdict += ": " + "; ".join(reasons[:3]) + (f" (+{len(reasons) - 3} more)" if len(reasons) > 3 else "")
     return ReplayReport(
@@ -659,6 +699,7 @@ def replay_plan(
         sim_time_s=n_steps * dt, wall_time_s=wall, sim_steps=n_steps,
         gif=str(gif) if gif is not None else None, gif_frames=gif_frames,
         mp4=str(mp4) if mp4 is not None else None, parameters=params, reasons=tuple(reasons),
+        failed_step=failed_step,
     )
 
 
@@ -683,7 +724,8 @@ class GravitySetReport:
 
 
 def replay_gravity_set(plan: Mapping | str | os.PathLike, n: int = 6, *, hand=None, g_mps2: float = 9.81,
-                       film: Sequence[str] | None = None, strict: bool = False, **kwargs) -> GravitySetReport:
+                       film: Sequence[str] | None = None, strict: bool = False, workers: int | None = None,
+                       **kwargs) -> GravitySetReport:
     """Replay a plan under several gravity directions of the palm frame (`planner.gravity`).
 
     Args:
@@ -694,6 +736,8 @@ def replay_gravity_set(plan: Mapping | str | os.PathLike, n: int = 6, *, hand=No
         g_mps2: gravity magnitude.
         film: the direction names filmed when ``gif`` or ``mp4`` is given (default: all).
         strict: refuse a plan file whose recorded inputs changed or are gone (`replay_plan`).
+        workers: processes the directions are replayed in (`planner.sim.verify.replay_directions`;
+            default: the cores available; the reports are those of a serial run).
         **kwargs: passed to `replay_plan` (not ``gravity``; a ``gif`` path gets the direction
             name inserted before its suffix).
 
@@ -712,16 +756,16 @@ def replay_gravity_set(plan: Mapping | str | os.PathLike, n: int = 6, *, hand=No
     unknown = sorted(set(film or ()) - set(names))
     if unknown:
         raise InputError(f"cannot film {', '.join(unknown)}: the gravity set of {n} has {', '.join(names)}")
-    out = []
-    for name, g in directions:
-        kw = dict(kwargs)
-        for key in ("gif", "mp4"):
-            if film is not None and name not in film:
-                kw.pop(key, None)
-            elif kw.get(key) is not None:
-                path = Path(kw[key])
-                kw[key] = path.with_name(f"{path.stem}_{name}{path.suffix}")
-        out.append((name, g, replay_plan(rd, hand=hand, gravity=g, **kw)))
+    from planner.sim.verify import replay_directions
+
+    kw = dict(kwargs)
+    for key in ("gif", "mp4"):
+        if kw.get(key) is not None:
+            path = Path(kw[key])
+            kw[key] = [None if film is not None and name not in film else path.with_name(f"{path.stem}_{name}{path.suffix}")
+                       for name in names]
+    reports = replay_directions(rd, hand, directions, workers=workers, **kw)
+    out = [(name, g, r) for (name, g), r in zip(directions, reports)]
     failed = [(name, r) for name, _, r in out if not r.passed]
     if not failed:
         worst_mm = max(r.max_drift_mm for _, _, r in out)
@@ -805,6 +849,10 @@ class _Sim:
         self.phase = "acquiring the initial grasp"
         self.sampling = False
         self.failure: str | None = None
+        self.fail_step: int | None = None  # plan step (-1: state 0) at which the drift first left the limits
+        self.step_k = -1
+        self.carried: dict[str, float] = {}  # finger or "palm" -> summed normal force over the sampling window
+        self.samples = 0
         self.last_patches: Mapping[str, tuple[np.ndarray, np.ndarray]] = {}
 
     def _q(self, state) -> dict[str, float]:
@@ -835,6 +883,7 @@ class _Sim:
             self.max_mm, self.max_deg = max(self.max_mm, mm), max(self.max_deg, deg)
             if self.failure is None and not (mm <= self.params["drift_mm_max"] and deg <= self.params["drift_deg_max"]):
                 self.failure = self._explain(self._obj_pose((pos, quat)), mm, deg)
+                self.fail_step = self.step_k
         self.last = (mm, deg)
         if self.recorder is not None and self.steps_done % self.every == 0:
             self.recorder.grab()
@@ -846,9 +895,12 @@ class _Sim:
         """This step's contacts as (link, p_obj (1, 3), n_obj (1, 3)), normals INTO the object."""
         R_t = T[:3, :3].T
         sample = []
+        self.samples += 1
         for cp in p.getContactPoints(self.hand, self.obj, physicsClientId=self.cid):
             if cp[8] > TOUCH_TOL_M:
                 continue
+            who = self.link_finger.get(cp[3], "palm")
+            self.carried[who] = self.carried.get(who, 0.0) + float(cp[9])
             p_obj = R_t @ (np.asarray(cp[6]) - T[:3, 3])  # point on the object (B)
             n_obj = R_t @ (-np.asarray(cp[7]))  # into the object
             sample.append((cp[3], p_obj[None, :], n_obj[None, :]))
@@ -864,6 +916,7 @@ class _Sim:
         if n > window and not self._run_for((n - window) * self.dt):
             return None
         self.filter.reset()
+        self.carried, self.samples = {}, 0
         self.sampling = True
         try:
             ok = self._run_for(window * self.dt)
@@ -924,8 +977,13 @@ class _Sim:
         else:
             fc, metric = False, float("nan")
         mm, deg = self.last
+        carried = {f: v / max(1, self.samples) for f, v in self.carried.items()}
+        g = float(np.linalg.norm(self.ctl.gravity))
+        threshold = CARRY_SHARE * max(self.mass * g, self.ctl.force_n)
+        carriers = tuple(sorted(f for f, v in carried.items() if v >= threshold))
         return StateReport(index, True, self.steps_done * self.dt, state.touching, tuple(sorted(patches)),
-                           state.is_force_closure, state.metric, fc, metric, n_pts, mm, deg, patches)
+                           state.is_force_closure, state.metric, fc, metric, n_pts, mm, deg, patches,
+                           {f: round(v, 6) for f, v in sorted(carried.items())}, carriers)
 
     def run(self, states, steps, recorder=None, every=8, realtime=False):
         self.recorder, self.every, self.realtime = recorder, every, realtime
@@ -959,6 +1017,7 @@ class _Sim:
         for k, st in enumerate(steps if ok else ()):
             frm, to = states[st.from_state], states[st.to_state]
             self.phase = f"step {k} ({st.action} {st.finger}, state {st.from_state} -> {st.to_state})"
+            self.step_k = k
             q_ref = dict(ctl.q_ref)
             if st.action != "land" and st.finger in ctl.holding:
                 # hand the finger's load over to the others while it still touches
@@ -1005,4 +1064,4 @@ class _Sim:
                 out.append(StateReport(i, False, self.steps_done * self.dt, s.touching, (), s.is_force_closure, s.metric,
                                        None, None, 0, float("nan"), float("nan")))
         mm, deg = self.last
-        return out, not ok, self.max_mm, self.max_deg, mm, deg, self.steps_done, self.failure
+        return out, not ok, self.max_mm, self.max_deg, mm, deg, self.steps_done, self.failure, self.fail_step
