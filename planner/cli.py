@@ -275,8 +275,10 @@ def build_parser() -> argparse.ArgumentParser:
     synth.add_argument("-n", type=int, default=20, help="grasps to write (default 20)")
     synth.add_argument("-o", "--output", required=True, metavar="DIR", help="folder for the grasp files (never overwritten)")
     synth.add_argument("--gravity", type=float, nargs=3, metavar=("GX", "GY", "GZ"), default=None,
-                       help="keep grasps that hold the weight under this gravity (palm frame, m/s^2) within --max-finger-force")
-    synth.add_argument("--max-finger-force", type=float, default=1.0, metavar="N", help="per-finger force budget, N (default 1)")
+                       help="keep grasps that hold twice the weight under this gravity (palm frame, m/s^2) within "
+                            "the hand's joint torque limits")
+    synth.add_argument("--max-finger-force", type=float, default=None, metavar="N",
+                       help="with --gravity: an extra cap on every finger's normal force, N (default none)")
     synth.add_argument("--seed", type=int, default=0, help="seed (default 0); same seed, same files")
     synth.add_argument("--mu", type=float, default=None, help="friction coefficient (default: the object file's, else 0.9)")
     synth.add_argument("--gamma", type=float, default=None, help="torsional friction, m (default: the object file's, else 0.004)")

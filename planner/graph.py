@@ -320,9 +320,12 @@ class _Evaluator:
         j, cap = why
         name, w = self._loads[j]
         g = p.load_gravity[j]
+        words = f"{name}: {cap.words(p.hold_factor)}"
+        if cap.limit is not None and cap.limit.joint is None:  # the force cap binds, not a joint
+            return words
         dem = torque_demand(p.patches(node), p.statics(node), self.problem.friction, w, g, factor=p.hold_factor,
-                            margin=p.grip_friction_margin, force_cap_n=p.max_grip_force_n)
-        return f"{name}: {cap.words(p.hold_factor)}; to hold {p.hold_factor:g}x, {dem.words()}"
+                            margin=p.grip_friction_margin)
+        return f"{words}; to hold {p.hold_factor:g}x, {dem.words()}"
 
     def _over_budget(self, node: Node) -> bool:
         """Some load needs more than ``max_grip_force_n`` per finger. Stops at the first such

@@ -273,8 +273,24 @@ class RealizedGrasp:
         c = self.closure_under("mean")
         return {"force_closure": bool(c.is_force_closure), "metric": float(c.metric)}
 
-    def summary(self) -> dict:
-        """Plain-data report (what ``regrasp check --json`` prints)."""
+    def hold(self, contact_model: str = "mean") -> list:
+        """How the grasp holds its object in the six hand orientations of execution mode
+        (`planner.gravity`, gravity set 6): `planner.grip.DirectionHold` per direction (the
+        joints' torque limits, 3/4 of the friction, under ``contact_model``); [] when not
+        force closure under it."""
+        from planner.closure import apply_contact_model
+        from planner.gravity import gravity_directions
+        from planner.grip import grasp_hold
+
+        if not self.patches or not self.closure_under(contact_model).is_force_closure:
+            return []
+        patches = apply_contact_model(self.patches, contact_model)
+        return grasp_hold(self.hand, self.q, patches, self.obj.T_palm_obj, self.obj.mass_kg, self.friction,
+                          gravity_directions(self.hand.palm_normal, 6))
+
+    def summary(self, hold: list | None = None) -> dict:
+        """Plain-data report (what ``regrasp check --json`` prints); ``hold``: `hold`'s result
+        when already computed."""
         fingers = {}
         for f in self.spec.fingers:
             pts = self.patches.get(f.name)
@@ -303,6 +319,9 @@ class RealizedGrasp:
             "contacts": [{"finger": c["finger"], "link": c["link"], "point": [float(v) for v in c["point"]],
                           "normal": [float(v) for v in c["normal"]], "penetration_m": float(c["penetration_m"])}
                          for c in self.contacts],
+            "hold": {h.name: {"holds": h.holds, "factor": h.capacity.factor, "words": h.words(),
+                              "limit": None if h.capacity.limit is None else vars(h.capacity.limit)}
+                     for h in (self.hold() if hold is None else hold)},
             "as_written": not self.problems,
             "problems": list(self.problems),
             "warnings": list(self.warnings),
@@ -899,9 +918,10 @@ def _ro(a) -> np.ndarray:
 # --------------------------------------------------------------------------- check
 
 
-def check_text(grasp: RealizedGrasp) -> str:
+def check_text(grasp: RealizedGrasp, hold: list | None = None) -> str:
     """The text report of ``regrasp check``."""
-    report = grasp.summary()
+    hold = grasp.hold() if hold is None else hold
+    report = grasp.summary(hold)
     fr = grasp.friction
     out = [f"grasp {grasp.spec.name} ({grasp.spec.path})",
            f"hand {grasp.hand.name}, {object_text(grasp.obj)}, mu {fr.mu:g}, gamma {fr.gamma:g} m, {fr.edges} cone edges",
@@ -926,6 +946,13 @@ def check_text(grasp: RealizedGrasp) -> str:
     mean = report["mean_contact_closure"]
     out.append(f"with one mean contact per finger (--contact-model mean): force closure "
                f"{'yes' if mean['force_closure'] else 'no'}, metric {mean['metric']:.4g}")
+    if hold:
+        from planner.grip import FRICTION_MARGIN, HOLD_FACTOR
+
+        out.append(f"load held within the joints' torque limits (mean contacts, {FRICTION_MARGIN:g} of the friction; "
+                   f"execution mode needs {HOLD_FACTOR:g}x the weight, {grasp.obj.mass_kg * 1e3:.4g} g):")
+        for h in hold:
+            out.append(f"  {'ok  ' if h.holds else 'LOW '} {h.words()}")
     verdict = "PASS" if grasp.ok else "FAIL"
     why = [] if grasp.is_force_closure else ["not force closure"]
     why += [f"{len(grasp.problems)} problem(s)"] if grasp.problems else []

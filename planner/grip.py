@@ -57,6 +57,11 @@ from planner.errors import InputError, PlannerError
 HOLD_FACTOR = 2.0
 #: Fraction of ``mu`` and ``gamma`` the grip forces may use (module docstring).
 FRICTION_MARGIN = 0.75
+#: Friction-cone fractions (lateral, torsional) the controller tries in turn at the
+#: simulator's contacts (`balance_forces`): half the cone first (room for the contacts to
+#: move), then the planner's `FRICTION_MARGIN`, then the whole cone as a last resort (the
+#: simulator's contacts are not the plan's; the replay's verdict says whether it held).
+CONE_MARGINS = ((0.5, 0.0), (0.5, 0.5), (FRICTION_MARGIN, 0.0), (FRICTION_MARGIN, FRICTION_MARGIN), (1.0, 0.0), (1.0, 1.0))
 #: Capacities are reported up to this multiple of the load (a grasp whose joints the load
 #: barely loads, e.g. a finger pushing along its own length, would otherwise be unbounded).
 FACTOR_MAX = 1000.0
@@ -117,17 +122,22 @@ class Limit:
 @dataclass(frozen=True)
 class Capacity:
     """`hold_capacity`'s answer: ``factor`` (the largest multiple of the load held; 0 when
-    not even the hand's own weight or no multiple is held) and ``limit`` (what bounds it;
-    None when the friction cones bound it before any joint, or at ``FACTOR_MAX``)."""
+    not even the hand's own weight or no multiple is held), ``limit`` (what bounds it;
+    None when the friction cones bound it before any joint, or at ``FACTOR_MAX``) and
+    ``forces`` and ``moments`` (finger -> (n_points, 3) contact forces, N, and torsional
+    moments, N m, at its contact points holding ``factor`` times the load, object frame: a
+    witness anyone can re-check)."""
 
     factor: float
     limit: Limit | None
+    forces: Mapping[str, np.ndarray] | None = None
+    moments: Mapping[str, np.ndarray] | None = None
 
     def words(self, factor_needed: float | None = None) -> str:
         held = f"holds {self.factor:.3g}x" if self.factor < FACTOR_MAX else f"holds over {FACTOR_MAX:g}x"
         need = "" if factor_needed is None else f" (needs {factor_needed:g}x)"
         by = "" if self.limit is None else f", limited by {self.limit.words()}"
-        return f"{held} the load{need}{by}"
+        return f"{held} its weight{need}{by}"
 
 
 @dataclass(frozen=True)
@@ -204,6 +214,18 @@ class _Program:
     names: tuple           # (finger, joint) per torque row
     cap_rows: np.ndarray   # (f, k) each finger's normal force per rim wrench
     fingers: tuple         # finger per cap row
+    per_point: int         # rim wrenches per contact point (point-major within a finger)
+
+    def forces(self, lam: np.ndarray, points: Mapping[str, np.ndarray]) -> tuple[dict, dict]:
+        """finger -> (n_points, 3) contact forces (N) and torsional moments (N m) applied at
+        the contact points, object frame, of rim-wrench weights ``lam``."""
+        forces, moments = {}, {}
+        for i, f in enumerate(self.fingers):
+            cols = np.flatnonzero(self.cap_rows[i])
+            w = (self.W[cols] * lam[cols, None]).reshape(-1, self.per_point, 6).sum(axis=1)
+            forces[f] = w[:, :3]
+            moments[f] = w[:, 3:] - np.cross(points[f], w[:, :3])
+        return forces, moments
 
 
 def _program(patches: Mapping[str, tuple], statics: Mapping[str, FingerStatics], friction: Friction,
@@ -255,7 +277,7 @@ def _program(patches: Mapping[str, tuple], statics: Mapping[str, FingerStatics],
         nm_all = tuple(n for r in rows for n in r[3])
     else:
         torque_m, tg_all, tm_all, nm_all = np.zeros((0, k)), np.zeros(0), np.zeros(0), ()
-    return _Program(W, torque_m, tg_all, tm_all, nm_all, cap, tuple(fingers))
+    return _Program(W, torque_m, tg_all, tm_all, nm_all, cap, tuple(fingers), per_point)
 
 
 def _lever(W: np.ndarray) -> float:
@@ -367,7 +389,8 @@ def hold_capacity(patches: Mapping[str, tuple], statics: Mapping[str, FingerStat
     alpha = float(res.x[k]) / scale
     lam = res.x[:k]
     limit = None if alpha >= FACTOR_MAX * (1 - 1e-9) else _binding(prog, lam, force_cap_n)
-    return Capacity(min(alpha, FACTOR_MAX), limit)
+    points = {f: np.asarray(patches[f][0], dtype=float).reshape(-1, 3) for f in prog.fingers}
+    return Capacity(min(alpha, FACTOR_MAX), limit, *prog.forces(lam, points))
 
 
 def torque_demand(patches: Mapping[str, tuple], statics: Mapping[str, FingerStatics], friction: Friction, load,
@@ -422,18 +445,127 @@ def torque_rows(jacobians: Sequence[np.ndarray], effort: Sequence[float], tau_g)
     return np.r_[JT[ok], -JT[ok]], np.r_[tm[ok] - g[ok], tm[ok] + g[ok]]
 
 
+# --------------------------------------------------------------------------- the controller's form
+
+
+def _tangents(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    t1 = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
+    t1 /= np.linalg.norm(t1)
+    return t1, np.cross(n, t1)
+
+
+def balance_forces(points, normals, targets, load, centre, friction: Friction, fn_min,
+                   f_max: float, margins=CONE_MARGINS, joint_rows=None) -> np.ndarray | None:
+    """Contact forces that balance a load on the object: grasp force optimization.
+
+    Solves, for the margins ``(s, s_t)`` in turn, the linear program (HiGHS)
+
+        min  sum_i |f_i - f0_i|_1
+        s.t. sum_i [f_i ; (p_i - c) x f_i + t_i n_i] = -load    (equilibrium)
+             f_i in the 8-sided pyramid inscribed in the cone of friction s mu about n_i
+             |t_i| <= s_t gamma (f_i . n_i)                       (soft-finger torsion)
+             f_i . n_i >= fn_min
+             A_f f_f <= b_f          (every finger f: its joints' torque limits, `torque_rows`)
+
+    and returns the first solution whose components stay within ``f_max``. The torsion
+    ``t_i`` is a reaction of the simulator's spinning friction, not commanded. This is the
+    planner's grip model (`hold_capacity`: cones, torsion, joint limits) solved at the
+    simulator's contacts for the forces to command.
+
+    Args:
+        points: (k, 3) contact points, any frame F.
+        normals: (k, 3) inward unit normals, frame F.
+        targets: (k, 3) preferred forces ``f0`` (the squeeze; zero for passive contacts).
+        load: (6,) external wrench on the object ``[f ; tau]`` in frame F, torque about ``centre``.
+        centre: (3,) the point torques are taken about (the object's centre of mass).
+        friction: Coulomb ``mu`` and torsional ``gamma`` (m).
+        fn_min: smallest normal force per contact, N (a number or (k,)).
+        f_max: largest absolute force component, N.
+        margins: friction fractions tried in turn.
+        joint_rows: optional [(contact indices of one finger, A, b)] with ``A`` (r, 3 m_f)
+            over those contacts' stacked forces (`torque_rows`): the joints' limits.
+
+    Returns:
+        (k, 3) forces the fingers apply ON the object, or None when no balanced forces exist.
+    """
+    from scipy.optimize import linprog
+
+    P = np.asarray(points, float).reshape(-1, 3)
+    N = np.asarray(normals, float).reshape(-1, 3)
+    N = N / np.linalg.norm(N, axis=1, keepdims=True)
+    k = len(P)
+    if k == 0:
+        return None
+    m = 3 * k
+    r = P - np.asarray(centre, float)
+    # torque rows scaled by 1/lever so force and torque rows weigh alike
+    lever = max(1e-3, float(np.max(np.linalg.norm(r, axis=1))))
+    cross = np.zeros((k, 3, 3))  # [r_i]x: cross[i] @ f = r_i x f
+    cross[:, 0, 1], cross[:, 0, 2], cross[:, 1, 2] = -r[:, 2], r[:, 1], -r[:, 0]
+    cross -= cross.transpose(0, 2, 1)
+    A_eq = np.zeros((6, 2 * m + k))
+    A_eq[:3, :m] = np.tile(np.eye(3), k)
+    A_eq[3:, :m] = cross.transpose(1, 0, 2).reshape(3, m) / lever
+    A_eq[3:, m:m + k] = N.T / lever
+    b = -np.asarray(load, float).reshape(6).copy()
+    b[3:] /= lever
+    f0 = np.asarray(targets, float).reshape(m)
+    fn_min = np.broadcast_to(np.asarray(fn_min, float), (k,))
+    angles = np.linspace(0.0, 2.0 * np.pi, 8, endpoint=False)
+    # the pyramid's rim directions (cos a t1 + sin a t2) per contact, the same for every margin
+    t1, t2 = np.array([_tangents(n) for n in N]).transpose(1, 0, 2)
+    rims = np.cos(angles)[None, :, None] * t1[:, None] + np.sin(angles)[None, :, None] * t2[:, None]  # (k, 8, 3)
+    # variables: f (m), t (k), slack (m) with |f - f0| <= slack; rows: 8 rim + 1 normal per
+    # contact, 2 torsion per contact, then the two slack rows per force component
+    rows = 11 * k + 2 * m
+    G = np.zeros((rows, 2 * m + k))
+    h = np.zeros(rows)
+    blocks = np.arange(k)
+    rim_rows = (9 * blocks[:, None] + np.arange(8)).ravel()
+    cols = 3 * blocks[:, None] + np.arange(3)  # (k, 3) force columns of each contact
+    G[9 * blocks[:, None, None] + np.arange(9)[None, 8:, None], cols[:, None, :]] = -N[:, None, :]
+    h[9 * blocks + 8] = -fn_min
+    tor = 9 * k + 2 * blocks
+    G[tor, m + blocks], G[tor + 1, m + blocks] = 1.0, -1.0
+    I = np.eye(m)
+    G[11 * k:11 * k + m, :m], G[11 * k:11 * k + m, m + k:] = I, -I
+    G[11 * k + m:, :m], G[11 * k + m:, m + k:] = -I, -I
+    h[11 * k:] = np.r_[f0, -f0]
+    c = np.r_[np.zeros(m + k), np.ones(m)]
+    bounds = [(None, None)] * (m + k) + [(0, None)] * m
+    if joint_rows:
+        extra_G, extra_h = [], []
+        for idx, A, bj in joint_rows:
+            row = np.zeros((len(A), 2 * m + k))
+            row[:, (3 * np.asarray(idx)[:, None] + np.arange(3)).ravel()] = A
+            extra_G.append(row)
+            extra_h.append(np.asarray(bj, float))
+        if extra_G:
+            G, h = np.vstack([G] + extra_G), np.concatenate([h] + extra_h)
+    for s, s_t in margins:
+        mu, gamma = s * friction.mu * math.cos(math.pi / 8), s_t * friction.gamma
+        G[rim_rows[:, None], np.repeat(cols, 8, axis=0)] = (rims - mu * N[:, None, :]).reshape(8 * k, 3)
+        # (the joint rows appended after row 11 k + 2 m do not depend on the margin)
+        G[tor[:, None], cols] = G[tor[:, None] + 1, cols] = -gamma * N
+        res = linprog(c, A_ub=G, b_ub=h, A_eq=A_eq, b_eq=b, bounds=bounds, method="highs")
+        if res.status == 0 and float(np.abs(res.x[:m]).max()) <= f_max:
+            return res.x[:m].reshape(k, 3)
+    return None
+
+
 # --------------------------------------------------------------------------- a whole grasp
 
 
 @dataclass(frozen=True)
 class DirectionHold:
     """How a grasp holds its object under one gravity direction: ``name``, ``gravity``
-    (palm frame, m/s^2), `Capacity` and, at ``HOLD_FACTOR``, the `Demand`."""
+    (palm frame, m/s^2), `Capacity` and, at ``HOLD_FACTOR``, the `Demand` (None when not
+    computed)."""
 
     name: str
     gravity: tuple[float, float, float]
     capacity: Capacity
-    demand: Demand
+    demand: Demand | None
 
     @property
     def holds(self) -> bool:
@@ -442,7 +574,8 @@ class DirectionHold:
     def words(self) -> str:
         if self.holds:
             return f"{self.name}: {self.capacity.words()}"
-        return f"{self.name}: {self.capacity.words(HOLD_FACTOR)}; at {HOLD_FACTOR:g}x, {self.demand.words()}"
+        tail = "" if self.demand is None else f"; at {HOLD_FACTOR:g}x, {self.demand.words()}"
+        return f"{self.name}: {self.capacity.words(HOLD_FACTOR)}{tail}"
 
 
 def grasp_statics(hand, q, patches: Mapping[str, tuple], T_palm_obj) -> dict[str, FingerStatics]:
@@ -453,9 +586,9 @@ def grasp_statics(hand, q, patches: Mapping[str, tuple], T_palm_obj) -> dict[str
 
 def grasp_hold(hand, q, patches: Mapping[str, tuple], T_palm_obj, mass_kg: float, friction: Friction,
                directions: Sequence[tuple[str, Sequence[float]]], *, force_cap_n: float | None = None,
-               margin: float = FRICTION_MARGIN) -> list[DirectionHold]:
-    """`hold_capacity` and `torque_demand` of a realized grasp for each named gravity
-    direction (palm frame, m/s^2; `planner.gravity.gravity_directions`)."""
+               margin: float = FRICTION_MARGIN, demand: bool = True) -> list[DirectionHold]:
+    """`hold_capacity` and (``demand``; else None) `torque_demand` of a realized grasp for
+    each named gravity direction (palm frame, m/s^2; `planner.gravity.gravity_directions`)."""
     R = np.asarray(T_palm_obj, dtype=float)[:3, :3]
     statics = grasp_statics(hand, q, patches, T_palm_obj)
     out = []
@@ -463,6 +596,7 @@ def grasp_hold(hand, q, patches: Mapping[str, tuple], T_palm_obj, mass_kg: float
         g_obj = R.T @ np.asarray(g, dtype=float)
         load = np.r_[float(mass_kg) * g_obj, np.zeros(3)]
         cap = hold_capacity(patches, statics, friction, load, g_obj, margin=margin, force_cap_n=force_cap_n)
-        dem = torque_demand(patches, statics, friction, load, g_obj, margin=margin, force_cap_n=force_cap_n)
+        dem = (torque_demand(patches, statics, friction, load, g_obj, margin=margin, force_cap_n=force_cap_n)
+               if demand else None)
         out.append(DirectionHold(name, tuple(float(v) for v in g), cap, dem))
     return out

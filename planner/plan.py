@@ -97,6 +97,9 @@ class PlanState:
             largest `planner.closure.min_grip_force` over them), N; None without gravity.
         grip_force_by_gravity_n: gravity direction name -> that direction's grip force, N;
             None without gravity.
+        hold_factor_by_gravity: gravity direction name -> the largest multiple of the
+            object's weight the hand's joints hold there (`planner.grip.hold_capacity`, at
+            most `planner.grip.FACTOR_MAX`); None without gravity.
     """
 
     fingers: Mapping[str, str]
@@ -107,6 +110,7 @@ class PlanState:
     q: tuple[float, ...]
     grip_force_n: float | None = None
     grip_force_by_gravity_n: Mapping[str, float] | None = None
+    hold_factor_by_gravity: Mapping[str, float] | None = None
 
     @property
     def touching(self) -> tuple[str, ...]:
@@ -123,6 +127,8 @@ class PlanState:
             "grip_force_n": None if self.grip_force_n is None else _num(self.grip_force_n),
             "grip_force_by_gravity_n": None if self.grip_force_by_gravity_n is None
             else {str(k): _num(v) for k, v in self.grip_force_by_gravity_n.items()},
+            **({} if self.hold_factor_by_gravity is None else
+               {"hold_factor_by_gravity": {str(k): _num(v) for k, v in self.hold_factor_by_gravity.items()}}),
             "removable": sorted(self.removable),
             "q": {j: _num(v) for j, v in zip(joints, self.q)},
         }
@@ -707,8 +713,12 @@ def _check_state(ck: _Checker, value, i: int, joints: tuple[str, ...]) -> PlanSt
     if by_g is not None:
         by_g = {str(k): ck.number(v, f"{key}.grip_force_by_gravity_n.{k}", 0)
                 for k, v in ck.mapping(by_g, f"{key}.grip_force_by_gravity_n").items()}
+    hold = s.get("hold_factor_by_gravity")
+    if hold is not None:
+        hold = {str(k): ck.number(v, f"{key}.hold_factor_by_gravity.{k}", 0, 1e6)
+                for k, v in ck.mapping(hold, f"{key}.hold_factor_by_gravity").items()}
     return PlanState(fingers, patches, fc, metric, removable, qv,
-                     None if grip is None else float(grip), by_g)
+                     None if grip is None else float(grip), by_g, hold)
 
 
 def _check_step(ck: _Checker, value, i: int, joints: tuple[str, ...], states: tuple[PlanState, ...]) -> PlanStep:

@@ -7,8 +7,8 @@ fraction of its range, halving the step and reversing on contact, then backs off
 free), and keeps a candidate when it passes the same honest check as ``regrasp check``
 (`planner.grasp.realize`: every chosen finger touches, nothing penetrates the object, the
 palm or another finger beyond `planner.grasp.PENETRATION_TOL_M`, no closing joint at its
-limit, force closure) and, with a gravity, holds the object's weight with every finger
-pressing at most the force budget (`planner.closure.min_grip_force`). Near-duplicates are
+limit, force closure) and, with a gravity, holds twice the object's weight within the hand's
+joint torque limits (`planner.grip`, the model `plan` uses). Near-duplicates are
 removed, the rest ranked by the closure metric and written as grasp YAML files that
 ``regrasp check`` accepts unchanged: each file is built first, parsed and realized exactly
 as ``check`` does, and kept only if that passes.
@@ -39,6 +39,7 @@ import numpy as np
 import yaml
 
 from planner.errors import PlannerError, SpecError
+from planner.grip import HOLD_FACTOR
 
 #: Two grasps are near-duplicates when every chosen finger's mean contact point (palm frame)
 #: and the object centre differ by less than this, and the contact normals by less than
@@ -355,8 +356,9 @@ def _is_duplicate(a: np.ndarray, b: np.ndarray) -> bool:
 
 
 def synthesize(hand_ref: str, obj_block: dict, fingers, n: int, *, fixed: bool, friction=None, seed: int = 0,
-               gravity=None, max_finger_force_n: float = 1.0, max_attempts: int | None = None, base_dir=".",
-               progress=None, contact_model: str = "patch", friction_margin: float = 1.0) -> SynthResult:
+               gravity=None, max_finger_force_n: float | None = None, max_attempts: int | None = None, base_dir=".",
+               progress=None, contact_model: str = "patch", friction_margin: float = 1.0,
+               hold_factor: float = HOLD_FACTOR) -> SynthResult:
     """Sample, close, check, de-duplicate and rank grasps.
 
     Args:
@@ -368,8 +370,12 @@ def synthesize(hand_ref: str, obj_block: dict, fingers, n: int, *, fixed: bool, 
         friction: {mu, gamma, edges} (default `DEFAULT_FRICTION`).
         seed: seed of every random choice (the result depends on nothing else).
         gravity: None, a (3,) palm-frame gravity (m/s^2) or several, (k, 3): keep grasps holding
-            the weight in every one with each finger pressing at most ``max_finger_force_n``
-            (`min_grip_force`; the grip force is the largest over the directions).
+            ``hold_factor`` times the weight in every one within the hand's joint torque
+            limits (`planner.grip.hold_capacity`, and each finger pressing at most
+            ``max_finger_force_n`` when given); ``grip_force_n`` is the largest
+            `min_grip_force` over the directions.
+        max_finger_force_n: optional per-finger normal force cap, N.
+        hold_factor: multiple of the weight the grasp must hold (`planner.grip.HOLD_FACTOR`).
         contact_model: "patch" (the check's closure) or "mean": also require force closure with
             one contact per finger at its patch mean, and compute the grip force with those
             contacts (what `PlanOptions.for_execution` plans with).
@@ -383,6 +389,7 @@ def synthesize(hand_ref: str, obj_block: dict, fingers, n: int, *, fixed: bool, 
         `SynthResult` with up to n grasps, best closure metric first.
     """
     from planner.closure import Friction, apply_contact_model, grasp_closure, min_grip_force
+    from planner.grip import grasp_hold
     from planner.grasp import load_hand, parse_grasp, realize
 
     t0 = time.perf_counter()
@@ -445,11 +452,14 @@ def synthesize(hand_ref: str, obj_block: dict, fingers, n: int, *, fixed: bool, 
         if gravity is not None:
             R = np.asarray(g.obj.T_palm_obj)[:3, :3]
             grip_fr = Friction(fr.mu * friction_margin, fr.gamma * friction_margin, fr.edges)
-            grip = max(min_grip_force(patches, grip_fr, np.r_[g.obj.mass_kg * (R.T @ gv), np.zeros(3)])
-                       for gv in np.asarray(gravity, dtype=float).reshape(-1, 3))
-            if not grip <= max_finger_force_n:
-                rejected["weight beyond the force budget"] += 1
+            dirs = np.asarray(gravity, dtype=float).reshape(-1, 3)
+            holds = grasp_hold(hand, g.q, patches, g.obj.T_palm_obj, g.obj.mass_kg, fr,
+                               [(f"g{i}", gv) for i, gv in enumerate(dirs)], force_cap_n=max_finger_force_n,
+                               margin=friction_margin, demand=False)
+            if not all(h.capacity.factor >= hold_factor for h in holds):
+                rejected["weight beyond the hand's limits"] += 1
                 continue
+            grip = max(min_grip_force(patches, grip_fr, np.r_[g.obj.mass_kg * (R.T @ gv), np.zeros(3)]) for gv in dirs)
         passed += 1
         feat = _features(g, chosen)
         cand = SynthGrasp(data=data, grasp=g, grip_force_n=grip, attempt=attempt)
@@ -513,7 +523,7 @@ def _refuse_overwrite(paths, inputs) -> None:
 
 
 def run_synth(hand: str, object_path, fingers: str, n: int, out_dir, *, gravity=None, seed: int = 0,
-              max_finger_force_n: float = 1.0, mu=None, gamma=None, max_attempts=None, quiet=False) -> int:
+              max_finger_force_n: float | None = None, mu=None, gamma=None, max_attempts=None, quiet=False) -> int:
     """``regrasp synth``: synthesize, write, print a summary. Exit 0 when n grasps were written,
     1 when fewer (those found are written), 2 (PlannerError) on bad input."""
     from planner.grasp import load_hand, resolve_hand_ref

@@ -141,8 +141,9 @@ def test_synth_bad_input_is_one_line_exit_2(tmp_path, capsys, args, words):
 def test_synth_for_execution_keeps_grasps_holding_in_every_direction_with_mean_contacts():
     """With several gravity directions, the mean contact model and a friction reserve, every kept
     grasp is force closure with one contact per finger and holds the weight in each direction
-    within the budget using 3/4 of mu and gamma (independently recomputed); a grasp over the
-    budget in one direction only is refused."""
+    twice over within the joint limits and a 1 N cap per finger, using 3/4 of mu and gamma (the
+    weight alone needs at most 0.5 N per finger, independently recomputed); a grasp over the
+    limits in one direction only is refused."""
     from planner.closure import Friction, apply_contact_model
     from planner.gravity import gravity_directions
     from planner.synth import synthesize
@@ -153,7 +154,7 @@ def test_synth_for_execution_keeps_grasps_holding_in_every_direction_with_mean_c
                    max_attempts=80)
     assert r.grasps
     # both new filters refused candidates that the plain check accepted
-    assert r.rejected["weight beyond the force budget"] > 0 and r.rejected["not force closure with mean contacts"] > 0
+    assert r.rejected["weight beyond the hand's limits"] > 0 and r.rejected["not force closure with mean contacts"] > 0
     for sg in r.grasps:
         g = sg.grasp
         assert g.closure_under("mean").is_force_closure
@@ -161,6 +162,6 @@ def test_synth_for_execution_keeps_grasps_holding_in_every_direction_with_mean_c
         R = np.asarray(g.obj.T_palm_obj)[:3, :3]
         fr = Friction(g.friction.mu * 0.75, g.friction.gamma * 0.75, g.friction.edges)
         grips = [min_grip_force(mean, fr, np.r_[g.obj.mass_kg * (R.T @ d), np.zeros(3)]) for d in dirs]
-        assert max(grips) == pytest.approx(sg.grip_force_n) and sg.grip_force_n <= 1.0
+        assert max(grips) == pytest.approx(sg.grip_force_n) and sg.grip_force_n <= 0.5 + 1e-9
     with pytest.raises(Exception, match="contact model"):
         synthesize("icub_right", dict(BALL), ["thumb", "index"], 1, fixed=False, contact_model="soft")

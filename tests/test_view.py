@@ -32,7 +32,7 @@ PANEL_PX = 410  # the page's left panel; the 3D view is right of it
 
 @pytest.fixture(scope="module")
 def plan_path(tmp_path_factory):
-    """The demo's cylinder pair planned for execution (as `make demo`): 9 states, 8 steps."""
+    """The demo's cylinder pair planned for execution (as `make demo`)."""
     path = tmp_path_factory.mktemp("view") / "plan.yaml"
     assert main(["plan", str(INITIAL), str(FINAL), "-o", str(path), "--execution"]) == 0
     return path
@@ -45,16 +45,24 @@ def page(plan_path):
     return out, info
 
 
+def _counts(plan_path) -> tuple[int, int]:
+    """(states, steps) of the plan file."""
+    from planner.plan import read_plan
+
+    plan = read_plan(plan_path)
+    return len(plan.states), len(plan.steps)
+
+
 def _data(html: str) -> dict:
     m = re.search(r"const DATA = (\{.*?\});\nconst CMDS", html, re.S)
     assert m, "the page holds its data"
     return json.loads(m.group(1))
 
 
-def test_plan_page_is_one_offline_file_under_5_mb(page):
+def test_plan_page_is_one_offline_file_under_5_mb(page, plan_path):
     out, info = page
     html = out.read_text()
-    assert info["states"] == 9 and info["steps"] == 8 and info["kind"] == "plan"
+    assert (info["states"], info["steps"]) == _counts(plan_path) and info["kind"] == "plan"
     assert out.stat().st_size < 5_000_000
     # nothing to fetch at view time: no external script, stylesheet, image or request
     assert not re.search(r"<(script|link|img|iframe)[^>]+(src|href)=", html)
@@ -62,9 +70,9 @@ def test_plan_page_is_one_offline_file_under_5_mb(page):
     assert "MeshCat.Viewer" in html
 
 
-def test_frames_move_only_the_stepping_finger_and_end_at_the_next_state(page):
+def test_frames_move_only_the_stepping_finger_and_end_at_the_next_state(page, plan_path):
     data = _data(page[0].read_text())
-    assert len(data["states"]) == 9 and len(data["steps"]) == 8
+    assert (len(data["states"]), len(data["steps"])) == _counts(plan_path)
     for step in data["steps"]:
         frames = step["frames"]
         assert len(frames) == FRAMES_PER_STEP
@@ -109,7 +117,7 @@ def test_palm_normal_is_page_up(n):
 def test_report_of_another_plan_and_bad_outputs_are_clear_errors(plan_path, tmp_path, capsys):
     report = tmp_path / "r.json"
     report.write_text(json.dumps({"passed": True, "verdict": "PASS", "states": [{"reached": True}] * 3}))
-    with pytest.raises(SpecError, match="3 states, the plan 9"):
+    with pytest.raises(SpecError, match=f"3 states, the plan {_counts(plan_path)[0]}"):
         write_view(plan_path, tmp_path / "p.html", report=report)
     assert not (tmp_path / "p.html").exists()
     with pytest.raises(SpecError, match="use .html"):
@@ -125,7 +133,7 @@ def test_report_contacts_and_drift_are_on_the_page(plan_path, tmp_path):
     states = [{"reached": True, "sim_fingers": ["thumb", "index"], "sim_force_closure": True, "sim_metric": 0.01,
                "drift_mm": 0.1 * i, "drift_deg": 0.2, "sim_points": 1,
                "sim_patches": {"thumb": {"points": [[0.0, 0.0, 0.01 * i]], "normals": [[0.0, 0.0, -1.0]]}}}
-              for i in range(9)]
+              for i in range(_counts(plan_path)[0])]
     report = tmp_path / "r.json"
     report.write_text(json.dumps({"passed": True, "verdict": "PASS", "directions": [
         {"name": "palm_down", "report": {"passed": True, "verdict": "PASS: x", "states": states}}]}))
@@ -133,8 +141,9 @@ def test_report_contacts_and_drift_are_on_the_page(plan_path, tmp_path):
     write_view(plan_path, out, report=report)
     data = _data(out.read_text())
     (run,) = data["runs"]
-    assert run["name"] == "palm_down" and [s["drift_mm"] for s in run["states"]] == pytest.approx([0.1 * i for i in range(9)])
-    assert len({s["sets"][0] for s in run["states"]}) == 9   # one simulator contact set per distinct position
+    n = _counts(plan_path)[0]
+    assert run["name"] == "palm_down" and [s["drift_mm"] for s in run["states"]] == pytest.approx([0.1 * i for i in range(n)])
+    assert len({s["sets"][0] for s in run["states"]}) == n   # one simulator contact set per distinct position
 
 
 # ------------------------------------------------------------------ in a browser
@@ -160,15 +169,16 @@ def _scene_pixels(img: np.ndarray) -> np.ndarray:
 
 
 @needs_chromium
-def test_plan_page_renders_in_chromium_with_every_state(page, tmp_path):
+def test_plan_page_renders_in_chromium_with_every_state(page, plan_path, tmp_path):
     out, _ = page
+    n_states, n_steps = _counts(plan_path)
     r = _chromium(out.as_uri(), tmp_path, "--dump-dom", "--virtual-time-budget=4000")
     dom = r.stdout
     body = re.search(r"<body([^>]*)>", dom)
     assert body and 'data-ready="1"' in body.group(1), r.stderr[-2000:]
-    assert len(re.findall(r'<li class="state[^"]*" data-state="\d+"', dom)) == 9
-    assert len(re.findall(r'<li class="step[^"]*" data-step="\d+"', dom)) == 8
-    assert 'id="regrasp-timeline" data-states="9" data-steps="8"' in dom
+    assert len(re.findall(r'<li class="state[^"]*" data-state="\d+"', dom)) == n_states
+    assert len(re.findall(r'<li class="step[^"]*" data-step="\d+"', dom)) == n_steps
+    assert f'id="regrasp-timeline" data-states="{n_states}" data-steps="{n_steps}"' in dom
     ready_ms = int(re.search(r'data-ready-ms="(\d+)"', body.group(1)).group(1))
     assert ready_ms < 2000, f"the page took {ready_ms} ms to build its scene"
     # mid-step 2 (the ring finger moving): the scene is drawn, with the moving finger's colour
@@ -193,7 +203,8 @@ def test_grasp_page_renders_without_a_moving_finger(tmp_path):
 def test_cli_view_writes_the_page(plan_path, tmp_path, capsys):
     out = tmp_path / "cli.html"
     assert main(["view", str(plan_path), "-o", str(out)]) == 0
-    assert "9 states, 8 steps" in capsys.readouterr().out and out.stat().st_size > 100_000
+    n_states, n_steps = _counts(plan_path)
+    assert f"{n_states} states, {n_steps} steps" in capsys.readouterr().out and out.stat().st_size > 100_000
 
 
 def test_film_frames_are_readable(plan_path):

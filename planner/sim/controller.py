@@ -16,7 +16,10 @@ force every contact must apply and commands it:
    cones, shrunk by a safety factor (half the cone first, then 3/4, then the whole cone;
    point forces first, then with the soft-finger torsion the simulator's spinning friction
    provides), each commanded force as close as possible (L1) to a squeeze ``F n_i`` along its
-   inward normal. Solutions are cached while the hold is static.
+   inward normal, and every finger's joint torques ``|g(q) + J^T f|`` within the hand's
+   effort limits: the planner's grip model (`planner.grip.balance_forces`, the cones, margin
+   and joint limits of `planner.grip.hold_capacity`) at the simulator's contacts. Solutions
+   are cached while the hold is static.
 3. **Joint torques** ``tau = g(q) + sum_c J_c(q)^T f_c``: ``g(q)`` compensates the hand's own
    weight (pinocchio's generalized gravity of the same URDF masses) and ``J_c`` is the
    linear Jacobian of contact point ``c`` over its finger's joints (pinocchio, the
@@ -27,7 +30,8 @@ force every contact must apply and commands it:
    saturating at the torque of ``POSTURE_SHARE * F`` at the finger's pad, reached over a pad
    travel of a tenth of the object's smallest radius (at most ``MAX_TRAVEL_M``). The springs
    hold the joints the contact force does not load (the finger's null space) and pull a
-   drifting object back; they cannot throw it. A free or moving finger gets
+   drifting object back; they cannot throw it. The sum is clipped at the joints' effort
+   limits, as a real motor saturates. A free or moving finger gets
    ``FREE_SHARE * F``, so a lifting finger cannot drag the object and a landing one touches
    down softly. An armature floor on the finger links (`_add_armature`, the reflected
    inertia a geared finger motor has) keeps the explicit springs stable at the time step,
@@ -54,6 +58,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from planner.closure import Friction
+from planner.grip import CONE_MARGINS, balance_forces, torque_rows  # noqa: F401 - CONE_MARGINS re-exported
 
 with __import__("planner.sim.render", fromlist=["quiet_native_output"]).quiet_native_output():
     import pybullet as p
@@ -66,8 +71,6 @@ SAFETY = 2.0
 POSTURE_SHARE = 0.3
 #: A moving finger's motors: this multiple of the squeeze at its pad.
 FREE_SHARE = 0.15
-#: Friction-cone fractions tried in turn by `balance_forces`, (lateral, torsional).
-CONE_MARGINS = ((0.5, 0.0), (0.5, 0.5), (0.75, 0.0), (0.75, 0.75), (1.0, 0.0), (1.0, 1.0))
 #: A commanded force above this multiple of the squeeze is rejected (a near-singular
 #: grasp balanced by internal forces the fingers cannot hold).
 MAX_FORCE_RATIO = 5.0
@@ -103,96 +106,6 @@ APPROACH_M = 0.01
 
 
 # --------------------------------------------------------------------------- force optimization
-
-
-def _tangents(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    t1 = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
-    t1 /= np.linalg.norm(t1)
-    return t1, np.cross(n, t1)
-
-
-def balance_forces(points, normals, targets, load, centre, friction: Friction, fn_min,
-                   f_max: float, margins=CONE_MARGINS) -> np.ndarray | None:
-    """Contact forces that balance a load on the object: grasp force optimization.
-
-    Solves, for the margins ``(s, s_t)`` in turn, the linear program (HiGHS)
-
-        min  sum_i |f_i - f0_i|_1
-        s.t. sum_i [f_i ; (p_i - c) x f_i + t_i n_i] = -load    (equilibrium)
-             f_i in the 8-sided pyramid inscribed in the cone of friction s mu about n_i
-             |t_i| <= s_t gamma (f_i . n_i)                       (soft-finger torsion)
-             f_i . n_i >= fn_min
-
-    and returns the first solution whose components stay within ``f_max``. The torsion
-    ``t_i`` is a reaction of the simulator's spinning friction, not commanded.
-
-    Args:
-        points: (k, 3) contact points, any frame F.
-        normals: (k, 3) inward unit normals, frame F.
-        targets: (k, 3) preferred forces ``f0`` (the squeeze; zero for passive contacts).
-        load: (6,) external wrench on the object ``[f ; tau]`` in frame F, torque about ``centre``.
-        centre: (3,) the point torques are taken about (the object's centre of mass).
-        friction: Coulomb ``mu`` and torsional ``gamma`` (m).
-        fn_min: smallest normal force per contact, N (a number or (k,)).
-        f_max: largest absolute force component, N.
-        margins: friction fractions tried in turn.
-
-    Returns:
-        (k, 3) forces the fingers apply ON the object, or None when no balanced forces exist.
-    """
-    from scipy.optimize import linprog
-
-    P = np.asarray(points, float).reshape(-1, 3)
-    N = np.asarray(normals, float).reshape(-1, 3)
-    N = N / np.linalg.norm(N, axis=1, keepdims=True)
-    k = len(P)
-    if k == 0:
-        return None
-    m = 3 * k
-    r = P - np.asarray(centre, float)
-    # torque rows scaled by 1/lever so force and torque rows weigh alike
-    lever = max(1e-3, float(np.max(np.linalg.norm(r, axis=1))))
-    cross = np.zeros((k, 3, 3))  # [r_i]x: cross[i] @ f = r_i x f
-    cross[:, 0, 1], cross[:, 0, 2], cross[:, 1, 2] = -r[:, 2], r[:, 1], -r[:, 0]
-    cross -= cross.transpose(0, 2, 1)
-    A_eq = np.zeros((6, 2 * m + k))
-    A_eq[:3, :m] = np.tile(np.eye(3), k)
-    A_eq[3:, :m] = cross.transpose(1, 0, 2).reshape(3, m) / lever
-    A_eq[3:, m:m + k] = N.T / lever
-    b = -np.asarray(load, float).reshape(6).copy()
-    b[3:] /= lever
-    f0 = np.asarray(targets, float).reshape(m)
-    fn_min = np.broadcast_to(np.asarray(fn_min, float), (k,))
-    angles = np.linspace(0.0, 2.0 * np.pi, 8, endpoint=False)
-    # the pyramid's rim directions (cos a t1 + sin a t2) per contact, the same for every margin
-    t1, t2 = np.array([_tangents(n) for n in N]).transpose(1, 0, 2)
-    rims = np.cos(angles)[None, :, None] * t1[:, None] + np.sin(angles)[None, :, None] * t2[:, None]  # (k, 8, 3)
-    # variables: f (m), t (k), slack (m) with |f - f0| <= slack; rows: 8 rim + 1 normal per
-    # contact, 2 torsion per contact, then the two slack rows per force component
-    rows = 11 * k + 2 * m
-    G = np.zeros((rows, 2 * m + k))
-    h = np.zeros(rows)
-    blocks = np.arange(k)
-    rim_rows = (9 * blocks[:, None] + np.arange(8)).ravel()
-    cols = 3 * blocks[:, None] + np.arange(3)  # (k, 3) force columns of each contact
-    G[9 * blocks[:, None, None] + np.arange(9)[None, 8:, None], cols[:, None, :]] = -N[:, None, :]
-    h[9 * blocks + 8] = -fn_min
-    tor = 9 * k + 2 * blocks
-    G[tor, m + blocks], G[tor + 1, m + blocks] = 1.0, -1.0
-    I = np.eye(m)
-    G[11 * k:11 * k + m, :m], G[11 * k:11 * k + m, m + k:] = I, -I
-    G[11 * k + m:, :m], G[11 * k + m:, m + k:] = -I, -I
-    h[11 * k:] = np.r_[f0, -f0]
-    c = np.r_[np.zeros(m + k), np.ones(m)]
-    bounds = [(None, None)] * (m + k) + [(0, None)] * m
-    for s, s_t in margins:
-        mu, gamma = s * friction.mu * math.cos(math.pi / 8), s_t * friction.gamma
-        G[rim_rows[:, None], np.repeat(cols, 8, axis=0)] = (rims - mu * N[:, None, :]).reshape(8 * k, 3)
-        G[tor[:, None], cols] = G[tor[:, None] + 1, cols] = -gamma * N
-        res = linprog(c, A_ub=G, b_ub=h, A_eq=A_eq, b_eq=b, bounds=bounds, method="highs")
-        if res.status == 0 and float(np.abs(res.x[:m]).max()) <= f_max:
-            return res.x[:m].reshape(k, 3)
-    return None
 
 
 def squeeze_force_n(mass_kg: float, g_max_mps2: float, n_fingers: int, mu: float, floor_n: float) -> float:
@@ -273,6 +186,12 @@ class Controller:
         self.q_target = np.array([p.getJointState(body, i, physicsClientId=cid)[0] for i in self.movable])
         self.kp = self.kd = self.cap = np.zeros(len(self.movable))
         self.armature = self._add_armature(dt_s)
+        # the hand's joint torque limits (`planner.hand.Hand.effort`), hand order and pybullet order
+        self.effort = np.asarray(getattr(hand, "effort", np.full(len(hand.joint_names), np.inf)), dtype=float)
+        self.tau_max = np.full(len(self.movable), np.inf)
+        for j, i in self.jidx.items():
+            if j in self.col and i in self.hand_pos:
+                self.tau_max[self.hand_pos[i]] = self.effort[self.col[j]]
 
     def _heaviest_finger_weight_n(self, g: float) -> float:
         mass = {}
@@ -359,7 +278,7 @@ class Controller:
         q = np.array([s[0] for s in st])
         qd = np.array([s[1] for s in st])
         spring = np.clip(self.kp * (self.q_target - q), -self.cap, self.cap)
-        tau = self.tau + spring - self.kd * qd
+        tau = np.clip(self.tau + spring - self.kd * qd, -self.tau_max, self.tau_max)  # the motors saturate
         p.setJointMotorControlArray(self.body, self.movable, p.TORQUE_CONTROL, forces=tau.tolist(),
                                     physicsClientId=self.cid)
 
@@ -486,7 +405,8 @@ class Controller:
                 if len(self._cache) > 256:
                     self._cache.clear()
                 self._cache[key] = balance_forces([contacts[i].p_palm for i in idx], [contacts[i].n_palm for i in idx],
-                                                  targets, load, centre, self.friction, fn_min, MAX_FORCE_RATIO * F)
+                                                  targets, load, centre, self.friction, fn_min, MAX_FORCE_RATIO * F,
+                                                  joint_rows=self._joint_rows([contacts[i] for i in idx]))
             x = self._cache[key]
             if x is None:
                 return None
@@ -511,6 +431,25 @@ class Controller:
             without = [np.zeros(3) if c.finger in fading else f for c, f in zip(contacts, full)]
         s = min(fading.values())
         return [s * a + (1.0 - s) * b for a, b in zip(full, without)]
+
+    def _joint_rows(self, contacts: Sequence[Contact]) -> list:
+        """The joint torque limits of every commanded finger over its contacts' forces
+        (`planner.grip.torque_rows`, with its own weight compensated at the current gravity):
+        the planner's limits, at the simulator's contacts."""
+        q = self.q()
+        g_q = self.hand.gravity_torques(q, self.gravity) if self.gravity.any() else np.zeros(len(q))
+        rows = []
+        by_finger: dict[str, list[int]] = {}
+        for i, c in enumerate(contacts):
+            if c.finger is not None:
+                by_finger.setdefault(c.finger, []).append(i)
+        for f, idx in by_finger.items():
+            cols = [self.col[j] for j in self.hand.fingers[f].joints]
+            Js = self.hand.point_jacobians(q, [(self.link_name[contacts[i].link], contacts[i].p_palm) for i in idx])
+            A, b = torque_rows([J[:, cols] for J in Js], self.effort[cols], g_q[cols])
+            if len(A):
+                rows.append((idx, A, b))
+        return rows
 
     def _set_motors(self, q: np.ndarray, F: float) -> None:
         """Posture springs: a pad displacement of ``travel_m`` costs ``share * F``

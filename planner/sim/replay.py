@@ -107,7 +107,9 @@ class StateReport:
         carried_n: finger (or "palm") -> mean normal force it pressed on the object with
             over the measurement window, N (the simulator's contact forces).
         carriers: the fingers (or "palm") that carry the object: a mean normal force of at
-            least ``CARRY_SHARE`` of the larger of the object's weight and the squeeze.
+            least ``CARRY_SHARE`` of the larger of the object's weight and the squeeze. A state
+            holds as planned (`holds_as_planned`) when no other link carries it and every
+            planned finger touches.
     """
 
     index: int
@@ -128,9 +130,9 @@ class StateReport:
 
     @property
     def holds_as_planned(self) -> bool:
-        """The object is carried by exactly the plan's touching fingers (not the palm, not
-        another finger, none of them missing)."""
-        return self.reached and set(self.carriers) == set(self.planned_fingers)
+        """The object is held by the plan's fingers: nothing else carries it (not the palm,
+        not a finger the plan has lifted) and every one of them touches it."""
+        return self.reached and set(self.carriers) <= set(self.planned_fingers) <= set(self.sim_fingers)
 
 
 @dataclass(frozen=True)
@@ -662,8 +664,8 @@ def replay_plan(
         verdict = (f"FAIL: the simulator's force closure disagrees with the plan at "
                    f"{len(disagree)}/{len(reached)} states (max drift {max_mm:.1f} mm / {max_deg:.1f} deg)")
     elif other:
-        verdict = (f"FAIL: other links than the plan's fingers carry the object at {len(other)}/{len(reached)} "
-                   f"states (max drift {max_mm:.1f} mm / {max_deg:.1f} deg)")
+        verdict = (f"FAIL: the simulator holds the object with other links than the plan's at {len(other)}/"
+                   f"{len(reached)} states (max drift {max_mm:.1f} mm / {max_deg:.1f} deg)")
     else:
         verdict = f"PASS: max drift {max_mm:.1f} mm / {max_deg:.1f} deg ({limits}); closure agrees at {agree}/{len(reached)} states"
     reasons = []
@@ -679,8 +681,8 @@ def replay_plan(
         if r in disagree:
             continue
         extra = sorted(set(r.carriers) - set(r.planned_fingers))
-        idle = sorted(set(r.planned_fingers) - set(r.carriers))
-        words = ([f"carried by {', '.join(extra)} too"] if extra else []) + ([f"{', '.join(idle)} carry nothing"] if idle else [])
+        idle = sorted(set(r.planned_fingers) - set(r.sim_fingers))
+        words = ([f"carried by {', '.join(extra)} too"] if extra else []) + ([f"{', '.join(idle)} not touching"] if idle else [])
         reasons.append(f"state {r.index}: the plan holds with {', '.join(r.planned_fingers)}; in the simulator "
                        + "; ".join(words) + f" (forces: {', '.join(f'{f} {v:.2f} N' for f, v in sorted(r.carried_n.items()))})")
     failed_step = None
