@@ -74,6 +74,17 @@ OBJECTS = (
     ("cylinder r25 l100", {"shape": "cylinder", "size": [0.025, 0.1], "mass_kg": 0.06}),
     ("rod r5 l120", {"shape": "cylinder", "size": [0.005, 0.12], "mass_kg": 0.01}),
 )
+#: ``--objects heavy``: 0.05-0.5 kg, the sweep of objects heavier than the library's; no force
+#: is given to the planner: the hands' joint torque limits decide.
+OBJECTS_HEAVY = (
+    ("sphere r20 50g", {"shape": "sphere", "size": [0.02], "mass_kg": 0.05}),
+    ("sphere r28 200g", {"shape": "sphere", "size": [0.028], "mass_kg": 0.2}),
+    ("box 35x45x55 150g", {"shape": "box", "size": [0.035, 0.045, 0.055], "mass_kg": 0.15}),
+    ("box 45x45x60 400g", {"shape": "box", "size": [0.045, 0.045, 0.06], "mass_kg": 0.4}),
+    ("cylinder r18 l90 300g", {"shape": "cylinder", "size": [0.018, 0.09], "mass_kg": 0.3}),
+    ("cylinder r25 l100 500g", {"shape": "cylinder", "size": [0.025, 0.1], "mass_kg": 0.5}),
+)
+OBJECT_SETS = {"light": OBJECTS, "heavy": OBJECTS_HEAVY, "all": OBJECTS + OBJECTS_HEAVY}
 #: --quick: one hand, one object, two finger sets, one pair.
 QUICK = {"hands": ("allegro_right",), "objects": ("sphere r30",), "sets": 2, "pairs": 1}
 GRASPS_PER_SET = 3
@@ -211,14 +222,15 @@ def _plan(gi, gf, opts):
 
 def options(mode: str, seed: int, motion: bool = True, gravity_set: int = 6):
     """The PlanOptions of a mode (`MODES`); ``motion`` False: straight joint-space finger paths;
-    ``gravity_set``: the directions execution mode plans for (`EXECUTION_SETS`)."""
+    ``gravity_set``: the directions execution mode plans for (`EXECUTION_SETS`); its
+    verification replays run in this process (the sweep's own workers use the cores)."""
     from planner.regrasp import PlanOptions
 
     if mode == "default":
         return PlanOptions(seed=seed, motion=motion)
     if mode == "graph":
         return PlanOptions(seed=seed, motion=motion, intermediate=0, time_limit_s=0)
-    return PlanOptions.for_execution(seed=seed, motion=motion, gravity_set=gravity_set)
+    return PlanOptions.for_execution(seed=seed, motion=motion, gravity_set=gravity_set, workers=1)
 
 
 def planned_for(hand, gravity_set: int) -> list[str]:
@@ -250,7 +262,9 @@ def pair_task(t: dict) -> dict:
     row["execution_set"] = n_set
     row["planned_for"] = " ".join(generic_direction(n, names) for n in names)
     reasons = {}
-    for mode in MODES:
+    if t.get("coverage"):
+        row["grasps_hold"] = grasps_hold(gi, gf, n_set)
+    for mode in t.get("modes", MODES):
         res, s, why = _plan(gi, gf, options(mode, t["seed"], t.get("motion", True), n_set))
         row[f"{mode}_solved"] = res is not None
         row[f"{mode}_time_s"] = s
@@ -261,14 +275,52 @@ def pair_task(t: dict) -> dict:
         row[f"{mode}_steps"] = res.sequence.gait_steps
         row[f"{mode}_intermediate"] = sum((res.plan.summary.get("search") or {}).get("intermediate_added", {}).values())
         if mode == "execution":
+            check = res.plan.summary.get("verification") or {}
+            row["verify_attempts"] = check.get("attempts")
+            row["verify_s"] = res.verify_s
             if t.get("save_plans"):
                 from planner.plan import write_plan
 
                 row["plan_file"] = str(write_plan(res.plan, plan_path(t["save_plans"], t["hand"], t["object"], t["index"])))
-            row.update(replay_row(res.plan.to_dict(), hand, t["directions"], names))
+            if t.get("coverage"):
+                row.update(fresh_replay(res.plan, n_set, row.get("plan_file")))
+            else:
+                row.update(replay_row(res.plan.to_dict(), hand, t["directions"], names))
     row["reason"] = reason(row, reasons)
     row["pair_time_s"] = time.perf_counter() - t0
     return row
+
+
+def grasps_hold(gi, gf, n_set: int) -> bool:
+    """Both grasps of a pair hold the object in the simulator in the planned-for directions:
+    each as a one-state plan (the grasp alone), verified as execution mode verifies plans."""
+    from planner.errors import NoSequenceError
+    from planner.regrasp import PlanOptions, plan_regrasp
+
+    for g in (gi, gf):
+        try:
+            plan_regrasp(g, g, PlanOptions.for_execution(motion=False, gravity_set=n_set, workers=1))
+        except NoSequenceError:
+            return False
+    return True
+
+
+def fresh_replay(plan, n_set: int, plan_file: str | None = None) -> dict:
+    """Soundness: the plan, as written to a file, replayed by ``regrasp replay --gravity-set N``
+    in a new process (``fresh_pass``: exit 0; ``fresh_verdict``: its last line)."""
+    import subprocess
+    import tempfile
+
+    from planner.plan import write_plan
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path = plan_file or str(write_plan(plan, Path(tmp) / "plan.json"))
+        t0 = time.perf_counter()
+        out = subprocess.run([sys.executable, "-m", "planner", "replay", path, "--gravity-set", str(n_set),
+                              "--workers", "1"], capture_output=True, text=True, timeout=1800)
+    lines = out.stdout.strip().splitlines()
+    return {"fresh_pass": out.returncode == 0, "fresh_verdict": (lines[-1] if lines else out.stderr.strip())[:400],
+            "fresh_replay_s": time.perf_counter() - t0}
 
 
 def replay_row(plan: dict, hand, n: int, planned: list[str] = ()) -> dict:
@@ -307,6 +359,8 @@ def reason(row: dict, reasons: dict) -> str:
         return f"default: {reasons['default']}"
     if "execution" in reasons:
         return f"execution: {reasons['execution']}"
+    if row.get("fresh_pass") is False:
+        return f"fresh replay: {row.get('fresh_verdict', '')}"
     return row.get("replay_fail", "")
 
 
@@ -331,7 +385,18 @@ def summarize(rows: list[dict], synth: list[dict] | None = None) -> dict:
             s["synthesis crashes (finger set lost)"] = " | ".join(crashed)
     if not n:
         return s
-    for mode in MODES:
+    if any("grasps_hold" in r for r in rows):
+        held = [r for r in rows if r.get("grasps_hold") is True]
+        planned = [r for r in held if r.get("execution_solved") is True]
+        s["coverage: execution plan / pairs whose grasps both hold in the simulator"] = _frac(len(planned), len(held))
+        s["pairs whose grasps both hold"] = _frac(len(held), n)
+        ex = [r for r in rows if r.get("execution_solved") is True]
+        s["soundness: execution plans passing a fresh-process replay"] = _frac(
+            sum(r.get("fresh_pass") is True for r in ex), len(ex))
+        att = [r["verify_attempts"] for r in ex if isinstance(r.get("verify_attempts"), (int, float))]
+        if att:
+            s["verification: sequences replayed per plan (median / max)"] = f"{np.median(att):g} / {max(att):g}"
+    for mode in [m for m in MODES if any(f"{m}_solved" in r for r in rows)]:
         ok = [r for r in rows if r[f"{mode}_solved"]]
         times = [r[f"{mode}_time_s"] for r in ok]
         s[f"{mode} solved"] = _frac(len(ok), n)
@@ -339,6 +404,8 @@ def summarize(rows: list[dict], synth: list[dict] | None = None) -> dict:
             s[f"{mode} plan time s (median / max, solved)"] = f"{np.median(times):.2f} / {max(times):.2f}"
     mean_fc = sum(bool(r["mean_fc"]) for r in rows)
     s["both grasps force closure with mean contacts (execution can plan)"] = _frac(mean_fc, n)
+    if not all("default_solved" in r for r in rows):
+        return s
     s["execution solved, of those"] = _frac(sum(bool(r["execution_solved"]) for r in rows if r["mean_fc"]), mean_fc)
     sets = sorted({str(r["execution_set"]) for r in rows if r.get("execution_set") not in (None, "")})
     if sets:
@@ -438,12 +505,12 @@ def plot(rows: list[dict], path: Path) -> None:
 # ------------------------------------------------------------------ main
 
 
-def object_tasks(quick: bool, seed: int) -> list[dict]:
+def object_tasks(quick: bool, seed: int, objects: str = "light") -> list[dict]:
     tasks = []
     for h, sets in FINGER_SETS.items():
         if quick and h not in QUICK["hands"]:
             continue
-        for k, (label, block) in enumerate(OBJECTS):
+        for k, (label, block) in enumerate(OBJECT_SETS[objects]):
             if quick and label not in QUICK["objects"]:
                 continue
             use = sets[-QUICK["sets"]:] if quick else sets
@@ -453,14 +520,15 @@ def object_tasks(quick: bool, seed: int) -> list[dict]:
 
 
 def pair_tasks(synth: list[dict], k: int, seed: int, directions: int, motion: bool = True, execution_set: int = 6,
-               save_plans: Path | None = None) -> list[dict]:
+               save_plans: Path | None = None, coverage: bool = False) -> list[dict]:
     tasks = []
     for o in synth:
         for n, (i, j) in enumerate(draw_pairs(o["grasps"], k, seed)):
             tasks.append({"hand": o["hand"], "object": o["object"], "pair": f"{o['hand']} {o['object']} {n + 1}",
                           "index": n + 1, "initial": o["grasps"][i], "final": o["grasps"][j], "seed": seed,
                           "directions": directions, "motion": motion, "execution_set": execution_set,
-                          "save_plans": str(save_plans) if save_plans is not None else None})
+                          "save_plans": str(save_plans) if save_plans is not None else None,
+                          **({"coverage": True, "modes": ("execution",)} if coverage else {})})
     return tasks
 
 
@@ -475,6 +543,11 @@ def main(argv=None) -> dict:
                     help="gravity set execution mode plans for (planner.gravity; default 6; 1: palm down only)")
     ap.add_argument("--save-plans", type=Path, default=None, metavar="DIR",
                     help="write each execution-mode plan to DIR/<hand>_<object>_<pair>.json")
+    ap.add_argument("--objects", default="light", choices=sorted(OBJECT_SETS),
+                    help="object set: light (10-60 g, default), heavy (0.05-0.5 kg) or all")
+    ap.add_argument("--coverage", action="store_true",
+                    help="execution mode only: coverage (plans / pairs whose grasps both hold in the simulator) "
+                         "and soundness (plans passing a replay of the written file in a fresh process)")
     ap.add_argument("--name", default="exp8_random_pairs", help="CSV / PNG file stem in --out")
     ap.add_argument("--from-csv", type=Path, default=None, help="no run: summary and plot of an existing exp8 CSV")
     args = ap.parse_args(argv)
@@ -485,18 +558,18 @@ def main(argv=None) -> dict:
         if args.save_plans.exists() and not args.save_plans.is_dir():
             ap.error(f"--save-plans {args.save_plans}: exists and is not a directory")
         args.save_plans.mkdir(parents=True, exist_ok=True)
-    synth = run_tasks(synth_task, object_tasks(args.quick, args.seed), args, desc="exp8 synth")
+    synth = run_tasks(synth_task, object_tasks(args.quick, args.seed, args.objects), args, desc="exp8 synth")
     t_synth = time.perf_counter() - t0
     k = args.pairs_per_object or (QUICK["pairs"] if args.quick else PAIRS_PER_OBJECT)
     motion = not (args.quick or args.no_motion)
     rows = run_tasks(pair_task, pair_tasks(synth, k, args.seed, args.directions, motion, args.execution_set,
-                                           args.save_plans), args, desc="exp8 pairs")
+                                           args.save_plans, args.coverage), args, desc="exp8 pairs")
     write_csv(args.out / f"{args.name}.csv", rows)
     write_csv(args.out / f"{args.name}_synth.csv",
               [{"hand": o["hand"], "object": o["object"], "pose_from": o["pose_from"],
                 "pose": " ".join(f"{v:.4f}" for v in sum(o.get("pose", []), [])), **s, "object_synth_s": o["synth_s"]}
                for o in synth for s in (o["synth"] or [{"error": " | ".join(o.get("errors", ()))}])])
-    if rows:
+    if rows and not args.coverage:
         plot(rows, args.out / f"{args.name}.png")
     summary = summarize(rows, synth)
     summary["finger paths"] = "OMPL" if motion else "straight joint-space segments (--quick / --no-motion)"

@@ -52,6 +52,7 @@ PLAN_OPTION_LIMITS = {
     "intermediate": (0, 8, False),
     "max_lifted": (1, 16, False),
     "verify_attempts": (1, 100, False),
+    "workers": (1, 256, False),
     "motion_timeout_s": (0.0, 600.0, True),
     "time_limit_s": (0.0, 3600.0, False),
     "max_finger_force_n": (0.0, 1000.0, True),
@@ -117,6 +118,8 @@ class PlanOptions:
             (execution mode's default; needs ``gravity`` or ``gravity_set``).
         verify_attempts: sequences replayed at most before giving up (a bound on the work,
             not on the time, so the plan does not depend on the machine's load).
+        workers: processes for the verification replays (None: the cores available). The
+            plan is the same for any number (not written to its parameters).
         gravity_set: None or a set size of `planner.gravity.GRAVITY_SET_SIZES` (1, 2, 6, 7):
             plan for several hand orientations at once, the named gravity directions of
             `planner.gravity.gravity_directions` (from the hand's ``palm_normal``). A state's
@@ -156,6 +159,7 @@ class PlanOptions:
     hold_factor: float = HOLD_FACTOR
     verify: bool = False
     verify_attempts: int = 6
+    workers: int | None = None
 
     @classmethod
     def for_execution(cls, **overrides) -> "PlanOptions":
@@ -202,7 +206,7 @@ class PlanOptions:
             raise UnknownNameError("contact model", self.contact_model, CONTACT_MODELS)
         for name, (low, high, open_low) in PLAN_OPTION_LIMITS.items():
             value = getattr(self, name)
-            optional = value is None and name in ("max_lifted", "gravity", "max_finger_force_n")
+            optional = value is None and name in ("max_lifted", "gravity", "max_finger_force_n", "workers")
             for v in () if optional else value if isinstance(value, tuple) else (value,):
                 if not in_range(v, low, high, open_low):
                     kind = "an integer" if isinstance(low, int) else "a number"
@@ -927,7 +931,7 @@ def plan_regrasp(
     if verifying:
         from planner.sim.verify import default_workers, verify_plan
 
-        workers = default_workers()
+        workers = options.workers or default_workers()
     if options.strategy == "greedy":  # thesis Algorithm 2: only visits the states it walks through
         G = seed_graph(problem)
         candidates = [replace(greedy(G), rank=options.rank)]
@@ -1050,6 +1054,7 @@ def _make_plan(initial, final, options, inputs, problem, G, best, others, motion
         "search": search_info,
     }
     parameters = asdict(options)
+    del parameters["workers"]  # how many processes verified it changes nothing in the plan
     directions = gravity_directions_of(options, hand)
     parameters["gravity_directions"] = [{"name": n, "gravity": list(g)} for n, g in directions] or None
     parameters["grip_cone_sides"] = GRIP_CONE_SIDES if directions else None
