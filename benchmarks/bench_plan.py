@@ -6,11 +6,14 @@ medians. The greedy baseline runs on the same realized grasps in the same proces
 Target from the issue: the box pair planned (without paths) in under 1 s on 2 cores.
 
 Then the box pair in execution mode (`PlanOptions.for_execution`: mean contacts, six
-gravity directions, grip ranking: six grip LPs per state; here with the whole friction
-cone, where its own contacts suffice: with 3/4 of it the little finger needs an
-intermediate contact, timed in the last table) against the default planner and
-the mean-contact planner without gravity, without and with OMPL finger paths, as a ratio
-to the default measured in the same run.
+gravity directions, grip ranking: per state six capacity LPs over the joints' torque limits
+and six grip LPs; without the verification replays) against the default planner and the
+mean-contact planner without gravity, without and with OMPL finger paths, as a ratio to the
+default measured in the same run.
+
+Then what verification costs: the box pair planned with ``--execution`` as the command line
+does (OMPL paths), verified in pybullet in its six directions (two worker processes) against
+``--no-verify``, medians and their ratio in the same run.
 
 Last, the anytime planner on two pairs that need intermediate contacts (Allegro sphere: four
 fingers -> a tripod where the middle finger takes the ring finger's place; the box pair in
@@ -84,9 +87,7 @@ def main() -> int:
         "default (patch, metric)": lambda **kw: PlanOptions(**kw),
         "mean contacts": lambda **kw: PlanOptions(contact_model="mean", **kw),
         "mean + gravity palm down": lambda **kw: PlanOptions(contact_model="mean", gravity=(0.0, 0.0, 9.81), **kw),
-        # with the whole cone the box pair's own contacts suffice (with 3/4 of it, execution
-        # mode's reserve, it needs an intermediate contact: see anytime())
-        "execution (set 6, grip, mu)": lambda **kw: PlanOptions.for_execution(friction_margin=1.0, **kw),
+        "execution (set 6, grip)": lambda **kw: PlanOptions.for_execution(verify=False, **kw),
     }
     for motion in (False, True):
         baseline = None
@@ -103,8 +104,23 @@ def main() -> int:
             print(f"{name:<28} {'yes' if motion else 'no':<5} {med:>16.4f} {s['graph_nodes']:>6} {s['blocked_states']:>7} "
                   f"{'-' if grip is None else f'{grip:.3f}':>7} {med / baseline:>5.2f}x")
     print()
+    verification(initial, final, max(1, min(args.repeats, 3)))
+    print()
     anytime(args.repeats)
     return 0
+
+
+def verification(initial, final, repeats: int) -> None:
+    """The box pair with --execution: verified in pybullet (six directions) vs --no-verify."""
+    print(f"{'box --execution':<28} {'plan s (median)':>16} {'replays s':>9} {'sequences':>9} {'ratio':>6}")
+    base = None
+    for name, verify in (("--no-verify", False), ("verified (6 directions)", True)):
+        times, result = timed_plans(initial, final, PlanOptions.for_execution(verify=verify), repeats)
+        med = statistics.median(times)
+        base = base or med
+        check = result.plan.summary.get("verification") if result is not None else None
+        replays = f"{result.verify_s:.2f}" if result is not None and result.verify_s is not None else "-"
+        print(f"{name:<28} {med:>16.4f} {replays:>9} {check['attempts'] if check else '-':>9} {med / base:>5.2f}x")
 
 
 def middle_for_ring_pair(directory: Path) -> tuple[Path, Path]:
@@ -124,10 +140,9 @@ def middle_for_ring_pair(directory: Path) -> tuple[Path, Path]:
 
 
 def anytime(repeats: int) -> None:
-    """The anytime planner on two pairs that need intermediate contacts: the Allegro
-    middle-for-ring pair and the box pair in execution mode (3/4 of the friction: the
-    little finger must step onto another face of the box's edge first), with the defaults
-    and with --time-limit 0."""
+    """The anytime planner on the Allegro middle-for-ring pair (it needs intermediate
+    contacts) and the box pair in execution mode (within the joints' limits its own contacts
+    suffice), with the defaults and with --time-limit 0 (no verification)."""
     import tempfile
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -135,7 +150,7 @@ def anytime(repeats: int) -> None:
         allegro = realize(load_grasp(a)), realize(load_grasp(b))
     box = realize(load_grasp(ROOT / PAIRS["box"][0])), realize(load_grasp(ROOT / PAIRS["box"][1]))
     cases = {"allegro middle-for-ring": (allegro, lambda **kw: PlanOptions(motion=False, **kw)),
-             "box --execution": (box, lambda **kw: PlanOptions.for_execution(motion=False, **kw))}
+             "box --execution": (box, lambda **kw: PlanOptions.for_execution(motion=False, verify=False, **kw))}
     print(f"{'anytime pair':<24} {'mode':<16} {'plan s (median)':>16} {'first s':>7} {'solved':>6} {'rounds':>6} "
           f"{'added':>5} {'steps':>5} {'expanded':>8} {'grip N':>6}")
     for pair, ((initial, final), make) in cases.items():
