@@ -142,7 +142,7 @@ def _cmd_view(args: argparse.Namespace) -> int:
 
 def _print_states(report) -> None:
     print(f"{'state':>5}  {'plan fingers':<24} {'plan FC':>7} {'plan metric':>11}  {'sim fingers':<24} "
-          f"{'sim FC':>6} {'sim metric':>10}  {'drift mm':>8} {'drift deg':>9}")
+          f"{'sim FC':>6} {'sim metric':>10}  {'drift mm':>8} {'drift deg':>9}  contacts off the plan's")
     for s in report.states:
         if not s.reached:
             print(f"{s.index:>5}  {','.join(s.planned_fingers) or '-':<24} {str(s.planned_force_closure):>7} "
@@ -150,7 +150,8 @@ def _print_states(report) -> None:
             continue
         print(f"{s.index:>5}  {','.join(s.planned_fingers) or '-':<24} {str(s.planned_force_closure):>7} "
               f"{s.planned_metric:>11.4g}  {','.join(s.sim_fingers) or '-':<24} {str(s.sim_force_closure):>6} "
-              f"{s.sim_metric:>10.4g}  {s.drift_mm:>8.2f} {s.drift_deg:>9.2f}")
+              f"{s.sim_metric:>10.4g}  {s.drift_mm:>8.2f} {s.drift_deg:>9.2f}  "
+              + (", ".join(f"{f} {d:.1f} mm" for f, d in sorted(s.contact_offset_mm.items()) if d >= 1.0) or "-"))
 
 
 def _compare_verification(plan_path, result) -> None:

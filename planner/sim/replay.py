@@ -106,6 +106,9 @@ class StateReport:
             contacts in the object frame, normals INTO the object.
         carried_n: finger (or "palm") -> mean normal force it pressed on the object with
             over the measurement window, N (the simulator's contact forces).
+        contact_offset_mm: planned finger -> distance from its planned contact (the patch
+            mean) to where the simulator has it touch (its filtered points' mean), object
+            frame, mm (fingers touching in both only).
         carriers: the fingers (or "palm") that carry the object: a mean normal force of at
             least ``CARRY_SHARE`` of the larger of the object's weight and the squeeze. A state
             holds as planned (`holds_as_planned`) when no other link carries it and every
@@ -127,6 +130,7 @@ class StateReport:
     sim_patches: Mapping[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
     carried_n: Mapping[str, float] = field(default_factory=dict)
     carriers: tuple[str, ...] = ()
+    contact_offset_mm: Mapping[str, float] = field(default_factory=dict)
 
     @property
     def holds_as_planned(self) -> bool:
@@ -983,9 +987,11 @@ class _Sim:
         g = float(np.linalg.norm(self.ctl.gravity))
         threshold = CARRY_SHARE * max(self.mass * g, self.ctl.force_n)
         carriers = tuple(sorted(f for f, v in carried.items() if v >= threshold))
+        offsets = {f: round(1000.0 * float(np.linalg.norm(np.mean(patches[f][0], axis=0) - np.mean(pts, axis=0))), 3)
+                   for f, (pts, _) in state.patches.items() if f in patches and len(patches[f][0]) and len(pts)}
         return StateReport(index, True, self.steps_done * self.dt, state.touching, tuple(sorted(patches)),
                            state.is_force_closure, state.metric, fc, metric, n_pts, mm, deg, patches,
-                           {f: round(v, 6) for f, v in sorted(carried.items())}, carriers)
+                           {f: round(v, 6) for f, v in sorted(carried.items())}, carriers, offsets)
 
     def run(self, states, steps, recorder=None, every=8, realtime=False):
         self.recorder, self.every, self.realtime = recorder, every, realtime
