@@ -72,7 +72,8 @@ POSTURE_SHARE = 0.3
 #: A moving finger's motors: this multiple of the squeeze at its pad.
 FREE_SHARE = 0.15
 #: A commanded force above this multiple of the squeeze is rejected (a near-singular
-#: grasp balanced by internal forces the fingers cannot hold).
+#: grasp balanced by internal forces the fingers cannot hold) for fingers whose joints have
+#: no torque limits; the limits bound the others (`planner.grip.torque_rows`).
 MAX_FORCE_RATIO = 5.0
 #: Smallest commanded normal force, as a fraction of the squeeze: contacts stay closed.
 MIN_NORMAL_RATIO = 0.5
@@ -404,9 +405,16 @@ class Controller:
             if key not in self._cache:
                 if len(self._cache) > 256:
                     self._cache.clear()
-                self._cache[key] = balance_forces([contacts[i].p_palm for i in idx], [contacts[i].n_palm for i in idx],
-                                                  targets, load, centre, self.friction, fn_min, MAX_FORCE_RATIO * F,
-                                                  joint_rows=self._joint_rows([contacts[i] for i in idx]))
+                commanded = [contacts[i] for i in idx]
+                rows = self._joint_rows(commanded)
+                # the joints' limits say what the fingers can hold; only fingers without limits
+                # keep the ratio cap on their forces
+                limited = {c.finger for c in commanded if c.finger is not None
+                           and np.all(np.isfinite(self.effort[[self.col[j] for j in self.hand.fingers[c.finger].joints]]))}
+                bounded = all(c.finger is None or c.finger in limited for c in commanded)
+                self._cache[key] = balance_forces([c.p_palm for c in commanded], [c.n_palm for c in commanded],
+                                                  targets, load, centre, self.friction, fn_min,
+                                                  math.inf if bounded else MAX_FORCE_RATIO * F, joint_rows=rows)
             x = self._cache[key]
             if x is None:
                 return None
