@@ -1,5 +1,5 @@
 # Two entry points for a fresh machine with only Python:
-#   make demo   install, then plan (and replay) the bundled cylinder example
+#   make demo   install the package (no dev extra), then plan, verify and replay the bundled cylinder example
 #   make test   install, then run the test suite
 #   make wheel-check   build the wheel, install it in a fresh venv, run the CLI outside the repo
 PYTHON ?= python3
@@ -9,9 +9,16 @@ STAMP := $(VENV)/.installed
 
 .PHONY: install test demo bench clean wheel-check
 
-$(STAMP): pyproject.toml
-	$(PYTHON) -m venv $(VENV)
+# the demo needs the package alone; the tests add the dev extra (pytest, hypothesis, dask, ...)
+RUNTIME := $(VENV)/.installed-runtime
+
+$(RUNTIME): pyproject.toml
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -e .
+	touch $(RUNTIME)
+
+$(STAMP): pyproject.toml $(RUNTIME)
 	$(BIN)/python -m pip install --quiet -e '.[dev]'
 	touch $(STAMP)
 
@@ -22,7 +29,7 @@ install: $(STAMP)
 test: $(STAMP)
 	OPENBLAS_NUM_THREADS=1 $(BIN)/python -m pytest -n 2 --dist loadfile
 
-demo: $(STAMP)
+demo: $(RUNTIME)
 	$(BIN)/python -m planner demo
 
 wheel-check: $(STAMP)
