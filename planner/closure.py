@@ -845,14 +845,7 @@ def min_grip_force(patches: Mapping[str, tuple], friction: Friction, load, *,
         PlannerError: HiGHS stopped without an answer (iteration limit, numerical trouble):
             the grip force is unknown, which is neither a value nor infeasible.
     """
-    from scipy.optimize import linprog
-
-    try:
-        w_ext = np.asarray(load, dtype=float).reshape(6)
-    except (TypeError, ValueError) as err:
-        raise InputError(f"load must be 6 numbers [fx fy fz tx ty tz], got {load!r}") from err
-    if not np.all(np.isfinite(w_ext)):
-        raise InputError(f"load must be finite, got {w_ext.tolist()}")
+    w_ext = checked_load(load)
     if cone_sides is not None:
         if isinstance(cone_sides, bool) or not isinstance(cone_sides, (int, np.integer)) or cone_sides < 3:
             raise InputError(f"cone_sides must be an integer >= 3 or None, got {cone_sides!r}")
@@ -875,21 +868,47 @@ def min_grip_force(patches: Mapping[str, tuple], friction: Friction, load, *,
     # the program is homogeneous in the load: solve for the unit load and scale t back, so
     # HiGHS's absolute tolerances cannot decide feasibility for a tiny (or huge) load
     scale = float(np.abs(w_ext).max())
-    problem = dict(A_ub=A_ub, b_ub=np.zeros(len(sizes)), A_eq=np.c_[W.T, np.zeros(6)], b_eq=-w_ext / scale,
-                   bounds=[(0, None)] * (k + 1))
+    res = solve_highs(c, A_ub, np.zeros(len(sizes)), np.c_[W.T, np.zeros(6)], -w_ext / scale, [(0, None)] * (k + 1),
+                      "grip force LP", f" for {len(sizes)} finger(s) and load {np.round(w_ext, 6).tolist()}; "
+                                       "the grip force is unknown")
+    return math.inf if res is None else float(res.x[k]) * scale
+
+
+def checked_load(load) -> np.ndarray:
+    """A load as a (6,) float wrench ``[f ; tau]``; InputError unless 6 finite numbers."""
+    try:
+        w = np.asarray(load, dtype=float).reshape(6)
+    except (TypeError, ValueError) as err:
+        raise InputError(f"load must be 6 numbers [fx fy fz tx ty tz], got {load!r}") from err
+    if not np.all(np.isfinite(w)):
+        raise InputError(f"load must be finite, got {w.tolist()}")
+    return w
+
+
+def solve_highs(c, A_ub, b_ub, A_eq, b_eq, bounds, what: str, detail: str = "; the answer is unknown"):
+    """``scipy.optimize.linprog`` with HiGHS for a program that cannot be unbounded: the
+    result at an optimum, None when it is infeasible.
+
+    HiGHS's "unbounded or infeasible" (scipy status 4, e.g. from presolve) means infeasible
+    here. When the default method ends unsure (e.g. "model_status is Unknown; primal_status
+    is Infeasible", seen on a synthesized Allegro grasp) the interior-point method decides.
+
+    Raises:
+        PlannerError: any other status (iteration limit, numerical trouble): the answer is
+            unknown, which is neither a value nor infeasible.
+    """
+    from scipy.optimize import linprog
+
+    problem = dict(A_ub=A_ub if len(A_ub) else None, b_ub=b_ub if len(A_ub) else None, A_eq=A_eq, b_eq=b_eq,
+                   bounds=bounds)
+    res = None
     for method in ("highs", "highs-ipm"):
         res = linprog(c, method=method, **problem)
         if res.status == 0:
-            return float(res.x[k]) * scale
-        # The program cannot be unbounded (t >= 0 is minimized): HiGHS's "unbounded or
-        # infeasible" (scipy status 4, e.g. from presolve) means infeasible too
+            return res
         if res.status == 2 or (res.status == 4 and "unbounded or infeasible" in res.message):
-            return math.inf
-        # else HiGHS's default ended unsure (e.g. "model_status is Unknown; primal_status is
-        # Infeasible", seen on a synthesized Allegro grasp): the interior-point method decides
-    # any other status (iteration limit, numerical trouble) is a solver failure
-    raise PlannerError(f"grip force LP failed (HiGHS status {res.status}: {res.message}) for {len(sizes)} "
-                       f"finger(s) and load {np.round(w_ext, 6).tolist()}; the grip force is unknown")
+            return None
+    raise PlannerError(f"{what} failed (HiGHS status {res.status}: {res.message}){detail}")
 
 
 #: Inner polytopes kept by ``batch_grasp_closure`` for warm starts (each holds ~1-3k facets).

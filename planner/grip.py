@@ -50,7 +50,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from planner.closure import GRIP_CONE_SIDES, Friction, contact_wrenches
+from planner.closure import GRIP_CONE_SIDES, Friction, checked_load, contact_wrenches, solve_highs
 from planner.errors import InputError, PlannerError
 
 #: Multiple of the object's weight a state must hold (module docstring).
@@ -285,21 +285,6 @@ def _lever(W: np.ndarray) -> float:
     return max(1e-3, float(np.abs(W[:, 3:]).max(initial=0.0)) / max(float(np.abs(W[:, :3]).max(initial=1.0)), 1e-12))
 
 
-def _solve(c, A_ub, b_ub, A_eq, b_eq, bounds, what: str):
-    from scipy.optimize import linprog
-
-    problem = dict(A_ub=A_ub if len(A_ub) else None, b_ub=b_ub if len(A_ub) else None, A_eq=A_eq, b_eq=b_eq,
-                   bounds=bounds)
-    res = None
-    for method in ("highs", "highs-ipm"):
-        res = linprog(c, method=method, **problem)
-        if res.status == 0:
-            return res
-        if res.status == 2 or (res.status == 4 and "unbounded or infeasible" in res.message):
-            return None
-    raise PlannerError(f"{what} LP failed (HiGHS status {res.status}: {res.message}); the answer is unknown")
-
-
 def _binding(prog: _Program, lam: np.ndarray, force_cap_n: float | None) -> Limit | None:
     """The joint (or cap) closest to its limit at a solution."""
     best, best_ratio = None, 0.0
@@ -314,16 +299,6 @@ def _binding(prog: _Program, lam: np.ndarray, force_cap_n: float | None) -> Limi
         if fn[i] / force_cap_n > best_ratio:
             best, best_ratio = Limit(prog.fingers[i], None, float(fn[i]), float(force_cap_n)), float(fn[i] / force_cap_n)
     return best if best_ratio > 0.98 else None
-
-
-def _checked_load(load) -> np.ndarray:
-    try:
-        w = np.asarray(load, dtype=float).reshape(6)
-    except (TypeError, ValueError) as err:
-        raise InputError(f"load must be 6 numbers [fx fy fz tx ty tz], got {load!r}") from err
-    if not np.all(np.isfinite(w)):
-        raise InputError(f"load must be finite, got {w.tolist()}")
-    return w
 
 
 def _cap_rows(prog: _Program, force_cap_n: float | None, extra_cols: int):
@@ -363,7 +338,7 @@ def hold_capacity(patches: Mapping[str, tuple], statics: Mapping[str, FingerStat
         `Capacity` (factor 0: not even the fingers' own weight is held within the limits, or
         the contacts cannot push against the load at all).
     """
-    w = _checked_load(load)
+    w = checked_load(load)
     prog = _program(patches, statics, friction, gravity_obj, margin, cone_sides)
     k = len(prog.W)
     if k == 0:
@@ -380,7 +355,7 @@ def hold_capacity(patches: Mapping[str, tuple], statics: Mapping[str, FingerStat
     c = np.zeros(k + 1)
     c[k] = -1.0
     alpha_max = FACTOR_MAX * scale
-    res = _solve(c, A_ub, b_ub, A_eq, b_eq, [(0, None)] * k + [(0, alpha_max)], "grip capacity")
+    res = solve_highs(c, A_ub, b_ub, A_eq, b_eq, [(0, None)] * k + [(0, alpha_max)], "grip capacity LP")
     if res is None:  # not even lambda = 0: a finger cannot hold itself up
         over = np.abs(prog.tau_g) - prog.tau_max
         i = int(np.argmax(over)) if len(over) else None
@@ -400,7 +375,7 @@ def torque_demand(patches: Mapping[str, tuple], statics: Mapping[str, FingerStat
     times the load: ``min u`` s.t. the forces balance ``factor * load`` inside the cones and
     ``|tau_g + T lambda| <= u tau_max`` (arguments as `hold_capacity`). ``u <= 1``: the
     joints can. The joint at ``u tau_max`` is named with the torque it needs."""
-    w = _checked_load(load) * float(factor)
+    w = checked_load(load) * float(factor)
     prog = _program(patches, statics, friction, gravity_obj, margin, cone_sides)
     k = len(prog.W)
     if k == 0:
@@ -417,7 +392,7 @@ def torque_demand(patches: Mapping[str, tuple], statics: Mapping[str, FingerStat
     A_ub, b_ub = np.r_[A_ub, A_cap], np.r_[b_ub, b_cap]
     c = np.zeros(k + 1)
     c[k] = 1.0
-    res = _solve(c, A_ub, b_ub, A_eq, b_eq, [(0, None)] * (k + 1), "torque demand")
+    res = solve_highs(c, A_ub, b_ub, A_eq, b_eq, [(0, None)] * (k + 1), "torque demand LP")
     if res is None:
         return Demand(math.inf, None)
     u = float(res.x[k])
