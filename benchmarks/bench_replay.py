@@ -7,6 +7,10 @@ run, is pybullet alone: the same hand and box loaded and stepped for the same si
 time with no controller, no measurement and no set-up beyond loading; the ratio says how
 much of the replay's time the controller, the measurements and the set-up take.
 
+Last, the demo plan's replay in 7 gravity directions, one after the other and in one
+process per core (`planner.sim.verify.replay_directions`): wall times, their ratio, and a
+check that the verdicts and drifts are the same.
+
 Run: ``.venv/bin/python benchmarks/bench_replay.py [--repeats N]``
 """
 
@@ -124,6 +128,36 @@ def main() -> None:
               f"{1.0:>10.2f}x")
         for name, rate, wall, sim_s in results:
             print(f"{name:<30} {rate:>15.2f} {wall:>8.3f} {sim_s:>7.2f} {rate / base:>10.2f}x")
+    print()
+    directions(max(1, min(args.repeats, 3)))
+
+
+def directions(repeats: int) -> None:
+    """The demo's 7-direction replay (the cylinder pair planned with --execution, unverified)
+    one direction after the other against one process per core; the verdicts must agree."""
+    from planner.grasp import load_grasp, realize
+    from planner.gravity import gravity_directions
+    from planner.regrasp import PlanOptions, plan_regrasp
+    from planner.resources import bundled_grasp
+    from planner.sim.verify import as_written, default_workers, replay_directions
+
+    a, b = (realize(load_grasp(bundled_grasp(f"icub/cylinder_{n}.yaml"))) for n in ("parallel_extension", "ir2m"))
+    plan = as_written(plan_regrasp(a, b, PlanOptions.for_execution(verify=False)).plan)
+    dirs = gravity_directions(a.hand.palm_normal, 7)
+    print(f"{'demo plan, 7 directions':<30} {'wall s':>8} {'ratio':>7}   (median of {repeats}, {default_workers()} cores)")
+    base, verdicts = None, None
+    for name, workers in (("one after the other", 1), ("one process per core", None)):
+        walls = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            reports = replay_directions(plan, a.hand, dirs, workers=workers)
+            walls.append(time.perf_counter() - t0)
+        now = [(r.passed, r.max_drift_mm) for r in reports]
+        assert verdicts is None or now == verdicts, "parallel replays differ from the serial ones"
+        verdicts = now
+        med = statistics.median(walls)
+        base = base or med
+        print(f"{name:<30} {med:>8.2f} {base / med:>6.2f}x")
 
 
 if __name__ == "__main__":
