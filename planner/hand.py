@@ -169,6 +169,26 @@ def _check_urdf_sizes(spec_path: str, urdf_path: str, link: str, go) -> None:
                                                f"> 0, got {shown}")
 
 
+def _link_shape(spec_path: str, link: str, shape):
+    """A link's collision shape as the planner uses it: a mesh (STL/OBJ/DAE, a coal BVH) is
+    replaced by its convex hull, as pybullet does for the mesh of a moving link. coal then
+    measures signed distances (penetration depth, by GJK/EPA) and accepts the negative
+    security margins of the collision checks, which it refuses for a BVH ("Negative
+    security margin are not handled yet for BVHModel")."""
+    if not isinstance(shape, coal.BVHModelBase):
+        return shape
+    V = np.asarray(shape.vertices(), dtype=float) if shape.num_vertices else np.zeros((0, 3))
+    if len(V) < 4 or np.linalg.matrix_rank(V - V.mean(axis=0), tol=1e-9) < 3:
+        raise SpecError(spec_path, "urdf", f"link {link!r}: its collision mesh is flat or empty ({len(V)} vertices): "
+                                           "give it a solid mesh or a primitive shape")
+    points = coal.StdVec_Vec3s()
+    for v in V:
+        points.append(np.ascontiguousarray(v))
+    hull = coal.Convex.convexHull(points, False, "Qt")
+    hull.computeLocalAABB()
+    return hull
+
+
 def _merge_capsules(entries):
     """Replace cylinder + 2 end spheres of equal radius on one link by one coal.Capsule.
 
@@ -329,8 +349,10 @@ class Hand:
 
         # collision geometry
         try:
+            # a relative mesh path is relative to the URDF's folder (as pybullet reads it);
+            # pinocchio looks for it in package_dirs
             gm = pin.buildGeomFromUrdf(self.model, self.urdf_path, pin.GeometryType.COLLISION,
-                                       package_dirs=self.package_dirs)
+                                       package_dirs=[str(Path(self.urdf_path).parent)] + self.package_dirs)
         except (RuntimeError, ValueError) as err:
             raise SpecError(sp, "urdf", f"cannot load collision geometry: {err}") from err
         joint_finger: dict[int, str] = {}
@@ -349,7 +371,7 @@ class Hand:
         for go in gm.geometryObjects:
             link = self.model.frames[go.parentFrame].name
             _check_urdf_sizes(sp, self.urdf_path, link, go)
-            entries.append((link, finger_of_joint(go.parentJoint), go.geometry, go.parentJoint,
+            entries.append((link, finger_of_joint(go.parentJoint), _link_shape(sp, link, go.geometry), go.parentJoint,
                             pin.SE3(go.placement)))
         geoms: list[Geometry] = []
         for link, fname, shape, jid, plc in _merge_capsules(entries):
