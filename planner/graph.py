@@ -43,7 +43,7 @@ import numpy as np
 
 from planner.closure import Closure, Friction, batch_grasp_closure, min_grip_force
 from planner.errors import InputError, NoSequenceError
-from planner.grip import HOLD_FACTOR, Capacity, FingerStatics, hold_capacity, torque_demand
+from planner.grip import HOLD_FACTOR, Capacity, FingerStatics, grip_program, hold_capacity, torque_demand
 
 RANKS = ("metric", "grip")
 """Sequence rankings of `search` (module docstring)."""
@@ -361,11 +361,12 @@ class _Evaluator:
             return True
         p = self.problem
         patches, statics = p.patches(node), p.statics(node)
+        program = grip_program(patches, statics, p.friction, margin=p.grip_friction_margin)
         order = sorted(range(len(self._loads)), key=lambda j: (-self._refusals[j], j))
         factors = {}
         for j in order:
             cap = hold_capacity(patches, statics, p.friction, self._loads[j][1], p.load_gravity[j],
-                                margin=p.grip_friction_margin, force_cap_n=p.max_grip_force_n)
+                                force_cap_n=p.max_grip_force_n, program=program, witness=False)
             if cap.factor < p.hold_factor:
                 self._refusals[j] += 1
                 self._over[node] = (j, cap)

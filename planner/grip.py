@@ -204,19 +204,26 @@ def finger_statics(hand, finger: str, q, points_obj, T_palm_obj, effort=None) ->
 
 
 @dataclass(frozen=True)
-class _Program:
-    """Rows shared by both programs: wrench columns, joint-torque rows, force-cap rows."""
+class GripProgram:
+    """The rows both programs share for one grasp state, whatever the load and gravity:
+    wrench columns, joint-torque rows, force-cap rows (`grip_program`; a state held under
+    several gravity directions builds them once)."""
 
     W: np.ndarray          # (k, 6) rim wrenches (unit normal force each), object frame
     torque: np.ndarray     # (r, k) joint torque per unit of each rim wrench
-    tau_g: np.ndarray      # (r,) the hand's own gravity torques
+    gravity_rows: np.ndarray  # (r, 3) the hand's own gravity torques per unit gravity (object frame)
     tau_max: np.ndarray    # (r,) limits (finite ones only)
     names: tuple           # (finger, joint) per torque row
     cap_rows: np.ndarray   # (f, k) each finger's normal force per rim wrench
     fingers: tuple         # finger per cap row
     per_point: int         # rim wrenches per contact point (point-major within a finger)
+    points: Mapping[str, np.ndarray]  # finger -> (n, 3) its contact points
 
-    def forces(self, lam: np.ndarray, points: Mapping[str, np.ndarray]) -> tuple[dict, dict]:
+    def tau_g(self, gravity_obj) -> np.ndarray:
+        """(r,) the fingers' own gravity torques for a gravity vector (object frame)."""
+        return self.gravity_rows @ np.asarray(gravity_obj, dtype=float).reshape(3)
+
+    def forces(self, lam: np.ndarray) -> tuple[dict, dict]:
         """finger -> (n_points, 3) contact forces (N) and torsional moments (N m) applied at
         the contact points, object frame, of rim-wrench weights ``lam``."""
         forces, moments = {}, {}
@@ -224,19 +231,19 @@ class _Program:
             cols = np.flatnonzero(self.cap_rows[i])
             w = (self.W[cols] * lam[cols, None]).reshape(-1, self.per_point, 6).sum(axis=1)
             forces[f] = w[:, :3]
-            moments[f] = w[:, 3:] - np.cross(points[f], w[:, :3])
+            moments[f] = w[:, 3:] - np.cross(self.points[f], w[:, :3])
         return forces, moments
 
 
-def _program(patches: Mapping[str, tuple], statics: Mapping[str, FingerStatics], friction: Friction,
-             gravity_obj, margin: float, cone_sides: int) -> _Program:
+def grip_program(patches: Mapping[str, tuple], statics: Mapping[str, FingerStatics], friction: Friction, *,
+                 margin: float = FRICTION_MARGIN, cone_sides: int = GRIP_CONE_SIDES) -> GripProgram:
+    """The `GripProgram` of a grasp state (arguments as `hold_capacity`)."""
     if not isinstance(friction, Friction):
         raise InputError(f"friction must be a Friction, got {type(friction).__name__}")
     if not 0 < margin <= 1:
         raise InputError(f"friction margin must be in (0, 1], got {margin!r}")
     fr = Friction(friction.mu * margin, friction.gamma * margin, int(cone_sides))
-    g = np.asarray(gravity_obj, dtype=float).reshape(3)
-    blocks, torque, tau_g, tau_max, names, fingers = [], [], [], [], [], []
+    blocks, torque, at, names, fingers = [], [], {}, [], []
     per_point = 2 * fr.edges
     for finger, (points, normals) in patches.items():
         P = np.asarray(points, dtype=float).reshape(-1, 3)
@@ -245,6 +252,7 @@ def _program(patches: Mapping[str, tuple], statics: Mapping[str, FingerStatics],
         Wf = contact_wrenches(P, normals, fr)  # point-major, 2 * edges rows per point
         blocks.append(Wf)
         fingers.append(finger)
+        at[finger] = P
         st = statics.get(finger)
         if st is None:
             torque.append(None)
@@ -256,7 +264,7 @@ def _program(patches: Mapping[str, tuple], statics: Mapping[str, FingerStatics],
         moment = Wf[:, 3:] - np.cross(pts, f)  # the torsion +/- gamma n applied at the contact
         J = np.repeat(st.jacobians, per_point, axis=0)  # (rows, 6, nj)
         T = np.einsum("rij,ri->jr", J[:, :3], f) + np.einsum("rij,ri->jr", J[:, 3:], moment)  # (nj, rows)
-        torque.append((T, st.gravity @ g, st.effort, [(finger, j) for j in st.joints]))
+        torque.append((T, st.gravity, st.effort, [(finger, j) for j in st.joints]))
     k = sum(len(b) for b in blocks)
     W = np.vstack(blocks) if blocks else np.zeros((0, 6))
     rows, offset = [], 0
@@ -272,12 +280,12 @@ def _program(patches: Mapping[str, tuple], statics: Mapping[str, FingerStatics],
         offset += len(b)
     if rows:
         torque_m = np.vstack([r[0] for r in rows])
-        tg_all = np.concatenate([r[1] for r in rows])
+        tg_all = np.vstack([r[1] for r in rows])
         tm_all = np.concatenate([r[2] for r in rows])
         nm_all = tuple(n for r in rows for n in r[3])
     else:
-        torque_m, tg_all, tm_all, nm_all = np.zeros((0, k)), np.zeros(0), np.zeros(0), ()
-    return _Program(W, torque_m, tg_all, tm_all, nm_all, cap, tuple(fingers), per_point)
+        torque_m, tg_all, tm_all, nm_all = np.zeros((0, k)), np.zeros((0, 3)), np.zeros(0), ()
+    return GripProgram(W, torque_m, tg_all, tm_all, nm_all, cap, tuple(fingers), per_point, at)
 
 
 def _lever(W: np.ndarray) -> float:
@@ -285,11 +293,11 @@ def _lever(W: np.ndarray) -> float:
     return max(1e-3, float(np.abs(W[:, 3:]).max(initial=0.0)) / max(float(np.abs(W[:, :3]).max(initial=1.0)), 1e-12))
 
 
-def _binding(prog: _Program, lam: np.ndarray, force_cap_n: float | None) -> Limit | None:
+def _binding(prog: GripProgram, lam: np.ndarray, force_cap_n: float | None, tau_g: np.ndarray) -> Limit | None:
     """The joint (or cap) closest to its limit at a solution."""
     best, best_ratio = None, 0.0
     if len(prog.tau_max):
-        tau = prog.tau_g + prog.torque @ lam
+        tau = tau_g + prog.torque @ lam
         ratio = np.abs(tau) / prog.tau_max
         i = int(np.argmax(ratio))
         best, best_ratio = Limit(prog.names[i][0], prog.names[i][1], float(abs(tau[i])), float(prog.tau_max[i])), float(ratio[i])
@@ -301,7 +309,7 @@ def _binding(prog: _Program, lam: np.ndarray, force_cap_n: float | None) -> Limi
     return best if best_ratio > 0.98 else None
 
 
-def _cap_rows(prog: _Program, force_cap_n: float | None, extra_cols: int):
+def _cap_rows(prog: GripProgram, force_cap_n: float | None, extra_cols: int):
     if force_cap_n is None or not len(prog.cap_rows):
         return np.zeros((0, len(prog.W) + extra_cols)), np.zeros(0)
     return np.c_[prog.cap_rows, np.zeros((len(prog.cap_rows), extra_cols))], np.full(len(prog.cap_rows), float(force_cap_n))
@@ -309,7 +317,8 @@ def _cap_rows(prog: _Program, force_cap_n: float | None, extra_cols: int):
 
 def hold_capacity(patches: Mapping[str, tuple], statics: Mapping[str, FingerStatics], friction: Friction, load,
                   gravity_obj, *, margin: float = FRICTION_MARGIN, force_cap_n: float | None = None,
-                  cone_sides: int = GRIP_CONE_SIDES) -> Capacity:
+                  cone_sides: int = GRIP_CONE_SIDES, program: GripProgram | None = None,
+                  witness: bool = True) -> Capacity:
     """Largest multiple of a load the fingers hold within their joints' limits.
 
     Solves (HiGHS) ``max alpha`` over rim-wrench weights ``lambda >= 0`` (module docstring):
@@ -333,13 +342,17 @@ def hold_capacity(patches: Mapping[str, tuple], statics: Mapping[str, FingerStat
         margin: fraction of ``mu`` and ``gamma`` the forces may use.
         force_cap_n: optional per-finger normal force cap, N.
         cone_sides: sides of the inscribed cone polygon.
+        program: the state's `grip_program` when already built (then ``patches``,
+            ``statics``, ``friction``, ``margin`` and ``cone_sides`` are its).
+        witness: also return the witness forces and moments (else None).
 
     Returns:
         `Capacity` (factor 0: not even the fingers' own weight is held within the limits, or
         the contacts cannot push against the load at all).
     """
     w = checked_load(load)
-    prog = _program(patches, statics, friction, gravity_obj, margin, cone_sides)
+    prog = program or grip_program(patches, statics, friction, margin=margin, cone_sides=cone_sides)
+    tau_g = prog.tau_g(gravity_obj)
     k = len(prog.W)
     if k == 0:
         return Capacity(0.0, None)
@@ -349,7 +362,7 @@ def hold_capacity(patches: Mapping[str, tuple], statics: Mapping[str, FingerStat
     A_eq[3:] /= L
     b_eq = np.zeros(6)
     A_ub = np.r_[np.c_[prog.torque, np.zeros(len(prog.torque))], np.c_[-prog.torque, np.zeros(len(prog.torque))]]
-    b_ub = np.r_[prog.tau_max - prog.tau_g, prog.tau_max + prog.tau_g]
+    b_ub = np.r_[prog.tau_max - tau_g, prog.tau_max + tau_g]
     A_cap, b_cap = _cap_rows(prog, force_cap_n, 1)
     A_ub, b_ub = np.r_[A_ub, A_cap], np.r_[b_ub, b_cap]
     c = np.zeros(k + 1)
@@ -357,26 +370,27 @@ def hold_capacity(patches: Mapping[str, tuple], statics: Mapping[str, FingerStat
     alpha_max = FACTOR_MAX * scale
     res = solve_highs(c, A_ub, b_ub, A_eq, b_eq, [(0, None)] * k + [(0, alpha_max)], "grip capacity LP")
     if res is None:  # not even lambda = 0: a finger cannot hold itself up
-        over = np.abs(prog.tau_g) - prog.tau_max
+        over = np.abs(tau_g) - prog.tau_max
         i = int(np.argmax(over)) if len(over) else None
-        lim = None if i is None else Limit(prog.names[i][0], prog.names[i][1], float(abs(prog.tau_g[i])), float(prog.tau_max[i]))
+        lim = None if i is None else Limit(prog.names[i][0], prog.names[i][1], float(abs(tau_g[i])), float(prog.tau_max[i]))
         return Capacity(0.0, lim)
     alpha = float(res.x[k]) / scale
     lam = res.x[:k]
-    limit = None if alpha >= FACTOR_MAX * (1 - 1e-9) else _binding(prog, lam, force_cap_n)
-    points = {f: np.asarray(patches[f][0], dtype=float).reshape(-1, 3) for f in prog.fingers}
-    return Capacity(min(alpha, FACTOR_MAX), limit, *prog.forces(lam, points))
+    limit = None if alpha >= FACTOR_MAX * (1 - 1e-9) else _binding(prog, lam, force_cap_n, tau_g)
+    return Capacity(min(alpha, FACTOR_MAX), limit, *(prog.forces(lam) if witness else (None, None)))
 
 
 def torque_demand(patches: Mapping[str, tuple], statics: Mapping[str, FingerStatics], friction: Friction, load,
                   gravity_obj, *, factor: float = HOLD_FACTOR, margin: float = FRICTION_MARGIN,
-                  force_cap_n: float | None = None, cone_sides: int = GRIP_CONE_SIDES) -> Demand:
+                  force_cap_n: float | None = None, cone_sides: int = GRIP_CONE_SIDES,
+                  program: GripProgram | None = None) -> Demand:
     """Smallest fraction ``u`` of every joint's limit with which the fingers hold ``factor``
     times the load: ``min u`` s.t. the forces balance ``factor * load`` inside the cones and
     ``|tau_g + T lambda| <= u tau_max`` (arguments as `hold_capacity`). ``u <= 1``: the
     joints can. The joint at ``u tau_max`` is named with the torque it needs."""
     w = checked_load(load) * float(factor)
-    prog = _program(patches, statics, friction, gravity_obj, margin, cone_sides)
+    prog = program or grip_program(patches, statics, friction, margin=margin, cone_sides=cone_sides)
+    tau_g = prog.tau_g(gravity_obj)
     k = len(prog.W)
     if k == 0:
         return Demand(math.inf, None)
@@ -387,7 +401,7 @@ def torque_demand(patches: Mapping[str, tuple], statics: Mapping[str, FingerStat
     b_eq[3:] /= L
     tm = prog.tau_max
     A_ub = np.r_[np.c_[prog.torque, -tm], np.c_[-prog.torque, -tm]]
-    b_ub = np.r_[-prog.tau_g, prog.tau_g]
+    b_ub = np.r_[-tau_g, tau_g]
     A_cap, b_cap = _cap_rows(prog, force_cap_n, 1)
     A_ub, b_ub = np.r_[A_ub, A_cap], np.r_[b_ub, b_cap]
     c = np.zeros(k + 1)
@@ -399,7 +413,7 @@ def torque_demand(patches: Mapping[str, tuple], statics: Mapping[str, FingerStat
     lam = res.x[:k]
     lim = None
     if len(tm):
-        tau = prog.tau_g + prog.torque @ lam
+        tau = tau_g + prog.torque @ lam
         i = int(np.argmax(np.abs(tau) / tm))
         lim = Limit(prog.names[i][0], prog.names[i][1], float(abs(tau[i])), float(tm[i]))
     return Demand(u, lim)
@@ -566,12 +580,13 @@ def grasp_hold(hand, q, patches: Mapping[str, tuple], T_palm_obj, mass_kg: float
     each named gravity direction (palm frame, m/s^2; `planner.gravity.gravity_directions`)."""
     R = np.asarray(T_palm_obj, dtype=float)[:3, :3]
     statics = grasp_statics(hand, q, patches, T_palm_obj)
+    prog = grip_program(patches, statics, friction, margin=margin)
     out = []
     for name, g in directions:
         g_obj = R.T @ np.asarray(g, dtype=float)
         load = np.r_[float(mass_kg) * g_obj, np.zeros(3)]
-        cap = hold_capacity(patches, statics, friction, load, g_obj, margin=margin, force_cap_n=force_cap_n)
-        dem = (torque_demand(patches, statics, friction, load, g_obj, margin=margin, force_cap_n=force_cap_n)
+        cap = hold_capacity(patches, statics, friction, load, g_obj, force_cap_n=force_cap_n, program=prog)
+        dem = (torque_demand(patches, statics, friction, load, g_obj, force_cap_n=force_cap_n, program=prog)
                if demand else None)
         out.append(DirectionHold(name, tuple(float(v) for v in g), cap, dem))
     return out
