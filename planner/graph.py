@@ -43,7 +43,7 @@ import numpy as np
 
 from planner.closure import Closure, Friction, batch_grasp_closure, min_grip_force
 from planner.errors import InputError, NoSequenceError
-from planner.grip import HOLD_FACTOR, Capacity, FingerStatics, grip_program, hold_capacity, torque_demand
+from planner.grip import HOLD_FACTOR, Capacity, FingerStatics, grip_program, hold_capacity, holds_by_bound, torque_demand
 
 RANKS = ("metric", "grip")
 """Sequence rankings of `search` (module docstring)."""
@@ -234,7 +234,8 @@ class _Evaluator:
         self._pairs: dict[tuple, bool] = {}
         self._refusals = [0] * len(self._loads)  # states each load refused (`_over_budget`)
         self._over: dict[Node, tuple[int, Capacity] | None] = {}  # refused: (load index, capacity)
-        self.hold: dict[Node, tuple[float, ...]] = {}  # torque model: capacity factor per load
+        self.hold: set[Node] = set()  # torque model: states that hold every load
+        self._factors: dict[Node, tuple[float, ...]] = {}  # their capacity factor per load (`hold_factors`)
 
     def evaluate(self, nodes: Sequence[Node]) -> None:
         todo = [n for n in dict.fromkeys(nodes) if n not in self.closure]
@@ -353,27 +354,49 @@ class _Evaluator:
 
     def _over_torque(self, node: Node) -> bool:
         """The torque model (`GaitProblem.load_gravity`): some load is held less than
-        ``hold_factor`` times within the joints' limits. Loads are tried most-refusing first;
-        a state that holds them all gets every capacity and grip force."""
+        ``hold_factor`` times within the joints' limits. Loads are tried most-refusing first:
+        the state's grip force for the load (which the ranking needs anyway) proves most
+        holds by a bound (`planner.grip.holds_by_bound`); the capacity program decides the
+        others."""
         if node in self.hold:
             return False
         if node in self._over:
             return True
         p = self.problem
         patches, statics = p.patches(node), p.statics(node)
-        program = grip_program(patches, statics, p.friction, margin=p.grip_friction_margin)
+        grip = self.grip.get(node) or [None] * len(self._loads)
+        program = None
         order = sorted(range(len(self._loads)), key=lambda j: (-self._refusals[j], j))
-        factors = {}
         for j in order:
+            if grip[j] is None:
+                grip[j] = min_grip_force(patches, self._grip_friction, self._loads[j][1])
+            if holds_by_bound(statics, grip[j], p.friction, p.load_gravity[j], factor=p.hold_factor,
+                              margin=p.grip_friction_margin, force_cap_n=p.max_grip_force_n):
+                continue
+            program = program or grip_program(patches, statics, p.friction, margin=p.grip_friction_margin)
             cap = hold_capacity(patches, statics, p.friction, self._loads[j][1], p.load_gravity[j],
                                 force_cap_n=p.max_grip_force_n, program=program, witness=False)
             if cap.factor < p.hold_factor:
                 self._refusals[j] += 1
                 self._over[node] = (j, cap)
                 return True
-            factors[j] = cap.factor
-        self.hold[node] = tuple(factors[j] for j in range(len(self._loads)))
+        self.grip[node] = tuple(grip)
+        self.hold.add(node)
         return False
+
+    def hold_factors(self, node: Node) -> dict[str, float] | None:
+        """Load name -> the largest multiple of it the state's joints hold (the capacity
+        program, computed when asked: for the states of a plan); None without the torque model."""
+        p = self.problem
+        if p.load_gravity is None or not self._loads:
+            return None
+        if node not in self._factors:
+            patches, statics = p.patches(node), p.statics(node)
+            program = grip_program(patches, statics, p.friction, margin=p.grip_friction_margin)
+            self._factors[node] = tuple(
+                hold_capacity(patches, statics, p.friction, w, g, force_cap_n=p.max_grip_force_n, program=program,
+                              witness=False).factor for (_, w), g in zip(self._loads, p.load_gravity))
+        return dict(zip((n for n, _ in self._loads), self._factors[node]))
 
 
 def seed_graph(problem: GaitProblem, evaluator: _Evaluator | None = None) -> nx.DiGraph:
@@ -442,8 +465,7 @@ def _add_node(G: nx.DiGraph, ev: _Evaluator, v: Node) -> None:
     forces = ev.grip_forces(v)
     G.add_node(v, labels=p.labels(v), patches=p.patches(v), closure=c, metric=float(c.metric),
                grip_force=None if forces is None else max(forces),
-               grip_forces=None if forces is None else dict(zip((n for n, _ in p.all_loads()), forces)),
-               hold_factors=dict(zip((n for n, _ in p.all_loads()), ev.hold[v])) if v in ev.hold else None)
+               grip_forces=None if forces is None else dict(zip((n for n, _ in p.all_loads()), forces)))
 
 
 def _gaits_lower_bound(start: Node, goal: Node, v: Node) -> int:

@@ -419,6 +419,37 @@ def torque_demand(patches: Mapping[str, tuple], statics: Mapping[str, FingerStat
     return Demand(u, lim)
 
 
+def holds_by_bound(statics: Mapping[str, FingerStatics], grip_force_n: float, friction: Friction, gravity_obj, *,
+                   factor: float = HOLD_FACTOR, margin: float = FRICTION_MARGIN,
+                   force_cap_n: float | None = None) -> bool:
+    """A sufficient condition for ``hold_capacity >= factor``, without a program.
+
+    ``grip_force_n`` is `planner.closure.min_grip_force` of the state for the load (the same
+    cone polygon, ``mu`` and ``gamma`` times ``margin``): its forces, scaled by ``factor``,
+    hold ``factor`` times the load with at most ``factor * grip_force_n`` of normal force per
+    finger. Each contact force is then at most ``sqrt(1 + mu'^2)`` times its normal force and
+    its torsion ``gamma'`` times it, so a joint delivers at most
+
+        |tau_g| + factor * grip_force_n * max_c (|J_lin,c[:, j]| sqrt(1 + mu'^2) + |J_ang,c[:, j]| gamma')
+
+    When that is within every joint's limit (and ``factor * grip_force_n`` within the cap),
+    those forces are a witness and the state holds; otherwise the program decides.
+    """
+    if not math.isfinite(grip_force_n):
+        return False
+    push = factor * grip_force_n
+    if force_cap_n is not None and push > force_cap_n:
+        return False
+    mu, gamma = friction.mu * margin, friction.gamma * margin
+    g = np.asarray(gravity_obj, dtype=float).reshape(3)
+    for st in statics.values():
+        lever = (np.linalg.norm(st.jacobians[:, :3], axis=1) * math.sqrt(1.0 + mu * mu)
+                 + np.linalg.norm(st.jacobians[:, 3:], axis=1) * gamma).max(axis=0)  # (nj,)
+        if np.any(np.abs(st.gravity @ g) + push * lever > st.effort):
+            return False
+    return True
+
+
 def torque_rows(jacobians: Sequence[np.ndarray], effort: Sequence[float], tau_g) -> tuple[np.ndarray, np.ndarray]:
     """Joint-limit rows ``A f <= b`` over a finger's stacked contact forces (the controller's
     form of the constraint): ``|tau_g + sum_c J_c^T f_c| <= effort`` with ``J_c`` (3, n_joints)

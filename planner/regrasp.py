@@ -1016,7 +1016,7 @@ def _make_plan(initial, final, options, inputs, problem, G, best, others, motion
                 q=tuple(float(v) for v in q),
                 grip_force_n=data.get("grip_force"),
                 grip_force_by_gravity_n=data.get("grip_forces"),
-                hold_factor_by_gravity=data.get("hold_factors"),
+                hold_factor_by_gravity=G.graph["evaluator"].hold_factors(node),
             )
         )
         return len(states) - 1
