@@ -53,6 +53,8 @@ from __future__ import annotations
 
 import hashlib
 import math
+import os
+import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
@@ -886,29 +888,100 @@ def checked_load(load) -> np.ndarray:
 
 
 def solve_highs(c, A_ub, b_ub, A_eq, b_eq, bounds, what: str, detail: str = "; the answer is unknown"):
-    """``scipy.optimize.linprog`` with HiGHS for a program that cannot be unbounded: the
-    result at an optimum, None when it is infeasible.
+    """Solve ``min c x`` s.t. ``A_ub x <= b_ub``, ``A_eq x = b_eq``, ``bounds`` with HiGHS, for
+    a program that cannot be unbounded: the result (``.x``) at an optimum, None when it is
+    infeasible.
 
-    HiGHS's "unbounded or infeasible" (scipy status 4, e.g. from presolve) means infeasible
-    here. When the default method ends unsure (e.g. "model_status is Unknown; primal_status
-    is Infeasible", seen on a synthesized Allegro grasp) the interior-point method decides.
+    HiGHS's "unbounded or infeasible" (e.g. from presolve) means infeasible here. When the
+    default method ends unsure (e.g. "model_status is Unknown; primal_status is Infeasible",
+    seen on a synthesized Allegro grasp) the interior-point method decides.
 
     Raises:
         PlannerError: any other status (iteration limit, numerical trouble): the answer is
             unknown, which is neither a value nor infeasible.
     """
-    from scipy.optimize import linprog
-
-    problem = dict(A_ub=A_ub if len(A_ub) else None, b_ub=b_ub if len(A_ub) else None, A_eq=A_eq, b_eq=b_eq,
-                   bounds=bounds)
     res = None
     for method in ("highs", "highs-ipm"):
-        res = linprog(c, method=method, **problem)
+        res = _lp(c, A_ub, b_ub, A_eq, b_eq, bounds, method)
         if res.status == 0:
             return res
         if res.status == 2 or (res.status == 4 and "unbounded or infeasible" in res.message):
             return None
     raise PlannerError(f"{what} failed (HiGHS status {res.status}: {res.message}){detail}")
+
+
+class _LPResult:
+    """What `_lp` answers, in ``scipy.optimize.linprog``'s terms: ``status`` (0 optimal,
+    1 iteration or time limit, 2 infeasible, 3 unbounded, 4 other), ``message``, ``x``."""
+
+    __slots__ = ("status", "message", "x")
+
+    def __init__(self, status: int, message: str, x):
+        self.status, self.message, self.x = status, message, x
+
+
+_HIGHS = None  # one highspy.Highs per process, reused (a model is passed per solve)
+
+
+def _highs():
+    global _HIGHS
+    if _HIGHS is None:
+        import highspy
+
+        # its constructor prints a banner on the C stdout: keep a command's output clean
+        sys.stdout.flush()
+        saved = os.dup(1)
+        try:
+            with open(os.devnull, "w") as null:
+                os.dup2(null.fileno(), 1)
+                h = highspy.Highs()
+        finally:
+            os.dup2(saved, 1)
+            os.close(saved)
+        h.setOptionValue("output_flag", False)
+        _HIGHS = (highspy, h)
+    return _HIGHS
+
+
+def _lp(c, A_ub, b_ub, A_eq, b_eq, bounds, method: str) -> _LPResult:
+    """One HiGHS solve through highspy, the HiGHS project's own Python interface (a model
+    passed as arrays: scipy's linprog spends 2-3x HiGHS's own time in checking and
+    converting its input on the planner's small programs)."""
+    from scipy.sparse import csc_matrix
+
+    highspy, h = _highs()
+    inf = highspy.kHighsInf
+    c = np.asarray(c, dtype=float)
+    n = len(c)
+    A_ub = np.zeros((0, n)) if A_ub is None or not len(A_ub) else np.asarray(A_ub, dtype=float)
+    b_ub = np.zeros(0) if not len(A_ub) else np.asarray(b_ub, dtype=float)
+    A_eq, b_eq = np.asarray(A_eq, dtype=float), np.asarray(b_eq, dtype=float)
+    A = csc_matrix(np.vstack([A_eq, A_ub]))
+    lo = np.array([-inf if b[0] is None else b[0] for b in bounds], dtype=float)
+    hi = np.array([inf if b[1] is None else b[1] for b in bounds], dtype=float)
+    lp = highspy.HighsLp()
+    lp.num_col_, lp.num_row_ = n, A.shape[0]
+    lp.col_cost_, lp.col_lower_, lp.col_upper_ = c, lo, hi
+    lp.row_lower_ = np.r_[b_eq, np.full(len(b_ub), -inf)]
+    lp.row_upper_ = np.r_[b_eq, b_ub]
+    lp.a_matrix_.format_ = highspy.MatrixFormat.kColwise
+    lp.a_matrix_.start_, lp.a_matrix_.index_, lp.a_matrix_.value_ = A.indptr, A.indices, A.data
+    h.setOptionValue("solver", "ipm" if method == "highs-ipm" else "choose")
+    h.passModel(lp)
+    h.run()
+    st = h.getModelStatus()
+    S = highspy.HighsModelStatus
+    if st == S.kOptimal:
+        return _LPResult(0, "Optimal", np.array(h.getSolution().col_value, dtype=float))
+    if st == S.kInfeasible:
+        return _LPResult(2, "The problem is infeasible.", None)
+    if st == S.kUnboundedOrInfeasible:
+        return _LPResult(4, "The problem is unbounded or infeasible.", None)
+    if st == S.kUnbounded:
+        return _LPResult(3, "The problem is unbounded.", None)
+    if st in (S.kIterationLimit, S.kTimeLimit):
+        return _LPResult(1, f"model_status is {h.modelStatusToString(st)}", None)
+    return _LPResult(4, f"model_status is {h.modelStatusToString(st)}", None)
 
 
 #: Inner polytopes kept by ``batch_grasp_closure`` for warm starts (each holds ~1-3k facets).

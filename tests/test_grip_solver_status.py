@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 import scipy.optimize
 
+import planner.closure as closure
 from planner.closure import Friction, min_grip_force
 from planner.errors import PlannerError
 
@@ -19,8 +20,8 @@ def _antipodal(r=0.02):
 
 
 def _solver_says(monkeypatch, status: int, message: str):
-    """Make HiGHS (through scipy's linprog) answer with this status and no solution."""
-    monkeypatch.setattr(scipy.optimize, "linprog", lambda *a, **k: SimpleNamespace(status=status, message=message, x=None))
+    """Make HiGHS (`planner.closure._lp`, in scipy's status codes) answer with this status and no solution."""
+    monkeypatch.setattr(closure, "_lp", lambda *a, **k: SimpleNamespace(status=status, message=message, x=None))
 
 
 def test_an_infeasible_load_is_inf_and_a_feasible_one_is_finite():
@@ -63,13 +64,14 @@ def test_an_unsure_end_is_decided_by_the_interior_point_method(monkeypatch):
     method then decides: its optimum is the answer, not an error."""
     calls = []
 
-    def linprog(*a, method="highs", **k):
+    def lp(*a):
+        method = a[-1]
         calls.append(method)
         if method == "highs":
             return SimpleNamespace(status=4, message="model_status is Unknown; primal_status is Infeasible", x=None)
         return SimpleNamespace(status=0, message="Optimization terminated successfully.", x=np.full(500, 0.7))  # t = x[k] = 0.7 whatever k is
 
-    monkeypatch.setattr(scipy.optimize, "linprog", linprog)
+    monkeypatch.setattr(closure, "_lp", lp)
     assert min_grip_force(_antipodal(), Friction(0.5, 0.0), WEIGHT) == pytest.approx(0.7)
     assert calls == ["highs", "highs-ipm"]
 
