@@ -6,8 +6,10 @@ object gets ONE pose per hand (so any two grasps of it form a regrasp pair): the
 first grasp `planner.synth` finds with the object pose sampled (largest finger set first).
 Every grasp is synthesized **execution-ready** (`execution_ready`): force closure with one mean
 contact per finger too, and holding the object's weight in the six gravity directions of
-execution mode with at most 1 N per finger and 3/4 of the friction, so that a pair's failure
-in execution mode is the planner's, not a grasp execution mode refuses outright.
+execution mode within the hand's joint torque limits and 3/4 of the friction (twice the
+weight, `planner.grip`), with the object at least the replay's drift limit (5 mm) from the
+palm, so that a pair's failure in execution mode is the planner's, not a grasp execution
+mode refuses outright.
 With that pose fixed, `planner.synth` (seeded) writes up to ``GRASPS_PER_SET`` grasps for
 each finger set of the hand (e.g. thumb-index-middle, thumb-index-middle-ring, all fingers);
 the grasp that gave the pose joins its set as rank 0 (a near-duplicate of it may too).
@@ -46,6 +48,7 @@ joint-space finger paths instead of OMPL (``--no-motion``).
 
 from __future__ import annotations
 
+import inspect
 import sys
 import time
 from collections import Counter
@@ -157,8 +160,13 @@ def execution_ready(hand_ref: str) -> dict:
 
     o = PlanOptions.for_execution()
     dirs = [g for _, g in gravity_directions(load_hand(hand_ref).palm_normal, o.gravity_set)]
+    from planner.sim.replay import replay_plan
+
+    # the object keeps the replay's drift limit from the palm: closer, it can settle onto the
+    # palm within the limits, and a grasp the palm carries is not the plan's
+    drift_mm = inspect.signature(replay_plan).parameters["drift_mm_max"].default
     return {"gravity": dirs, "max_finger_force_n": o.max_finger_force_n, "contact_model": o.contact_model,
-            "friction_margin": o.friction_margin}
+            "friction_margin": o.friction_margin, "palm_clearance_m": drift_mm / 1000.0}
 
 
 def draw_pairs(grasps: list[dict], k: int, seed: int) -> list[tuple[int, int]]:

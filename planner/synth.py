@@ -210,7 +210,7 @@ def _opposition(normals) -> float:
     return float(np.linalg.norm(np.mean(normals, axis=0)))
 
 
-def _sample_candidate(hand, fingers, obj_block, fixed, rng, obj_radius):
+def _sample_candidate(hand, fingers, obj_block, fixed, rng, obj_radius, palm_clearance_m: float = PALM_CLEARANCE_M):
     """(object block with a pose, {finger: pre-shape}, "") of one attempt, or (block, None, why).
 
     Pre-shape: the joints that do not close (abduction, opposition) uniform in their range,
@@ -272,8 +272,8 @@ def _sample_candidate(hand, fingers, obj_block, fixed, rng, obj_radius):
             block["position"] = [float(v) for v in centre]
             # out of the palm: push the object along the palm normal until it clears the palm
             d = _palm_distance(hand, q, block)
-            if d < PALM_CLEARANCE_M:
-                centre = centre + (PALM_CLEARANCE_M - d) * np.asarray(hand.palm_normal)
+            if d < palm_clearance_m:
+                centre = centre + (palm_clearance_m - d) * np.asarray(hand.palm_normal)
                 block["position"] = [float(v) for v in centre]
             obj = _object_of(block)
             if all(hand._finger_object_distance(q_free, f, obj) >= 0.0 for f in fingers):
@@ -358,7 +358,7 @@ def _is_duplicate(a: np.ndarray, b: np.ndarray) -> bool:
 def synthesize(hand_ref: str, obj_block: dict, fingers, n: int, *, fixed: bool, friction=None, seed: int = 0,
                gravity=None, max_finger_force_n: float | None = None, max_attempts: int | None = None, base_dir=".",
                progress=None, contact_model: str = "patch", friction_margin: float = 1.0,
-               hold_factor: float = HOLD_FACTOR) -> SynthResult:
+               hold_factor: float = HOLD_FACTOR, palm_clearance_m: float = PALM_CLEARANCE_M) -> SynthResult:
     """Sample, close, check, de-duplicate and rank grasps.
 
     Args:
@@ -376,6 +376,9 @@ def synthesize(hand_ref: str, obj_block: dict, fingers, n: int, *, fixed: bool, 
             `min_grip_force` over the directions.
         max_finger_force_n: optional per-finger normal force cap, N.
         hold_factor: multiple of the weight the grasp must hold (`planner.grip.HOLD_FACTOR`).
+        palm_clearance_m: a sampled object pose keeps this gap to the palm (default
+            `PALM_CLEARANCE_M`); a grasp meant to be executed wants at least the replay's
+            drift limit, or the object can settle onto the palm within the limits.
         contact_model: "patch" (the check's closure) or "mean": also require force closure with
             one contact per finger at its patch mean, and compute the grip force with those
             contacts (what `PlanOptions.for_execution` plans with).
@@ -422,7 +425,7 @@ def synthesize(hand_ref: str, obj_block: dict, fingers, n: int, *, fixed: bool, 
         if len(kept) >= n:
             attempt -= 1
             break
-        block, preshape, why = _sample_candidate(hand, chosen, obj_block, fixed, rng, inner)
+        block, preshape, why = _sample_candidate(hand, chosen, obj_block, fixed, rng, inner, palm_clearance_m)
         if preshape is None:
             rejected[why] += 1
             continue
