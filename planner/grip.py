@@ -374,7 +374,7 @@ def hold_capacity(patches: Mapping[str, tuple], statics: Mapping[str, FingerStat
         i = int(np.argmax(over)) if len(over) else None
         lim = None if i is None else Limit(prog.names[i][0], prog.names[i][1], float(abs(tau_g[i])), float(prog.tau_max[i]))
         return Capacity(0.0, lim)
-    alpha = float(res.x[k]) / scale
+    alpha = max(0.0, float(res.x[k]) / scale)  # no -0 ("holds -0x its weight")
     lam = res.x[:k]
     limit = None if alpha >= FACTOR_MAX * (1 - 1e-9) else _binding(prog, lam, force_cap_n, tau_g)
     return Capacity(min(alpha, FACTOR_MAX), limit, *(prog.forces(lam) if witness else (None, None)))
