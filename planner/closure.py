@@ -942,6 +942,9 @@ def _highs():
         # the programs are small and dense: presolve costs more than it saves (0.54 vs
         # 0.91 ms per grip LP, the same optimum)
         h.setOptionValue("presolve", "off")
+        # no worker threads: the verification replays fork this process (a fork of a process
+        # with live threads can deadlock), and the programs are too small to share
+        h.setOptionValue("threads", 1)
         _HIGHS = (highspy, h)
     return _HIGHS
 

@@ -41,6 +41,9 @@ class SpecError(PlannerError):
         where = f"{one_line(self.path)}: {one_line(key)}: " if key else f"{one_line(self.path)}: "
         super().__init__(where + message)
 
+    def __reduce__(self):  # rebuilt from its own arguments (a replay in a worker process raises it)
+        return (type(self), (self.path, self.key, self.message))
+
 
 class UnknownNameError(PlannerError, KeyError):
     """A name (finger, link, joint, planner...) is not one of the valid choices."""
@@ -50,6 +53,9 @@ class UnknownNameError(PlannerError, KeyError):
         self.name = name
         self.valid = sorted(valid)
         super().__init__(f"unknown {kind} {one_line(repr(name))}; {kind}s are {', '.join(map(one_line, self.valid))}")
+
+    def __reduce__(self):
+        return (type(self), (self.kind, self.name, self.valid))
 
     def __str__(self) -> str:  # KeyError would otherwise quote the message
         return self.args[0]

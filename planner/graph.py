@@ -217,6 +217,10 @@ class GaitProblem:
                     yield i, "land", node[:i] + (s,) + node[i + 1 :]
 
 
+def _same_array(a, b) -> bool:
+    return (a is None and b is None) or (a is not None and b is not None and np.array_equal(a, b))
+
+
 def _within_lift_bound(problem: GaitProblem, node: Node) -> bool:
     return problem.max_lifted is None or sum(s == LIFTED for s in node) <= problem.max_lifted
 
@@ -251,6 +255,12 @@ class _Evaluator:
         if (problem.fingers != old.fingers or problem.start != old.start or problem.goal != old.goal
                 or any(problem.slots[f][: len(old.slots[f])] != old.slots[f] for f in old.fingers)):
             raise InputError("a problem can only be extended by appending slots")
+        same = (problem.friction == old.friction and problem.max_grip_force_n == old.max_grip_force_n
+                and problem.grip_friction_margin == old.grip_friction_margin and problem.hold_factor == old.hold_factor
+                and problem.max_lifted == old.max_lifted
+                and all(_same_array(getattr(problem, k), getattr(old, k)) for k in ("load", "loads", "load_gravity")))
+        if not same:
+            raise InputError("a problem can only be extended with the same friction, loads and grip limits")
         self.problem = problem
 
     def collision_pair(self, node: Node) -> tuple[str, str] | None:
@@ -318,15 +328,20 @@ class _Evaluator:
         why = self._over.get(node)
         if why is None:
             return f"need over {p.max_grip_force_n:g} N per finger to hold the load"
-        j, cap = why
-        name, w = self._loads[j]
-        g = p.load_gravity[j]
+        j, cap = why  # j < 0: load -j - 1 held twice over but not alone (`_over_torque`)
+        k = j if j >= 0 else -j - 1
+        name, w = self._loads[k]
+        g = p.load_gravity[k]
+        if j < 0:
+            return (f"{name}: holds up to {cap.factor:.3g}x its weight but not the weight itself within the "
+                    f"joint limits (a finger's own weight exceeds a joint's limit unless the object presses on it)")
         words = f"{name}: {cap.words(p.hold_factor)}"
         if cap.limit is not None and cap.limit.joint is None:  # the force cap binds, not a joint
             return words
         dem = torque_demand(p.patches(node), p.statics(node), self.problem.friction, w, g, factor=p.hold_factor,
                             margin=p.grip_friction_margin)
-        return f"{words}; to hold {p.hold_factor:g}x, {dem.words()}"
+        tail = " (but not within the per-finger force cap)" if p.max_grip_force_n is not None and dem.ratio <= 1 else ""
+        return f"{words}; to hold {p.hold_factor:g}x, {dem.words()}{tail}"
 
     def _over_budget(self, node: Node) -> bool:
         """Some load needs more than ``max_grip_force_n`` per finger. Stops at the first such
@@ -380,6 +395,15 @@ class _Evaluator:
                 self._refusals[j] += 1
                 self._over[node] = (j, cap)
                 return True
+            # the multiples held form an interval; where a finger cannot hold itself up alone
+            # (|g| > tau_max at a joint) it may not reach down to the weight itself
+            if np.any(np.abs(program.tau_g(p.load_gravity[j])) > program.tau_max):
+                d = torque_demand(patches, statics, p.friction, self._loads[j][1], p.load_gravity[j], factor=1.0,
+                                  force_cap_n=p.max_grip_force_n, program=program)
+                if d.ratio > 1.0:
+                    self._refusals[j] += 1
+                    self._over[node] = (-j - 1, cap)
+                    return True
         self.grip[node] = tuple(grip)
         self.hold.add(node)
         return False
@@ -523,6 +547,7 @@ class LazyGraph:
         self.G.graph["expanded"] = 0
         self.G.graph["blocked_moves"] = []  # (from state, finger index, action, to state) of refused moves
         self.removed: set[tuple[Node, Node]] = set()
+        self.removed_states: set[Node] = set()
         self.value = {problem.start: self._cost(problem.start)}
         self._heap = [self._key(problem.start)]
         self.expanded: set[Node] = set()
@@ -589,7 +614,7 @@ class LazyGraph:
                 heapq.heappush(self._heap, self._key(w))
             for u in grow:
                 for i, action, w in p.neighbours(u):
-                    if (u, w) in self.removed:
+                    if (u, w) in self.removed or w in self.removed_states:
                         continue
                     if w in blocked:
                         G.graph["blocked_moves"].append((u, i, action, w))
@@ -663,6 +688,13 @@ class LazyGraph:
         self.removed.add((u, v))
         if self.G.has_edge(u, v):
             self.G.remove_edge(u, v)
+
+    def remove_state(self, v: Node) -> None:
+        """Drop every move into a state (e.g. one that failed in the simulator), for good:
+        the moves already in the graph and any found later."""
+        self.removed_states.add(v)
+        for u in list(self.G.predecessors(v)) if v in self.G else ():
+            self.remove_edge(u, v)
 
 
 def annotate_removable(G: nx.DiGraph, nodes) -> None:

@@ -450,15 +450,21 @@ def holds_by_bound(statics: Mapping[str, FingerStatics], grip_force_n: float, fr
     return True
 
 
-def torque_rows(jacobians: Sequence[np.ndarray], effort: Sequence[float], tau_g) -> tuple[np.ndarray, np.ndarray]:
-    """Joint-limit rows ``A f <= b`` over a finger's stacked contact forces (the controller's
-    form of the constraint): ``|tau_g + sum_c J_c^T f_c| <= effort`` with ``J_c`` (3, n_joints)
-    linear Jacobians and ``f_c`` (3,) the forces the finger applies, in one frame.
+def torque_rows(jacobians: Sequence[np.ndarray], effort: Sequence[float], tau_g,
+                torsion: Sequence[np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Joint-limit rows ``A [f ; t] <= b`` over a finger's stacked contact forces (the
+    controller's form of the constraint): ``|tau_g + sum_c J_c^T f_c + a_c t_c| <= effort``
+    with ``J_c`` (3, n_joints) linear Jacobians, ``f_c`` (3,) the forces the finger applies and,
+    with ``torsion``, ``a_c = J_ang,c^T n_c`` (n_joints,) the joint torques per unit torsional
+    moment ``t_c`` about the contact normal, in one frame.
 
     Returns:
-        A (2 n_joints, 3 n_contacts), b (2 n_joints,); rows of unbounded joints are dropped.
+        A (2 n_joints, 3 n_contacts [+ n_contacts]), b (2 n_joints,); rows of unbounded
+        joints are dropped.
     """
     JT = np.hstack([np.asarray(J, dtype=float).T for J in jacobians]) if len(jacobians) else np.zeros((len(effort), 0))
+    if torsion is not None:
+        JT = np.hstack([JT] + [np.asarray(a, dtype=float).reshape(-1, 1) for a in torsion])
     tm = np.asarray(effort, dtype=float)
     g = np.asarray(tau_g, dtype=float)
     ok = np.isfinite(tm)
@@ -502,8 +508,9 @@ def balance_forces(points, normals, targets, load, centre, friction: Friction, f
         fn_min: smallest normal force per contact, N (a number or (k,)).
         f_max: largest absolute force component, N.
         margins: friction fractions tried in turn.
-        joint_rows: optional [(contact indices of one finger, A, b)] with ``A`` (r, 3 m_f)
-            over those contacts' stacked forces (`torque_rows`): the joints' limits.
+        joint_rows: optional [(contact indices of one finger, A, b)] with ``A`` (r, 3 m_f) over
+            those contacts' stacked forces, or (r, 4 m_f) with their torsions after them
+            (`torque_rows`): the joints' limits.
 
     Returns:
         (k, 3) forces the fingers apply ON the object, or None when no balanced forces exist.
@@ -556,8 +563,11 @@ def balance_forces(points, normals, targets, load, centre, friction: Friction, f
     if joint_rows:
         extra_G, extra_h = [], []
         for idx, A, bj in joint_rows:
+            idx = np.asarray(idx)
             row = np.zeros((len(A), 2 * m + k))
-            row[:, (3 * np.asarray(idx)[:, None] + np.arange(3)).ravel()] = A
+            row[:, (3 * idx[:, None] + np.arange(3)).ravel()] = A[:, :3 * len(idx)]
+            if A.shape[1] == 4 * len(idx):  # the torsion columns
+                row[:, m + idx] = A[:, 3 * len(idx):]
             extra_G.append(row)
             extra_h.append(np.asarray(bj, float))
         if extra_G:

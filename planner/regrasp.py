@@ -970,7 +970,7 @@ def plan_regrasp(
             if check.passed:
                 verified = check
                 break
-            name, step, verdict = check.first_failure()
+            name, step, verdict, at_state = check.first_failure()
             seq = candidates[0]
             rejected.append({"order": list(seq.order(problem)), "direction": name, "step": step, "verdict": verdict})
             if verbose:
@@ -984,7 +984,15 @@ def plan_regrasp(
                     f"{verify_s:.1f} s of replays): " + "; ".join(
                         f"{' '.join(r['order'])}: {r['direction']} at step {r['step']}: {r['verdict']}" for r in rejected[:3])
                     + "; --no-verify returns the best sequence unverified")
-            lazy.remove_edge(*_step_edges(seq, motions)[step])
+            # the re-search is bounded by the graph, not by the clock the replays spent: a
+            # deadline passed during them would stop it where the last search stood (and make
+            # the plan depend on the machine's load and the number of workers)
+            lazy.deadline, lazy.timed_out = None, False
+            edge = _step_edges(seq, motions)[step]
+            if at_state:  # the state reached failed in the simulator: every move into it goes
+                lazy.remove_state(edge[1])
+            else:
+                lazy.remove_edge(*edge)
             candidates = lazy.best(options.alternatives)
         else:
             raise NoSequenceError("no executable sequence after 50 re-plans; impossible moves: " + "; ".join(failed))

@@ -227,8 +227,8 @@ def test_a_failed_verification_removes_the_transition_and_the_search_goes_on(mon
     def fake(plan, hand, directions, workers=None):
         calls.append([s.finger + ":" + s.action for s in plan.steps])
         ok = len(calls) > 1
-        rows = tuple((n, ok or i > 0, "PASS" if ok or i > 0 else "FAIL: made up", None if ok or i > 0 else 1, 0.1, 0.1)
-                     for i, (n, _) in enumerate(directions))
+        rows = tuple((n, ok or i > 0, "PASS" if ok or i > 0 else "FAIL: made up", None if ok or i > 0 else 1, False,
+                      0.1, 0.1) for i, (n, _) in enumerate(directions))
         return verify.Verification(ok, rows, 0.0)
 
     monkeypatch.setattr(verify, "verify_plan", fake)
@@ -244,7 +244,8 @@ def test_a_failed_verification_removes_the_transition_and_the_search_goes_on(mon
     assert calls[1] != calls[0]
 
     def at_start(plan, hand, directions, workers=None):
-        return verify.Verification(False, tuple((n, False, "FAIL: dropped", -1, 40.0, 9.0) for n, _ in directions), 0.0)
+        return verify.Verification(False, tuple((n, False, "FAIL: dropped", -1, False, 40.0, 9.0) for n, _ in directions),
+                                   0.0)
 
     monkeypatch.setattr(verify, "verify_plan", at_start)
     with pytest.raises(NoSequenceError, match="initial grasp .* does not hold in the simulator"):

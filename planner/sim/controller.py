@@ -406,7 +406,9 @@ class Controller:
                 if len(self._cache) > 256:
                     self._cache.clear()
                 commanded = [contacts[i] for i in idx]
-                rows = self._joint_rows(commanded)
+                # the rows hold the fingers' own weight under the gravity of this load (the ramp
+                # blends the solutions for no load and the full load; g(q) is linear in gravity)
+                rows = self._joint_rows(commanded, load[:3] / self.mass if self.mass > 0 else np.zeros(3))
                 # the joints' limits say what the fingers can hold; only fingers without limits
                 # keep the ratio cap on their forces
                 limited = {c.finger for c in commanded if c.finger is not None
@@ -440,12 +442,13 @@ class Controller:
         s = min(fading.values())
         return [s * a + (1.0 - s) * b for a, b in zip(full, without)]
 
-    def _joint_rows(self, contacts: Sequence[Contact]) -> list:
-        """The joint torque limits of every commanded finger over its contacts' forces
-        (`planner.grip.torque_rows`, with its own weight compensated at the current gravity):
-        the planner's limits, at the simulator's contacts."""
+    def _joint_rows(self, contacts: Sequence[Contact], gravity) -> list:
+        """The joint torque limits of every commanded finger over its contacts' forces and
+        torsions (`planner.grip.torque_rows`), its own weight compensated under ``gravity``
+        (the gravity of the load solved for): the planner's limits, at the simulator's contacts."""
         q = self.q()
-        g_q = self.hand.gravity_torques(q, self.gravity) if self.gravity.any() else np.zeros(len(q))
+        gravity = np.asarray(gravity, dtype=float)
+        g_q = self.hand.gravity_torques(q, gravity) if gravity.any() else np.zeros(len(q))
         rows = []
         by_finger: dict[str, list[int]] = {}
         for i, c in enumerate(contacts):
@@ -453,8 +456,10 @@ class Controller:
                 by_finger.setdefault(c.finger, []).append(i)
         for f, idx in by_finger.items():
             cols = [self.col[j] for j in self.hand.fingers[f].joints]
-            Js = self.hand.point_jacobians(q, [(self.link_name[contacts[i].link], contacts[i].p_palm) for i in idx])
-            A, b = torque_rows([J[:, cols] for J in Js], self.effort[cols], g_q[cols])
+            Js = self.hand.point_jacobians(q, [(self.link_name[contacts[i].link], contacts[i].p_palm) for i in idx],
+                                           angular=True)
+            A, b = torque_rows([J[:3, cols] for J in Js], self.effort[cols], g_q[cols],
+                               torsion=[J[3:, cols].T @ contacts[i].n_palm for J, i in zip(Js, idx)])
             if len(A):
                 rows.append((idx, A, b))
         return rows

@@ -163,6 +163,8 @@ class ReplayReport:
         failed_step: index of the plan step during which the replay first failed (the drift
             left the limits, or it led into a state that failed), -1 when it failed at state
             0 (acquiring, gravity ramp, settling), None when it passed.
+        failed_at_state: the failure is the state that step reaches (measured there: its
+            closure or the links holding the object), not the motion of the step itself.
     """
 
     passed: bool
@@ -185,6 +187,7 @@ class ReplayReport:
     parameters: Mapping[str, Any] = field(default_factory=dict)
     reasons: tuple[str, ...] = ()
     failed_step: int | None = None
+    failed_at_state: bool = False
 
     def to_dict(self) -> dict:
         """Plain data for JSON (``json.dumps(report.to_dict())``)."""
@@ -689,12 +692,13 @@ def replay_plan(
         words = ([f"carried by {', '.join(extra)} too"] if extra else []) + ([f"{', '.join(idle)} not touching"] if idle else [])
         reasons.append(f"state {r.index}: the plan holds with {', '.join(r.planned_fingers)}; in the simulator "
                        + "; ".join(words) + f" (forces: {', '.join(f'{f} {v:.2f} N' for f, v in sorted(r.carried_n.items()))})")
-    failed_step = None
+    failed_step, at_state = None, False
     if not passed:
         bad_states = [r.index for r in disagree + other] + [r.index for r in reports if not r.reached]
         first_bad = min(bad_states) if bad_states else None
         candidates = [k for k in (fail_step, None if first_bad is None else first_bad - 1) if k is not None]
         failed_step = min(candidates) if candidates else -1
+        at_state = fail_step is None or (first_bad is not None and first_bad - 1 < fail_step)
     if reasons and not passed:
         verdict += ": " + "; ".join(reasons[:3]) + (f" (+{len(reasons) - 3} more)" if len(reasons) > 3 else "")
     return ReplayReport(
@@ -705,7 +709,7 @@ def replay_plan(
         sim_time_s=n_steps * dt, wall_time_s=wall, sim_steps=n_steps,
         gif=str(gif) if gif is not None else None, gif_frames=gif_frames,
         mp4=str(mp4) if mp4 is not None else None, parameters=params, reasons=tuple(reasons),
-        failed_step=failed_step,
+        failed_step=failed_step, failed_at_state=at_state,
     )
 
 

@@ -86,23 +86,24 @@ class Verification:
 
     Attributes:
         passed: every direction passed.
-        directions: (name, passed, verdict line, failed plan step or None, max drift mm,
-            max drift deg) per direction.
+        directions: (name, passed, verdict line, failed plan step or None, failed at the
+            state it reaches (`ReplayReport.failed_at_state`), max drift mm, max drift deg)
+            per direction.
         wall_time_s: wall-clock time of the replays.
     """
 
     passed: bool
-    directions: tuple[tuple[str, bool, str, int | None, float, float], ...]
+    directions: tuple[tuple[str, bool, str, int | None, bool, float, float], ...]
     wall_time_s: float
 
-    def first_failure(self) -> tuple[str, int, str] | None:
-        """(direction, plan step (-1: state 0), verdict) of the earliest failing step over
-        the directions (ties: the first direction), or None."""
+    def first_failure(self) -> tuple[str, int, str, bool] | None:
+        """(direction, plan step (-1: state 0), verdict, failed at the state the step reaches)
+        of the earliest failing step over the directions (ties: the first direction), or None."""
         failed = [(d[3] if d[3] is not None else -1, i) for i, d in enumerate(self.directions) if not d[1]]
         if not failed:
             return None
         step, i = min(failed)
-        return self.directions[i][0], step, self.directions[i][2]
+        return self.directions[i][0], step, self.directions[i][2], bool(self.directions[i][4])
 
     def record(self) -> dict:
         """What the plan records (deterministic: no times)."""
@@ -111,7 +112,7 @@ class Verification:
 
         return {"passed": self.passed,
                 "directions": {name: {"passed": ok, "max_drift_mm": num(mm), "max_drift_deg": num(deg)}
-                               for name, ok, _, _, mm, deg in self.directions}}
+                               for name, ok, _, _, _, mm, deg in self.directions}}
 
 
 def as_written(plan: Plan) -> Plan:
@@ -125,6 +126,7 @@ def verify_plan(plan: Plan, hand, directions: Sequence[tuple[str, Sequence[float
     """Replay a plan as it will be written under each direction (`replay_directions`)."""
     t0 = time.perf_counter()
     reports = replay_directions(as_written(plan), hand, directions, workers=workers)
-    rows = tuple((name, r.passed, r.verdict, r.failed_step, float(r.max_drift_mm), float(r.max_drift_deg))
+    rows = tuple((name, r.passed, r.verdict, r.failed_step, r.failed_at_state, float(r.max_drift_mm),
+                  float(r.max_drift_deg))
                  for (name, _), r in zip(directions, reports))
     return Verification(all(r[1] for r in rows), rows, time.perf_counter() - t0)
