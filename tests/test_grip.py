@@ -243,6 +243,22 @@ def test_a_failed_verification_removes_the_transition_and_the_search_goes_on(mon
     # the edge of step 1 (a lift's move, or a land) is not in the returned sequence
     assert calls[1] != calls[0]
 
+    # a failure measured at the state a step reaches removes every move into that state
+    calls.clear()
+
+    def at_state(plan, hand, directions, workers=None):
+        calls.append([s.finger + ":" + s.action for s in plan.steps])
+        ok = len(calls) > 1
+        rows = tuple((n, ok or i > 0, "PASS" if ok or i > 0 else "FAIL: made up", None if ok or i > 0 else 1, True,
+                      0.1, 0.1) for i, (n, _) in enumerate(directions))
+        return verify.Verification(ok, rows, 0.0)
+
+    monkeypatch.setattr(verify, "verify_plan", at_state)
+    res = plan_regrasp(a, b, opts)
+    bad = dict(unverified.plan.states[2].fingers)
+    assert res.plan.summary["verification"]["attempts"] == 2
+    assert all(dict(s.fingers) != bad for s in res.plan.states)
+
     def at_start(plan, hand, directions, workers=None):
         return verify.Verification(False, tuple((n, False, "FAIL: dropped", -1, False, 40.0, 9.0) for n, _ in directions),
                                    0.0)
