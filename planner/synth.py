@@ -38,6 +38,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from planner.collision import LINK_EPS_M
 from planner.errors import PlannerError, SpecError
 from planner.grip import HOLD_FACTOR
 
@@ -444,6 +445,11 @@ def synthesize(hand_ref: str, obj_block: dict, fingers, n: int, *, fixed: bool, 
         g = realize(spec, hand)
         if not g.ok:
             rejected["check: " + (g.problems[0].split(":")[0].split(" ")[0] if g.problems else "not force closure")] += 1
+            continue
+        if any(depth > LINK_EPS_M for _, _, depth in g.finger_collisions):
+            # `check` tolerates half a millimetre between hand parts; the planner's states and
+            # finger paths do not (an overlapping finger can never lift off)
+            rejected["fingers overlap each other or the palm"] += 1
             continue
         patches = dict(g.patches)
         if contact_model != "patch":
