@@ -50,6 +50,14 @@ _EXPORTS = {
     "search": "planner.graph",
     "PlanOptions": "planner.regrasp",
     "plan_regrasp": "planner.regrasp",
+    # the grip model (what the hand's joints hold)
+    "FingerStatics": "planner.grip",
+    "grasp_hold": "planner.grip",
+    "hold_capacity": "planner.grip",
+    "torque_demand": "planner.grip",
+    # replay (pybullet, imported when first used)
+    "replay_gravity_set": "planner.sim.replay",
+    "replay_plan": "planner.sim.replay",
     # plans
     "Plan": "planner.plan",
     "read_plan": "planner.plan",
@@ -57,6 +65,13 @@ _EXPORTS = {
 }
 
 __all__ = sorted(_EXPORTS)
+
+try:
+    from importlib.metadata import PackageNotFoundError, version as _version
+
+    __version__ = _version("regrasp-planner")
+except PackageNotFoundError:  # a checkout that was never installed
+    __version__ = "0+unknown"
 
 
 def __getattr__(name: str):

@@ -216,6 +216,9 @@ def _cmd_replay(args: argparse.Namespace) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="regrasp", description=__doc__.splitlines()[0])
+    from planner import __version__
+
+    parser.add_argument("--version", action="version", version=f"regrasp {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
     demo = sub.add_parser("demo", help="plan and replay the bundled cylinder example")
     demo.add_argument("--out", default=DEMO_OUT, metavar="DIR",

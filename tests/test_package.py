@@ -16,6 +16,15 @@ def test_all_names_exist_and_sorted():
         assert hasattr(planner, name), name
 
 
+def test_version_is_the_installed_distributions():
+    """`regrasp --version` and planner.__version__ give the installed version (exit 0)."""
+    from importlib.metadata import version
+
+    out = subprocess.run([sys.executable, "-m", "planner", "--version"], capture_output=True, text=True)
+    assert out.returncode == 0 and out.stdout.strip() == f"regrasp {version('regrasp-planner')}"
+    assert planner.__version__ == version("regrasp-planner")
+
+
 def test_python_dash_m_runs():
     """`python -m planner --help` exits 0 and names the subcommands."""
     out = subprocess.run([sys.executable, "-m", "planner", "--help"], capture_output=True, text=True)
