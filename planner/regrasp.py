@@ -809,6 +809,9 @@ class _EdgeFailed(Exception):
 
 INTERMEDIATE_PER_ROUND = 2
 """Intermediate contacts added per blocking finger in each round of the anytime search."""
+RESUME_ROUNDS = 3
+"""Rounds of intermediate contacts added after every sequence of the graph failed later
+(a finger path OMPL did not find, a replay that failed): a bound on the work."""
 
 
 def _failed_words(problem: GaitProblem, bad: "_EdgeFailed") -> str:
@@ -828,26 +831,40 @@ def _goal_invalid(lazy: LazyGraph) -> bool:
     return lazy.ev.blocked_reason(goal) is not None
 
 
-def _anytime_search(problem: GaitProblem, initial, options: PlanOptions, t0: float) -> tuple[LazyGraph, dict]:
+def _anytime_search(problem: GaitProblem, initial, options: PlanOptions, t0: float,
+                    prior: LazyGraph | None = None) -> tuple[LazyGraph, dict]:
     """Lazy ranked search, then (anytime mode: ``options.intermediate`` 0 and a time limit)
     rounds of intermediate contacts for the fingers that block progress
     (`planner.graph.failure_analysis`), until a sequence is found or the time limit passes.
+
+    ``prior``: a search whose sequences all failed later (finger paths, verification): one
+    more round starts from its graph, keeping the moves and states it removed, bounded by
+    the round (one) rather than the clock, so the plan does not depend on the time the
+    paths and replays took.
 
     Returns the last `LazyGraph` and what to record: rounds, contacts added per finger,
     states expanded, whether the ranking is exact, ``found`` (the sequences) and ``tried``
     (a sentence for the failure message).
     """
-    deadline = t0 + options.time_limit_s if options.time_limit_s > 0 else None
+    deadline = t0 + options.time_limit_s if options.time_limit_s > 0 and prior is None else None
     auto = options.intermediate == 0 and options.time_limit_s > 0
     evaluator, added, rounds, expanded, unheld, held = None, {}, 0, 0, {}, set()
+    lazy, found, out_of_time = prior, [], False
+    removed = set(prior.removed) if prior is not None else set()
+    removed_states = set(prior.removed_states) if prior is not None else set()
+    if prior is not None:
+        evaluator = prior.ev
     while True:
-        lazy = LazyGraph(problem, options.rank, evaluator=evaluator, deadline=deadline)
-        evaluator = lazy.ev
-        found = lazy.best(options.alternatives)
-        expanded += lazy.G.graph["expanded"]
-        out_of_time = lazy.timed_out or (deadline is not None and time.perf_counter() > deadline)
-        if found or not auto or out_of_time or _goal_invalid(lazy):
-            break
+        if lazy is None:
+            lazy = LazyGraph(problem, options.rank, evaluator=evaluator, deadline=deadline)
+            lazy.removed |= removed
+            lazy.removed_states |= removed_states
+            evaluator = lazy.ev
+            found = lazy.best(options.alternatives)
+            expanded += lazy.G.graph["expanded"]
+            out_of_time = lazy.timed_out or (deadline is not None and time.perf_counter() > deadline)
+            if found or not auto or out_of_time or _goal_invalid(lazy) or (prior is not None and rounds >= 1):
+                break
         # contacts for the fingers that could unblock progress, scored against the states
         # they should complete; every second round (and when those give none) one more for
         # every finger, scored as --intermediate N scores them (after m such rounds every
@@ -875,6 +892,7 @@ def _anytime_search(problem: GaitProblem, initial, options: PlanOptions, t0: flo
             break
         rounds += 1
         _count(added, new)
+        lazy = None
     spent = time.perf_counter() - t0
     what = ", ".join(f"{f} {n}" for f, n in added.items())
     if not auto:
@@ -944,7 +962,24 @@ def plan_regrasp(
         lazy, search_info = _anytime_search(problem, initial, options, t0)
         problem, G = lazy.problem, lazy.G
         candidates = search_info.pop("found")
+        resumed = 0
         for _ in range(50):
+            if not candidates and resumed < RESUME_ROUNDS and options.intermediate == 0 and options.time_limit_s > 0 \
+                    and (failed or rejected):
+                # every sequence of this graph failed later: one more round of intermediate
+                # contacts, keeping what was removed
+                resumed += 1
+                lazy, more_info = _anytime_search(problem, initial, options, t0, prior=lazy)
+                problem, G = lazy.problem, lazy.G
+                candidates = more_info.pop("found")
+                search_info["rounds"] += more_info["rounds"]
+                for f, n in more_info["intermediate_added"].items():
+                    search_info["intermediate_added"][f] = search_info["intermediate_added"].get(f, 0) + n
+                search_info["expanded_states"] += more_info["expanded_states"]
+                search_info["exact"] = search_info["exact"] and more_info["exact"]
+                if not candidates:
+                    search_info["tried"] += f"; after the failed moves, {more_info['tried']}"
+                continue
             if not candidates:
                 err = explain_failure(G, intermediate_tried=bool(options.intermediate or search_info["rounds"]),
                                       tried=search_info["tried"])
@@ -952,6 +987,11 @@ def plan_regrasp(
                     counts = {m: failed.count(m) for m in dict.fromkeys(failed)}
                     moves = "; ".join(m + (f" (x{n} states)" if n > 1 else "") for m, n in counts.items())
                     err = NoSequenceError(f"{err}; finger moves that could not be planned: {moves}", err.report)
+                if rejected:
+                    seqs = "; ".join(f"{' '.join(x['order'])}: {x['direction']} at step {x['step']}: {x['verdict']}"
+                                     for x in rejected[:2])
+                    err = NoSequenceError(f"{err}; sequences that failed in the simulator ({len(rejected)}): {seqs}",
+                                          err.report)
                 raise err
             try:
                 motions = _plan_motions(hand, obj, problem, candidates[0], gait_fn, cache)
@@ -989,7 +1029,9 @@ def plan_regrasp(
             # the plan depend on the machine's load and the number of workers)
             lazy.deadline, lazy.timed_out = None, False
             edge = _step_edges(seq, motions)[step]
-            if at_state:  # the state reached failed in the simulator: every move into it goes
+            # the state reached failed in the simulator: every move into it goes (but the
+            # final grasp's: only this move into it, another landing may reach it)
+            if at_state and edge[1] != problem.goal:
                 lazy.remove_state(edge[1])
             else:
                 lazy.remove_edge(*edge)
