@@ -268,6 +268,43 @@ def test_a_failed_verification_removes_the_transition_and_the_search_goes_on(mon
         plan_regrasp(a, b, opts)
 
 
+def test_when_every_sequence_fails_in_the_simulator_more_contacts_are_tried_then_the_error_says_why(monkeypatch):
+    """Replays that fail every sequence (at its second step): the planner adds rounds of
+    intermediate contacts after the graph's sequences are used up (a bounded number), then
+    fails with one line naming the sequences that failed in the simulator."""
+    import planner.sim.verify as verify
+    from planner.errors import NoSequenceError
+    from planner.grasp import load_grasp, realize
+    from planner.regrasp import RESUME_ROUNDS, PlanOptions, plan_regrasp
+    from planner.resources import bundled_grasp
+
+    a, b = (realize(load_grasp(bundled_grasp(n))) for n in ("icub/box_parallel_extension.yaml", "icub/box_ir2m.yaml"))
+    calls = []
+
+    def never(plan, hand, directions, workers=None):
+        calls.append(1)
+        rows = tuple((n, False, "FAIL: made up", 1, False, 9.0, 9.0) for n, _ in directions)
+        return verify.Verification(False, rows, 0.0)
+
+    import planner.regrasp as regrasp
+
+    searches = []
+    search = regrasp._anytime_search
+
+    def counted(*args, prior=None, **kw):
+        searches.append(prior is not None)
+        return search(*args, prior=prior, **kw)
+
+    monkeypatch.setattr(verify, "verify_plan", never)
+    monkeypatch.setattr(regrasp, "_anytime_search", counted)
+    with pytest.raises(NoSequenceError) as err:
+        plan_regrasp(a, b, PlanOptions.for_execution(motion=False, verify_attempts=100))
+    text = str(err.value)
+    assert "sequences that failed in the simulator" in text and "FAIL: made up" in text and "\n" not in text
+    assert searches[0] is False and 1 <= sum(searches) <= RESUME_ROUNDS  # rounds resumed, a bounded number
+    assert 1 < len(calls) < 100
+
+
 def test_state_holds_as_planned_only_with_the_plans_fingers():
     """A state passes the honest check when nothing but the plan's fingers carries the object
     and each of them touches: the palm carrying, or a planned finger off the object, fails."""
