@@ -377,7 +377,18 @@ def _validate(args: argparse.Namespace) -> None:
     for out, option in outputs:
         if out is not None:
             check_output(out, inputs + [o for o in named if o is not out], option)
-    for key in ("initial", "final", "grasp"):
+    if args.command == "replay" and getattr(args, "gravity_set", None) is not None:
+        # a gravity set films into one file per direction (FILE_<direction>.gif): each of those
+        # names may not be an input either (a plan called q_palm_down.yaml and --gif q.yaml)
+        from pathlib import Path
+
+        every = ("palm_down", "palm_up", "off") + tuple(f"side_{s}{a}" for a in "xyz" for s in "+-")
+        for key in ("gif", "mp4"):
+            out = getattr(args, key, None)
+            if out is not None:
+                p = Path(out)
+                for name in every:
+                    check_output(p.with_name(f"{p.stem}_{name}{p.suffix}"), inputs, f"--{key}")
         if getattr(args, key, None) is not None:
             from planner.fileio import check_grasp_file
 

@@ -31,6 +31,7 @@ from __future__ import annotations
 import math
 import os
 import sys
+import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -511,10 +512,21 @@ def write_grasps(result: SynthResult, out_dir, hand_name: str, *, seed: int, fin
             if obj.get("mesh"):
                 obj["mesh"] = os.path.relpath(obj["mesh"], Path(out_dir).resolve())
             data["object"] = obj
-            tmp = path.with_name(path.name + ".tmp")
-            tmp.write_text(yaml.safe_dump(data, sort_keys=False, default_flow_style=None), encoding="utf-8")
-            os.replace(tmp, path)
+            # a temporary file of our own (exclusive, a unique name: never a user's file), then a
+            # hard link to the name, which fails if that file appeared meanwhile
+            fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+            try:
+                with os.fdopen(fd, "w", encoding="utf-8") as fh:
+                    fh.write(yaml.safe_dump(data, sort_keys=False, default_flow_style=None))
+                os.link(tmp, path)
+            finally:
+                os.unlink(tmp)
             written.append(path)
+    except FileExistsError as err:
+        for p in written:
+            p.unlink(missing_ok=True)
+        raise PlannerError(f"synth: {err.filename2 or err.filename} appeared while writing; nothing was "
+                           f"overwritten, choose another -o DIR") from err
     except OSError as err:
         for p in written:
             p.unlink(missing_ok=True)

@@ -668,3 +668,34 @@ def test_malformed_corpus_file_is_one_line_exit_2(name, capsys):
     assert code == 2 and len(err) == 1, err
     assert name in err[0] and MALFORMED_EXPECT[name] in err[0] and "Traceback" not in err[0], err
     assert _sha(path) == before
+
+
+def test_replay_gravity_set_gif_names_may_not_be_inputs(tmp_path, capsys):
+    """With --gravity-set the GIF is one file per direction (FILE_<direction>.gif): a plan
+    named like one of them is refused before any work (exit 2, one line), and stays a plan."""
+    from planner.cli import main
+
+    plan = tmp_path / "q_palm_down.yaml"
+    plan.write_text("not read: the output check comes first\n")
+    assert main(["replay", str(plan), "--gravity-set", "1", "--gif", str(tmp_path / "q.yaml")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--gif" in err and "input" in err
+    assert plan.read_text() == "not read: the output check comes first\n"
+
+
+def test_synth_never_overwrites_a_file_named_like_its_temporary(tmp_path):
+    """synth writes through a temporary file of its own: a user's FILE.yaml.tmp next to the
+    output is left as it was, and no temporary file remains."""
+    from planner.synth import output_names, synthesize, write_grasps
+
+    r = synthesize("icub_right", {"shape": "sphere", "size": [0.02], "mass_kg": 0.03}, ["thumb", "index", "middle"], 1,
+                   fixed=False, seed=0, max_attempts=60)
+    assert r.grasps
+    out = tmp_path / "out"
+    out.mkdir()
+    (first,) = output_names(out, "icub_right", "sphere", 1)
+    mine = first.with_name(first.name + ".tmp")  # the name the temporary file used to have
+    mine.write_text("mine\n")
+    paths = write_grasps(r, out, "icub_right", seed=0, fingers=["thumb", "index", "middle"])
+    assert mine.read_text() == "mine\n" and all(p.exists() for p in paths)
+    assert sorted(p.name for p in out.iterdir()) == sorted([mine.name] + [p.name for p in paths])
