@@ -175,8 +175,13 @@ def check_output(path: str | os.PathLike, inputs=(), option: str = "-o") -> Path
     if out.is_dir():
         raise OutputError(f"{option} {text}: is a directory; give a file name")
     parent = out.absolute().parent
-    while not parent.exists():
-        parent = parent.parent
+    if not parent.exists():  # a typo in a path is an error, not a new folder
+        above = parent
+        while not above.exists():
+            above = above.parent
+        if not above.is_dir():
+            raise OutputError(f"{option} {text}: {above} is not a directory")
+        raise OutputError(f"{option} {text}: folder {parent} does not exist; create it first")
     if not parent.is_dir():
         raise OutputError(f"{option} {text}: {parent} is not a directory")
     if not os.access(parent, os.W_OK | os.X_OK):

@@ -699,3 +699,16 @@ def test_synth_never_overwrites_a_file_named_like_its_temporary(tmp_path):
     paths = write_grasps(r, out, "icub_right", seed=0, fingers=["thumb", "index", "middle"])
     assert mine.read_text() == "mine\n" and all(p.exists() for p in paths)
     assert sorted(p.name for p in out.iterdir()) == sorted([mine.name] + [p.name for p in paths])
+
+
+def test_an_output_in_a_folder_that_does_not_exist_is_refused(tmp_path, capsys):
+    """-o into a missing folder (a typo) is one line, exit 2, and no folder is made."""
+    from planner.cli import main
+    from planner.resources import bundled_grasp
+
+    a, b = (bundled_grasp(n) for n in ("icub/box_parallel_extension.yaml", "icub/box_ir2m.yaml"))
+    out = tmp_path / "nonexistent" / "dir" / "p.yaml"
+    assert main(["plan", str(a), str(b), "--no-motion", "-o", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "does not exist" in err and "-o" in err
+    assert not (tmp_path / "nonexistent").exists()

@@ -184,6 +184,7 @@ def test_plan_of_bundled_grasps_names_them_and_replays_from_anywhere(tmp_path, m
     a, b = (bundled_grasp(n) for n in ("icub/cylinder_parallel_extension.yaml", "icub/cylinder_ir2m.yaml"))
     monkeypatch.chdir(tmp_path)
     for out in ("one/p.yaml", "two/deeper/p.yaml"):  # verified in pybullet palm down before it is written
+        (tmp_path / out).parent.mkdir(parents=True)
         assert main(["plan", str(a), str(b), "--execution", "--gravity-set", "1", "-o", out]) == 0
     text = (tmp_path / "one/p.yaml").read_text()
     assert (tmp_path / "two/deeper/p.yaml").read_text() == text
