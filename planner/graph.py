@@ -186,6 +186,56 @@ class GaitProblem:
             out += list(zip(self.load_names, self.loads))
         return out
 
+    @property
+    def grip_friction(self) -> Friction:
+        """The friction the grip forces are computed with (``grip_friction_margin`` of it)."""
+        fr, k = self.friction, self.grip_friction_margin
+        return fr if k == 1 else Friction(fr.mu * k, fr.gamma * k, fr.edges)
+
+    def load_refusal(self, patches, statics, order=None, grip=None) -> tuple[int, Capacity | None] | None:
+        """Whether contacts hold every load as the problem asks; None when they do, else
+        ``(j, capacity)`` for the first load they do not hold: ``j`` the load's index in
+        `all_loads` (``-j - 1``: held ``hold_factor`` times but not the weight itself, where a
+        finger cannot hold itself up alone) and the capacity None under the per-finger budget
+        (no ``load_gravity``).
+
+        Budget: the grip force (`min_grip_force`) of each load within ``max_grip_force_n``.
+        Torque model (``load_gravity``): the grip force proves most holds by a bound
+        (`planner.grip.holds_by_bound`), the capacity program decides the others.
+
+        Args:
+            patches, statics: the contacts (finger -> (points, normals)) and their statics.
+            order: load indices in the order to try them (default all, in order).
+            grip: a list with one grip force or None per load, filled as they are computed.
+        """
+        loads = self.all_loads()
+        grip = [None] * len(loads) if grip is None else grip
+        program = None
+        for j in range(len(loads)) if order is None else order:
+            if grip[j] is None:
+                grip[j] = min_grip_force(patches, self.grip_friction, loads[j][1])
+            if self.load_gravity is None:
+                if grip[j] > self.max_grip_force_n:
+                    return j, None
+                continue
+            g = self.load_gravity[j]
+            if holds_by_bound(statics, grip[j], self.friction, g, factor=self.hold_factor,
+                              margin=self.grip_friction_margin, force_cap_n=self.max_grip_force_n):
+                continue
+            program = program or grip_program(patches, statics, self.friction, margin=self.grip_friction_margin)
+            cap = hold_capacity(patches, statics, self.friction, loads[j][1], g, force_cap_n=self.max_grip_force_n,
+                                program=program, witness=False)
+            if cap.factor < self.hold_factor:
+                return j, cap
+            # the multiples held form an interval; where a finger cannot hold itself up alone
+            # (|g| > tau_max at a joint) it may not reach down to the weight itself
+            if np.any(np.abs(program.tau_g(g)) > program.tau_max):
+                d = torque_demand(patches, statics, self.friction, loads[j][1], g, factor=1.0,
+                                  force_cap_n=self.max_grip_force_n, program=program)
+                if d.ratio > 1.0:
+                    return -j - 1, cap
+        return None
+
     def statics(self, node: Node) -> dict[str, FingerStatics]:
         """Touching finger -> its slot's `FingerStatics` (fingers whose slot has none left out)."""
         out = {}
@@ -233,11 +283,10 @@ class _Evaluator:
         self.closure: dict[Node, Closure] = {}
         self.grip: dict[Node, tuple[float, ...]] = {}
         self._loads = problem.all_loads()
-        fr, k = problem.friction, problem.grip_friction_margin
-        self._grip_friction = fr if k == 1 else Friction(fr.mu * k, fr.gamma * k, fr.edges)
+        self._grip_friction = problem.grip_friction
         self._pairs: dict[tuple, bool] = {}
         self._refusals = [0] * len(self._loads)  # states each load refused (`_over_budget`)
-        self._over: dict[Node, tuple[int, Capacity] | None] = {}  # refused: (load index, capacity)
+        self._over: dict[Node, tuple[int, Capacity | None]] = {}  # refused: `GaitProblem.load_refusal`
         self.hold: set[Node] = set()  # torque model: states that hold every load
         self._factors: dict[Node, tuple[float, ...]] = {}  # their capacity factor per load (`hold_factors`)
 
@@ -325,10 +374,9 @@ class _Evaluator:
     def refusal(self, node: Node) -> str:
         """Why a node's fingers cannot hold a load (after `_over_budget` refused it)."""
         p = self.problem
-        why = self._over.get(node)
-        if why is None:
+        j, cap = self._over[node]  # j < 0: load -j - 1 held twice over but not alone
+        if cap is None:
             return f"need over {p.max_grip_force_n:g} N per finger to hold the load"
-        j, cap = why  # j < 0: load -j - 1 held twice over but not alone (`_over_torque`)
         k = j if j >= 0 else -j - 1
         name, w = self._loads[k]
         g = p.load_gravity[k]
@@ -344,66 +392,23 @@ class _Evaluator:
         return f"{words}; to hold {p.hold_factor:g}x, {dem.words()}{tail}"
 
     def _over_budget(self, node: Node) -> bool:
-        """Some load needs more than ``max_grip_force_n`` per finger. Stops at the first such
-        load (one grip LP instead of all for most refused states), trying first the load that
-        has refused most states so far; a state within the budget gets all its grip forces."""
+        """Some load is not held as the problem asks (`GaitProblem.load_refusal`). Loads are
+        tried in the order of how many states each has refused so far (one program for most
+        refused states instead of all); a state that holds them all gets every grip force."""
         if not self._loads:
             return False
-        if self.problem.load_gravity is not None:
-            return self._over_torque(node)
-        if node in self.grip:
-            return max(self.grip[node]) > self.problem.max_grip_force_n
-        if node in self._over:
-            return True
-        patches = self.problem.patches(node)
-        order = sorted(range(len(self._loads)), key=lambda j: (-self._refusals[j], j))
-        forces = {}
-        for j in order:
-            forces[j] = min_grip_force(patches, self._grip_friction, self._loads[j][1])
-            if forces[j] > self.problem.max_grip_force_n:
-                self._refusals[j] += 1
-                self._over[node] = None
-                return True
-        self.grip[node] = tuple(forces[j] for j in range(len(self._loads)))
-        return False
-
-    def _over_torque(self, node: Node) -> bool:
-        """The torque model (`GaitProblem.load_gravity`): some load is held less than
-        ``hold_factor`` times within the joints' limits. Loads are tried most-refusing first:
-        the state's grip force for the load (which the ranking needs anyway) proves most
-        holds by a bound (`planner.grip.holds_by_bound`); the capacity program decides the
-        others."""
         if node in self.hold:
             return False
         if node in self._over:
             return True
         p = self.problem
-        patches, statics = p.patches(node), p.statics(node)
-        grip = self.grip.get(node) or [None] * len(self._loads)
-        program = None
+        grip = list(self.grip.get(node) or [None] * len(self._loads))
         order = sorted(range(len(self._loads)), key=lambda j: (-self._refusals[j], j))
-        for j in order:
-            if grip[j] is None:
-                grip[j] = min_grip_force(patches, self._grip_friction, self._loads[j][1])
-            if holds_by_bound(statics, grip[j], p.friction, p.load_gravity[j], factor=p.hold_factor,
-                              margin=p.grip_friction_margin, force_cap_n=p.max_grip_force_n):
-                continue
-            program = program or grip_program(patches, statics, p.friction, margin=p.grip_friction_margin)
-            cap = hold_capacity(patches, statics, p.friction, self._loads[j][1], p.load_gravity[j],
-                                force_cap_n=p.max_grip_force_n, program=program, witness=False)
-            if cap.factor < p.hold_factor:
-                self._refusals[j] += 1
-                self._over[node] = (j, cap)
-                return True
-            # the multiples held form an interval; where a finger cannot hold itself up alone
-            # (|g| > tau_max at a joint) it may not reach down to the weight itself
-            if np.any(np.abs(program.tau_g(p.load_gravity[j])) > program.tau_max):
-                d = torque_demand(patches, statics, p.friction, self._loads[j][1], p.load_gravity[j], factor=1.0,
-                                  force_cap_n=p.max_grip_force_n, program=program)
-                if d.ratio > 1.0:
-                    self._refusals[j] += 1
-                    self._over[node] = (-j - 1, cap)
-                    return True
+        why = p.load_refusal(p.patches(node), p.statics(node), order, grip)
+        if why is not None:
+            self._refusals[why[0] if why[0] >= 0 else -why[0] - 1] += 1
+            self._over[node] = why
+            return True
         self.grip[node] = tuple(grip)
         self.hold.add(node)
         return False

@@ -122,8 +122,8 @@ class PlanOptions:
             plan is the same for any number (not written to its parameters).
         gravity_set: None or a set size of `planner.gravity.GRAVITY_SET_SIZES` (1, 2, 6, 7):
             plan for several hand orientations at once, the named gravity directions of
-            `planner.gravity.gravity_directions` (from the hand's ``palm_normal``). A state's
-            state must then hold the weight in each of them. Exclusive with ``gravity``.
+            `planner.gravity.gravity_directions` (from the hand's ``palm_normal``). A state
+            must then hold the weight in each of them. Exclusive with ``gravity``.
         rank: how sequences are ranked (`planner.graph.RANKS`): "metric" (the thesis:
             largest worst-case closure metric first) or "grip" (smallest largest grip force
             along the sequence first, then fewest gait steps, then the metric ranking;
@@ -499,8 +499,7 @@ def _holding_grasp(problem: GaitProblem, hand, obj, lifted: str, contact_model: 
     its slot (one of its own, or a new contact labelled as the next intermediate slot) for
     every finger touching in it; {} when there is none.
     """
-    from planner.closure import Friction, batch_grasp_closure, min_grip_force
-    from planner.grip import hold_capacity
+    from planner.closure import batch_grasp_closure
 
     others = [f for f in problem.fingers if f != lifted]
     options = {f: list(problem.slots[f]) + _candidates(problem, hand, obj, f, contact_model, spaced=False) for f in others}
@@ -530,20 +529,17 @@ def _holding_grasp(problem: GaitProblem, hand, obj, lifted: str, contact_model: 
             if all(compatible(f, grown[k][f], g, t) for g, t in grown[k].items() if g != f):
                 ranked.append(k)
         beam, closures = [grown[k] for k in ranked], [closures[k] for k in ranked]
-    loads = problem.all_loads()
-    m = problem.grip_friction_margin
-    friction = Friction(problem.friction.mu * m, problem.friction.gamma * m, problem.friction.edges)
     for a, c in zip(beam, closures):
         if c is None or not c.is_force_closure:
             break
-        patches = {g: (options[g][t].points, options[g][t].normals) for g, t in a.items() if t != LIFTED}
-        if problem.load_gravity is not None:
-            statics = {g: with_statics(hand, obj, options[g][t]).statics for g, t in a.items() if t != LIFTED}
-            if any(hold_capacity(patches, statics, problem.friction, w, g_obj, margin=m,
-                                 force_cap_n=problem.max_grip_force_n).factor < problem.hold_factor
-                   for (_, w), g_obj in zip(loads, problem.load_gravity)):
-                continue
-        elif any(min_grip_force(patches, friction, w) > problem.max_grip_force_n for _, w in loads):
+        if problem.load_gravity is not None:  # the slots a problem with the torque model holds
+            for g, t in a.items():
+                if t != LIFTED:
+                    options[g][t] = with_statics(hand, obj, options[g][t])
+        touching = {g: options[g][t] for g, t in a.items() if t != LIFTED}
+        patches = {g: (s.points, s.normals) for g, s in touching.items()}
+        statics = {g: s.statics for g, s in touching.items() if s.statics is not None}
+        if problem.load_refusal(patches, statics) is not None:
             continue
         have = problem.slots
         return {g: options[g][t] if t < len(have[g]) else replace(options[g][t], label=f"int{len(have[g]) - _fixed_slots(have[g])}")
@@ -784,6 +780,11 @@ def _plan_motions(hand, obj, problem, seq: GaitSequence, gait_fn, cache: dict) -
     return out
 
 
+def _rejected_words(rejected) -> str:
+    """Sequences the simulator rejected, in words: order, direction, step and verdict each."""
+    return "; ".join(f"{' '.join(x['order'])}: {x['direction']} at step {x['step']}: {x['verdict']}" for x in rejected)
+
+
 def _step_edges(seq: GaitSequence, motions) -> list[tuple]:
     """The graph edge of every plan step `_make_plan` writes for these motions: a lift and
     the move after it are the lift's edge, a landing its own (a move with no lift before it
@@ -945,7 +946,7 @@ def plan_regrasp(
     cache: dict = {}
     directions = gravity_directions_of(options, hand)
     verifying = options.verify and bool(directions) and options.strategy == "graph"
-    verified, rejected, verify_s, workers = None, [], 0.0, None
+    verified, rejected, verify_s, workers, plan = None, [], 0.0, None, None
     if verifying:
         from planner.sim.verify import default_workers, verify_plan
 
@@ -988,10 +989,8 @@ def plan_regrasp(
                     moves = "; ".join(m + (f" (x{n} states)" if n > 1 else "") for m, n in counts.items())
                     err = NoSequenceError(f"{err}; finger moves that could not be planned: {moves}", err.report)
                 if rejected:
-                    seqs = "; ".join(f"{' '.join(x['order'])}: {x['direction']} at step {x['step']}: {x['verdict']}"
-                                     for x in rejected[:2])
-                    err = NoSequenceError(f"{err}; sequences that failed in the simulator ({len(rejected)}): {seqs}",
-                                          err.report)
+                    err = NoSequenceError(f"{err}; sequences that failed in the simulator ({len(rejected)}): "
+                                          f"{_rejected_words(rejected[:2])}", err.report)
                 raise err
             try:
                 motions = _plan_motions(hand, obj, problem, candidates[0], gait_fn, cache)
@@ -1014,16 +1013,15 @@ def plan_regrasp(
             seq = candidates[0]
             rejected.append({"order": list(seq.order(problem)), "direction": name, "step": step, "verdict": verdict})
             if verbose:
-                print(f"verify: sequence {' '.join(seq.order(problem))} failed {name} at step {step}: {verdict}")
+                print(f"verify: sequence {_rejected_words(rejected[-1:])}")
             if step < 0:
                 raise NoSequenceError(f"the initial grasp {initial.spec.name!r} does not hold in the simulator ({name}: "
                                       f"{verdict}); no sequence starting from it can pass (--no-verify returns one anyway)")
             if len(rejected) >= options.verify_attempts:
                 raise NoSequenceError(
                     f"no sequence held in the simulator in {len(rejected)} attempt(s) (--verify-attempts; "
-                    f"{verify_s:.1f} s of replays): " + "; ".join(
-                        f"{' '.join(r['order'])}: {r['direction']} at step {r['step']}: {r['verdict']}" for r in rejected[:3])
-                    + "; --no-verify returns the best sequence unverified")
+                    f"{verify_s:.1f} s of replays): {_rejected_words(rejected[:3])}; --no-verify returns the best "
+                    "sequence unverified")
             # the re-search is bounded by the graph, not by the clock the replays spent: a
             # deadline passed during them would stop it where the last search stood (and make
             # the plan depend on the machine's load and the number of workers)
@@ -1039,9 +1037,10 @@ def plan_regrasp(
         else:
             raise NoSequenceError("no executable sequence after 50 re-plans; impossible moves: " + "; ".join(failed))
         del search_info["tried"]
-    annotate_removable(G, [v for s in candidates for v in s.nodes])
     best = candidates[0]
-    plan = _make_plan(initial, final, options, inputs or {}, problem, G, best, candidates[1:], motions, search_info)
+    if plan is None:  # (a verified plan is the one the replays ran)
+        annotate_removable(G, [v for s in candidates for v in s.nodes])
+        plan = _make_plan(initial, final, options, inputs or {}, problem, G, best, candidates[1:], motions, search_info)
     if verifying:
         record = {**verified.record(), "attempts": len(rejected) + 1, "rejected": rejected}
         plan = replace(plan, summary={**plan.summary, "verification": record})
@@ -1101,7 +1100,7 @@ def _make_plan(initial, final, options, inputs, problem, G, best, others, motion
         "order": list(best.order(problem)),
         "rank": options.rank,
         "bottleneck_grip_force_n": best.bottleneck_grip,
-        "search": search_info,
+        "search": {k: v for k, v in search_info.items() if k != "tried"},  # "tried" is for the error message
     }
     parameters = asdict(options)
     del parameters["workers"]  # how many processes verified it changes nothing in the plan

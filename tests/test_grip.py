@@ -224,14 +224,18 @@ def test_a_failed_verification_removes_the_transition_and_the_search_goes_on(mon
     a, b = (realize(load_grasp(bundled_grasp(n))) for n in ("icub/box_parallel_extension.yaml", "icub/box_ir2m.yaml"))
     calls = []
 
-    def fake(plan, hand, directions, workers=None):
-        calls.append([s.finger + ":" + s.action for s in plan.steps])
-        ok = len(calls) > 1
-        rows = tuple((n, ok or i > 0, "PASS" if ok or i > 0 else "FAIL: made up", None if ok or i > 0 else 1, False,
-                      0.1, 0.1) for i, (n, _) in enumerate(directions))
-        return verify.Verification(ok, rows, 0.0)
+    def first_fails(at_state: bool):
+        """A verify_plan whose first replay fails palm down at step 1 (at the state it
+        reaches, or in the step) and whose later replays pass."""
+        def fake(plan, hand, directions, workers=None):
+            calls.append([s.finger + ":" + s.action for s in plan.steps])
+            ok = len(calls) > 1
+            rows = tuple((n, ok or i > 0, "PASS" if ok or i > 0 else "FAIL: made up", None if ok or i > 0 else 1,
+                          at_state, 0.1, 0.1) for i, (n, _) in enumerate(directions))
+            return verify.Verification(ok, rows, 0.0)
+        return fake
 
-    monkeypatch.setattr(verify, "verify_plan", fake)
+    monkeypatch.setattr(verify, "verify_plan", first_fails(at_state=False))
     opts = PlanOptions.for_execution(motion=False, time_limit_s=0)
     unverified = plan_regrasp(a, b, PlanOptions.for_execution(motion=False, time_limit_s=0, verify=False))
     res = plan_regrasp(a, b, opts)
@@ -245,15 +249,7 @@ def test_a_failed_verification_removes_the_transition_and_the_search_goes_on(mon
 
     # a failure measured at the state a step reaches removes every move into that state
     calls.clear()
-
-    def at_state(plan, hand, directions, workers=None):
-        calls.append([s.finger + ":" + s.action for s in plan.steps])
-        ok = len(calls) > 1
-        rows = tuple((n, ok or i > 0, "PASS" if ok or i > 0 else "FAIL: made up", None if ok or i > 0 else 1, True,
-                      0.1, 0.1) for i, (n, _) in enumerate(directions))
-        return verify.Verification(ok, rows, 0.0)
-
-    monkeypatch.setattr(verify, "verify_plan", at_state)
+    monkeypatch.setattr(verify, "verify_plan", first_fails(at_state=True))
     res = plan_regrasp(a, b, opts)
     bad = dict(unverified.plan.states[2].fingers)
     assert res.plan.summary["verification"]["attempts"] == 2
