@@ -193,6 +193,8 @@ class Controller:
         for j, i in self.jidx.items():
             if j in self.col and i in self.hand_pos:
                 self.tau_max[self.hand_pos[i]] = self.effort[self.col[j]]
+        # fingers every joint of which has a torque limit: the limits bound their forces
+        self.limited = {f for f, fg in hand.fingers.items() if np.all(np.isfinite(self.effort[[self.col[j] for j in fg.joints]]))}
 
     def _heaviest_finger_weight_n(self, g: float) -> float:
         mass = {}
@@ -353,7 +355,7 @@ class Controller:
                 tau[self.hand_pos[self.jidx[j]]] = tj
         F = self.force_n
         contacts = [c for c in self.contacts() if c.finger is None or c.finger in self.holding]
-        forces = self._balanced(contacts, F)
+        forces = self._balanced(contacts, F, q)
         self.forces = {}
         pushing = [(c, f_c) for c, f_c in zip(contacts, forces) if c.finger is not None and np.any(f_c)]
         for (c, f_c), J in zip(pushing, self._finger_jacobians(q, [c for c, _ in pushing])):
@@ -366,7 +368,7 @@ class Controller:
             self._set_motors(q, F)
             self._motors_stale = False
 
-    def _balanced(self, contacts: list[Contact], F: float) -> list[np.ndarray]:
+    def _balanced(self, contacts: list[Contact], F: float, q: np.ndarray) -> list[np.ndarray]:
         """Forces of the contacts (zero for passive ones): the balanced solution, blended for
         the handover of fingers with a share below 1."""
         if not contacts:
@@ -408,12 +410,10 @@ class Controller:
                 commanded = [contacts[i] for i in idx]
                 # the rows hold the fingers' own weight under the gravity of this load (the ramp
                 # blends the solutions for no load and the full load; g(q) is linear in gravity)
-                rows = self._joint_rows(commanded, load[:3] / self.mass if self.mass > 0 else np.zeros(3))
+                rows = self._joint_rows(q, commanded, load[:3] / self.mass if self.mass > 0 else np.zeros(3))
                 # the joints' limits say what the fingers can hold; only fingers without limits
                 # keep the ratio cap on their forces
-                limited = {c.finger for c in commanded if c.finger is not None
-                           and np.all(np.isfinite(self.effort[[self.col[j] for j in self.hand.fingers[c.finger].joints]]))}
-                bounded = all(c.finger is None or c.finger in limited for c in commanded)
+                bounded = all(c.finger is None or c.finger in self.limited for c in commanded)
                 self._cache[key] = balance_forces([c.p_palm for c in commanded], [c.n_palm for c in commanded],
                                                   targets, load, centre, self.friction, fn_min,
                                                   math.inf if bounded else MAX_FORCE_RATIO * F, joint_rows=rows)
@@ -442,11 +442,11 @@ class Controller:
         s = min(fading.values())
         return [s * a + (1.0 - s) * b for a, b in zip(full, without)]
 
-    def _joint_rows(self, contacts: Sequence[Contact], gravity) -> list:
+    def _joint_rows(self, q: np.ndarray, contacts: Sequence[Contact], gravity) -> list:
         """The joint torque limits of every commanded finger over its contacts' forces and
-        torsions (`planner.grip.torque_rows`), its own weight compensated under ``gravity``
-        (the gravity of the load solved for): the planner's limits, at the simulator's contacts."""
-        q = self.q()
+        torsions (`planner.grip.torque_rows`) at ``q``, its own weight compensated under
+        ``gravity`` (the gravity of the load solved for): the planner's limits, at the
+        simulator's contacts."""
         gravity = np.asarray(gravity, dtype=float)
         g_q = self.hand.gravity_torques(q, gravity) if gravity.any() else np.zeros(len(q))
         rows = []
@@ -454,10 +454,13 @@ class Controller:
         for i, c in enumerate(contacts):
             if c.finger is not None:
                 by_finger.setdefault(c.finger, []).append(i)
+        # one kinematics pass for every commanded contact
+        order = [i for idx in by_finger.values() for i in idx]
+        J_all = dict(zip(order, self.hand.point_jacobians(
+            q, [(self.link_name[contacts[i].link], contacts[i].p_palm) for i in order], angular=True)))
         for f, idx in by_finger.items():
             cols = [self.col[j] for j in self.hand.fingers[f].joints]
-            Js = self.hand.point_jacobians(q, [(self.link_name[contacts[i].link], contacts[i].p_palm) for i in idx],
-                                           angular=True)
+            Js = [J_all[i] for i in idx]
             A, b = torque_rows([J[:3, cols] for J in Js], self.effort[cols], g_q[cols],
                                torsion=[J[3:, cols].T @ contacts[i].n_palm for J, i in zip(Js, idx)])
             if len(A):
