@@ -198,7 +198,7 @@ def test_replay_gif_reads_like_the_plan_film(hand, grasp, index_lifted, tmp_path
     """The replay's GIF is drawn like `regrasp view --gif`: 640x480, a caption band, the
     simulator's contacts in the fingers' colours, the lifting finger in magenta while it
     unloads and moves, frames timed by the simulated clock; filming only reads the
-    simulation (the same drifts, closures and steps as without a GIF)."""
+    simulation (the same drifts, closures, contact forces and steps as without a GIF)."""
     from PIL import Image
 
     from planner.sim.render import MOVING_RGBA, finger_rgb
@@ -209,8 +209,8 @@ def test_replay_gif_reads_like_the_plan_film(hand, grasp, index_lifted, tmp_path
     plain = index_lifted  # the same plan replayed without a film
     assert (filmed.max_drift_mm, filmed.max_drift_deg, filmed.final_drift_mm, filmed.sim_steps) == \
         (plain.max_drift_mm, plain.max_drift_deg, plain.final_drift_mm, plain.sim_steps)
-    assert [(s.sim_fingers, s.sim_metric, s.drift_mm) for s in filmed.states] == \
-        [(s.sim_fingers, s.sim_metric, s.drift_mm) for s in plain.states]
+    assert [(s.sim_fingers, s.sim_metric, s.drift_mm, s.carried_n, s.carriers) for s in filmed.states] == \
+        [(s.sim_fingers, s.sim_metric, s.drift_mm, s.carried_n, s.carriers) for s in plain.states]
     frames, durations = [], []
     with Image.open(gif) as im:
         assert im.size == (640, 480) and im.n_frames == filmed.gif_frames == filmed.sim_steps // 24

@@ -887,7 +887,7 @@ class _Sim:
         self.steps_done += 1
         pos, quat = p.getBasePositionAndOrientation(self.obj, physicsClientId=self.cid)
         if self.sampling:  # the temporal filter only needs the samples before a measurement
-            self.filter.update(self._contact_sample(self._obj_pose((pos, quat))))
+            self.filter.update(self._contact_sample(self._obj_pose((pos, quat)), carry=True))
         mm, deg = pose_drift(self._p_ref, self._quat_ref, pos, quat)
         if self.released:
             self.max_mm, self.max_deg = max(self.max_mm, mm), max(self.max_deg, deg)
@@ -901,16 +901,20 @@ class _Sim:
             time.sleep(self.dt)
         return mm
 
-    def _contact_sample(self, T: np.ndarray) -> list:
-        """This step's contacts as (link, p_obj (1, 3), n_obj (1, 3)), normals INTO the object."""
+    def _contact_sample(self, T: np.ndarray, carry: bool = False) -> list:
+        """This step's contacts as (link, p_obj (1, 3), n_obj (1, 3)), normals INTO the object;
+        ``carry``: also add their normal forces to the measurement window's (`carried`), once
+        per physics step (a picture or an explanation reads the contacts too)."""
         R_t = T[:3, :3].T
         sample = []
-        self.samples += 1
+        if carry:
+            self.samples += 1
         for cp in p.getContactPoints(self.hand, self.obj, physicsClientId=self.cid):
             if cp[8] > TOUCH_TOL_M:
                 continue
-            who = self.link_finger.get(cp[3], "palm")
-            self.carried[who] = self.carried.get(who, 0.0) + float(cp[9])
+            if carry:
+                who = self.link_finger.get(cp[3], "palm")
+                self.carried[who] = self.carried.get(who, 0.0) + float(cp[9])
             p_obj = R_t @ (np.asarray(cp[6]) - T[:3, 3])  # point on the object (B)
             n_obj = R_t @ (-np.asarray(cp[7]))  # into the object
             sample.append((cp[3], p_obj[None, :], n_obj[None, :]))
