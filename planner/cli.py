@@ -154,14 +154,9 @@ def _print_states(report) -> None:
               + (", ".join(f"{f} {d:.1f} mm" for f, d in sorted(s.contact_offset_mm.items()) if d >= 1.0) or "-"))
 
 
-def _compare_verification(plan_path, result) -> None:
+def _compare_verification(plan, result) -> None:
     """Say whether this replay gives the verdicts the planner's verification recorded."""
-    from planner.plan import read_plan
-
-    try:
-        recorded = (read_plan(plan_path).summary or {}).get("verification")
-    except PlannerError:
-        return
+    recorded = (plan.summary or {}).get("verification")
     if not isinstance(recorded, dict) or not isinstance(recorded.get("directions"), dict):
         return
     now = {name: r.passed for name, _, r in result.directions}
@@ -190,7 +185,10 @@ def _cmd_replay(args: argparse.Namespace) -> int:
         if args.workers is not None and args.workers < 1:
             raise PlannerError(f"--workers must be >= 1, got {args.workers}")
         workers = 1 if args.gui else args.workers
-        result = replay_gravity_set(args.plan, args.gravity_set, film=film, workers=workers, **kw)
+        from planner.plan import read_plan
+
+        plan = read_plan(args.plan, strict=args.strict)  # read (and its inputs checked) once
+        result = replay_gravity_set(plan, args.gravity_set, film=film, workers=workers, **kw)
         print(f"{'gravity':<10} {'g (palm frame)':<22} {'verdict':<5} {'drift mm':>8} {'drift deg':>9} {'closure':>8}  why")
         for name, g, r in result.directions:
             agree, reached = r.closure_agreement
@@ -198,7 +196,7 @@ def _cmd_replay(args: argparse.Namespace) -> int:
             print(f"{name:<10} {'[' + ' '.join(f'{v:+.2f}' for v in g) + ']':<22} {'PASS' if r.passed else 'FAIL':<5} "
                   f"{r.max_drift_mm:>8.2f} {r.max_drift_deg:>9.2f} {f'{agree}/{reached}':>8}  {why}")
         data, passed, verdict = result.to_dict(), result.passed, result.verdict
-        _compare_verification(args.plan, result)
+        _compare_verification(plan, result)
     else:
         report = replay_plan(args.plan, **kw, **({"gravity": tuple(args.gravity)} if args.gravity else {}))
         _print_states(report)

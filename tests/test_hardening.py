@@ -712,3 +712,24 @@ def test_an_output_in_a_folder_that_does_not_exist_is_refused(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "does not exist" in err and "-o" in err
     assert not (tmp_path / "nonexistent").exists()
+
+
+def test_replay_of_a_gravity_set_warns_once_about_a_changed_input(tmp_path, capsys):
+    """A plan whose input grasp changed since planning replays with one warning line naming
+    the input, also with --gravity-set (the plan file is read once)."""
+    import shutil
+
+    from planner.cli import main
+    from planner.resources import bundled_grasp
+
+    for name, new in (("icub/box_parallel_extension.yaml", "a.yaml"), ("icub/box_ir2m.yaml", "b.yaml")):
+        shutil.copy(bundled_grasp(name), tmp_path / new)
+    plan = tmp_path / "p.json"
+    assert main(["plan", str(tmp_path / "a.yaml"), str(tmp_path / "b.yaml"), "--execution", "--no-verify", "--no-motion",
+                 "--gravity-set", "1", "-o", str(plan)]) == 0
+    with open(tmp_path / "a.yaml", "a") as fh:
+        fh.write("# edited\n")
+    capsys.readouterr()
+    main(["replay", str(plan), "--gravity-set", "1"])
+    warned = [line for line in capsys.readouterr().err.splitlines() if "warning:" in line]
+    assert len(warned) == 1 and "inputs.initial" in warned[0] and "changed since planning" in warned[0]
