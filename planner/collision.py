@@ -155,10 +155,15 @@ def _mesh_signed_distance_geometry(geometry):
     gap = -(probes @ hull.equations[:, :3].T + hull.equations[:, 3]).max(axis=1)  # >= 0 inside
     if gap.max() > MESH_CONVEX_TOL_M:
         return geometry
-    points = coal.StdVec_Vec3s()
-    for v in V[hull.vertices]:
-        points.append(np.ascontiguousarray(v))
-    convex = coal.Convex.convexHull(points, False, "Qt")
+    return convex_hull(V[hull.vertices])
+
+
+def convex_hull(points) -> "coal.ConvexBase":
+    """The convex hull of (n, 3) points as a coal convex shape (its local AABB computed)."""
+    pts = coal.StdVec_Vec3s()
+    for v in np.asarray(points, dtype=float):
+        pts.append(np.ascontiguousarray(v))
+    convex = coal.Convex.convexHull(pts, False, "Qt")
     convex.computeLocalAABB()
     return convex
 

@@ -38,7 +38,7 @@ import numpy as np
 import pinocchio as pin
 import yaml
 
-from planner.collision import CollisionModel, Geometry, HandState, checked_q
+from planner.collision import CollisionModel, Geometry, HandState, checked_q, convex_hull
 from planner.errors import InputError, KinematicsError, SpecError, UnknownNameError
 from planner.resources import HAND_SPEC, bundled_hands, hand_dir, robots_dir
 
@@ -181,12 +181,7 @@ def _link_shape(spec_path: str, link: str, shape):
     if len(V) < 4 or np.linalg.matrix_rank(V - V.mean(axis=0), tol=1e-9) < 3:
         raise SpecError(spec_path, "urdf", f"link {link!r}: its collision mesh is flat or empty ({len(V)} vertices): "
                                            "give it a solid mesh or a primitive shape")
-    points = coal.StdVec_Vec3s()
-    for v in V:
-        points.append(np.ascontiguousarray(v))
-    hull = coal.Convex.convexHull(points, False, "Qt")
-    hull.computeLocalAABB()
-    return hull
+    return convex_hull(V)
 
 
 def _merge_capsules(entries):
