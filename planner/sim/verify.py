@@ -63,17 +63,11 @@ def replay_directions(plan: Plan, hand, directions: Sequence[tuple[str, Sequence
     directions = [(str(n), tuple(float(v) for v in g)) for n, g in directions]
     n = len(directions)
     workers = default_workers() if workers is None else int(workers)
-    job = {"plan": plan, "hand": hand, "directions": directions, "kwargs": kwargs}
-    if workers <= 1 or n <= 1 or "fork" not in multiprocessing.get_all_start_methods():
-        _JOB.clear()
-        _JOB.update(job)
-        try:
-            return [_one(i) for i in range(n)]
-        finally:
-            _JOB.clear()
     _JOB.clear()
-    _JOB.update(job)
+    _JOB.update(plan=plan, hand=hand, directions=directions, kwargs=kwargs)
     try:
+        if workers <= 1 or n <= 1 or "fork" not in multiprocessing.get_all_start_methods():
+            return [_one(i) for i in range(n)]
         with ProcessPoolExecutor(max_workers=min(workers, n), mp_context=multiprocessing.get_context("fork")) as pool:
             return list(pool.map(_one, range(n)))
     finally:
