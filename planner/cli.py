@@ -133,6 +133,18 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     return verdict
 
 
+def _cmd_verify(args: argparse.Namespace) -> int:
+    """Check a plan against physics and its inputs (`planner.audit`): exit 0 sound, 1 not."""
+    from planner.audit import audit_plan
+    from planner.plan import read_plan
+
+    rep = audit_plan(read_plan(args.plan, strict=args.strict))
+    for line in rep.problems:
+        print(f"FAIL {line}")
+    print(rep.summary())
+    return 0 if rep.ok else 1
+
+
 def _cmd_view(args: argparse.Namespace) -> int:
     """Write the interactive 3D page (one self-contained HTML file) of a plan or a grasp."""
     from planner.view import view_command
@@ -178,16 +190,18 @@ def _cmd_replay(args: argparse.Namespace) -> int:
               drift_mm_max=args.drift_mm, drift_deg_max=args.drift_deg, strict=args.strict)
     if args.film and args.gravity_set is None:
         raise PlannerError("--film names directions of --gravity-set: give --gravity-set N too")
-    if args.gravity_set is not None:
-        if args.gravity is not None:
-            raise PlannerError("--gravity and --gravity-set exclude each other: give one")
-        film = [d.strip() for d in args.film.split(",") if d.strip()] if args.film else None
-        if args.workers is not None and args.workers < 1:
-            raise PlannerError(f"--workers must be >= 1, got {args.workers}")
-        workers = 1 if args.gui else args.workers
-        from planner.plan import read_plan
+    if args.gravity_set is not None and args.gravity is not None:
+        raise PlannerError("--gravity and --gravity-set exclude each other: give one")
+    if args.workers is not None and args.workers < 1:
+        raise PlannerError(f"--workers must be >= 1, got {args.workers}")
+    from planner.audit import require_sound
+    from planner.plan import read_plan
 
-        plan = read_plan(args.plan, strict=args.strict)  # read (and its inputs checked) once
+    plan = read_plan(args.plan, strict=args.strict)  # read (and its inputs checked) once
+    require_sound(plan)  # intact is not right: a resealed, physically wrong plan is refused here
+    if args.gravity_set is not None:
+        film = [d.strip() for d in args.film.split(",") if d.strip()] if args.film else None
+        workers = 1 if args.gui else args.workers
         result = replay_gravity_set(plan, args.gravity_set, film=film, workers=workers, **kw)
         print(f"{'gravity':<10} {'g (palm frame)':<22} {'verdict':<5} {'drift mm':>8} {'drift deg':>9} {'closure':>8}  why")
         for name, g, r in result.directions:
@@ -198,7 +212,7 @@ def _cmd_replay(args: argparse.Namespace) -> int:
         data, passed, verdict = result.to_dict(), result.passed, result.verdict
         _compare_verification(plan, result)
     else:
-        report = replay_plan(args.plan, **kw, **({"gravity": tuple(args.gravity)} if args.gravity else {}))
+        report = replay_plan(plan, **kw, **({"gravity": tuple(args.gravity)} if args.gravity else {}))
         _print_states(report)
         agree, reached = report.closure_agreement
         print(f"force closure agrees at {agree}/{reached} states; simulated {report.sim_time_s:.2f} s "
@@ -310,6 +324,13 @@ def build_parser() -> argparse.ArgumentParser:
                         help="with --gravity-set and --gif/--mp4: film only these directions (comma-separated, "
                              "e.g. palm_down; default all, one file per direction)")
     replay.set_defaults(func=_cmd_replay)
+    verify = sub.add_parser("verify", help="check a plan against physics and its inputs, without simulation: "
+                                           "contacts on the surface and at the joints' kinematics, paths free, "
+                                           "the chain from the initial to the final grasp")
+    verify.add_argument("plan", help="plan file (.yaml/.yml or .json)")
+    verify.add_argument("--strict", action="store_true",
+                        help="refuse a plan whose recorded input files changed or are gone (default: a warning)")
+    verify.set_defaults(func=_cmd_verify)
     view = sub.add_parser("view", help="write an interactive 3D page (one offline HTML file) of a plan or a grasp")
     view.add_argument("source", help="plan file (.yaml/.yml/.json) or grasp YAML")
     view.add_argument("-o", "--output", required=True, metavar="FILE", help="the page to write (.html)")
@@ -328,7 +349,8 @@ OPTION_LIMITS = {
     "drift_deg": (0.0, 180.0, True),
 }
 #: Files each command reads and writes (argument names): an output may not be an input.
-_INPUTS = {"plan": ("initial", "final"), "check": ("grasp",), "replay": ("plan",), "view": ("source", "report")}
+_INPUTS = {"plan": ("initial", "final"), "check": ("grasp",), "replay": ("plan",), "view": ("source", "report"),
+           "verify": ("plan",)}
 _OUTPUTS = {"plan": ("output",), "check": ("png",), "replay": ("report", "gif", "mp4"), "view": ("output",)}
 #: Exit code of an interrupted command (128 + SIGINT) and of a closed stdout (128 + SIGPIPE).
 EXIT_INTERRUPTED = 130

@@ -89,6 +89,11 @@ class IntegrityError(SpecError):
     """A plan file is incomplete or altered: its digest, counts or step chain do not match."""
 
 
+class AuditError(SpecError):
+    """A plan file is intact but physically wrong: a contact off the object, a path through
+    it, a chain that does not reach the final grasp (`planner.audit`)."""
+
+
 class PlannerWarning(UserWarning):
     """Something the user should know that does not stop the command (the CLI prints one
     ``warning:`` line per warning on stderr), e.g. a plan's input file changed since planning."""

@@ -21,6 +21,7 @@ leaves the old file or none, never half a file.
 from __future__ import annotations
 
 import os
+import stat
 import tempfile
 from pathlib import Path
 
@@ -252,3 +253,22 @@ def check_grasp_file(path: str | os.PathLike):
             p = p / "hand.yaml"
         check_hand_file(p, str(path))
     return data
+
+
+def sha256_file(path: str | os.PathLike, max_bytes: int | None = None) -> str | None:
+    """Hex sha256 of a regular file, read in 1 MiB chunks (a huge or sparse file never sits
+    in memory); None when it is not a regular file, cannot be read or holds more than
+    ``max_bytes``."""
+    import hashlib
+
+    try:
+        st = os.stat(path)
+        if not stat.S_ISREG(st.st_mode) or (max_bytes is not None and st.st_size > max_bytes):
+            return None
+        h = hashlib.sha256()
+        with open(path, "rb") as fh:
+            for chunk in iter(lambda: fh.read(1 << 20), b""):
+                h.update(chunk)
+        return h.hexdigest()
+    except OSError:
+        return None

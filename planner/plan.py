@@ -472,6 +472,7 @@ def _check_closures(plan: Plan, src: str) -> None:
 
 def _check_inputs(plan: Plan, src: str, strict: bool) -> None:
     from planner.errors import UnknownNameError
+    from planner.fileio import MAX_GRASP_BYTES, sha256_file
     from planner.resources import bundled_grasp
 
     for name, rec in plan.inputs.items():
@@ -490,7 +491,7 @@ def _check_inputs(plan: Plan, src: str, strict: bool) -> None:
         problem = None
         if p is None or not p.is_file():
             problem = f"{shown} is gone"
-        elif rec.get("sha256") and hashlib.sha256(p.read_bytes()).hexdigest() != rec["sha256"]:
+        elif rec.get("sha256") and sha256_file(p, MAX_GRASP_BYTES) != rec["sha256"]:
             problem = f"{shown} changed since planning (sha256 differs)"
         if problem and strict:
             raise SpecError(src, f"inputs.{name}", problem)

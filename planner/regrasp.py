@@ -16,7 +16,6 @@
 
 from __future__ import annotations
 
-import hashlib
 import math
 import time
 from dataclasses import asdict, dataclass, replace
@@ -229,8 +228,14 @@ class PlanResult:
 
 
 def sha256_file(path: str | Path) -> str:
-    """Hex sha256 of a file's bytes."""
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    """Hex sha256 of an input file (`planner.fileio.sha256_file`, read in chunks)."""
+    from planner.errors import SpecError
+    from planner.fileio import sha256_file as chunked
+
+    digest = chunked(path)
+    if digest is None:
+        raise SpecError(str(path), "", "cannot be read as a regular file to record its sha256")
+    return digest
 
 
 def check_same_setup(initial, final) -> None:

@@ -532,9 +532,12 @@ def load_source(source) -> tuple[str, Any]:
     """("plan", plain plan data) for a plan file, ("grasp", `RealizedGrasp`) for a grasp file."""
     source = Path(source)
     if _is_plan_file(source):
+        from planner.audit import require_sound
         from planner.plan import read_plan
 
-        return "plan", plain_plan(read_plan(source))
+        plan = read_plan(source)
+        require_sound(plan)  # a resealed, physically wrong plan is refused before any drawing
+        return "plan", plain_plan(plan)
     from planner.grasp import load_grasp, realize
 
     return "grasp", realize(load_grasp(source))

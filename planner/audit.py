@@ -1,0 +1,384 @@
+"""A plan checked against physics and its inputs, without simulation (``regrasp verify``).
+
+The integrity record of a plan (`planner.plan.read_plan`) proves that a file is the one
+``regrasp plan`` wrote; anyone can recompute a digest, so it cannot prove the file is
+*right*. `audit_plan` re-derives what the plan claims from the hand, the object and the
+recorded inputs, with the planner's own models:
+
+- **hand**: every step's finger is a finger of the hand and its joints are that finger's;
+  every joint value within the URDF limits;
+- **contacts**: every state's patch points lie on the object's surface (within
+  ``SURFACE_TOL_M``) with an inward normal of the surface there (within ``NORMAL_TOL_DEG``
+  of its normal cone: on an edge, any normal between the faces'); the
+  hand's forward kinematics at the state's joints puts each touching finger on the
+  object where its patch is (mean points within ``FK_TOL_M``), no link deeper in the
+  object than ``PENETRATION_TOL_M`` and no lifted finger touching it;
+- **paths**: every waypoint of every finger path (at most ``PATH_STEP_RAD`` apart) keeps the
+  moving finger out of the object (no deeper than at the path's own ends or
+  ``PENETRATION_TOL_M``) and out of the other fingers and the palm;
+- **grasp logic**: a finger the state calls removable leaves force closure without it; a
+  lifted state is force closure (the closure model: patches, the plan's friction);
+- **chain**: the steps go from the initial grasp to the final one: the first and the last
+  state touch with the fingers of the recorded input grasps, at their realized contacts;
+- **inputs**: the object (shape, size, pose, mass) and the friction equal the recorded
+  input grasps' when those files are present and unchanged.
+
+Each failed check is one line naming the state or step, the finger and the check.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+#: A patch point farther than this from the object's surface is not on it, m.
+SURFACE_TOL_M = 1e-3
+#: A patch normal farther than this from the surface's inward normal there, deg.
+NORMAL_TOL_DEG = 20.0
+#: Distance outside the surface at which a normal is probed (`_normal_error_deg`), m.
+NORMAL_PROBE_M = 2e-3
+#: A touching finger's patch (mean point) farther than this from where the hand's forward
+#: kinematics puts the finger's contact, m.
+FK_TOL_M = 2e-3
+#: Deepest a link may be inside the object at a state or along a path (beyond the path's
+#: own ends), m: the planner's realized contacts are within `planner.grasp.PENETRATION_TOL_M`
+#: (0.5 mm); twice that leaves room for the files' rounding.
+PENETRATION_TOL_M = 1e-3
+#: Deepest two links of different fingers (or a finger and the palm) may overlap, m.
+SELF_TOL_M = 5e-4
+#: Largest joint step between two path waypoints checked (the planner's paths are denser).
+PATH_STEP_RAD = 0.02
+#: Joint values may exceed the URDF limits by this (file rounding), rad or m.
+LIMIT_TOL = 1e-6
+#: Object pose and size equal to the inputs' within this, m (and rad of the quaternion).
+INPUT_TOL = 1e-6
+#: Most problems listed (the first ones; the count says how many there were).
+MAX_LISTED = 40
+
+
+@dataclass
+class AuditReport:
+    """What `audit_plan` found: ``problems`` (one line each, empty when the plan passed),
+    ``checked`` (check name -> how many items it covered), ``total`` problems found."""
+
+    source: str
+    problems: list[str] = field(default_factory=list)
+    checked: dict[str, int] = field(default_factory=dict)
+    total: int = 0
+
+    @property
+    def ok(self) -> bool:
+        return self.total == 0
+
+    def add(self, line: str) -> None:
+        self.total += 1
+        if len(self.problems) < MAX_LISTED:
+            self.problems.append(line)
+
+    def count(self, check: str, n: int = 1) -> None:
+        self.checked[check] = self.checked.get(check, 0) + n
+
+    def summary(self) -> str:
+        what = ", ".join(f"{n} {k}" for k, n in self.checked.items())
+        if self.ok:
+            return f"{self.source}: plan verified ({what})"
+        more = f" (first {len(self.problems)} listed)" if self.total > len(self.problems) else ""
+        return f"{self.source}: {self.total} problem(s){more}; checked {what}"
+
+    def __repr__(self) -> str:
+        return f"AuditReport({self.source!r}, ok={self.ok}, problems={self.total})"
+
+
+def _angle_deg(a, b) -> float:
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    c = float(a @ b / max(np.linalg.norm(a) * np.linalg.norm(b), 1e-300))
+    return math.degrees(math.acos(max(-1.0, min(1.0, c))))
+
+
+def _normal_error_deg(obj, p_surface: np.ndarray, n_in: np.ndarray) -> float:
+    """How far (deg) an inward normal is from the object's normal cone at a surface point:
+    ``-n_in`` is an outward normal there when the point is the closest surface point of
+    ``p + h (-n_in)`` (the definition of the normal cone of a convex body; on an edge or a
+    corner every normal between the faces' is one). The closest point's offset ``d`` from
+    ``p`` over ``h`` is the sine of the error on a face."""
+    n = n_in / max(float(np.linalg.norm(n_in)), 1e-300)
+    h = NORMAL_PROBE_M
+    ps, _, _ = obj.closest_surface(p_surface - h * n)
+    d = float(np.linalg.norm(np.asarray(ps, float) - p_surface))
+    return math.degrees(math.asin(min(1.0, d / h)))
+
+
+def _input_grasps(plan) -> dict:
+    """name -> GraspSpec of the recorded inputs that are present and unchanged."""
+    from planner.errors import PlannerError
+    from planner.fileio import MAX_GRASP_BYTES, sha256_file
+    from planner.grasp import load_grasp
+    from planner.plan import plan_file
+    from planner.resources import bundled_grasp
+
+    out = {}
+    for name in ("initial", "final"):
+        rec = plan.inputs.get(name)
+        if not isinstance(rec, dict) and not hasattr(rec, "get"):
+            continue
+        try:
+            p = bundled_grasp(rec["bundled"]) if rec.get("bundled") else (
+                plan_file(rec["path"], plan.source) if rec.get("path") else None)
+        except PlannerError:
+            p = None
+        if p is None or (rec.get("sha256") and sha256_file(p, MAX_GRASP_BYTES) != rec["sha256"]):
+            continue
+        try:
+            out[name] = load_grasp(p)
+        except PlannerError:
+            continue
+    return out
+
+
+def _check_inputs(plan, rep: AuditReport, grasps: dict) -> None:
+    """The plan's object and friction against the recorded input grasps'."""
+    for name, spec in grasps.items():
+        rep.count("input grasps")
+        o, po = spec.object, plan.object
+        if o.shape != po.get("shape"):
+            rep.add(f"object.shape: {po.get('shape')!r}, the {name} grasp's object is a {o.shape!r}")
+            continue
+        for key, mine, theirs in (("size", po.get("size"), o.size), ("position", po.get("position"), o.position)):
+            if mine is None or len(mine) != len(theirs) or not np.allclose(mine, theirs, atol=INPUT_TOL, rtol=0):
+                rep.add(f"object.{key}: {list(mine or [])} differs from the {name} grasp's {list(theirs)}")
+        qa, qb = np.asarray(po.get("quat_xyzw") or [0, 0, 0, 0], float), np.asarray(o.quat_xyzw, float)
+        if abs(abs(float(qa @ qb)) / max(np.linalg.norm(qa) * np.linalg.norm(qb), 1e-300) - 1.0) > INPUT_TOL:
+            rep.add(f"object.quat_xyzw: {list(qa)} differs from the {name} grasp's {list(qb)}")
+        mass = o.mass_kg
+        if mass is None:  # the planner used the default density's (`planner.plan.Plan`)
+            from planner.objects import default_mass_kg
+
+            mass = default_mass_kg(o.shape, o.size, o.mesh_path, spec.path)
+        if not math.isclose(float(po.get("mass_kg") or 0.0), float(mass), rel_tol=1e-6):
+            rep.add(f"object.mass_kg: {po.get('mass_kg')} kg, the {name} grasp {'says' if o.mass_kg is not None else 'gives (default density)'} {mass:.6g} kg")
+        f = spec.friction
+        for key in ("mu", "gamma"):
+            mine, theirs = plan.friction.get(key), getattr(f, key, None)
+            if theirs is not None and (mine is None or not math.isclose(float(mine), float(theirs), rel_tol=1e-6)):
+                rep.add(f"friction.{key}: {mine}, the {name} grasp says {theirs}")
+
+
+def _check_hand(plan, hand, rep: AuditReport) -> bool:
+    """Joint names, step fingers and joints, limits. False: the states cannot be posed."""
+    names = list(hand.joint_names)
+    missing = [j for j in names if j not in plan.joints]
+    unknown = [j for j in plan.joints if j not in names]
+    if missing or unknown:
+        rep.add(f"joints: the plan's joints are not the hand {hand.name}'s (missing {missing[:4]}, unknown {unknown[:4]})")
+        return False
+    col = {j: plan.joints.index(j) for j in names}
+    lo, hi = np.asarray(hand.lower, float), np.asarray(hand.upper, float)
+    for i, st in enumerate(plan.states):
+        q = np.array([st.q[col[j]] for j in names])
+        bad = [names[k] for k in np.flatnonzero((q < lo - LIMIT_TOL) | (q > hi + LIMIT_TOL))]
+        if bad:
+            rep.add(f"states[{i}].q: {', '.join(bad[:4])} outside the hand's joint limits")
+        rep.count("states")
+    for k, s in enumerate(plan.steps):
+        rep.count("steps")
+        if s.finger not in hand.fingers:
+            rep.add(f"steps[{k}].finger: {s.finger!r} is not a finger of {hand.name} ({', '.join(hand.fingers)})")
+            continue
+        want = tuple(hand.fingers[s.finger].joints)
+        if tuple(s.joints) != want:
+            rep.add(f"steps[{k}].joints: {list(s.joints)} are not finger {s.finger}'s joints {list(want)}")
+    return True
+
+
+def _q(plan, hand, state_q) -> np.ndarray:
+    col = {j: i for i, j in enumerate(plan.joints)}
+    return np.array([state_q[col[j]] for j in hand.joint_names], float)
+
+
+def _check_states(plan, hand, obj, rep: AuditReport) -> list:
+    """Contacts on the surface, at the forward kinematics, no penetration, removable, closure.
+    Returns every state's `HandState`."""
+    from planner.closure import Friction, grasp_closure
+    from planner.contacts import contact_patches
+
+    friction = Friction(**plan.friction)
+    poses = []
+    for i, st in enumerate(plan.states):
+        q = _q(plan, hand, st.q)
+        hs = hand.state(q)
+        poses.append(hs)
+        for f, (pts, nrm) in st.patches.items():
+            rep.count("contacts", len(pts))
+            if f not in hand.fingers:
+                rep.add(f"states[{i}].patches.{f}: not a finger of {hand.name}")
+                continue
+            worst_d, worst_a = 0.0, 0.0
+            for p_obj, n_in in zip(pts, nrm):
+                ps, _, _ = obj.closest_surface(p_obj)
+                worst_d = max(worst_d, float(np.linalg.norm(np.asarray(ps) - p_obj)))
+                worst_a = max(worst_a, _normal_error_deg(obj, np.asarray(ps, float), np.asarray(n_in, float)))
+            if worst_d > SURFACE_TOL_M:
+                rep.add(f"states[{i}].patches.{f}: a contact point lies {worst_d * 1000:.1f} mm off the object's "
+                        f"surface (tolerance {SURFACE_TOL_M * 1000:.1f} mm)")
+            if worst_a > NORMAL_TOL_DEG:
+                rep.add(f"states[{i}].patches.{f}: a contact normal is {worst_a:.0f} deg from the surface's inward "
+                        f"normal there (tolerance {NORMAL_TOL_DEG:.0f} deg)")
+        fk = contact_patches(hand, hs, obj, fingers=list(hand.fingers))
+        for f in st.patches:
+            if f not in hand.fingers:
+                continue
+            if f not in fk:
+                d = hs.finger_object_distance(obj, f)
+                rep.add(f"states[{i}].patches.{f}: at the state's joints finger {f} is {d * 1000:.1f} mm from the "
+                        f"object: it does not touch where the plan says")
+                continue
+            off = float(np.linalg.norm(np.mean(st.patches[f][0], axis=0) - np.mean(fk[f][0], axis=0)))
+            if off > FK_TOL_M:
+                rep.add(f"states[{i}].patches.{f}: the finger touches the object {off * 1000:.1f} mm from its "
+                        f"recorded contact (forward kinematics at the state's joints; tolerance {FK_TOL_M * 1000:.0f} mm)")
+        for f in fk:
+            if f not in st.patches:
+                rep.add(f"states[{i}]: finger {f} touches the object at the state's joints but the plan has it lifted")
+        for link, ld in hs.link_object(obj, [l for f in hand.fingers for l in hand.fingers[f].links]
+                                       + list(hand.collision.finger_links(None))).items():
+            if ld.distance_m < -PENETRATION_TOL_M:
+                rep.add(f"states[{i}]: link {link} is {-ld.distance_m * 1000:.1f} mm inside the object "
+                        f"(tolerance {PENETRATION_TOL_M * 1000:.1f} mm)")
+        for a, b, depth in hs.self_collisions():
+            if depth > SELF_TOL_M:
+                rep.add(f"states[{i}]: links {a} and {b} overlap by {depth * 1000:.1f} mm")
+        patches = {f: v for f, v in st.patches.items()}
+        for f in st.removable:
+            if f not in patches:  # a lifted finger is trivially removable
+                continue
+            rest = {g: v for g, v in patches.items() if g != f}
+            if not rest or not grasp_closure(rest, friction).is_force_closure:
+                rep.add(f"states[{i}].removable: {f} is marked removable but the other fingers are not force "
+                        f"closure without it")
+    return poses
+
+
+def _check_steps(plan, hand, obj, poses, rep: AuditReport) -> None:
+    """Waypoints of every finger path: out of the object and of the other fingers and palm."""
+    for k, s in enumerate(plan.steps):
+        if s.finger not in hand.fingers or tuple(s.joints) != tuple(hand.fingers[s.finger].joints):
+            continue
+        if s.action == "lift" and s.to_state < len(plan.states) and s.finger in plan.states[s.to_state].patches:
+            rep.add(f"steps[{k}]: lift {s.finger}, but state {s.to_state} still has it on the object")
+        if s.action == "land" and s.to_state < len(plan.states) and s.finger not in plan.states[s.to_state].patches:
+            rep.add(f"steps[{k}]: land {s.finger}, but state {s.to_state} has it off the object")
+        if s.action == "lift" and not plan.states[s.to_state].is_force_closure:
+            rep.add(f"steps[{k}]: lifting {s.finger} leaves state {s.to_state}, which is not force closure")
+        base = poses[s.from_state]
+        links = list(hand.fingers[s.finger].links)
+        ends = []
+        for end in (s.from_state, s.to_state):
+            d = poses[end].link_object(obj, links)
+            ends.append(min((v.distance_m for v in d.values()), default=0.0))
+        allowed = min(-PENETRATION_TOL_M, min(ends) - PENETRATION_TOL_M)
+        path = np.asarray(s.path, float)
+        cols = [hand.joint_names.index(j) for j in s.joints]
+        lo, hi = np.asarray(hand.lower, float)[cols], np.asarray(hand.upper, float)[cols]
+        out = np.flatnonzero(np.any((path < lo - LIMIT_TOL) | (path > hi + LIMIT_TOL), axis=0))
+        if len(out):
+            rep.add(f"steps[{k}] ({s.action} {s.finger}): the path takes {', '.join(s.joints[c] for c in out)} outside "
+                    f"the hand's joint limits")
+        dense = [path[0]]
+        for a, b in zip(path[:-1], path[1:]):
+            n = max(1, int(math.ceil(float(np.max(np.abs(b - a))) / PATH_STEP_RAD)))
+            dense.extend(a + (b - a) * t for t in np.linspace(0.0, 1.0, n + 1)[1:])
+        rep.count("waypoints", len(dense))
+        deepest, overlap = (0.0, None), (0.0, None)
+        for w in dense:
+            hs = base.with_finger(s.finger, w)
+            for link, ld in hs.link_object(obj, links).items():
+                if ld.distance_m < allowed and -ld.distance_m > deepest[0]:
+                    deepest = (-ld.distance_m, link)
+            for a, b, depth in hs.self_collisions(fingers={s.finger}):
+                if depth > SELF_TOL_M and depth > overlap[0]:
+                    overlap = (depth, f"{a} and {b}")
+        if deepest[1] is not None:
+            rep.add(f"steps[{k}] ({s.action} {s.finger}): the path takes link {deepest[1]} {deepest[0] * 1000:.1f} mm "
+                    f"into the object")
+        if overlap[1] is not None:
+            rep.add(f"steps[{k}] ({s.action} {s.finger}): the path makes links {overlap[1]} overlap by "
+                    f"{overlap[0] * 1000:.1f} mm")
+
+
+def _check_chain(plan, hand, rep: AuditReport, grasps: dict) -> None:
+    """The plan starts at the initial grasp and ends at the final one."""
+    from planner.errors import PlannerError
+    from planner.grasp import realize
+
+    if not plan.states:
+        rep.add("states: the plan has no state")
+        return
+    last = plan.steps[-1].to_state if plan.steps else 0
+    for name, index in (("initial", 0), ("final", last)):
+        spec = grasps.get(name)
+        if spec is None:
+            continue
+        try:
+            g = realize(spec, hand)
+        except PlannerError:
+            continue
+        rep.count("grasp ends")
+        st = plan.states[index]
+        want, have = sorted(g.patches), sorted(st.patches)
+        if want != have:
+            rep.add(f"states[{index}]: the plan's {'first' if index == 0 else 'last'} state touches with "
+                    f"{', '.join(have) or 'no finger'}, the {name} grasp with {', '.join(want)}: the plan does not "
+                    f"{'start' if index == 0 else 'end'} at the {name} grasp")
+            continue
+        for f in want:
+            off = float(np.linalg.norm(np.mean(st.patches[f][0], axis=0) - np.mean(g.patches[f][0], axis=0)))
+            if off > FK_TOL_M:
+                rep.add(f"states[{index}].patches.{f}: {off * 1000:.1f} mm from the {name} grasp's contact: the plan "
+                        f"does not {'start' if index == 0 else 'end'} at the {name} grasp")
+
+
+def audit_plan(plan, hand=None) -> AuditReport:
+    """Check a plan against physics and its inputs (see the module's docstring).
+
+    Args:
+        plan: a `planner.plan.Plan` (e.g. `read_plan`'s) or the path of a plan file.
+        hand: the plan's `planner.hand.Hand`; default the one its ``hand.spec`` names.
+
+    Returns:
+        `AuditReport`: ``ok``, ``problems`` (one line each), ``checked`` counts.
+    """
+    from planner.plan import Plan, plan_hand_ref, read_plan
+    from planner.view import _object_of_plan
+
+    if not isinstance(plan, Plan):
+        plan = read_plan(plan)
+    src = plan.source or "<plan>"
+    rep = AuditReport(str(src))
+    if hand is None:
+        from planner.hand import Hand
+
+        hand = Hand.load(plan_hand_ref(plan.hand, plan.source))
+    obj = _object_of_plan(plan.to_dict(), Path(src))
+    grasps = _input_grasps(plan)
+    _check_inputs(plan, rep, grasps)
+    if not _check_hand(plan, hand, rep):
+        return rep
+    poses = _check_states(plan, hand, obj, rep)
+    _check_steps(plan, hand, obj, poses, rep)
+    _check_chain(plan, hand, rep, grasps)
+    return rep
+
+
+def require_sound(plan, hand=None) -> AuditReport:
+    """`audit_plan`, raising `planner.errors.AuditError` (one line: the first problem and how
+    many there are) when the plan fails a check; ``replay`` and ``view`` call it first."""
+    from planner.errors import AuditError
+
+    rep = audit_plan(plan, hand)
+    if not rep.ok:
+        more = f" (and {rep.total - 1} more: regrasp verify lists them)" if rep.total > 1 else ""
+        raise AuditError(rep.source, "", f"the plan fails a physics check: {rep.problems[0]}{more}")
+    return rep

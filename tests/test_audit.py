@@ -1,0 +1,225 @@
+"""`regrasp verify` (planner.audit): a plan edited and resealed with a fresh digest is
+intact but wrong; every such edit must be refused by `verify` and by `replay` and `view`
+before they start, naming the state or step, the finger and the check. Plans the planner
+wrote pass."""
+
+from __future__ import annotations
+
+import copy
+import json
+
+import numpy as np
+import pytest
+
+from planner.audit import audit_plan
+from planner.cli import main
+from planner.plan import integrity_record, read_plan
+from planner.resources import bundled_grasp
+
+PAIRS = {
+    "icub box": ("icub/box_ir2m.yaml", "icub/box_parallel_extension.yaml", ()),
+    "allegro sphere execution": ("allegro/sphere_tripod.yaml", "allegro/sphere_four_finger.yaml",
+                                 ("--execution", "--no-verify")),
+}
+
+
+@pytest.fixture(scope="module")
+def plans(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("audit")
+    out = {}
+    for name, (a, b, extra) in PAIRS.items():
+        path = folder / (name.replace(" ", "_") + ".json")
+        assert main(["plan", str(bundled_grasp(a)), str(bundled_grasp(b)), "-o", str(path), *extra]) == 0
+        out[name] = path
+    return out
+
+
+def _reseal(data: dict, path, closures: bool = True) -> None:
+    """A careful forger's edit: closures re-derived from the edited patches, digest renewed."""
+    if closures:
+        from planner.closure import Friction, grasp_closure
+
+        fr = Friction(**data["friction"])
+        for s in data["states"]:
+            patches = {f: (np.array(p["points"]), np.array(p["normals"])) for f, p in s["patches"].items()}
+            c = grasp_closure(patches, fr)
+            s["closure"] = {"is_force_closure": bool(c.is_force_closure), "metric": float(c.metric)}
+    data["integrity"] = integrity_record(data)
+    path.write_text(json.dumps(data))
+
+
+def _data(plans, name="icub box") -> dict:
+    return json.loads(plans[name].read_text())
+
+
+def test_plans_the_planner_wrote_pass(plans, capsys):
+    for path in plans.values():
+        rep = audit_plan(read_plan(path))
+        assert rep.ok, rep.problems
+        # it checked what it says: every state, step, contact, the two input grasps and both ends
+        assert rep.checked["states"] >= 3 and rep.checked["steps"] >= 2 and rep.checked["waypoints"] > 20
+        assert rep.checked["input grasps"] == 2 and rep.checked["grasp ends"] == 2
+        assert main(["verify", str(path)]) == 0
+    assert "plan verified" in capsys.readouterr().out
+
+
+def _first_touching(data, finger):
+    return next(i for i, s in enumerate(data["states"]) if finger in s["patches"])
+
+
+def _edit_thumb_off(d):  # the thumb's contact 3 cm off the object in every state
+    for s in d["states"]:
+        if "thumb" in s["patches"]:
+            p = s["patches"]["thumb"]
+            p["points"] = (np.array(p["points"]) - 0.03 * np.array(p["normals"])).tolist()
+
+
+def _edit_inside(d):  # every contact inside the object
+    for s in d["states"]:
+        for p in s["patches"].values():
+            p["points"] = (0.5 * np.array(p["points"])).tolist()
+
+
+def _edit_normal(d):  # index's normals at 90 deg to its face's
+    for s in d["states"]:
+        if "index" in s["patches"]:
+            n = np.array(s["patches"]["index"]["normals"])
+            side = np.cross(n, [0.3, 0.5, 0.8])
+            s["patches"]["index"]["normals"] = (side / np.linalg.norm(side, axis=1, keepdims=True)).tolist()
+
+
+def _edit_moved(d):
+    d["object"]["position"][0] += 0.01
+
+
+def _edit_mass(d):
+    d["object"]["mass_kg"] *= 10
+
+
+def _edit_removable(d):
+    for s in d["states"]:
+        s["removable"] = sorted(s["patches"])
+
+
+def _edit_cut3(d):
+    d["states"], d["steps"] = d["states"][:3], d["steps"][:2]
+    d["alternatives"] = []
+
+
+def _edit_initial_only(d):
+    d["states"], d["steps"], d["alternatives"] = d["states"][:1], [], []
+
+
+def _edit_land_through(d):  # a landing path curls through the object
+    k = next(i for i, s in enumerate(d["steps"]) if s["action"] == "land")
+    path = np.array(d["steps"][k]["path"])
+    path[1:-1, 1:] += 0.6 * np.sin(np.linspace(0, np.pi, len(path)))[1:-1, None]
+    d["steps"][k]["path"] = path.tolist()
+
+
+def _edit_flexed(d):  # index flexed 0.25 rad further into the object, everywhere
+    for s in d["states"]:
+        s["q"]["index_2"] += 0.25
+    for st in d["steps"]:
+        if st["finger"] == "index":
+            col = st["joints"].index("index_2")
+            for w in st["path"]:
+                w[col] += 0.25
+
+
+def _edit_pinky(d):  # a step names a finger the hand lacks
+    k = next(i for i, s in enumerate(d["steps"]) if s["finger"] == "ring")
+    d["steps"][k]["finger"] = "pinky"
+
+
+def _edit_schema1(d):  # version 1 has no digest to check: the physics must still be checked
+    _edit_moved(d)
+    d["schema_version"] = 1
+
+
+EDITS = {
+    "thumb 3 cm off": (_edit_thumb_off, "thumb"),
+    "contacts inside": (_edit_inside, "off the object's surface"),
+    "normal not its face's": (_edit_normal, "normal"),
+    "object moved 1 cm": (_edit_moved, "object.position"),
+    "mass x10": (_edit_mass, "mass_kg"),
+    "every finger removable": (_edit_removable, "removable"),
+    "cut to 3 states": (_edit_cut3, "final grasp"),
+    "initial state only": (_edit_initial_only, "final grasp"),
+    "landing path through the object": (_edit_land_through, "into the object"),
+    "finger flexed into the object": (_edit_flexed, "index"),
+    "unknown finger in a step": (_edit_pinky, "pinky"),
+    "schema 1 resealed": (_edit_schema1, "object.position"),
+}
+
+
+@pytest.mark.parametrize("edit", sorted(EDITS))
+def test_resealed_wrong_plans_are_refused_by_verify_and_replay(plans, tmp_path, capsys, edit):
+    fn, needle = EDITS[edit]
+    data = _data(plans)
+    fn(data)
+    bad = tmp_path / "plan.json"
+    _reseal(data, bad)
+    if data.get("schema_version") == 1:
+        data.pop("integrity", None)
+        bad.write_text(json.dumps(data))
+    before = bad.read_bytes()
+    code = main(["verify", str(bad)])
+    out = capsys.readouterr()
+    assert code in (1, 2), out
+    text = out.out + out.err
+    assert needle in text, text
+    if code == 1:  # the physics checks ran: one FAIL line per problem, each naming its place
+        fails = [line for line in out.out.splitlines() if line.startswith("FAIL ")]
+        assert fails and all(("states[" in f or "steps[" in f or "object." in f or "friction." in f) for f in fails)
+    # replay refuses it before simulating anything, in one line
+    assert main(["replay", str(bad)]) == 2
+    err = [line for line in capsys.readouterr().err.strip().splitlines() if "warning: " not in line]
+    assert len(err) == 1 and "error" in err[0] and (code == 2 or "physics check" in err[0]), err
+    assert bad.read_bytes() == before
+
+
+def test_view_refuses_a_wrong_plan_and_writes_nothing(plans, tmp_path, capsys):
+    data = _data(plans)
+    _edit_thumb_off(data)
+    bad = tmp_path / "plan.json"
+    _reseal(data, bad)
+    page = tmp_path / "page.html"
+    assert main(["view", str(bad), "-o", str(page)]) == 2
+    assert "physics check" in capsys.readouterr().err
+    assert not page.exists()
+
+
+def test_the_execution_plan_edited_in_friction_is_refused(plans, tmp_path, capsys):
+    data = _data(plans, "allegro sphere execution")
+    data["friction"]["mu"] = 100.0
+    bad = tmp_path / "plan.json"
+    _reseal(data, bad, closures=False)
+    # read_plan re-derives every state's closure from its patches with the file's friction
+    assert main(["verify", str(bad)]) == 2
+    assert "closure" in capsys.readouterr().err
+    # with the closures consistent (data checked structurally only), the audit names the
+    # friction against the recorded inputs
+    from planner.plan import plan_from_data
+
+    rep = audit_plan(plan_from_data(data, plans["allegro sphere execution"]))
+    assert not rep.ok and any(p.startswith("friction.mu") for p in rep.problems), rep.problems
+
+
+def test_a_path_into_the_neighbouring_finger_is_refused(plans):
+    """Ring abducted mid-path toward the little finger: within its limit it touches little
+    (0.16 mm, tolerated), past the limit it overlaps; both the limit and the overlap are named."""
+    from planner.hand import Hand
+    from planner.plan import plan_from_data
+
+    data = _data(plans)
+    hand = Hand.load("icub_right")
+    k = next(i for i, s in enumerate(data["steps"]) if s["action"] == "move" and s["finger"] == "ring")
+    col = data["steps"][k]["joints"].index("ring_0")
+    path = np.array(data["steps"][k]["path"])
+    path[1:-1, col] = hand.upper[hand.joint_names.index("ring_0")] + 0.4
+    data["steps"][k]["path"] = path.tolist()
+    rep = audit_plan(plan_from_data(data, plans["icub box"]), hand)
+    mine = [p for p in rep.problems if p.startswith(f"steps[{k}] (move ring)")]
+    assert any("ring_0 outside the hand's joint limits" in p for p in mine), rep.problems
+    assert any("overlap" in p and "little" in p for p in mine), rep.problems
