@@ -4,8 +4,11 @@ A simple held-object scene: the iCub hand holds a 3 cm box in a thumb-opposing
 three-finger grasp (palm down, gravity on) and lifts the index finger. Each setting
 is replayed several times and the median is reported. The baseline, measured in the same
 run, is pybullet alone: the same hand and box loaded and stepped for the same simulated
-time with no controller, no measurement and no set-up beyond loading; the ratio says how
-much of the replay's time the controller, the measurements and the set-up take.
+time with no controller, no measurement and no set-up beyond loading (the box floats free of
+the fingers: no contact); and pybullet alone stepping the replay's scene itself (the hand at
+the grasp, held by pybullet's position motors, the box in it under gravity: the contacts
+cost a step most of its time). The ratios say how much of the replay's time the controller,
+the measurements and the set-up take.
 
 Last, the demo plan's replay in 7 gravity directions, one after the other and in one
 process per core (`planner.sim.verify.replay_directions`): wall times, their ratio, and a
@@ -109,6 +112,53 @@ def physics_only(sim_s: float, repeats: int) -> float:
     return statistics.median(rates)
 
 
+def physics_holding(plan: dict, sim_s: float, repeats: int) -> tuple[float, int]:
+    """Median sim-s per wall-s of pybullet alone stepping the replay's scene itself: the hand
+    posed at the plan's first state where the replay puts it, held there by pybullet's own
+    position motors (capped at the joints' efforts), the box in the grasp with the replay's
+    friction, gravity palm down, the replay's time step and solver iterations, connect and
+    load included. Also the contact points at the end (the scene must touch: contacts are
+    most of a step's cost)."""
+    import pybullet as p
+    from scipy.spatial.transform import Rotation
+
+    from planner.sim.replay import _T_palm_root
+
+    hand = Hand.load("icub_right")
+    T = _T_palm_root(hand)
+    q0 = plan["states"][0]["q"]
+    g = 9.81 * np.asarray(hand.palm_normal, float)
+    rates, touching = [], 0
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        cid = p.connect(p.DIRECT)
+        p.setPhysicsEngineParameter(fixedTimeStep=1 / 240, numSolverIterations=150, numSubSteps=0,
+                                    deterministicOverlappingPairs=1, physicsClientId=cid)
+        p.setGravity(*g.tolist(), physicsClientId=cid)
+        body = p.loadURDF(str(hand.urdf_path), T[:3, 3].tolist(), Rotation.from_matrix(T[:3, :3]).as_quat().tolist(),
+                          useFixedBase=True, flags=p.URDF_USE_INERTIA_FROM_FILE | p.URDF_IGNORE_VISUAL_SHAPES,
+                          physicsClientId=cid)
+        idx, targets, forces = [], [], []
+        for i in range(p.getNumJoints(body, physicsClientId=cid)):
+            name = p.getJointInfo(body, i, physicsClientId=cid)[1].decode()
+            if name in q0:
+                p.resetJointState(body, i, q0[name], physicsClientId=cid)
+                idx.append(i)
+                targets.append(q0[name])
+                forces.append(float(hand.effort[hand.joint_names.index(name)]))
+        p.setJointMotorControlArray(body, idx, p.POSITION_CONTROL, targetPositions=targets, forces=forces,
+                                    physicsClientId=cid)
+        shape = p.createCollisionShape(p.GEOM_BOX, halfExtents=[s / 2 for s in BOX_SIZE], physicsClientId=cid)
+        box = p.createMultiBody(0.03, shape, basePosition=BOX_POS, physicsClientId=cid)
+        p.changeDynamics(box, -1, lateralFriction=FRICTION.mu, spinningFriction=FRICTION.gamma, physicsClientId=cid)
+        for _ in range(round(sim_s * 240)):
+            p.stepSimulation(physicsClientId=cid)
+        touching = len(p.getContactPoints(body, box, physicsClientId=cid))
+        p.disconnect(physicsClientId=cid)
+        rates.append(sim_s / (time.perf_counter() - t0))
+    return statistics.median(rates), touching
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=5)
@@ -124,10 +174,14 @@ def main() -> None:
               f"(median of {args.repeats})")
         results = [(name, *measure(plan, args.repeats, **kw)) for name, kw in rows]
         base = physics_only(results[0][3], args.repeats)
+        held, touching = physics_holding(plan, results[0][3], args.repeats)
         print(f"{'pybullet alone (baseline)':<30} {base:>15.2f} {results[0][3] / base:>8.3f} {results[0][3]:>7.2f} "
-              f"{1.0:>10.2f}x")
+              f"{1.0:>10.2f}x   (no contact)")
+        print(f"{'pybullet alone, holding':<30} {held:>15.2f} {results[0][3] / held:>8.3f} {results[0][3]:>7.2f} "
+              f"{held / base:>10.2f}x   ({touching} contact points at the end)")
         for name, rate, wall, sim_s in results:
-            print(f"{name:<30} {rate:>15.2f} {wall:>8.3f} {sim_s:>7.2f} {rate / base:>10.2f}x")
+            print(f"{name:<30} {rate:>15.2f} {wall:>8.3f} {sim_s:>7.2f} {rate / base:>10.2f}x   "
+                  f"{rate / held:.2f}x of the scene held by pybullet alone")
     print()
     directions(max(1, min(args.repeats, 3)))
 

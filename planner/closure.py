@@ -902,7 +902,7 @@ def solve_highs(c, A_ub, b_ub, A_eq, b_eq, bounds, what: str, detail: str = "; t
     """
     res = None
     for method in ("highs", "highs-ipm"):
-        res = _lp(c, A_ub, b_ub, A_eq, b_eq, bounds, method)
+        res = highs_lp(c, A_ub, b_ub, A_eq, b_eq, bounds, method)
         if res.status == 0:
             return res
         if res.status == 2 or (res.status == 4 and "unbounded or infeasible" in res.message):
@@ -911,7 +911,7 @@ def solve_highs(c, A_ub, b_ub, A_eq, b_eq, bounds, what: str, detail: str = "; t
 
 
 class _LPResult:
-    """What `_lp` answers, in ``scipy.optimize.linprog``'s terms: ``status`` (0 optimal,
+    """What `highs_lp` answers, in ``scipy.optimize.linprog``'s terms: ``status`` (0 optimal,
     1 iteration or time limit, 2 infeasible, 3 unbounded, 4 other), ``message``, ``x``."""
 
     __slots__ = ("status", "message", "x")
@@ -949,7 +949,7 @@ def _highs():
     return _HIGHS
 
 
-def _lp(c, A_ub, b_ub, A_eq, b_eq, bounds, method: str) -> _LPResult:
+def highs_lp(c, A_ub, b_ub, A_eq, b_eq, bounds, method: str) -> _LPResult:
     """One HiGHS solve through highspy, the HiGHS project's own Python interface (a model
     passed as arrays: scipy's linprog spends 2-3x HiGHS's own time in checking and
     converting its input on the planner's small programs)."""

@@ -474,17 +474,23 @@ def torque_rows(jacobians: Sequence[np.ndarray], effort: Sequence[float], tau_g,
 # --------------------------------------------------------------------------- the controller's form
 
 
-def _tangents(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    t1 = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
-    t1 /= np.linalg.norm(t1)
-    return t1, np.cross(n, t1)
+def _tangents(N: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit tangents (k, 3) of every unit normal of ``N`` (k, 3): ``t1 = n x a`` with
+    ``a`` the x axis (the y axis for normals near x), ``t2 = n x t1``."""
+    a = np.zeros_like(N)
+    near_x = np.abs(N[:, 0]) >= 0.9
+    a[~near_x, 0], a[near_x, 1] = 1.0, 1.0
+    t1 = np.cross(N, a)
+    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
+    return t1, np.cross(N, t1)
 
 
 def balance_forces(points, normals, targets, load, centre, friction: Friction, fn_min,
                    f_max: float, margins=CONE_MARGINS, joint_rows=None) -> np.ndarray | None:
     """Contact forces that balance a load on the object: grasp force optimization.
 
-    Solves, for the margins ``(s, s_t)`` in turn, the linear program (HiGHS)
+    Solves, for the margins ``(s, s_t)`` in turn, the linear program (HiGHS, through highspy as
+    the planner's programs: `planner.closure.highs_lp`)
 
         min  sum_i |f_i - f0_i|_1
         s.t. sum_i [f_i ; (p_i - c) x f_i + t_i n_i] = -load    (equilibrium)
@@ -515,7 +521,7 @@ def balance_forces(points, normals, targets, load, centre, friction: Friction, f
     Returns:
         (k, 3) forces the fingers apply ON the object, or None when no balanced forces exist.
     """
-    from scipy.optimize import linprog
+    from planner.closure import highs_lp
 
     P = np.asarray(points, float).reshape(-1, 3)
     N = np.asarray(normals, float).reshape(-1, 3)
@@ -540,7 +546,7 @@ def balance_forces(points, normals, targets, load, centre, friction: Friction, f
     fn_min = np.broadcast_to(np.asarray(fn_min, float), (k,))
     angles = np.linspace(0.0, 2.0 * np.pi, 8, endpoint=False)
     # the pyramid's rim directions (cos a t1 + sin a t2) per contact, the same for every margin
-    t1, t2 = np.array([_tangents(n) for n in N]).transpose(1, 0, 2)
+    t1, t2 = _tangents(N)
     rims = np.cos(angles)[None, :, None] * t1[:, None] + np.sin(angles)[None, :, None] * t2[:, None]  # (k, 8, 3)
     # variables: f (m), t (k), slack (m) with |f - f0| <= slack; rows: 8 rim + 1 normal per
     # contact, 2 torsion per contact, then the two slack rows per force component
@@ -577,7 +583,7 @@ def balance_forces(points, normals, targets, load, centre, friction: Friction, f
         G[rim_rows[:, None], np.repeat(cols, 8, axis=0)] = (rims - mu * N[:, None, :]).reshape(8 * k, 3)
         # (the joint rows appended after row 11 k + 2 m do not depend on the margin)
         G[tor[:, None], cols] = G[tor[:, None] + 1, cols] = -gamma * N
-        res = linprog(c, A_ub=G, b_ub=h, A_eq=A_eq, b_eq=b, bounds=bounds, method="highs")
+        res = highs_lp(c, G, h, A_eq, b, bounds, "highs")
         if res.status == 0 and float(np.abs(res.x[:m]).max()) <= f_max:
             return res.x[:m].reshape(k, 3)
     return None

@@ -181,6 +181,7 @@ class Controller:
         self.balanced = True
         self._tick = 0
         self._cache: dict = {}
+        self._near: dict = {}  # (F, load, links) -> (points, normals, centre, solution) last solved
         self._motors_stale = True
         for i in self.movable:  # pybullet's default velocity motors off: torques act alone
             p.setJointMotorControl2(body, i, p.VELOCITY_CONTROL, force=0.0, physicsClientId=cid)
@@ -316,8 +317,11 @@ class Controller:
                 else:
                     groups.append((n, [c]))
             for n0, cps in groups:
-                pt = np.mean([c[6] for c in cps], axis=0)
-                n = -np.mean([c[7] for c in cps], axis=0)
+                if len(cps) == 1:
+                    pt, n = np.asarray(cps[0][6], float), -np.asarray(cps[0][7], float)
+                else:
+                    pt = np.add.reduce([c[6] for c in cps]) / len(cps)
+                    n = -np.add.reduce([c[7] for c in cps])
                 out.append(Contact(self._finger(link), link, pt, n / np.linalg.norm(n)))
         touching = {c.finger for c in out}
         for f in self.holding:
@@ -404,9 +408,21 @@ class Controller:
             key = (F, tuple(np.round(load / max(self.mass * 9.81, 1e-9), 2)), tuple(np.round(centre / CACHE_M)),
                    tuple((contacts[i].link, tuple(np.round(contacts[i].p_palm / CACHE_M)),
                           tuple(np.round(contacts[i].n_palm, 2))) for i in idx))
+            # the contacts moving within the cache's resolution of the last ones solved for
+            # the same load and links reuse that solution (a contact drifting across a cell
+            # boundary would otherwise re-solve for a change smaller than a cell)
+            near = (F, key[1], tuple(contacts[i].link for i in idx))
+            pts = np.array([contacts[i].p_palm for i in idx])
+            nrm = np.array([contacts[i].n_palm for i in idx])
+            last = self._near.get(near)
+            if key not in self._cache and last is not None and last[0].shape == pts.shape \
+                    and float(np.max(np.abs(last[0] - pts))) <= CACHE_M and float(np.max(np.abs(last[1] - nrm))) <= 0.01 \
+                    and float(np.max(np.abs(last[2] - centre))) <= CACHE_M:
+                self._cache[key] = last[3]
             if key not in self._cache:
                 if len(self._cache) > 256:
                     self._cache.clear()
+                    self._near.clear()
                 commanded = [contacts[i] for i in idx]
                 # the rows hold the fingers' own weight under the gravity of this load (the ramp
                 # blends the solutions for no load and the full load; g(q) is linear in gravity)
@@ -418,6 +434,8 @@ class Controller:
                                                   targets, load, centre, self.friction, fn_min,
                                                   math.inf if bounded else MAX_FORCE_RATIO * F, joint_rows=rows)
             x = self._cache[key]
+            if last is None or last[3] is not x:
+                self._near[near] = (pts, nrm, centre.copy(), x)
             if x is None:
                 return None
             out = [np.zeros(3) for _ in contacts]
