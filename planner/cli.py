@@ -145,6 +145,37 @@ def _cmd_verify(args: argparse.Namespace) -> int:
     return 0 if rep.ok else 1
 
 
+def _cmd_hand(args: argparse.Namespace) -> int:
+    """``hand init URDF -o hand.yaml``: a hand.yaml with every guess explained; ``hand check
+    HAND``: what a planner or simulator cannot use in it (exit 1 on an error)."""
+    from planner import handtool
+
+    if args.hand_command == "init":
+        import yaml
+
+        from planner.fileio import write_atomic
+
+        spec, rep = handtool.init_hand(args.urdf, args.package_dir or ())
+        out = os.path.abspath(args.output)
+        urdf = os.path.abspath(args.urdf)
+        spec["urdf"] = os.path.relpath(urdf, os.path.dirname(out))  # a hand.yaml moves with its URDF
+        if spec.get("package_dirs"):
+            spec["package_dirs"] = [os.path.relpath(os.path.abspath(d), os.path.dirname(out)) for d in spec["package_dirs"]]
+        header = "# written by regrasp hand init: every guess below is explained on its output; check and edit\n"
+        write_atomic(args.output, header + yaml.safe_dump(spec, sort_keys=False, default_flow_style=None))
+        for f in rep.findings:
+            print(f.line())
+        print(f"wrote {args.output}: {len(spec['fingers'])} fingers ({', '.join(spec['fingers'])}); "
+              f"next: regrasp hand check {args.output}")
+        return 1 if rep.errors else 0
+    rep = handtool.check_hand(args.hand)
+    for f in rep.findings:
+        print(f.line())
+    n_warn = sum(f.level == "warning" for f in rep.findings)
+    print(f"{args.hand}: {len(rep.errors)} error(s), {n_warn} warning(s)")
+    return 1 if rep.errors else 0
+
+
 def _cmd_view(args: argparse.Namespace) -> int:
     """Write the interactive 3D page (one self-contained HTML file) of a plan or a grasp."""
     from planner.view import view_command
@@ -331,6 +362,16 @@ def build_parser() -> argparse.ArgumentParser:
     verify.add_argument("--strict", action="store_true",
                         help="refuse a plan whose recorded input files changed or are gone (default: a warning)")
     verify.set_defaults(func=_cmd_verify)
+    hand = sub.add_parser("hand", help="your own hand: write a hand.yaml from a URDF (init), check one (check)")
+    hsub = hand.add_subparsers(dest="hand_command", required=True)
+    hinit = hsub.add_parser("init", help="infer fingers, tips, pads, closing joints and the palm normal from a URDF")
+    hinit.add_argument("urdf", help="the hand's URDF")
+    hinit.add_argument("-o", "--output", required=True, metavar="FILE", help="the hand.yaml to write")
+    hinit.add_argument("--package-dir", action="append", metavar="DIR",
+                       help="a folder holding the ROS packages of package:// mesh paths (repeatable)")
+    hcheck = hsub.add_parser("check", help="report what a planner or simulator cannot use in a hand, one line each")
+    hcheck.add_argument("hand", help="a bundled hand's name or a hand.yaml")
+    hand.set_defaults(func=_cmd_hand)
     view = sub.add_parser("view", help="write an interactive 3D page (one offline HTML file) of a plan or a grasp")
     view.add_argument("source", help="plan file (.yaml/.yml/.json) or grasp YAML")
     view.add_argument("-o", "--output", required=True, metavar="FILE", help="the page to write (.html)")
@@ -350,8 +391,8 @@ OPTION_LIMITS = {
 }
 #: Files each command reads and writes (argument names): an output may not be an input.
 _INPUTS = {"plan": ("initial", "final"), "check": ("grasp",), "replay": ("plan",), "view": ("source", "report"),
-           "verify": ("plan",)}
-_OUTPUTS = {"plan": ("output",), "check": ("png",), "replay": ("report", "gif", "mp4"), "view": ("output",)}
+           "verify": ("plan",), "hand": ("urdf", "hand")}
+_OUTPUTS = {"hand": ("output",), "plan": ("output",), "check": ("png",), "replay": ("report", "gif", "mp4"), "view": ("output",)}
 #: Exit code of an interrupted command (128 + SIGINT) and of a closed stdout (128 + SIGPIPE).
 EXIT_INTERRUPTED = 130
 EXIT_BROKEN_PIPE = 141

@@ -49,13 +49,16 @@ _IK_GOAL_M = 1e-6        # error at which the iterations stop
 
 
 def _share_dirs() -> list[str]:
-    """Directories that may hold ROS packages of installed cmeel wheels (example-robot-data)."""
-    roots = list(site.getsitepackages()) + [site.getusersitepackages(), sys.prefix]
+    """Directories that may hold ROS packages of installed wheels: cmeel wheels
+    (example-robot-data, under ``site-packages/cmeel.prefix/share``) and wheels installing
+    data files under the environment's ``share`` (icub-models: ``<prefix>/share/iCub``)."""
+    roots = list(site.getsitepackages()) + [site.getusersitepackages(), sys.prefix, site.getuserbase()]
     roots += [p for p in sys.path if p.endswith("site-packages")]
     out = []
     for root in roots:
         for cand in (os.path.join(root, "cmeel.prefix", "share"), os.path.join(root, "share")):
-            if os.path.isdir(os.path.join(cand, "example-robot-data")) and cand not in out:
+            if os.path.isdir(cand) and cand not in out and (
+                    os.path.isdir(os.path.join(cand, "example-robot-data")) or root in (sys.prefix, site.getuserbase())):
                 out.append(cand)
     for cand in glob.glob(os.path.join(sys.prefix, "lib", "python3*", "site-packages", "cmeel.prefix", "share")):
         if os.path.isdir(cand) and cand not in out:

@@ -512,6 +512,8 @@ def write_grasps(result: SynthResult, out_dir, hand_name: str, *, seed: int, fin
             if obj.get("mesh"):
                 obj["mesh"] = os.path.relpath(obj["mesh"], Path(out_dir).resolve())
             data["object"] = obj
+            if os.path.isabs(str(data.get("hand", ""))):  # a hand.yaml path moves with the files
+                data["hand"] = os.path.relpath(data["hand"], Path(out_dir).resolve())
             # a temporary file of our own (exclusive, a unique name: never a user's file), then a
             # hard link to the name, which fails if that file appeared meanwhile
             fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")

@@ -339,6 +339,20 @@ def pose_drift(pos_ref, quat_ref, pos, quat) -> tuple[float, float]:
     return 1000.0 * math.dist(pos, pos_ref), math.degrees(2.0 * math.acos(min(1.0, dot)))
 
 
+def urdf_problem(urdf_path: str, joint_names) -> str | None:
+    """Why pybullet cannot simulate a hand URDF with these joints (one line), or None."""
+    cid = p.connect(p.DIRECT)
+    try:
+        body = p.loadURDF(urdf_path, useFixedBase=True, flags=p.URDF_IGNORE_VISUAL_SHAPES, physicsClientId=cid)
+        names = {p.getJointInfo(body, i, physicsClientId=cid)[1].decode() for i in range(p.getNumJoints(body, physicsClientId=cid))}
+        missing = [j for j in joint_names if j not in names]
+        return f"joints {missing[:4]} are not in the URDF pybullet loads" if missing else None
+    except p.error as err:
+        return f"cannot load {urdf_path}: {err}"
+    finally:
+        p.disconnect(physicsClientId=cid)
+
+
 def _create_object(cid: int, rd: Plan, obj: dict, density_kg_m3: float) -> tuple[int, float, float]:
     """The object's pybullet body, its mass (kg: ``obj["mass_kg"]``, else volume x
     ``density_kg_m3``) and its smallest half-extent (m)."""
@@ -846,6 +860,15 @@ class _Sim:
                              restitution=0.0, linearDamping=0.0, angularDamping=0.0, physicsClientId=cid)
             if link >= 0:
                 p.changeDynamics(self.hand, link, jointDamping=0.0, physicsClientId=cid)
+        # a URDF's placeholder inertias (e.g. 0.01 kg m^2 on a 14 g phalanx) make fingers
+        # flywheels that cannot follow the object: a solid box of the link's mass and
+        # collision size instead (`planner.handtool.replay_inertia`; `regrasp hand check` says so)
+        from planner.handtool import replay_inertia
+
+        by_name = {v: k for k, v in link_name.items()}
+        for link, (_, _, box) in replay_inertia(info.hand).items():
+            if link in by_name:
+                p.changeDynamics(self.hand, by_name[link], localInertiaDiagonal=box.tolist(), physicsClientId=cid)
         p.changeDynamics(self.obj, -1, lateralFriction=friction.mu, spinningFriction=friction.gamma,
                          rollingFriction=0.0, restitution=0.0, linearDamping=0.0, angularDamping=0.0,
                          physicsClientId=cid)

@@ -1,0 +1,486 @@
+"""Your own hand: ``regrasp hand init URDF`` writes a hand.yaml from a URDF, ``regrasp hand
+check HAND`` says what in a hand a planner or a simulator cannot use, one line each.
+
+`init_hand` reads the kinematic tree with pinocchio and infers, saying why for each guess:
+
+- **palm**: the URDF's root link (the body fixed to the world);
+- **fingers**: one serial chain per leaf of the tree (root to leaf, movable joints only),
+  named from its link and joint names (thumb, index, middle/medium, ring, little/pinky),
+  else ``finger_<k>``;
+- **tip and pad**: the leaf link; the pad is the point of its collision geometry farthest
+  along the phalanx, on its palmar side;
+- **palm normal**: the direction in which the fingers' joints, moved from their lower to
+  their upper limits, carry the fingertips (summed over the fingers other than the thumb),
+  snapped to a palm-frame axis within 30 deg;
+- **closing joints**: the joints whose motion toward their upper limit carries the fingertip
+  toward the palm normal (the closing procedure moves joints toward their upper limits);
+- **open posture**: every joint at the end of its range away from the palm;
+- **effort**: the URDF's, unless it is a placeholder (see `check_hand`).
+
+`check_hand` loads the hand in pinocchio, coal and pybullet and reports inertias a simulator
+cannot use (and what the replay uses instead, `replay_inertia`), missing or placeholder
+effort and limits, mesh collision links (and how they are handled), a pad that does not face
+the palm, and fingers that collide at rest.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+#: Finger names recognised in link and joint names, in the order a hand.yaml lists them.
+FINGER_WORDS = (("thumb", ("thumb",)), ("index", ("index", "first", "ff")), ("middle", ("middle", "medium", "mf")),
+                ("ring", ("ring", "rf")), ("little", ("little", "pinky", "lf")))
+#: A joint effort above this multiple of what presses the fingertip with 100 x the hand's
+#: own weight is a placeholder (URDF exporters write 1e4-5e4 N m for "unknown").
+PLACEHOLDER_FORCE_RATIO = 100.0
+#: A link inertia whose largest principal moment exceeds this multiple of the largest any
+#: body of its mass inside its collision box can have (all the mass at the box's corners:
+#: m |size|^2 / 4) is a placeholder: the finger would move like a flywheel. The margin
+#: allows visual shells and masses larger than the collision geometry.
+INERTIA_RATIO_MAX = 10.0
+#: A palm normal guess within this of a palm-frame axis is snapped to it, deg.
+SNAP_DEG = 30.0
+
+
+@dataclass
+class Finding:
+    """One line of `check_hand` or `init_hand`: ``level`` ("error", "warning", "ok", "guess"),
+    ``what`` (the key or link), ``text``."""
+
+    level: str
+    what: str
+    text: str
+
+    def line(self) -> str:
+        return f"{self.level}: {self.what}: {self.text}"
+
+
+@dataclass
+class HandReport:
+    findings: list[Finding] = field(default_factory=list)
+
+    def add(self, level: str, what: str, text: str) -> None:
+        self.findings.append(Finding(level, what, text))
+
+    @property
+    def errors(self) -> list[Finding]:
+        return [f for f in self.findings if f.level == "error"]
+
+
+# --------------------------------------------------------------------------- inertia
+
+
+def box_inertia(mass_kg: float, size_m) -> np.ndarray:
+    """Principal moments (3,) of a solid box of this mass and size (x, y, z)."""
+    x, y, z = (float(v) for v in size_m)
+    return mass_kg / 12.0 * np.array([y * y + z * z, x * x + z * z, x * x + y * y])
+
+
+def link_boxes(hand) -> dict[str, np.ndarray]:
+    """Link -> size (3,) of the box holding its collision geometry, in the link's frame."""
+    out: dict[str, list] = {}
+    for g in hand.collision.geometries:
+        shape = g.shape
+        shape.computeLocalAABB()
+        lo, hi = np.asarray(shape.aabb_local.min_, float), np.asarray(shape.aabb_local.max_, float)
+        R, t = g.placement.rotation, g.placement.translation
+        corners = np.array([[a, b, c] for a in (lo[0], hi[0]) for b in (lo[1], hi[1]) for c in (lo[2], hi[2])])
+        out.setdefault(g.link, []).append(corners @ R.T + t)
+    return {l: np.ptp(np.vstack(c), axis=0) for l, c in out.items()}
+
+
+def replay_inertia(hand) -> dict[str, tuple[float, np.ndarray, np.ndarray]]:
+    """The links whose URDF inertia is a placeholder -> (mass, URDF principal moments, the
+    moments the replay uses instead: a solid box of the link's mass and collision size)."""
+    import pinocchio as pin
+
+    boxes = link_boxes(hand)
+    out = {}
+    for f in hand.model.frames:
+        if f.type != pin.FrameType.BODY or f.name not in boxes:
+            continue
+        jid = f.parentJoint
+        if jid == 0:
+            continue
+        inertia = hand.model.inertias[jid]
+        mass = float(inertia.mass)
+        if mass <= 0:
+            continue
+        moments = np.linalg.eigvalsh(np.asarray(inertia.inertia, float))
+        size = np.maximum(boxes[f.name], 1e-3)
+        box = box_inertia(mass, size)
+        if moments.min() <= 0 or moments.max() > INERTIA_RATIO_MAX * mass * float(size @ size) / 4.0:
+            out[f.name] = (mass, moments, box)
+    return out
+
+
+# --------------------------------------------------------------------------- geometry helpers
+
+
+def _tip_point(hand, q, link: str, p_link) -> np.ndarray:
+    T = hand.link_pose(q, link)
+    return T[:3, :3] @ np.asarray(p_link, float) + T[:3, 3]
+
+
+def _finger_name(words: str, used: set, k: int) -> str:
+    low = words.lower()
+    for name, keys in FINGER_WORDS:
+        if name in used:
+            continue
+        for key in keys:
+            if re.search(rf"(^|[^a-z]){key}([^a-z]|$)", low) or (len(key) > 3 and key in low):
+                return name
+    return f"finger_{k}"
+
+
+# --------------------------------------------------------------------------- init
+
+
+def init_hand(urdf, package_dirs=()) -> tuple[dict, HandReport]:
+    """A hand.yaml (as data) for a URDF, and the guesses made with their reasons.
+
+    Raises:
+        SpecError: the URDF cannot be loaded or has no finger (no movable chain).
+    """
+    import pinocchio as pin
+
+    from planner.errors import SpecError
+
+    urdf = Path(urdf)
+    rep = HandReport()
+    try:
+        model = pin.buildModelFromUrdf(str(urdf))
+    except (RuntimeError, ValueError) as err:
+        raise SpecError(str(urdf), "", f"pinocchio cannot load it: {err}") from None
+    bodies = [f for f in model.frames if f.type == pin.FrameType.BODY]
+    root = next((f.name for f in bodies if f.parentJoint == 0), None)
+    if root is None:
+        raise SpecError(str(urdf), "", "no link is fixed to the root: no palm")
+    rep.add("guess", "palm_frame", f"{root} (the URDF's root link)")
+    children = {j: [] for j in range(model.njoints)}
+    for j in range(1, model.njoints):
+        children[model.parents[j]].append(j)
+    leaves = [j for j in range(1, model.njoints) if not children[j] and model.joints[j].nq == 1]
+    if not leaves:
+        raise SpecError(str(urdf), "", "no movable joint chain: not a hand")
+    body_of = {}
+    for f in bodies:
+        body_of.setdefault(f.parentJoint, f.name)
+    chains, owner = [], {}
+    for leaf in leaves:
+        chain, j = [], leaf
+        while j != 0:
+            if model.joints[j].nq == 1:
+                chain.append(j)
+            j = model.parents[j]
+        chain = chain[::-1]
+        mine = [j for j in chain if j not in owner]
+        shared = [model.names[j] for j in chain if j in owner]
+        for j in mine:
+            owner[j] = leaf
+        if shared:
+            rep.add("warning", model.names[leaf], f"shares {', '.join(shared)} with another finger: kept in the first "
+                                                 "finger only (a joint belongs to one finger)")
+        if mine:
+            chains.append((leaf, mine))
+    # names
+    used: set = set()
+    named = []
+    for k, (leaf, chain) in enumerate(chains):
+        words = " ".join([model.names[j] for j in chain] + [body_of.get(j, "") for j in chain])
+        name = _finger_name(words, used, k)
+        used.add(name)
+        named.append((name, leaf, chain))
+    if len(named) >= 3 and all(n.startswith("finger_") for n, _, _ in named):
+        named = _name_by_geometry(model, named, rep)
+    order = [n for n, _ in FINGER_WORDS]
+    named.sort(key=lambda t: (order.index(t[0]) if t[0] in order else len(order), t[0]))
+    # a provisional hand, to use the planner's kinematics and geometry
+    fingers = {}
+    for name, leaf, chain in named:
+        tip = body_of.get(leaf, model.frames[-1].name)
+        fingers[name] = {"joints": [model.names[j] for j in chain], "tip_frame": tip}
+    spec = {"schema_version": 1, "name": urdf.stem if urdf.stem != "model" else urdf.parent.name,
+            "urdf": str(urdf), "palm_frame": root, "fingers": fingers}
+    if package_dirs:
+        spec["package_dirs"] = [str(d) for d in package_dirs]
+    hand = _provisional(spec, urdf)
+    lo, hi = np.asarray(hand.lower), np.asarray(hand.upper)
+    q_mid = np.clip(np.zeros(len(lo)), lo, hi)
+    boxes = link_boxes(hand)
+    # palm normal: where the joints start carrying the tips from the zero posture (a URDF's
+    # zero is the extended hand): flexion moves an extended fingertip toward the palm side
+    step = 0.05
+    tips, moves = {}, {}
+    for name, fg in hand.fingers.items():
+        tip_link = fg.links[-1] if fg.links else fingers[name]["tip_frame"]
+        p_tip = _far_point(hand, tip_link, boxes)
+        tips[name] = _tip_point(hand, q_mid, tip_link, p_tip)
+        for j in fg.joints:
+            i = hand.joint_names.index(j)
+            qb = q_mid.copy()
+            sign = 1.0 if q_mid[i] + step <= hi[i] else -1.0
+            qb[i] = q_mid[i] + sign * step
+            v = sign * (_tip_point(hand, qb, tip_link, p_tip) - tips[name]) / step  # toward the upper limit
+            moves.setdefault(name, []).append((j, v))
+    sweep = sum((v for name, ms in moves.items() if name != "thumb" for _, v in ms), np.zeros(3))
+    if np.linalg.norm(sweep) < 1e-9:
+        sweep = sum((v for ms in moves.values() for _, v in ms), np.zeros(3))
+    n = sweep / max(np.linalg.norm(sweep), 1e-12)
+    axis = int(np.argmax(np.abs(n)))
+    if math.degrees(math.acos(min(1.0, abs(float(n[axis]))))) <= SNAP_DEG:
+        n = np.eye(3)[axis] * math.copysign(1.0, n[axis]) + 0.0
+        why = "snapped to the nearest palm-frame axis"
+    else:
+        why = "not near a palm-frame axis: check it"
+    spec["palm_normal"] = [float(round(v, 6)) for v in n]
+    rep.add("guess", "palm_normal", f"{spec['palm_normal']}: the direction in which the fingers' joints start "
+                                    f"moving the fingertips from the zero posture toward their upper limits ({why})")
+    # closing joints: those moving the tip toward the grasp's centre, in front of the palm
+    lengths = _finger_lengths(hand, boxes)
+    centre = np.mean(list(tips.values()), axis=0) + 0.5 * float(np.mean(list(lengths.values()))) * n
+    open_q = {}
+    for name, ms in moves.items():
+        close, notes = [], []
+        # a finger closes toward the palm's side, the thumb toward the grasp's centre (where
+        # it opposes the fingers)
+        to_c = centre - tips[name] if name == "thumb" else n.copy()
+        to_c /= max(np.linalg.norm(to_c), 1e-12)
+        for j, v in ms:
+            size = float(np.linalg.norm(v))
+            along = float(v @ to_c) / size if size > 1e-9 else 0.0
+            if along > 0.5:
+                close.append(j)
+            elif along < -0.5:
+                notes.append(f"{j} closes toward its lower limit (not a closing joint: the closing procedure "
+                             "moves joints toward their upper limits)")
+            else:
+                notes.append(f"{j} moves the tip sideways (abduction or opposition)")
+        if not close:
+            close = [j for j, _ in ms]
+            notes.append("no joint carries the tip toward the grasp's centre: every joint closes")
+        fingers[name]["close_joints"] = close
+        rep.add("guess", f"fingers.{name}", f"joints {fingers[name]['joints']}, closing {close} (toward the grasp's "
+                "centre in front of the palm)" + (f"; {'; '.join(notes)}" if notes else ""))
+        for j in close:  # open: the closing joints at the end of their range away from closing
+            i = hand.joint_names.index(j)
+            if lo[i] != 0.0:
+                open_q[j] = float(lo[i])
+    if open_q:
+        spec["open"] = open_q
+    # contact links and pads
+    for name, fg in hand.fingers.items():
+        links = list(fg.links)
+        if not links:
+            rep.add("error", f"fingers.{name}", "no link of the finger has collision geometry: it cannot touch")
+            continue
+        fingers[name]["contact_links"] = links
+        tip_link = links[-1]
+        p, normal = _pad(hand, tip_link, boxes, n, q_mid)
+        fingers[name]["pad"] = {"link": tip_link, "point": [float(round(v, 6)) for v in p],
+                                "normal": [float(round(v, 6)) for v in normal]}
+        rep.add("guess", f"fingers.{name}.pad", f"on {tip_link}: the point of its collision box farthest along the "
+                                                "phalanx, on the side facing the palm normal")
+    # effort
+    effort = _placeholder_effort(hand, boxes)
+    if effort is not None:
+        spec["effort"] = effort
+        rep.add("guess", "effort", f"{effort} N m for every joint: the URDF's efforts are placeholders "
+                                   f"(up to {float(np.max(hand.effort)):g} N m); replace with your motors' stall torque")
+    return spec, rep
+
+
+def _name_by_geometry(model, named, rep: HandReport):
+    """Names for fingers whose link and joint names say nothing (``joint_12.0``): the thumb is
+    the finger whose base lies off the line the other bases (the knuckles) lie on (3x
+    farther than the farthest of them, and 1 mm), the
+    others index, middle, ring, little along the knuckle line from the end nearer the thumb."""
+    import pinocchio as pin
+
+    data = model.createData()
+    pin.forwardKinematics(model, data, pin.neutral(model))
+    base = {leaf: np.asarray(data.oMi[chain[0]].translation, float) for _, leaf, chain in named}
+    fit = {}
+    for _, leaf, _ in named:  # the other bases on a line (the knuckles), this one off it
+        others = np.array([base[l] for _, l, _ in named if l != leaf])
+        c = others.mean(axis=0)
+        u = np.linalg.svd(others - c)[2][0]
+        off = [float(np.linalg.norm((o - c) - ((o - c) @ u) * u)) for o in others]
+        r = base[leaf] - c
+        fit[leaf] = (max(off), float(np.linalg.norm(r - (r @ u) * u)))
+    thumb = min(fit, key=lambda l: fit[l][0])
+    if fit[thumb][1] < 3.0 * fit[thumb][0] + 1e-3:
+        return named
+    # along the knuckle line, from the end nearer the thumb
+    others = np.array([base[l] for l in fit if l != thumb])
+    c = others.mean(axis=0)
+    u = np.linalg.svd(others - c)[2][0]
+    if (base[thumb] - c) @ u < 0:
+        u = -u
+    rest = sorted((l for l in fit if l != thumb), key=lambda l: -float((base[l] - c) @ u))
+    names = {thumb: "thumb", **{l: n for l, n in zip(rest, ("index", "middle", "ring", "little"))}}
+    rep.add("guess", "finger names", "the link and joint names name no finger: thumb is the finger whose base lies "
+            "off the line of the others' (the knuckles), then index, middle, ring, little along that line from the "
+            "end nearer the thumb")
+    return [(names.get(leaf, name), leaf, chain) for name, leaf, chain in named]
+
+
+def _provisional(spec: dict, where: Path):
+    import tempfile
+
+    import yaml
+
+    from planner.hand import Hand
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "hand.yaml"
+        data = dict(spec)
+        data["urdf"] = str(Path(spec["urdf"]).resolve())
+        path.write_text(yaml.safe_dump(data, sort_keys=False))
+        return Hand(path, data)
+
+
+def _far_point(hand, link: str, boxes) -> np.ndarray:
+    """A point at the far end of a link's collision box along the link's longest axis (the
+    phalanx direction; its sign away from the joint)."""
+    size = boxes.get(link)
+    if size is None:
+        return np.zeros(3)
+    centre = _box_centre(hand, link)
+    k = int(np.argmax(size))
+    p = centre.copy()
+    p[k] += math.copysign(size[k] / 2.0, centre[k] if abs(centre[k]) > 1e-9 else 1.0)
+    return p
+
+
+def _box_centre(hand, link: str) -> np.ndarray:
+    pts = []
+    for g in hand.collision.geometries:
+        if g.link == link:
+            pts.append(np.asarray(g.center, float))
+    return np.mean(pts, axis=0) if pts else np.zeros(3)
+
+
+def _pad(hand, link: str, boxes, palm_normal, q) -> tuple[np.ndarray, np.ndarray]:
+    """Pad point and outward normal (link frame) of a distal link: 3/4 of the way along its
+    box's longest axis, on the box face whose outward normal points most along the palm
+    normal's opposite... i.e. toward the object held in front of the palm."""
+    size = boxes[link]
+    centre = _box_centre(hand, link)
+    k = int(np.argmax(size))
+    T = hand.link_pose(q, link)
+    R = T[:3, :3]
+    # the object sits on the palm-normal side of the palm; a closed finger's pad faces back
+    # toward the palm: at the open posture the pad faces the palm normal's side
+    best, face = -np.inf, None
+    for ax in range(3):
+        if ax == k:
+            continue
+        for s in (-1.0, 1.0):
+            nrm = np.zeros(3)
+            nrm[ax] = s
+            score = float((R @ nrm) @ palm_normal)
+            if score > best:
+                best, face = score, (ax, s)
+    ax, s = face
+    p = centre.copy()
+    p[k] += math.copysign(0.25 * size[k], centre[k] if abs(centre[k]) > 1e-9 else 1.0)
+    p[ax] += s * size[ax] / 2.0
+    normal = np.zeros(3)
+    normal[ax] = s
+    return p, normal
+
+
+def _finger_lengths(hand, boxes) -> dict[str, float]:
+    return {name: float(sum(np.max(boxes[l]) for l in fg.links if l in boxes)) or 0.05
+            for name, fg in hand.fingers.items()}
+
+
+def _hand_weight_n(hand) -> float:
+    return 9.81 * float(sum(hand.model.inertias[j].mass for j in range(hand.model.njoints)))
+
+
+def _placeholder_effort(hand, boxes) -> float | None:
+    """A joint torque (N m) when every URDF effort is a placeholder, else None: a finger
+    whose efforts press its tip with more than `PLACEHOLDER_FORCE_RATIO` x the hand's weight.
+    The replacement presses each fingertip with the hand's weight... at least 0.1 N m."""
+    eff = np.asarray(hand.effort, float)
+    if not np.all(np.isfinite(eff)):
+        return _suggested_effort(hand, boxes)
+    lengths = _finger_lengths(hand, boxes)
+    w = max(_hand_weight_n(hand), 0.1)
+    ratio = max(float(np.max(eff)) / lengths[f] / w for f in hand.fingers)
+    return _suggested_effort(hand, boxes) if ratio > PLACEHOLDER_FORCE_RATIO else None
+
+
+def _suggested_effort(hand, boxes) -> float:
+    """Torque pressing the longest finger's tip with 5 N (a human fingertip's comfortable
+    pinch): an order of magnitude to start from, not a motor's rating."""
+    L = max(_finger_lengths(hand, boxes).values())
+    return float(round(max(0.1, 5.0 * L), 2))
+
+
+# --------------------------------------------------------------------------- check
+
+
+def check_hand(ref) -> HandReport:
+    """What a planner or a simulator cannot use in a hand (see the module's docstring)."""
+    from planner.hand import Hand
+
+    rep = HandReport()
+    hand = Hand.load(ref)
+    rep.add("ok", "pinocchio", f"{hand.urdf_path}: {len(hand.joint_names)} joints, fingers {', '.join(hand.fingers)}")
+    boxes = link_boxes(hand)
+    # limits and efforts
+    for j, lo, hi, src in zip(hand.joint_names, hand.lower, hand.upper, hand.effort_source):
+        if not (np.isfinite(lo) and np.isfinite(hi)) or hi - lo <= 1e-9:
+            rep.add("error", f"joint {j}", f"limits [{lo:g}, {hi:g}]: give the URDF joint a <limit lower upper>")
+        if src == "none":
+            rep.add("warning", f"joint {j}", "no effort limit (URDF <limit effort> 0 or absent): the grip model "
+                                             "cannot bound its torque; add `effort:` to the hand.yaml")
+    eff = _placeholder_effort(hand, boxes)
+    if eff is not None and any(s == "urdf" for s in hand.effort_source):
+        rep.add("warning", "effort", f"the URDF's efforts (up to {float(np.nanmax(np.where(np.isfinite(hand.effort), hand.effort, np.nan))):g} "
+                                     f"N m) press a fingertip with over {PLACEHOLDER_FORCE_RATIO:g}x the hand's weight: "
+                                     f"placeholders; add `effort: {eff}` (your motors' stall torque) to the hand.yaml")
+    # inertias
+    for link, (mass, moments, box) in sorted(replay_inertia(hand).items()):
+        rep.add("warning", f"link {link}", f"inertia {moments.max():.3g} kg m^2 for {mass:.3g} kg (a solid box of its "
+                                           f"collision size: {box.max():.3g}): a placeholder; the replay uses the box's "
+                                           f"[{', '.join(f'{v:.3g}' for v in box)}] kg m^2")
+    # meshes
+    meshes = sorted({g.link for g in hand.collision.geometries if type(g.shape).__name__.startswith("Convex")})
+    if meshes:
+        rep.add("ok", "collision", f"{len(meshes)} mesh link(s) ({', '.join(meshes[:6])}{'...' if len(meshes) > 6 else ''})"
+                                   ": planned with their convex hulls (coal), simulated with pybullet's hulls")
+    # pads facing the palm normal's side at the open posture
+    n = np.asarray(hand.palm_normal, float)
+    q_open = np.asarray(hand.q_open, float)
+    for name, fg in hand.fingers.items():
+        if fg.pad_n_link is None:
+            rep.add("warning", f"fingers.{name}.pad", "no normal: IK places the tip without orienting the pad; "
+                                                      "give pad: {link, point, normal}")
+            continue
+        R = hand.link_pose(q_open, fg.pad_link)[:3, :3]
+        c = float((R @ np.asarray(fg.pad_n_link)) @ n)
+        if c < 0.0 and name != "thumb":
+            rep.add("warning", f"fingers.{name}.pad", f"its normal points away from the palm's side at the open posture "
+                                                      f"(cos {c:+.2f} with palm_normal): check pad.normal")
+    # collisions at rest
+    for a, b, depth in hand.state(q_open).self_collisions():
+        rep.add("warning", "open posture", f"links {a} and {b} overlap by {depth * 1000:.1f} mm: move the open "
+                                           "posture or add the pair to disabled_collisions")
+    # pybullet
+    from planner.sim.replay import urdf_problem
+
+    problem = urdf_problem(str(hand.urdf_path), hand.joint_names)
+    if problem:
+        rep.add("error", "pybullet", problem)
+    else:
+        rep.add("ok", "pybullet", "loads the URDF with every joint")
+    return rep
