@@ -9,6 +9,14 @@ from __future__ import annotations
 import importlib
 
 _EXPORTS = {
+    # the one-call API (planner.api): each command as a function of paths or objects;
+    # ``planner.plan`` is also the plan-file module (planner.plan.read_plan), callable
+    "check": "planner.api",
+    "replay": "planner.api",
+    "synth": "planner.api",
+    "verify": "planner.api",
+    "AuditReport": "planner.audit",
+    "audit_plan": "planner.audit",
     # errors
     "InputError": "planner.errors",
     "KinematicsError": "planner.errors",
@@ -64,7 +72,7 @@ _EXPORTS = {
     "write_plan": "planner.plan",
 }
 
-__all__ = sorted(_EXPORTS)
+__all__ = sorted([*_EXPORTS, "plan"])
 
 try:
     from importlib.metadata import PackageNotFoundError, version as _version
@@ -75,6 +83,8 @@ except PackageNotFoundError:  # a checkout that was never installed
 
 
 def __getattr__(name: str):
+    if name == "plan":  # the module planner.plan, callable as the one-call planner
+        return importlib.import_module("planner.plan")
     module = _EXPORTS.get(name)
     if module is None:
         raise AttributeError(f"module 'planner' has no attribute {name!r}")

@@ -392,7 +392,7 @@ OPTION_LIMITS = {
 #: Files each command reads and writes (argument names): an output may not be an input.
 _INPUTS = {"plan": ("initial", "final"), "check": ("grasp",), "replay": ("plan",), "view": ("source", "report"),
            "verify": ("plan",), "hand": ("urdf", "hand")}
-_OUTPUTS = {"hand": ("output",), "plan": ("output",), "check": ("png",), "replay": ("report", "gif", "mp4"), "view": ("output",)}
+_OUTPUTS = {"hand": ("output",), "plan": ("output",), "check": ("png",), "replay": ("report", "gif", "mp4"), "view": ("output", "gif")}
 #: Exit code of an interrupted command (128 + SIGINT) and of a closed stdout (128 + SIGPIPE).
 EXIT_INTERRUPTED = 130
 EXIT_BROKEN_PIPE = 141

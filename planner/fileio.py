@@ -5,7 +5,8 @@ README's "Hardening / plan integrity" paragraph), so no input makes a command ha
 out of memory or end in a traceback:
 
 * file size: `MAX_GRASP_BYTES` for grasp and hand YAML, `MAX_PLAN_BYTES` for plans;
-* YAML: at most `MAX_YAML_DEPTH` levels of nesting, `MAX_YAML_ALIASES` aliases,
+* YAML: at most `MAX_YAML_DEPTH` levels of nesting, `MAX_YAML_ALIASES` aliases expanding to
+  at most `MAX_YAML_NODES_PER_CHAR` values per character of the file,
   integers of at most `MAX_INT_DIGITS` digits, and no duplicate keys (``mu: -1`` then
   ``mu: 0.9`` is refused, not silently the last one);
 * messages name the file, the line and the problem; they never quote the file's content
@@ -40,6 +41,13 @@ MAX_YAML_DEPTH = 32
 MAX_YAML_ALIASES = 100
 #: Longest integer literal accepted, digits.
 MAX_INT_DIGITS = 30
+#: Most values a YAML document may hold once its aliases are expanded, per character of
+#: the file (at least `MIN_YAML_EXPANDED_NODES`): an alias bomb stays small as a file and as
+#: PyYAML's shared objects, but anything walking it (a check, a digest, a message) expands
+#: it. Without aliases a document holds fewer values than it has characters; the planner
+#: writes no aliases, and a person reusing a block a few times stays far below.
+MAX_YAML_NODES_PER_CHAR = 2
+MIN_YAML_EXPANDED_NODES = 10_000
 
 
 def _where(node_or_mark) -> str:
@@ -55,6 +63,8 @@ class _BoundedLoader(yaml.SafeLoader):
         super().__init__(stream)
         self._depth = 0
         self._aliases = 0
+        self._max_nodes = max(MIN_YAML_EXPANDED_NODES, MAX_YAML_NODES_PER_CHAR * len(stream)) \
+            if isinstance(stream, str) else MIN_YAML_EXPANDED_NODES
 
     def compose_node(self, parent, index):
         if self.check_event(yaml.AliasEvent):
@@ -68,6 +78,27 @@ class _BoundedLoader(yaml.SafeLoader):
             return super().compose_node(parent, index)
         finally:
             self._depth -= 1
+
+    def compose_document(self):
+        node = super().compose_document()
+        if node is not None and self._aliases:  # without aliases the size is the file's
+            sizes: dict[int, int] = {}
+
+            def expanded(n) -> int:
+                k = id(n)
+                if k not in sizes:
+                    sizes[k] = 1  # (a node inside itself counts once: recursion is refused later)
+                    if isinstance(n, yaml.SequenceNode):
+                        sizes[k] = 1 + sum(expanded(c) for c in n.value)
+                    elif isinstance(n, yaml.MappingNode):
+                        sizes[k] = 1 + sum(expanded(a) + expanded(b) for a, b in n.value)
+                    if sizes[k] > self._max_nodes:
+                        raise yaml.YAMLError(f"its aliases expand to more than {self._max_nodes} values, "
+                                             f"{MAX_YAML_NODES_PER_CHAR} per character of the file ({_where(n)})")
+                return sizes[k]
+
+            expanded(node)
+        return node
 
     def construct_mapping(self, node, deep=False):
         seen = set()

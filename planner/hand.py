@@ -36,7 +36,6 @@ from pathlib import Path
 import coal
 import numpy as np
 import pinocchio as pin
-import yaml
 
 from planner.collision import CollisionModel, Geometry, HandState, checked_q, convex_hull
 from planner.errors import InputError, KinematicsError, SpecError, UnknownNameError
@@ -245,12 +244,12 @@ class Hand:
             path = path / HAND_SPEC
         elif bare and not path.is_file():
             raise UnknownNameError("hand", str(name_or_path), bundled_hands())
-        if not path.is_file():
+        if not path.exists():
             raise SpecError(str(path), "", "file not found")
-        try:
-            spec = yaml.safe_load(path.read_text())
-        except yaml.YAMLError as err:
-            raise SpecError(str(path), "", f"not valid YAML: {err}") from err
+        from planner.fileio import MAX_GRASP_BYTES, read_yaml
+
+        # the bounded reader: size, nesting, aliases, integer digits; a FIFO or device refused
+        spec = read_yaml(path, MAX_GRASP_BYTES, "hand spec")
         if not isinstance(spec, dict):
             raise SpecError(str(path), "", "expected a mapping at the top level")
         return cls(path, spec)
@@ -280,6 +279,8 @@ class Hand:
         used: list[str] = []
         for fname, fs in fingers_spec.items():
             key = f"fingers.{fname}"
+            if not isinstance(fname, str) or not fname.strip():
+                raise SpecError(sp, key, f"a finger name must be a word (e.g. index), got {fname!r}")
             if not isinstance(fs, dict):
                 raise SpecError(sp, key, "expected a mapping")
             for k in ("joints", "tip_frame"):

@@ -78,6 +78,10 @@ def load_mesh(path, scale=(1.0, 1.0, 1.0)) -> tuple[np.ndarray, np.ndarray]:
     a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
     if not (np.linalg.norm(np.cross(b - a, c - a), axis=1) > 0).any():
         raise InputError(f"mesh {path} has no triangle with a non-zero area")
+    used = V[np.unique(F)]
+    extent = float(np.ptp(used, axis=0).max())
+    if np.linalg.matrix_rank(used - used.mean(axis=0), tol=1e-9 * max(extent, 1e-300)) < 3:
+        raise InputError(f"mesh {path} is flat (all its vertices lie in one plane): an object needs a volume")
     return V * np.asarray(scale, dtype=float), F
 
 

@@ -763,3 +763,19 @@ def _check_step(ck: _Checker, value, i: int, joints: tuple[str, ...], states: tu
     if set(a.patches) - {finger} != set(b.patches) - {finger}:
         raise ck.fail(f"{key}", f"fingers other than {finger} change contact between states {frm} and {to}")
     return PlanStep(finger, action, frm, to, sj, tuple(tuple(float(v) for v in wp) for wp in path))
+
+
+class _CallableModule(type(os)):
+    """``planner.plan`` is this module and, called, the one-call planner
+    (`planner.api.plan`): ``planner.plan("a.yaml", "b.yaml")`` plans, ``planner.plan.read_plan``
+    reads a file."""
+
+    def __call__(self, initial, final, **options):
+        from planner.api import plan
+
+        return plan(initial, final, **options)
+
+
+import sys as _sys  # noqa: E402 - the module's class is set once it is complete
+
+_sys.modules[__name__].__class__ = _CallableModule

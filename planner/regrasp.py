@@ -925,7 +925,8 @@ def plan_regrasp(
     """Plan a finger-gaiting sequence from one realized grasp to another.
 
     Args:
-        initial, final: `planner.grasp.RealizedGrasp` (same hand, object, pose, friction).
+        initial, final: `planner.grasp.RealizedGrasp` (same hand, object, pose, friction), or
+            grasp files (paths) or `GraspSpec`s, realized here.
         options: planner parameters.
         inputs: what to record under the plan's ``inputs`` (paths and sha256).
         verbose: let the motion planner print its log.
@@ -937,6 +938,15 @@ def plan_regrasp(
         NoSequenceError: no sequence exists (or none whose moves can be executed);
             the message says why.
     """
+    from planner.grasp import RealizedGrasp
+
+    if not isinstance(initial, RealizedGrasp) or not isinstance(final, RealizedGrasp):
+        # paths or GraspSpecs: realized here, their files recorded as the CLI records them
+        from planner.api import _grasp
+
+        (initial, rec_i), (final, rec_f) = _grasp(initial), _grasp(final)
+        if inputs is None:
+            inputs = {k: v for k, v in (("initial", rec_i), ("final", rec_f)) if v is not None}
     check_same_setup(initial.spec, final.spec)
     gait_fn = _motion_gait(options, verbose) if options.motion else _straight_gait
     t0 = time.perf_counter()

@@ -103,14 +103,12 @@ def load_object_file(path) -> tuple[dict, dict | None, bool]:
     """
     from planner.grasp import _parse_object, _Reader
 
+    from planner.fileio import MAX_GRASP_BYTES, read_yaml
+
     path = Path(path)
     r = _Reader(path)
-    try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError) as err:
-        raise r.fail("", f"cannot read object file: {err.strerror if isinstance(err, OSError) else err}") from err
-    except yaml.YAMLError as err:
-        raise r.fail("", f"malformed YAML: {str(err).splitlines()[0]}") from err
+    # the bounded reader: size, nesting, aliases and integer digits limited, a FIFO refused
+    data = read_yaml(path, MAX_GRASP_BYTES, "object file")
     data = r.mapping(data, "", "a YAML mapping: the object block (shape, size, ...) or a file with an object: key")
     friction = None
     key = ""
@@ -545,15 +543,51 @@ def _refuse_overwrite(paths, inputs) -> None:
             raise PlannerError(f"synth: {p} exists; refusing to overwrite it (choose an empty -o DIR or remove it)")
 
 
+#: Most grasps `run_synth` writes (``-n``) and candidates it samples (``--max-attempts``):
+#: bounds on the work and memory a command line can ask for.
+MAX_GRASPS = 10_000
+MAX_ATTEMPTS = 10_000_000
+
+
+def _check_out_dir(out_dir) -> None:
+    """``-o DIR`` before any work: a folder, or a new one in an existing folder; never a
+    regular file or under one."""
+    d = Path(out_dir)
+    if d.exists() and not d.is_dir():
+        raise PlannerError(f"synth: -o {d}: exists and is not a folder")
+    parent = d.parent if not d.exists() else d
+    for anc in [parent, *parent.parents]:
+        if anc.exists():
+            if not anc.is_dir():
+                raise PlannerError(f"synth: -o {d}: {anc} is a file, not a folder")
+            break
+    if not d.exists() and not d.parent.is_dir():
+        raise PlannerError(f"synth: -o {d}: the folder {d.parent} does not exist (a typo? create it first)")
+    if not os.access(d if d.exists() else d.parent, os.W_OK):
+        raise PlannerError(f"synth: -o {d}: {'the folder' if d.exists() else d.parent} is not writable")
+
+
 def run_synth(hand: str, object_path, fingers: str, n: int, out_dir, *, gravity=None, seed: int = 0,
               max_finger_force_n: float | None = None, mu=None, gamma=None, max_attempts=None, quiet=False) -> int:
     """``regrasp synth``: synthesize, write, print a summary. Exit 0 when n grasps were written,
     1 when fewer (those found are written), 2 (PlannerError) on bad input."""
     from planner.grasp import load_hand, resolve_hand_ref
 
-    hand_ref = resolve_hand_ref(hand, Path.cwd())
+    if not 1 <= n <= MAX_GRASPS:
+        raise PlannerError(f"synth: -n must be in 1..{MAX_GRASPS}, got {n}")
+    if max_attempts is not None and not 1 <= max_attempts <= MAX_ATTEMPTS:
+        raise PlannerError(f"synth: --max-attempts must be in 1..{MAX_ATTEMPTS}, got {max_attempts}")
+    _check_out_dir(out_dir)
+    try:
+        hand_ref = resolve_hand_ref(hand, Path.cwd())
+    except (RuntimeError, OSError) as err:  # a symlink loop, an unreadable folder
+        raise PlannerError(f"synth: hand {hand}: cannot be resolved: {err}") from None
     h = load_hand(hand_ref)
     names = [f.strip() for f in fingers.split(",") if f.strip()]
+    twice = sorted({f for f in names if names.count(f) > 1})
+    if twice:
+        raise PlannerError(f"synth: --fingers names {', '.join(twice)} twice; give each finger once "
+                           f"(fingers of {h.name}: {', '.join(h.fingers)})")
     for f in names:
         h.finger(f)
     obj_block, file_friction, fixed = load_object_file(object_path)

@@ -507,19 +507,21 @@ def grasp_page_data(grasp, grasp_path) -> tuple[_Scene, dict]:
 
 
 def _is_plan_file(path: Path) -> bool:
-    import yaml
+    from planner.fileio import MAX_PLAN_BYTES, load_yaml, read_limited
 
     if path.suffix.lower() not in (".yaml", ".yml", ".json"):
         raise SpecError(str(path), "", f"unknown file suffix {path.suffix!r}; view takes a plan or grasp "
                                        "file (.yaml, .yml, .json)")
-    try:
-        text = path.read_text()
-    except OSError as err:
-        raise SpecError(str(path), "", f"cannot read: {err.strerror}") from err
-    try:
-        data = json.loads(text) if path.suffix.lower() == ".json" else yaml.safe_load(text)
-    except (json.JSONDecodeError, yaml.YAMLError) as err:
-        raise SpecError(str(path), "", f"not valid {path.suffix[1:].upper()}: {str(err).splitlines()[0]}") from err
+    # the bounded readers: a FIFO, a device, a huge or deeply nested file is refused in one line
+    text = read_limited(path, MAX_PLAN_BYTES, "plan or grasp file")
+    if path.suffix.lower() == ".json":
+        try:
+            data = json.loads(text)
+        except (ValueError, RecursionError) as err:
+            first = str(err).splitlines()[0] if isinstance(err, json.JSONDecodeError) else "numbers or nesting out of range"
+            raise SpecError(str(path), "", f"not valid JSON: {first[:120]}") from None
+    else:
+        data = load_yaml(text, path, "plan or grasp file")
     return isinstance(data, dict) and (data.get("kind") == "regrasp-plan" or "states" in data)
 
 

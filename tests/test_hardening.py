@@ -6,6 +6,7 @@ import errno
 import hashlib
 import math
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -636,6 +637,8 @@ MALFORMED_EXPECT = {
     "grasp_unknown_shape.yaml": "unknown shape 'torus'",
     "grasp_zero_quat.yaml": "object.quat_xyzw",
     "plan_alias_bomb.yaml": "aliases",
+    "grasp_alias_72.yaml": "aliases expand to more than",
+    "plan_deep_100k.json": "nesting",
     "plan_bad.json": "not valid JSON",
     "plan_binary.yaml": "not UTF-8",
     "plan_deep.json": "nesting",
@@ -733,3 +736,79 @@ def test_replay_of_a_gravity_set_warns_once_about_a_changed_input(tmp_path, caps
     main(["replay", str(plan), "--gravity-set", "1"])
     warned = [line for line in capsys.readouterr().err.splitlines() if "warning:" in line]
     assert len(warned) == 1 and "inputs.initial" in warned[0] and "changed since planning" in warned[0]
+
+
+# ------------------------------------------------------------------ synth, view, hand (issue 28)
+
+
+def test_synth_bad_inputs_are_one_line_before_any_work(tmp_path, capsys):
+    """Each: exit 2, one line naming the problem, within 10 s, nothing written, inputs unchanged."""
+    ball = tmp_path / "ball.yaml"
+    ball.write_text("shape: sphere\nsize: [0.02]\n")
+    (tmp_path / "deep.yaml").write_text("shape: sphere\nsize: " + "[" * 1000 + "]" * 1000 + "\n")
+    (tmp_path / "bigint.yaml").write_text("shape: sphere\nsize: [" + "9" * 5000 + "]\n")
+    (tmp_path / "flat.stl").write_text("solid x\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\n"
+                                       "vertex 0 1 0\nendloop\nendfacet\nendsolid x\n")
+    (tmp_path / "flat.yaml").write_text("shape: mesh\nsize: [1, 1, 1]\nmesh: flat.stl\n")
+    (tmp_path / "regular").write_text("a user's file\n")
+    (tmp_path / "loop1").symlink_to("loop2")
+    (tmp_path / "loop2").symlink_to("loop1")
+    fingers = ["--fingers", "thumb,index", "-n", "1"]
+    cases = {
+        "deep": (["icub_right", "deep.yaml", *fingers, "-o", "o"], "nested deeper"),
+        "bigint": (["icub_right", "bigint.yaml", *fingers, "-o", "o"], "integer longer"),
+        "flat mesh": (["icub_right", "flat.yaml", *fingers, "-o", "o"], "flat"),
+        "-o a file": (["icub_right", "ball.yaml", *fingers, "-o", "regular"], "not a folder"),
+        "-o under a file": (["icub_right", "ball.yaml", *fingers, "-o", "regular/sub"], "is a file"),
+        "-o in no folder": (["icub_right", "ball.yaml", *fingers, "-o", "nodir/sub"], "does not exist"),
+        "symlink loop hand": (["./loop1", "ball.yaml", *fingers, "-o", "o"], "loop"),
+        "finger twice": (["icub_right", "ball.yaml", "--fingers", "thumb,thumb,index", "-n", "1", "-o", "o"], "twice"),
+        "attempts 0": (["icub_right", "ball.yaml", *fingers, "--max-attempts", "0", "-o", "o"], "--max-attempts"),
+        "attempts -5": (["icub_right", "ball.yaml", *fingers, "--max-attempts", "-5", "-o", "o"], "--max-attempts"),
+        "n huge": (["icub_right", "ball.yaml", "--fingers", "thumb,index", "-n", "1000000000", "-o", "o"], "-n must"),
+        "object /dev/zero": (["icub_right", "/dev/zero", *fingers, "-o", "o"], "not a regular file"),
+    }
+    cwd = os.getcwd()
+    os.chdir(tmp_path)
+    try:
+        for name, (argv, words) in cases.items():
+            before = {p.name: _sha(p) for p in tmp_path.iterdir() if p.is_file() and not p.is_symlink()}
+            t0 = time.perf_counter()
+            code, err = _run(capsys, "synth", *argv)
+            assert time.perf_counter() - t0 < 10, name
+            assert code == 2 and len(err) == 1 and words in err[0], (name, err)
+            assert not (tmp_path / "o").exists(), name
+            assert {p.name: _sha(p) for p in tmp_path.iterdir() if p.is_file() and not p.is_symlink()} == before, name
+    finally:
+        os.chdir(cwd)
+
+
+def test_hand_yaml_with_an_integer_finger_key_or_a_fifo_is_one_line(tmp_path, capsys):
+    import shutil
+
+    src = ROOT / "robots/icub_right"
+    (tmp_path / "h").mkdir()
+    shutil.copy(src / "icub_right.urdf", tmp_path / "h")
+    (tmp_path / "h/hand.yaml").write_text((src / "hand.yaml").read_text().replace("\n  index:", "\n  7:", 1))
+    grasp = (ROOT / "grasps/icub/box_ir2m.yaml").read_text()
+    g = tmp_path / "g.yaml"
+    g.write_text(re.sub(r"(?m)^hand:.*$", "hand: h/hand.yaml", grasp))
+    code, err = _run(capsys, "check", g)
+    assert code == 2 and len(err) == 1 and "fingers.7" in err[0], err
+    os.mkfifo(tmp_path / "fifo.yaml")
+    g.write_text(re.sub(r"(?m)^hand:.*$", "hand: fifo.yaml", grasp))
+    t0 = time.perf_counter()
+    code, err = _run(capsys, "check", g)
+    assert time.perf_counter() - t0 < 10
+    assert code == 2 and len(err) == 1 and "not a regular file" in err[0], err
+
+
+def test_view_of_a_fifo_or_a_deep_plan_is_one_line_and_writes_nothing(tmp_path, capsys):
+    os.mkfifo(tmp_path / "fifo.yaml")
+    (tmp_path / "deep.json").write_text('{"a":' * 100000 + "1" + "}" * 100000)
+    for name, words in (("fifo.yaml", "not a regular file"), ("deep.json", "nesting")):
+        t0 = time.perf_counter()
+        code, err = _run(capsys, "view", tmp_path / name, "-o", tmp_path / "v.html")
+        assert time.perf_counter() - t0 < 10
+        assert code == 2 and len(err) == 1 and words in err[0], err
+        assert not (tmp_path / "v.html").exists()

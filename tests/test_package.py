@@ -144,9 +144,11 @@ def test_wheel_ships_every_bundled_file_and_package():
         assert (root / "__init__.py").is_file()  # a regular package: the editable finder maps it
     code_packages = {".".join(p.parent.relative_to(REPO).parts) for p in (REPO / "planner").rglob("__init__.py")}
     assert set(cfg["packages"]) == code_packages | set(cfg["package-dir"])
+    listed = {str(REPO / "planner" / f) for f in cfg["package-data"].get("planner", [])}
     code_data = [str(p) for p in (REPO / "planner").rglob("*")
                  if p.is_file() and p.suffix not in (".py", ".pyc") and "__pycache__" not in p.parts]
-    assert code_data == [], "data under planner/ ships only if [tool.setuptools.package-data] lists it"
+    assert set(code_data) == listed == {str(REPO / "planner/py.typed")}, \
+        "data under planner/ ships only if [tool.setuptools.package-data] lists it (the py.typed marker)"
     assert tomllib.loads((REPO / "pyproject.toml").read_text())["project"]["license"] == "BSD-3-Clause"
 
 
