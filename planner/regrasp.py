@@ -1050,7 +1050,9 @@ def plan_regrasp(
                 lazy.remove_edge(*edge)
             candidates = lazy.best(options.alternatives)
         else:
-            raise NoSequenceError("no executable sequence after 50 re-plans; impossible moves: " + "; ".join(failed))
+            counts = {m: failed.count(m) for m in dict.fromkeys(failed)}
+            raise NoSequenceError("no executable sequence after 50 re-plans; impossible moves: "
+                                  + "; ".join(m + (f" (x{n} states)" if n > 1 else "") for m, n in counts.items()))
         del search_info["tried"]
     best = candidates[0]
     if plan is None:  # (a verified plan is the one the replays ran)
