@@ -230,6 +230,10 @@ def _cmd_replay(args: argparse.Namespace) -> int:
 
     plan = read_plan(args.plan, strict=args.strict)  # read (and its inputs checked) once
     require_sound(plan)  # intact is not right: a resealed, physically wrong plan is refused here
+    import logging
+
+    log = logging.getLogger("planner")
+    log.info("plan verified against physics (%d states, %d steps); simulating", len(plan.states), len(plan.steps))
     if args.gravity_set is not None:
         film = [d.strip() for d in args.film.split(",") if d.strip()] if args.film else None
         workers = 1 if args.gui else args.workers
@@ -330,7 +334,7 @@ def build_parser() -> argparse.ArgumentParser:
     synth.add_argument("--mu", type=float, default=None, help="friction coefficient (default: the object file's, else 0.9)")
     synth.add_argument("--gamma", type=float, default=None, help="torsional friction, m (default: the object file's, else 0.004)")
     synth.add_argument("--max-attempts", type=int, default=None, metavar="K", help="candidates sampled at most (default 60 n)")
-    synth.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
+    synth.add_argument("-q", "--quiet", action="store_true", help="no progress lines on stderr")
     synth.set_defaults(func=_cmd_synth)
     replay = sub.add_parser("replay", help="execute a plan in pybullet with gravity on and check the object stays put")
     replay.add_argument("plan", help="plan file (.yaml/.yml or .json)")
@@ -378,6 +382,9 @@ def build_parser() -> argparse.ArgumentParser:
     view.add_argument("--report", metavar="FILE", help="replay report (regrasp replay --report) shown next to the plan")
     view.add_argument("--gif", metavar="FILE", help="also a 640x480 GIF: captions, contacts, the moving finger coloured")
     view.set_defaults(func=_cmd_view)
+    commands = [c for n, c in sub.choices.items() if n not in ("synth", "hand")] + [hinit, hcheck]
+    for cmd in commands:  # -q/--quiet on every command: no progress lines
+        cmd.add_argument("-q", "--quiet", action="store_true", help="no progress lines on stderr")
     return parser
 
 
@@ -471,7 +478,13 @@ def main(argv: list[str] | None = None) -> int:
     prefix = f"regrasp {args.command}"
     _DEPTH += 1
     try:
-        with _warnings_as_lines(prefix, verbose), _quiet_stderr(verbose or _DEPTH > 1) as noise:
+        try:
+            term = sys.stderr.fileno()
+        except (AttributeError, OSError, ValueError):  # stderr replaced (e.g. captured in tests)
+            term = None
+        quiet = bool(getattr(args, "quiet", False))
+        with _progress(prefix, term, quiet), _warnings_as_lines(prefix, verbose), \
+                _quiet_stderr(verbose or _DEPTH > 1) as noise:
             try:
                 _validate(args)
                 code = int(args.func(args))
@@ -509,6 +522,33 @@ def _say(line: str) -> None:
 
 class _Noise:
     keep = False  # a bug's traceback keeps what the libraries printed before it
+
+
+@contextlib.contextmanager
+def _progress(prefix: str, fd: int | None, quiet: bool):
+    """The ``planner`` logger's INFO records (a long plan's rounds, paths, replays) as lines
+    on the terminal while a command runs: only when stderr is a terminal, never with -q."""
+    import logging
+
+    on = not quiet and fd is not None and os.isatty(fd)
+    if not on:
+        yield
+        return
+    stream = os.fdopen(os.dup(fd), "w", buffering=1)
+    handler = logging.StreamHandler(stream)
+    handler.setFormatter(logging.Formatter(f"{prefix}: %(message)s"))
+    log = logging.getLogger("planner")
+    old_level, old_prop = log.level, log.propagate
+    log.addHandler(handler)
+    log.setLevel(logging.INFO)
+    log.propagate = False
+    try:
+        yield
+    finally:
+        log.removeHandler(handler)
+        log.setLevel(old_level)
+        log.propagate = old_prop
+        stream.close()
 
 
 @contextlib.contextmanager

@@ -16,6 +16,7 @@
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 from dataclasses import asdict, dataclass, replace
@@ -225,6 +226,11 @@ class PlanResult:
     elapsed_s: float
     failed_moves: tuple[str, ...]
     verify_s: float | None = None
+
+
+#: Progress of a long plan (search rounds, finger paths, verification replays): `logging`
+#: INFO records; the CLI shows them on a terminal (``-q`` hides them).
+log = logging.getLogger("planner")
 
 
 def sha256_file(path: str | Path) -> str:
@@ -975,9 +981,12 @@ def plan_regrasp(
             raise NoSequenceError(f"greedy sequence has a finger move that cannot be planned: {_failed_words(problem, bad)}") from None
         search_info = {"rounds": 0}
     else:
+        log.info("searching the grasp-state graph")
         lazy, search_info = _anytime_search(problem, initial, options, t0)
         problem, G = lazy.problem, lazy.G
         candidates = search_info.pop("found")
+        log.info("search: %d sequence(s) found, %d round(s) of intermediate contacts, %.1f s",
+                 len(candidates), search_info["rounds"], time.perf_counter() - t0)
         resumed = 0
         for _ in range(50):
             if not candidates and resumed < RESUME_ROUNDS and options.intermediate == 0 and options.time_limit_s > 0 \
@@ -1008,6 +1017,8 @@ def plan_regrasp(
                                           f"{_rejected_words(rejected[:2])}", err.report)
                 raise err
             try:
+                if options.motion:
+                    log.info("finger paths for %s", " ".join(candidates[0].order(problem)))
                 motions = _plan_motions(hand, obj, problem, candidates[0], gait_fn, cache)
             except _EdgeFailed as bad:
                 failed.append(_failed_words(problem, bad))
@@ -1019,8 +1030,12 @@ def plan_regrasp(
             annotate_removable(G, [v for s in candidates for v in s.nodes])
             plan = _make_plan(initial, final, options, inputs or {}, problem, G, candidates[0], candidates[1:], motions,
                               search_info)
+            log.info("verifying in pybullet: attempt %d, %d direction(s) in %d process(es)", len(rejected) + 1,
+                     len(directions), min(workers, len(directions)))
             check = verify_plan(plan, hand, directions, workers=workers)
             verify_s += check.wall_time_s
+            log.info("verification %s (%.1f s)", "passed" if check.passed else "failed: " + check.first_failure()[0],
+                     check.wall_time_s)
             if check.passed:
                 verified = check
                 break

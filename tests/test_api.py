@@ -55,3 +55,44 @@ def test_check_realizes_a_grasp_file():
     g = planner.check(A)
     assert g.closure.is_force_closure and not g.problems
     assert planner.check(g) is g
+
+
+def test_progress_lines_on_a_terminal_only_and_not_with_quiet(tmp_path):
+    """A long command says what it does on stderr when stderr is a terminal (logging records of
+    the ``planner`` logger), nothing when it is a pipe or with -q; stdout is the same."""
+    import os
+    import pty
+    import subprocess
+    import sys
+
+    argv = [sys.executable, "-m", "planner", "plan", str(A), str(B), "--no-motion", "-o", str(tmp_path / "p.yaml")]
+
+    def run(extra=(), tty=True):
+        if not tty:
+            out = subprocess.run(argv + list(extra), capture_output=True, text=True, timeout=300)
+            return out.stdout, out.stderr
+        master, slave = pty.openpty()
+        try:
+            proc = subprocess.run(argv + list(extra), stdout=subprocess.PIPE, stderr=slave, text=True, timeout=300)
+        finally:
+            os.close(slave)
+        chunks = []
+        while True:
+            try:
+                data = os.read(master, 65536)
+            except OSError:
+                break
+            if not data:
+                break
+            chunks.append(data)
+        os.close(master)
+        return proc.stdout, b"".join(chunks).decode()
+
+    out_tty, err_tty = run()
+    assert "regrasp plan: searching the grasp-state graph" in err_tty
+    assert "regrasp plan: search: " in err_tty
+    out_pipe, err_pipe = run(tty=False)
+    assert err_pipe.strip() == ""
+    assert out_pipe.splitlines()[:-1] == out_tty.splitlines()[:-1]  # (the last line has the time)
+    _, err_quiet = run(["-q"])
+    assert "searching" not in err_quiet

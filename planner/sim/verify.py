@@ -67,11 +67,30 @@ def replay_directions(plan: Plan, hand, directions: Sequence[tuple[str, Sequence
     _JOB.update(plan=plan, hand=hand, directions=directions, kwargs=kwargs)
     try:
         if workers <= 1 or n <= 1 or "fork" not in multiprocessing.get_all_start_methods():
-            return [_one(i) for i in range(n)]
+            out = []
+            for i in range(n):
+                out.append(_one(i))
+                _log_done(directions[i][0], out[-1], i + 1, n)
+            return out
+        from concurrent.futures import as_completed
+
         with ProcessPoolExecutor(max_workers=min(workers, n), mp_context=multiprocessing.get_context("fork")) as pool:
-            return list(pool.map(_one, range(n)))
+            futures = {pool.submit(_one, i): i for i in range(n)}
+            done: dict[int, object] = {}
+            for fut in as_completed(futures):
+                i = futures[fut]
+                done[i] = fut.result()
+                _log_done(directions[i][0], done[i], len(done), n)
+            return [done[i] for i in range(n)]
     finally:
         _JOB.clear()
+
+
+def _log_done(name: str, report, k: int, n: int) -> None:
+    """One progress record per replayed direction (`planner.regrasp.log`; the CLI shows it)."""
+    import logging
+
+    logging.getLogger("planner").info("replay %d/%d %s: %s", k, n, name, "PASS" if report.passed else "FAIL")
 
 
 @dataclass(frozen=True)
