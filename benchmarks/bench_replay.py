@@ -122,10 +122,10 @@ def physics_holding(plan: dict, sim_s: float, repeats: int) -> tuple[float, int]
     import pybullet as p
     from scipy.spatial.transform import Rotation
 
-    from planner.sim.replay import _T_palm_root
+    from planner.sim.replay import T_palm_root
 
     hand = Hand.load("icub_right")
-    T = _T_palm_root(hand)
+    T = T_palm_root(hand)
     q0 = plan["states"][0]["q"]
     g = 9.81 * np.asarray(hand.palm_normal, float)
     rates, touching = [], 0

@@ -90,7 +90,7 @@ def task(t: dict) -> dict:
     import networkx as nx
 
     from planner.errors import NoSequenceError, PlannerError
-    from planner.graph import LazyGraph, _add_node, _Evaluator, greedy
+    from planner.graph import LazyGraph, _add_node, Evaluator, greedy
     from planner.grasp import load_hand, realize
     from planner.regrasp import PlanOptions, build_problem, plan_regrasp
 
@@ -151,7 +151,7 @@ def task(t: dict) -> dict:
         row.update(anytime_solved=False, anytime_reason=str(err)[-600:])
     row["anytime_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    ev = _Evaluator(problem)
+    ev = Evaluator(problem)
     G0 = nx.DiGraph(problem=problem, start=problem.start, goal=problem.goal, blocked={}, evaluator=ev)
     ev.evaluate([problem.start])
     _add_node(G0, ev, problem.start)

@@ -20,7 +20,7 @@ from typing import Any
 PathLike = str | os.PathLike
 
 
-def _grasp(g):
+def realized_grasp(g):
     """A `RealizedGrasp` from a path, a `GraspSpec` or a `RealizedGrasp`; with the recorded input."""
     from planner.grasp import GraspSpec, RealizedGrasp, load_grasp, realize
     from planner.regrasp import sha256_file
@@ -57,8 +57,8 @@ def plan(initial, final, *, execution: bool = False, output: PathLike | None = N
             raise UnknownNameError("plan option", k, valid)
     if output is not None:
         plan_format(output)  # a bad suffix before any work
-    a, rec_a = _grasp(initial)
-    b, rec_b = _grasp(final)
+    a, rec_a = realized_grasp(initial)
+    b, rec_b = realized_grasp(final)
     check_same_setup(a.spec, b.spec)
     opts = (PlanOptions.for_execution if execution else PlanOptions)(**options)
     inputs = {k: v for k, v in (("initial", rec_a), ("final", rec_b)) if v is not None}

@@ -351,7 +351,7 @@ def audit_plan(plan, hand=None) -> AuditReport:
         `AuditReport`: ``ok``, ``problems`` (one line each), ``checked`` counts.
     """
     from planner.plan import Plan, plan_hand_ref, read_plan
-    from planner.view import _object_of_plan
+    from planner.view import object_of_plan
 
     if not isinstance(plan, Plan):
         plan = read_plan(plan)
@@ -361,7 +361,7 @@ def audit_plan(plan, hand=None) -> AuditReport:
         from planner.hand import Hand
 
         hand = Hand.load(plan_hand_ref(plan.hand, plan.source))
-    obj = _object_of_plan(plan.to_dict(), Path(src))
+    obj = object_of_plan(plan.to_dict(), Path(src))
     grasps = _input_grasps(plan)
     _check_inputs(plan, rep, grasps)
     if not _check_hand(plan, hand, rep):

@@ -87,10 +87,25 @@ def _cmd_plan(args: argparse.Namespace) -> int:
 
 
 def _cmd_check(args: argparse.Namespace) -> int:
-    """Realize one grasp and report it; exit 0 force closure and as written, 1 not, 2 bad input."""
-    from planner.grasp import check_grasp
+    """Realize one grasp, print the report (text or JSON), draw it (``--png``); exit 0 force
+    closure and as written (no `RealizedGrasp.problems`), 1 not, 2 bad input."""
+    import json
 
-    return check_grasp(args.grasp, as_json=args.json, png=args.png)
+    from planner.grasp import check_text, contact_markers, load_grasp, realize
+
+    grasp = realize(load_grasp(args.grasp))
+    if args.png:
+        from planner.sim.render import render_png
+
+        render_png(grasp.hand, grasp.q, grasp.obj, args.png, markers=contact_markers(grasp))
+    if args.json:
+        print(json.dumps(grasp.summary(), indent=1))
+    else:
+        print(check_text(grasp))
+        if args.png:
+            print(f"picture written to {args.png} (contacts: dots with their inward normals; green ok, orange "
+                  "warning, red problem)")
+    return 0 if grasp.ok else 1
 
 
 def _cmd_synth(args: argparse.Namespace) -> int:

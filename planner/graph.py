@@ -275,7 +275,7 @@ def _within_lift_bound(problem: GaitProblem, node: Node) -> bool:
     return problem.max_lifted is None or sum(s == LIFTED for s in node) <= problem.max_lifted
 
 
-class _Evaluator:
+class Evaluator:
     """Caches closure per node and collision compatibility per slot pair."""
 
     def __init__(self, problem: GaitProblem):
@@ -428,17 +428,17 @@ class _Evaluator:
         return dict(zip((n for n, _ in self._loads), self._factors[node]))
 
 
-def seed_graph(problem: GaitProblem, evaluator: _Evaluator | None = None) -> nx.DiGraph:
+def seed_graph(problem: GaitProblem, evaluator: Evaluator | None = None) -> nx.DiGraph:
     """A graph holding only the initial state (what `greedy` and `LazyGraph` grow).
 
     Args:
         evaluator: caches to reuse (from an earlier round over fewer slots, see
-            `_Evaluator.extend`); a fresh one when None.
+            `Evaluator.extend`); a fresh one when None.
 
     Raises:
         NoSequenceError: the initial grasp itself is not a valid state.
     """
-    ev = evaluator or _Evaluator(problem)
+    ev = evaluator or Evaluator(problem)
     if ev.problem is not problem:
         ev.extend(problem)
     G = nx.DiGraph(problem=problem, start=problem.start, goal=problem.goal, blocked={}, evaluator=ev)
@@ -488,7 +488,7 @@ def build_graph(problem: GaitProblem) -> nx.DiGraph:
     return G
 
 
-def _add_node(G: nx.DiGraph, ev: _Evaluator, v: Node) -> None:
+def _add_node(G: nx.DiGraph, ev: Evaluator, v: Node) -> None:
     p = ev.problem
     c = ev.closure[v]
     forces = ev.grip_forces(v)
@@ -518,7 +518,7 @@ class LazyGraph:
     it (a widest-path Dijkstra). A generated state is queued unevaluated, keyed by its
     parent's value (a lower bound of its own); closure, collisions and grip force are
     evaluated only when it is popped (one batch closure call per batch, with the caches of
-    `_Evaluator`), then it is queued again with its true key, and expanded when popped
+    `Evaluator`), then it is queued again with its true key, and expanded when popped
     again. States keyed above what the ranking needs are never evaluated.
 
     Exactness: once every queued state keyed at most (c, g) is popped, every path whose
@@ -538,7 +538,7 @@ class LazyGraph:
     BATCH = 16
     """States popped per batch (evaluated together in one batch closure call)."""
 
-    def __init__(self, problem: GaitProblem, rank: str = "metric", evaluator: _Evaluator | None = None,
+    def __init__(self, problem: GaitProblem, rank: str = "metric", evaluator: Evaluator | None = None,
                  deadline: float | None = None):
         if rank not in RANKS:
             from planner.errors import UnknownNameError
@@ -548,7 +548,7 @@ class LazyGraph:
             raise InputError("grip ranking needs the grip force of every state: plan with a gravity (a load)")
         self.problem, self.rank, self.deadline = problem, rank, deadline
         self.G = seed_graph(problem, evaluator)
-        self.ev: _Evaluator = self.G.graph["evaluator"]
+        self.ev: Evaluator = self.G.graph["evaluator"]
         self.G.graph["expanded"] = 0
         self.G.graph["blocked_moves"] = []  # (from state, finger index, action, to state) of refused moves
         self.removed: set[tuple[Node, Node]] = set()
@@ -705,7 +705,7 @@ class LazyGraph:
 def annotate_removable(G: nx.DiGraph, nodes) -> None:
     """Set the ``removable`` attribute (thesis Algorithm 1) of the given nodes (`LazyGraph`
     leaves it unset: it needs the closure of every single-finger lift)."""
-    ev: _Evaluator = G.graph["evaluator"]
+    ev: Evaluator = G.graph["evaluator"]
     for v in dict.fromkeys(nodes):
         if "removable" not in G.nodes[v]:
             G.nodes[v]["removable"] = ev.removable(v)
@@ -956,7 +956,7 @@ def greedy(G: nx.DiGraph) -> GaitSequence:
         NoSequenceError: greedy got stuck; ``report`` holds the partial sequence.
     """
     p: GaitProblem = G.graph["problem"]
-    ev: _Evaluator = G.graph["evaluator"]
+    ev: Evaluator = G.graph["evaluator"]
     current = p.start
     path = [current]
     needed = [i for i, s in enumerate(p.goal) if s != LIFTED and p.start[i] != s]
@@ -1027,7 +1027,7 @@ def _move_words(problem: GaitProblem, u: Node, v: Node) -> str:
     return f"lift {f}" if v[i] == LIFTED else f"land {f} on {_slot_words(problem, f, v[i])}"
 
 
-def _reason_words(ev: _Evaluator, finger: str, action: str, w: Node, reason: str) -> str:
+def _reason_words(ev: Evaluator, finger: str, action: str, w: Node, reason: str) -> str:
     """A refused move in words: what goes wrong in the state it would lead to."""
     pair = ev.collision_pair(w) if reason.startswith("fingers collide") else None
     if pair is not None:
@@ -1067,7 +1067,7 @@ def failure_analysis(G: nx.DiGraph) -> dict:
     ``goal_reason`` (why the final grasp itself is invalid, or None).
     """
     p: GaitProblem = G.graph["problem"]
-    ev: _Evaluator = G.graph["evaluator"]
+    ev: Evaluator = G.graph["evaluator"]
     start, goal = G.graph["start"], G.graph["goal"]
     reach = nx.descendants(G, start) | {start}
     dist = {v: sum(a != b for a, b in zip(v, goal)) for v in reach}

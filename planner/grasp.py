@@ -337,7 +337,7 @@ def _is_object_name(name: str) -> bool:
 # --------------------------------------------------------------------------- loading
 
 
-class _Reader:
+class SpecReader:
     """Validation helpers that raise one SpecError naming the file and key path."""
 
     def __init__(self, path: Path):
@@ -446,7 +446,7 @@ def load_grasp(path) -> GraspSpec:
         SpecError: naming the file, the key path and what was expected.
     """
     path = Path(path).resolve() if Path(path).exists() else Path(path)
-    r = _Reader(path)
+    r = SpecReader(path)
     from planner.fileio import check_grasp_file
 
     data = check_grasp_file(path)  # size, nesting, aliases, duplicate keys, integer digits, hand: path
@@ -458,7 +458,7 @@ def parse_grasp(data: Mapping, path) -> GraspSpec:
     """Validate already-parsed grasp data; `path` names the source in errors and anchors
     relative paths (hand, mesh). See `load_grasp`."""
     path = Path(path)
-    r = _Reader(path)
+    r = SpecReader(path)
     data = r.mapping(data, "", "a YAML mapping at the top level")
     r.keys(data, "", _TOP_KEYS, required=("schema_version", "hand", "object", "friction", "fingers"))
 
@@ -482,7 +482,7 @@ def parse_grasp(data: Mapping, path) -> GraspSpec:
         raise r.fail("hand", f"cannot load hand {hand_text!r}: {err}") from err
 
     # -- object
-    obj_spec = _parse_object(r, data["object"], path.parent)
+    obj_spec = parse_object(r, data["object"], path.parent)
     try:
         obj = obj_spec.make()
     except (PlannerError, OSError, ValueError) as err:
@@ -532,7 +532,7 @@ def parse_grasp(data: Mapping, path) -> GraspSpec:
     )
 
 
-def _parse_object(r: _Reader, value, base_dir: Path) -> ObjectSpec:
+def parse_object(r: SpecReader, value, base_dir: Path) -> ObjectSpec:
     o = r.mapping(value, "object")
     r.keys(o, "object", _OBJECT_KEYS, required=("shape", "size", "position", "quat_xyzw"))
     shape = o["shape"]
@@ -562,7 +562,7 @@ def _parse_object(r: _Reader, value, base_dir: Path) -> ObjectSpec:
     return ObjectSpec(shape, size, position, quat, mesh_path, mass)
 
 
-def _parse_finger(r: _Reader, value, key: str, hand, finger, obj) -> FingerSpec:
+def _parse_finger(r: SpecReader, value, key: str, hand, finger, obj) -> FingerSpec:
     if value == "free" or value is None:
         return FingerSpec(finger.name, "free")
     if isinstance(value, str):
@@ -981,25 +981,3 @@ def contact_markers(grasp: RealizedGrasp, highlight: str | None = None, normal_l
         p = R @ np.asarray(c["point"]) + t
         out.append((p, p - normal_len_m * (R @ np.asarray(c["normal"])), rgba))
     return out
-
-
-def check_grasp(path, as_json: bool = False, png=None) -> int:
-    """``regrasp check``: realize a grasp file, print the report (text or JSON), draw it.
-
-    Returns:
-        0 force closure and as written (no `RealizedGrasp.problems`), 1 otherwise.
-    """
-    import json
-
-    grasp = realize(load_grasp(path))
-    if png:
-        from planner.sim.render import render_png
-
-        render_png(grasp.hand, grasp.q, grasp.obj, png, markers=contact_markers(grasp))
-    if as_json:
-        print(json.dumps(grasp.summary(), indent=1))
-    else:
-        print(check_text(grasp))
-        if png:
-            print(f"picture written to {png} (contacts: dots with their inward normals; green ok, orange warning, red problem)")
-    return 0 if grasp.ok else 1

@@ -613,7 +613,7 @@ class Hand:
         """
         return self.state(q).collision_objects()
 
-    def _finger_object_distance(self, q, finger: Finger, obj) -> float:
+    def finger_object_distance(self, q, finger: Finger, obj) -> float:
         """Kept for planner/synth.py only: use ``hand.state(q).finger_object_distance(obj, name)``."""
         return self.state(q).finger_object_distance(obj, self.finger(finger).name)
 

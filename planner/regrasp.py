@@ -948,9 +948,9 @@ def plan_regrasp(
 
     if not isinstance(initial, RealizedGrasp) or not isinstance(final, RealizedGrasp):
         # paths or GraspSpecs: realized here, their files recorded as the CLI records them
-        from planner.api import _grasp
+        from planner.api import realized_grasp
 
-        (initial, rec_i), (final, rec_f) = _grasp(initial), _grasp(final)
+        (initial, rec_i), (final, rec_f) = realized_grasp(initial), realized_grasp(final)
         if inputs is None:
             inputs = {k: v for k, v in (("initial", rec_i), ("final", rec_f)) if v is not None}
     check_same_setup(initial.spec, final.spec)

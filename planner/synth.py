@@ -101,12 +101,12 @@ def load_object_file(path) -> tuple[dict, dict | None, bool]:
     Raises:
         SpecError: naming the file and key.
     """
-    from planner.grasp import _parse_object, _Reader
+    from planner.grasp import parse_object, SpecReader
 
     from planner.fileio import MAX_GRASP_BYTES, read_yaml
 
     path = Path(path)
-    r = _Reader(path)
+    r = SpecReader(path)
     # the bounded reader: size, nesting, aliases and integer digits limited, a FIFO refused
     data = read_yaml(path, MAX_GRASP_BYTES, "object file")
     data = r.mapping(data, "", "a YAML mapping: the object block (shape, size, ...) or a file with an object: key")
@@ -123,7 +123,7 @@ def load_object_file(path) -> tuple[dict, dict | None, bool]:
     block.setdefault("position", [0.0, 0.0, 0.0])
     block.setdefault("quat_xyzw", [0.0, 0.0, 0.0, 1.0])
     try:
-        spec = _parse_object(r, block, path.parent)
+        spec = parse_object(r, block, path.parent)
     except SpecError as err:
         if key:
             raise
@@ -276,7 +276,7 @@ def _sample_candidate(hand, fingers, obj_block, fixed, rng, obj_radius, palm_cle
                 centre = centre + (palm_clearance_m - d) * np.asarray(hand.palm_normal)
                 block["position"] = [float(v) for v in centre]
             obj = _object_of(block)
-            if all(hand._finger_object_distance(q_free, f, obj) >= 0.0 for f in fingers):
+            if all(hand.finger_object_distance(q_free, f, obj) >= 0.0 for f in fingers):
                 break
     if max(float(np.min(np.linalg.norm(c - centre, axis=1))) for c, _ in swept) > SWEEP_REACH * obj_radius:
         return block, None, "sweeps miss the object"
@@ -312,11 +312,11 @@ def _closes_onto(hand, fingers, obj, preshape) -> dict | None:
     for f in fingers:
         q[list(f.q_index)] = preshape[f.name]
     for f in fingers:
-        if hand._finger_object_distance(q, f, obj) < 0.0:
+        if hand.finger_object_distance(q, f, obj) < 0.0:
             # the closing procedure starts from a finger free of the object: open its closing joints
             cidx = [hand.joint_names.index(j) for j in f.close_joints]
             q[cidx] = np.clip(np.asarray(hand.q_open)[cidx], hand.lower[cidx], hand.upper[cidx])
-            if hand._finger_object_distance(q, f, obj) < 0.0:
+            if hand.finger_object_distance(q, f, obj) < 0.0:
                 return None, "a finger starts inside the object"
             preshape[f.name] = q[list(f.q_index)].copy()
         q = np.asarray(hand.close_finger(f, q, obj), dtype=float)

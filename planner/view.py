@@ -304,7 +304,7 @@ def _num(x) -> float | None:
     return None if x is None or not math.isfinite(float(x)) else round(float(x), 6)
 
 
-def _resample(path: np.ndarray, k: int) -> np.ndarray:
+def resample(path: np.ndarray, k: int) -> np.ndarray:
     """k configurations evenly spaced by joint-space arc length along a waypoint polyline."""
     path = np.asarray(path, float).reshape(len(path), -1)
     if len(path) == 1:
@@ -353,14 +353,14 @@ def plain_plan(plan) -> dict:
     return plan.to_dict() if hasattr(plan, "to_dict") else dict(plan)
 
 
-def _hand_of_plan(plan: Mapping, plan_path: Path):
+def hand_of_plan(plan: Mapping, plan_path: Path):
     from planner.hand import Hand
     from planner.plan import plan_hand_ref
 
     return Hand.load(plan_hand_ref(plan.get("hand") or {}, plan_path))
 
 
-def _object_of_plan(plan: Mapping, plan_path: Path):
+def object_of_plan(plan: Mapping, plan_path: Path):
     from scipy.spatial.transform import Rotation
 
     from planner.objects import make_object
@@ -407,8 +407,8 @@ def plan_page_data(plan: Mapping, plan_path, hand=None, report_path=None) -> tup
     """Scene and page data of a plan (`planner.plan.read_plan`'s result, or its plain data)."""
     plan = plain_plan(plan)
     plan_path = Path(plan_path)
-    hand = hand if hand is not None else _hand_of_plan(plan, plan_path)
-    obj = _object_of_plan(plan, plan_path)
+    hand = hand if hand is not None else hand_of_plan(plan, plan_path)
+    obj = object_of_plan(plan, plan_path)
     scene = _Scene(hand, obj, float(plan["friction"]["mu"]))
     joints = list(plan["joints"])
     index = {j: i for i, j in enumerate(hand.joint_names)}
@@ -438,7 +438,7 @@ def plan_page_data(plan: Mapping, plan_path, hand=None, report_path=None) -> tup
         frames = []
         path = np.asarray(sp["path"], float).reshape(len(sp["path"]), len(cols)) if sp["path"] else \
             np.array([[q[c] for c in cols]])
-        for qf in _resample(path, FRAMES_PER_STEP):
+        for qf in resample(path, FRAMES_PER_STEP):
             q[cols] = qf
             Ts = [_m4(T) for T in scene.transforms(q)]
             frames.append({str(g): T for g, T in enumerate(Ts) if T != base[g]})
@@ -589,7 +589,7 @@ def write_film(source, gif, frames_per_step: int = 8, width: int = 640, height: 
     kind, value = loaded or load_source(source)
     if kind == "plan":
         plan = value
-        frames = plan_frames(plan, _hand_of_plan(plan, source), _object_of_plan(plan, source),
+        frames = plan_frames(plan, hand_of_plan(plan, source), object_of_plan(plan, source),
                              frames_per_step=frames_per_step, width=width, height=height)
     else:
         g = value

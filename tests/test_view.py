@@ -212,11 +212,11 @@ def test_film_frames_are_readable(plan_path):
     finger coloured only while a step runs; one fixed camera along the palm normal."""
     from planner.plan import read_plan
     from planner.sim.render import finger_rgb, plan_frames
-    from planner.view import _hand_of_plan, _object_of_plan, plain_plan
+    from planner.view import hand_of_plan, object_of_plan, plain_plan
 
     plan = plain_plan(read_plan(plan_path))
-    hand = _hand_of_plan(plan, plan_path)
-    frames = plan_frames(plan, hand, _object_of_plan(plan, plan_path), frames_per_step=2)
+    hand = hand_of_plan(plan, plan_path)
+    frames = plan_frames(plan, hand, object_of_plan(plan, plan_path), frames_per_step=2)
     assert len(frames) == 1 + 2 * len(plan["steps"])
     assert all(f.shape == (480, 640, 3) for f in frames)
 

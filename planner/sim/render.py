@@ -573,7 +573,7 @@ def plan_frames(plan, hand, obj, *, frames_per_step: int = 8, width: int = 640, 
     """Pictures of a plan (`planner.plan.read_plan` data), step by step along the finger paths,
     each with a caption (step, finger, action, the state's metric and removable fingers), the
     state's contacts drawn and the moving finger coloured; one fixed camera for the film."""
-    from planner.view import _resample
+    from planner.view import resample
 
     index = {j: i for i, j in enumerate(hand.joint_names)}
 
@@ -608,7 +608,7 @@ def plan_frames(plan, hand, obj, *, frames_per_step: int = 8, width: int = 640, 
             q = q_of(states[a])
             cols = [index[j] for j in sp["joints"]]
             path = np.asarray(sp["path"], float).reshape(-1, len(cols)) if sp["path"] else q[cols][None]
-            for j, qf in enumerate(_resample(path, frames_per_step)):
+            for j, qf in enumerate(resample(path, frames_per_step)):
                 q[cols] = qf
                 i = a if j < frames_per_step / 2 else b
                 head = f"step {k + 1}/{len(steps)}: {sp['finger']} {sp['action']} (state {a} -> {b})"

@@ -251,7 +251,7 @@ def _resolve(path_str: str, plan_path: str) -> Path | None:
     return None if found is None else found.resolve()
 
 
-def _T_palm_root(hand) -> np.ndarray:
+def T_palm_root(hand) -> np.ndarray:
     """Pose of the URDF root link in the palm frame (identity when the root is the palm)."""
     root = getattr(getattr(hand, "model", None), "frames", None)
     if root is None or len(root) < 2 or not hasattr(hand, "link_pose"):
@@ -305,7 +305,7 @@ def _load_hand(plan: Plan, joints: list[str], hand=None) -> _HandInfo:
             raise plan.error(f"steps[{i}].path[{w}]", f"joint {step.joints[c]} at {path[w, c]:.6g} is outside its "
                                                       f"limits [{lo[k][c] + JOINT_LIMIT_TOL:.4g}, {hi[k][c] - JOINT_LIMIT_TOL:.4g}]")
     fingers = {f: tuple(fg.joints) for f, fg in hand.fingers.items()}
-    return _HandInfo(str(hand.urdf_path), fingers, _T_palm_root(hand), hand, tuple(hand.palm_normal))
+    return _HandInfo(str(hand.urdf_path), fingers, T_palm_root(hand), hand, tuple(hand.palm_normal))
 
 
 # --------------------------------------------------------------------------- helpers
