@@ -321,13 +321,15 @@ def resample(path: np.ndarray, k: int) -> np.ndarray:
 
 def _load_report(path, n_states: int) -> list[dict]:
     """Replay report(s) of ``regrasp replay --report``: [{name, passed, verdict, states}]."""
+    from planner.fileio import MAX_PLAN_BYTES, read_limited
+
     path = Path(path)
+    text = read_limited(path, MAX_PLAN_BYTES, "replay report")  # a FIFO, a device, a huge file: one line
     try:
-        data = json.loads(path.read_text())
-    except OSError as err:
-        raise SpecError(str(path), "", f"cannot read report: {err.strerror}") from err
-    except json.JSONDecodeError as err:
-        raise SpecError(str(path), "", f"not valid JSON: {err}") from err
+        data = json.loads(text)
+    except (ValueError, RecursionError) as err:
+        first = str(err).splitlines()[0] if isinstance(err, json.JSONDecodeError) else "numbers or nesting out of range"
+        raise SpecError(str(path), "", f"not valid JSON: {first[:120]}") from None
     if not isinstance(data, dict):
         raise SpecError(str(path), "", "expected a replay report (regrasp replay --report)")
     if "directions" in data:

@@ -812,3 +812,13 @@ def test_view_of_a_fifo_or_a_deep_plan_is_one_line_and_writes_nothing(tmp_path, 
         assert time.perf_counter() - t0 < 10
         assert code == 2 and len(err) == 1 and words in err[0], err
         assert not (tmp_path / "v.html").exists()
+    # a replay report that is a FIFO: refused before the page is drawn
+    plan = tmp_path / "p.yaml"
+    assert main(["plan", str(ROOT / "grasps/icub/pen_palmar_pinch.yaml"), str(ROOT / "grasps/icub/pen_writing_tripod.yaml"),
+                 "--no-motion", "-o", str(plan), "-q"]) == 0
+    capsys.readouterr()
+    t0 = time.perf_counter()
+    code, err = _run(capsys, "view", plan, "-o", tmp_path / "v.html", "--report", tmp_path / "fifo.yaml")
+    assert time.perf_counter() - t0 < 10
+    assert code == 2 and len(err) == 1 and "not a regular file" in err[0], err
+    assert not (tmp_path / "v.html").exists()
