@@ -337,7 +337,9 @@ def build_parser() -> argparse.ArgumentParser:
     synth.add_argument("hand", help="hand name under robots/ (icub_right, allegro_right) or a hand.yaml")
     synth.add_argument("object", help="object YAML: the object: block of a grasp file (shape, size[, position, "
                                       "quat_xyzw, mass_kg, mesh]); without position the object pose is sampled too")
-    synth.add_argument("--fingers", required=True, help="comma-separated fingers that grasp, e.g. thumb,index,middle")
+    synth.add_argument("--fingers", default=None,
+                       help="comma-separated fingers that grasp, e.g. thumb,index,middle (default: a tripod, the "
+                            "thumb and the hand's next two fingers; without a thumb its first three)")
     synth.add_argument("-n", type=int, default=20, help="grasps to write (default 20)")
     synth.add_argument("-o", "--output", required=True, metavar="DIR", help="folder for the grasp files (never overwritten)")
     synth.add_argument("--gravity", type=float, nargs=3, metavar=("GX", "GY", "GZ"), default=None,

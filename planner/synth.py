@@ -567,6 +567,15 @@ def _check_out_dir(out_dir) -> None:
         raise PlannerError(f"synth: -o {d}: {'the folder' if d.exists() else d.parent} is not writable")
 
 
+def default_fingers(hand) -> list[str]:
+    """The default finger set of `run_synth`: a tripod, the thumb and the hand's next two
+    fingers in its hand.yaml order (the first three fingers when it has no thumb)."""
+    names = list(hand.fingers)
+    if "thumb" in names:
+        return ["thumb"] + [f for f in names if f != "thumb"][:2]
+    return names[:3]
+
+
 def run_synth(hand: str, object_path, fingers: str, n: int, out_dir, *, gravity=None, seed: int = 0,
               max_finger_force_n: float | None = None, mu=None, gamma=None, max_attempts=None, quiet=False) -> int:
     """``regrasp synth``: synthesize, write, print a summary. Exit 0 when n grasps were written,
@@ -583,6 +592,10 @@ def run_synth(hand: str, object_path, fingers: str, n: int, out_dir, *, gravity=
     except (RuntimeError, OSError) as err:  # a symlink loop, an unreadable folder
         raise PlannerError(f"synth: hand {hand}: cannot be resolved: {err}") from None
     h = load_hand(hand_ref)
+    if fingers is None:
+        fingers = ",".join(default_fingers(h))
+        if not quiet:
+            print(f"synth: --fingers {fingers} (the default tripod)", file=sys.stderr, flush=True)
     names = [f.strip() for f in fingers.split(",") if f.strip()]
     twice = sorted({f for f in names if names.count(f) > 1})
     if twice:
@@ -613,4 +626,27 @@ def run_synth(hand: str, object_path, fingers: str, n: int, out_dir, *, gravity=
           f"{result.seconds:.1f} s ({rate:.2f} grasps/s), {result.attempts} attempts, {result.candidates_passed} "
           f"passed the check, {result.duplicates} near-duplicates removed, pose "
           f"{'fixed by the object file' if fixed else 'sampled'}, seed {seed}")
+    if len(paths) < n:
+        print(rejection_table(result))
     return 0 if len(paths) >= n else 1
+
+
+def rejection_table(result: SynthResult) -> str:
+    """Why candidates were dropped, most frequent first (what `run_synth` prints when it found
+    fewer grasps than asked), with what to try."""
+    rows = sorted((result.rejected or {}).items(), key=lambda kv: (-kv[1], kv[0]))
+    if not rows:
+        return "no candidate was rejected: raise --max-attempts"
+    width = max(len(r) for r, _ in rows)
+    lines = [f"  {'rejected because':<{width}}  candidates"] + [f"  {r:<{width}}  {k:>10}" for r, k in rows]
+    hints = []
+    top = rows[0][0]
+    if any(w in top for w in ("reach", "IK", "touch", "miss")):
+        hints.append("the fingers do not reach the object there: move it (position) or let synth sample the pose")
+    if "force closure" in top:
+        hints.append("add a finger that opposes the others (e.g. the thumb) or raise --max-attempts")
+    if "limits" in top:
+        hints.append("a lighter object (mass_kg) or a hand.yaml effort: with the motors' real stall torque")
+    if "overlap" in top:
+        hints.append("fewer fingers, or a larger object")
+    return "\n".join(lines + ([f"  try: {'; '.join(hints)}"] if hints else []))

@@ -165,3 +165,22 @@ def test_synth_for_execution_keeps_grasps_holding_in_every_direction_with_mean_c
         assert max(grips) == pytest.approx(sg.grip_force_n) and sg.grip_force_n <= 0.5 + 1e-9
     with pytest.raises(Exception, match="contact model"):
         synthesize("icub_right", dict(BALL), ["thumb", "index"], 1, fixed=False, contact_model="soft")
+
+
+def test_synth_says_why_when_it_finds_too_few_and_has_a_tripod_default(tmp_path, capsys):
+    """An object out of every finger's reach: exit 1, a table of the rejection reasons whose
+    counts add up to the attempts, and what to try; without --fingers: the thumb and the
+    hand's next two fingers."""
+    from planner.cli import main
+    from planner.hand import Hand
+    from planner.synth import default_fingers
+
+    far = tmp_path / "far.yaml"
+    far.write_text("shape: sphere\nsize: [0.02]\nposition: [0.3, 0.3, 0.3]\n")
+    assert main(["synth", "icub_right", str(far), "-n", "2", "--max-attempts", "20", "-o", str(tmp_path / "o"), "-q"]) == 1
+    out = capsys.readouterr().out
+    assert "rejected because" in out and "try:" in out and "(thumb,index,middle)" in out
+    counts = [int(line.split()[-1]) for line in out.splitlines() if line.startswith("  ") and line.split()[-1].isdigit()]
+    assert sum(counts) == 20
+    assert default_fingers(Hand.load("icub_right")) == ["thumb", "index", "middle"]
+    assert default_fingers(Hand.load("allegro_right")) == ["thumb", "index", "middle"]
