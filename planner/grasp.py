@@ -706,7 +706,7 @@ def place_contact(hand, obj, finger, p_obj, q_seed, link=None):
         except UnreachableError as e:
             err = err or e
     if ik is None:
-        raise _unreachable_in_object_frame(err, obj, p_surf)
+        raise _unreachable_in_object_frame(err, obj, p_surf, _reachable_point(hand, obj, f, err, q_seed, link))
     notes = []
     if ik.normal_dropped:
         notes.append(f"{f.name}: the pad cannot face the contact normal there; placed position-only "
@@ -726,20 +726,56 @@ def place_contact(hand, obj, finger, p_obj, q_seed, link=None):
     return q, patch, notes
 
 
-def _unreachable_in_object_frame(err, obj, p_surf):
-    """The IK's `UnreachableError` re-worded in the object frame, with a surface point to try."""
+#: Surface points `_reachable_point` tries, following the IK's closest reach each time.
+REACH_HINT_STEPS = 8
+
+
+def _reachable_point(hand, obj, f, err, q_seed, link):
+    """A surface point the finger's pad does reach (the IK succeeds there, as `place_contact`
+    places it): from where the failed IK got, projected onto the surface, again from where
+    that one got, at most `REACH_HINT_STEPS` times. None when none of them is reachable."""
+    from planner.hand import UnreachableError
+
+    T = np.asarray(obj.T_palm_obj)
+    R, t = T[:3, :3], T[:3, 3]
+    closest = R.T @ (err.closest_palm - t)
+    tried = []
+    for _ in range(REACH_HINT_STEPS):
+        s, n_out, _ = obj.closest_surface(closest)
+        if any(np.linalg.norm(s - o) < 1e-4 for o in tried):
+            return None
+        tried.append(np.asarray(s, float))
+        n_palm = R @ np.asarray(n_out, float)
+        p_palm = R @ np.asarray(s, float) + t
+        for offset in (APPROACH_M, 0.5 * APPROACH_M, 0.25 * APPROACH_M):
+            try:
+                hand.ik_solve(f, p_palm + offset * n_palm, q_seed, link=link, normal_palm=-n_palm)
+                return np.asarray(s, float)
+            except UnreachableError as e:
+                last = e
+        closest = R.T @ (last.closest_palm - t)
+    return None
+
+
+def _unreachable_in_object_frame(err, obj, p_surf, reachable=None):
+    """The IK's `UnreachableError` re-worded in the object frame, with a surface point the
+    finger does reach (`_reachable_point`), or the advice to move the object."""
     from planner.hand import UnreachableError
 
     T = np.asarray(obj.T_palm_obj)
     R, t = T[:3, :3], T[:3, 3]
     closest = R.T @ (err.closest_palm - t)
     direction = R.T @ err.direction_palm
-    suggest, _, _ = obj.closest_surface(closest)
-    move = float(np.linalg.norm(suggest - np.asarray(p_surf)))
     f3 = lambda v: "[" + ", ".join(f"{x:.4f}" for x in v) + "]"  # noqa: E731
+    if reachable is not None:
+        move = float(np.linalg.norm(reachable - np.asarray(p_surf)))
+        tail = (f"a surface point it does reach (checked): {f3(reachable)} (object frame), {move * 1e3:.1f} mm from "
+                "the requested one")
+    else:
+        tail = ("no surface point near where it gets is in reach: move the object toward the finger (object."
+                f"position, palm frame: along {f3(R @ direction)}) or use another finger")
     msg = (f"{str(err).split(';')[0]}; the finger gets within {err.distance_m * 1e3:.1f} mm, at {f3(closest)} "
-           f"(object frame): move the point along {f3(direction)} (object frame); the surface point nearest "
-           f"to where it gets is {f3(suggest)}, {move * 1e3:.1f} mm from the requested one")
+           f"(object frame): move the point along {f3(direction)} (object frame); {tail}")
     return UnreachableError(msg, target_palm=err.target_palm, closest_palm=err.closest_palm,
                             direction_palm=err.direction_palm, distance_m=err.distance_m)
 
@@ -776,6 +812,7 @@ def realize(spec: GraspSpec, hand=None) -> RealizedGrasp:
     obj = spec.object.make()
     q = np.array(hand.q_open, dtype=float, copy=True)
     notes = []
+    unreachable = []  # every finger out of reach is named, not only the first
     for fs in spec.fingers:
         f = hand.fingers[fs.name]
         idx = list(f.q_index)
@@ -783,9 +820,8 @@ def realize(spec: GraspSpec, hand=None) -> RealizedGrasp:
             try:
                 q, _, n = place_contact(hand, obj, f, fs.point_obj, q, link=fs.link)
             except UnreachableError as err:
-                raise UnreachableError(f"{spec.path}: fingers.{fs.name}.contact.point: {err}", target_palm=err.target_palm,
-                                       closest_palm=err.closest_palm, direction_palm=err.direction_palm,
-                                       distance_m=err.distance_m) from err
+                unreachable.append((fs.name, err))
+                continue
             except KinematicsError as err:
                 raise KinematicsError(f"{spec.path}: fingers.{fs.name}.contact.point: {err}") from err
             notes.extend(f"fingers.{fs.name}.contact: {m.split(': ', 1)[1]}" for m in n)
@@ -794,6 +830,12 @@ def realize(spec: GraspSpec, hand=None) -> RealizedGrasp:
             q = np.asarray(hand.close_finger(f, q, obj), dtype=float)
         else:
             q[idx] = np.asarray(hand.q_open)[idx]
+    if unreachable:
+        name, err = unreachable[0]
+        others = "".join(f" | fingers.{n}.contact.point: {e}" for n, e in unreachable[1:])
+        raise UnreachableError(f"{spec.path}: fingers.{name}.contact.point: {err}{others}", target_palm=err.target_palm,
+                               closest_palm=err.closest_palm, direction_palm=err.direction_palm,
+                               distance_m=err.distance_m)
     # one state, queried once: link-object distances are computed once for all four queries
     state = hand.state(q)
     q = state.q

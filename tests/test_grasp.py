@@ -436,3 +436,37 @@ def test_check_png_draws_the_contacts(tmp_path, capsys):
         img = np.asarray(Image.open(tmp_path / "g.png").convert("RGB")).astype(int)
         green.append(((img[..., 1] > 150) & (img[..., 0] < 100) & (img[..., 2] < 120)).sum())
     assert green[0] == 0 and green[1] > 30
+
+
+def test_out_of_reach_names_every_finger_and_its_suggestion_is_reachable(tmp_path):
+    """A 40 mm cube held at its face centres, two of them out of reach: one error naming both
+    fingers; the point suggested for a finger (checked by IK) is in reach when used; where no
+    nearby surface point is, the advice is to move the object."""
+    import re
+
+    import yaml
+
+    from planner.grasp import load_grasp, realize
+    from planner.hand import UnreachableError
+
+    data = {"schema_version": 1, "name": "cube", "hand": "icub_right",
+            "object": {"shape": "box", "size": [0.04, 0.04, 0.04], "position": [0.03, -0.01, 0.035],
+                       "quat_xyzw": [0, 0, 0, 1], "mass_kg": 0.05},
+            "friction": {"mu": 0.9, "gamma": 0.004},
+            "fingers": {"thumb": {"contact": {"point": [0.0, -0.02, 0.0]}},
+                        "index": {"contact": {"point": [0.02, 0.0, 0.0]}},
+                        "middle": {"contact": {"point": [0.0, 0.02, 0.0]}}, "ring": "free", "little": "free"}}
+    path = tmp_path / "cube.yaml"
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(UnreachableError) as info:
+        realize(load_grasp(path))
+    msg = str(info.value)
+    assert "fingers.index.contact.point" in msg and "fingers.middle.contact.point" in msg and "\n" not in msg
+    m = re.search(r"fingers\.index\.contact\.point:.*?a surface point it does reach \(checked\): \[([^\]]+)\]", msg)
+    assert m, msg
+    assert "move the object toward the finger" in msg
+    data["fingers"]["index"] = {"contact": {"point": [float(v) for v in m.group(1).split(",")]}}
+    data["fingers"]["middle"] = "free"
+    path.write_text(yaml.safe_dump(data))
+    g = realize(load_grasp(path))  # no UnreachableError: the suggestion was in reach
+    assert "index" in g.touching
