@@ -1179,6 +1179,13 @@ def explain_failure(G: nx.DiGraph, intermediate_tried: bool, tried: str | None =
         if f not in a["lift_blocked"] and f not in a["landing_blocked"]:
             move = "be lifted" if action == "lift" else "land on its final contact"
             lines.append(f"there {f} cannot {move}: {why}")
+    if not (a["lift_blocked"] or a["landing_blocked"] or a["stuck"] or a["goal_reason"]):
+        # nothing was refused: the search stopped before it tried the moves that remain
+        left = [f for i, f in enumerate(p.fingers) if a["closest"][i] != G.graph["goal"][i]]
+        if left:
+            lines.append(f"{', '.join(left)} still {'has' if len(left) == 1 else 'have'} to move and no such move "
+                         "was refused: the search stopped before it evaluated them (a longer --time-limit lets "
+                         "it go on)")
     if tried:
         lines.append(tried)
     elif not intermediate_tried:

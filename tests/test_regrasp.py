@@ -583,3 +583,15 @@ def test_holding_grasp_lets_a_finger_go_and_the_rounds_use_it(realized):
             q = np.array(hand.q_open, float)
             q[idx] = s.q
             assert np.allclose(contact_patches(hand, q, initial.obj, fingers=[f])[f][0], s.points, atol=1e-9)
+
+
+def test_a_search_stopped_by_the_clock_names_the_fingers_left_to_move(capsys):
+    """Even when nothing was refused (the time limit ended the search before any move was
+    evaluated), the explanation names at least one finger and why the plan is missing."""
+    from planner.cli import main
+    from planner.resources import bundled_grasp
+
+    code = main(["plan", str(bundled_grasp("icub/box_ir2m.yaml")), str(bundled_grasp("icub/box_parallel_extension.yaml")),
+                 "--execution", "--time-limit", "0.001", "-q"])
+    err = capsys.readouterr().err
+    assert code == 1 and "still have to move" in err and "index" in err and "--time-limit" in err
