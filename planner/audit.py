@@ -38,6 +38,8 @@ import numpy as np
 SURFACE_TOL_M = 1e-3
 #: A patch normal farther than this from the surface's inward normal there, deg.
 NORMAL_TOL_DEG = 20.0
+#: Points of a patch whose surface and normal are checked (the first and an even spread).
+POINTS_PER_PATCH = 5
 #: Distance outside the surface at which a normal is probed (`_normal_error_deg`), m.
 NORMAL_PROBE_M = 2e-3
 #: A touching finger's patch (mean point) farther than this from where the hand's forward
@@ -206,6 +208,7 @@ def _check_states(plan, hand, obj, rep: AuditReport) -> list:
 
     friction = Friction(**plan.friction)
     poses = []
+    fk_cache: dict = {}
     for i, st in enumerate(plan.states):
         q = _q(plan, hand, st.q)
         hs = hand.state(q)
@@ -216,7 +219,10 @@ def _check_states(plan, hand, obj, rep: AuditReport) -> list:
                 rep.add(f"states[{i}].patches.{f}: not a finger of {hand.name}")
                 continue
             worst_d, worst_a = 0.0, 0.0
-            for p_obj, n_in in zip(pts, nrm):
+            # every patch's first point (the contact itself) and a spread of the ring points:
+            # an edit moves a patch as a whole, and a mesh's surface query costs per triangle
+            pick = sorted(set(np.linspace(0, len(pts) - 1, min(len(pts), POINTS_PER_PATCH)).round().astype(int)))
+            for p_obj, n_in in zip(np.asarray(pts)[pick], np.asarray(nrm)[pick]):
                 ps, _, _ = obj.closest_surface(p_obj)
                 worst_d = max(worst_d, float(np.linalg.norm(np.asarray(ps) - p_obj)))
                 worst_a = max(worst_a, _normal_error_deg(obj, np.asarray(ps, float), np.asarray(n_in, float)))
@@ -226,7 +232,13 @@ def _check_states(plan, hand, obj, rep: AuditReport) -> list:
             if worst_a > NORMAL_TOL_DEG:
                 rep.add(f"states[{i}].patches.{f}: a contact normal is {worst_a:.0f} deg from the surface's inward "
                         f"normal there (tolerance {NORMAL_TOL_DEG:.0f} deg)")
-        fk = contact_patches(hand, hs, obj, fingers=list(hand.fingers))
+        fk = {}
+        for f, fg in hand.fingers.items():  # a finger's contact depends on its own joints only
+            key = (f, tuple(np.round(q[list(fg.q_index)], 12)))
+            if key not in fk_cache:
+                fk_cache[key] = contact_patches(hand, hs, obj, fingers=[f]).get(f)
+            if fk_cache[key] is not None:
+                fk[f] = fk_cache[key]
         for f in st.patches:
             if f not in hand.fingers:
                 continue
