@@ -7,7 +7,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: install test demo bench clean wheel-check
+.PHONY: install test demo bench clean wheel-check api-docs
 
 # the demo needs the package alone; the tests add the dev extra (pytest, hypothesis, dask, ...)
 RUNTIME := $(VENV)/.installed-runtime
@@ -31,6 +31,12 @@ test: $(STAMP)
 
 demo: $(RUNTIME)
 	$(BIN)/python -m planner demo
+
+# the API reference from the docstrings (pdoc, in the dev extra): build/api/index.html; every
+# module of the package (planner's __all__ alone would list only what it re-exports)
+MODULES = $(filter-out planner.plan planner.synth,$(subst /,.,$(basename $(filter-out %__init__.py %__main__.py,$(wildcard planner/*.py planner/sim/*.py)))))
+api-docs: $(STAMP)
+	OPENBLAS_NUM_THREADS=1 $(BIN)/python -m pdoc -o build/api planner $(MODULES)
 
 wheel-check: $(STAMP)
 	PYTHON=$(PYTHON) .ci/wheel_check
