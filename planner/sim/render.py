@@ -525,6 +525,8 @@ class HandScene:
             d /= np.linalg.norm(d)
             if np.hypot(d[0], d[1]) < 0.2:
                 gravity_label += " (into view)" if d[2] < 0 else " (out of view)"
+            elif abs(d[2]) >= 0.5:  # more than 30 deg out of the picture: the arrow is its shadow
+                gravity_label += " (mostly away from you)" if d[2] < 0 else " (mostly toward you)"
             arrow = (float(d[0]), float(-d[1]), gravity_label)
         legend = () if touching is None else [
             (f + (" (moving)" if f == moving_finger else ""), finger_rgb(self.hand, f), f in touching)
