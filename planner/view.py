@@ -494,6 +494,7 @@ def grasp_page_data(grasp, grasp_path) -> tuple[_Scene, dict]:
     mean = grasp.mean_contact_closure()
     entry["mean_contact"] = {"force_closure": bool(mean["force_closure"]), "metric": _num(mean["metric"])}
     entry["missing"] = list(grasp.missing)
+    entry["problems"] = list(grasp.problems)  # every reason check fails it (joint limits too)
     entry["collisions"] = [f"{a} - {b} {d * 1000:.2f} mm" for a, b, d in grasp.collisions]
     data = {
         "kind": "grasp", "title": Path(grasp_path).name, "hand": grasp.hand.name,

@@ -92,6 +92,7 @@ function setColor(g, c) { for (const m of materials(g)) { if (m.color) m.color.s
 function setVisible(p, v) { const n = node(p); if (n && n.object) n.object.visible = v; }
 function fmt(x, d) { return x === null || x === undefined ? "-" : Number(x).toPrecision(d || 3); }
 function chip(f, label) { const c = DATA.colors[f] || "#555"; return `<span class="chip" style="background:${c}">${label || f}</span>`; }
+function esc(t) { return String(t).replace(/&/g, "&amp;").replace(/</g, "&lt;").replace(/>/g, "&gt;"); }
 function fcText(fc) { return fc ? '<span class="fc-yes">force closure</span>' : '<span class="fc-no">no closure</span>'; }
 
 // ---- panel
@@ -118,6 +119,8 @@ function stateHTML(i) {
     + (s.grip_force_n !== null ? `, grip ${fmt(s.grip_force_n)} N` : "")
     + `<br>contacts ${s.contacts.map(f => chip(f)).join(" ") || "-"}; removable: ${s.removable.join(", ") || "-"}`;
   if (s.mean_contact) h += `<br>one mean contact per finger: ${fcText(s.mean_contact.force_closure)}, metric ${fmt(s.mean_contact.metric)}`;
+  if (s.problems && s.problems.length) h += `<br><span class="fc-no">fails regrasp check:</span><ul class="warn">`
+    + s.problems.map(p => `<li>${esc(p)}</li>`).join("") + "</ul>";
   if (s.missing && s.missing.length) h += `<br><span class="warn">not touching: ${s.missing.join(", ")}</span>`;
   if (s.collisions && s.collisions.length) h += `<br><span class="warn">collisions: ${s.collisions.join("; ")}</span>`;
   h += `<div class="sim" data-sim="${i}"></div>`;
@@ -198,6 +201,8 @@ function seek(g) {
     cap = `Step ${w.step + 1}/${NK}: ${chip(st.finger)} <span style="color:${DATA.moving_color}">${st.action}</span> `
       + `(state ${st.from} &rarr; ${st.to})<br>`;
   }
+  if (s.problems && s.problems.length) cap += `<span class="fc-no">FAILS regrasp check (${s.problems.length} problem`
+    + `${s.problems.length > 1 ? "s" : ""}: see the list)</span><br>`;
   cap += `state ${w.state}: ${fcText(s.force_closure)}, metric ${fmt(s.metric)}, removable: ${s.removable.join(", ") || "-"}`;
   const r = DATA.runs[+simSel.value || 0];
   if (r && r.states[w.state].reached) cap += `<br><span class="sim">simulator (${r.name}): drift ${fmt(r.states[w.state].drift_mm, 2)} mm, `

@@ -246,3 +246,32 @@ def test_check_png_markers_are_drawn(tmp_path):
                    caption="caption")).convert("RGB"))
     assert plain.shape == marked.shape == (480, 640, 3)
     assert (np.abs(plain.astype(int) - marked).sum(axis=2) > 60).sum() > 200
+
+
+def test_a_failing_grasp_page_lists_every_problem(tmp_path):
+    """A grasp that fails check (a placed finger that closes to its limits without touching):
+    the page's state carries every problem check finds, joint limits included, and the page
+    shows them under "fails regrasp check"."""
+    import yaml
+
+    from planner.grasp import load_grasp, realize
+    from planner.view import grasp_page_data
+
+    data = {"schema_version": 1, "name": "cube", "hand": "icub_right",
+            "object": {"shape": "box", "size": [0.04, 0.04, 0.04], "position": [0.03, -0.01, 0.035],
+                       "quat_xyzw": [0, 0, 0, 1], "mass_kg": 0.05},
+            "friction": {"mu": 0.9, "gamma": 0.004},
+            "fingers": {"thumb": {"contact": {"point": [0.0, -0.02, 0.0]}},
+                        "index": {"contact": {"point": [0.02, -0.0137, 0.0015]}}, "middle": "free",
+                        "ring": {"posture": [0.349, 0.0, 0.0, 0.0]},
+                        "little": {"posture": [0.349, 0.0, 0.0, 0.0]}}}  # little abducted away: never touches
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump(data))
+    grasp = realize(load_grasp(path))
+    assert grasp.problems
+    _, page = grasp_page_data(grasp, path)
+    assert page["states"][0]["problems"] == list(grasp.problems)
+    assert any("upper limit" in p for p in page["states"][0]["problems"])
+    out = tmp_path / "bad.html"
+    write_view(path, out)
+    assert "fails regrasp check" in out.read_text()
