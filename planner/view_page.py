@@ -105,7 +105,8 @@ document.getElementById("subtitle").innerHTML = `${DATA.hand} hand, ${DATA.objec
      + (DATA.contact_model ? `, contact model ${DATA.contact_model}` : "") : "<br>one grasp (what regrasp check finds)");
 document.getElementById("legend").innerHTML = DATA.fingers.map(f => chip(f)).join(" ")
   + ` <span class="chip" style="background:${DATA.moving_color}">moving finger</span>`
-  + (DATA.runs.length ? ` <span class="chip" style="background:${DATA.sim_color}">simulator contacts</span>` : "");
+  + (DATA.runs.length ? ` <span class="chip" style="background:${DATA.sim_color}">simulator contacts</span>` : "")
+  + `<br><span class="scale">grid: 1 cm cells in the palm plane; axes 5 cm: x red, y green, z blue (palm frame)</span>`;
 const simSel = document.getElementById("sim-run");
 if (DATA.runs.length) {
   document.getElementById("sim-box").style.display = "";
@@ -193,6 +194,7 @@ function seek(g) {
     const isCur = (li.dataset.state !== undefined && +li.dataset.state === w.state && (w.step < 0 || w.frame === 0 || w.frame === F - 1))
       || (li.dataset.step !== undefined && +li.dataset.step === w.step && w.frame > 0 && w.frame < F - 1);
     li.classList.toggle("current", isCur);
+    if (isCur && li.scrollIntoView) li.scrollIntoView({block: "nearest"});  // the list follows the timeline
   }
   const s = DATA.states[w.state];
   let cap = "";
@@ -256,6 +258,14 @@ for (const b of ["btn-first", "btn-prev", "btn-play", "btn-next", "btn-last"]) d
 })();
 // meshcat's gradient background is an RGB DataTexture that WebGL2 (e.g. software GL) may draw black
 viewer.scene.background = new MeshCat.THREE.Color(DATA.background);
+// a hand-sized grid in the palm plane (1 cm cells, 30 cm across) and 5 cm palm-frame axes
+// (x red, y green, z blue) instead of meshcat's 20 m grid: the scale of the scene at a glance
+(function () {
+  const grid = new MeshCat.THREE.GridHelper(0.3, 30, 0x8a93a3, 0xd2d7e0);
+  grid.rotateX(Math.PI / 2);
+  viewer.set_object(["regrasp", "scale", "grid"], grid);   // "regrasp" holds the palm frame
+  viewer.set_object(["regrasp", "scale", "axes"], new MeshCat.THREE.AxesHelper(0.05));
+})();
 fillSim();
 const start = /frame=(\d+)/.exec(location.hash);   // page.html#frame=40 opens at frame 40
 seek(start ? +start[1] : 0);
