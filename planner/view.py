@@ -346,8 +346,45 @@ def _load_report(path, n_states: int) -> list[dict]:
             raise SpecError(str(path), "states", f"the report has {len(rep['states'])} states, the plan {n_states}: "
                                                  "not a replay of this plan")
         out.append({"name": str(name), "passed": bool(rep.get("passed")), "verdict": str(rep.get("verdict", "")),
-                    "states": rep["states"]})
+                    "states": rep["states"], "trajectory": rep.get("trajectory")})
     return out
+
+
+#: Most simulator frames a page plays per replay (a longer trajectory is resampled evenly).
+MAX_SIM_FRAMES = 400
+
+
+def _sim_frames(scene, hand, traj, report_path) -> dict | None:
+    """What the simulator did, as the page draws it: per sampled frame the hand's geometry
+    poses that changed since the previous frame, the object's pose (palm frame) and the time."""
+    if not isinstance(traj, dict) or not traj.get("t"):
+        return None
+    try:
+        joints = [str(j) for j in traj["joints"]]
+        t = np.asarray(traj["t"], float).reshape(-1)
+        Q = np.asarray(traj["q"], float).reshape(len(t), len(joints))
+        P = np.asarray(traj["object_position"], float).reshape(len(t), 3)
+        Qo = np.asarray(traj["object_quat_xyzw"], float).reshape(len(t), 4)
+    except (KeyError, TypeError, ValueError) as err:
+        raise SpecError(str(report_path), "trajectory", f"expected joints, t, q, object_position, object_quat_xyzw "
+                                                        f"of equal lengths ({err})") from None
+    if not (np.all(np.isfinite(Q)) and np.all(np.isfinite(P)) and np.all(np.isfinite(Qo))):
+        raise SpecError(str(report_path), "trajectory", "expected finite numbers")
+    from scipy.spatial.transform import Rotation
+
+    cols = [(i, hand.joint_names.index(j)) for i, j in enumerate(joints) if j in hand.joint_names]
+    keep = np.unique(np.linspace(0, len(t) - 1, min(len(t), MAX_SIM_FRAMES)).round().astype(int))
+    frames, prev = [], None
+    for k in keep:
+        q = np.array(hand.q_open, dtype=float)
+        for i, c in cols:
+            q[c] = Q[k, i]
+        Ts = [_m4(T) for T in scene.transforms(q)]
+        T_obj = _T(Rotation.from_quat(Qo[k] / np.linalg.norm(Qo[k])).as_matrix(), P[k])
+        frames.append({"t": round(float(t[k]), 4), "obj": _m4(T_obj),
+                       "hand": {str(g): T for g, T in enumerate(Ts) if prev is None or T != prev[g]}})
+        prev = Ts
+    return {"frames": frames, "object_plan": _m4(scene.T_palm_obj)}
 
 
 def plain_plan(plan) -> dict:
@@ -460,7 +497,8 @@ def plan_page_data(plan: Mapping, plan_path, hand=None, report_path=None) -> tup
                                   "force_closure": st.get("sim_force_closure"), "metric": _num(st.get("sim_metric")),
                                   "drift_mm": _num(st.get("drift_mm")), "drift_deg": _num(st.get("drift_deg")),
                                   "points": st.get("sim_points"), "sets": sets})
-            runs.append({"name": run["name"], "passed": run["passed"], "verdict": run["verdict"], "states": per_state})
+            runs.append({"name": run["name"], "passed": run["passed"], "verdict": run["verdict"], "states": per_state,
+                         "traj": _sim_frames(scene, hand, run.get("trajectory"), report_path)})
     summary = plan.get("summary") or {}
     data = {
         "kind": "plan",

@@ -56,6 +56,7 @@ PAGE = r"""<!DOCTYPE html>
     <label><input type="checkbox" id="show-cones" checked> friction cones</label>
     <label id="sim-box" style="display:none"><input type="checkbox" id="show-sim" checked> simulator
       <select id="sim-run"></select></label>
+    <button id="btn-sim" style="display:none" title="play what the simulator did: hand and object as pybullet moved them">&#x25B6; simulation</button>
   </div>
   <div class="row legend" id="legend"></div>
   <div id="run-verdict" class="sim"></div>
@@ -241,6 +242,48 @@ scrub.max = G - 1; scrub.disabled = NK === 0;
 scrub.oninput = () => { pause(); seek(+scrub.value); };
 for (const id of ["show-contacts", "show-cones", "show-sim"]) document.getElementById(id).onchange = () => seek(pos);
 simSel.onchange = () => { fillSim(); seek(pos); };
+// the simulator's own motion (replay report trajectory): hand and object as pybullet moved
+// them, a drop seen as a drop; the plan's state stays selected in the list
+let simPlay = null;
+const btnSim = document.getElementById("btn-sim");
+const objPath = pathOf("regrasp/object");
+function plainHand() {  // no finger is "the moving one" in the simulator's motion
+  DATA.geom_finger.forEach((f, i) => setColor(i, hex(DATA.hand_color)));
+  cur = Object.assign({}, cur, { step: -2 });  // the plan's colours come back at the next seek
+}
+function simRun() { const r = DATA.runs[+simSel.value || 0]; return r && r.traj ? r : null; }
+function stopSim() {
+  if (simPlay) clearInterval(simPlay);
+  simPlay = null;
+  btnSim.innerHTML = "&#x25B6; simulation";
+  const r = simRun();
+  if (r) viewer.set_transform(objPath, r.traj.object_plan);
+  seek(pos);
+}
+function playSim() {
+  const r = simRun();
+  if (!r) return;
+  pause();
+  const fr = r.traj.frames, base = DATA.states[0].T;
+  let k = 0;
+  plainHand();
+  for (let i = 0; i < base.length; i++) viewer.set_transform(geomPaths[i], base[i]);
+  btnSim.innerHTML = "&#x25A0; simulation";
+  simPlay = setInterval(() => {
+    if (k >= fr.length) { clearInterval(simPlay); simPlay = null; btnSim.innerHTML = "&#x25B6; simulation"; return; }
+    const f = fr[k++];
+    for (const g in f.hand) viewer.set_transform(geomPaths[+g], f.hand[g]);
+    viewer.set_transform(objPath, f.obj);
+    document.getElementById("caption").innerHTML = `<span class="sim">simulator (${esc(r.name)}): t ${fmt(f.t, 3)} s `
+      + `of ${fmt(fr[fr.length - 1].t, 3)} s; ${esc(r.verdict).slice(0, 160)}</span>`;
+    document.body.dataset.simFrame = k;
+    viewer.set_dirty();
+  }, 1000 * (fr.length > 1 ? fr[1].t - fr[0].t : 0.033) / +document.getElementById("speed").value);
+}
+btnSim.onclick = () => (simPlay ? stopSim() : playSim());
+function showSimButton() { btnSim.style.display = simRun() ? "" : "none"; }
+showSimButton();
+simSel.addEventListener("change", () => { if (simPlay) stopSim(); showSimButton(); });
 document.addEventListener("keydown", e => {
   if (e.key === " ") { e.preventDefault(); playing ? pause() : play(); }
   else if (e.key === "ArrowRight") { pause(); seek(pos + 1); }
@@ -269,6 +312,16 @@ viewer.scene.background = new MeshCat.THREE.Color(DATA.background);
 fillSim();
 const start = /frame=(\d+)/.exec(location.hash);   // page.html#frame=40 opens at frame 40
 seek(start ? +start[1] : 0);
+const simAt = /sim=(\d+)/.exec(location.hash);   // page.html#sim=60: the simulator at its frame 60 (screenshots)
+if (simAt && simRun()) {
+  const r = simRun(), fr = r.traj.frames, n = Math.min(fr.length, +simAt[1] + 1);
+  plainHand();
+  for (let k = 0; k < n; k++) { for (const g in fr[k].hand) viewer.set_transform(geomPaths[+g], fr[k].hand[g]); }
+  viewer.set_transform(objPath, fr[n - 1].obj);
+  document.getElementById("caption").innerHTML = `<span class="sim">simulator (${esc(r.name)}): t ${fmt(fr[n - 1].t, 3)} s; `
+    + `${esc(r.verdict).slice(0, 160)}</span>`;
+  viewer.set_dirty();
+}
 document.body.dataset.ready = "1";
 document.body.dataset.readyMs = Math.round(performance.now());
 requestAnimationFrame(() => requestAnimationFrame(() => { document.body.dataset.firstFrameMs = Math.round(performance.now()); }));

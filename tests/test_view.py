@@ -275,3 +275,33 @@ def test_a_failing_grasp_page_lists_every_problem(tmp_path):
     out = tmp_path / "bad.html"
     write_view(path, out)
     assert "fails regrasp check" in out.read_text()
+
+
+def test_the_page_plays_what_the_simulator_did(plan_path, tmp_path):
+    """replay --report records the hand's joints and the object's pose (30 Hz); the page holds
+    them as frames (object pose per frame, the hand's geometry where it moved) and a button
+    plays them; the object of the last frame is where the replay's trajectory ends."""
+    import json
+
+    from scipy.spatial.transform import Rotation
+
+    from planner.sim.replay import TRAJECTORY_DT_S, replay_plan
+
+    rep = replay_plan(plan_path)
+    traj = rep.trajectory
+    assert len(traj["t"]) == len(traj["q"]) == len(traj["object_position"]) >= rep.sim_time_s / TRAJECTORY_DT_S - 2
+    assert np.all(np.diff(traj["t"]) > 0) and len(traj["q"][0]) == len(traj["joints"])
+    report = tmp_path / "report.json"
+    report.write_text(json.dumps(rep.to_dict()))
+    out = tmp_path / "sim.html"
+    write_view(plan_path, out, report=report)
+    html = out.read_text()
+    assert 'id="btn-sim"' in html
+    run = _data(html)["runs"][0]
+    frames = run["traj"]["frames"]
+    assert 1 < len(frames) <= len(traj["t"]) and frames[-1]["t"] == pytest.approx(traj["t"][-1], abs=1e-4)
+    T = np.asarray(frames[-1]["obj"], float).reshape(4, 4).T  # meshcat's column-major pose
+    np.testing.assert_allclose(T[:3, 3], traj["object_position"][-1], atol=1e-5)  # (the page rounds to 10 um)
+    R = Rotation.from_quat(traj["object_quat_xyzw"][-1]).as_matrix()
+    np.testing.assert_allclose(T[:3, :3], R, atol=1e-5)
+    assert len(frames[0]["hand"]) == len(_data(html)["states"][0]["T"])  # the first frame poses every geometry

@@ -82,6 +82,9 @@ JOINT_LIMIT_TOL = 1e-3
 #: holding finger is commanded at least half the squeeze (`planner.sim.controller
 #: .MIN_NORMAL_RATIO`), so a tenth of it is a touch that takes part of the load, not a graze.
 CARRY_SHARE = 0.1
+#: The replay records the hand's joints and the object's pose this often (simulated s) for
+#: `view --report` to play what the simulator did (a drop is seen as a drop).
+TRAJECTORY_DT_S = 1.0 / 30.0
 
 
 # --------------------------------------------------------------------------- reports
@@ -165,6 +168,9 @@ class ReplayReport:
             0 (acquiring, gravity ramp, settling), None when it passed.
         failed_at_state: the failure is the state that step reaches (measured there: its
             closure or the links holding the object), not the motion of the step itself.
+        trajectory: what the simulator did, sampled every ``TRAJECTORY_DT_S`` of simulated
+            time (`view --report` plays it): ``joints`` (names), ``t`` (s), ``q`` (rad, one row
+            per sample), ``object_position`` (m) and ``object_quat_xyzw`` (palm frame).
     """
 
     passed: bool
@@ -188,6 +194,7 @@ class ReplayReport:
     reasons: tuple[str, ...] = ()
     failed_step: int | None = None
     failed_at_state: bool = False
+    trajectory: Mapping[str, Any] | None = None
 
     def to_dict(self) -> dict:
         """Plain data for JSON (``json.dumps(report.to_dict())``)."""
@@ -653,6 +660,7 @@ def replay_plan(
         if gif is not None or mp4 is not None:
             recorder = _Recorder(sim, rd, info, width, height, keep_rgb=mp4 is not None)
         result = sim.run(states, steps, recorder=recorder, every=int(gif_every), realtime=gui and own)
+        trajectory = sim.trajectory
         params["squeeze_force_n"] = sim.ctl.force_n if finger_force_n is None else float(finger_force_n)
     finally:
         if own:
@@ -723,7 +731,7 @@ def replay_plan(
         sim_time_s=n_steps * dt, wall_time_s=wall, sim_steps=n_steps,
         gif=str(gif) if gif is not None else None, gif_frames=gif_frames,
         mp4=str(mp4) if mp4 is not None else None, parameters=params, reasons=tuple(reasons),
-        failed_step=failed_step, failed_at_state=at_state,
+        failed_step=failed_step, failed_at_state=at_state, trajectory=trajectory,
     )
 
 
@@ -881,6 +889,9 @@ class _Sim:
         self.max_mm = self.max_deg = 0.0
         self.phase = "acquiring the initial grasp"
         self.sampling = False
+        self.traj_every = max(1, int(round(TRAJECTORY_DT_S / self.dt)))
+        self.trajectory: dict = {"joints": list(info.hand.joint_names), "t": [], "q": [], "object_position": [],
+                                 "object_quat_xyzw": []}
         self.failure: str | None = None
         self.fail_step: int | None = None  # plan step (-1: state 0) at which the drift first left the limits
         self.step_k = -1
@@ -912,6 +923,12 @@ class _Sim:
         if self.sampling:  # the temporal filter only needs the samples before a measurement
             self.filter.update(self._contact_sample(self._obj_pose((pos, quat)), carry=True))
         mm, deg = pose_drift(self._p_ref, self._quat_ref, pos, quat)
+        if self.steps_done % self.traj_every == 0 or mm > self.params["drop_mm"]:
+            tr = self.trajectory
+            tr["t"].append(round(self.steps_done * self.dt, 6))
+            tr["q"].append([round(float(v), 6) for v in self.ctl.q()])
+            tr["object_position"].append([round(float(v), 6) for v in pos])
+            tr["object_quat_xyzw"].append([round(float(v), 6) for v in quat])
         if self.released:
             self.max_mm, self.max_deg = max(self.max_mm, mm), max(self.max_deg, deg)
             if self.failure is None and not (mm <= self.params["drift_mm_max"] and deg <= self.params["drift_deg_max"]):
