@@ -331,7 +331,8 @@ def build_parser() -> argparse.ArgumentParser:
     plan.add_argument("--no-motion", action="store_true", help="skip OMPL finger paths (straight joint segments)")
     plan.add_argument("--motion-planner", default="rrtconnect", help="OMPL planner name (default rrtconnect)")
     plan.add_argument("--motion-timeout", type=float, default=2.0, metavar="S", help="time budget per finger path, s")
-    plan.add_argument("--verbose", action="store_true", help="show the motion planner's console output")
+    plan.add_argument("-v", "--verbose", action="store_true",
+                      help="show the motion planner's and the C++ libraries' console output and every warning")
     plan.set_defaults(func=_cmd_plan)
     synth = sub.add_parser("synth", help="generate force-closure grasp files for a hand and an object")
     synth.add_argument("hand", help="hand name under robots/ (icub_right, allegro_right) or a hand.yaml")
@@ -400,8 +401,12 @@ def build_parser() -> argparse.ArgumentParser:
     view.add_argument("--gif", metavar="FILE", help="also a 640x480 GIF: captions, contacts, the moving finger coloured")
     view.set_defaults(func=_cmd_view)
     commands = [c for n, c in sub.choices.items() if n not in ("synth", "hand")] + [hinit, hcheck]
-    for cmd in commands:  # -q/--quiet on every command: no progress lines
-        cmd.add_argument("-q", "--quiet", action="store_true", help="no progress lines on stderr")
+    for cmd in commands + [synth]:  # -q/--quiet and -v/--verbose on every command
+        if cmd is not synth:
+            cmd.add_argument("-q", "--quiet", action="store_true", help="no progress lines on stderr")
+        if cmd is not plan:
+            cmd.add_argument("-v", "--verbose", action="store_true",
+                             help="show the C++ libraries' console output (urdfdom, OMPL, pybullet) and every warning")
     return parser
 
 
