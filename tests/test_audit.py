@@ -223,3 +223,18 @@ def test_a_path_into_the_neighbouring_finger_is_refused(plans):
     mine = [p for p in rep.problems if p.startswith(f"steps[{k}] (move ring)")]
     assert any("ring_0 outside the hand's joint limits" in p for p in mine), rep.problems
     assert any("overlap" in p and "little" in p for p in mine), rep.problems
+
+
+def test_a_no_motion_plan_replays_with_its_straight_paths_and_verify_still_checks_them(plans, tmp_path, capsys):
+    """plan --no-motion writes straight joint segments that may cut the object by
+    construction: replay and view do not refuse the plan for them (the replay shows what they
+    do); verify still lists them."""
+    data = _data(plans)
+    data["parameters"]["motion"] = False
+    _edit_land_through(data)
+    bad = tmp_path / "straight.json"
+    _reseal(data, bad)
+    assert main(["verify", str(bad)]) == 1
+    assert "into the object" in capsys.readouterr().out
+    assert main(["replay", str(bad)]) in (0, 1)  # simulated, not refused
+    assert "physics check" not in capsys.readouterr().err
