@@ -20,19 +20,6 @@ from typing import Any
 PathLike = str | os.PathLike
 
 
-def realized_grasp(g):
-    """A `RealizedGrasp` from a path, a `GraspSpec` or a `RealizedGrasp`; with the recorded input."""
-    from planner.grasp import GraspSpec, RealizedGrasp, load_grasp, realize
-    from planner.regrasp import sha256_file
-
-    if isinstance(g, RealizedGrasp):
-        return g, None
-    if isinstance(g, GraspSpec):
-        return realize(g).require_placed(), None
-    path = Path(g)
-    return realize(load_grasp(path)).require_placed(), {"path": str(path), "sha256": sha256_file(path)}
-
-
 def plan(initial, final, *, execution: bool = False, output: PathLike | None = None, **options: Any):
     """Plan a finger-gaiting sequence between two grasps (``regrasp plan``).
 
@@ -48,6 +35,7 @@ def plan(initial, final, *, execution: bool = False, output: PathLike | None = N
         `planner.regrasp.PlanResult` (``.plan``, ``.sequence``, ``.alternatives``, ...).
     """
     from planner.errors import UnknownNameError
+    from planner.grasp import realized_grasp
     from planner.plan import plan_format, write_plan
     from planner.regrasp import PlanOptions, check_same_setup, plan_regrasp
 

@@ -25,7 +25,8 @@ def _cmd_plan(args: argparse.Namespace) -> int:
 
     from planner.grasp import load_grasp, realize
     from planner.plan import plan_format, write_plan
-    from planner.regrasp import PlanOptions, check_same_setup, plan_regrasp, sha256_file
+    from planner.grasp import input_record
+    from planner.regrasp import PlanOptions, check_same_setup, plan_regrasp
 
     if args.output:
         plan_format(args.output)  # refuse a bad suffix before any work
@@ -51,7 +52,7 @@ def _cmd_plan(args: argparse.Namespace) -> int:
     specs = [load_grasp(args.initial), load_grasp(args.final)]
     check_same_setup(*specs)
     initial, final = (realize(s).require_placed() for s in specs)
-    inputs = {k: {"path": str(p), "sha256": sha256_file(p)} for k, p in (("initial", args.initial), ("final", args.final))}
+    inputs = {k: input_record(p) for k, p in (("initial", args.initial), ("final", args.final))}
     result = plan_regrasp(initial, final, options, inputs, verbose=args.verbose)
     plan = result.plan
     if args.output:  # written before anything is printed: a closed pipe (| head) cannot lose it

@@ -785,6 +785,28 @@ def _landing_error(patch, p_obj) -> float:
     return float(np.min(np.linalg.norm(np.asarray(patch[0]) - np.asarray(p_obj), axis=1)))
 
 
+def input_record(path) -> dict:
+    """How a plan records an input grasp file: its path and sha256 (read in chunks,
+    `planner.fileio.sha256_file`). SpecError when it is not a readable regular file."""
+    from planner.fileio import sha256_file
+
+    digest = sha256_file(path)
+    if digest is None:
+        raise SpecError(str(path), "", "cannot be read as a regular file to record its sha256")
+    return {"path": str(path), "sha256": digest}
+
+
+def realized_grasp(g) -> tuple["RealizedGrasp", dict | None]:
+    """A grasp given as a file (path), a `GraspSpec` or a `RealizedGrasp`, realized with its
+    fingers placed (`RealizedGrasp.require_placed`), and the plan's record of its file
+    (`input_record`; None when it was not given as a file)."""
+    if isinstance(g, RealizedGrasp):
+        return g, None
+    if isinstance(g, GraspSpec):
+        return realize(g).require_placed(), None
+    return realize(load_grasp(g)).require_placed(), input_record(g)
+
+
 def realize(spec: GraspSpec, hand=None) -> RealizedGrasp:
     """Turn a grasp spec into a hand configuration and measure its contacts and closure.
 

@@ -613,11 +613,6 @@ class Hand:
         """
         return self.state(q).collision_objects()
 
-    def finger_object_distance(self, q, finger: Finger, obj) -> float:
-        """Kept for planner/synth.py only: use ``hand.state(q).finger_object_distance(obj, name)``."""
-        return self.state(q).finger_object_distance(obj, self.finger(finger).name)
-
-    # ---------------------------------------------------------------------- IK
     def ik(self, finger, target_palm, q0, link: str | None = None, p_link=None, normal_palm=None,
            restarts: int = 8, max_iter: int = 150, seed: int = 0) -> np.ndarray:
         """Place a point of a finger link on a target; only that finger's joints move.

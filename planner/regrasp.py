@@ -20,7 +20,6 @@ import logging
 import math
 import time
 from dataclasses import asdict, dataclass, replace
-from pathlib import Path
 from typing import Any, Callable, Mapping
 
 import networkx as nx
@@ -231,17 +230,6 @@ class PlanResult:
 #: Progress of a long plan (search rounds, finger paths, verification replays): `logging`
 #: INFO records; the CLI shows them on a terminal (``-q`` hides them).
 log = logging.getLogger("planner")
-
-
-def sha256_file(path: str | Path) -> str:
-    """Hex sha256 of an input file (`planner.fileio.sha256_file`, read in chunks)."""
-    from planner.errors import SpecError
-    from planner.fileio import sha256_file as chunked
-
-    digest = chunked(path)
-    if digest is None:
-        raise SpecError(str(path), "", "cannot be read as a regular file to record its sha256")
-    return digest
 
 
 def check_same_setup(initial, final) -> None:
@@ -948,7 +936,7 @@ def plan_regrasp(
 
     if not isinstance(initial, RealizedGrasp) or not isinstance(final, RealizedGrasp):
         # paths or GraspSpecs: realized here, their files recorded as the CLI records them
-        from planner.api import realized_grasp
+        from planner.grasp import realized_grasp
 
         (initial, rec_i), (final, rec_f) = realized_grasp(initial), realized_grasp(final)
         if inputs is None:

@@ -276,7 +276,7 @@ def _sample_candidate(hand, fingers, obj_block, fixed, rng, obj_radius, palm_cle
                 centre = centre + (palm_clearance_m - d) * np.asarray(hand.palm_normal)
                 block["position"] = [float(v) for v in centre]
             obj = _object_of(block)
-            if all(hand.finger_object_distance(q_free, f, obj) >= 0.0 for f in fingers):
+            if all(hand.state(q_free).finger_object_distance(obj, f.name) >= 0.0 for f in fingers):
                 break
     if max(float(np.min(np.linalg.norm(c - centre, axis=1))) for c, _ in swept) > SWEEP_REACH * obj_radius:
         return block, None, "sweeps miss the object"
@@ -312,11 +312,11 @@ def _closes_onto(hand, fingers, obj, preshape) -> dict | None:
     for f in fingers:
         q[list(f.q_index)] = preshape[f.name]
     for f in fingers:
-        if hand.finger_object_distance(q, f, obj) < 0.0:
+        if hand.state(q).finger_object_distance(obj, f.name) < 0.0:
             # the closing procedure starts from a finger free of the object: open its closing joints
             cidx = [hand.joint_names.index(j) for j in f.close_joints]
             q[cidx] = np.clip(np.asarray(hand.q_open)[cidx], hand.lower[cidx], hand.upper[cidx])
-            if hand.finger_object_distance(q, f, obj) < 0.0:
+            if hand.state(q).finger_object_distance(obj, f.name) < 0.0:
                 return None, "a finger starts inside the object"
             preshape[f.name] = q[list(f.q_index)].copy()
         q = np.asarray(hand.close_finger(f, q, obj), dtype=float)

@@ -215,7 +215,8 @@ def test_plan_records_other_files_relative_to_itself(tmp_path):
 
     from planner.grasp import load_grasp, realize
     from planner.plan import plan_hand_ref, read_plan, write_plan
-    from planner.regrasp import PlanOptions, plan_regrasp, sha256_file
+    from planner.grasp import input_record
+    from planner.regrasp import PlanOptions, plan_regrasp
     from planner.resources import bundled_grasp, hand_dir
 
     shutil.copytree(hand_dir("icub_right"), tmp_path / "hands" / "mine")
@@ -228,7 +229,7 @@ def test_plan_records_other_files_relative_to_itself(tmp_path):
         path.write_text(text.replace("hand: icub_right\n", "hand: ../hands/mine/hand.yaml\n"))
         grasps.append(path)
     specs = [load_grasp(p) for p in grasps]
-    inputs = {k: {"path": str(p), "sha256": sha256_file(p)} for k, p in zip(("initial", "final"), grasps)}
+    inputs = {k: input_record(p) for k, p in zip(("initial", "final"), grasps)}
     result = plan_regrasp(*(realize(s) for s in specs), PlanOptions(motion=False), inputs)
     out = write_plan(result.plan, tmp_path / "out" / "p.yaml")
     text = out.read_text()
