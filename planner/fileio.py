@@ -165,6 +165,18 @@ def load_yaml(text: str, path: str | os.PathLike, what: str):
         raise SpecError(str(path), "", f"{what} is nested too deeply") from None
 
 
+def load_json(text: str, path: str | os.PathLike):
+    """Parse JSON text: a `SpecError` naming the file (and the first line of the parser's
+    complaint, never the content) for bad syntax, out-of-range numbers or deep nesting."""
+    import json
+
+    try:
+        return json.loads(text)
+    except (ValueError, RecursionError) as err:  # JSONDecodeError is a ValueError
+        first = str(err).splitlines()[0] if isinstance(err, json.JSONDecodeError) else "numbers or nesting out of range"
+        raise SpecError(str(path), "", f"not valid JSON: {first[:120]}") from None
+
+
 def read_yaml(path: str | os.PathLike, max_bytes: int = MAX_GRASP_BYTES, what: str = "YAML file"):
     """`read_limited` then `load_yaml`."""
     return load_yaml(read_limited(path, max_bytes, what), path, what)

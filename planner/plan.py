@@ -410,19 +410,12 @@ def read_plan(path: str | os.PathLike, *, strict: bool = False) -> Plan:
         SpecError: naming the file and the key path of the first problem;
             `IntegrityError` when the plan is incomplete or altered.
     """
-    from planner.fileio import MAX_PLAN_BYTES, load_yaml, read_limited
+    from planner.fileio import MAX_PLAN_BYTES, load_json, load_yaml, read_limited
 
     path = Path(path)
     fmt = plan_format(path)
     text = read_limited(path, MAX_PLAN_BYTES, "plan")
-    if fmt == "json":
-        try:
-            data = json.loads(text)
-        except (json.JSONDecodeError, ValueError, RecursionError) as err:
-            first = str(err).splitlines()[0] if isinstance(err, json.JSONDecodeError) else "numbers or nesting out of range"
-            raise SpecError(str(path), "", f"not valid JSON: {first[:120]}") from None
-    else:
-        data = load_yaml(text, path, "plan")
+    data = load_json(text, path) if fmt == "json" else load_yaml(text, path, "plan")
     plan = plan_from_data(data, path)
     version = data["schema_version"]
     if version >= 2:

@@ -321,15 +321,11 @@ def resample(path: np.ndarray, k: int) -> np.ndarray:
 
 def _load_report(path, n_states: int) -> list[dict]:
     """Replay report(s) of ``regrasp replay --report``: [{name, passed, verdict, states}]."""
-    from planner.fileio import MAX_PLAN_BYTES, read_limited
+    from planner.fileio import MAX_PLAN_BYTES, load_json, read_limited
 
     path = Path(path)
-    text = read_limited(path, MAX_PLAN_BYTES, "replay report")  # a FIFO, a device, a huge file: one line
-    try:
-        data = json.loads(text)
-    except (ValueError, RecursionError) as err:
-        first = str(err).splitlines()[0] if isinstance(err, json.JSONDecodeError) else "numbers or nesting out of range"
-        raise SpecError(str(path), "", f"not valid JSON: {first[:120]}") from None
+    # a FIFO, a device, a huge or deeply nested file: one line
+    data = load_json(read_limited(path, MAX_PLAN_BYTES, "replay report"), path)
     if not isinstance(data, dict):
         raise SpecError(str(path), "", "expected a replay report (regrasp replay --report)")
     if "directions" in data:
@@ -548,21 +544,14 @@ def grasp_page_data(grasp, grasp_path) -> tuple[_Scene, dict]:
 
 
 def _is_plan_file(path: Path) -> bool:
-    from planner.fileio import MAX_PLAN_BYTES, load_yaml, read_limited
+    from planner.fileio import MAX_PLAN_BYTES, load_json, load_yaml, read_limited
 
     if path.suffix.lower() not in (".yaml", ".yml", ".json"):
         raise SpecError(str(path), "", f"unknown file suffix {path.suffix!r}; view takes a plan or grasp "
                                        "file (.yaml, .yml, .json)")
     # the bounded readers: a FIFO, a device, a huge or deeply nested file is refused in one line
     text = read_limited(path, MAX_PLAN_BYTES, "plan or grasp file")
-    if path.suffix.lower() == ".json":
-        try:
-            data = json.loads(text)
-        except (ValueError, RecursionError) as err:
-            first = str(err).splitlines()[0] if isinstance(err, json.JSONDecodeError) else "numbers or nesting out of range"
-            raise SpecError(str(path), "", f"not valid JSON: {first[:120]}") from None
-    else:
-        data = load_yaml(text, path, "plan or grasp file")
+    data = load_json(text, path) if path.suffix.lower() == ".json" else load_yaml(text, path, "plan or grasp file")
     return isinstance(data, dict) and (data.get("kind") == "regrasp-plan" or "states" in data)
 
 
