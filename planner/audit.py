@@ -34,6 +34,8 @@ from pathlib import Path
 
 import numpy as np
 
+from planner.grasp import PENETRATION_TOL_M as _GRASP_PENETRATION_TOL_M
+
 #: A patch point farther than this from the object's surface is not on it, m.
 SURFACE_TOL_M = 1e-3
 #: A patch normal farther than this from the surface's inward normal there, deg.
@@ -48,7 +50,7 @@ FK_TOL_M = 2e-3
 #: Deepest a link may be inside the object at a state or along a path (beyond the path's
 #: own ends), m: the planner's realized contacts are within `planner.grasp.PENETRATION_TOL_M`
 #: (0.5 mm); twice that leaves room for the files' rounding.
-PENETRATION_TOL_M = 1e-3
+PENETRATION_TOL_M = 2 * _GRASP_PENETRATION_TOL_M
 #: Deepest two links of different fingers (or a finger and the palm) may overlap, m.
 SELF_TOL_M = 5e-4
 #: Largest joint step between two path waypoints checked (the planner's paths are denser).
@@ -116,25 +118,16 @@ def _normal_error_deg(obj, p_surface: np.ndarray, n_in: np.ndarray) -> float:
 def _input_grasps(plan) -> dict:
     """name -> GraspSpec of the recorded inputs that are present and unchanged."""
     from planner.errors import PlannerError
-    from planner.fileio import MAX_GRASP_BYTES, sha256_file
     from planner.grasp import load_grasp
-    from planner.plan import plan_file
-    from planner.resources import bundled_grasp
+    from planner.plan import recorded_input
 
     out = {}
     for name in ("initial", "final"):
-        rec = plan.inputs.get(name)
-        if not isinstance(rec, dict) and not hasattr(rec, "get"):
+        found = recorded_input(plan.inputs.get(name), plan.source)
+        if found is None or found[2] is not None:
             continue
         try:
-            p = bundled_grasp(rec["bundled"]) if rec.get("bundled") else (
-                plan_file(rec["path"], plan.source) if rec.get("path") else None)
-        except PlannerError:
-            p = None
-        if p is None or (rec.get("sha256") and sha256_file(p, MAX_GRASP_BYTES) != rec["sha256"]):
-            continue
-        try:
-            out[name] = load_grasp(p)
+            out[name] = load_grasp(found[0])
         except PlannerError:
             continue
     return out
@@ -262,7 +255,7 @@ def _check_states(plan, hand, obj, rep: AuditReport) -> list:
         for a, b, depth in hs.self_collisions():
             if depth > SELF_TOL_M:
                 rep.add(f"states[{i}]: links {a} and {b} overlap by {depth * 1000:.1f} mm")
-        patches = {f: v for f, v in st.patches.items()}
+        patches = st.patches
         for f in st.removable:
             if f not in patches:  # a lifted finger is trivially removable
                 continue

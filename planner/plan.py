@@ -463,29 +463,37 @@ def _check_closures(plan: Plan, src: str) -> None:
                                  f"metric {st.metric:.6g})")
 
 
-def _check_inputs(plan: Plan, src: str, strict: bool) -> None:
+def recorded_input(rec, source) -> tuple[Path | None, str, str | None] | None:
+    """A plan's record of an input file (``inputs.<name>``: ``bundled`` or ``path``, ``sha256``):
+    (the file or None, how messages name it, the problem: gone, or changed since planning;
+    None when present and unchanged). None when the record names no file."""
     from planner.errors import UnknownNameError
     from planner.fileio import MAX_GRASP_BYTES, sha256_file
     from planner.resources import bundled_grasp
 
+    if not isinstance(rec, Mapping):
+        return None
+    if rec.get("bundled"):
+        shown = f"bundled grasp {rec['bundled']}"
+        try:
+            p = bundled_grasp(rec["bundled"])
+        except UnknownNameError:
+            p = None
+    elif rec.get("path"):
+        shown, p = f"input file {rec['path']}", plan_file(rec["path"], source)
+    else:
+        return None
+    if p is None or not p.is_file():
+        return None, shown, f"{shown} is gone"
+    if rec.get("sha256") and sha256_file(p, MAX_GRASP_BYTES) != rec["sha256"]:
+        return p, shown, f"{shown} changed since planning (sha256 differs)"
+    return p, shown, None
+
+
+def _check_inputs(plan: Plan, src: str, strict: bool) -> None:
     for name, rec in plan.inputs.items():
-        if not isinstance(rec, Mapping):
-            continue
-        if rec.get("bundled"):
-            shown = f"bundled grasp {rec['bundled']}"
-            try:
-                p = bundled_grasp(rec["bundled"])
-            except UnknownNameError:
-                p = None
-        elif rec.get("path"):
-            shown, p = f"input file {rec['path']}", plan_file(rec["path"], src)
-        else:
-            continue
-        problem = None
-        if p is None or not p.is_file():
-            problem = f"{shown} is gone"
-        elif rec.get("sha256") and sha256_file(p, MAX_GRASP_BYTES) != rec["sha256"]:
-            problem = f"{shown} changed since planning (sha256 differs)"
+        found = recorded_input(rec, src)
+        problem = found[2] if found is not None else None
         if problem and strict:
             raise SpecError(src, f"inputs.{name}", problem)
         if problem:
