@@ -209,7 +209,7 @@ def init_hand(urdf, package_dirs=()) -> tuple[dict, HandReport]:
             "urdf": str(urdf), "palm_frame": root, "fingers": fingers}
     if package_dirs:
         spec["package_dirs"] = [str(d) for d in package_dirs]
-    hand = _provisional(spec, urdf)
+    hand = _provisional(spec)
     lo, hi = np.asarray(hand.lower), np.asarray(hand.upper)
     q_mid = np.clip(np.zeros(len(lo)), lo, hi)
     boxes = link_boxes(hand)
@@ -330,19 +330,17 @@ def _name_by_geometry(model, named, rep: HandReport):
     return [(names.get(leaf, name), leaf, chain) for name, leaf, chain in named]
 
 
-def _provisional(spec: dict, where: Path):
-    import tempfile
-
-    import yaml
-
+def _provisional(spec: dict):
+    """The hand `init_hand` is writing, loaded to use the planner's kinematics and geometry:
+    `Hand` takes the spec as data (no file), its paths made absolute (the URDF's and the
+    ``package_dirs``, given relative to the working directory)."""
     from planner.hand import Hand
 
-    with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "hand.yaml"
-        data = dict(spec)
-        data["urdf"] = str(Path(spec["urdf"]).resolve())
-        path.write_text(yaml.safe_dump(data, sort_keys=False))
-        return Hand(path, data)
+    data = dict(spec)
+    data["urdf"] = str(Path(spec["urdf"]).resolve())
+    if spec.get("package_dirs"):
+        data["package_dirs"] = [str(Path(d).resolve()) for d in spec["package_dirs"]]
+    return Hand(Path(data["urdf"]).with_name("hand.yaml"), data)
 
 
 def _far_point(hand, link: str, boxes) -> np.ndarray:
