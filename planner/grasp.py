@@ -946,18 +946,7 @@ def grasp_findings(spec: GraspSpec, hand, obj, state, contacts, missing, colls) 
 
 def object_extents(obj) -> np.ndarray:
     """(3,) size of the object's bounding box in its own frame, metres (a mesh's real size)."""
-    if obj.shape == "box":
-        return np.asarray(obj.size, dtype=float)
-    if obj.shape == "cylinder":
-        r, length = obj.size
-        return np.array([2 * r, 2 * r, length])
-    if obj.shape == "sphere":
-        return np.full(3, 2.0 * obj.size[0])
-    from planner.objects import load_mesh
-
-    scale = obj.size if len(obj.size) == 3 else (obj.size[0],) * 3
-    V, _ = load_mesh(obj.mesh_path, scale)
-    return np.asarray(V).max(axis=0) - np.asarray(V).min(axis=0)
+    return obj.extents
 
 
 def object_text(obj) -> str:

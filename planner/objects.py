@@ -147,7 +147,7 @@ class GraspObject:
     T_palm_obj: np.ndarray
     mesh_path: str | None = None
     mass_kg: float = 0.0
-    _mesh: tuple | None = field(default=None, repr=False, compare=False)
+    _mesh: "MeshData | None" = field(default=None, repr=False, compare=False)
     _geometry: object = field(default=None, repr=False, compare=False)
 
     @property
@@ -164,9 +164,19 @@ class GraspObject:
             return float(np.pi * s[0] ** 2 * s[1])
         if self.shape == "sphere":
             return float(4.0 / 3.0 * np.pi * s[0] ** 3)
-        V, F = self._mesh
-        a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
-        return float(abs(np.einsum("ij,ij->i", a, np.cross(b, c)).sum()) / 6.0)
+        return abs(self._mesh.signed_volume_m3)
+
+    @property
+    def extents(self) -> np.ndarray:
+        """(3,) size of the object's bounding box in its own frame, metres (a mesh's real size)."""
+        if self.shape == "box":
+            return np.asarray(self.size, dtype=float)
+        if self.shape == "cylinder":
+            r, length = self.size
+            return np.array([2 * r, 2 * r, length])
+        if self.shape == "sphere":
+            return np.full(3, 2.0 * self.size[0])
+        return self._mesh.extents.copy()
 
     def with_pose(self, T_palm_obj) -> "GraspObject":
         """The same object at another pose (geometry shared)."""
@@ -216,16 +226,14 @@ class GraspObject:
             p[cap] = np.column_stack([rad * np.cos(th[cap]), rad * np.sin(th[cap]), zs])
             nrm[cap] = np.column_stack([np.zeros(cap.sum()), np.zeros(cap.sum()), np.sign(zs)])
             return p, nrm
-        V, F = self._mesh
-        a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
-        cr = np.cross(b - a, c - a)
-        area = np.linalg.norm(cr, axis=1)
-        k = rng.choice(len(F), size=n, p=area / area.sum())
+        m = self._mesh
+        k = rng.choice(len(m.F), size=n, p=m.area_p)
         u, v = rng.uniform(size=(2, n))
         flip = u + v > 1
         u[flip], v[flip] = 1 - u[flip], 1 - v[flip]
+        a, b, c = m.a, m.b, m.c
         p = a[k] + u[:, None] * (b[k] - a[k]) + v[:, None] * (c[k] - a[k])
-        return p, cr[k] / area[k][:, None]
+        return p, m.cross[k] / m.area[k][:, None]
 
     # ------------------------------------------------------------- queries
     def closest_surface(self, p_obj) -> tuple[np.ndarray, np.ndarray, float]:
@@ -275,21 +283,105 @@ class GraspObject:
         return self._closest_mesh(p)
 
     def _closest_mesh(self, p):
-        V, F = self._mesh
-        a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
+        m = self._mesh
+        k, ps, d, interior = m.closest(p)
+        fn = m.cross[k] / np.linalg.norm(m.cross[k])
+        if d <= 1e-12:
+            return ps, fn, d
+        if interior and m.outward:   # the nearest point inside a face: that face's side decides
+            inside = bool(np.dot(p - ps, fn) < 0)
+        else:                        # an edge or a vertex is nearest: ray parity
+            inside = _inside_mesh(p, m.a, m.b, m.c)
+        n_out = (p - ps) / d * (-1.0 if inside else 1.0)
+        return ps, n_out, -d if inside else d
+
+
+class MeshData:
+    """A loaded triangle mesh and what its queries need, computed once (read-only arrays).
+
+    The closest-triangle query is exact and sub-linear: a k-d tree of the triangle
+    centroids gives the nearest centroid; its triangle's distance d0 bounds the answer, and
+    only triangles whose centroid lies within d0 + (largest centroid-to-vertex distance) can
+    be closer. ``outward``: the faces are wound with outward normals (positive signed
+    volume), so a point whose nearest surface point is inside a face is inside the mesh
+    exactly when it lies behind that face; otherwise (or at edges and vertices) the
+    ray-parity test decides.
+    """
+
+    def __init__(self, V, F):
+        from scipy.spatial import cKDTree
+
+        self.V = _readonly(V)
+        self.F = np.array(F, dtype=np.int64)
+        self.F.flags.writeable = False
+        self.a, self.b, self.c = (_readonly(self.V[self.F[:, i]]) for i in range(3))
+        self.cross = _readonly(np.cross(self.b - self.a, self.c - self.a))
+        self.area = _readonly(np.linalg.norm(self.cross, axis=1))
+        self.area_p = _readonly(self.area / self.area.sum())
+        self.signed_volume_m3 = float(np.einsum("ij,ij->i", self.a, np.cross(self.b, self.c)).sum() / 6.0)
+        self.outward = self.signed_volume_m3 > 0
+        self.extents = _readonly(self.V.max(axis=0) - self.V.min(axis=0))
+        centroid = (self.a + self.b + self.c) / 3.0
+        self.reach = float(max(np.linalg.norm(t - centroid, axis=1).max() for t in (self.a, self.b, self.c)))
+        self._tree = cKDTree(centroid)
+
+    def closest(self, p):
+        """(triangle index, closest point (3,), distance, the point is inside the face) of p."""
+        _, k0 = self._tree.query(p)
+        c0 = _closest_on_triangles(p, self.a[k0:k0 + 1], self.b[k0:k0 + 1], self.c[k0:k0 + 1])[0]
+        d0 = float(np.linalg.norm(c0 - p))
+        cand = np.sort(np.asarray(self._tree.query_ball_point(p, d0 + self.reach + 1e-12), dtype=np.int64))
+        a, b, c = self.a[cand], self.b[cand], self.c[cand]
         cp = _closest_on_triangles(p, a, b, c)
         d2 = np.einsum("ij,ij->i", cp - p, cp - p)
-        k = int(np.argmin(d2))
-        ps = cp[k]
-        fn = np.cross(b[k] - a[k], c[k] - a[k])
-        fn /= np.linalg.norm(fn)
-        d = float(np.sqrt(d2[k]))
-        inside = _inside_mesh(p, a, b, c)
-        if d > 1e-12:
-            n_out = (p - ps) / d * (-1.0 if inside else 1.0)
-        else:
-            n_out = fn
-        return ps, n_out, -d if inside else d
+        j = int(np.argmin(d2))
+        k = int(cand[j])
+        w = _barycentric(cp[j], a[j], b[j], c[j])
+        return k, cp[j], float(np.sqrt(d2[j])), bool(np.all(w > 1e-9))
+
+
+def _barycentric(x, a, b, c) -> np.ndarray:
+    v0, v1, v2 = b - a, c - a, x - a
+    d00, d01, d11 = v0 @ v0, v0 @ v1, v1 @ v1
+    d20, d21 = v2 @ v0, v2 @ v1
+    den = d00 * d11 - d01 * d01
+    if den <= 0:
+        return np.zeros(3)
+    v = (d11 * d20 - d01 * d21) / den
+    w = (d00 * d21 - d01 * d20) / den
+    return np.array([1.0 - v - w, v, w])
+
+
+#: Built meshes (MeshData and coal BVH) by file identity and scale: a synthesis builds the
+#: same object at every sampled pose; a file changed on disk gets a new entry.
+_MESH_CACHE: "dict[tuple, tuple[MeshData, object]]" = {}
+_MESH_CACHE_SIZE = 4
+
+
+def _mesh_and_bvh(mesh_path, scale):
+    import coal
+
+    path = Path(mesh_path)
+    try:
+        st = path.resolve().stat()
+        key = (str(path.resolve()), st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns, tuple(scale))
+    except OSError:
+        key = None
+    if key is not None and key in _MESH_CACHE:
+        return _MESH_CACHE[key]
+    V, F = load_mesh(mesh_path, scale)
+    mesh = MeshData(V, F)
+    geom = coal.BVHModelOBBRSS()
+    geom.beginModel(len(mesh.F), len(mesh.V))
+    geom.addVertices(np.ascontiguousarray(mesh.V, dtype=float))
+    geom.addTriangles(np.ascontiguousarray(mesh.F, dtype=np.int64))
+    geom.endModel()
+    geom.computeLocalAABB()
+    if key is not None:
+        while len(_MESH_CACHE) >= _MESH_CACHE_SIZE:
+            _MESH_CACHE.pop(next(iter(_MESH_CACHE)))
+        _MESH_CACHE[key] = (mesh, geom)
+    return mesh, geom
 
 
 def _inside_mesh(p, a, b, c) -> bool:
@@ -393,15 +485,9 @@ def make_object(shape: str, size, T_palm_obj=None, mesh_path=None, mass_kg=None)
     else:
         if mesh_path is None:
             raise InputError("shape 'mesh' needs mesh_path")
-        scale = s * 3 if len(s) == 1 else s
-        V, F = load_mesh(mesh_path, scale)
-        mesh = (_readonly(V), np.array(F, dtype=np.int64))
-        geom = coal.BVHModelOBBRSS()
-        geom.beginModel(len(F), len(V))
-        geom.addVertices(np.ascontiguousarray(V, dtype=float))
-        geom.addTriangles(np.ascontiguousarray(F, dtype=np.int64))
-        geom.endModel()
-    geom.computeLocalAABB()
+        mesh, geom = _mesh_and_bvh(mesh_path, s * 3 if len(s) == 1 else s)
+    if shape != "mesh":
+        geom.computeLocalAABB()
     obj = GraspObject(shape, s, T, None if mesh_path is None else str(mesh_path), 0.0, mesh, geom)
     if mass_kg is None:
         mass = DEFAULT_DENSITY_KG_M3 * obj.volume_m3
