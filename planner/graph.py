@@ -553,6 +553,7 @@ class LazyGraph:
         self.G.graph["blocked_moves"] = []  # (from state, finger index, action, to state) of refused moves
         self.removed: set[tuple[Node, Node]] = set()
         self.removed_states: set[Node] = set()
+        self.forbidden: set[tuple[int, int]] = set()  # (finger index, slot): never lifted off nor landed on
         self.value = {problem.start: self._cost(problem.start)}
         self._heap = [self._key(problem.start)]
         self.expanded: set[Node] = set()
@@ -620,6 +621,8 @@ class LazyGraph:
             for u in grow:
                 for i, action, w in p.neighbours(u):
                     if (u, w) in self.removed or w in self.removed_states:
+                        continue
+                    if self.forbidden and (i, u[i] if action == "lift" else w[i]) in self.forbidden:
                         continue
                     if w in blocked:
                         G.graph["blocked_moves"].append((u, i, action, w))
@@ -693,6 +696,15 @@ class LazyGraph:
         self.removed.add((u, v))
         if self.G.has_edge(u, v):
             self.G.remove_edge(u, v)
+
+    def forbid(self, finger_index: int, slot: int) -> None:
+        """Drop, for good, every move lifting a finger off a contact or landing it there (a
+        contact the finger cannot back off in any state: `planner.motion.retreat_blocked`)."""
+        self.forbidden.add((finger_index, slot))
+        for u, v in list(self.G.edges):
+            if u[finger_index] == slot and v[finger_index] == LIFTED or \
+                    u[finger_index] == LIFTED and v[finger_index] == slot:
+                self.remove_edge(u, v)
 
     def remove_state(self, v: Node) -> None:
         """Drop every move into a state (e.g. one that failed in the simulator), for good:

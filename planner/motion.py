@@ -612,6 +612,43 @@ def _retreat(
     )
 
 
+def retreat_blocked(
+    hand,
+    obj,
+    q_finger,
+    finger: str,
+    *,
+    clearance_m: float = DEFAULT_CLEARANCE_M,
+    touch_tol_m: float = DEFAULT_TOUCH_TOL_M,
+    lift_m: float = DEFAULT_LIFT_M,
+    resolution_rad: float = 0.01,
+) -> str | None:
+    """Why a finger cannot back off a contact whatever the other fingers do, or None.
+
+    The lift of `plan_gait_step` (`_retreat`, the same margins) from the finger's contact
+    configuration ``q_finger`` with every other finger at its open posture: a contact whose
+    finger is held against the object by its own joint limits (a thumb pressed sideways at
+    full opposition) cannot be left, nor landed on (a landing is a lift reversed), in any
+    state. Returns the reason, naming the finger, the link and the joints at a limit.
+    """
+    f = _finger(hand, finger)
+    q_ref = np.array(hand.q_open, dtype=float)
+    q_ref[list(f.q_index)] = q_finger
+    scene = _FingerScene(hand, obj, q_ref, finger, touch_tol_m)
+    a = np.asarray(q_finger, dtype=float)
+    try:
+        _retreat(scene, a, None, lift_m=lift_m, clearance_m=clearance_m, resolution_rad=resolution_rad,
+                 what="back off this contact")
+    except MotionError as err:
+        lo = np.asarray(hand.lower, dtype=float)[scene.idx]
+        hi = np.asarray(hand.upper, dtype=float)[scene.idx]
+        tol = max(resolution_rad, 0.05 * float(np.max(hi - lo)))
+        at = [f"{j} {a[k]:.2f} rad (limit {lo[k] if a[k] - lo[k] < hi[k] - a[k] else hi[k]:.2f})"
+              for k, j in enumerate(f.joints) if min(a[k] - lo[k], hi[k] - a[k]) <= tol]
+        return (f"{err}, even with every other finger open" + (f"; near their limits: {', '.join(at)}" if at else ""))
+    return None
+
+
 def plan_gait_step(
     hand,
     obj,

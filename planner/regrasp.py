@@ -774,7 +774,9 @@ def _plan_motions(hand, obj, problem, seq: GaitSequence, gait_fn, cache: dict) -
         result = cache[key]
         if isinstance(result, MotionError):
             edge = (seq.nodes[i_land], seq.nodes[i_land + 1]) if i_land is not None else (seq.nodes[i_lift], seq.nodes[i_lift + 1])
-            raise _EdgeFailed(edge, finger, str(result))
+            k = problem.fingers.index(finger)
+            raise _EdgeFailed(edge, finger, str(result), lift_from=u[k] if u is not None else None,
+                              land_on=w[k] if w is not None else None)
         out.append((i_lift, i_land, finger, result))
     return out
 
@@ -799,9 +801,40 @@ def _step_edges(seq: GaitSequence, motions) -> list[tuple]:
 
 
 class _EdgeFailed(Exception):
-    def __init__(self, edge, finger, why):
+    """A gait whose finger paths could not be planned: the graph edge to drop, the finger and
+    the slots it lifted off (``lift_from``) and landed on (``land_on``), None if it did not."""
+
+    def __init__(self, edge, finger, why, lift_from=None, land_on=None):
         self.edge, self.finger, self.why = edge, finger, why
+        self.lift_from, self.land_on = lift_from, land_on
         super().__init__(why)
+
+
+def _forbid_stuck_contacts(lazy: LazyGraph, hand, obj, bad: _EdgeFailed, stuck: dict) -> None:
+    """After a failed gait: a contact of it the finger cannot back off whatever the other
+    fingers do (`planner.motion.retreat_blocked`, cached in ``stuck`` per finger and slot)
+    is never lifted off nor landed on again (one test instead of a re-plan per state); the
+    initial or final grasp's contact of a finger that must move ends the search at once.
+
+    Raises:
+        NoSequenceError: the finger must leave its initial contact or reach its final one.
+    """
+    from planner.motion import retreat_blocked
+
+    problem = lazy.problem
+    i = problem.fingers.index(bad.finger)
+    for slot in sorted({bad.lift_from, bad.land_on} - {None, LIFTED}):
+        if problem.slots[bad.finger][slot].q is None:
+            continue
+        if (bad.finger, slot) not in stuck:
+            stuck[(bad.finger, slot)] = retreat_blocked(hand, obj, problem.slots[bad.finger][slot].q, bad.finger)
+        why = stuck[(bad.finger, slot)]
+        if why is None:
+            continue
+        if problem.start[i] != problem.goal[i] and slot in (problem.start[i], problem.goal[i]):
+            which = "leave its initial" if slot == problem.start[i] else "reach its final"
+            raise NoSequenceError(f"finger {bad.finger} must {which} contact, and no finger path can: {why}")
+        lazy.forbid(i, slot)
 
 
 # ------------------------------------------------------------------ main entry
@@ -852,6 +885,7 @@ def _anytime_search(problem: GaitProblem, initial, options: PlanOptions, t0: flo
     lazy, found, out_of_time = prior, [], False
     removed = set(prior.removed) if prior is not None else set()
     removed_states = set(prior.removed_states) if prior is not None else set()
+    forbidden = set(prior.forbidden) if prior is not None else set()
     if prior is not None:
         evaluator = prior.ev
     while True:
@@ -859,6 +893,7 @@ def _anytime_search(problem: GaitProblem, initial, options: PlanOptions, t0: flo
             lazy = LazyGraph(problem, options.rank, evaluator=evaluator, deadline=deadline)
             lazy.removed |= removed
             lazy.removed_states |= removed_states
+            lazy.forbidden |= forbidden
             evaluator = lazy.ev
             found = lazy.best(options.alternatives)
             expanded += lazy.G.graph["expanded"]
@@ -953,6 +988,7 @@ def plan_regrasp(
     problem = build_problem(initial, final, options)
     failed: list[str] = []
     cache: dict = {}
+    stuck: dict = {}
     directions = gravity_directions_of(options, hand)
     verifying = options.verify and bool(directions) and options.strategy == "graph"
     verified, rejected, verify_s, workers, plan = None, [], 0.0, None, None
@@ -1011,6 +1047,8 @@ def plan_regrasp(
             except _EdgeFailed as bad:
                 failed.append(_failed_words(problem, bad))
                 lazy.remove_edge(*bad.edge)
+                if options.motion:
+                    _forbid_stuck_contacts(lazy, hand, obj, bad, stuck)
                 candidates = lazy.best(options.alternatives)
                 continue
             if not verifying:

@@ -42,6 +42,7 @@ import yaml
 from planner.collision import LINK_EPS_M
 from planner.errors import PlannerError, SpecError
 from planner.grip import HOLD_FACTOR
+from planner.motion import retreat_blocked
 
 #: Two grasps are near-duplicates when every chosen finger's mean contact point (palm frame)
 #: and the object centre differ by less than this, and the contact normals by less than
@@ -468,6 +469,11 @@ def synthesize(hand_ref: str, obj_block: dict, fingers, n: int, *, fixed: bool, 
                 rejected["weight beyond the hand's limits"] += 1
                 continue
             grip = max(min_grip_force(patches, grip_fr, np.r_[g.obj.mass_kg * (R.T @ gv), np.zeros(3)]) for gv in dirs)
+        if any(retreat_blocked(hand, g.obj, np.asarray(g.q)[list(f.q_index)], f.name) for f in chosen):
+            # a finger held against the object by its own joint limits can never let go:
+            # no regrasp (nor release) can start from this grasp or reach it
+            rejected["a finger cannot back off its contact"] += 1
+            continue
         passed += 1
         feat = _features(g, chosen)
         cand = SynthGrasp(data=data, grasp=g, grip_force_n=grip, attempt=attempt)

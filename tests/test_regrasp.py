@@ -595,3 +595,25 @@ def test_a_search_stopped_by_the_clock_names_the_fingers_left_to_move(capsys):
                  "--execution", "--time-limit", "0.001", "-q"])
     err = capsys.readouterr().err
     assert code == 1 and "still have to move" in err and "index" in err and "--time-limit" in err
+
+
+JAMMED = Path(__file__).parent / "data" / "grasps"
+
+
+def test_a_contact_no_finger_path_can_leave_ends_the_search_at_once():
+    """An exp8 pair whose initial thumb, at full opposition, presses the ball with its
+    proximal phalanx: no retreat of the thumb is free even with every other finger open
+    (its opposition joint is at its limit), so the planner says so after the first failed
+    gait instead of re-planning around each state; the index, in the same grasp, can let go."""
+    from planner.errors import NoSequenceError
+    from planner.motion import retreat_blocked
+
+    gi = realize(load_grasp(JAMMED / "icub_thumb_jammed.yaml"), None)
+    gf = realize(load_grasp(JAMMED / "icub_thumb_jammed_final.yaml"), None)
+    hand = gi.hand
+    q = np.asarray(gi.q)
+    why = retreat_blocked(hand, gi.obj, q[list(hand.fingers["thumb"].q_index)], "thumb")
+    assert why is not None and "thumb_proximal" in why and "thumb_0" in why
+    assert retreat_blocked(hand, gi.obj, q[list(hand.fingers["index"].q_index)], "index") is None
+    with pytest.raises(NoSequenceError, match="finger thumb must leave its initial contact, and no finger path can"):
+        plan_regrasp(gi, gf, PlanOptions())
