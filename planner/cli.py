@@ -46,6 +46,7 @@ def _cmd_plan(args: argparse.Namespace) -> int:
         max_lifted=args.max_lifted,
         max_finger_force_n=args.max_finger_force,
         time_limit_s=args.time_limit,
+        max_rounds=args.max_rounds,
         **({"verify": False} if args.no_verify else {}),
         **chosen,
     )
@@ -301,11 +302,14 @@ def build_parser() -> argparse.ArgumentParser:
     plan.add_argument("--alternatives", type=int, default=4, metavar="K", help="ranked sequences to report (default 4)")
     plan.add_argument("--intermediate", type=int, default=0, metavar="N",
                       help="a fixed number of intermediate contacts per finger (default 0: added in rounds when needed, "
-                           "within --time-limit)")
-    plan.add_argument("--time-limit", type=float, default=10.0, metavar="S",
-                      help="planning budget, s (default 10; finger paths not counted): when no sequence exists, "
-                           "intermediate contacts are added for the fingers that block progress, round after round; "
-                           "0: no rounds")
+                           "see --max-rounds)")
+    plan.add_argument("--max-rounds", type=int, default=4, metavar="N",
+                      help="when no sequence exists, intermediate contacts are added for the fingers that block "
+                           "progress, round after round, at most N rounds (default 4; 0: none); the result does not "
+                           "depend on the machine's load")
+    plan.add_argument("--time-limit", type=float, default=60.0, metavar="S",
+                      help="a cap on the search time, s (default 60; finger paths not counted; reaching it is "
+                           "reported: the result then depends on the machine's speed); 0: no rounds")
     plan.add_argument("--strategy", default="graph", help="graph (ranked search, default) or greedy (thesis Algorithm 2)")
     plan.add_argument("--seed", type=int, default=0, help="seed for sampling and motion planning (default 0)")
     plan.add_argument("--contact-model", default=None, metavar="MODEL",

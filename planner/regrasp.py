@@ -51,6 +51,7 @@ PLAN_OPTION_LIMITS = {
     "intermediate": (0, 8, False),
     "max_lifted": (1, 16, False),
     "verify_attempts": (1, 100, False),
+    "max_rounds": (0, 1000, False),
     "workers": (1, 256, False),
     "motion_timeout_s": (0.0, 600.0, True),
     "time_limit_s": (0.0, 3600.0, False),
@@ -129,13 +130,17 @@ class PlanOptions:
             needs ``gravity`` or ``gravity_set``).
         execution: label of plans meant to be executed (`PlanOptions.for_execution`): it
             requires the "mean" contact model, the "grip" ranking and a gravity.
-        time_limit_s: planning budget (graph strategy), s. With ``intermediate`` 0 the
-            planner is anytime: when no sequence exists with the current contacts, it adds
-            intermediate contacts (`INTERMEDIATE_PER_ROUND` per finger that blocks progress,
-            from `reachable_contacts`) and searches again, round after round, until a
-            sequence is found or the budget is spent. 0 disables the rounds. A plan found
-            within the budget does not depend on it (rounds are deterministic); only
-            whether the budget suffices does. Finger paths are not counted.
+        max_rounds: with ``intermediate`` 0 the planner is anytime: when no sequence exists
+            with the current contacts, it adds intermediate contacts
+            (`INTERMEDIATE_PER_ROUND` per finger that blocks progress, from
+            `reachable_contacts`) and searches again, round after round, until a sequence
+            is found, no contact is left to add or ``max_rounds`` rounds were made. The
+            rounds are deterministic and bounded by this count (and each search by its
+            expanded states), not by the clock: the plan, or the explanation of a failure,
+            is the same on a loaded machine. 0 disables the rounds.
+        time_limit_s: a cap on the search time (graph strategy), s (0: no rounds). Reaching
+            it is reported (the result then depends on the machine's speed); the work
+            bounds normally end the search first. Finger paths are not counted.
     """
 
     strategy: str = "graph"
@@ -154,7 +159,8 @@ class PlanOptions:
     gravity_set: int | None = None
     rank: str = "metric"
     execution: bool = False
-    time_limit_s: float = 10.0
+    time_limit_s: float = 60.0
+    max_rounds: int = 4
     hold_factor: float = HOLD_FACTOR
     verify: bool = False
     verify_attempts: int = 6
@@ -880,7 +886,7 @@ def _anytime_search(problem: GaitProblem, initial, options: PlanOptions, t0: flo
     (a sentence for the failure message).
     """
     deadline = t0 + options.time_limit_s if options.time_limit_s > 0 and prior is None else None
-    auto = options.intermediate == 0 and options.time_limit_s > 0
+    auto = options.intermediate == 0 and options.time_limit_s > 0 and options.max_rounds > 0
     evaluator, added, rounds, expanded, unheld, held = None, {}, 0, 0, {}, set()
     lazy, found, out_of_time = prior, [], False
     removed = set(prior.removed) if prior is not None else set()
@@ -898,7 +904,8 @@ def _anytime_search(problem: GaitProblem, initial, options: PlanOptions, t0: flo
             found = lazy.best(options.alternatives)
             expanded += lazy.G.graph["expanded"]
             out_of_time = lazy.timed_out or (deadline is not None and time.perf_counter() > deadline)
-            if found or not auto or out_of_time or _goal_invalid(lazy) or (prior is not None and rounds >= 1):
+            if found or not auto or out_of_time or _goal_invalid(lazy) or (prior is not None and rounds >= 1) \
+                    or rounds >= options.max_rounds:
                 break
         # contacts for the fingers that could unblock progress, scored against the states
         # they should complete; every second round (and when those give none) one more for
@@ -932,15 +939,17 @@ def _anytime_search(problem: GaitProblem, initial, options: PlanOptions, t0: flo
     what = ", ".join(f"{f} {n}" for f, n in added.items())
     if not auto:
         tried = (f"{options.intermediate} intermediate contacts per finger were tried" if options.intermediate else
-                 "no intermediate contacts were tried (no --intermediate N and no --time-limit)")
+                 "no intermediate contacts were tried (no --intermediate N, and --max-rounds or --time-limit 0)")
     elif _goal_invalid(lazy):
         tried = "no intermediate contacts were tried: they cannot make the final grasp valid"
     elif rounds == 0 and not out_of_time:
         tried = "no intermediate contact could be added: the fingers that block progress reach no further contact"
     else:
         tried = (f"{rounds} round(s) of intermediate contacts were tried ({what or 'none added'}) in {spent:.1f} s"
-                 + (f"; the time limit of {options.time_limit_s:g} s was reached" if out_of_time else
-                    "; the blocking fingers reach no further contact"))
+                 + (f"; the time limit of {options.time_limit_s:g} s was reached before the round limit (the result "
+                    "depends on this machine's speed: raise --time-limit)" if out_of_time else
+                    f"; the round limit was reached (--max-rounds {options.max_rounds})" if rounds >= options.max_rounds
+                    and prior is None else "; the blocking fingers reach no further contact"))
     if lazy.timed_out and not found:
         tried += f" (the search stopped after {lazy.G.graph['expanded']} states)"
     info = {"rounds": rounds, "intermediate_added": dict(sorted(added.items())), "expanded_states": expanded,

@@ -238,3 +238,30 @@ def test_a_no_motion_plan_replays_with_its_straight_paths_and_verify_still_check
     assert "into the object" in capsys.readouterr().out
     assert main(["replay", str(bad)]) in (0, 1)  # simulated, not refused
     assert "physics check" not in capsys.readouterr().err
+
+
+def test_a_mean_contact_below_a_curved_surface_is_the_model_not_an_error(tmp_path):
+    """Execution mode records one mean contact per finger: on a 22 mm ball the thumb's
+    patch spans two phalanges and its mean lies 1 mm below the surface (an exp8 plan whose
+    fresh replay was refused for it). The audit allows a mean contact the depth the hand's
+    own patch mean has at the state's joints, and still refuses one moved off the surface."""
+    from pathlib import Path
+
+    from planner.regrasp import PlanOptions, plan_regrasp
+
+    data = Path(__file__).parent / "data" / "grasps"
+    res = plan_regrasp(data / "icub_sphere22_i.yaml", data / "icub_sphere22_f.yaml",
+                       PlanOptions.for_execution(verify=False, motion=False))
+    report = audit_plan(res.plan, paths=False)
+    assert report.ok, report.problems
+    good = tmp_path / "good.json"
+    good.write_text(json.dumps(res.plan.to_dict()))
+    d = json.loads(good.read_text())
+    for st in d["states"]:  # the thumb's mean contact 2 mm deeper, toward the ball's centre
+        if "thumb" in st["patches"]:
+            p = np.asarray(st["patches"]["thumb"]["points"][0])
+            st["patches"]["thumb"]["points"][0] = (p - 0.002 * p / np.linalg.norm(p)).tolist()
+    bad = tmp_path / "bad.json"
+    _reseal(d, bad)
+    problems = audit_plan(read_plan(bad), paths=False).problems
+    assert any("thumb" in p and "off the object's surface" in p for p in problems), problems

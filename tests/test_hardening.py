@@ -822,3 +822,44 @@ def test_view_of_a_fifo_or_a_deep_plan_is_one_line_and_writes_nothing(tmp_path, 
     assert time.perf_counter() - t0 < 10
     assert code == 2 and len(err) == 1 and "not a regular file" in err[0], err
     assert not (tmp_path / "v.html").exists()
+
+
+def _burn(stop):
+    while not stop.is_set():
+        sum(i * i for i in range(10_000))
+
+
+def test_a_failing_pair_is_explained_the_same_under_cpu_load():
+    """The anytime rounds are bounded by work (--max-rounds, expanded states), not by the
+    clock: an exp8 pair that execution mode cannot plan gets the same explanation, word for
+    word but the seconds, with both cores busy as without."""
+    import multiprocessing as mp
+    import re
+
+    from planner.errors import NoSequenceError
+    from planner.grasp import load_grasp, realize
+    from planner.regrasp import PlanOptions
+    from planner.regrasp import plan_regrasp as plan
+
+    data = Path(__file__).parent / "data" / "grasps"
+    gi, gf = (realize(load_grasp(data / f"allegro_cylinder_{k}.yaml")) for k in "if")
+    options = PlanOptions.for_execution(verify=False, max_rounds=1, motion=False)
+
+    def explanation() -> str:
+        with pytest.raises(NoSequenceError) as err:
+            plan(gi, gf, options)
+        return re.sub(r"[0-9.]+ s\b", "<t> s", str(err.value))
+
+    quiet = explanation()
+    stop = mp.get_context("spawn").Event()
+    burners = [mp.get_context("spawn").Process(target=_burn, args=(stop,)) for _ in range(2)]
+    for p in burners:
+        p.start()
+    try:
+        loaded = explanation()
+    finally:
+        stop.set()
+        for p in burners:
+            p.join(10)
+    assert loaded == quiet
+    assert "the round limit was reached (--max-rounds 1)" in quiet and "time limit" not in quiet
