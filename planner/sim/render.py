@@ -8,35 +8,12 @@ from __future__ import annotations
 
 import contextlib
 import os
-import sys
 from pathlib import Path
 
 import numpy as np
 
 from planner.errors import SimulationError
-
-
-@contextlib.contextmanager
-def quiet_native_output():
-    """Silence what pybullet's C++ code prints on stdout/stderr (build banner, URDF
-    warnings): a command's own stdout (e.g. ``--json``) must stay parseable."""
-    sys.stdout.flush()
-    sys.stderr.flush()
-    saved = [os.dup(1), os.dup(2)]
-    devnull = os.open(os.devnull, os.O_WRONLY)
-    try:
-        os.dup2(devnull, 1)
-        os.dup2(devnull, 2)
-        yield
-    finally:
-        os.dup2(saved[0], 1)
-        os.dup2(saved[1], 2)
-        for fd in (*saved, devnull):
-            os.close(fd)
-
-
-with quiet_native_output():
-    import pybullet as p
+from planner.sim.scene import hand_body, object_body, p
 
 OBJECT_RGBA = (0.95, 0.55, 0.15, 1.0)
 HAND_RGBA = (0.72, 0.74, 0.78, 1.0)
@@ -61,13 +38,7 @@ def load_hand(hand, q, client: int, color_rgba=HAND_RGBA) -> int:
     Returns:
         The pybullet body id.
     """
-    for d in getattr(hand, "package_dirs", ()) or ():
-        p.setAdditionalSearchPath(str(d), physicsClientId=client)
-    try:
-        with quiet_native_output():
-            body = p.loadURDF(str(hand.urdf_path), useFixedBase=True, physicsClientId=client)
-    except p.error as err:
-        raise SimulationError(f"pybullet cannot load {hand.urdf_path}: {err}") from err
+    body = hand_body(client, hand.urdf_path, package_dirs=getattr(hand, "package_dirs", ()) or ())
     set_hand_configuration(body, hand, q, client)
     if color_rgba is not None:
         paint(body, color_rgba, client)
@@ -102,39 +73,8 @@ def add_object(obj, T_world_obj: np.ndarray, client: int, mass_kg: float = 0.0, 
     Returns:
         The pybullet body id.
     """
-    size = tuple(float(s) for s in obj.size)
-    if obj.shape == "box":
-        half = [s / 2 for s in size]
-        vis = p.createVisualShape(p.GEOM_BOX, halfExtents=half, rgbaColor=list(rgba), physicsClientId=client)
-        col = p.createCollisionShape(p.GEOM_BOX, halfExtents=half, physicsClientId=client)
-    elif obj.shape == "cylinder":
-        radius, length = size
-        vis = p.createVisualShape(
-            p.GEOM_CYLINDER, radius=radius, length=length, rgbaColor=list(rgba), physicsClientId=client
-        )
-        col = p.createCollisionShape(p.GEOM_CYLINDER, radius=radius, height=length, physicsClientId=client)
-    elif obj.shape == "sphere":
-        vis = p.createVisualShape(p.GEOM_SPHERE, radius=size[0], rgbaColor=list(rgba), physicsClientId=client)
-        col = p.createCollisionShape(p.GEOM_SPHERE, radius=size[0], physicsClientId=client)
-    elif obj.shape == "mesh":
-        scale = list(size) * 3 if len(size) == 1 else list(size)
-        vis = p.createVisualShape(
-            p.GEOM_MESH, fileName=str(obj.mesh_path), meshScale=scale, rgbaColor=list(rgba), physicsClientId=client
-        )
-        col = p.createCollisionShape(p.GEOM_MESH, fileName=str(obj.mesh_path), meshScale=scale, physicsClientId=client)
-    else:
-        raise SimulationError(f"cannot build a pybullet shape for object shape {obj.shape!r}")
-    if vis < 0 or col < 0:
-        raise SimulationError(f"pybullet could not create the {obj.shape} object")
     pos, quat = _pose(T_world_obj)
-    return p.createMultiBody(
-        baseMass=float(mass_kg),
-        baseCollisionShapeIndex=col,
-        baseVisualShapeIndex=vis,
-        basePosition=pos,
-        baseOrientation=quat,
-        physicsClientId=client,
-    )
+    return object_body(client, obj.shape, obj.size, obj.mesh_path, pos, quat, mass_kg, rgba)
 
 
 def render_rgb(

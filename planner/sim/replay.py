@@ -65,12 +65,12 @@ from scipy.spatial.transform import Rotation
 
 from planner.closure import Friction, apply_contact_model, grasp_closure
 from planner.errors import InputError, SimulationError, UnknownNameError
-from planner.objects import SHAPES, SIZE_LENGTHS, SIZE_MEANING, load_mesh, make_object
+from planner.objects import SHAPES, SIZE_LENGTHS, SIZE_MEANING, make_object
 from planner.plan import Plan, plan_file, plan_from_data, read_plan
 from planner.sim.contact_filter import ContactFilter
 from planner.sim.controller import TOUCH_TOL_M, Controller
 
-from planner.sim.render import quiet_native_output
+from planner.sim.scene import hand_body, object_body, quiet_native_output
 
 with quiet_native_output():  # pybullet prints a build banner on import: keep a command's stdout clean
     import pybullet as p
@@ -360,9 +360,13 @@ def urdf_problem(urdf_path: str, joint_names) -> str | None:
         p.disconnect(physicsClientId=cid)
 
 
+#: The replay's object colour (its films).
+OBJECT_RGBA = (0.85, 0.45, 0.15, 1.0)
+
+
 def _create_object(cid: int, rd: Plan, obj: dict, density_kg_m3: float) -> tuple[int, float, float]:
-    """The object's pybullet body, its mass (kg: ``obj["mass_kg"]``, else volume x
-    ``density_kg_m3``) and its smallest half-extent (m)."""
+    """The object's pybullet body (`planner.sim.scene.object_body`), its mass (kg:
+    ``obj["mass_kg"]``, else volume x ``density_kg_m3``) and its smallest half-extent (m)."""
     shape = str(obj["shape"])
     size = [float(v) for v in obj["size"]]
     if shape not in SHAPES:
@@ -371,41 +375,24 @@ def _create_object(cid: int, rd: Plan, obj: dict, density_kg_m3: float) -> tuple
         raise rd.error("object.size", f"a {shape} size is {SIZE_MEANING[shape]}")
     resolved = None
     if shape == "box":
-        kw = dict(shapeType=p.GEOM_BOX, halfExtents=[s / 2 for s in size])
-        vkw = dict(kw)
         radius = min(size) / 2
     elif shape == "cylinder":
-        kw = dict(shapeType=p.GEOM_CYLINDER, radius=size[0], height=size[1])
-        vkw = dict(shapeType=p.GEOM_CYLINDER, radius=size[0], length=size[1])
         radius = min(size[0], size[1] / 2)
     elif shape == "sphere":
-        kw = dict(shapeType=p.GEOM_SPHERE, radius=size[0])
-        vkw = dict(kw)
         radius = size[0]
     else:  # mesh
         mesh = obj.get("mesh")
         resolved = _resolve(str(mesh), rd.source or "<plan>") if mesh else None
         if resolved is None:
             raise rd.error("object.mesh", f"mesh file {mesh!r} not found")
-        scale = size * 3 if len(size) == 1 else size
-        kw = dict(shapeType=p.GEOM_MESH, fileName=str(resolved), meshScale=scale)
-        vkw = dict(kw)
-        V, _ = load_mesh(resolved, scale)
-        radius = float(np.min(V.max(axis=0) - V.min(axis=0))) / 2
+        radius = float(np.min(make_object(shape, size, mesh_path=resolved).extents)) / 2
     mass = obj.get("mass_kg")  # a `Plan` always records one: the planner's
     if mass is None:
         mass = density_kg_m3 * make_object(shape, size, mesh_path=resolved).volume_m3
     mass = float(mass)
     if not mass > 0:
         raise rd.error("object.mass_kg", f"expected a positive mass, got {mass}")
-    col = p.createCollisionShape(physicsClientId=cid, **kw)
-    if col < 0:
-        raise SimulationError(f"pybullet could not create the {shape} collision shape")
-    vis = p.createVisualShape(rgbaColor=[0.85, 0.45, 0.15, 1.0], physicsClientId=cid, **vkw)
-    T = _T(obj["position"], obj["quat_xyzw"])
-    body = p.createMultiBody(baseMass=mass, baseCollisionShapeIndex=col, baseVisualShapeIndex=vis,
-                             basePosition=T[:3, 3].tolist(), baseOrientation=list(obj["quat_xyzw"]),
-                             physicsClientId=cid)
+    body = object_body(cid, shape, size, resolved, obj["position"], obj["quat_xyzw"], mass, OBJECT_RGBA)
     return body, mass, radius
 
 
@@ -821,12 +808,8 @@ class _Sim:
         p.setGravity(0, 0, 0, physicsClientId=cid)
         base_pos = info.T_palm_base[:3, 3].tolist()
         base_quat = Rotation.from_matrix(info.T_palm_base[:3, :3]).as_quat().tolist()
-        try:
-            self.hand = p.loadURDF(info.urdf_path, base_pos, base_quat, useFixedBase=True,
-                                   flags=p.URDF_USE_INERTIA_FROM_FILE | (0 if visual else p.URDF_IGNORE_VISUAL_SHAPES),
-                                   physicsClientId=cid)
-        except p.error as err:
-            raise SimulationError(f"pybullet could not load the hand URDF {info.urdf_path}: {err}") from err
+        self.hand = hand_body(cid, info.urdf_path, base_pos=base_pos, base_quat_xyzw=base_quat,
+                              inertia_from_file=True, visual=visual)
         bodies.append(self.hand)
         self.obj, self.mass, radius_m = _create_object(cid, rd, obj, density_kg_m3)
         bodies.append(self.obj)

@@ -1,0 +1,95 @@
+"""The pybullet scene: the one place the hand and object bodies are built.
+
+The replay (`planner.sim.replay`) and the pictures (`planner.sim.render`) both build their
+scenes here, so a hand or an object looks and collides the same in a film as in the
+physics. Every call names its client: nothing relies on a global connection. Importing
+this module imports pybullet (its build banner silenced).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import sys
+
+from planner.errors import SimulationError
+
+
+@contextlib.contextmanager
+def quiet_native_output():
+    """Silence what pybullet's C++ code prints on stdout/stderr (build banner, URDF
+    warnings): a command's own stdout (e.g. ``--json``) must stay parseable."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = [os.dup(1), os.dup(2)]
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, 1)
+        os.dup2(devnull, 2)
+        yield
+    finally:
+        os.dup2(saved[0], 1)
+        os.dup2(saved[1], 2)
+        for fd in (*saved, devnull):
+            os.close(fd)
+
+
+with quiet_native_output():
+    import pybullet as p
+
+
+def hand_body(client: int, urdf_path, *, base_pos=(0.0, 0.0, 0.0), base_quat_xyzw=(0.0, 0.0, 0.0, 1.0),
+              package_dirs=(), inertia_from_file: bool = False, visual: bool = True) -> int:
+    """The hand's URDF as a fixed-base body.
+
+    Args:
+        client: pybullet physics client id.
+        urdf_path: the hand's URDF.
+        base_pos, base_quat_xyzw: pose of the URDF's root in the world.
+        package_dirs: folders ``package://`` mesh paths are searched in.
+        inertia_from_file: use the URDF's inertias (the replay's physics) rather than
+            pybullet's from the collision shapes (enough for pictures).
+        visual: load the visual shapes (False: collision only, faster).
+    Raises:
+        SimulationError: pybullet cannot load the URDF.
+    """
+    for d in package_dirs or ():
+        p.setAdditionalSearchPath(str(d), physicsClientId=client)
+    flags = (p.URDF_USE_INERTIA_FROM_FILE if inertia_from_file else 0) | (0 if visual else p.URDF_IGNORE_VISUAL_SHAPES)
+    try:
+        with quiet_native_output():
+            return p.loadURDF(str(urdf_path), list(base_pos), list(base_quat_xyzw), useFixedBase=True, flags=flags,
+                              physicsClientId=client)
+    except p.error as err:
+        raise SimulationError(f"pybullet cannot load the hand URDF {urdf_path}: {err}") from err
+
+
+def object_body(client: int, shape: str, size, mesh_path, position, quat_xyzw, mass_kg: float, rgba) -> int:
+    """An object (box, cylinder, sphere or mesh, `planner.objects` conventions: cylinder axis
+    = object z) as a pybullet body of ``mass_kg`` (0: static) at a world pose.
+
+    Raises:
+        SimulationError: unknown shape, or pybullet could not create it.
+    """
+    size = [float(s) for s in size]
+    if shape == "box":
+        col = dict(shapeType=p.GEOM_BOX, halfExtents=[s / 2 for s in size])
+        vis = dict(col)
+    elif shape == "cylinder":
+        col = dict(shapeType=p.GEOM_CYLINDER, radius=size[0], height=size[1])
+        vis = dict(shapeType=p.GEOM_CYLINDER, radius=size[0], length=size[1])
+    elif shape == "sphere":
+        col = dict(shapeType=p.GEOM_SPHERE, radius=size[0])
+        vis = dict(col)
+    elif shape == "mesh":
+        col = dict(shapeType=p.GEOM_MESH, fileName=str(mesh_path), meshScale=size * 3 if len(size) == 1 else size)
+        vis = dict(col)
+    else:
+        raise SimulationError(f"cannot build a pybullet shape for object shape {shape!r}")
+    c = p.createCollisionShape(physicsClientId=client, **col)
+    v = p.createVisualShape(rgbaColor=list(rgba), physicsClientId=client, **vis)
+    if c < 0 or v < 0:
+        raise SimulationError(f"pybullet could not create the {shape} object")
+    return p.createMultiBody(baseMass=float(mass_kg), baseCollisionShapeIndex=c, baseVisualShapeIndex=v,
+                             basePosition=[float(x) for x in position], baseOrientation=[float(x) for x in quat_xyzw],
+                             physicsClientId=client)
