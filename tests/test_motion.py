@@ -183,7 +183,7 @@ def test_detour_around_the_object(hand, obstacle, overlapping_pairs):
     d_straight, _ = _worst(hand, obstacle, q_start, "index", straight, overlapping_pairs)
     assert d_straight < -0.003  # deep in the box
 
-    path = plan_finger_move(hand, obstacle, q_start, q_goal, "index", seed=3)
+    path = plan_finger_move(hand, obstacle, q_start, q_goal, "index", seed=3, timeout_s=10.0)
     np.testing.assert_array_equal(path[0], q_start[idx])
     np.testing.assert_array_equal(path[-1], q_goal[idx])
     # waypoints keep the clearance; between them (finer than the planner checks) no contact
@@ -202,16 +202,18 @@ def test_detour_around_the_object(hand, obstacle, overlapping_pairs):
 def test_same_seed_same_path(hand, obstacle):
     """Planning twice with one seed gives the identical path."""
     q_start, q_goal, _ = _index_move(hand)
-    a = plan_finger_move(hand, obstacle, q_start, q_goal, "index", seed=11)
-    b = plan_finger_move(hand, obstacle, q_start, q_goal, "index", seed=11)
+    a = plan_finger_move(hand, obstacle, q_start, q_goal, "index", seed=11, timeout_s=10.0)
+    b = plan_finger_move(hand, obstacle, q_start, q_goal, "index", seed=11, timeout_s=10.0)
     np.testing.assert_array_equal(a, b)
 
 
 @pytest.mark.parametrize("planner", [p for p in available_planners() if p not in ("rrtconnect",)])
 def test_every_planner_finds_the_detour(hand, obstacle, planner):
-    """Each registered planner solves the detour and ends exactly at the goal."""
+    """Each registered planner solves the detour and ends exactly at the goal. The budget is
+    generous: a planner returns at its first solution, and the slowest (lbkpiece, prmstar)
+    need 4-5 s here on an idle machine, so a 5 s budget failed under load."""
     q_start, q_goal, idx = _index_move(hand)
-    path = plan_finger_move(hand, obstacle, q_start, q_goal, "index", planner=planner, timeout_s=5.0)
+    path = plan_finger_move(hand, obstacle, q_start, q_goal, "index", planner=planner, timeout_s=30.0)
     np.testing.assert_array_equal(path[-1], q_goal[idx])
     assert np.max(np.abs(np.diff(path, axis=0))) <= 0.01 + 1e-9
 
