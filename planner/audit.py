@@ -107,8 +107,8 @@ def _mean_sag(obj, fk_patch) -> float:
     the depth a mean contact has by construction."""
     if fk_patch is None:
         return 0.0
-    ps, _, _ = obj.closest_surface(np.mean(np.asarray(fk_patch[0], float), axis=0))
-    return float(np.linalg.norm(np.asarray(ps) - np.mean(np.asarray(fk_patch[0], float), axis=0)))
+    _, _, d = obj.closest_surface(np.mean(np.asarray(fk_patch[0], float), axis=0))
+    return abs(d)
 
 
 def _normal_error_deg(obj, p_surface: np.ndarray, n_in: np.ndarray) -> float:

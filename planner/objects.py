@@ -361,10 +361,10 @@ _MESH_CACHE_SIZE = 4
 def _mesh_and_bvh(mesh_path, scale):
     import coal
 
-    path = Path(mesh_path)
     try:
-        st = path.resolve().stat()
-        key = (str(path.resolve()), st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns, tuple(scale))
+        path = Path(mesh_path).resolve()
+        st = path.stat()
+        key = (str(path), st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns, tuple(scale))
     except OSError:
         key = None
     if key is not None and key in _MESH_CACHE:

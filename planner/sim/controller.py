@@ -59,9 +59,7 @@ import numpy as np
 
 from planner.closure import Friction
 from planner.grip import CONE_MARGINS, balance_forces, torque_rows  # noqa: F401 - CONE_MARGINS re-exported
-
-with __import__("planner.sim.scene", fromlist=["quiet_native_output"]).quiet_native_output():
-    import pybullet as p
+from planner.sim.scene import p  # pybullet, imported with its build banner silenced
 
 #: Physics steps between two force solutions (at 240 Hz: 60 Hz).
 UPDATE_EVERY = 4

@@ -69,11 +69,7 @@ from planner.objects import SHAPES, SIZE_LENGTHS, SIZE_MEANING, make_object
 from planner.plan import Plan, plan_file, plan_from_data, read_plan
 from planner.sim.contact_filter import ContactFilter
 from planner.sim.controller import TOUCH_TOL_M, Controller
-
-from planner.sim.scene import hand_body, object_body, quiet_native_output
-
-with quiet_native_output():  # pybullet prints a build banner on import: keep a command's stdout clean
-    import pybullet as p
+from planner.sim.scene import hand_body, object_body, p  # p: pybullet, its build banner silenced
 
 #: A plan's joint values may exceed the hand's limits by this much (rad or m): rounding.
 JOINT_LIMIT_TOL = 1e-3
@@ -374,21 +370,16 @@ def _create_object(cid: int, rd: Plan, obj: dict, density_kg_m3: float) -> tuple
     if len(size) not in SIZE_LENGTHS[shape]:
         raise rd.error("object.size", f"a {shape} size is {SIZE_MEANING[shape]}")
     resolved = None
-    if shape == "box":
-        radius = min(size) / 2
-    elif shape == "cylinder":
-        radius = min(size[0], size[1] / 2)
-    elif shape == "sphere":
-        radius = size[0]
-    else:  # mesh
+    if shape == "mesh":
         mesh = obj.get("mesh")
         resolved = _resolve(str(mesh), rd.source or "<plan>") if mesh else None
         if resolved is None:
             raise rd.error("object.mesh", f"mesh file {mesh!r} not found")
-        radius = float(np.min(make_object(shape, size, mesh_path=resolved).extents)) / 2
+    model = make_object(shape, size, mesh_path=resolved)
+    radius = float(np.min(model.extents)) / 2
     mass = obj.get("mass_kg")  # a `Plan` always records one: the planner's
     if mass is None:
-        mass = density_kg_m3 * make_object(shape, size, mesh_path=resolved).volume_m3
+        mass = density_kg_m3 * model.volume_m3
     mass = float(mass)
     if not mass > 0:
         raise rd.error("object.mass_kg", f"expected a positive mass, got {mass}")
