@@ -27,7 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
-from planner.closure import Friction, grasp_closure
+from planner.model import Friction
+from planner.closure import grasp_closure
 from planner.contacts import contact_patches
 from planner.hand import Hand
 from planner.objects import make_object

@@ -27,7 +27,8 @@ REFERENCE_EDGES = 120
 
 
 def task(t: dict) -> dict:
-    from planner.closure import Friction, apply_contact_model, grasp_closure, removable_fingers
+    from planner.model import Friction
+    from planner.closure import apply_contact_model, grasp_closure, removable_fingers
 
     g = realized(t["grasp"])
     patches = apply_contact_model(g.patches, t["model"])

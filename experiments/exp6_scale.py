@@ -46,7 +46,8 @@ def patch(rng, p_points):
 
 
 def make_problem(rng, n_fingers, n_inter, n_points):
-    from planner.closure import Friction, grasp_closure
+    from planner.model import Friction
+    from planner.closure import grasp_closure
     from planner.graph import GaitProblem, Slot
 
     fr = Friction(0.9, 0.004, 5)

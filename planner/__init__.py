@@ -26,10 +26,13 @@ _EXPORTS = {
     "SimulationError": "planner.errors",
     "SpecError": "planner.errors",
     "UnknownNameError": "planner.errors",
+    # the value types every module shares
+    "Contact": "planner.model",
+    "Friction": "planner.model",
+    "tangent_basis": "planner.model",
     # closure (thesis eqs. 1-7, Algorithm 1)
     "CONTACT_MODELS": "planner.closure",
     "Closure": "planner.closure",
-    "Friction": "planner.closure",
     "apply_contact_model": "planner.closure",
     "batch_grasp_closure": "planner.closure",
     "closure_from_wrenches": "planner.closure",

@@ -205,7 +205,8 @@ def _q(plan, hand, state_q) -> np.ndarray:
 def _check_states(plan, hand, obj, rep: AuditReport) -> list:
     """Contacts on the surface, at the forward kinematics, no penetration, removable, closure.
     Returns every state's `HandState`."""
-    from planner.closure import Friction, grasp_closure
+    from planner.model import Friction
+    from planner.closure import grasp_closure
     from planner.contacts import contact_patches
 
     friction = Friction(**plan.friction)

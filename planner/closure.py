@@ -62,6 +62,7 @@ import numpy as np
 from scipy.linalg.lapack import dgeqp3 as _dgeqp3
 
 from planner.errors import InputError, PlannerError
+from planner.model import Friction, cross, tangent_basis
 
 __all__ = [
     "CONTACT_MODELS",
@@ -91,46 +92,10 @@ RANK_RTOL = 1e-9
 #: are reported as exactly 0 (boundary, not force closure).
 METRIC_RTOL = 1e-10
 
-#: Input ranges (README "Hardening / plan integrity"): friction coefficients above
-#: `MU_MAX` are not physical and make the cone rim overflow the wrench scale; torsional
-#: friction is a length (m) of the order of the contact radius; every cone side multiplies
-#: the wrench count (2 edges per point).
-MU_MAX = 100.0
 #: Largest contact point coordinate, m (object frames are centred on the object).
 MAX_COORD_M = 1e3
-GAMMA_MAX_M = 1.0
-EDGES_MAX = 256
 
 _SIMPLEX_FACETS = np.array([[j for j in range(7) if j != i] for i in range(7)])  # (7, 6)
-
-
-@dataclass(frozen=True)
-class Friction:
-    """Soft-finger Coulomb friction (thesis eq. 1).
-
-    Args:
-        mu: static friction coefficient (dimensionless, 0 <= mu <= `MU_MAX`).
-        gamma: torsional friction, torque per unit normal force (metres, 0 <= gamma <= `GAMMA_MAX_M`).
-        edges: number of sides of the friction-cone polygon (3 <= edges <= `EDGES_MAX`; thesis uses 5).
-    """
-
-    mu: float
-    gamma: float
-    edges: int = 5
-
-    def __post_init__(self):
-        for name, high in (("mu", MU_MAX), ("gamma", GAMMA_MAX_M)):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
-                raise InputError(f"friction {name} must be a number, got {type(value).__name__}")
-            if not (math.isfinite(value) and 0 <= value <= high):
-                raise InputError(f"friction {name} must be in [0, {high:g}], got {float(value):.6g}")
-            object.__setattr__(self, name, float(value))
-        edges = self.edges
-        if isinstance(edges, bool) or not isinstance(edges, (int, np.integer)) or not 3 <= edges <= EDGES_MAX:
-            shown = f"{edges:.6g}" if isinstance(edges, (int, float, np.integer)) else type(edges).__name__
-            raise InputError(f"friction edges must be an integer in [3, {EDGES_MAX}], got {shown}")
-        object.__setattr__(self, "edges", int(edges))
 
 
 @dataclass(frozen=True)
@@ -199,24 +164,6 @@ def _unit_normals(p: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     return p, n / length[:, None]
 
 
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``a x b`` over the last axis with broadcasting: np.cross's arithmetic (same bits)
-    without its per-call overhead (~10 us)."""
-    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
-    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
-    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
-
-
-def _tangent_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Deterministic tangents t1, t2 with (t1, t2, n) right-handed; n (m, 3) unit."""
-    helper = np.zeros_like(n)
-    helper[np.arange(len(n)), np.argmin(np.abs(n), axis=1)] = 1.0  # axis least aligned with n
-    t1 = _cross(helper, n)
-    t1 /= np.sqrt(np.einsum("ij,ij->i", t1, t1))[:, None]
-    t2 = _cross(n, t1)
-    return t1, t2
-
-
 def contact_wrenches(points, normals, friction: Friction) -> np.ndarray:
     """Soft-finger contact wrenches on the friction-cone rim (thesis eqs. 2-5).
 
@@ -241,13 +188,13 @@ def _wrench_rows(p: np.ndarray, n: np.ndarray, friction: Friction) -> np.ndarray
     e = friction.edges
     if len(p) == 0:
         return np.zeros((0, 6))
-    t1, t2 = _tangent_basis(n)
+    t1, t2 = tangent_basis(n)
     theta = 2.0 * np.pi * np.arange(e) / e
     # f[i, k] = n_i + mu (sin th_k t1_i + cos th_k t2_i)   (thesis eq. 2, f3 = 1)
     f = n[:, None, :] + friction.mu * (
         np.sin(theta)[None, :, None] * t1[:, None, :] + np.cos(theta)[None, :, None] * t2[:, None, :]
     )
-    tau = _cross(p[:, None, :], f)  # (n, e, 3)
+    tau = cross(p[:, None, :], f)  # (n, e, 3)
     tors = friction.gamma * n[:, None, None, :] * np.array([1.0, -1.0])[None, None, :, None]
     w = np.empty((len(p), e, 2, 6))
     w[..., :3] = f[:, :, None, :]

@@ -15,6 +15,7 @@ import numpy as np
 
 from planner.collision import HandState
 from planner.errors import InputError, UnknownNameError
+from planner.model import Contact
 
 TOUCH_TOL_M = 1e-3
 RING_RADII_M = (1.5e-3, 3.0e-3)
@@ -152,7 +153,7 @@ def collisions(hand, q, obj=None, touch_tol_m: float = TOUCH_TOL_M, fingers=None
     return out
 
 
-def link_contacts(hand, q, obj, touch_tol_m: float = TOUCH_TOL_M, fingers=None) -> list[dict]:
+def link_contacts(hand, q, obj, touch_tol_m: float = TOUCH_TOL_M, fingers=None) -> list[Contact]:
     """One realized contact per touching link: where, with which normal, how deep.
 
     Args:
@@ -160,11 +161,10 @@ def link_contacts(hand, q, obj, touch_tol_m: float = TOUCH_TOL_M, fingers=None) 
         touch_tol_m: a link touches when its signed distance to the object is at most this.
         fingers: restrict to these fingers (default all).
     Returns:
-        list (hand finger order, then the finger's contact_links order) of dicts with
-        ``finger``, ``link``, ``point`` (3,) the link's closest object-surface point (object
-        frame), ``normal`` (3,) the inward unit surface normal there (object frame),
-        ``distance_m`` the link-object signed distance (negative: penetration) and
-        ``penetration_m`` = max(0, -distance_m).
+        list (hand finger order, then the finger's contact_links order) of
+        `planner.model.Contact` in the object frame: ``point`` the link's closest
+        object-surface point, ``normal`` the inward unit surface normal there,
+        ``distance_m`` the link-object signed distance (negative: penetration).
     """
     state = _state(hand, q)
     T_obj_palm = np.linalg.inv(obj.T_palm_obj)
@@ -178,7 +178,5 @@ def link_contacts(hand, q, obj, touch_tol_m: float = TOUCH_TOL_M, fingers=None) 
                 continue
             d = qy.distance_m
             p, n_out, _ = obj.closest_surface(_witness_obj(T_obj_palm, qy))
-            out.append({"finger": f, "link": link, "point": np.asarray(p, dtype=float),
-                        "normal": -np.asarray(n_out, dtype=float), "distance_m": float(d),
-                        "penetration_m": max(0.0, -float(d))})
+            out.append(Contact(f, link, p, -np.asarray(n_out, dtype=float), frame="obj", distance_m=d))
     return out

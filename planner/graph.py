@@ -41,7 +41,8 @@ from typing import Callable, Mapping, Sequence
 import networkx as nx
 import numpy as np
 
-from planner.closure import Closure, Friction, batch_grasp_closure, min_grip_force
+from planner.model import Friction
+from planner.closure import Closure, batch_grasp_closure, min_grip_force
 from planner.errors import InputError, NoSequenceError
 from planner.grip import HOLD_FACTOR, Capacity, FingerStatics, grip_program, hold_capacity, holds_by_bound, torque_demand
 

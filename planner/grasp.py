@@ -152,7 +152,7 @@ class GraspSpec:
         hand: the hand reference as written in the file.
         hand_ref: a bundled hand's name (`planner.resources`) or an absolute path to a hand.yaml.
         object: the object, see `ObjectSpec`.
-        friction: `planner.closure.Friction` (mu, gamma in metres, edges).
+        friction: `planner.model.Friction` (mu, gamma in metres, edges).
         fingers: one `FingerSpec` per finger of the hand, in the hand's finger order
             (fingers the file does not list are ``free``).
         description: free text from the file.
@@ -191,7 +191,7 @@ class RealizedGrasp:
         spec: the grasp spec.
         hand: the `planner.hand.Hand`.
         obj: the `planner.objects.GraspObject`.
-        friction: `planner.closure.Friction`.
+        friction: `planner.model.Friction`.
         q: (nq,) whole-hand joint configuration, read-only.
         finger_q: finger -> (n_joints,) values of that finger's joints.
         patches: finger -> (p_obj (n, 3), n_in_obj (n, 3)) for touching fingers only.
@@ -200,8 +200,8 @@ class RealizedGrasp:
         removable: fingers whose contacts can all be dropped keeping force closure.
         collisions: (name_a, name_b, depth_m) finger-finger / finger-palm / penetration.
         missing: fingers the file wants on the object that do not touch it.
-        contacts: one dict per touching link (`planner.contacts.link_contacts`: finger, link,
-            point, inward normal in the object frame, distance_m, penetration_m).
+        contacts: one `planner.model.Contact` per touching link (`planner.contacts.link_contacts`:
+            finger, link, point, inward normal in the object frame, distance_m).
         problems: why the grasp is not what the file asks (a placed finger that does not
             touch, a penetration beyond `PENETRATION_TOL_M`, a closing joint at its closing
             limit the file did not ask for): `check` exits 1 when there is any.
@@ -316,9 +316,7 @@ class RealizedGrasp:
             "collisions": [[a, b, float(d)] for a, b, d in self.collisions],
             "joints": {n: float(v) for n, v in zip(self.hand.joint_names, self.q)},
             "object_extents_m": [float(v) for v in object_extents(self.obj)],
-            "contacts": [{"finger": c["finger"], "link": c["link"], "point": [float(v) for v in c["point"]],
-                          "normal": [float(v) for v in c["normal"]], "penetration_m": float(c["penetration_m"])}
-                         for c in self.contacts],
+            "contacts": [c.to_data() for c in self.contacts],
             "hold": {h.name: {"holds": h.holds, "factor": h.capacity.factor, "words": h.words(),
                               "limit": None if h.capacity.limit is None else vars(h.capacity.limit)}
                      for h in (self.hold() if hold is None else hold)},
@@ -496,7 +494,7 @@ def parse_grasp(data: Mapping, path) -> GraspSpec:
     edges = fr.get("edges", 5)
     if isinstance(edges, bool) or not isinstance(edges, int) or edges < 3:
         raise r.fail("friction.edges", f"expected an integer >= 3 (friction cone sides), got {edges!r}")
-    from planner.closure import Friction
+    from planner.model import Friction
 
     try:
         friction = Friction(mu=mu, gamma=gamma, edges=edges)
@@ -871,7 +869,7 @@ def realize(spec: GraspSpec, hand=None) -> RealizedGrasp:
         finger_q[name] = _ro(q[list(f.q_index)])
     missing = tuple(fs.name for fs in spec.fingers if fs.kind != "free" and fs.name not in patches)
     colls = tuple((str(a), str(b), float(d)) for a, b, d in collisions(hand, state, obj, touch_tol_m=PENETRATION_TOL_M))
-    contacts = tuple({**c, "point": _ro(c["point"]), "normal": _ro(c["normal"])} for c in link_contacts(hand, state, obj))
+    contacts = tuple(link_contacts(hand, state, obj))
     problems, warnings = grasp_findings(spec, hand, obj, state, contacts, missing, colls)
     return RealizedGrasp(
         spec=spec,
@@ -929,18 +927,18 @@ def grasp_findings(spec: GraspSpec, hand, obj, state, contacts, missing, colls) 
                 else:
                     warnings.append(text)
         if fs.kind == "contact":
-            mine = [c for c in contacts if c["finger"] == fs.name]
+            mine = [c for c in contacts if c.finger == fs.name]
             if not mine:
                 continue
             want = fs.link or f.pad_link
-            d = [float(np.linalg.norm(c["point"] - np.asarray(fs.point_obj))) for c in mine]
+            d = [float(np.linalg.norm(c.point - np.asarray(fs.point_obj))) for c in mine]
             c = mine[int(np.argmin(d))]
-            where = "[" + ", ".join(f"{v:.4f}" for v in c["point"]) + "]"
+            where = "[" + ", ".join(f"{v:.4f}" for v in c.point) + "]"
             if min(d) > CONTACT_WARN_M:
                 warnings.append(f"fingers.{fs.name}.contact: realized {min(d) * 1e3:.1f} mm from the file's point, "
-                                f"at {where} (object frame) by {c['link']} (warning beyond {CONTACT_WARN_M * 1e3:.0f} mm)")
-            elif c["link"] != want and want in f.contact_links:
-                warnings.append(f"fingers.{fs.name}.contact: realized by {c['link']}, not {want}, at {where} (object frame)")
+                                f"at {where} (object frame) by {c.link} (warning beyond {CONTACT_WARN_M * 1e3:.0f} mm)")
+            elif c.link != want and want in f.contact_links:
+                warnings.append(f"fingers.{fs.name}.contact: realized by {c.link}, not {want}, at {where} (object frame)")
     return problems, warnings
 
 
@@ -985,9 +983,9 @@ def check_text(grasp: RealizedGrasp, hold: list | None = None) -> str:
     out.append("realized contacts (object frame, mm; normal into the object):")
     out.append(f"  {'finger':<8} {'link':<20} {'point':>26}  {'normal':>22}  penetration")
     for c in grasp.contacts:
-        p = " ".join(f"{v * 1e3:+8.2f}" for v in c["point"])
-        n = " ".join(f"{v:+6.3f}" for v in c["normal"])
-        out.append(f"  {c['finger']:<8} {c['link']:<20} {p:>26}  {n:>22}  {c['penetration_m'] * 1e3:.2f} mm")
+        p = " ".join(f"{v * 1e3:+8.2f}" for v in c.point)
+        n = " ".join(f"{v:+6.3f}" for v in c.normal)
+        out.append(f"  {c.finger:<8} {c.link:<20} {p:>26}  {n:>22}  {c.penetration_m * 1e3:.2f} mm")
     for a, b, depth in grasp.collisions:
         out.append(f"collision: {a} - {b}, {depth * 1000:.2f} mm")
     for w in grasp.warnings:
@@ -1028,9 +1026,9 @@ def contact_markers(grasp: RealizedGrasp, highlight: str | None = None, normal_l
     warn = {f for f in grasp.hand.fingers if any(f"fingers.{f}" in w for w in grasp.warnings)}
     out = []
     for c in grasp.contacts:
-        f = c["finger"]
+        f = c.finger
         rgba = ((1.0, 0.9, 0.0, 1.0) if f == highlight else (0.9, 0.1, 0.1, 1.0) if f in bad
                 else (1.0, 0.5, 0.0, 1.0) if f in warn else (0.1, 0.8, 0.2, 1.0))
-        p = R @ np.asarray(c["point"]) + t
-        out.append((p, p - normal_len_m * (R @ np.asarray(c["normal"])), rgba))
+        p = R @ c.point + t
+        out.append((p, p - normal_len_m * (R @ c.normal), rgba))
     return out

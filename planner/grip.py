@@ -50,8 +50,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from planner.closure import GRIP_CONE_SIDES, Friction, checked_load, contact_wrenches, solve_highs
-from planner.errors import InputError, PlannerError
+from planner.closure import GRIP_CONE_SIDES, checked_load, contact_wrenches, highs_lp, solve_highs
+from planner.errors import InputError
+from planner.model import Friction, tangent_basis
 
 #: Multiple of the object's weight a state must hold (module docstring).
 HOLD_FACTOR = 2.0
@@ -474,17 +475,6 @@ def torque_rows(jacobians: Sequence[np.ndarray], effort: Sequence[float], tau_g,
 # --------------------------------------------------------------------------- the controller's form
 
 
-def _tangents(N: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Two unit tangents (k, 3) of every unit normal of ``N`` (k, 3): ``t1 = n x a`` with
-    ``a`` the x axis (the y axis for normals near x), ``t2 = n x t1``."""
-    a = np.zeros_like(N)
-    near_x = np.abs(N[:, 0]) >= 0.9
-    a[~near_x, 0], a[near_x, 1] = 1.0, 1.0
-    t1 = np.cross(N, a)
-    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
-    return t1, np.cross(N, t1)
-
-
 def balance_forces(points, normals, targets, load, centre, friction: Friction, fn_min,
                    f_max: float, margins=CONE_MARGINS, joint_rows=None) -> np.ndarray | None:
     """Contact forces that balance a load on the object: grasp force optimization.
@@ -521,8 +511,6 @@ def balance_forces(points, normals, targets, load, centre, friction: Friction, f
     Returns:
         (k, 3) forces the fingers apply ON the object, or None when no balanced forces exist.
     """
-    from planner.closure import highs_lp
-
     P = np.asarray(points, float).reshape(-1, 3)
     N = np.asarray(normals, float).reshape(-1, 3)
     N = N / np.linalg.norm(N, axis=1, keepdims=True)
@@ -546,7 +534,7 @@ def balance_forces(points, normals, targets, load, centre, friction: Friction, f
     fn_min = np.broadcast_to(np.asarray(fn_min, float), (k,))
     angles = np.linspace(0.0, 2.0 * np.pi, 8, endpoint=False)
     # the pyramid's rim directions (cos a t1 + sin a t2) per contact, the same for every margin
-    t1, t2 = _tangents(N)
+    t1, t2 = tangent_basis(N)
     rims = np.cos(angles)[None, :, None] * t1[:, None] + np.sin(angles)[None, :, None] * t2[:, None]  # (k, 8, 3)
     # variables: f (m), t (k), slack (m) with |f - f0| <= slack; rows: 8 rim + 1 normal per
     # contact, 2 torsion per contact, then the two slack rows per force component

@@ -449,7 +449,8 @@ def _check_digest(data: Mapping, src: str) -> None:
 
 def _check_closures(plan: Plan, src: str) -> None:
     """Every state's recorded closure must be the closure of its patches (ms per state)."""
-    from planner.closure import Friction, grasp_closure
+    from planner.model import Friction
+    from planner.closure import grasp_closure
 
     friction = Friction(**plan.friction)
     for i, st in enumerate(plan.states):
@@ -591,7 +592,7 @@ def plan_from_data(data: Any, source: str | os.PathLike | None = None) -> Plan:
     obj = _check_object(ck, data["object"])
     friction = ck.mapping(data["friction"], "friction")
     try:
-        from planner.closure import Friction
+        from planner.model import Friction
 
         Friction(friction.get("mu"), friction.get("gamma"), friction.get("edges", 5))
     except PlannerError as err:

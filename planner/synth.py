@@ -392,7 +392,8 @@ def synthesize(hand_ref: str, obj_block: dict, fingers, n: int, *, fixed: bool, 
     Returns:
         `SynthResult` with up to n grasps, best closure metric first.
     """
-    from planner.closure import Friction, apply_contact_model, grasp_closure, min_grip_force
+    from planner.model import Friction
+    from planner.closure import apply_contact_model, grasp_closure, min_grip_force
     from planner.grip import grasp_hold
     from planner.grasp import load_hand, parse_grasp, realize
 

@@ -37,7 +37,8 @@ def plans(tmp_path_factory):
 def _reseal(data: dict, path, closures: bool = True) -> None:
     """A careful forger's edit: closures re-derived from the edited patches, digest renewed."""
     if closures:
-        from planner.closure import Friction, grasp_closure
+        from planner.model import Friction
+        from planner.closure import grasp_closure
 
         fr = Friction(**data["friction"])
         for s in data["states"]:

@@ -8,6 +8,7 @@ import pytest
 
 from planner.contacts import TOUCH_TOL_M, collisions, contact_patches, touching_links
 from planner.hand import Hand
+from planner.model import Friction
 from planner.objects import make_object
 
 
@@ -71,7 +72,7 @@ def test_box_grasp_force_closure_with_thumb_and_not_without(icub, box_grasp):
     """The thumb-index-middle box grasp is force closure; lifting the thumb breaks it."""
     closure = pytest.importorskip("planner.closure")
     q, obj = box_grasp
-    friction = closure.Friction(mu=0.5, gamma=0.005)
+    friction = Friction(mu=0.5, gamma=0.005)
     assert closure.grasp_closure(contact_patches(icub, q, obj), friction).is_force_closure
     lifted = q.copy()
     idx = list(icub.fingers["thumb"].q_index)

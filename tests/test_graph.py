@@ -11,7 +11,8 @@ import networkx as nx
 import numpy as np
 import pytest
 
-from planner.closure import Friction, grasp_closure, min_grip_force
+from planner.model import Friction
+from planner.closure import grasp_closure, min_grip_force
 from planner.errors import InputError, NoSequenceError, UnknownNameError
 from planner.graph import LIFTED, GaitProblem, LazyGraph, Slot, build_graph, explain_failure, greedy, search
 

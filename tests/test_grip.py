@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from planner.closure import Friction
+from planner.model import Friction
 from planner.grip import (FACTOR_MAX, FingerStatics, balance_forces, finger_statics, hold_capacity, torque_demand,
                           torque_rows)
 

@@ -8,7 +8,8 @@ import pytest
 import scipy.optimize
 
 import planner.closure as closure
-from planner.closure import Friction, min_grip_force
+from planner.model import Friction
+from planner.closure import min_grip_force
 from planner.errors import PlannerError
 
 WEIGHT = [0.0, 0.0, -1.0, 0.0, 0.0, 0.0]

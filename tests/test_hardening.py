@@ -18,7 +18,8 @@ import pytest
 import yaml
 
 from planner.cli import main
-from planner.closure import Friction, closure_from_wrenches, contact_wrenches, grasp_closure
+from planner.model import Friction
+from planner.closure import closure_from_wrenches, contact_wrenches, grasp_closure
 from planner.errors import InputError, IntegrityError, OutputError, PlannerWarning, SpecError
 from planner.plan import dumps_plan, plan_from_data, read_plan, write_plan
 

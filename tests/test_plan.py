@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 import yaml
 
-from planner.closure import Friction, grasp_closure
+from planner.model import Friction
+from planner.closure import grasp_closure
 from planner.errors import PlannerWarning, SpecError
 from planner.plan import SCHEMA_VERSION, Alternative, Plan, PlanState, PlanStep, dumps_plan, read_plan, write_plan
 

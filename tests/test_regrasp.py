@@ -8,7 +8,8 @@ import pytest
 import yaml
 
 from planner.cli import main
-from planner.closure import Friction, grasp_closure
+from planner.model import Friction
+from planner.closure import grasp_closure
 from planner.grasp import load_grasp, realize
 from planner.plan import read_plan
 from planner.regrasp import PlanOptions, plan_regrasp

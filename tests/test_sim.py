@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 import yaml
 
-from planner.closure import Friction, grasp_closure, removable_fingers
+from planner.model import Friction
+from planner.closure import grasp_closure, removable_fingers
 from planner.contacts import contact_patches
 from planner.errors import SpecError
 from planner.hand import Hand
@@ -465,7 +466,7 @@ def test_armature_floor_keeps_the_stiffest_spring_stable_with_margin():
     than that (every joint's spring sits at that omega dt when a free finger squeezes alone)."""
     import pybullet as p
 
-    from planner.closure import Friction
+    from planner.model import Friction
     from planner.sim import controller as C
     from planner.sim import replay as R
 

@@ -144,7 +144,8 @@ def test_synth_for_execution_keeps_grasps_holding_in_every_direction_with_mean_c
     twice over within the joint limits and a 1 N cap per finger, using 3/4 of mu and gamma (the
     weight alone needs at most 0.5 N per finger, independently recomputed); a grasp over the
     limits in one direction only is refused."""
-    from planner.closure import Friction, apply_contact_model
+    from planner.model import Friction
+    from planner.closure import apply_contact_model
     from planner.gravity import gravity_directions
     from planner.synth import synthesize
 

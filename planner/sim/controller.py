@@ -53,11 +53,10 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
 
 import numpy as np
 
-from planner.closure import Friction
+from planner.model import Contact, Friction
 from planner.grip import CONE_MARGINS, balance_forces, torque_rows  # noqa: F401 - CONE_MARGINS re-exported
 from planner.sim.scene import p  # pybullet, imported with its build banner silenced
 
@@ -113,25 +112,6 @@ def squeeze_force_n(mass_kg: float, g_max_mps2: float, n_fingers: int, mu: float
 
 
 # --------------------------------------------------------------------------- controller
-
-
-@dataclass(frozen=True)
-class Contact:
-    """One touching link (or the approach point of a holding finger that does not touch).
-
-    Attributes:
-        finger: the link's finger, or None for the palm (passive).
-        link: pybullet link index of the hand.
-        p_palm: (3,) contact point on the object, palm (= world) frame.
-        n_palm: (3,) unit normal INTO the object, palm frame.
-        touching: False for an approach point (within ``APPROACH_M`` but not touching).
-    """
-
-    finger: str | None
-    link: int
-    p_palm: np.ndarray
-    n_palm: np.ndarray
-    touching: bool = True
 
 
 class Controller:
@@ -320,7 +300,7 @@ class Controller:
                 else:
                     pt = np.add.reduce([c[6] for c in cps]) / len(cps)
                     n = -np.add.reduce([c[7] for c in cps])
-                out.append(Contact(self._finger(link), link, pt, n / np.linalg.norm(n)))
+                out.append(Contact(self._finger(link), link, pt, n / np.linalg.norm(n), frame="palm"))
         touching = {c.finger for c in out}
         for f in self.holding:
             if f in touching:
@@ -333,7 +313,7 @@ class Controller:
             if best is not None:
                 n = -np.asarray(best[7], float)
                 if np.linalg.norm(n) > 0.5:
-                    out.append(Contact(f, best[3], np.asarray(best[6], float), n / np.linalg.norm(n), False))
+                    out.append(Contact(f, best[3], best[6], n / np.linalg.norm(n), frame="palm", touching=False))
         return out
 
     def _finger(self, link: int) -> str | None:
@@ -345,7 +325,7 @@ class Controller:
     def _finger_jacobians(self, q: np.ndarray, contacts: Sequence[Contact]) -> list[np.ndarray]:
         """(3, n_finger_joints) linear Jacobian of each contact point (fixed to its link)
         over its finger's joints, one kinematics pass for all."""
-        Js = self.hand.point_jacobians(q, [(self.link_name[c.link], c.p_palm) for c in contacts])
+        Js = self.hand.point_jacobians(q, [(self.link_name[c.link], c.point) for c in contacts])
         return [J[:, [self.col[j] for j in self.hand.fingers[c.finger].joints]] for c, J in zip(contacts, Js)]
 
     def _update(self) -> None:
@@ -399,19 +379,19 @@ class Controller:
             per_finger = {}
             for i in idx:
                 per_finger[contacts[i].finger] = per_finger.get(contacts[i].finger, 0) + 1
-            targets = [np.zeros(3) if contacts[i].finger is None else F / per_finger[contacts[i].finger] * contacts[i].n_palm
+            targets = [np.zeros(3) if contacts[i].finger is None else F / per_finger[contacts[i].finger] * contacts[i].normal
                        for i in idx]
             fn_min = [0.0 if contacts[i].finger is None else MIN_NORMAL_RATIO * F / per_finger[contacts[i].finger] for i in idx]
             # a static hold meets the same problem step after step: reuse its solution
             key = (F, tuple(np.round(load / max(self.mass * 9.81, 1e-9), 2)), tuple(np.round(centre / CACHE_M)),
-                   tuple((contacts[i].link, tuple(np.round(contacts[i].p_palm / CACHE_M)),
-                          tuple(np.round(contacts[i].n_palm, 2))) for i in idx))
+                   tuple((contacts[i].link, tuple(np.round(contacts[i].point / CACHE_M)),
+                          tuple(np.round(contacts[i].normal, 2))) for i in idx))
             # the contacts moving within the cache's resolution of the last ones solved for
             # the same load and links reuse that solution (a contact drifting across a cell
             # boundary would otherwise re-solve for a change smaller than a cell)
             near = (F, key[1], tuple(contacts[i].link for i in idx))
-            pts = np.array([contacts[i].p_palm for i in idx])
-            nrm = np.array([contacts[i].n_palm for i in idx])
+            pts = np.array([contacts[i].point for i in idx])
+            nrm = np.array([contacts[i].normal for i in idx])
             last = self._near.get(near)
             if key not in self._cache and last is not None and last[0].shape == pts.shape \
                     and float(np.max(np.abs(last[0] - pts))) <= CACHE_M and float(np.max(np.abs(last[1] - nrm))) <= 0.01 \
@@ -428,7 +408,7 @@ class Controller:
                 # the joints' limits say what the fingers can hold; only fingers without limits
                 # keep the ratio cap on their forces
                 bounded = all(c.finger is None or c.finger in self.limited for c in commanded)
-                self._cache[key] = balance_forces([c.p_palm for c in commanded], [c.n_palm for c in commanded],
+                self._cache[key] = balance_forces([c.point for c in commanded], [c.normal for c in commanded],
                                                   targets, load, centre, self.friction, fn_min,
                                                   math.inf if bounded else MAX_FORCE_RATIO * F, joint_rows=rows)
             x = self._cache[key]
@@ -444,11 +424,11 @@ class Controller:
         full = solve(set(self.holding))
         self.balanced = full is not None
         if full is None:  # no balanced forces at these contacts: plain squeeze along the normals
-            full = [np.zeros(3) if c.finger is None else F * c.n_palm for c in contacts]
+            full = [np.zeros(3) if c.finger is None else F * c.normal for c in contacts]
         # approaching fingers press along their normal (they carry nothing yet)
         for i, c in enumerate(contacts):
             if not c.touching and c.finger is not None:
-                full[i] = F * c.n_palm
+                full[i] = F * c.normal
         fading = {f: s for f, s in self.share.items() if s < 1.0 and f in self.holding}
         if not fading:
             return full
@@ -473,12 +453,12 @@ class Controller:
         # one kinematics pass for every commanded contact
         order = [i for idx in by_finger.values() for i in idx]
         J_all = dict(zip(order, self.hand.point_jacobians(
-            q, [(self.link_name[contacts[i].link], contacts[i].p_palm) for i in order], angular=True)))
+            q, [(self.link_name[contacts[i].link], contacts[i].point) for i in order], angular=True)))
         for f, idx in by_finger.items():
             cols = [self.col[j] for j in self.hand.fingers[f].joints]
             Js = [J_all[i] for i in idx]
             A, b = torque_rows([J[:3, cols] for J in Js], self.effort[cols], g_q[cols],
-                               torsion=[J[3:, cols].T @ contacts[i].n_palm for J, i in zip(Js, idx)])
+                               torsion=[J[3:, cols].T @ contacts[i].normal for J, i in zip(Js, idx)])
             if len(A):
                 rows.append((idx, A, b))
         return rows

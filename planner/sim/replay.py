@@ -63,7 +63,8 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from planner.closure import Friction, apply_contact_model, grasp_closure
+from planner.model import Friction
+from planner.closure import apply_contact_model, grasp_closure
 from planner.errors import InputError, SimulationError, UnknownNameError
 from planner.objects import SHAPES, SIZE_LENGTHS, SIZE_MEANING, make_object
 from planner.plan import Plan, plan_file, plan_from_data, read_plan
