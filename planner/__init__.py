@@ -32,7 +32,7 @@ _EXPORTS = {
     "tangent_basis": "planner.model",
     # closure (thesis eqs. 1-7, Algorithm 1)
     "CONTACT_MODELS": "planner.closure",
-    "Closure": "planner.closure",
+    "Closure": "planner.hull",
     "apply_contact_model": "planner.closure",
     "batch_grasp_closure": "planner.closure",
     "closure_from_wrenches": "planner.closure",

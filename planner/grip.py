@@ -50,8 +50,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from planner.closure import GRIP_CONE_SIDES, checked_load, contact_wrenches, highs_lp, solve_highs
+from planner.closure import GRIP_CONE_SIDES, checked_load, contact_wrenches
 from planner.errors import InputError
+from planner.lp import highs_lp, solve_highs
 from planner.model import Friction, tangent_basis
 
 #: Multiple of the object's weight a state must hold (module docstring).
@@ -480,7 +481,7 @@ def balance_forces(points, normals, targets, load, centre, friction: Friction, f
     """Contact forces that balance a load on the object: grasp force optimization.
 
     Solves, for the margins ``(s, s_t)`` in turn, the linear program (HiGHS, through highspy as
-    the planner's programs: `planner.closure.highs_lp`)
+    the planner's programs: `planner.lp.highs_lp`)
 
         min  sum_i |f_i - f0_i|_1
         s.t. sum_i [f_i ; (p_i - c) x f_i + t_i n_i] = -load    (equilibrium)

@@ -436,7 +436,7 @@ def test_batch_matches_single_calls_and_shares_patches():
 
 def test_qhull_fallback_gives_the_same_answer(monkeypatch):
     """If the fast expansion reports a degenerate update, the exact qhull fallback answers the same."""
-    import planner.closure as closure_module
+    import planner.hull as closure_module
 
     rng = np.random.default_rng(18)
     cases = [stack(random_grasp(rng, int(rng.integers(2, 5)), 3), SOFT) for _ in range(8)]
@@ -454,7 +454,7 @@ def test_qhull_fallback_gives_the_same_answer(monkeypatch):
 
 def test_symmetric_fine_cone_grasp_needs_no_fallback(monkeypatch):
     """A highly symmetric grasp (64-edge cones, many coplanar wrenches) stays on the fast exact path."""
-    import planner.closure as closure_module
+    import planner.hull as closure_module
 
     def no_fallback(*args, **kwargs):
         raise AssertionError("qhull fallback used")
@@ -470,7 +470,7 @@ def test_outside_distance_on_a_shared_face_converges_in_few_steps(monkeypatch):
     three fingers lie on the hull face nearest the origin. The distance matches the NNLS
     baseline and Wolfe's algorithm stops after a handful of corral solves (it used to
     cycle, adding and dropping equally distant rows, for ~25 000 solves)."""
-    import planner.closure as closure_module
+    import planner.hull as closure_module
     from planner.grasp import realize, load_grasp
     from pathlib import Path
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import scipy.optimize
 
-import planner.closure as closure
+import planner.lp as lp_backend
 from planner.model import Friction
 from planner.closure import min_grip_force
 from planner.errors import PlannerError
@@ -21,8 +21,8 @@ def _antipodal(r=0.02):
 
 
 def _solver_says(monkeypatch, status: int, message: str):
-    """Make HiGHS (`planner.closure.highs_lp`, in scipy's status codes) answer with this status and no solution."""
-    monkeypatch.setattr(closure, "highs_lp", lambda *a, **k: SimpleNamespace(status=status, message=message, x=None))
+    """Make HiGHS (`planner.lp.highs_lp`, in scipy's status codes) answer with this status and no solution."""
+    monkeypatch.setattr(lp_backend, "highs_lp", lambda *a, **k: SimpleNamespace(status=status, message=message, x=None))
 
 
 def test_an_infeasible_load_is_inf_and_a_feasible_one_is_finite():
@@ -72,7 +72,7 @@ def test_an_unsure_end_is_decided_by_the_interior_point_method(monkeypatch):
             return SimpleNamespace(status=4, message="model_status is Unknown; primal_status is Infeasible", x=None)
         return SimpleNamespace(status=0, message="Optimization terminated successfully.", x=np.full(500, 0.7))  # t = x[k] = 0.7 whatever k is
 
-    monkeypatch.setattr(closure, "highs_lp", lp)
+    monkeypatch.setattr(lp_backend, "highs_lp", lp)
     assert min_grip_force(_antipodal(), Friction(0.5, 0.0), WEIGHT) == pytest.approx(0.7)
     assert calls == ["highs", "highs-ipm"]
 
