@@ -93,7 +93,8 @@ def _cmd_check(args: argparse.Namespace) -> int:
     closure and as written (no `RealizedGrasp.problems`), 1 not, 2 bad input."""
     import json
 
-    from planner.grasp import check_text, contact_markers, load_grasp, realize
+    from planner.grasp_report import check_text, contact_markers
+    from planner.grasp import load_grasp, realize
 
     grasp = realize(load_grasp(args.grasp))
     if args.png:

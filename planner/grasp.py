@@ -315,7 +315,7 @@ class RealizedGrasp:
             "missing": list(self.missing),
             "collisions": [[a, b, float(d)] for a, b, d in self.collisions],
             "joints": {n: float(v) for n, v in zip(self.hand.joint_names, self.q)},
-            "object_extents_m": [float(v) for v in object_extents(self.obj)],
+            "object_extents_m": [float(v) for v in self.obj.extents],
             "contacts": [c.to_data() for c in self.contacts],
             "hold": {h.name: {"holds": h.holds, "factor": h.capacity.factor, "words": h.words(),
                               "limit": None if h.capacity.limit is None else vars(h.capacity.limit)}
@@ -942,93 +942,7 @@ def grasp_findings(spec: GraspSpec, hand, obj, state, contacts, missing, colls) 
     return problems, warnings
 
 
-def object_extents(obj) -> np.ndarray:
-    """(3,) size of the object's bounding box in its own frame, metres (a mesh's real size)."""
-    return obj.extents
-
-
-def object_text(obj) -> str:
-    """One-line description of an object's shape and size (a mesh: its extents, not its scale)."""
-    ext = object_extents(obj)
-    mm = " x ".join(f"{v * 1e3:.1f}" for v in ext)
-    if obj.shape == "box":
-        return f"box {mm} mm"
-    if obj.shape == "cylinder":
-        return f"cylinder radius {obj.size[0] * 1e3:.1f} mm, length {obj.size[1] * 1e3:.1f} mm"
-    if obj.shape == "sphere":
-        return f"sphere radius {obj.size[0] * 1e3:.1f} mm"
-    return f"mesh {Path(obj.mesh_path).name} {mm} mm (scale {list(obj.size)})"
-
-
 def _ro(a) -> np.ndarray:
     a = np.array(a, dtype=float, copy=True)
     a.setflags(write=False)
     return a
-
-
-# --------------------------------------------------------------------------- check
-
-
-def check_text(grasp: RealizedGrasp, hold: list | None = None) -> str:
-    """The text report of ``regrasp check``."""
-    hold = grasp.hold() if hold is None else hold
-    report = grasp.summary(hold)
-    fr = grasp.friction
-    out = [f"grasp {grasp.spec.name} ({grasp.spec.path})",
-           f"hand {grasp.hand.name}, {object_text(grasp.obj)}, mu {fr.mu:g}, gamma {fr.gamma:g} m, {fr.edges} cone edges",
-           f"{'finger':<8} {'spec':<8} {'points':>6}  {'removable':<9}  touching links"]
-    for name, f in report["fingers"].items():
-        out.append(f"{name:<8} {f['kind']:<8} {f['contact_points']:>6}  {'yes' if f['removable'] else 'no':<9}  "
-                   f"{', '.join(f['touching_links']) or '-'}")
-    out.append("realized contacts (object frame, mm; normal into the object):")
-    out.append(f"  {'finger':<8} {'link':<20} {'point':>26}  {'normal':>22}  penetration")
-    for c in grasp.contacts:
-        p = " ".join(f"{v * 1e3:+8.2f}" for v in c.point)
-        n = " ".join(f"{v:+6.3f}" for v in c.normal)
-        out.append(f"  {c.finger:<8} {c.link:<20} {p:>26}  {n:>22}  {c.penetration_m * 1e3:.2f} mm")
-    for a, b, depth in grasp.collisions:
-        out.append(f"collision: {a} - {b}, {depth * 1000:.2f} mm")
-    for w in grasp.warnings:
-        out.append(f"warning: {w}")
-    for p in grasp.problems:
-        out.append(f"NOT AS WRITTEN: {p}")
-    out.append(f"force closure: {'yes' if grasp.is_force_closure else 'no'}, metric {grasp.metric:.4g}, "
-               f"removable: {', '.join(sorted(grasp.removable)) or '-'}")
-    mean = report["mean_contact_closure"]
-    out.append(f"with one mean contact per finger (--contact-model mean): force closure "
-               f"{'yes' if mean['force_closure'] else 'no'}, metric {mean['metric']:.4g}")
-    if hold:
-        from planner.grip import FRICTION_MARGIN, HOLD_FACTOR
-
-        out.append(f"load held within the joints' torque limits (mean contacts, {FRICTION_MARGIN:g} of the friction; "
-                   f"execution mode needs {HOLD_FACTOR:g}x the weight, {grasp.obj.mass_kg * 1e3:.4g} g):")
-        for h in hold:
-            out.append(f"  {'ok  ' if h.holds else 'LOW '} {h.words()}")
-    verdict = "PASS" if grasp.ok else "FAIL"
-    why = [] if grasp.is_force_closure else ["not force closure"]
-    why += [f"{len(grasp.problems)} problem(s)"] if grasp.problems else []
-    out.append(f"{verdict}{': ' + ', '.join(why) if why else ''} (tolerances: penetration "
-               f"{PENETRATION_TOL_M * 1e3:.1f} mm, contact warning {CONTACT_WARN_M * 1e3:.0f} mm, "
-               f"joint at a limit within {AT_LIMIT_RAD:g} rad)")
-    return "\n".join(out)
-
-
-def contact_markers(grasp: RealizedGrasp, highlight: str | None = None, normal_len_m: float = 0.025) -> list:
-    """Contacts to draw: [(point_palm (3,), normal_tip_palm (3,), rgba)] for `render_png(markers=...)`.
-
-    Each realized contact is a dot with its inward normal drawn as a line ending at the
-    point (the direction the finger pushes). Red: a finger with a problem; orange: a
-    finger with a warning; the ``highlight`` finger (e.g. the moving one) yellow; else green.
-    """
-    T = np.asarray(grasp.obj.T_palm_obj)
-    R, t = T[:3, :3], T[:3, 3]
-    bad = {f for f in grasp.hand.fingers if any(f"fingers.{f}" in p for p in grasp.problems)}
-    warn = {f for f in grasp.hand.fingers if any(f"fingers.{f}" in w for w in grasp.warnings)}
-    out = []
-    for c in grasp.contacts:
-        f = c.finger
-        rgba = ((1.0, 0.9, 0.0, 1.0) if f == highlight else (0.9, 0.1, 0.1, 1.0) if f in bad
-                else (1.0, 0.5, 0.0, 1.0) if f in warn else (0.1, 0.8, 0.2, 1.0))
-        p = R @ c.point + t
-        out.append((p, p - normal_len_m * (R @ c.normal), rgba))
-    return out

@@ -298,10 +298,8 @@ def _score(swept, centre, obj_radius) -> float:
 
 def inner_radius(obj_block) -> float:
     """Half the smallest extent of the object (m): how close a pad sweep must pass to its centre."""
-    from planner.grasp import object_extents
-
     block = {**obj_block, "position": (0.0, 0.0, 0.0), "quat_xyzw": (0.0, 0.0, 0.0, 1.0)}
-    return 0.5 * float(np.min(object_extents(_object_of(block))))
+    return 0.5 * float(np.min(_object_of(block).extents))
 
 
 def _closes_onto(hand, fingers, obj, preshape) -> dict | None:

@@ -425,7 +425,7 @@ def test_check_png_draws_the_contacts(tmp_path, capsys):
     """The picture shows the realized contacts as green dots and normals (none without markers)."""
     from PIL import Image
 
-    from planner.grasp import contact_markers
+    from planner.grasp_report import contact_markers
     from planner.sim.render import render_png
 
     g = realize(load_grasp(SPHERE4))
