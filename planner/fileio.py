@@ -17,15 +17,22 @@ to, through a symlink or a hard link) one of the command's inputs, a directory, 
 under something that is not a writable directory; `write_atomic` writes a temporary file
 in the same directory and renames it over the target, so a crash, Ctrl-C or a full disk
 leaves the old file or none, never half a file.
+
+Key paths: `Reader` is the one validator of parsed file data (grasp, plan and hand files):
+a value at a key path of a file, whose checks raise one `SpecError` naming the file, the key
+path (``fingers.index.contact.point``, ``states[3].q``) and what was expected.
 """
 
 from __future__ import annotations
 
+import math
 import os
 import stat
 import tempfile
 from pathlib import Path
+from typing import Any, Mapping
 
+import numpy as np
 import yaml
 
 from planner.errors import OutputError, SpecError
@@ -180,6 +187,250 @@ def load_json(text: str, path: str | os.PathLike):
 def read_yaml(path: str | os.PathLike, max_bytes: int = MAX_GRASP_BYTES, what: str = "YAML file"):
     """`read_limited` then `load_yaml`."""
     return load_yaml(read_limited(path, max_bytes, what), path, what)
+
+
+# --------------------------------------------------------------------------- key paths
+
+
+def describe(value) -> str:
+    """A value for a message, with its type: ``nothing (null)``, ``str 'high'``, at most 40
+    characters of its repr (the grasp file's messages)."""
+    if value is None:
+        return "nothing (null)"
+    text = repr(value)
+    if len(text) > 40:
+        text = text[:37] + "..."
+    return f"{type(value).__name__} {text}"
+
+
+def shown(value) -> str:
+    """A value for a message, short and one line: ``null``, a number (24 characters at most),
+    else only its type's name (the plan file's messages: a plan is large)."""
+    if value is None:
+        return "null"
+    if isinstance(value, (bool, int, float)):
+        text = repr(value)
+        return text if len(text) <= 24 else text[:21] + "..."
+    return type(value).__name__
+
+
+def join_key(key: str, sub, index: bool = False) -> str:
+    """The key path of entry ``sub`` under ``key``: ``a.b``, or with ``index`` (a list's
+    item) ``a[3]``."""
+    if index:
+        return f"{key}[{sub}]"
+    return f"{key}.{sub}" if key else str(sub)
+
+
+class Reader:
+    """A value at a key path of a file, with checks that raise one `SpecError(file, key path,
+    message)` on the first problem.
+
+    The checks return the checked value (`mapping` and `seq` return the reader itself, so
+    ``r.child("object").mapping()`` goes on reading); `child` and `items` give the readers of
+    a mapping's entries and a list's items, whose key paths extend this one.
+
+    Args:
+        path: the file, for messages.
+        value: the parsed data at ``key``.
+        key: the key path ("" for the top level).
+        got: how a value of the wrong type is shown in "expected ..., got ..." (`describe`,
+            `shown` or `repr`).
+        got_value: how a value of the right type but out of range is shown.
+        ranged: number messages state the range (``expected a finite number in [0, 10]``)
+            and an integer of 2**63 or more is infinite (plan files); else they say which bound
+            (``expected a positive number``).
+    """
+
+    def __init__(self, path, value: Any = None, key: str = "", *, got=describe, got_value=repr, ranged: bool = False):
+        self.path = str(path)
+        self.value = value
+        self.key = key
+        self.got = got
+        self.got_value = got_value
+        self.ranged = ranged
+
+    # -- navigation
+    def sub_key(self, sub) -> str:
+        """The key path of entry ``sub`` of this mapping, or of item ``sub`` of this list."""
+        return join_key(self.key, sub, index=isinstance(self.value, (list, tuple)))
+
+    def fail(self, message: str, sub=None) -> SpecError:
+        """The error for this key path (or its entry ``sub``); the caller raises it."""
+        return SpecError(self.path, self.key if sub is None else self.sub_key(sub), message)
+
+    def at(self, value: Any, key: str | None = None) -> "Reader":
+        """A reader of ``value`` in the same file, at ``key`` (default: this key path)."""
+        return Reader(self.path, value, self.key if key is None else key, got=self.got, got_value=self.got_value,
+                      ranged=self.ranged)
+
+    def child(self, sub, default: Any = None) -> "Reader":
+        """The reader of entry ``sub`` of this mapping (``default`` when absent) or of item
+        ``sub`` of this list."""
+        value = self.value[sub] if isinstance(self.value, (list, tuple)) else self.value.get(sub, default)
+        return self.at(value, self.sub_key(sub))
+
+    def items(self) -> list:
+        """``(key, reader)`` for each entry of this mapping, ``(index, reader)`` for each item
+        of this list."""
+        if isinstance(self.value, (list, tuple)):
+            return [(i, self.child(i)) for i in range(len(self.value))]
+        return [(k, self.at(v, join_key(self.key, k))) for k, v in self.value.items()]
+
+    def __contains__(self, sub) -> bool:
+        return sub in self.value
+
+    def get(self, sub, default: Any = None) -> Any:
+        """The raw value of entry ``sub`` (``default`` when absent)."""
+        return self.value.get(sub, default)
+
+    # -- structure
+    def mapping(self, expected: str = "a mapping", *, string_keys: bool = False, nonempty: bool = False,
+                with_value: bool = True) -> "Reader":
+        """This value must be a mapping (``nonempty``: with an entry; ``string_keys``: keyed by
+        strings): "expected {expected}, got {value}" (``with_value=False``: without the value)."""
+        v = self.value
+        if not isinstance(v, Mapping) or (nonempty and not v):
+            raise self.fail(f"expected {expected}, got {self.got(v)}" if with_value else f"expected {expected}")
+        if string_keys:
+            for k in v:
+                if not isinstance(k, str):
+                    raise self.fail(f"keys must be strings, got {k!r}")
+        return self
+
+    def allow(self, allowed) -> None:
+        """Every key of this mapping must be one of ``allowed``."""
+        for k in self.value:
+            if k not in allowed:
+                raise self.fail(f"unknown key {k!r}; valid keys are {', '.join(allowed)}", k)
+
+    def require(self, *keys: str, message: str | None = None) -> None:
+        """This mapping must hold every key of ``keys``: the message (default "missing
+        required key 'k'") names the first missing one's key path."""
+        for k in keys:
+            if k not in self.value:
+                raise self.fail(f"missing required key {k!r}" if message is None else message, k)
+
+    def keys(self, allowed, required=()) -> None:
+        """`allow` then `require`."""
+        self.allow(allowed)
+        self.require(*required)
+
+    def seq(self, most: float = math.inf, least: int = 0) -> "Reader":
+        """This value must be a list of ``least`` to ``most`` items."""
+        v = self.value
+        if not isinstance(v, list):
+            raise self.fail(f"expected a list, got {self.got(v)}")
+        if not least <= len(v) <= most:
+            raise self.fail(f"expected {least} to {most} entries, got {len(v)}")
+        return self
+
+    def strings(self) -> list:
+        """This value must be a list of strings: "expected a list of str, got ..."."""
+        v = self.value
+        if not isinstance(v, list) or not all(isinstance(x, str) for x in v):
+            raise self.fail(f"expected a list of str, got {self.got(v)}")
+        return v
+
+    # -- scalars
+    def string(self) -> str:
+        """A non-empty string (not only blanks)."""
+        v = self.value
+        if not isinstance(v, str) or not v.strip():
+            raise self.fail(f"expected a non-empty string, got {self.got(v)}")
+        return v
+
+    def name(self, longest: int = 200) -> str:
+        """A one-line name of at most ``longest`` characters."""
+        v = self.value
+        if not isinstance(v, str) or not v or "\n" in v or len(v) > longest:
+            raise self.fail(f"expected a one-line name, got {self.got(v)}")
+        return v
+
+    def choice(self, choices, what: str, *, valid: str | None = None, show=None):
+        """One of ``choices``: "unknown {what} {value}; {what}s are a, b" (``valid`` replaces
+        "{what}s are"; ``show`` how the value is shown, default ``got_value``)."""
+        v = self.value
+        if v not in choices:
+            shown_v = (show or self.got_value)(v)
+            raise self.fail(f"unknown {what} {shown_v}; {valid or what + 's are'} {', '.join(choices)}")
+        return v
+
+    def number(self, low: float = -math.inf, high: float = math.inf, *, positive: bool = False,
+               nonnegative: bool = False, bools: bool = False, expected: str | None = None) -> float:
+        """A finite number in [low, high] (``positive``: > 0, ``nonnegative``: >= 0; ``bools``:
+        true and false count as 1 and 0), as a float.
+
+        With ``expected``, every failure says "expected {expected}, got {value}"."""
+        v = self.value
+
+        def bad(message: str) -> SpecError:
+            return self.fail(f"expected {expected}, got {self.got_value(v)}" if expected else message)
+
+        if (isinstance(v, bool) and not bools) or not isinstance(v, (int, float)):
+            raise bad(f"expected a number, got {self.got(v)}")
+        if self.ranged:
+            x = float(v) if not isinstance(v, int) or abs(v) < 2**63 else math.inf
+            if not (math.isfinite(x) and low <= x <= high and not (positive and not x > 0)
+                    and not (nonnegative and x < 0)):
+                raise bad(f"expected a finite number in [{low:g}, {high:g}], got {self.got_value(v)}")
+            return x
+        x = float(v)
+        if not math.isfinite(x):
+            raise bad(f"expected a finite number, got {self.got_value(v)}")
+        if positive and not x > 0:
+            raise bad(f"expected a positive number, got {self.got_value(v)}")
+        if nonnegative and x < 0:
+            raise bad(f"expected a non-negative number, got {self.got_value(v)}")
+        if not low <= x <= high:
+            raise bad(f"expected a number in [{low:g}, {high:g}], got {self.got_value(v)}")
+        return x
+
+    def integer(self, low: float = -math.inf, high: float = math.inf, *, expected: str | None = None) -> int:
+        """An integer (not a boolean) in [low, high]: "expected {expected}, got {value}"."""
+        v = self.value
+        if isinstance(v, bool) or not isinstance(v, int) or not low <= v <= high:
+            raise self.fail(f"expected {expected or f'an integer in [{low:g}, {high:g}]'}, got {self.got_value(v)}")
+        return v
+
+    # -- vectors
+    def vector(self, lengths, meaning: str = "", **number) -> tuple[float, ...]:
+        """A list of ``lengths`` (one of them) numbers, each checked by `number` (``number``:
+        its keywords) at its own key path ``key[i]``; ``meaning`` is said in the message."""
+        lengths = tuple(lengths)
+        expect = " or ".join(str(n) for n in lengths)
+        hint = f" ({meaning})" if meaning else ""
+        v = self.value
+        if not isinstance(v, (list, tuple)):
+            raise self.fail(f"expected a list of {expect} numbers{hint}, got {self.got(v)}")
+        if len(v) not in lengths:
+            raise self.fail(f"expected {expect} numbers{hint}, got {len(v)}")
+        return tuple(self.at(x, join_key(self.key, i, index=True)).number(**number) for i, x in enumerate(v))
+
+    def numbers(self, length: int, low: float = -math.inf, high: float = math.inf) -> list[float]:
+        """A list of exactly ``length`` numbers in [low, high] (`seq` then `number` per item)."""
+        return [item.number(low, high) for _, item in self.seq(length, length).items()]
+
+    def rows(self, most: int, width: int, bound: float) -> np.ndarray:
+        """(n, width) array from a list of at most ``most`` lists of ``width`` numbers in
+        [-bound, bound]."""
+        rows = self.seq(most).items()
+        for _, row in rows:
+            for _, x in row.seq(width, width).items():
+                x.number(-bound, bound)
+        return np.array(self.value, dtype=float).reshape(len(rows), width)
+
+    def array(self, length: int) -> np.ndarray:
+        """Anything numpy reads as ``length`` finite numbers (a list, a tuple), as an array:
+        "expected {length} numbers" / "expected {length} finite numbers, got ..."."""
+        v = self.value
+        try:
+            a = np.asarray(v, dtype=float)
+        except (TypeError, ValueError) as err:
+            raise self.fail(f"expected {length} numbers, got {self.got_value(v)}") from err
+        if a.shape != (length,) or not np.all(np.isfinite(a)):
+            raise self.fail(f"expected {length} finite numbers, got {self.got_value(v)}")
+        return a
 
 
 # --------------------------------------------------------------------------- outputs

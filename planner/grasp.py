@@ -46,6 +46,8 @@ from typing import Any, Mapping
 import numpy as np
 
 from planner.errors import KinematicsError, PlannerError, SpecError
+from planner.fileio import Reader, check_grasp_file, describe
+from planner.model import Friction
 from planner.objects import SHAPES, SIZE_LENGTHS, SIZE_MEANING
 
 SCHEMA_VERSION = 1
@@ -335,72 +337,6 @@ def _is_object_name(name: str) -> bool:
 # --------------------------------------------------------------------------- loading
 
 
-class SpecReader:
-    """Validation helpers that raise one SpecError naming the file and key path."""
-
-    def __init__(self, path: Path):
-        self.path = path
-
-    def fail(self, key: str, message: str) -> SpecError:
-        return SpecError(str(self.path), key, message)
-
-    def mapping(self, value, key: str, what: str = "a mapping") -> dict:
-        if not isinstance(value, dict):
-            raise self.fail(key, f"expected {what}, got {_describe(value)}")
-        for k in value:
-            if not isinstance(k, str):
-                raise self.fail(key, f"keys must be strings, got {k!r}")
-        return value
-
-    def keys(self, value: dict, key: str, allowed, required=()) -> None:
-        for k in value:
-            if k not in allowed:
-                raise self.fail(_join(key, k), f"unknown key {k!r}; valid keys are {', '.join(allowed)}")
-        for k in required:
-            if k not in value:
-                raise self.fail(_join(key, k), f"missing required key {k!r}")
-
-    def number(self, value, key: str, *, positive=False, nonnegative=False) -> float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise self.fail(key, f"expected a number, got {_describe(value)}")
-        x = float(value)
-        if not math.isfinite(x):
-            raise self.fail(key, f"expected a finite number, got {value!r}")
-        if positive and not x > 0:
-            raise self.fail(key, f"expected a positive number, got {value!r}")
-        if nonnegative and x < 0:
-            raise self.fail(key, f"expected a non-negative number, got {value!r}")
-        return x
-
-    def vector(self, value, key: str, lengths, meaning: str = "", **kw) -> tuple[float, ...]:
-        lengths = tuple(lengths)
-        expect = " or ".join(str(n) for n in lengths)
-        hint = f" ({meaning})" if meaning else ""
-        if not isinstance(value, (list, tuple)):
-            raise self.fail(key, f"expected a list of {expect} numbers{hint}, got {_describe(value)}")
-        if len(value) not in lengths:
-            raise self.fail(key, f"expected {expect} numbers{hint}, got {len(value)}")
-        return tuple(self.number(v, f"{key}[{i}]", **kw) for i, v in enumerate(value))
-
-    def string(self, value, key: str) -> str:
-        if not isinstance(value, str) or not value.strip():
-            raise self.fail(key, f"expected a non-empty string, got {_describe(value)}")
-        return value
-
-
-def _join(key: str, sub) -> str:
-    return f"{key}.{sub}" if key else str(sub)
-
-
-def _describe(value) -> str:
-    if value is None:
-        return "nothing (null)"
-    text = repr(value)
-    if len(text) > 40:
-        text = text[:37] + "..."
-    return f"{type(value).__name__} {text}"
-
-
 def resolve_hand_ref(hand: str, base_dir: Path) -> str:
     """A hand name stays a name (`Hand.load` finds the bundled hands from any directory);
     anything else is a path relative to `base_dir`.
@@ -444,11 +380,8 @@ def load_grasp(path) -> GraspSpec:
         SpecError: naming the file, the key path and what was expected.
     """
     path = Path(path).resolve() if Path(path).exists() else Path(path)
-    r = SpecReader(path)
-    from planner.fileio import check_grasp_file
-
     data = check_grasp_file(path)  # size, nesting, aliases, duplicate keys, integer digits, hand: path
-    data = r.mapping(data, "", "a YAML mapping at the top level")
+    Reader(path, data).mapping("a YAML mapping at the top level", string_keys=True)
     return parse_grasp(data, path)
 
 
@@ -456,67 +389,61 @@ def parse_grasp(data: Mapping, path) -> GraspSpec:
     """Validate already-parsed grasp data; `path` names the source in errors and anchors
     relative paths (hand, mesh). See `load_grasp`."""
     path = Path(path)
-    r = SpecReader(path)
-    data = r.mapping(data, "", "a YAML mapping at the top level")
-    r.keys(data, "", _TOP_KEYS, required=("schema_version", "hand", "object", "friction", "fingers"))
+    r = Reader(path, data).mapping("a YAML mapping at the top level", string_keys=True)
+    r.keys(_TOP_KEYS, required=("schema_version", "hand", "object", "friction", "fingers"))
 
     version = data["schema_version"]
     if isinstance(version, bool) or version != SCHEMA_VERSION:
-        raise r.fail("schema_version", f"unsupported schema version {version!r}; this planner reads {SCHEMA_VERSION}")
+        raise r.fail(f"unsupported schema version {version!r}; this planner reads {SCHEMA_VERSION}", "schema_version")
 
-    name = r.string(data["name"], "name") if "name" in data else path.stem
+    name = r.child("name").string() if "name" in r else path.stem
     description = data.get("description", "")
     if description is None:
         description = ""
     if not isinstance(description, str):
-        raise r.fail("description", f"expected a string, got {_describe(description)}")
+        raise r.fail(f"expected a string, got {describe(description)}", "description")
 
     # -- hand
-    hand_text = r.string(data["hand"], "hand")
+    hand_text = r.child("hand").string()
     hand_ref = resolve_hand_ref(hand_text, path.parent)
     try:
         hand = load_hand(hand_ref)
     except (PlannerError, OSError, ValueError) as err:
-        raise r.fail("hand", f"cannot load hand {hand_text!r}: {err}") from err
+        raise r.fail(f"cannot load hand {hand_text!r}: {err}", "hand") from err
 
     # -- object
     obj_spec = parse_object(r, data["object"], path.parent)
     try:
         obj = obj_spec.make()
     except (PlannerError, OSError, ValueError) as err:
-        raise r.fail("object", str(err)) from err
+        raise r.fail(str(err), "object") from err
 
     # -- friction
-    fr = r.mapping(data["friction"], "friction")
-    r.keys(fr, "friction", _FRICTION_KEYS, required=("mu", "gamma"))
-    mu = r.number(fr["mu"], "friction.mu", positive=True)
-    gamma = r.number(fr["gamma"], "friction.gamma", nonnegative=True)
-    edges = fr.get("edges", 5)
-    if isinstance(edges, bool) or not isinstance(edges, int) or edges < 3:
-        raise r.fail("friction.edges", f"expected an integer >= 3 (friction cone sides), got {edges!r}")
-    from planner.model import Friction
+    fr = r.child("friction").mapping(string_keys=True)
+    fr.keys(_FRICTION_KEYS, required=("mu", "gamma"))
+    mu = fr.child("mu").number(positive=True)
+    gamma = fr.child("gamma").number(nonnegative=True)
+    edges = fr.child("edges", 5).integer(3, expected="an integer >= 3 (friction cone sides)")
 
     try:
         friction = Friction(mu=mu, gamma=gamma, edges=edges)
     except PlannerError as err:  # Friction's ranges: name the file and key too
-        raise r.fail("friction", str(err)) from None
+        raise r.fail(str(err), "friction") from None
 
     # -- fingers
-    fingers_data = r.mapping(data["fingers"], "fingers")
+    fingers_data = r.child("fingers").mapping(string_keys=True)
     valid = list(hand.fingers)
-    for fname in fingers_data:
+    for fname in fingers_data.value:
         if fname not in hand.fingers:
-            raise r.fail(
-                f"fingers.{fname}", f"unknown finger {fname!r}; fingers of {hand.name} are {', '.join(valid)}"
-            )
+            raise fingers_data.fail(f"unknown finger {fname!r}; fingers of {hand.name} are {', '.join(valid)}", fname)
     fingers = []
     for fname, finger in hand.fingers.items():
         if fname not in fingers_data:
             fingers.append(FingerSpec(fname, "free"))
             continue
-        fingers.append(_parse_finger(r, fingers_data[fname], f"fingers.{fname}", hand, finger, obj))
+        fingers.append(_parse_finger(fingers_data.child(fname), hand, finger, obj))
     if not any(f.kind != "free" for f in fingers):
-        raise r.fail("fingers", "no finger touches the object; give at least one contact or posture")
+        raise r.fail("no finger touches the object; give at least one contact or posture", "fingers")
 
     return GraspSpec(
         path=str(path),
@@ -530,77 +457,77 @@ def parse_grasp(data: Mapping, path) -> GraspSpec:
     )
 
 
-def parse_object(r: SpecReader, value, base_dir: Path) -> ObjectSpec:
-    o = r.mapping(value, "object")
-    r.keys(o, "object", _OBJECT_KEYS, required=("shape", "size", "position", "quat_xyzw"))
-    shape = o["shape"]
-    if shape not in SHAPES:
-        raise r.fail("object.shape", f"unknown shape {shape!r}; shapes are {', '.join(SHAPES)}")
-    size = r.vector(o["size"], "object.size", SIZE_LENGTHS[shape], SIZE_MEANING[shape], positive=True)
-    position = r.vector(o["position"], "object.position", (3,), "[x, y, z] in metres, palm frame")
-    quat = np.array(r.vector(o["quat_xyzw"], "object.quat_xyzw", (4,), "[x, y, z, w]"))
+def parse_object(r: Reader, value, base_dir: Path) -> ObjectSpec:
+    """The ``object:`` block ``value`` of the file `r` reads (`planner.fileio.Reader`), key
+    path ``object``; a relative mesh path is relative to ``base_dir``."""
+    o = r.at(value, "object").mapping(string_keys=True)
+    o.keys(_OBJECT_KEYS, required=("shape", "size", "position", "quat_xyzw"))
+    shape = o.child("shape").choice(SHAPES, "shape")
+    size = o.child("size").vector(SIZE_LENGTHS[shape], SIZE_MEANING[shape], positive=True)
+    position = o.child("position").vector((3,), "[x, y, z] in metres, palm frame")
+    quat = np.array(o.child("quat_xyzw").vector((4,), "[x, y, z, w]"))
     norm = float(np.linalg.norm(quat))
     if abs(norm - 1.0) > 1e-3:
-        raise r.fail("object.quat_xyzw", f"expected a unit quaternion [x, y, z, w], got norm {norm:.4g}")
+        raise o.fail(f"expected a unit quaternion [x, y, z, w], got norm {norm:.4g}", "quat_xyzw")
     quat = tuple(float(v) for v in quat / norm)
     mesh_path = None
     if shape == "mesh":
-        if "mesh" not in o or o["mesh"] is None:
-            raise r.fail("object.mesh", "shape mesh needs a mesh file path (relative to the grasp file)")
-        mp = Path(r.string(o["mesh"], "object.mesh"))
+        if o.get("mesh") is None:
+            raise o.fail("shape mesh needs a mesh file path (relative to the grasp file)", "mesh")
+        mp = Path(o.child("mesh").string())
         mp = mp if mp.is_absolute() else (base_dir / mp).resolve()
         if not mp.is_file():
-            raise r.fail("object.mesh", f"mesh file not found: {mp}")
+            raise o.fail(f"mesh file not found: {mp}", "mesh")
         mesh_path = str(mp)
     elif o.get("mesh") is not None:
-        raise r.fail("object.mesh", f"only shape mesh takes a mesh file (shape is {shape})")
+        raise o.fail(f"only shape mesh takes a mesh file (shape is {shape})", "mesh")
     mass = o.get("mass_kg")
     if mass is not None:
-        mass = r.number(mass, "object.mass_kg", positive=True)
+        mass = o.child("mass_kg").number(positive=True)
     return ObjectSpec(shape, size, position, quat, mesh_path, mass)
 
 
-def _parse_finger(r: SpecReader, value, key: str, hand, finger, obj) -> FingerSpec:
+def _parse_finger(r: Reader, hand, finger, obj) -> FingerSpec:
+    value = r.value
     if value == "free" or value is None:
         return FingerSpec(finger.name, "free")
     if isinstance(value, str):
-        raise r.fail(key, f"expected 'free', {{contact: ...}} or {{posture: [...]}}, got {value!r}")
-    v = r.mapping(value, key, "'free', {contact: {point: [x, y, z]}} or {posture: [joint values]}")
-    if len(v) != 1 or next(iter(v)) not in ("contact", "posture"):
-        extra = [k for k in v if k not in ("contact", "posture")]
+        raise r.fail(f"expected 'free', {{contact: ...}} or {{posture: [...]}}, got {value!r}")
+    v = r.mapping("'free', {contact: {point: [x, y, z]}} or {posture: [joint values]}", string_keys=True)
+    if len(value) != 1 or next(iter(value)) not in ("contact", "posture"):
+        extra = [k for k in value if k not in ("contact", "posture")]
         if extra:
-            raise r.fail(_join(key, extra[0]), f"unknown key {extra[0]!r}; a finger is 'free', contact or posture")
-        raise r.fail(key, "give either contact or posture, not both")
-    kind = next(iter(v))
+            raise r.fail(f"unknown key {extra[0]!r}; a finger is 'free', contact or posture", extra[0])
+        raise r.fail("give either contact or posture, not both")
+    kind = next(iter(value))
     if kind == "posture":
         joints = finger.joints
-        q = r.vector(v["posture"], f"{key}.posture", (len(joints),), f"values of {', '.join(joints)} in radians")
+        posture = v.child("posture")
+        q = posture.vector((len(joints),), f"values of {', '.join(joints)} in radians")
         lo = np.asarray(hand.lower)[list(finger.q_index)]
         hi = np.asarray(hand.upper)[list(finger.q_index)]
         for i, (x, a, b) in enumerate(zip(q, lo, hi)):
             if x < a - LIMIT_TOL_RAD or x > b + LIMIT_TOL_RAD:
-                raise r.fail(
-                    f"{key}.posture[{i}]", f"joint {joints[i]} = {x:.4g} rad is outside its limits [{a:.4g}, {b:.4g}]"
-                )
+                raise posture.fail(f"joint {joints[i]} = {x:.4g} rad is outside its limits [{a:.4g}, {b:.4g}]", i)
         return FingerSpec(finger.name, "posture", posture=q)
-    c = r.mapping(v["contact"], f"{key}.contact")
-    r.keys(c, f"{key}.contact", ("point", "link"), required=("point",))
-    point = r.vector(c["point"], f"{key}.contact.point", (3,), "[x, y, z] in metres, object frame")
+    c = v.child("contact").mapping(string_keys=True)
+    c.keys(("point", "link"), required=("point",))
+    point = c.child("point").vector((3,), "[x, y, z] in metres, object frame")
     link = c.get("link")
     if link is not None:
-        link = r.string(link, f"{key}.contact.link")
+        link = c.child("link").string()
         if link not in finger.contact_links:
-            raise r.fail(
-                f"{key}.contact.link",
+            raise c.fail(
                 f"unknown contact link {link!r} of finger {finger.name}; valid links are {', '.join(finger.contact_links)}",
+                "link",
             )
     _, _, dist = obj.closest_surface(np.asarray(point, dtype=float))
     if abs(dist) > SURFACE_TOL_M:
         side = "outside" if dist > 0 else "inside"
-        raise r.fail(
-            f"{key}.contact.point",
+        raise c.fail(
             f"point {list(point)} is {abs(dist) * 1000:.1f} mm {side} the object surface; "
             f"expected a point on the surface (within {SURFACE_TOL_M * 1000:.1f} mm, object frame)",
+            "point",
         )
     return FingerSpec(finger.name, "contact", point_obj=point, link=link)
 

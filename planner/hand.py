@@ -39,6 +39,7 @@ import pinocchio as pin
 
 from planner.collision import CollisionModel, Geometry, HandState, checked_q, convex_hull
 from planner.errors import InputError, KinematicsError, SpecError, UnknownNameError
+from planner.fileio import MAX_GRASP_BYTES, Reader, read_yaml
 from planner.resources import HAND_SPEC, bundled_hands, hand_dir, robots_dir
 
 ROBOTS_DIR = robots_dir()  # the bundled hands (planner.resources), wherever the package is installed
@@ -128,22 +129,6 @@ class UnreachableError(KinematicsError):
         self.closest_palm = np.asarray(closest_palm, dtype=float)
         self.direction_palm = np.asarray(direction_palm, dtype=float)
         self.distance_m = float(distance_m)
-
-
-def _as_list(spec_path, key, value, kind=str):
-    if not isinstance(value, list) or not all(isinstance(v, kind) for v in value):
-        raise SpecError(spec_path, key, f"expected a list of {kind.__name__}, got {value!r}")
-    return value
-
-
-def _vec3(spec_path, key, value) -> np.ndarray:
-    try:
-        v = np.asarray(value, dtype=float)
-    except (TypeError, ValueError) as err:
-        raise SpecError(spec_path, key, f"expected 3 numbers, got {value!r}") from err
-    if v.shape != (3,) or not np.all(np.isfinite(v)):
-        raise SpecError(spec_path, key, f"expected 3 finite numbers, got {value!r}")
-    return v
 
 
 #: URDF collision shape -> (coal attribute, URDF attribute, factor from coal's value to the URDF's).
@@ -246,25 +231,20 @@ class Hand:
             raise UnknownNameError("hand", str(name_or_path), bundled_hands())
         if not path.exists():
             raise SpecError(str(path), "", "file not found")
-        from planner.fileio import MAX_GRASP_BYTES, read_yaml
-
         # the bounded reader: size, nesting, aliases, integer digits; a FIFO or device refused
         spec = read_yaml(path, MAX_GRASP_BYTES, "hand spec")
-        if not isinstance(spec, dict):
-            raise SpecError(str(path), "", "expected a mapping at the top level")
+        Reader(path, spec).mapping("a mapping at the top level", with_value=False)
         return cls(path, spec)
 
     def _load(self, spec: dict) -> None:
         sp = str(self.spec_path)
-        for key in ("schema_version", "urdf", "palm_frame", "fingers"):
-            if key not in spec:
-                raise SpecError(sp, key, "missing required key")
+        r = Reader(sp, spec, got=repr, got_value=repr)
+        r.require("schema_version", "urdf", "palm_frame", "fingers", message="missing required key")
         if spec["schema_version"] != SCHEMA_VERSION:
-            raise SpecError(sp, "schema_version", f"unsupported version {spec['schema_version']!r}; "
-                                                  f"supported: {SCHEMA_VERSION}")
+            raise r.fail(f"unsupported version {spec['schema_version']!r}; supported: {SCHEMA_VERSION}", "schema_version")
         self.name = str(spec.get("name", self.spec_path.parent.name))
         self.package_dirs = [str((self.spec_path.parent / d).resolve())
-                             for d in _as_list(sp, "package_dirs", spec.get("package_dirs", []))]
+                             for d in r.child("package_dirs", []).strings()]
         self.package_dirs += [d for d in _share_dirs() if d not in self.package_dirs]
         self.urdf_path = self._resolve_urdf(str(spec["urdf"]))
         try:
@@ -272,25 +252,21 @@ class Hand:
         except (RuntimeError, ValueError) as err:
             raise SpecError(sp, "urdf", f"pinocchio cannot load {self.urdf_path}: {err}") from err
 
+        fingers_r = r.child("fingers").mapping("a non-empty mapping finger -> spec", nonempty=True, with_value=False)
         fingers_spec = spec["fingers"]
-        if not isinstance(fingers_spec, dict) or not fingers_spec:
-            raise SpecError(sp, "fingers", "expected a non-empty mapping finger -> spec")
         urdf_joints = [n for n in full.names[1:]]
         used: list[str] = []
-        for fname, fs in fingers_spec.items():
-            key = f"fingers.{fname}"
+        for fname, fr in fingers_r.items():
             if not isinstance(fname, str) or not fname.strip():
-                raise SpecError(sp, key, f"a finger name must be a word (e.g. index), got {fname!r}")
-            if not isinstance(fs, dict):
-                raise SpecError(sp, key, "expected a mapping")
-            for k in ("joints", "tip_frame"):
-                if k not in fs:
-                    raise SpecError(sp, f"{key}.{k}", "missing required key")
-            for j in _as_list(sp, f"{key}.joints", fs["joints"]):
+                raise fr.fail(f"a finger name must be a word (e.g. index), got {fname!r}")
+            fr.mapping(with_value=False)
+            fr.require("joints", "tip_frame", message="missing required key")
+            joints_r = fr.child("joints")
+            for j in joints_r.strings():
                 if j not in urdf_joints:
-                    raise SpecError(sp, f"{key}.joints", str(UnknownNameError("joint", j, urdf_joints)))
+                    raise joints_r.fail(str(UnknownNameError("joint", j, urdf_joints)))
                 if j in used:
-                    raise SpecError(sp, f"{key}.joints", f"joint {j!r} belongs to two fingers")
+                    raise joints_r.fail(f"joint {j!r} belongs to two fingers")
                 used.append(j)
         # joints outside every finger are locked at 0 (e.g. a wrist)
         locked = [full.getJointId(n) for n in urdf_joints if n not in used]
@@ -307,7 +283,7 @@ class Hand:
         self.upper = np.array(self.model.upperPositionLimit, dtype=float)
         self.lower.flags.writeable = False
         self.upper.flags.writeable = False
-        self.effort, self.effort_source = self._effort_limits(sp, spec.get("effort"))
+        self.effort, self.effort_source = self._effort_limits(r.child("effort"))
         frame_names = [f.name for f in self.model.frames]
         body_names = sorted({f.name for f in self.model.frames if f.type == pin.FrameType.BODY})
 
@@ -323,26 +299,22 @@ class Hand:
             raise SpecError(sp, "palm_frame", f"{self.palm_frame!r} moves with a joint; "
                                               "the palm must be fixed to the URDF root")
         # grasping face of the palm (unit, palm frame): "palm down" is gravity along it
-        self.palm_normal = tuple(float(x) for x in _vec3(sp, "palm_normal", spec.get("palm_normal", [0.0, 0.0, 1.0])))
+        self.palm_normal = tuple(float(x) for x in r.child("palm_normal", [0.0, 0.0, 1.0]).array(3))
         if abs(np.linalg.norm(self.palm_normal) - 1.0) > 1e-6:
-            raise SpecError(sp, "palm_normal", f"expected a unit vector (palm frame), got {list(self.palm_normal)}")
+            raise r.fail(f"expected a unit vector (palm frame), got {list(self.palm_normal)}", "palm_normal")
         self._T_palm_world = self.model.frames[pid].placement.inverse()
         self._palm_is_root = self._T_palm_world.isIdentity(1e-12)
         self._frame_ids: dict[str, int] = {}
 
         # open posture
         q_open = np.clip(np.zeros(self.model.nq), self.lower, self.upper)
-        open_spec = spec.get("open", {}) or {}
-        if not isinstance(open_spec, dict):
-            raise SpecError(sp, "open", "expected a mapping joint -> angle (rad)")
-        for j, v in open_spec.items():
+        open_r = r.at(spec.get("open", {}) or {}, "open").mapping("a mapping joint -> angle (rad)", with_value=False)
+        for j, v in open_r.items():
             if j not in self.joint_names:
-                raise SpecError(sp, "open", str(UnknownNameError("joint", str(j), self.joint_names)))
+                raise open_r.fail(str(UnknownNameError("joint", str(j), self.joint_names)))
             i = self.joint_names.index(j)
-            if not isinstance(v, (int, float)) or not (self.lower[i] - 1e-9 <= v <= self.upper[i] + 1e-9):
-                raise SpecError(sp, f"open.{j}", f"expected a number in [{self.lower[i]:.4g}, "
-                                                 f"{self.upper[i]:.4g}], got {v!r}")
-            q_open[i] = float(v)
+            q_open[i] = v.number(self.lower[i] - 1e-9, self.upper[i] + 1e-9, bools=True,
+                                 expected=f"a number in [{self.lower[i]:.4g}, {self.upper[i]:.4g}]")
         q_open.flags.writeable = False
         self.q_open = q_open
 
@@ -384,20 +356,21 @@ class Hand:
 
         # fingers
         self.fingers: dict[str, Finger] = {}
-        for fname, fs in fingers_spec.items():
-            key = f"fingers.{fname}"
+        for fname, fr in fingers_r.items():
+            fs, key = fr.value, fr.key
             joints = tuple(fs["joints"])
             q_index = tuple(self.joint_names.index(j) for j in joints)
             flinks = tuple(l for l in link_geoms if geoms[link_geoms[l][0]].finger == fname)
-            contact = fs.get("contact_links", list(flinks))
-            for l in _as_list(sp, f"{key}.contact_links", contact):
+            contact_r = fr.child("contact_links", list(flinks))
+            contact = contact_r.strings()
+            for l in contact:
                 if l not in flinks:
-                    raise SpecError(sp, f"{key}.contact_links",
-                                    str(UnknownNameError("link", l, flinks or ["(none)"])))
-            close = fs.get("close_joints", list(joints))
-            for j in _as_list(sp, f"{key}.close_joints", close):
+                    raise contact_r.fail(str(UnknownNameError("link", l, flinks or ["(none)"])))
+            close_r = fr.child("close_joints", list(joints))
+            close = close_r.strings()
+            for j in close:
                 if j not in joints:
-                    raise SpecError(sp, f"{key}.close_joints", str(UnknownNameError("joint", j, joints)))
+                    raise close_r.fail(str(UnknownNameError("joint", j, joints)))
             tip = fs["tip_frame"]
             tip_id = frame_id(f"{key}.tip_frame", tip)
             pad = fs.get("pad")
@@ -408,16 +381,17 @@ class Hand:
                 pad_p = tuple(tip_frame.placement.translation) if pad_link != tip else (0.0, 0.0, 0.0)
                 pad_n = None
             else:
+                pad_r = fr.child("pad")
                 if not isinstance(pad, dict) or "link" not in pad or "point" not in pad:
-                    raise SpecError(sp, f"{key}.pad", "expected {link, point, normal}")
+                    raise pad_r.fail("expected {link, point, normal}")
                 pad_link = pad["link"]
                 frame_id(f"{key}.pad.link", pad_link, "link")
-                pad_p = tuple(_vec3(sp, f"{key}.pad.point", pad["point"]))
+                pad_p = tuple(pad_r.child("point").array(3))
                 pad_n = None
                 if pad.get("normal") is not None:
-                    n = _vec3(sp, f"{key}.pad.normal", pad["normal"])
+                    n = pad_r.child("normal").array(3)
                     if np.linalg.norm(n) < 1e-9:
-                        raise SpecError(sp, f"{key}.pad.normal", "must be non-zero")
+                        raise pad_r.fail("must be non-zero", "normal")
                     pad_n = tuple(float(x) for x in n / np.linalg.norm(n))
             self.fingers[fname] = Finger(
                 name=fname, joints=joints, q_index=q_index, contact_links=tuple(contact),
@@ -428,12 +402,13 @@ class Hand:
         # collision pairs between links: skip adjacent bodies and pairs touching at q = 0 or
         # at the open posture (shapes that overlap by design, like MoveIt's "default" pairs)
         allowed = set()
-        for pair in spec.get("disabled_collisions", []) or []:
+        disabled_r = r.at(spec.get("disabled_collisions", []) or [], "disabled_collisions")
+        for pair in disabled_r.value:
             if not (isinstance(pair, list) and len(pair) == 2):
-                raise SpecError(sp, "disabled_collisions", f"expected [link_a, link_b], got {pair!r}")
+                raise disabled_r.fail(f"expected [link_a, link_b], got {pair!r}")
             for l in pair:
                 if l not in link_geoms:
-                    raise SpecError(sp, "disabled_collisions", str(UnknownNameError("link", l, self.links)))
+                    raise disabled_r.fail(str(UnknownNameError("link", l, self.links)))
             allowed.add(frozenset(pair))
         link_joint = {l: geoms[ix[0]].joint_id for l, ix in link_geoms.items()}
         for a in self.links:
@@ -445,25 +420,24 @@ class Hand:
             self.model, self._T_palm_world, geoms, {n: f.q_index for n, f in self.fingers.items()}, allowed,
             by_design_qs=(np.clip(np.zeros(self.model.nq), self.lower, self.upper), self.q_open))
 
-    def _effort_limits(self, sp: str, spec) -> tuple[np.ndarray, tuple[str, ...]]:
+    def _effort_limits(self, r: Reader) -> tuple[np.ndarray, tuple[str, ...]]:
         """Joint torque limits (N m, inf: none) and where each comes from ("urdf",
         "hand.yaml", "none"). The URDF's ``<limit effort>`` unless the hand.yaml's
         ``effort:`` (one number for every joint, or joint -> N m) overrides it."""
         urdf = np.array(self.model.effortLimit, dtype=float)
         tau = np.where(np.isfinite(urdf) & (urdf > 0), urdf, np.inf)
         source = ["urdf" if np.isfinite(t) else "none" for t in tau]
+        spec = r.value
         if spec is not None:
             if isinstance(spec, bool) or not isinstance(spec, (int, float, dict)):
-                raise SpecError(sp, "effort", f"expected a torque in N m or a mapping joint -> N m, got {type(spec).__name__}")
-            items = spec.items() if isinstance(spec, dict) else ((j, spec) for j in self.joint_names)
+                raise r.fail(f"expected a torque in N m or a mapping joint -> N m, got {type(spec).__name__}")
+            items = r.items() if isinstance(spec, dict) else ((j, r) for j in self.joint_names)
             for j, v in items:
                 if j not in self.joint_names:
-                    raise SpecError(sp, "effort", str(UnknownNameError("joint", str(j), self.joint_names)))
-                key = "effort" if not isinstance(spec, dict) else f"effort.{j}"
-                if isinstance(v, bool) or not isinstance(v, (int, float)) or not (np.isfinite(v) and 0 < v <= 1e4):
-                    raise SpecError(sp, key, f"expected a joint torque limit in (0, 1e4] N m, got {v!r}")
+                    raise r.fail(str(UnknownNameError("joint", str(j), self.joint_names)))
                 i = self.joint_names.index(j)
-                tau[i], source[i] = float(v), "hand.yaml"
+                tau[i] = v.number(positive=True, high=1e4, expected="a joint torque limit in (0, 1e4] N m")
+                source[i] = "hand.yaml"
         tau.flags.writeable = False
         return tau, tuple(source)
 

@@ -45,6 +45,7 @@ import numpy as np
 import yaml
 
 from planner.errors import IntegrityError, PlannerError, PlannerWarning, SpecError
+from planner.fileio import MAX_PLAN_BYTES, Reader, load_json, load_yaml, read_limited, shown
 from planner.objects import SHAPES, SIZE_LENGTHS, SIZE_MEANING
 
 SCHEMA_VERSION = 2
@@ -410,8 +411,6 @@ def read_plan(path: str | os.PathLike, *, strict: bool = False) -> Plan:
         SpecError: naming the file and the key path of the first problem;
             `IntegrityError` when the plan is incomplete or altered.
     """
-    from planner.fileio import MAX_PLAN_BYTES, load_json, load_yaml, read_limited
-
     path = Path(path)
     fmt = plan_format(path)
     text = read_limited(path, MAX_PLAN_BYTES, "plan")
@@ -438,7 +437,7 @@ def _check_counts(data: Mapping, src: str) -> None:
     for key in ("states", "steps"):
         if rec.get(key) != len(data[key]):
             raise IntegrityError(src, key, f"the plan has {len(data[key])} {key}, its integrity record says "
-                                           f"{_shown(rec.get(key))}: truncated or edited")
+                                           f"{shown(rec.get(key))}: truncated or edited")
 
 
 def _check_digest(data: Mapping, src: str) -> None:
@@ -502,64 +501,6 @@ def _check_inputs(plan: Plan, src: str, strict: bool) -> None:
                           stacklevel=3)
 
 
-def _shown(value) -> str:
-    """A value for a message: short, one line, never a huge repr."""
-    if value is None:
-        return "null"
-    if isinstance(value, (bool, int, float)):
-        text = repr(value)
-        return text if len(text) <= 24 else text[:21] + "..."
-    return type(value).__name__
-
-
-class _Checker:
-    """Typed access into plan data with SpecError(file, key path) on any problem."""
-
-    def __init__(self, src: str):
-        self.src = src
-
-    def fail(self, key: str, message: str) -> SpecError:
-        return SpecError(self.src, key, message)
-
-    def mapping(self, value, key: str) -> Mapping:
-        if not isinstance(value, Mapping):
-            raise self.fail(key, f"expected a mapping, got {_shown(value)}")
-        return value
-
-    def seq(self, value, key: str, most: int, least: int = 0) -> list:
-        if not isinstance(value, list):
-            raise self.fail(key, f"expected a list, got {_shown(value)}")
-        if not least <= len(value) <= most:
-            raise self.fail(key, f"expected {least} to {most} entries, got {len(value)}")
-        return value
-
-    def string(self, value, key: str) -> str:
-        if not isinstance(value, str) or not value or "\n" in value or len(value) > 200:
-            raise self.fail(key, f"expected a one-line name, got {_shown(value)}")
-        return value
-
-    def number(self, value, key: str, low: float = -math.inf, high: float = math.inf) -> float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise self.fail(key, f"expected a number, got {_shown(value)}")
-        v = float(value) if not isinstance(value, int) or abs(value) < 2**63 else math.inf
-        if not (math.isfinite(v) and low <= v <= high):
-            raise self.fail(key, f"expected a finite number in [{low:g}, {high:g}], got {_shown(value)}")
-        return v
-
-    def index(self, value, key: str, n: int) -> int:
-        if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value < n:
-            raise self.fail(key, f"expected a state index in 0..{n - 1}, got {_shown(value)}")
-        return value
-
-    def vectors(self, value, key: str, most: int, width: int, bound: float) -> np.ndarray:
-        rows = self.seq(value, key, most)
-        for i, row in enumerate(rows):
-            self.seq(row, f"{key}[{i}]", width, width)
-            for j, v in enumerate(row):
-                self.number(v, f"{key}[{i}][{j}]", -bound, bound)
-        return np.array(rows, dtype=float).reshape(len(rows), width)
-
-
 def plan_from_data(data: Any, source: str | os.PathLike | None = None) -> Plan:
     """Check plan data (the file schema) and build the typed `Plan`.
 
@@ -574,72 +515,67 @@ def plan_from_data(data: Any, source: str | os.PathLike | None = None) -> Plan:
         SpecError: naming ``source`` and the key path of the first problem.
     """
     src = str(source) if source is not None else "<plan>"
-    ck = _Checker(src)
-    data = ck.mapping(data, "")
-    for key in REQUIRED_KEYS:
-        if key not in data:
-            raise ck.fail(key, "missing key")
+    r = Reader(src, data, got=shown, got_value=shown, ranged=True).mapping()
+    r.require(*REQUIRED_KEYS, message="missing key")
     version = data["schema_version"]
     if isinstance(version, bool) or version not in READABLE_VERSIONS:
-        raise ck.fail("schema_version", f"unsupported plan version {_shown(version)}; this planner reads "
-                                        f"{', '.join(map(str, READABLE_VERSIONS))} (re-plan the grasps)")
+        raise r.fail(f"unsupported plan version {shown(version)}; this planner reads "
+                     f"{', '.join(map(str, READABLE_VERSIONS))} (re-plan the grasps)", "schema_version")
     if data.get("kind", PLAN_KIND) != PLAN_KIND:
-        raise ck.fail("kind", f"expected {PLAN_KIND!r}, got {_shown(data.get('kind'))}")
-    hand = ck.mapping(data["hand"], "hand")
-    ck.string(hand.get("name"), "hand.name")
+        raise r.fail(f"expected {PLAN_KIND!r}, got {shown(data.get('kind'))}", "kind")
+    hand = r.child("hand").mapping()
+    hand.child("name").name()
     if hand.get("spec") is not None:
-        ck.string(hand["spec"], "hand.spec")
-    obj = _check_object(ck, data["object"])
-    friction = ck.mapping(data["friction"], "friction")
+        hand.child("spec").name()
+    obj = _check_object(r.child("object"))
+    friction = r.child("friction").mapping().value
     try:
         from planner.model import Friction
 
         Friction(friction.get("mu"), friction.get("gamma"), friction.get("edges", 5))
     except PlannerError as err:
-        raise ck.fail("friction", str(err)) from None
+        raise r.fail(str(err), "friction") from None
     friction = {"mu": float(friction["mu"]), "gamma": float(friction["gamma"]), "edges": int(friction.get("edges", 5))}
-    inputs = ck.mapping(data.get("inputs") or {}, "inputs")
+    inputs = r.at(data.get("inputs") or {}, "inputs").mapping()
     for name, rec in inputs.items():
-        rec = ck.mapping(rec, f"inputs.{name}")
+        rec.mapping()
         if ("path" in rec) == ("bundled" in rec):
-            raise ck.fail(f"inputs.{name}", "expected either path (a file, relative to the plan) or bundled "
-                                            "(a bundled grasp's name)")
+            raise rec.fail("expected either path (a file, relative to the plan) or bundled (a bundled grasp's name)")
         kind = "path" if "path" in rec else "bundled"
-        ck.string(rec[kind], f"inputs.{name}.{kind}")
+        rec.child(kind).name()
         sha = rec.get("sha256")
         if not (isinstance(sha, str) and len(sha) == 64 and all(c in "0123456789abcdef" for c in sha)):
-            raise ck.fail(f"inputs.{name}.sha256", "expected 64 lowercase hex digits")
-    parameters = ck.mapping(data.get("parameters") or {}, "parameters")
+            raise rec.fail("expected 64 lowercase hex digits", "sha256")
+    parameters = r.at(data.get("parameters") or {}, "parameters").mapping()
     from planner.closure import CONTACT_MODELS
 
-    if parameters.get("contact_model", "patch") not in CONTACT_MODELS:
-        raise ck.fail("parameters.contact_model", f"unknown contact model {_shown(parameters.get('contact_model'))}; "
-                                                  f"valid: {', '.join(CONTACT_MODELS)}")
-    joints = tuple(ck.string(j, f"joints[{i}]") for i, j in enumerate(ck.seq(data["joints"], "joints", MAX_JOINTS, 1)))
+    parameters.child("contact_model", "patch").choice(CONTACT_MODELS, "contact model", valid="valid:")
+    joints = tuple(j.name() for _, j in r.child("joints").seq(MAX_JOINTS, 1).items())
     if len(set(joints)) != len(joints):
-        raise ck.fail("joints", "joint names repeat")
-    states = tuple(_check_state(ck, s, i, joints) for i, s in enumerate(ck.seq(data["states"], "states", MAX_STATES, 1)))
-    raw_steps = ck.seq(data["steps"], "steps", MAX_STATES)
+        raise r.fail("joint names repeat", "joints")
+    states = tuple(_check_state(s, i, joints) for i, s in r.child("states").seq(MAX_STATES, 1).items())
+    raw_steps = r.child("steps").seq(MAX_STATES).items()
     if len(raw_steps) != len(states) - 1:
-        raise ck.fail("steps", f"{len(raw_steps)} steps for {len(states)} states: a plan has one step less than "
-                               f"states (truncated or edited)")
-    steps = tuple(_check_step(ck, s, i, joints, states) for i, s in enumerate(raw_steps))
+        raise r.fail(f"{len(raw_steps)} steps for {len(states)} states: a plan has one step less than "
+                     f"states (truncated or edited)", "steps")
+    steps = tuple(_check_step(s, i, joints, states) for i, s in raw_steps)
     alternatives = []
-    for i, alt in enumerate(ck.seq(data.get("alternatives") or [], "alternatives", 1000)):
-        alt = ck.mapping(alt, f"alternatives[{i}]")
-        order = tuple(ck.string(o, f"alternatives[{i}].order") for o in ck.seq(alt.get("order"), f"alternatives[{i}].order", MAX_STATES))
+    for _, alt in r.at(data.get("alternatives") or [], "alternatives").seq(1000).items():
+        alt.mapping()
+        order_r = alt.child("order").seq(MAX_STATES)
+        order = tuple(order_r.at(o).name() for o in order_r.value)
         grip = alt.get("bottleneck_grip_force_n")
         alternatives.append(Alternative(
-            order, ck.number(alt.get("bottleneck_metric"), f"alternatives[{i}].bottleneck_metric"),
-            int(ck.number(alt.get("gait_steps"), f"alternatives[{i}].gait_steps", 0, MAX_STATES)),
-            ck.number(alt.get("mean_metric"), f"alternatives[{i}].mean_metric"),
-            None if grip is None else ck.number(grip, f"alternatives[{i}].bottleneck_grip_force_n", 0)))
-    summary = dict(ck.mapping(data.get("summary") or {}, "summary"))
+            order, alt.child("bottleneck_metric").number(),
+            int(alt.child("gait_steps").number(0, MAX_STATES)),
+            alt.child("mean_metric").number(),
+            None if grip is None else alt.child("bottleneck_grip_force_n").number(0)))
+    summary = dict(r.at(data.get("summary") or {}, "summary").mapping().value)
     try:
-        return Plan(dict(hand), obj, friction, dict(inputs), dict(parameters), summary, joints, states, steps,
-                    tuple(alternatives), source=None if source is None else src)
+        return Plan(dict(hand.value), obj, friction, dict(inputs.value), dict(parameters.value), summary, joints, states,
+                    steps, tuple(alternatives), source=None if source is None else src)
     except PlannerError as err:  # the default mass needs the object (e.g. its mesh file)
-        raise ck.fail("object", str(err)) from None
+        raise r.fail(str(err), "object") from None
 
 
 REQUIRED_KEYS = ("schema_version", "hand", "object", "friction", "joints", "states", "steps")
@@ -647,123 +583,112 @@ STATE_KEYS = ("patches", "closure", "removable", "q")
 STEP_KEYS = ("finger", "action", "from_state", "to_state", "joints", "path")
 
 
-def _check_object(ck: _Checker, value) -> dict:
-    o = dict(ck.mapping(value, "object"))
-    for key in ("shape", "size", "position", "quat_xyzw"):
-        if key not in o:
-            raise ck.fail(f"object.{key}", "missing key")
-    shape = o["shape"]
-    if shape not in SHAPES:
-        raise ck.fail("object.shape", f"unknown shape {_shown(shape)}; shapes are {', '.join(SHAPES)}")
-    size = ck.seq(o["size"], "object.size", max(SIZE_LENGTHS[shape]), min(SIZE_LENGTHS[shape]))
-    if len(size) not in SIZE_LENGTHS[shape]:  # a mesh: 1 or 3, never 2
-        raise ck.fail("object.size", f"a {shape} size is {SIZE_MEANING[shape]}, got {len(size)} entries")
-    o["size"] = [ck.number(v, f"object.size[{i}]", 1e-6, MAX_COORD_M) for i, v in enumerate(size)]
-    o["position"] = [ck.number(v, f"object.position[{i}]", -MAX_COORD_M, MAX_COORD_M)
-                     for i, v in enumerate(ck.seq(o["position"], "object.position", 3, 3))]
-    quat = [ck.number(v, f"object.quat_xyzw[{i}]", -1.0 - 1e-6, 1.0 + 1e-6)
-            for i, v in enumerate(ck.seq(o["quat_xyzw"], "object.quat_xyzw", 4, 4))]
+def _check_object(r: Reader) -> dict:
+    r.mapping()
+    o = dict(r.value)
+    r.require("shape", "size", "position", "quat_xyzw", message="missing key")
+    shape = r.child("shape").choice(SHAPES, "shape")
+    size = r.child("size").seq(max(SIZE_LENGTHS[shape]), min(SIZE_LENGTHS[shape]))
+    if len(size.value) not in SIZE_LENGTHS[shape]:  # a mesh: 1 or 3, never 2
+        raise size.fail(f"a {shape} size is {SIZE_MEANING[shape]}, got {len(size.value)} entries")
+    o["size"] = [v.number(1e-6, MAX_COORD_M) for _, v in size.items()]
+    o["position"] = r.child("position").numbers(3, -MAX_COORD_M, MAX_COORD_M)
+    quat = r.child("quat_xyzw").numbers(4, -1.0 - 1e-6, 1.0 + 1e-6)
     if abs(math.sqrt(sum(v * v for v in quat)) - 1.0) > 1e-6:
-        raise ck.fail("object.quat_xyzw", "expected a unit quaternion [x, y, z, w]")
+        raise r.fail("expected a unit quaternion [x, y, z, w]", "quat_xyzw")
     o["quat_xyzw"] = quat
     if o.get("mass_kg") is not None:
-        o["mass_kg"] = ck.number(o["mass_kg"], "object.mass_kg", 1e-9, MAX_MASS_KG)
+        o["mass_kg"] = r.child("mass_kg").number(1e-9, MAX_MASS_KG)
     if shape == "mesh":
-        ck.string(o.get("mesh"), "object.mesh")
+        r.child("mesh").name()
     return o
 
 
-def _check_state(ck: _Checker, value, i: int, joints: tuple[str, ...]) -> PlanState:
-    key = f"states[{i}]"
-    s = ck.mapping(value, key)
-    for k in STATE_KEYS:
-        if k not in s:
-            raise ck.fail(f"{key}.{k}", "missing key")
-    fingers = {ck.string(f, f"{key}.fingers"): ck.string(v, f"{key}.fingers.{f}")
-               for f, v in ck.mapping(s.get("fingers") or {}, f"{key}.fingers").items()}
+def _check_state(s: Reader, i: int, joints: tuple[str, ...]) -> PlanState:
+    key = s.key
+    s.mapping()
+    s.require(*STATE_KEYS, message="missing key")
+    fingers_r = s.at(s.get("fingers") or {}, f"{key}.fingers").mapping()
+    fingers = {fingers_r.at(f).name(): v.name() for f, v in fingers_r.items()}
     patches = {}
-    for f, patch in ck.mapping(s["patches"], f"{key}.patches").items():
-        ck.string(f, f"{key}.patches")
-        patch = ck.mapping(patch, f"{key}.patches.{f}")
+    patches_r = s.child("patches").mapping()
+    for f, patch in patches_r.items():
+        patches_r.at(f).name()
+        patch.mapping()
         if patch.get("points") is None or patch.get("normals") is None:
-            raise ck.fail(f"{key}.patches.{f}", "needs points and normals of equal length")
-        pts = ck.vectors(patch["points"], f"{key}.patches.{f}.points", MAX_POINTS, 3, MAX_COORD_M)
-        nrm = ck.vectors(patch["normals"], f"{key}.patches.{f}.normals", MAX_POINTS, 3, 1.0 + 1e-6)
+            raise patch.fail("needs points and normals of equal length")
+        pts = patch.child("points").rows(MAX_POINTS, 3, MAX_COORD_M)
+        nrm = patch.child("normals").rows(MAX_POINTS, 3, 1.0 + 1e-6)
         if len(pts) != len(nrm) or not len(pts):
-            raise ck.fail(f"{key}.patches.{f}", "needs points and normals of equal length")
+            raise patch.fail("needs points and normals of equal length")
         if np.any(np.abs(np.linalg.norm(nrm, axis=1) - 1.0) > 1e-6):
-            raise ck.fail(f"{key}.patches.{f}.normals", "expected unit normals")
+            raise patch.fail("expected unit normals", "normals")
         patches[f] = (pts, nrm)
     if fingers and not set(patches) <= set(fingers):
-        raise ck.fail(f"{key}.patches", f"fingers {sorted(set(patches) - set(fingers))} are not in {key}.fingers")
-    closure = ck.mapping(s["closure"], f"{key}.closure")
+        raise s.fail(f"fingers {sorted(set(patches) - set(fingers))} are not in {key}.fingers", "patches")
+    closure = s.child("closure").mapping()
     fc = closure.get("is_force_closure")
     if not isinstance(fc, bool):
-        raise ck.fail(f"{key}.closure.is_force_closure", f"expected true or false, got {_shown(fc)}")
-    metric = ck.number(closure.get("metric"), f"{key}.closure.metric")
-    removable = tuple(ck.string(f, f"{key}.removable") for f in ck.seq(s["removable"], f"{key}.removable", MAX_JOINTS))
+        raise closure.fail(f"expected true or false, got {shown(fc)}", "is_force_closure")
+    metric = closure.child("metric").number()
+    removable_r = s.child("removable").seq(MAX_JOINTS)
+    removable = tuple(removable_r.at(f).name() for f in removable_r.value)
     if not set(removable) <= set(patches) | set(fingers):
-        raise ck.fail(f"{key}.removable", "names fingers the state does not have")
-    q = ck.mapping(s["q"], f"{key}.q")
+        raise removable_r.fail("names fingers the state does not have")
+    q = s.child("q").mapping()
     missing = [j for j in joints if j not in q]
     if missing:
-        raise ck.fail(f"{key}.q", f"missing joints {missing[:5]}")
-    qv = tuple(ck.number(q[j], f"{key}.q.{j}", -MAX_JOINT_VALUE, MAX_JOINT_VALUE) for j in joints)
+        raise q.fail(f"missing joints {missing[:5]}")
+    qv = tuple(q.child(j).number(-MAX_JOINT_VALUE, MAX_JOINT_VALUE) for j in joints)
     grip = s.get("grip_force_n")
     if grip is not None and (isinstance(grip, bool) or not isinstance(grip, (int, float)) or not 0 <= grip < math.inf):
-        raise ck.fail(f"{key}.grip_force_n", f"expected a force >= 0 in newtons or null, got {_shown(grip)}")
+        raise s.fail(f"expected a force >= 0 in newtons or null, got {shown(grip)}", "grip_force_n")
     by_g = s.get("grip_force_by_gravity_n")
     if by_g is not None:
-        by_g = {str(k): ck.number(v, f"{key}.grip_force_by_gravity_n.{k}", 0)
-                for k, v in ck.mapping(by_g, f"{key}.grip_force_by_gravity_n").items()}
+        by_g = {str(k): v.number(0) for k, v in s.child("grip_force_by_gravity_n").mapping().items()}
     hold = s.get("hold_factor_by_gravity")
     if hold is not None:
-        hold = {str(k): ck.number(v, f"{key}.hold_factor_by_gravity.{k}", 0, 1e6)
-                for k, v in ck.mapping(hold, f"{key}.hold_factor_by_gravity").items()}
+        hold = {str(k): v.number(0, 1e6) for k, v in s.child("hold_factor_by_gravity").mapping().items()}
     return PlanState(fingers, patches, fc, metric, removable, qv,
                      None if grip is None else float(grip), by_g, hold)
 
 
-def _check_step(ck: _Checker, value, i: int, joints: tuple[str, ...], states: tuple[PlanState, ...]) -> PlanStep:
-    key = f"steps[{i}]"
-    s = ck.mapping(value, key)
-    for k in STEP_KEYS:
-        if k not in s:
-            raise ck.fail(f"{key}.{k}", "missing key")
-    finger = ck.string(s["finger"], f"{key}.finger")
-    action = s["action"]
-    if action not in ACTIONS:
-        raise ck.fail(f"{key}.action", f"unknown action {_shown(action) if not isinstance(action, str) else repr(action[:20])}; "
-                                       f"actions are {', '.join(ACTIONS)}")
-    frm = ck.index(s["from_state"], f"{key}.from_state", len(states))
-    to = ck.index(s["to_state"], f"{key}.to_state", len(states))
+def _check_step(s: Reader, i: int, joints: tuple[str, ...], states: tuple[PlanState, ...]) -> PlanStep:
+    s.mapping()
+    s.require(*STEP_KEYS, message="missing key")
+    finger = s.child("finger").name()
+    action = s.child("action").choice(
+        ACTIONS, "action", show=lambda a: repr(a[:20]) if isinstance(a, str) else shown(a))
+    frm = s.child("from_state").integer(0, len(states) - 1, expected=f"a state index in 0..{len(states) - 1}")
+    to = s.child("to_state").integer(0, len(states) - 1, expected=f"a state index in 0..{len(states) - 1}")
     if (frm, to) != (i, i + 1):
-        raise ck.fail(f"{key}.from_state", f"step {i} goes from state {frm} to {to}; steps must chain the states "
-                                           f"in order ({i} -> {i + 1})")
-    sj = tuple(ck.string(j, f"{key}.joints") for j in ck.seq(s["joints"], f"{key}.joints", MAX_JOINTS, 1))
+        raise s.fail(f"step {i} goes from state {frm} to {to}; steps must chain the states "
+                     f"in order ({i} -> {i + 1})", "from_state")
+    joints_r = s.child("joints").seq(MAX_JOINTS, 1)
+    sj = tuple(joints_r.at(j).name() for j in joints_r.value)
     unknown = [j for j in sj if j not in joints]
     if unknown:
-        raise ck.fail(f"{key}.joints", f"joints {unknown[:5]} are not in the plan's joints")
-    path = ck.vectors(s["path"], f"{key}.path", MAX_WAYPOINTS, len(sj), MAX_JOINT_VALUE)
+        raise joints_r.fail(f"joints {unknown[:5]} are not in the plan's joints")
+    path = s.child("path").rows(MAX_WAYPOINTS, len(sj), MAX_JOINT_VALUE)
     if not len(path):
-        raise ck.fail(f"{key}.path", "expected at least one waypoint")
+        raise s.fail("expected at least one waypoint", "path")
     a, b = states[frm], states[to]
     idx = [joints.index(j) for j in sj]
     qa, qb = np.asarray(a.q), np.asarray(b.q)
     if np.max(np.abs(path[0] - qa[idx])) > PATH_END_TOL or np.max(np.abs(path[-1] - qb[idx])) > PATH_END_TOL:
-        raise ck.fail(f"{key}.path", f"does not start at state {frm} and end at state {to}")
+        raise s.fail(f"does not start at state {frm} and end at state {to}", "path")
     others = np.ones(len(joints), bool)
     others[idx] = False
     if np.any(np.abs(qa[others] - qb[others]) > PATH_END_TOL):
-        raise ck.fail(f"{key}", f"states {frm} and {to} differ in joints outside the step's joints")
+        raise s.fail(f"states {frm} and {to} differ in joints outside the step's joints")
     on_a, on_b = finger in a.patches, finger in b.patches
     expect = {"lift": (True, False), "land": (False, True), "move": (False, False)}[action]
     if (on_a, on_b) != expect:
-        raise ck.fail(f"{key}.action", f"{action} of {finger}, but the finger is "
-                                       f"{'on' if on_a else 'off'} the object in state {frm} and "
-                                       f"{'on' if on_b else 'off'} in state {to}")
+        raise s.fail(f"{action} of {finger}, but the finger is "
+                     f"{'on' if on_a else 'off'} the object in state {frm} and "
+                     f"{'on' if on_b else 'off'} in state {to}", "action")
     if set(a.patches) - {finger} != set(b.patches) - {finger}:
-        raise ck.fail(f"{key}", f"fingers other than {finger} change contact between states {frm} and {to}")
+        raise s.fail(f"fingers other than {finger} change contact between states {frm} and {to}")
     return PlanStep(finger, action, frm, to, sj, tuple(tuple(float(v) for v in wp) for wp in path))
 
 

@@ -41,6 +41,7 @@ import yaml
 
 from planner.collision import LINK_EPS_M
 from planner.errors import PlannerError, SpecError
+from planner.fileio import MAX_GRASP_BYTES, Reader, read_yaml
 from planner.grip import HOLD_FACTOR
 from planner.motion import retreat_blocked
 
@@ -102,23 +103,21 @@ def load_object_file(path) -> tuple[dict, dict | None, bool]:
     Raises:
         SpecError: naming the file and key.
     """
-    from planner.grasp import parse_object, SpecReader
-
-    from planner.fileio import MAX_GRASP_BYTES, read_yaml
+    from planner.grasp import parse_object
 
     path = Path(path)
-    r = SpecReader(path)
     # the bounded reader: size, nesting, aliases and integer digits limited, a FIFO refused
-    data = read_yaml(path, MAX_GRASP_BYTES, "object file")
-    data = r.mapping(data, "", "a YAML mapping: the object block (shape, size, ...) or a file with an object: key")
+    r = Reader(path, read_yaml(path, MAX_GRASP_BYTES, "object file"))
+    data = r.mapping("a YAML mapping: the object block (shape, size, ...) or a file with an object: key",
+                     string_keys=True).value
     friction = None
     key = ""
     if "object" in data:
         friction = data.get("friction")
-        data, key = r.mapping(data["object"], "object"), "object"
+        data, key = r.child("object").mapping(string_keys=True).value, "object"
     elif "shape" not in data:
-        raise r.fail("", "expected an object block (keys shape, size[, position, quat_xyzw, mesh, mass_kg]) "
-                         "at the top level or under an object: key")
+        raise r.fail("expected an object block (keys shape, size[, position, quat_xyzw, mesh, mass_kg]) "
+                     "at the top level or under an object: key")
     fixed = "position" in data
     block = dict(data)
     block.setdefault("position", [0.0, 0.0, 0.0])

@@ -32,6 +32,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from planner.errors import InputError, SpecError
+from planner.fileio import MAX_PLAN_BYTES, load_json, load_yaml, read_limited
 
 #: frames drawn per plan step (finger paths are resampled by joint-space arc length)
 FRAMES_PER_STEP = 12
@@ -321,8 +322,6 @@ def resample(path: np.ndarray, k: int) -> np.ndarray:
 
 def _load_report(path, n_states: int) -> list[dict]:
     """Replay report(s) of ``regrasp replay --report``: [{name, passed, verdict, states}]."""
-    from planner.fileio import MAX_PLAN_BYTES, load_json, read_limited
-
     path = Path(path)
     # a FIFO, a device, a huge or deeply nested file: one line
     data = load_json(read_limited(path, MAX_PLAN_BYTES, "replay report"), path)
@@ -544,8 +543,6 @@ def grasp_page_data(grasp, grasp_path) -> tuple[_Scene, dict]:
 
 
 def _is_plan_file(path: Path) -> bool:
-    from planner.fileio import MAX_PLAN_BYTES, load_json, load_yaml, read_limited
-
     if path.suffix.lower() not in (".yaml", ".yml", ".json"):
         raise SpecError(str(path), "", f"unknown file suffix {path.suffix!r}; view takes a plan or grasp "
                                        "file (.yaml, .yml, .json)")
