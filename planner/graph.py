@@ -416,7 +416,7 @@ class Evaluator:
 
 
 def seed_graph(problem: GaitProblem, evaluator: Evaluator | None = None) -> nx.DiGraph:
-    """A graph holding only the initial state (what `greedy` and `LazyGraph` grow).
+    """A graph holding only the initial state (what `planner.search.greedy` and `planner.search.LazyGraph` grow).
 
     Args:
         evaluator: caches to reuse (from an earlier round over fewer slots, see
@@ -485,7 +485,7 @@ def add_node(G: nx.DiGraph, ev: Evaluator, v: Node) -> None:
 
 
 def annotate_removable(G: nx.DiGraph, nodes) -> None:
-    """Set the ``removable`` attribute (thesis Algorithm 1) of the given nodes (`LazyGraph`
+    """Set the ``removable`` attribute (thesis Algorithm 1) of the given nodes (`planner.search.LazyGraph`
     leaves it unset: it needs the closure of every single-finger lift)."""
     ev: Evaluator = G.graph["evaluator"]
     for v in dict.fromkeys(nodes):

@@ -68,7 +68,7 @@ class PlanOptions:
         intermediate: intermediate contacts per finger, fixed (0: none, or added in rounds
             when needed: see ``time_limit_s``).
         seed: seed for motion planning (intermediate contacts come from a fixed per-finger
-            pool, `reachable_contacts`).
+            pool, `planner.slots.reachable_contacts`).
         motion: plan finger paths with OMPL (False: straight joint-space segments).
         motion_planner: OMPL planner name (see planner.motion).
         motion_timeout_s: time budget per finger path.
@@ -113,8 +113,8 @@ class PlanOptions:
             requires the "mean" contact model, the "grip" ranking and a gravity.
         max_rounds: with ``intermediate`` 0 the planner is anytime: when no sequence exists
             with the current contacts, it adds intermediate contacts
-            (`INTERMEDIATE_PER_ROUND` per finger that blocks progress, from
-            `reachable_contacts`) and searches again, round after round, until a sequence
+            (`planner.regrasp.INTERMEDIATE_PER_ROUND` per finger that blocks progress, from
+            `planner.slots.reachable_contacts`) and searches again, round after round, until a sequence
             is found, no contact is left to add or ``max_rounds`` rounds were made. The
             rounds are deterministic and bounded by this count (and each search by its
             expanded states), not by the clock: the plan, or the explanation of a failure,

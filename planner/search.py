@@ -297,11 +297,11 @@ class LazyGraph:
     states has a primary cost <= c and a gait bound <= g, and so had its lower-bound key
     when its predecessor on the path generated it). `best` goes on until that holds for the
     k-th sequence `search` finds on the explored graph, so its ranking equals the ranking
-    over the whole graph (`build_graph`), up to ``max_expansions``.
+    over the whole graph (`planner.graph.build_graph`), up to ``max_expansions``.
 
     Attributes:
-        G: the explored graph (same attributes as `build_graph`'s, without ``removable``
-            until `annotate_removable`); ``G.graph["expanded"]`` counts expanded states.
+        G: the explored graph (same attributes as `planner.graph.build_graph`'s, without ``removable``
+            until `planner.graph.annotate_removable`); ``G.graph["expanded"]`` counts expanded states.
         complete: True when every reachable valid state has been expanded.
         timed_out: True when the deadline stopped an expansion.
     """
