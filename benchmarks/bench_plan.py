@@ -34,7 +34,8 @@ from pathlib import Path
 
 from planner.errors import NoSequenceError
 from planner.grasp import load_grasp, realize
-from planner.regrasp import PlanOptions, plan_regrasp
+from planner.options import PlanOptions
+from planner.regrasp import plan_regrasp
 
 ROOT = Path(__file__).resolve().parent.parent
 PAIRS = {

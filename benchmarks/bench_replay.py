@@ -192,7 +192,8 @@ def directions(repeats: int) -> None:
     one direction after the other against one process per core; the verdicts must agree."""
     from planner.grasp import load_grasp, realize
     from planner.gravity import gravity_directions
-    from planner.regrasp import PlanOptions, plan_regrasp
+    from planner.options import PlanOptions
+    from planner.regrasp import plan_regrasp
     from planner.resources import bundled_grasp
     from planner.sim.verify import as_written, default_workers, replay_directions
 

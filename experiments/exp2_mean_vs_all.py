@@ -98,7 +98,8 @@ def metrics(patches, friction):
 
 
 def _problem():
-    from planner.regrasp import PlanOptions, build_problem
+    from planner.options import PlanOptions
+    from planner.slots import build_problem
 
     a, b = realized(INITIAL), realized(FINAL)
     return a, build_problem(a, b, PlanOptions(motion=False))
@@ -135,7 +136,8 @@ def sim_metrics(a, b) -> tuple[dict, str]:
     from planner.errors import PlannerError
 
     try:
-        from planner.regrasp import PlanOptions, plan_regrasp
+        from planner.options import PlanOptions
+        from planner.regrasp import plan_regrasp
         from planner.sim.replay import replay_plan
 
         res = plan_regrasp(a, b, PlanOptions(contact_model=REPLAY_CONTACT_MODEL))

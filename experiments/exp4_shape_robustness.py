@@ -55,7 +55,8 @@ def as_postures(path: str):
 def task(t: dict) -> dict:
     from planner.errors import PlannerError
     from planner.grasp import load_hand, realize
-    from planner.regrasp import PlanOptions, plan_regrasp
+    from planner.options import PlanOptions
+    from planner.regrasp import plan_regrasp
 
     row = {"pair": t["pair"], "method": t["method"], "mode": t["mode"], "scale": t["scale"]}
     t0 = time.perf_counter()

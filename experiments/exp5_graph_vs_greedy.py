@@ -90,9 +90,12 @@ def task(t: dict) -> dict:
     import networkx as nx
 
     from planner.errors import NoSequenceError, PlannerError
-    from planner.graph import LazyGraph, _add_node, Evaluator, greedy
+    from planner.graph import Evaluator, add_node
     from planner.grasp import load_hand, realize
-    from planner.regrasp import PlanOptions, build_problem, plan_regrasp
+    from planner.options import PlanOptions
+    from planner.regrasp import plan_regrasp
+    from planner.search import LazyGraph, greedy
+    from planner.slots import build_problem
 
     rng = np.random.default_rng(t["seed"])
     group = t["groups"][int(rng.integers(len(t["groups"])))]
@@ -154,7 +157,7 @@ def task(t: dict) -> dict:
     ev = Evaluator(problem)
     G0 = nx.DiGraph(problem=problem, start=problem.start, goal=problem.goal, blocked={}, evaluator=ev)
     ev.evaluate([problem.start])
-    _add_node(G0, ev, problem.start)
+    add_node(G0, ev, problem.start)
     try:
         g = greedy(G0)
         row.update(greedy_solved=True, greedy_steps=g.gait_steps, greedy_edges=len(g.actions), greedy_bottleneck=g.bottleneck)

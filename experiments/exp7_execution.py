@@ -214,7 +214,7 @@ def plan_options(palm_normal):
     """(PlanOptions, mode label, planned-for direction names): execution mode when the
     planner has it, else mean contacts with gravity palm down."""
     from planner.gravity import gravity_directions
-    from planner.regrasp import PlanOptions
+    from planner.options import PlanOptions
 
     if hasattr(PlanOptions, "for_execution") and "execution" in {f.name for f in fields(PlanOptions)}:
         opts = PlanOptions.for_execution()

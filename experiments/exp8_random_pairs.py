@@ -156,7 +156,7 @@ def execution_ready(hand_ref: str) -> dict:
     of ``PlanOptions.for_execution()`` within its force budget, with its friction reserve."""
     from planner.grasp import load_hand
     from planner.gravity import gravity_directions
-    from planner.regrasp import PlanOptions
+    from planner.options import PlanOptions
 
     o = PlanOptions.for_execution()
     dirs = [g for _, g in gravity_directions(load_hand(hand_ref).palm_normal, o.gravity_set)]
@@ -232,7 +232,7 @@ def options(mode: str, seed: int, motion: bool = True, gravity_set: int = 6):
     """The PlanOptions of a mode (`MODES`); ``motion`` False: straight joint-space finger paths;
     ``gravity_set``: the directions execution mode plans for (`EXECUTION_SETS`); its
     verification replays run in this process (the sweep's own workers use the cores)."""
-    from planner.regrasp import PlanOptions
+    from planner.options import PlanOptions
 
     if mode == "default":
         return PlanOptions(seed=seed, motion=motion)
@@ -303,7 +303,8 @@ def grasps_hold(gi, gf, n_set: int) -> bool:
     """Both grasps of a pair hold the object in the simulator in the planned-for directions:
     each as a one-state plan (the grasp alone), verified as execution mode verifies plans."""
     from planner.errors import NoSequenceError
-    from planner.regrasp import PlanOptions, plan_regrasp
+    from planner.options import PlanOptions
+    from planner.regrasp import plan_regrasp
 
     for g in (gi, gf):
         try:

@@ -54,12 +54,12 @@ _EXPORTS = {
     "realize": "planner.grasp",
     # graph and planning
     "GaitProblem": "planner.graph",
-    "GaitSequence": "planner.graph",
     "Slot": "planner.graph",
     "build_graph": "planner.graph",
-    "greedy": "planner.graph",
-    "search": "planner.graph",
-    "PlanOptions": "planner.regrasp",
+    "GaitSequence": "planner.search",
+    "greedy": "planner.search",
+    "search": "planner.search",
+    "PlanOptions": "planner.options",
     "plan_regrasp": "planner.regrasp",
     # the grip model (what the hand's joints hold)
     "FingerStatics": "planner.grip",

@@ -28,7 +28,7 @@ def plan(initial, final, *, execution: bool = False, output: PathLike | None = N
         execution: `PlanOptions.for_execution` (mean contacts, six gravity directions, the grip
             model, verified in pybullet) instead of the thesis's defaults.
         output: also write the plan there (``.yaml``/``.json``), atomically.
-        **options: any `planner.regrasp.PlanOptions` field (e.g. ``time_limit_s=5``,
+        **options: any `planner.options.PlanOptions` field (e.g. ``time_limit_s=5``,
             ``motion=False``, ``verify=False``).
 
     Returns:
@@ -36,8 +36,9 @@ def plan(initial, final, *, execution: bool = False, output: PathLike | None = N
     """
     from planner.errors import UnknownNameError
     from planner.grasp import realized_grasp
+    from planner.options import PlanOptions
     from planner.plan import plan_format, write_plan
-    from planner.regrasp import PlanOptions, check_same_setup, plan_regrasp
+    from planner.regrasp import check_same_setup, plan_regrasp
 
     valid = {f.name for f in fields(PlanOptions)}
     for k in options:

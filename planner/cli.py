@@ -26,7 +26,8 @@ def _cmd_plan(args: argparse.Namespace) -> int:
     from planner.grasp import load_grasp, realize
     from planner.plan import plan_format, write_plan
     from planner.grasp import input_record
-    from planner.regrasp import PlanOptions, check_same_setup, plan_regrasp
+    from planner.options import PlanOptions
+    from planner.regrasp import check_same_setup, plan_regrasp
 
     if args.output:
         plan_format(args.output)  # refuse a bad suffix before any work
@@ -417,7 +418,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 #: Ranges of the numeric options (README "Hardening / plan integrity"), (low, high, low is
-#: exclusive): the planner's are `planner.regrasp.PLAN_OPTION_LIMITS` (checked by
+#: exclusive): the planner's are `planner.options.PLAN_OPTION_LIMITS` (checked by
 #: `PlanOptions` too; `option_limits` gives them their option names), these are replay's.
 OPTION_LIMITS = {
     "gif_every": (1, 10000, False),
@@ -448,7 +449,7 @@ def _option_name(dest: str) -> str:
 def option_limits() -> dict:
     """Every numeric option's range by argparse dest: the planner's (`PlanOptions`'s
     table under its option names) and `OPTION_LIMITS`."""
-    from planner.regrasp import PLAN_OPTION_FLAGS, PLAN_OPTION_LIMITS
+    from planner.options import PLAN_OPTION_FLAGS, PLAN_OPTION_LIMITS
 
     return {**{PLAN_OPTION_FLAGS.get(k, k): v for k, v in PLAN_OPTION_LIMITS.items()}, **OPTION_LIMITS}
 
@@ -456,7 +457,7 @@ def option_limits() -> dict:
 def _validate(args: argparse.Namespace) -> None:
     """Numeric ranges (`option_limits`) and output paths, before any work."""
     from planner.fileio import check_output
-    from planner.regrasp import in_range, option_range
+    from planner.options import in_range, option_range
 
     for dest, (low, high, open_low) in option_limits().items():
         value = getattr(args, dest, None)

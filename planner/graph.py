@@ -1,4 +1,4 @@
-"""Grasp-state graph and its ranked search (the planner's core).
+"""The grasp-state graph (the planner's core data structure).
 
 A grasp state assigns every finger a contact *slot* (a realized contact: joint values
 and contact patch) or ``LIFTED``. Two states are joined when exactly one finger
@@ -13,19 +13,10 @@ thus a finger-gaiting sequence that keeps force closure throughout.
 `build_graph` grows the graph breadth-first from the initial state, evaluating each
 new layer of states in one batch closure call; states that are not force closure are
 recorded as blocked and never expanded, so states that cannot matter are never built.
-`search` ranks paths in one of two ways (`RANKS`):
-
-* ``metric`` (the thesis): (1) the bottleneck, the worst closure metric along the path,
-  larger is better; (2) fewer gait steps (then fewer edges); (3) a larger mean metric.
-* ``grip`` (for execution): (1) the grip bottleneck, the largest grip force any state of the
-  path needs, smaller is better; (2) fewer gait steps; (3) the metric ranking (larger
-  metric bottleneck, fewer edges, larger mean metric).
-
-The search is exact for both: it returns the k best simple paths under the key.
-`LazyGraph` gives the same k best without building the whole graph: a best-first search
-over the implicit graph that evaluates a state only when it is popped (see its docstring
-for why the ranking stays exact). `greedy` is the thesis's Algorithm 2, kept as the
-baseline. `explain_failure` says in words why no sequence exists (`failure_analysis`).
+`Evaluator` caches what the states need (closure per state, collisions per slot pair,
+grip forces); `seed_graph` starts the graph that `planner.search.LazyGraph` and
+`planner.search.greedy` grow. Ranking paths through the graph: `planner.search`; why no
+path exists: `planner.explain`.
 
 This module is pure numpy/networkx: it knows nothing of hands or simulators. Slots
 carry finger joint values for the caller; collisions come in as a pairwise predicate.
@@ -33,9 +24,8 @@ carry finger joint values for the caller; collisions come in as a pairwise predi
 
 from __future__ import annotations
 
-import heapq
 import itertools
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Callable, Mapping, Sequence
 
 import networkx as nx
@@ -45,9 +35,6 @@ from planner.model import Friction
 from planner.closure import Closure, batch_grasp_closure, min_grip_force
 from planner.errors import InputError, NoSequenceError
 from planner.grip import HOLD_FACTOR, Capacity, FingerStatics, grip_program, hold_capacity, holds_by_bound, torque_demand
-
-RANKS = ("metric", "grip")
-"""Sequence rankings of `search` (module docstring)."""
 
 LIFTED = -1
 """Slot index of a finger that does not touch the object."""
@@ -272,7 +259,7 @@ def _same_array(a, b) -> bool:
     return (a is None and b is None) or (a is not None and b is not None and np.array_equal(a, b))
 
 
-def _within_lift_bound(problem: GaitProblem, node: Node) -> bool:
+def within_lift_bound(problem: GaitProblem, node: Node) -> bool:
     return problem.max_lifted is None or sum(s == LIFTED for s in node) <= problem.max_lifted
 
 
@@ -361,7 +348,7 @@ class Evaluator:
     def blocked_reason(self, node: Node) -> str | None:
         """Why a node is not a valid state, or None when it is."""
         p = self.problem
-        if not _within_lift_bound(p, node):
+        if not within_lift_bound(p, node):
             return "too many fingers lifted"
         pair = self.collision_pair(node)
         if pair is not None:
@@ -430,7 +417,7 @@ class Evaluator:
 
 
 def seed_graph(problem: GaitProblem, evaluator: Evaluator | None = None) -> nx.DiGraph:
-    """A graph holding only the initial state (what `greedy` and `LazyGraph` grow).
+    """A graph holding only the initial state (what `planner.search.greedy` and `planner.search.LazyGraph` grow).
 
     Args:
         evaluator: caches to reuse (from an earlier round over fewer slots, see
@@ -447,7 +434,7 @@ def seed_graph(problem: GaitProblem, evaluator: Evaluator | None = None) -> nx.D
     reason = ev.blocked_reason(problem.start)
     if reason is not None:
         raise NoSequenceError(f"the initial grasp is not a valid state: {reason}")
-    _add_node(G, ev, problem.start)
+    add_node(G, ev, problem.start)
     return G
 
 
@@ -468,7 +455,7 @@ def build_graph(problem: GaitProblem) -> nx.DiGraph:
     frontier = [problem.start]
     while frontier:
         moves = [(u, i, action, v) for u in frontier for i, action, v in problem.neighbours(u)]
-        ev.evaluate([v for *_, v in moves if v not in G and v not in G.graph["blocked"] and _within_lift_bound(problem, v)])
+        ev.evaluate([v for *_, v in moves if v not in G and v not in G.graph["blocked"] and within_lift_bound(problem, v)])
         new = []
         for u, i, action, v in moves:
             if v not in G:
@@ -480,7 +467,7 @@ def build_graph(problem: GaitProblem) -> nx.DiGraph:
                     G.graph["blocked"][v] = reason
                     G.graph["blocked_moves"].append((u, i, action, v))
                     continue
-                _add_node(G, ev, v)
+                add_node(G, ev, v)
                 new.append(v)
             G.add_edge(u, v, finger=problem.fingers[i], action=action)
         frontier = new
@@ -489,7 +476,7 @@ def build_graph(problem: GaitProblem) -> nx.DiGraph:
     return G
 
 
-def _add_node(G: nx.DiGraph, ev: Evaluator, v: Node) -> None:
+def add_node(G: nx.DiGraph, ev: Evaluator, v: Node) -> None:
     p = ev.problem
     c = ev.closure[v]
     forces = ev.grip_forces(v)
@@ -498,725 +485,10 @@ def _add_node(G: nx.DiGraph, ev: Evaluator, v: Node) -> None:
                grip_forces=None if forces is None else dict(zip((n for n, _ in p.all_loads()), forces)))
 
 
-def _gaits_lower_bound(start: Node, goal: Node, v: Node) -> int:
-    """Fewest gaits any start-goal path through ``v`` can have: every finger whose slot
-    differs between start and v needs a gait before v, every finger differing between v and
-    goal one after it; at most one gait (a lift right before v and that finger's landing
-    right after it) is counted twice."""
-    before = sum(a != b for a, b in zip(start, v))
-    after = sum(a != b for a, b in zip(v, goal))
-    straddle = any(s == LIFTED and a != LIFTED and g != LIFTED for a, s, g in zip(start, v, goal))
-    return before + after - int(straddle)
-
-
-class LazyGraph:
-    """The state graph grown lazily, best-first, as far as the ranked search needs it.
-
-    States are expanded in order of (their best possible primary cost from the start, a
-    lower bound of the gait steps of any path through them): the primary cost of a path is
-    its ranking's bottleneck (``metric``: minus the worst closure metric; ``grip``: the
-    largest grip force), and a state's is the smallest bottleneck over the paths reaching
-    it (a widest-path Dijkstra). A generated state is queued unevaluated, keyed by its
-    parent's value (a lower bound of its own); closure, collisions and grip force are
-    evaluated only when it is popped (one batch closure call per batch, with the caches of
-    `Evaluator`), then it is queued again with its true key, and expanded when popped
-    again. States keyed above what the ranking needs are never evaluated.
-
-    Exactness: once every queued state keyed at most (c, g) is popped, every path whose
-    (primary, gait steps) is at most (c, g) lies wholly in the explored graph (each of its
-    states has a primary cost <= c and a gait bound <= g, and so had its lower-bound key
-    when its predecessor on the path generated it). `best` goes on until that holds for the
-    k-th sequence `search` finds on the explored graph, so its ranking equals the ranking
-    over the whole graph (`build_graph`), up to ``max_expansions``.
-
-    Attributes:
-        G: the explored graph (same attributes as `build_graph`'s, without ``removable``
-            until `annotate_removable`); ``G.graph["expanded"]`` counts expanded states.
-        complete: True when every reachable valid state has been expanded.
-        timed_out: True when the deadline stopped an expansion.
-    """
-
-    BATCH = 16
-    """States popped per batch (evaluated together in one batch closure call)."""
-
-    def __init__(self, problem: GaitProblem, rank: str = "metric", evaluator: Evaluator | None = None,
-                 deadline: float | None = None):
-        if rank not in RANKS:
-            from planner.errors import UnknownNameError
-
-            raise UnknownNameError("rank", rank, RANKS)
-        if rank == "grip" and not problem.all_loads():
-            raise InputError("grip ranking needs the grip force of every state: plan with a gravity (a load)")
-        self.problem, self.rank, self.deadline = problem, rank, deadline
-        self.G = seed_graph(problem, evaluator)
-        self.ev: Evaluator = self.G.graph["evaluator"]
-        self.G.graph["expanded"] = 0
-        self.G.graph["blocked_moves"] = []  # (from state, finger index, action, to state) of refused moves
-        self.removed: set[tuple[Node, Node]] = set()
-        self.removed_states: set[Node] = set()
-        self.forbidden: set[tuple[int, int]] = set()  # (finger index, slot): never lifted off nor landed on
-        self.value = {problem.start: self._cost(problem.start)}
-        self._heap = [self._key(problem.start)]
-        self.expanded: set[Node] = set()
-        self._pending: dict[Node, list] = {}  # generated, not yet evaluated: its (parent, finger index, action)s
-        self.timed_out = False
-
-    def _cost(self, v: Node) -> float:
-        data = self.G.nodes[v]
-        return -data["metric"] if self.rank == "metric" else data["grip_force"]
-
-    def _key(self, v: Node) -> tuple:
-        return (self.value[v], _gaits_lower_bound(self.problem.start, self.problem.goal, v), v)
-
-    @property
-    def complete(self) -> bool:
-        return self._top() is None
-
-    def _top(self) -> tuple | None:
-        """(value, gait bound) of the next state to expand, dropping stale heap entries."""
-        while self._heap:
-            value, _, v = self._heap[0]
-            if v not in self.expanded and v not in self.G.graph["blocked"] and value <= self.value[v]:
-                return self._heap[0][:2]
-            heapq.heappop(self._heap)
-        return None
-
-    def _expand(self, bound: tuple, budget: int | None) -> int:
-        """Pop states keyed at most ``bound`` (value, gait bound): a state not yet evaluated
-        is evaluated (closure, collisions, grip; one batch closure call per batch) and pushed
-        again with its true key, an evaluated one is expanded: its successors are pushed
-        unevaluated, keyed by the best value they can have (their parent's). Returns how many
-        states were expanded."""
-        import time
-
-        p, G, ev, done = self.problem, self.G, self.ev, 0
-        blocked, pending = G.graph["blocked"], self._pending
-        while self._top() is not None and self._top() <= bound:
-            if budget is not None and done >= budget:
-                break
-            if self.deadline is not None and time.perf_counter() > self.deadline:
-                self.timed_out = True
-                break
-            grow, fresh = [], []
-            while self._top() is not None and self._top() <= bound and len(grow) + len(fresh) < self.BATCH:
-                v = heapq.heappop(self._heap)[2]
-                if v in G:
-                    self.expanded.add(v)
-                    grow.append(v)
-                elif v not in blocked and v not in fresh:
-                    fresh.append(v)
-            # collisions first (cached per slot pair): colliding states need no closure
-            ev.evaluate([w for w in fresh if _within_lift_bound(p, w) and ev.collision_free(w)])
-            for w in fresh:
-                reason = ev.blocked_reason(w)
-                parents = pending.pop(w)
-                if reason is not None:
-                    blocked[w] = reason
-                    G.graph["blocked_moves"].extend((u, i, action, w) for u, i, action in parents)
-                    continue
-                _add_node(G, ev, w)
-                for u, i, action in parents:
-                    G.add_edge(u, w, finger=p.fingers[i], action=action)
-                self.value[w] = max(self.value[w], self._cost(w))
-                heapq.heappush(self._heap, self._key(w))
-            for u in grow:
-                for i, action, w in p.neighbours(u):
-                    if (u, w) in self.removed or w in self.removed_states:
-                        continue
-                    if self.forbidden and (i, u[i] if action == "lift" else w[i]) in self.forbidden:
-                        continue
-                    if w in blocked:
-                        G.graph["blocked_moves"].append((u, i, action, w))
-                        continue
-                    if w in G:
-                        G.add_edge(u, w, finger=p.fingers[i], action=action)
-                        c = max(self.value[u], self._cost(w))
-                    else:  # evaluated when popped: its value is at least its parent's
-                        pending.setdefault(w, []).append((u, i, action))
-                        c = self.value[u]
-                    if c < self.value.get(w, np.inf):
-                        self.value[w] = c
-                        heapq.heappush(self._heap, self._key(w))
-            done += len(grow)
-        G.graph["expanded"] = len(self.expanded)
-        return done
-
-    def _primary(self, s: GaitSequence) -> float:
-        return -s.bottleneck if self.rank == "metric" else s.bottleneck_grip
-
-    def best(self, k: int = 1, *, max_expansions: int = 200_000, alternative_expansions: int = 5_000) -> list[GaitSequence]:
-        """The k best sequences (`search`'s ranking), growing the graph as needed.
-
-        The best one is exact unless ``max_expansions`` states were expanded or the deadline
-        passed first; alternatives 2..k are exact unless completing them needed more than
-        ``alternative_expansions`` further states. ``G.graph["search_exact"]`` says whether
-        all k are. Empty when the goal cannot be reached (then `complete` is True, unless a
-        limit stopped the growth).
-        """
-        G, goal, inf = self.G, self.problem.goal, (np.inf, np.inf)
-
-        def more(bound, budget) -> bool:
-            """Expand up to ``bound``; False when nothing was left to do or a limit stopped it."""
-            left, top = max_expansions - len(self.expanded), self._top()
-            if top is None or top > bound or self.timed_out or left <= 0 or budget <= 0:
-                return False
-            self._expand(bound, min(left, budget))
-            return True
-
-        def key(s: GaitSequence) -> tuple:
-            return (-s.bottleneck if self.rank == "metric" else s.bottleneck_grip, s.gait_steps)
-
-        exact = True
-        while goal not in G and more(inf, self.BATCH):
-            pass
-        found = []
-        while goal in G:  # the best sequence: expand until nothing keyed below it is left
-            found = search(G, k, rank=self.rank, max_expansions=max_expansions)
-            exact = exact and G.graph["search_exact"]
-            if not found or not more(key(found[0]), max_expansions):  # none: search's own limit
-                break
-        budget = alternative_expansions
-        while found:  # alternatives 2..k, within their own budget
-            target = key(found[k - 1]) if len(found) >= k else inf
-            before = len(self.expanded)
-            if not more(target, budget):
-                break
-            budget -= len(self.expanded) - before
-            found = search(G, k, rank=self.rank, max_expansions=max_expansions)
-            exact = exact and G.graph["search_exact"]
-        if found:
-            target = key(found[k - 1]) if len(found) >= k else inf
-            top = self._top()
-            exact = exact and not (top is not None and top <= target)
-        exact = exact and not self.timed_out
-        G.graph["search_exact"] = exact
-        return found
-
-    def remove_edge(self, u: Node, v: Node) -> None:
-        """Drop a move (e.g. a finger path that cannot be planned) for good."""
-        self.removed.add((u, v))
-        if self.G.has_edge(u, v):
-            self.G.remove_edge(u, v)
-
-    def forbid(self, finger_index: int, slot: int) -> None:
-        """Drop, for good, every move lifting a finger off a contact or landing it there (a
-        contact the finger cannot back off in any state: `planner.motion.retreat_blocked`)."""
-        self.forbidden.add((finger_index, slot))
-        for u, v in list(self.G.edges):
-            if u[finger_index] == slot and v[finger_index] == LIFTED or \
-                    u[finger_index] == LIFTED and v[finger_index] == slot:
-                self.remove_edge(u, v)
-
-    def remove_state(self, v: Node) -> None:
-        """Drop every move into a state (e.g. one that failed in the simulator), for good:
-        the moves already in the graph and any found later."""
-        self.removed_states.add(v)
-        for u in list(self.G.predecessors(v)) if v in self.G else ():
-            self.remove_edge(u, v)
-
-
 def annotate_removable(G: nx.DiGraph, nodes) -> None:
-    """Set the ``removable`` attribute (thesis Algorithm 1) of the given nodes (`LazyGraph`
+    """Set the ``removable`` attribute (thesis Algorithm 1) of the given nodes (`planner.search.LazyGraph`
     leaves it unset: it needs the closure of every single-finger lift)."""
     ev: Evaluator = G.graph["evaluator"]
     for v in dict.fromkeys(nodes):
         if "removable" not in G.nodes[v]:
             G.nodes[v]["removable"] = ev.removable(v)
-
-
-@dataclass(frozen=True)
-class GaitSequence:
-    """A path through the graph with its ranking keys.
-
-    Attributes:
-        nodes: the states, start to goal.
-        actions: (finger, action) per edge.
-        bottleneck: worst closure metric over the states.
-        mean_metric: mean closure metric over the states.
-        gait_steps: finger gaits: a lift and the landing of the same finger right after it
-            are one gait; a lift or a landing on its own is one gait too.
-        bottleneck_grip: the largest grip force (N per finger) any state needs to hold the
-            problem's loads; None when the problem has no load.
-        rank: the ranking ``rank_key`` follows (`RANKS`).
-    """
-
-    nodes: tuple[Node, ...]
-    actions: tuple[tuple[str, str], ...]
-    bottleneck: float
-    mean_metric: float
-    gait_steps: int = field(default=0)
-    bottleneck_grip: float | None = None
-    rank: str = "metric"
-
-    @property
-    def rank_key(self) -> tuple:
-        """Sort key, smaller is better. ``metric``: larger bottleneck, then fewer gait steps
-        (then edges), then larger mean. ``grip``: smaller grip bottleneck, then fewer gait
-        steps, then the metric ranking (larger bottleneck, fewer edges, larger mean)."""
-        if self.rank == "grip":
-            return (self.bottleneck_grip, self.gait_steps, -self.bottleneck, len(self.actions), -self.mean_metric)
-        return (-self.bottleneck, self.gait_steps, len(self.actions), -self.mean_metric)
-
-    def order(self, problem: GaitProblem) -> tuple[str, ...]:
-        """Compact ordering: "finger:lift" / "finger:land>label" per edge."""
-        out = []
-        for (finger, action), node in zip(self.actions, self.nodes[1:]):
-            if action == "land":
-                out.append(f"{finger}:land>{problem.labels(node)[finger]}")
-            else:
-                out.append(f"{finger}:lift")
-        return tuple(out)
-
-
-def _gait_increment(prev: tuple[str, str] | None, action: tuple[str, str]) -> int:
-    """1 when ``action`` starts a new gait; 0 for a landing right after its own lift."""
-    return 0 if action[1] == "land" and prev == (action[0], "lift") else 1
-
-
-def _sequence(G: nx.DiGraph, nodes: Sequence[Node], rank: str = "metric") -> GaitSequence:
-    metrics = [G.nodes[v]["metric"] for v in nodes]
-    grips = [G.nodes[v].get("grip_force") for v in nodes]
-    actions = tuple((G.edges[u, v]["finger"], G.edges[u, v]["action"]) for u, v in zip(nodes, nodes[1:]))
-    return GaitSequence(
-        nodes=tuple(nodes),
-        actions=actions,
-        bottleneck=float(min(metrics)),
-        mean_metric=float(np.mean(metrics)),
-        gait_steps=sum(_gait_increment(prev, act) for prev, act in zip((None,) + actions, actions)),
-        bottleneck_grip=None if any(g is None for g in grips) else float(max(grips)),
-        rank=rank,
-    )
-
-
-def _bottleneck_to_goal(G: nx.DiGraph, goal: Node, cost: Mapping[Node, float]) -> dict[Node, float]:
-    """For every node v that reaches the goal: the smallest possible largest ``cost`` over
-    the nodes of a walk from v to the goal (both ends included). Dijkstra on the reversed
-    graph with max in place of +; a lower bound for any simple path too."""
-    best = {goal: cost[goal]}
-    heap = [(cost[goal], goal)]
-    done = set()
-    while heap:
-        d, v = heapq.heappop(heap)
-        if v in done:
-            continue
-        done.add(v)
-        for u in G.predecessors(v):
-            du = max(cost[u], d)
-            if du < best.get(u, np.inf):
-                best[u] = du
-                heapq.heappush(heap, (du, u))
-    return best
-
-
-def _gaits_to_goal(G: nx.DiGraph, goal: Node, allowed=None) -> dict[tuple[Node, str | None], int]:
-    """Fewest gaits from each state to the goal (within ``allowed`` states when given),
-    keyed (state, finger whose lift led to it or None): a landing right after the same
-    finger's lift is free (`_gait_increment`). Look a state up under its lifted finger and
-    under None, and take the smaller (a 0-1 Dijkstra on the reversed graph)."""
-    if goal not in G or (allowed is not None and goal not in allowed):
-        return {}
-    dist = {(goal, None): 0}
-    heap = [(0, 0, goal, None)]
-    tie = itertools.count(1)
-    done = set()
-    while heap:
-        d, _, w, lw = heapq.heappop(heap)
-        if (w, lw) in done:
-            continue
-        done.add((w, lw))
-        for u in G.predecessors(w):
-            if allowed is not None and u not in allowed:
-                continue
-            e = G.edges[u, w]
-            f, action = e["finger"], e["action"]
-            if lw is not None and (action, f) != ("lift", lw):  # (w, None) bounds every (w, f) too
-                continue
-            steps = [((u, None), d + 1)] + ([((u, f), d)] if action == "land" else [])
-            for state, du in steps:
-                if du < dist.get(state, np.inf):
-                    dist[state] = du
-                    heapq.heappush(heap, (du, next(tie), *state))
-    return dist
-
-
-def search(G: nx.DiGraph, k: int = 1, *, rank: str = "metric", max_expansions: int = 200_000) -> list[GaitSequence]:
-    """The best ``k`` distinct gait sequences from the graph's start to its goal.
-
-    Ranking (``rank``, `RANKS`): ``metric`` sorts by ``(-bottleneck, gait steps, edges,
-    -mean metric)``, ``grip`` by ``(grip bottleneck, gait steps, -bottleneck, edges, -mean
-    metric)`` (`GaitSequence.rank_key`). ``grip`` needs the nodes' ``grip_force`` (a
-    problem with a load).
-
-    Exact best-first enumeration of simple paths (A*). A partial path is keyed by a lower
-    bound of the key of every goal path extending it, component by component: each
-    bottleneck part is the worse of the path's own and the best bottleneck any walk from
-    its end to the goal can have (`_bottleneck_to_goal`); gait steps add one per finger
-    not yet at its goal slot (less one when the last edge lifted a finger whose landing
-    would complete that gait); edges add the shortest edge count to the goal. Every part
-    is a lower bound and complete paths are keyed exactly, so goal paths come off the heap
-    in key order (every prefix of a goal path is keyed no higher than the path itself).
-    The mean metric is keyed too (for paths of the same edge count: the metrics so far plus
-    the graph's best metric for each state still to come), so that the many orderings of
-    the same moves that tie on everything else are cut once k paths are found; among equal
-    keys the longer partial path goes first. The search stops once the next partial path
-    is keyed above the k-th goal path found; results are sorted by the full key. No
-    partial path is dropped for any other reason, so the result is exact unless
-    ``max_expansions`` partial paths were expanded first (then it is the best found and
-    ``G.graph["search_exact"]`` is False; it is True otherwise).
-
-    Returns:
-        Up to k sequences, best first; empty when the goal is unreachable.
-
-    Raises:
-        InputError: unknown ``rank``, or ``rank="grip"`` on a graph without grip forces.
-    """
-    if rank not in RANKS:
-        from planner.errors import UnknownNameError
-
-        raise UnknownNameError("rank", rank, RANKS)
-    G.graph["search_exact"] = True
-    start, goal = G.graph["start"], G.graph["goal"]
-    if goal not in G or start not in G:
-        return []
-    neg_metric = {v: -G.nodes[v]["metric"] for v in G.nodes}
-    hb_metric = _bottleneck_to_goal(G, goal, neg_metric)
-    if start not in hb_metric:
-        return []
-    grip = hb_grip = None
-    if rank == "grip":
-        grip = {v: G.nodes[v].get("grip_force") for v in G.nodes}
-        if any(g is None for g in grip.values()):
-            raise InputError("grip ranking needs the grip force of every state: plan with a gravity (a load)")
-        hb_grip = _bottleneck_to_goal(G, goal, grip)
-    hops = nx.single_target_shortest_path_length(G, goal)
-    hops = dict(hops) if not isinstance(hops, dict) else hops
-    # fewest gaits to the goal, over the whole graph and over the states whose primary cost
-    # (the first ranking component) is at most the best bottleneck's: a path that can still
-    # reach the goal with that bottleneck is bounded by the second, tighter table
-    primary, hb_primary = (neg_metric, hb_metric) if grip is None else (grip, hb_grip)
-    best_primary = hb_primary[start]
-    gaits_all = _gaits_to_goal(G, goal)
-    gaits_best = _gaits_to_goal(G, goal, {v for v, c in primary.items() if c <= best_primary})
-
-    def gaits_left(v: Node, last, p: float) -> int:
-        table = gaits_best if max(p, hb_primary[v]) <= best_primary else gaits_all
-        lifted = last[0] if last is not None and last[1] == "lift" else None
-        return min(table.get((v, lifted), np.inf), table.get((v, None), np.inf))
-
-    top_metric = max(-m for m in neg_metric.values())
-
-    def key(neg_b, g_max, gaits, n_edges, total, v, last) -> tuple:
-        b = max(neg_b, hb_metric[v])
-        g = gaits + gaits_left(v, last, neg_b if grip is None else g_max)
-        e = n_edges + hops[v]
-        # the mean metric can be at most: the path's metrics so far, the best metric of the
-        # graph for each state still to come (exact once the path is complete)
-        mean = -(total + hops[v] * top_metric) / (e + 1)
-        if rank == "grip":
-            return (max(g_max, hb_grip[v]), g, b, e, mean)
-        return (b, g, e, mean)
-
-    tie = itertools.count()
-    g0 = grip[start] if grip is not None else 0.0
-    m0 = -neg_metric[start]
-    # equal keys: the longer partial path first (depth-first along a plateau of equal keys)
-    heap = [(key(neg_metric[start], g0, 0, 0, m0, start, None), 0, next(tie), neg_metric[start], g0, 0, 0, m0, (start,), None)]
-    found: list[GaitSequence] = []
-    bound = None  # key of the k-th goal path found (its mean a hair lower: float sums)
-    expansions = 0
-    while heap:
-        f, _, _, neg_b, g_max, gaits, n_edges, total, path, last = heapq.heappop(heap)
-        if bound is not None and f > bound:
-            break
-        v = path[-1]
-        if v == goal:
-            found.append(_sequence(G, path, rank))
-            if len(found) >= k:
-                found.sort(key=lambda s: s.rank_key)
-                bound = found[k - 1].rank_key[:-1] + (found[k - 1].rank_key[-1] + 1e-9,)
-            continue
-        if expansions >= max_expansions:
-            G.graph["search_exact"] = False
-            break
-        expansions += 1
-        on_path = set(path)
-        for w in sorted(G.successors(v)):
-            if w in on_path or w not in hops:
-                continue
-            e = G.edges[v, w]
-            act = (e["finger"], e["action"])
-            nb = max(neg_b, neg_metric[w])
-            gm = max(g_max, grip[w]) if grip is not None else 0.0
-            gw = gaits + _gait_increment(last, act)
-            tw = total - neg_metric[w]
-            fw = key(nb, gm, gw, n_edges + 1, tw, w, act)
-            if bound is not None and fw > bound:
-                continue
-            heapq.heappush(heap, (fw, -(n_edges + 1), next(tie), nb, gm, gw, n_edges + 1, tw, path + (w,), act))
-    found.sort(key=lambda s: s.rank_key)
-    return found[:k]
-
-
-def greedy(G: nx.DiGraph) -> GaitSequence:
-    """The thesis's Algorithm 2 on the same states, as the baseline.
-
-    Repeatedly repositions (lift, then land at its final slot) the first finger, in
-    hand order, that still needs repositioning and is removable; when all needed fingers
-    are in place, lifts the fingers free in the final grasp, each when removable. It
-    never looks ahead, so it fails where the order matters.
-
-    Raises:
-        NoSequenceError: greedy got stuck; ``report`` holds the partial sequence.
-    """
-    p: GaitProblem = G.graph["problem"]
-    ev: Evaluator = G.graph["evaluator"]
-    current = p.start
-    path = [current]
-    needed = [i for i, s in enumerate(p.goal) if s != LIFTED and p.start[i] != s]
-    unneeded = [i for i, s in enumerate(p.goal) if s == LIFTED and p.start[i] != LIFTED]
-
-    def step(node: Node) -> bool:
-        ev.evaluate([node])
-        if ev.blocked_reason(node) is not None:
-            return False
-        if node not in G:
-            _add_node(G, ev, node)
-        return True
-
-    def stuck(why: str) -> NoSequenceError:
-        labels = p.labels(current)
-        return NoSequenceError(
-            f"greedy (thesis Algorithm 2) is stuck: {why}; reached {labels}",
-            report={"partial": [p.labels(v) for v in path], "strategy": "greedy"},
-        )
-
-    while needed or unneeded:
-        removable = ev.removable(current)
-        pool = needed if needed else unneeded
-        movable = [i for i in pool if p.fingers[i] in removable]
-        if not movable:
-            names = ", ".join(p.fingers[i] for i in pool)
-            raise stuck(f"none of the fingers still to move ({names}) is removable")
-        i = movable[0]
-        lifted = current[:i] + (LIFTED,) + current[i + 1 :]
-        if lifted != current:
-            if not step(lifted):
-                raise stuck(f"lifting {p.fingers[i]} gives an invalid state ({ev.blocked_reason(lifted)})")
-            path.append(lifted)
-            current = lifted
-        if pool is needed:
-            landed = lifted[:i] + (p.goal[i],) + lifted[i + 1 :]
-            if not step(landed):
-                raise stuck(f"landing {p.fingers[i]} gives an invalid state ({ev.blocked_reason(landed)})")
-            path.append(landed)
-            current = landed
-        pool.remove(i)
-    for u, v in zip(path, path[1:]):
-        if not G.has_edge(u, v):
-            i = next(j for j in range(len(u)) if u[j] != v[j])
-            G.add_edge(u, v, finger=p.fingers[i], action="lift" if v[i] == LIFTED else "land")
-    for v in path:
-        G.nodes[v].setdefault("removable", ev.removable(v))
-    return _sequence(G, path)
-
-
-def _slot_words(problem: GaitProblem, finger: str, s: int) -> str:
-    if s == LIFTED:
-        return "lifted"
-    label = problem.slots[finger][s].label
-    return {"initial": "its initial contact", "final": "its final contact"}.get(label, f"intermediate contact {label}")
-
-
-def _state_words(problem: GaitProblem, node: Node) -> str:
-    """'thumb initial, index final, middle lifted' (fingers free in both grasps left out)."""
-    labels = problem.labels(node)
-    keep = [f for i, f in enumerate(problem.fingers) if not (problem.start[i] == problem.goal[i] == node[i] == LIFTED)]
-    return ", ".join(f"{f} {labels[f]}" for f in keep)
-
-
-def _move_words(problem: GaitProblem, u: Node, v: Node) -> str:
-    i = next(j for j in range(len(u)) if u[j] != v[j])
-    f = problem.fingers[i]
-    return f"lift {f}" if v[i] == LIFTED else f"land {f} on {_slot_words(problem, f, v[i])}"
-
-
-def _reason_words(ev: Evaluator, finger: str, action: str, w: Node, reason: str) -> str:
-    """A refused move in words: what goes wrong in the state it would lead to."""
-    pair = ev.collision_pair(w) if reason.startswith("fingers collide") else None
-    if pair is not None:
-        other = pair[1] if pair[0] == finger else pair[0] if pair[1] == finger else None
-        if other is not None:
-            return f"it would collide with {other}" + (" (in its open posture)" if w[ev.problem.fingers.index(other)] == LIFTED else "")
-        return f"{pair[0]} and {pair[1]} would collide"
-    if reason == "not force closure":
-        c = ev.closure.get(w)
-        metric = f", metric {c.metric:.3g}" if c is not None else ""
-        rest = ", ".join(f for f in ev.problem.patches(w)) or "no finger"
-        return f"{'without it' if action == 'lift' else 'with it'} the grasp ({rest}) is not force closure{metric}"
-    return reason
-
-
-def _cannot_hold(reason: str) -> bool:
-    """A state refused because its contacts cannot hold the object (not force closure, or
-    over the grip force budget), not because fingers collide or too many are lifted."""
-    return reason == "not force closure" or reason.startswith("need over")
-
-
-def failure_analysis(G: nx.DiGraph) -> dict:
-    """What stops the graph's start from reaching its goal (for `explain_failure` and for
-    choosing the fingers that get intermediate contacts).
-
-    Returns a dict: ``closest`` (the reached state fewest fingers from the goal, best metric
-    first), ``partial`` (the fewest-move path to it), ``lift_blocked`` (finger that has to
-    move -> (state, why) for a finger never lifted in any reached state where it touches),
-    ``unheld`` (those of them refused because the other fingers cannot hold the object
-    without them), ``landing_blocked`` (finger -> {why: count of states} for refused
-    landings on the final contact), ``stuck`` ((finger, action, why) of each refused next
-    move from the closest state), ``blockers`` (fingers worth giving intermediate contacts, most implicated
-    first), ``needs`` ((finger, state) pairs: a new contact of that finger would help if,
-    added to the state, where it is lifted, it made a valid grasp: the other fingers when a
-    lift leaves a state that cannot hold the object (not force closure, or over the grip
-    force budget), the finger in the way of a landing),
-    ``goal_reason`` (why the final grasp itself is invalid, or None).
-    """
-    p: GaitProblem = G.graph["problem"]
-    ev: Evaluator = G.graph["evaluator"]
-    start, goal = G.graph["start"], G.graph["goal"]
-    reach = nx.descendants(G, start) | {start}
-    dist = {v: sum(a != b for a, b in zip(v, goal)) for v in reach}
-    closest = min(reach, key=lambda v: (dist[v], -G.nodes[v]["metric"], v))
-    partial = nx.shortest_path(G, start, closest)
-    moves = [m for m in G.graph.get("blocked_moves", []) if m[0] in reach]
-    on_partial = {v: k for k, v in enumerate(partial)}
-    lift_blocked, landing_blocked, score = {}, {}, {f: 0 for f in p.fingers}
-    needs: list[tuple[str, Node]] = []
-    unheld: list[str] = []
-
-    def need_holders(w: Node, lifted: str) -> None:
-        """Lifting ``lifted`` left ``w`` unable to hold the object: another finger could help by a
-        new contact: a lifted one added to ``w``, a touching one moved within ``w``."""
-        for j, g in enumerate(p.fingers):
-            if g != lifted:
-                needs.append((g, w[:j] + (LIFTED,) + w[j + 1:]))
-
-    def need_room(f: str, w: Node) -> None:
-        """Landing ``f`` gives ``w``, where it collides: the finger in the way could move."""
-        for g in ev.collision_pair(w) or ():
-            if g != f:
-                j = p.fingers.index(g)
-                if w[j] != LIFTED:
-                    needs.append((g, w[:j] + (LIFTED,) + w[j + 1:]))
-
-    for i, f in enumerate(p.fingers):
-        if p.start[i] == p.goal[i]:
-            continue
-        touching = [v for v in reach if v[i] != LIFTED]
-        if touching and not any(G.has_edge(v, v[:i] + (LIFTED,) + v[i + 1:]) for v in touching):
-            tried = [m for m in moves if m[1] == i and m[2] == "lift"]
-            if tried:  # the refused lift nearest the end of the best partial sequence
-                u, _, _, w = max(tried, key=lambda m: (on_partial.get(m[0], -1), -dist[m[0]]))
-                lift_blocked[f] = (u, _reason_words(ev, f, "lift", w, G.graph["blocked"][w]))
-                score[f] += 3
-                if _cannot_hold(G.graph["blocked"][w]):
-                    need_holders(w, f)
-                if any(_cannot_hold(G.graph["blocked"][m[3]]) for m in tried):
-                    unheld.append(f)
-        if p.goal[i] != LIFTED:
-            why: dict[str, int] = {}
-            for u, j, action, w in moves:
-                if j == i and action == "land" and w[i] == p.goal[i]:
-                    text = _reason_words(ev, f, "land", w, G.graph["blocked"][w])
-                    why[text] = why.get(text, 0) + 1
-                    if why[text] <= 2:
-                        need_room(f, w)
-                    pair = ev.collision_pair(w)
-                    for g in pair or ():
-                        if g != f:
-                            score[g] += 2
-            if why and not any(v[i] == p.goal[i] for v in reach):
-                landing_blocked[f] = dict(sorted(why.items(), key=lambda kv: (-kv[1], kv[0])))
-                score[f] += 1
-        if closest[i] != goal[i]:
-            score[f] += 1
-    # the next move of every finger not yet at its final slot, from the closest state
-    stuck = []
-    for i, f in enumerate(p.fingers):
-        if closest[i] == goal[i]:
-            continue
-        action = "lift" if closest[i] != LIFTED else "land"
-        w = closest[:i] + ((LIFTED,) if action == "lift" else (goal[i],)) + closest[i + 1:]
-        if w in G.graph["blocked"]:
-            stuck.append((f, action, _reason_words(ev, f, action, w, G.graph["blocked"][w])))
-            if _cannot_hold(G.graph["blocked"][w]) and action == "lift":
-                need_holders(w, f)
-            need_room(f, w)
-            for g in ev.collision_pair(w) or ():
-                score[g] += 2 if g != f else 0
-            if action == "lift":
-                score[f] += 2
-    goal_reason = None
-    if goal in ev.closure or goal in G.graph["blocked"]:
-        goal_reason = G.graph["blocked"].get(goal) or ev.blocked_reason(goal)
-    blockers = [f for f in sorted(p.fingers, key=lambda f: (-score[f], p.fingers.index(f))) if score[f] > 0]
-    return {"closest": closest, "partial": partial, "lift_blocked": lift_blocked, "unheld": unheld,
-            "landing_blocked": landing_blocked,
-            "stuck": stuck, "needs": list(dict.fromkeys(needs)),
-            "blockers": blockers, "goal_reason": goal_reason, "distance": dist[closest]}
-
-
-def explain_failure(G: nx.DiGraph, intermediate_tried: bool, tried: str | None = None) -> NoSequenceError:
-    """Why no sequence connects start and goal, in words: the error the CLI prints.
-
-    Says whether the final grasp itself is invalid, which finger that has to move cannot be
-    lifted in any reached state and why (the grasp without it is not force closure, with its
-    metric, or it would collide with a named finger), which landings on the final contacts
-    are refused and why, the best partial sequence and where it ends, and what was tried
-    (``tried``: a sentence from the caller, e.g. the rounds of intermediate contacts).
-    Fingers free in both grasps are never mentioned.
-    """
-    p: GaitProblem = G.graph["problem"]
-    a = failure_analysis(G)
-    lines = []
-    if a["goal_reason"]:
-        lines.append(f"the final grasp itself is not a valid state ({a['goal_reason']})")
-    for f, (u, why) in a["lift_blocked"].items():
-        where = "the initial grasp" if u == p.start else f"any reached state (e.g. {_state_words(p, u)})"
-        lines.append(f"{f} cannot be lifted in {where}: {why}")
-    for f, why in a["landing_blocked"].items():
-        parts = [text + (f" ({n} states)" if n > 1 else "") for text, n in why.items()]
-        lines.append(f"{f} cannot land on its final contact: {'; '.join(parts)}")
-    steps = [_move_words(p, u, v) for u, v in zip(a["partial"], a["partial"][1:])]
-    lines.append(f"best partial sequence ({len(steps)} moves{': ' + ', '.join(steps) if steps else ''}) ends "
-                 f"{a['distance']} finger(s) from the final grasp in: {_state_words(p, a['closest'])}")
-    for f, action, why in a["stuck"]:
-        if f not in a["lift_blocked"] and f not in a["landing_blocked"]:
-            move = "be lifted" if action == "lift" else "land on its final contact"
-            lines.append(f"there {f} cannot {move}: {why}")
-    if not (a["lift_blocked"] or a["landing_blocked"] or a["stuck"] or a["goal_reason"]):
-        # nothing was refused: the search stopped before it tried the moves that remain
-        left = [f for i, f in enumerate(p.fingers) if a["closest"][i] != G.graph["goal"][i]]
-        if left:
-            lines.append(f"{', '.join(left)} still {'has' if len(left) == 1 else 'have'} to move and no such move "
-                         "was refused: the search stopped before it evaluated them (a longer --time-limit lets "
-                         "it go on)")
-    if tried:
-        lines.append(tried)
-    elif not intermediate_tried:
-        lines.append("no intermediate contacts were tried (give --intermediate N or a --time-limit)")
-    else:
-        lines.append("intermediate contacts were tried")
-    reasons: dict[str, int] = {}
-    for r in G.graph["blocked"].values():
-        reasons[r] = reasons.get(r, 0) + 1
-    report = {
-        "never_removable": sorted(a["lift_blocked"]),
-        "lift_blocked": {f: why for f, (_, why) in a["lift_blocked"].items()},
-        "landing_blocked": a["landing_blocked"],
-        "closest": p.labels(a["closest"]),
-        "stuck": [{"finger": f, "action": action, "why": why} for f, action, why in a["stuck"]],
-        "partial": [p.labels(v) for v in a["partial"]],
-        "blocked": reasons,
-        "blockers": a["blockers"],
-        "intermediate_tried": intermediate_tried,
-    }
-    return NoSequenceError("no finger-gaiting sequence: " + "; ".join(lines), report=report)

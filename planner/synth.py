@@ -381,7 +381,7 @@ def synthesize(hand_ref: str, obj_block: dict, fingers, n: int, *, fixed: bool, 
             one contact per finger at its patch mean, and compute the grip force with those
             contacts (what `PlanOptions.for_execution` plans with).
         friction_margin: the grip force is computed with ``mu`` and ``gamma`` scaled by this
-            (execution mode's friction reserve: `planner.regrasp.EXECUTION_FRICTION_MARGIN`).
+            (execution mode's friction reserve: `planner.options.EXECUTION_FRICTION_MARGIN`).
         max_attempts: candidates sampled at most (default 60 n).
         base_dir: where the grasp files will live (anchors relative paths in error messages).
         progress: None or callable(str) for progress lines.

@@ -248,7 +248,8 @@ def test_a_mean_contact_below_a_curved_surface_is_the_model_not_an_error(tmp_pat
     own patch mean has at the state's joints, and still refuses one moved off the surface."""
     from pathlib import Path
 
-    from planner.regrasp import PlanOptions, plan_regrasp
+    from planner.options import PlanOptions
+    from planner.regrasp import plan_regrasp
 
     data = Path(__file__).parent / "data" / "grasps"
     res = plan_regrasp(data / "icub_sphere22_i.yaml", data / "icub_sphere22_f.yaml",

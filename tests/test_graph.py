@@ -14,7 +14,9 @@ import pytest
 from planner.model import Friction
 from planner.closure import grasp_closure, min_grip_force
 from planner.errors import InputError, NoSequenceError, UnknownNameError
-from planner.graph import LIFTED, GaitProblem, LazyGraph, Slot, build_graph, explain_failure, greedy, search
+from planner.explain import explain_failure
+from planner.graph import LIFTED, GaitProblem, Slot, build_graph
+from planner.search import LazyGraph, greedy, search
 
 R = 0.03
 FRICTION = Friction(mu=0.5, gamma=0.004, edges=5)
@@ -387,10 +389,10 @@ def test_lazy_graph_honours_removed_edges_and_the_lift_bound():
 
 
 def test_fewest_gaits_to_goal_is_exact():
-    """_gaits_to_goal (the search's gait bound): from the start, the fewest gaits over every
+    """gaits_to_goal (the search's gait bound): from the start, the fewest gaits over every
     simple start-goal path (brute force), on random problems, over the whole graph and over
     the states no worse than the best bottleneck."""
-    from planner.graph import _gaits_to_goal
+    from planner.search import gaits_to_goal
 
     checked = 0
     for seed in range(8):
@@ -399,7 +401,7 @@ def test_fewest_gaits_to_goal_is_exact():
         G = build_graph(prob)
         paths = list(nx.all_simple_paths(G, prob.start, prob.goal)) if prob.goal in G else []
         if not paths:
-            assert (prob.start, None) not in _gaits_to_goal(G, prob.goal)
+            assert (prob.start, None) not in gaits_to_goal(G, prob.goal)
             continue
         checked += 1
         best = max(min(G.nodes[v]["metric"] for v in path) for path in paths)
@@ -408,9 +410,9 @@ def test_fewest_gaits_to_goal_is_exact():
             acts = [(G.edges[u, v]["finger"], G.edges[u, v]["action"]) for u, v in zip(path, path[1:])]
             return sum(not (a[1] == "land" and p == (a[0], "lift")) for p, a in zip([None] + acts, acts))
 
-        assert _gaits_to_goal(G, prob.goal)[(prob.start, None)] == min(map(gaits, paths))
+        assert gaits_to_goal(G, prob.goal)[(prob.start, None)] == min(map(gaits, paths))
         allowed = {v for v in G if G.nodes[v]["metric"] >= best}
-        assert _gaits_to_goal(G, prob.goal, allowed)[(prob.start, None)] == min(
+        assert gaits_to_goal(G, prob.goal, allowed)[(prob.start, None)] == min(
             gaits(p) for p in paths if all(v in allowed for v in p))
     assert checked >= 3
 

@@ -218,7 +218,8 @@ def test_a_failed_verification_removes_the_transition_and_the_search_goes_on(mon
     import planner.sim.verify as verify
     from planner.errors import NoSequenceError
     from planner.grasp import load_grasp, realize
-    from planner.regrasp import PlanOptions, plan_regrasp
+    from planner.options import PlanOptions
+    from planner.regrasp import plan_regrasp
     from planner.resources import bundled_grasp
 
     a, b = (realize(load_grasp(bundled_grasp(n))) for n in ("icub/box_parallel_extension.yaml", "icub/box_ir2m.yaml"))
@@ -271,7 +272,8 @@ def test_when_every_sequence_fails_in_the_simulator_more_contacts_are_tried_then
     import planner.sim.verify as verify
     from planner.errors import NoSequenceError
     from planner.grasp import load_grasp, realize
-    from planner.regrasp import RESUME_ROUNDS, PlanOptions, plan_regrasp
+    from planner.options import PlanOptions
+    from planner.regrasp import RESUME_ROUNDS, plan_regrasp
     from planner.resources import bundled_grasp
 
     a, b = (realize(load_grasp(bundled_grasp(n))) for n in ("icub/box_parallel_extension.yaml", "icub/box_ir2m.yaml"))
@@ -285,14 +287,14 @@ def test_when_every_sequence_fails_in_the_simulator_more_contacts_are_tried_then
     import planner.regrasp as regrasp
 
     searches = []
-    search = regrasp._anytime_search
+    search = regrasp.anytime_search
 
     def counted(*args, prior=None, **kw):
         searches.append(prior is not None)
         return search(*args, prior=prior, **kw)
 
     monkeypatch.setattr(verify, "verify_plan", never)
-    monkeypatch.setattr(regrasp, "_anytime_search", counted)
+    monkeypatch.setattr(regrasp, "anytime_search", counted)
     with pytest.raises(NoSequenceError) as err:
         plan_regrasp(a, b, PlanOptions.for_execution(motion=False, verify_attempts=100))
     text = str(err.value)
@@ -323,7 +325,8 @@ def test_parallel_replays_equal_serial_ones(tmp_path):
     from planner.grasp import load_grasp, realize
     from planner.gravity import gravity_directions
     from planner.plan import read_plan, write_plan
-    from planner.regrasp import PlanOptions, plan_regrasp
+    from planner.options import PlanOptions
+    from planner.regrasp import plan_regrasp
     from planner.resources import bundled_grasp
     from planner.sim.verify import replay_directions
 

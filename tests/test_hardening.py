@@ -306,7 +306,7 @@ def test_plan_options_api_checks_the_cli_ranges():
     string, NaN) is one InputError line naming the field and its valid range; each end of
     every range is accepted; the CLI's table holds every field under its option name."""
     from planner.cli import option_limits
-    from planner.regrasp import PLAN_OPTION_FLAGS, PLAN_OPTION_LIMITS, PlanOptions
+    from planner.options import PLAN_OPTION_FLAGS, PLAN_OPTION_LIMITS, PlanOptions
 
     assert {PLAN_OPTION_FLAGS.get(k, k): v for k, v in PLAN_OPTION_LIMITS.items()}.items() <= option_limits().items()
     for name, (low, high, open_low) in PLAN_OPTION_LIMITS.items():
@@ -839,7 +839,7 @@ def test_a_failing_pair_is_explained_the_same_under_cpu_load():
 
     from planner.errors import NoSequenceError
     from planner.grasp import load_grasp, realize
-    from planner.regrasp import PlanOptions
+    from planner.options import PlanOptions
     from planner.regrasp import plan_regrasp as plan
 
     data = Path(__file__).parent / "data" / "grasps"

@@ -33,9 +33,9 @@ def test_python_dash_m_runs():
 
 
 def test_core_maths_imports_without_heavy_back_ends():
-    """planner.closure and planner.graph import without pinocchio, coal, OMPL or pybullet."""
+    """planner.closure, planner.graph, planner.search and planner.explain import without pinocchio, coal, OMPL or pybullet."""
     code = (
-        "import sys, planner.closure, planner.graph, planner.plan\n"
+        "import sys, planner.closure, planner.graph, planner.search, planner.explain, planner.plan\n"
         "heavy = [m for m in ('pinocchio', 'coal', 'ompl', 'pybullet') if m in sys.modules]\n"
         "print(','.join(heavy))\n"
     )
@@ -216,7 +216,8 @@ def test_plan_records_other_files_relative_to_itself(tmp_path):
     from planner.grasp import load_grasp, realize
     from planner.plan import plan_hand_ref, read_plan, write_plan
     from planner.grasp import input_record
-    from planner.regrasp import PlanOptions, plan_regrasp
+    from planner.options import PlanOptions
+    from planner.regrasp import plan_regrasp
     from planner.resources import bundled_grasp, hand_dir
 
     shutil.copytree(hand_dir("icub_right"), tmp_path / "hands" / "mine")

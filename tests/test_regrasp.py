@@ -11,8 +11,9 @@ from planner.cli import main
 from planner.model import Friction
 from planner.closure import grasp_closure
 from planner.grasp import load_grasp, realize
+from planner.options import PlanOptions
 from planner.plan import read_plan
-from planner.regrasp import PlanOptions, plan_regrasp
+from planner.regrasp import plan_regrasp
 
 ROOT = Path(__file__).resolve().parent.parent
 ICUB = ROOT / "grasps" / "icub"
@@ -442,7 +443,8 @@ def test_execution_mode_box_is_bounded_by_the_joints_not_a_force_constant(realiz
     import re
 
     from planner.errors import NoSequenceError
-    from planner.regrasp import EXECUTION_FRICTION_MARGIN, PlanOptions, plan_regrasp
+    from planner.options import EXECUTION_FRICTION_MARGIN, PlanOptions
+    from planner.regrasp import plan_regrasp
 
     assert EXECUTION_FRICTION_MARGIN == 0.75
     initial, final = (realized(f) for f in PAIRS["box"])
@@ -499,7 +501,7 @@ def test_reachable_contacts_touch_the_object_within_joint_limits():
     """Every intermediate-contact candidate of the pool is within the finger's joint limits,
     lies on the ball's surface and re-measures as the same touching patch at its joint values."""
     from planner.contacts import collisions, contact_patches
-    from planner.regrasp import reachable_contacts
+    from planner.slots import reachable_contacts
 
     g = realize(load_grasp(ALLEGRO_SPHERE))
     hand, obj = g.hand, g.obj
@@ -525,20 +527,20 @@ def test_local_contacts_are_small_steps_from_the_anchor_and_near_counts_normals(
     """local_contacts: every contact is within the finger's joint limits, touches the ball
     (re-measured at its joint values) and lies a short step from the anchor contact
     (between the spacing and the radius, plus the closing's slide); the same call is cached.
-    _near: a contact 0.5 mm away is the same one unless its normal turned 10 deg or more;
+    near: a contact 0.5 mm away is the same one unless its normal turned 10 deg or more;
     11 mm away it is another one."""
     from planner.contacts import contact_patches
     from planner.graph import Slot
-    from planner.regrasp import LOCAL_RADIUS_M, MIN_SLOT_SPACING_M, _near, local_contacts
+    from planner.slots import LOCAL_RADIUS_M, MIN_SLOT_SPACING_M, local_contacts, near
 
     g = realize(load_grasp(ALLEGRO_SPHERE))
     hand, obj = g.hand, g.obj
     anchor = g.patches["ring"][0]
-    near = local_contacts(hand, obj, "ring", anchor)
-    assert len(near) >= 3 and local_contacts(hand, obj, "ring", anchor) is near
+    steps = local_contacts(hand, obj, "ring", anchor)
+    assert len(steps) >= 3 and local_contacts(hand, obj, "ring", anchor) is steps
     idx = list(hand.fingers["ring"].q_index)
     lo, hi = np.asarray(hand.lower)[idx], np.asarray(hand.upper)[idx]
-    for points, normals, qf in near:
+    for points, normals, qf in steps:
         assert np.all(qf >= lo - 1e-9) and np.all(qf <= hi + 1e-9)
         q = np.array(hand.q_open, float)
         q[idx] = qf
@@ -552,26 +554,26 @@ def test_local_contacts_are_small_steps_from_the_anchor_and_near_counts_normals(
     a = one((0.0, 0.0, 0.0), (0.0, 0.0, 1.0))
     for deg, same in ((5.0, True), (9.5, True), (10.5, False), (30.0, False)):
         t = np.radians(deg)
-        assert _near(a, one((0.0005, 0.0, 0.0), (np.sin(t), 0.0, np.cos(t)))) is same, deg
-    assert not _near(a, one((0.011, 0.0, 0.0), (0.0, 0.0, 1.0)))
+        assert near(a, one((0.0005, 0.0, 0.0), (np.sin(t), 0.0, np.cos(t)))) is same, deg
+    assert not near(a, one((0.011, 0.0, 0.0), (0.0, 0.0, 1.0)))
 
 
 def test_holding_grasp_lets_a_finger_go_and_the_rounds_use_it(realized):
-    """The bundled cylinder pair: _holding_grasp(thumb) gives the other fingers contacts with
+    """The bundled cylinder pair: holding_grasp(thumb) gives the other fingers contacts with
     which they hold the cylinder without the thumb: re-checked force closure, no two fingers
     colliding (the thumb at its open posture), every new contact from the finger's reach."""
     from planner.contacts import contact_patches
     from planner.graph import LIFTED
-    from planner.regrasp import _holding_grasp, _pairwise_collision_check, build_problem
+    from planner.slots import build_problem, holding_grasp, pairwise_collision_check
 
     a, b = PAIRS["cylinder"]
     initial, final = realized(a), realized(b)
     problem = build_problem(initial, final, PlanOptions(motion=False))
-    grasp = _holding_grasp(problem, initial.hand, initial.obj, "thumb", "patch")
+    grasp = holding_grasp(problem, initial.hand, initial.obj, "thumb", "patch")
     assert grasp and "thumb" not in grasp
     assert grasp_closure({f: (s.points, s.normals) for f, s in grasp.items()}, problem.friction).is_force_closure
     fingers = dict(grasp, thumb=None)
-    check = _pairwise_collision_check(initial.hand, {f: (s,) for f, s in grasp.items()} | {"thumb": ()})
+    check = pairwise_collision_check(initial.hand, {f: (s,) for f, s in grasp.items()} | {"thumb": ()})
     for f, g in itertools.combinations(fingers, 2):
         assert check(f, LIFTED if fingers[f] is None else 0, g, LIFTED if fingers[g] is None else 0), (f, g)
     hand = initial.hand

@@ -296,7 +296,8 @@ def _library_plan(pair: str) -> dict:
     """A bundled pair planned in execution mode (mean contacts, six gravity directions,
     grip ranking) with finger paths, once per test session."""
     from planner.grasp import load_grasp, realize
-    from planner.regrasp import PlanOptions, plan_regrasp
+    from planner.options import PlanOptions
+    from planner.regrasp import plan_regrasp
 
     if pair not in _LIBRARY_PLANS:
         root = Path(__file__).resolve().parent.parent / "grasps"

@@ -1,0 +1,219 @@
+"""Why no finger-gaiting sequence exists: the failure analysis of a grasp-state graph.
+
+`failure_analysis` finds what stops the graph's start from reaching its goal (fingers
+that cannot be lifted, refused landings, the closest state reached, the fingers worth
+giving intermediate contacts); `explain_failure` says it in words, as the
+`planner.errors.NoSequenceError` the CLI prints. The ``*_words`` helpers name states,
+moves and refusals.
+
+Pure networkx, like `planner.graph`.
+"""
+
+from __future__ import annotations
+
+import networkx as nx
+
+from planner.errors import NoSequenceError
+from planner.graph import LIFTED, Evaluator, GaitProblem, Node
+
+
+def _slot_words(problem: GaitProblem, finger: str, s: int) -> str:
+    if s == LIFTED:
+        return "lifted"
+    label = problem.slots[finger][s].label
+    return {"initial": "its initial contact", "final": "its final contact"}.get(label, f"intermediate contact {label}")
+
+
+def _state_words(problem: GaitProblem, node: Node) -> str:
+    """'thumb initial, index final, middle lifted' (fingers free in both grasps left out)."""
+    labels = problem.labels(node)
+    keep = [f for i, f in enumerate(problem.fingers) if not (problem.start[i] == problem.goal[i] == node[i] == LIFTED)]
+    return ", ".join(f"{f} {labels[f]}" for f in keep)
+
+
+def _move_words(problem: GaitProblem, u: Node, v: Node) -> str:
+    i = next(j for j in range(len(u)) if u[j] != v[j])
+    f = problem.fingers[i]
+    return f"lift {f}" if v[i] == LIFTED else f"land {f} on {_slot_words(problem, f, v[i])}"
+
+
+def _reason_words(ev: Evaluator, finger: str, action: str, w: Node, reason: str) -> str:
+    """A refused move in words: what goes wrong in the state it would lead to."""
+    pair = ev.collision_pair(w) if reason.startswith("fingers collide") else None
+    if pair is not None:
+        other = pair[1] if pair[0] == finger else pair[0] if pair[1] == finger else None
+        if other is not None:
+            return f"it would collide with {other}" + (" (in its open posture)" if w[ev.problem.fingers.index(other)] == LIFTED else "")
+        return f"{pair[0]} and {pair[1]} would collide"
+    if reason == "not force closure":
+        c = ev.closure.get(w)
+        metric = f", metric {c.metric:.3g}" if c is not None else ""
+        rest = ", ".join(f for f in ev.problem.patches(w)) or "no finger"
+        return f"{'without it' if action == 'lift' else 'with it'} the grasp ({rest}) is not force closure{metric}"
+    return reason
+
+
+def _cannot_hold(reason: str) -> bool:
+    """A state refused because its contacts cannot hold the object (not force closure, or
+    over the grip force budget), not because fingers collide or too many are lifted."""
+    return reason == "not force closure" or reason.startswith("need over")
+
+
+def failure_analysis(G: nx.DiGraph) -> dict:
+    """What stops the graph's start from reaching its goal (for `explain_failure` and for
+    choosing the fingers that get intermediate contacts).
+
+    Returns a dict: ``closest`` (the reached state fewest fingers from the goal, best metric
+    first), ``partial`` (the fewest-move path to it), ``lift_blocked`` (finger that has to
+    move -> (state, why) for a finger never lifted in any reached state where it touches),
+    ``unheld`` (those of them refused because the other fingers cannot hold the object
+    without them), ``landing_blocked`` (finger -> {why: count of states} for refused
+    landings on the final contact), ``stuck`` ((finger, action, why) of each refused next
+    move from the closest state), ``blockers`` (fingers worth giving intermediate contacts, most implicated
+    first), ``needs`` ((finger, state) pairs: a new contact of that finger would help if,
+    added to the state, where it is lifted, it made a valid grasp: the other fingers when a
+    lift leaves a state that cannot hold the object (not force closure, or over the grip
+    force budget), the finger in the way of a landing),
+    ``goal_reason`` (why the final grasp itself is invalid, or None).
+    """
+    p: GaitProblem = G.graph["problem"]
+    ev: Evaluator = G.graph["evaluator"]
+    start, goal = G.graph["start"], G.graph["goal"]
+    reach = nx.descendants(G, start) | {start}
+    dist = {v: sum(a != b for a, b in zip(v, goal)) for v in reach}
+    closest = min(reach, key=lambda v: (dist[v], -G.nodes[v]["metric"], v))
+    partial = nx.shortest_path(G, start, closest)
+    moves = [m for m in G.graph.get("blocked_moves", []) if m[0] in reach]
+    on_partial = {v: k for k, v in enumerate(partial)}
+    lift_blocked, landing_blocked, score = {}, {}, {f: 0 for f in p.fingers}
+    needs: list[tuple[str, Node]] = []
+    unheld: list[str] = []
+
+    def need_holders(w: Node, lifted: str) -> None:
+        """Lifting ``lifted`` left ``w`` unable to hold the object: another finger could help by a
+        new contact: a lifted one added to ``w``, a touching one moved within ``w``."""
+        for j, g in enumerate(p.fingers):
+            if g != lifted:
+                needs.append((g, w[:j] + (LIFTED,) + w[j + 1:]))
+
+    def need_room(f: str, w: Node) -> None:
+        """Landing ``f`` gives ``w``, where it collides: the finger in the way could move."""
+        for g in ev.collision_pair(w) or ():
+            if g != f:
+                j = p.fingers.index(g)
+                if w[j] != LIFTED:
+                    needs.append((g, w[:j] + (LIFTED,) + w[j + 1:]))
+
+    for i, f in enumerate(p.fingers):
+        if p.start[i] == p.goal[i]:
+            continue
+        touching = [v for v in reach if v[i] != LIFTED]
+        if touching and not any(G.has_edge(v, v[:i] + (LIFTED,) + v[i + 1:]) for v in touching):
+            tried = [m for m in moves if m[1] == i and m[2] == "lift"]
+            if tried:  # the refused lift nearest the end of the best partial sequence
+                u, _, _, w = max(tried, key=lambda m: (on_partial.get(m[0], -1), -dist[m[0]]))
+                lift_blocked[f] = (u, _reason_words(ev, f, "lift", w, G.graph["blocked"][w]))
+                score[f] += 3
+                if _cannot_hold(G.graph["blocked"][w]):
+                    need_holders(w, f)
+                if any(_cannot_hold(G.graph["blocked"][m[3]]) for m in tried):
+                    unheld.append(f)
+        if p.goal[i] != LIFTED:
+            why: dict[str, int] = {}
+            for u, j, action, w in moves:
+                if j == i and action == "land" and w[i] == p.goal[i]:
+                    text = _reason_words(ev, f, "land", w, G.graph["blocked"][w])
+                    why[text] = why.get(text, 0) + 1
+                    if why[text] <= 2:
+                        need_room(f, w)
+                    pair = ev.collision_pair(w)
+                    for g in pair or ():
+                        if g != f:
+                            score[g] += 2
+            if why and not any(v[i] == p.goal[i] for v in reach):
+                landing_blocked[f] = dict(sorted(why.items(), key=lambda kv: (-kv[1], kv[0])))
+                score[f] += 1
+        if closest[i] != goal[i]:
+            score[f] += 1
+    # the next move of every finger not yet at its final slot, from the closest state
+    stuck = []
+    for i, f in enumerate(p.fingers):
+        if closest[i] == goal[i]:
+            continue
+        action = "lift" if closest[i] != LIFTED else "land"
+        w = closest[:i] + ((LIFTED,) if action == "lift" else (goal[i],)) + closest[i + 1:]
+        if w in G.graph["blocked"]:
+            stuck.append((f, action, _reason_words(ev, f, action, w, G.graph["blocked"][w])))
+            if _cannot_hold(G.graph["blocked"][w]) and action == "lift":
+                need_holders(w, f)
+            need_room(f, w)
+            for g in ev.collision_pair(w) or ():
+                score[g] += 2 if g != f else 0
+            if action == "lift":
+                score[f] += 2
+    goal_reason = None
+    if goal in ev.closure or goal in G.graph["blocked"]:
+        goal_reason = G.graph["blocked"].get(goal) or ev.blocked_reason(goal)
+    blockers = [f for f in sorted(p.fingers, key=lambda f: (-score[f], p.fingers.index(f))) if score[f] > 0]
+    return {"closest": closest, "partial": partial, "lift_blocked": lift_blocked, "unheld": unheld,
+            "landing_blocked": landing_blocked,
+            "stuck": stuck, "needs": list(dict.fromkeys(needs)),
+            "blockers": blockers, "goal_reason": goal_reason, "distance": dist[closest]}
+
+
+def explain_failure(G: nx.DiGraph, intermediate_tried: bool, tried: str | None = None) -> NoSequenceError:
+    """Why no sequence connects start and goal, in words: the error the CLI prints.
+
+    Says whether the final grasp itself is invalid, which finger that has to move cannot be
+    lifted in any reached state and why (the grasp without it is not force closure, with its
+    metric, or it would collide with a named finger), which landings on the final contacts
+    are refused and why, the best partial sequence and where it ends, and what was tried
+    (``tried``: a sentence from the caller, e.g. the rounds of intermediate contacts).
+    Fingers free in both grasps are never mentioned.
+    """
+    p: GaitProblem = G.graph["problem"]
+    a = failure_analysis(G)
+    lines = []
+    if a["goal_reason"]:
+        lines.append(f"the final grasp itself is not a valid state ({a['goal_reason']})")
+    for f, (u, why) in a["lift_blocked"].items():
+        where = "the initial grasp" if u == p.start else f"any reached state (e.g. {_state_words(p, u)})"
+        lines.append(f"{f} cannot be lifted in {where}: {why}")
+    for f, why in a["landing_blocked"].items():
+        parts = [text + (f" ({n} states)" if n > 1 else "") for text, n in why.items()]
+        lines.append(f"{f} cannot land on its final contact: {'; '.join(parts)}")
+    steps = [_move_words(p, u, v) for u, v in zip(a["partial"], a["partial"][1:])]
+    lines.append(f"best partial sequence ({len(steps)} moves{': ' + ', '.join(steps) if steps else ''}) ends "
+                 f"{a['distance']} finger(s) from the final grasp in: {_state_words(p, a['closest'])}")
+    for f, action, why in a["stuck"]:
+        if f not in a["lift_blocked"] and f not in a["landing_blocked"]:
+            move = "be lifted" if action == "lift" else "land on its final contact"
+            lines.append(f"there {f} cannot {move}: {why}")
+    if not (a["lift_blocked"] or a["landing_blocked"] or a["stuck"] or a["goal_reason"]):
+        # nothing was refused: the search stopped before it tried the moves that remain
+        left = [f for i, f in enumerate(p.fingers) if a["closest"][i] != G.graph["goal"][i]]
+        if left:
+            lines.append(f"{', '.join(left)} still {'has' if len(left) == 1 else 'have'} to move and no such move "
+                         "was refused: the search stopped before it evaluated them (a longer --time-limit lets "
+                         "it go on)")
+    if tried:
+        lines.append(tried)
+    elif not intermediate_tried:
+        lines.append("no intermediate contacts were tried (give --intermediate N or a --time-limit)")
+    else:
+        lines.append("intermediate contacts were tried")
+    reasons: dict[str, int] = {}
+    for r in G.graph["blocked"].values():
+        reasons[r] = reasons.get(r, 0) + 1
+    report = {
+        "never_removable": sorted(a["lift_blocked"]),
+        "lift_blocked": {f: why for f, (_, why) in a["lift_blocked"].items()},
+        "landing_blocked": a["landing_blocked"],
+        "closest": p.labels(a["closest"]),
+        "stuck": [{"finger": f, "action": action, "why": why} for f, action, why in a["stuck"]],
+        "partial": [p.labels(v) for v in a["partial"]],
+        "blocked": reasons,
+        "blockers": a["blockers"],
+        "intermediate_tried": intermediate_tried,
+    }
+    return NoSequenceError("no finger-gaiting sequence: " + "; ".join(lines), report=report)
