@@ -31,10 +31,11 @@ from typing import Callable, Mapping, Sequence
 import networkx as nx
 import numpy as np
 
-from planner.model import Friction
-from planner.closure import Closure, batch_grasp_closure, min_grip_force
+from planner.closure import batch_grasp_closure, min_grip_force
 from planner.errors import InputError, NoSequenceError
 from planner.grip import HOLD_FACTOR, Capacity, FingerStatics, grip_program, hold_capacity, holds_by_bound, torque_demand
+from planner.hull import Closure
+from planner.model import Friction
 
 LIFTED = -1
 """Slot index of a finger that does not touch the object."""
