@@ -7,6 +7,7 @@ The public API is re-exported here lazily, so that ``import planner.closure`` or
 from __future__ import annotations
 
 import importlib
+import types
 
 _EXPORTS = {
     # the one-call API (planner.api): each command as a function of paths or objects;
@@ -83,6 +84,14 @@ try:
     __version__ = _version("regrasp-planner")
 except PackageNotFoundError:  # a checkout that was never installed
     __version__ = "0+unknown"
+
+
+class CallablePlanModule(types.ModuleType):
+    """The class of the module `planner.plan`: ``planner.plan.read_plan`` reads a plan file
+    and ``planner.plan("a.yaml", "b.yaml", ...)`` is the one-call planner (`planner.api.plan`)."""
+
+    def __call__(self, initial, final, **options):
+        return importlib.import_module("planner.api").plan(initial, final, **options)
 
 
 def __getattr__(name: str):

@@ -36,6 +36,7 @@ import hashlib
 import json
 import math
 import os
+import sys
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -44,9 +45,13 @@ from typing import Any, Mapping
 import numpy as np
 import yaml
 
-from planner.errors import IntegrityError, PlannerError, PlannerWarning, SpecError
-from planner.fileio import MAX_PLAN_BYTES, Reader, load_json, load_yaml, read_limited, shown
-from planner.objects import SHAPES, SIZE_LENGTHS, SIZE_MEANING
+import planner
+from planner.closure import CONTACT_MODELS, grasp_closure
+from planner.errors import IntegrityError, PlannerError, PlannerWarning, SpecError, UnknownNameError
+from planner.fileio import MAX_GRASP_BYTES, MAX_PLAN_BYTES, Reader, load_json, load_yaml, read_limited, sha256_file, shown, write_atomic
+from planner.model import Friction
+from planner.objects import SHAPES, SIZE_LENGTHS, SIZE_MEANING, default_mass_kg
+from planner.resources import bundled_grasp, bundled_grasp_name, bundled_hand_name, is_hand_path
 
 SCHEMA_VERSION = 2
 #: Versions `read_plan` reads (1: no integrity record, read with a warning).
@@ -213,8 +218,6 @@ class Plan:
     def __post_init__(self):
         obj = dict(self.object)
         if obj.get("mass_kg") is None and obj.get("shape") is not None:
-            from planner.objects import default_mass_kg
-
             obj["mass_kg"] = default_mass_kg(obj["shape"], obj["size"], obj.get("mesh"), self.source)
             object.__setattr__(self, "object", obj)
 
@@ -285,7 +288,6 @@ def _input_record(value, relative_to, source: str | None):
     by its path (relative to ``relative_to`` when given)."""
     if not isinstance(value, dict) or not isinstance(value.get("path"), str):
         return value
-    from planner.resources import bundled_grasp_name
 
     name = bundled_grasp_name(_absolute(value["path"], source))
     if name is not None:
@@ -298,7 +300,6 @@ def _input_record(value, relative_to, source: str | None):
 def _hand_spec(spec: str, relative_to, source: str | None) -> str:
     """``hand.spec`` as written: a bundled hand by name, any other hand.yaml (or its folder)
     by its path (relative to ``relative_to`` when given)."""
-    from planner.resources import bundled_hand_name, is_hand_path
 
     if not is_hand_path(spec):
         return spec
@@ -319,7 +320,6 @@ def plan_file(ref: str, source: str | os.PathLike | None) -> Path | None:
 def plan_hand_ref(hand: Mapping[str, Any], source: str | os.PathLike | None) -> str:
     """What to load the plan's hand from (`planner.hand.Hand.load`): ``hand.spec`` as a bundled
     hand's name or the path it names, else the hand's name (a bundled hand)."""
-    from planner.resources import is_hand_path
 
     spec = hand.get("spec")
     if isinstance(spec, str) and spec:
@@ -384,7 +384,6 @@ def write_plan(plan: Plan, path: str | os.PathLike) -> Path:
         SpecError: unknown suffix. OutputError: the OS refused the write (nothing is left
             behind and an existing file is untouched).
     """
-    from planner.fileio import write_atomic
 
     path = Path(path)
     fmt = plan_format(path)
@@ -448,8 +447,6 @@ def _check_digest(data: Mapping, src: str) -> None:
 
 def _check_closures(plan: Plan, src: str) -> None:
     """Every state's recorded closure must be the closure of its patches (ms per state)."""
-    from planner.model import Friction
-    from planner.closure import grasp_closure
 
     friction = Friction(**plan.friction)
     for i, st in enumerate(plan.states):
@@ -467,9 +464,6 @@ def recorded_input(rec, source) -> tuple[Path | None, str, str | None] | None:
     """A plan's record of an input file (``inputs.<name>``: ``bundled`` or ``path``, ``sha256``):
     (the file or None, how messages name it, the problem: gone, or changed since planning;
     None when present and unchanged). None when the record names no file."""
-    from planner.errors import UnknownNameError
-    from planner.fileio import MAX_GRASP_BYTES, sha256_file
-    from planner.resources import bundled_grasp
 
     if not isinstance(rec, Mapping):
         return None
@@ -530,8 +524,6 @@ def plan_from_data(data: Any, source: str | os.PathLike | None = None) -> Plan:
     obj = _check_object(r.child("object"))
     friction = r.child("friction").mapping().value
     try:
-        from planner.model import Friction
-
         Friction(friction.get("mu"), friction.get("gamma"), friction.get("edges", 5))
     except PlannerError as err:
         raise r.fail(str(err), "friction") from None
@@ -547,7 +539,6 @@ def plan_from_data(data: Any, source: str | os.PathLike | None = None) -> Plan:
         if not (isinstance(sha, str) and len(sha) == 64 and all(c in "0123456789abcdef" for c in sha)):
             raise rec.fail("expected 64 lowercase hex digits", "sha256")
     parameters = r.at(data.get("parameters") or {}, "parameters").mapping()
-    from planner.closure import CONTACT_MODELS
 
     parameters.child("contact_model", "patch").choice(CONTACT_MODELS, "contact model", valid="valid:")
     joints = tuple(j.name() for _, j in r.child("joints").seq(MAX_JOINTS, 1).items())
@@ -692,17 +683,6 @@ def _check_step(s: Reader, i: int, joints: tuple[str, ...], states: tuple[PlanSt
     return PlanStep(finger, action, frm, to, sj, tuple(tuple(float(v) for v in wp) for wp in path))
 
 
-class _CallableModule(type(os)):
-    """``planner.plan`` is this module and, called, the one-call planner
-    (`planner.api.plan`): ``planner.plan("a.yaml", "b.yaml")`` plans, ``planner.plan.read_plan``
-    reads a file."""
-
-    def __call__(self, initial, final, **options):
-        from planner.api import plan
-
-        return plan(initial, final, **options)
-
-
-import sys as _sys  # noqa: E402 - the module's class is set once it is complete
-
-_sys.modules[__name__].__class__ = _CallableModule
+# ``planner.plan`` is this module and, called, the one-call planner: the package root's
+# module class (the root is the layer above every module, so no module imports the API)
+sys.modules[__name__].__class__ = planner.CallablePlanModule
