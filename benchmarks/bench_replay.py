@@ -123,7 +123,7 @@ def physics_holding(plan: dict, sim_s: float, repeats: int) -> tuple[float, int]
     import pybullet as p
     from scipy.spatial.transform import Rotation
 
-    from planner.sim.replay import T_palm_root
+    from planner.sim.inputs import T_palm_root
 
     hand = Hand.load("icub_right")
     T = T_palm_root(hand)

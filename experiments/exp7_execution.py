@@ -233,9 +233,10 @@ def replay_all(plan: dict, hand, n: int) -> list[tuple[str, object, float]]:
     """(direction name, ReplayReport, wall s) per direction: `replay_gravity_set` when the
     replay has it, else `replay_plan` per direction of `gravity_directions(palm_normal, n)`."""
     from planner.sim import replay as rp
+    from planner.sim import verify as rv
 
-    if hasattr(rp, "replay_gravity_set"):
-        rep = rp.replay_gravity_set(plan, n, hand=hand)
+    if hasattr(rv, "replay_gravity_set"):
+        rep = rv.replay_gravity_set(plan, n, hand=hand)
         return [(name, r, r.wall_time_s) for name, _, r in rep.directions]
     from planner.gravity import gravity_directions
 

@@ -68,7 +68,7 @@ _EXPORTS = {
     "hold_capacity": "planner.grip",
     "torque_demand": "planner.grip",
     # replay (pybullet, imported when first used)
-    "replay_gravity_set": "planner.sim.replay",
+    "replay_gravity_set": "planner.sim.verify",
     "replay_plan": "planner.sim.replay",
     # plans
     "Plan": "planner.plan",

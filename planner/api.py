@@ -34,6 +34,7 @@ def plan(initial, final, *, execution: bool = False, output: PathLike | None = N
     Returns:
         `planner.regrasp.PlanResult` (``.plan``, ``.sequence``, ``.alternatives``, ...).
     """
+    # the facade imports what a command runs when it runs: `import planner` stays light
     from planner.errors import UnknownNameError
     from planner.grasp import realized_grasp
     from planner.options import PlanOptions
@@ -70,9 +71,11 @@ def replay(plan, *, gravity_set: int | None = None, **kwargs: Any):
     Returns:
         `ReplayReport` (one replay) or `GravitySetReport` (``gravity_set``).
     """
+    # the facade imports what a command runs when it runs: `import planner` stays light
     from planner.audit import require_sound
     from planner.plan import Plan, plan_from_data, read_plan
-    from planner.sim.replay import replay_gravity_set, replay_plan
+    from planner.sim.replay import replay_plan
+    from planner.sim.verify import replay_gravity_set
 
     if not isinstance(plan, Plan):
         plan = plan_from_data(dict(plan)) if hasattr(plan, "keys") else read_plan(plan, strict=kwargs.get("strict", False))
@@ -86,6 +89,7 @@ def check(grasp):
     """Realize one grasp (``regrasp check``): `RealizedGrasp` with its contacts, closure,
     ``problems`` (why it is not what the file asks) and ``warnings``. ``grasp``: a grasp
     file, a `GraspSpec` or a `RealizedGrasp` (returned as it is)."""
+    # the facade imports what a command runs when it runs: `import planner` stays light
     from planner.grasp import GraspSpec, RealizedGrasp, load_grasp, realize
 
     if isinstance(grasp, RealizedGrasp):
@@ -96,6 +100,7 @@ def check(grasp):
 def verify(plan):
     """Check a plan against physics and its inputs without simulation (``regrasp verify``):
     `planner.audit.AuditReport` (``ok``, ``problems``)."""
+    # the facade imports what a command runs when it runs: `import planner` stays light
     from planner.audit import audit_plan
 
     return audit_plan(plan)
@@ -111,6 +116,7 @@ def synth(hand, object_block: dict, fingers, n: int = 1, *, fixed: bool = False,
         n: grasps wanted.
         fixed: keep the object's pose (else it is sampled too).
     """
+    # the facade imports what a command runs when it runs: `import planner` stays light
     from planner.grasp import resolve_hand_ref
     from planner.synth import synthesize
 

@@ -34,7 +34,14 @@ from pathlib import Path
 
 import numpy as np
 
+from planner.closure import grasp_closure
+from planner.errors import AuditError, PlannerError
+from planner.frames import object_of_plan
 from planner.grasp import PENETRATION_TOL_M as _GRASP_PENETRATION_TOL_M
+from planner.grasp import load_grasp, realize
+from planner.model import Friction
+from planner.objects import default_mass_kg
+from planner.plan import Plan, plan_hand_ref, read_plan, recorded_input
 
 #: A patch point farther than this from the object's surface is not on it, m.
 SURFACE_TOL_M = 1e-3
@@ -126,10 +133,6 @@ def _normal_error_deg(obj, p_surface: np.ndarray, n_in: np.ndarray) -> float:
 
 def _input_grasps(plan) -> dict:
     """name -> GraspSpec of the recorded inputs that are present and unchanged."""
-    from planner.errors import PlannerError
-    from planner.grasp import load_grasp
-    from planner.plan import recorded_input
-
     out = {}
     for name in ("initial", "final"):
         found = recorded_input(plan.inputs.get(name), plan.source)
@@ -158,8 +161,6 @@ def _check_inputs(plan, rep: AuditReport, grasps: dict) -> None:
             rep.add(f"object.quat_xyzw: {list(qa)} differs from the {name} grasp's {list(qb)}")
         mass = o.mass_kg
         if mass is None:  # the planner used the default density's (`planner.plan.Plan`)
-            from planner.objects import default_mass_kg
-
             mass = default_mass_kg(o.shape, o.size, o.mesh_path, spec.path)
         if not math.isclose(float(po.get("mass_kg") or 0.0), float(mass), rel_tol=1e-6):
             rep.add(f"object.mass_kg: {po.get('mass_kg')} kg, the {name} grasp {'says' if o.mass_kg is not None else 'gives (default density)'} {mass:.6g} kg")
@@ -205,9 +206,7 @@ def _q(plan, hand, state_q) -> np.ndarray:
 def _check_states(plan, hand, obj, rep: AuditReport) -> list:
     """Contacts on the surface, at the forward kinematics, no penetration, removable, closure.
     Returns every state's `HandState`."""
-    from planner.model import Friction
-    from planner.closure import grasp_closure
-    from planner.contacts import contact_patches
+    from planner.contacts import contact_patches  # pinocchio and coal: loaded only when a plan is checked
 
     friction = Friction(**plan.friction)
     poses = []
@@ -329,9 +328,6 @@ def _check_steps(plan, hand, obj, poses, rep: AuditReport) -> None:
 
 def _check_chain(plan, hand, rep: AuditReport, grasps: dict) -> None:
     """The plan starts at the initial grasp and ends at the final one."""
-    from planner.errors import PlannerError
-    from planner.grasp import realize
-
     if not plan.states:
         rep.add("states: the plan has no state")
         return
@@ -370,15 +366,12 @@ def audit_plan(plan, hand=None, paths: bool = True) -> AuditReport:
     Returns:
         `AuditReport`: ``ok``, ``problems`` (one line each), ``checked`` counts.
     """
-    from planner.plan import Plan, plan_hand_ref, read_plan
-    from planner.view import object_of_plan
-
     if not isinstance(plan, Plan):
         plan = read_plan(plan)
     src = plan.source or "<plan>"
     rep = AuditReport(str(src))
     if hand is None:
-        from planner.hand import Hand
+        from planner.hand import Hand  # pinocchio and coal: loaded only when a hand is
 
         hand = Hand.load(plan_hand_ref(plan.hand, plan.source))
     obj = object_of_plan(plan.to_dict(), Path(src))
@@ -396,9 +389,6 @@ def audit_plan(plan, hand=None, paths: bool = True) -> AuditReport:
 def require_sound(plan, hand=None) -> AuditReport:
     """`audit_plan`, raising `planner.errors.AuditError` (one line: the first problem and how
     many there are) when the plan fails a check; ``replay`` and ``view`` call it first."""
-    from planner.errors import AuditError
-    from planner.plan import Plan, read_plan
-
     if not isinstance(plan, Plan):
         plan = read_plan(plan)
     # a plan made without motion planning (plan --no-motion) has straight joint-space

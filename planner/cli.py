@@ -234,7 +234,8 @@ def _cmd_replay(args: argparse.Namespace) -> int:
     """Replay a plan in pybullet; exit 0 pass, 1 fail (dropped, drifted or closure disagrees), 2 bad input."""
     import json
 
-    from planner.sim.replay import replay_gravity_set, replay_plan
+    from planner.sim.replay import replay_plan
+    from planner.sim.verify import replay_gravity_set
 
     kw = dict(gui=args.gui, gif=args.gif, gif_every=args.gif_every, mp4=args.mp4,
               drift_mm_max=args.drift_mm, drift_deg_max=args.drift_deg, strict=args.strict)

@@ -32,6 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
+from planner.errors import SpecError
+
 #: Finger names recognised in link and joint names, in the order a hand.yaml lists them.
 FINGER_WORDS = (("thumb", ("thumb",)), ("index", ("index", "first", "ff")), ("middle", ("middle", "medium", "mf")),
                 ("ring", ("ring", "rf")), ("little", ("little", "pinky", "lf")))
@@ -97,7 +99,7 @@ def link_boxes(hand) -> dict[str, np.ndarray]:
 def replay_inertia(hand) -> dict[str, tuple[float, np.ndarray, np.ndarray]]:
     """The links whose URDF inertia is a placeholder -> (mass, URDF principal moments, the
     moments the replay uses instead: a solid box of the link's mass and collision size)."""
-    import pinocchio as pin
+    import pinocchio as pin  # pinocchio: loaded only when a hand's model is read
 
     boxes = link_boxes(hand)
     out = {}
@@ -147,9 +149,7 @@ def init_hand(urdf, package_dirs=()) -> tuple[dict, HandReport]:
     Raises:
         SpecError: the URDF cannot be loaded or has no finger (no movable chain).
     """
-    import pinocchio as pin
-
-    from planner.errors import SpecError
+    import pinocchio as pin  # pinocchio: loaded only when a URDF is read
 
     urdf = Path(urdf)
     rep = HandReport()
@@ -300,7 +300,7 @@ def _name_by_geometry(model, named, rep: HandReport):
     the finger whose base lies off the line the other bases (the knuckles) lie on (3x
     farther than the farthest of them, and 1 mm), the
     others index, middle, ring, little along the knuckle line from the end nearer the thumb."""
-    import pinocchio as pin
+    import pinocchio as pin  # pinocchio: loaded only when a URDF is read
 
     data = model.createData()
     pin.forwardKinematics(model, data, pin.neutral(model))
@@ -334,7 +334,7 @@ def _provisional(spec: dict):
     """The hand `init_hand` is writing, loaded to use the planner's kinematics and geometry:
     `Hand` takes the spec as data (no file), its paths made absolute (the URDF's and the
     ``package_dirs``, given relative to the working directory)."""
-    from planner.hand import Hand
+    from planner.hand import Hand  # pinocchio and coal: loaded only when a hand is
 
     data = dict(spec)
     data["urdf"] = str(Path(spec["urdf"]).resolve())
@@ -428,7 +428,7 @@ def _suggested_effort(hand, boxes) -> float:
 
 def check_hand(ref) -> HandReport:
     """What a planner or a simulator cannot use in a hand (see the module's docstring)."""
-    from planner.hand import Hand
+    from planner.hand import Hand  # pinocchio and coal: loaded only when a hand is
 
     rep = HandReport()
     hand = Hand.load(ref)
@@ -474,7 +474,7 @@ def check_hand(ref) -> HandReport:
         rep.add("warning", "open posture", f"links {a} and {b} overlap by {depth * 1000:.1f} mm: move the open "
                                            "posture or add the pair to disabled_collisions")
     # pybullet
-    from planner.sim.replay import urdf_problem
+    from planner.sim.scene import urdf_problem  # pybullet: loaded only for this check
 
     problem = urdf_problem(str(hand.urdf_path), hand.joint_names)
     if problem:

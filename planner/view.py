@@ -26,13 +26,21 @@ import json
 import math
 import os
 import tempfile
+import warnings
 from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
+from planner.audit import require_sound
 from planner.errors import InputError, SpecError
 from planner.fileio import MAX_PLAN_BYTES, load_json, load_yaml, read_limited
+from planner.frames import hand_of_plan, object_of_plan, plain_plan, pose_matrix, resample
+from planner.grasp import load_grasp, realize
+from planner.objects import load_mesh
+from planner.plan import read_plan
+from planner.view_page import PAGE
 
 #: frames drawn per plan step (finger paths are resampled by joint-space arc length)
 FRAMES_PER_STEP = 12
@@ -64,18 +72,16 @@ class _CommandRecorder:
 
     def packed(self) -> list[str]:
         """Every command msgpack-encoded (meshcat's wire format) as base64 text."""
-        import umsgpack
+        import umsgpack  # meshcat's wire format: loaded only when a page is written
 
         return [base64.b64encode(umsgpack.packb(c)).decode("ascii") for c in self.commands]
 
 
 def _meshcat():
-    import warnings
-
     try:
         with warnings.catch_warnings():  # meshcat's server module imports a deprecated pyzmq name
             warnings.simplefilter("ignore", DeprecationWarning)
-            import meshcat
+            import meshcat  # meshcat (and pyzmq): loaded only when a page is drawn
             import meshcat.geometry as mg
     except ImportError as err:  # pragma: no cover - a dependency of the package
         raise InputError(f"regrasp view needs the meshcat package (pip install meshcat): {err}") from err
@@ -94,15 +100,6 @@ def _rot_to_z(n) -> np.ndarray:
     v = np.cross(n, z)
     vx = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
     return np.eye(3) + vx + vx @ vx / (1 + c)
-
-
-def _T(R=None, t=None) -> np.ndarray:
-    T = np.eye(4)
-    if R is not None:
-        T[:3, :3] = R
-    if t is not None:
-        T[:3, 3] = t
-    return T
 
 
 def cone_mesh(points, normals, mu: float, height_m: float, sides: int = 12):
@@ -140,10 +137,10 @@ class _Scene:
     """Builds the meshcat scene and the page's data for one hand, object and list of states."""
 
     def __init__(self, hand, obj, mu: float):
-        import pinocchio as pin
+        import pinocchio as pin  # pinocchio's visualizer: loaded only when a page is drawn
 
         meshcat, self.mg = _meshcat()
-        from pinocchio.visualize import MeshcatVisualizer
+        from pinocchio.visualize import MeshcatVisualizer  # needs meshcat, imported just above
 
         self.hand, self.obj, self.mu = hand, obj, float(mu)
         self.rec = _CommandRecorder()
@@ -174,7 +171,7 @@ class _Scene:
         T_palm_world = np.asarray(hand.link_pose(hand.q_open, hand.model.frames[1].name), dtype=float)
         self.T_palm_world = T_palm_world
         self.R_page = _rot_to_z(hand.palm_normal)
-        self.vis["regrasp"].set_transform(_T(self.R_page))
+        self.vis["regrasp"].set_transform(pose_matrix(self.R_page))
         self.vis["regrasp/hand"].set_transform(T_palm_world)
         self.T_palm_obj = np.asarray(obj.T_palm_obj, float)
         self.vis["regrasp/object"].set_transform(self.T_palm_obj)
@@ -197,10 +194,8 @@ class _Scene:
             node.set_object(mg.Sphere(size[0]), mat)
         elif obj.shape == "cylinder":
             node.set_object(mg.Cylinder(size[1], size[0]), mat)
-            node.set_transform(_T(np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]])))  # three.js y axis -> object z
+            node.set_transform(pose_matrix(np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]])))  # three.js y axis -> object z
         elif obj.shape == "mesh":
-            from planner.objects import load_mesh
-
             scale = size * 3 if len(size) == 1 else size
             V, F = load_mesh(obj.mesh_path, scale)
             node.set_object(mg.TriangularMeshGeometry(np.asarray(V, float), np.asarray(F, int)), mat)
@@ -222,7 +217,7 @@ class _Scene:
         r = float(np.clip(r, 0.0009, 0.003))
         for i, p in enumerate(P):
             node[f"p{i}"].set_object(mg.Sphere(r), mg.MeshLambertMaterial(color=color))
-            node[f"p{i}"].set_transform(_T(t=p))
+            node[f"p{i}"].set_transform(pose_matrix(t=p))
         if cones and len(P):
             pick = _subsample(len(P), MAX_CONES_PER_PATCH)
             V, F = cone_mesh(P[pick], N[pick], self.mu, height_m=0.15 * self.scale)
@@ -238,7 +233,7 @@ class _Scene:
 
     def transforms(self, q) -> list[np.ndarray]:
         """World (model root) pose of every visual geometry at q, as meshcat draws it."""
-        import pinocchio as pin
+        import pinocchio as pin  # pinocchio's visualizer: loaded only when a page is drawn
         from pinocchio.visualize.meshcat_visualizer import applyScalingOnHomegeneousTransform
 
         pin.forwardKinematics(self.hand.model, self.pdata, np.asarray(q, float))
@@ -267,12 +262,11 @@ class _Scene:
 
     def html(self, data: Mapping[str, Any], title: str) -> str:
         """The page: meshcat's viewer script, the recorded commands and our panel."""
-        import meshcat
+        import meshcat  # meshcat: loaded only when a page is drawn
 
         viewer_js = (Path(meshcat.__file__).parent / "viewer" / "dist" / "main.min.js").read_text()
         commands = json.dumps(self.rec.packed())
-        from planner.view_page import PAGE as page
-        return (page.replace("/*TITLE*/", html.escape(title))
+        return (PAGE.replace("/*TITLE*/", html.escape(title))
                 .replace("/*MESHCAT_JS*/", viewer_js.replace("</script", "<\\/script"))
                 .replace("/*COMMANDS*/", commands)
                 .replace("/*DATA*/", json.dumps(data, separators=(",", ":"), allow_nan=False).replace("</", "<\\/")))
@@ -289,8 +283,6 @@ def _object_extent(obj) -> float:
     if obj.shape == "sphere":
         return 2 * s[0]
     if obj.shape == "mesh":  # the mesh was read when the grasp or plan was: a failure here is a bug
-        from planner.objects import load_mesh
-
         V, _ = load_mesh(obj.mesh_path, s * 3 if len(s) == 1 else s)
         return float(np.ptp(np.asarray(V), axis=0).max())
     return max(s)
@@ -303,18 +295,6 @@ def _m4(T) -> list[float]:
 
 def _num(x) -> float | None:
     return None if x is None or not math.isfinite(float(x)) else round(float(x), 6)
-
-
-def resample(path: np.ndarray, k: int) -> np.ndarray:
-    """k configurations evenly spaced by joint-space arc length along a waypoint polyline."""
-    path = np.asarray(path, float).reshape(len(path), -1)
-    if len(path) == 1:
-        return np.repeat(path, k, axis=0)
-    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(path, axis=0), axis=1))])
-    if s[-1] <= 0:
-        return np.repeat(path[:1], k, axis=0)
-    t = np.linspace(0.0, s[-1], k)
-    return np.column_stack([np.interp(t, s, path[:, j]) for j in range(path.shape[1])])
 
 
 # ---------------------------------------------------------------------- inputs
@@ -365,8 +345,6 @@ def _sim_frames(scene, hand, traj, report_path) -> dict | None:
                                                         f"of equal lengths ({err})") from None
     if not (np.all(np.isfinite(Q)) and np.all(np.isfinite(P)) and np.all(np.isfinite(Qo))):
         raise SpecError(str(report_path), "trajectory", "expected finite numbers")
-    from scipy.spatial.transform import Rotation
-
     cols = [(i, hand.joint_names.index(j)) for i, j in enumerate(joints) if j in hand.joint_names]
     keep = np.unique(np.linspace(0, len(t) - 1, min(len(t), MAX_SIM_FRAMES)).round().astype(int))
     frames, prev = [], None
@@ -375,38 +353,11 @@ def _sim_frames(scene, hand, traj, report_path) -> dict | None:
         for i, c in cols:
             q[c] = Q[k, i]
         Ts = [_m4(T) for T in scene.transforms(q)]
-        T_obj = _T(Rotation.from_quat(Qo[k] / np.linalg.norm(Qo[k])).as_matrix(), P[k])
+        T_obj = pose_matrix(Rotation.from_quat(Qo[k] / np.linalg.norm(Qo[k])).as_matrix(), P[k])
         frames.append({"t": round(float(t[k]), 4), "obj": _m4(T_obj),
                        "hand": {str(g): T for g, T in enumerate(Ts) if prev is None or T != prev[g]}})
         prev = Ts
     return {"frames": frames, "object_plan": _m4(scene.T_palm_obj)}
-
-
-def plain_plan(plan) -> dict:
-    """A plan as plain data (the file's content): `read_plan` gives a typed `Plan` or a dict."""
-    return plan.to_dict() if hasattr(plan, "to_dict") else dict(plan)
-
-
-def hand_of_plan(plan: Mapping, plan_path: Path):
-    from planner.hand import Hand
-    from planner.plan import plan_hand_ref
-
-    return Hand.load(plan_hand_ref(plan.get("hand") or {}, plan_path))
-
-
-def object_of_plan(plan: Mapping, plan_path: Path):
-    from scipy.spatial.transform import Rotation
-
-    from planner.objects import make_object
-
-    o = plan["object"]
-    T = _T(Rotation.from_quat(o["quat_xyzw"]).as_matrix(), o["position"])
-    mesh = o.get("mesh")
-    if mesh:
-        from planner.plan import plan_file
-
-        mesh = str(plan_file(mesh, plan_path) or mesh)
-    return make_object(o["shape"], tuple(o["size"]), T, mesh_path=mesh, mass_kg=o.get("mass_kg"))
 
 
 # ---------------------------------------------------------------------- page data
@@ -561,14 +512,9 @@ def load_source(source) -> tuple[str, Any]:
     """("plan", plain plan data) for a plan file, ("grasp", `RealizedGrasp`) for a grasp file."""
     source = Path(source)
     if _is_plan_file(source):
-        from planner.audit import require_sound
-        from planner.plan import read_plan
-
         plan = read_plan(source)
         require_sound(plan)  # a resealed, physically wrong plan is refused before any drawing
         return "plan", plain_plan(plan)
-    from planner.grasp import load_grasp, realize
-
     return "grasp", realize(load_grasp(source))
 
 
@@ -607,9 +553,11 @@ def write_view(source, output, report=None, loaded=None) -> dict:
 
 
 def write_film(source, gif, frames_per_step: int = 8, width: int = 640, height: int = 480, loaded=None) -> int:
-    """A GIF of a plan file (`planner.sim.render.plan_frames`: captions, contacts, the moving
+    """A GIF of a plan file (`planner.sim.film.plan_frames`: captions, contacts, the moving
     finger coloured) or the picture of a grasp file as one frame; returns the frame count."""
-    from planner.sim.render import patch_markers, plan_frames, render_image, write_gif
+    # pybullet: loaded only when a film is asked for
+    from planner.sim.film import plan_frames, write_gif
+    from planner.sim.render import patch_markers, render_image
 
     source = Path(source)
     _check_suffix(gif, (".gif",), "film")

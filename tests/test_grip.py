@@ -306,7 +306,7 @@ def test_when_every_sequence_fails_in_the_simulator_more_contacts_are_tried_then
 def test_state_holds_as_planned_only_with_the_plans_fingers():
     """A state passes the honest check when nothing but the plan's fingers carries the object
     and each of them touches: the palm carrying, or a planned finger off the object, fails."""
-    from planner.sim.replay import StateReport
+    from planner.sim.report import StateReport
 
     def state(sim, carriers):
         return StateReport(1, True, 1.0, ("thumb", "index", "middle"), tuple(sim), True, 0.01, True, 0.01, 3,

@@ -472,11 +472,11 @@ def test_plan_is_written_even_when_the_reader_is_gone(tmp_path):
 
 
 def test_gif_is_written_atomically(tmp_path, monkeypatch):
-    """`render.write_gif` (`regrasp view --gif`, `regrasp replay --gif`): a save that fails
+    """`film.write_gif` (`regrasp view --gif`, `regrasp replay --gif`): a save that fails
     half-way (disk full) leaves the old GIF and no temporary file."""
     from PIL import Image
 
-    from planner.sim.render import write_gif
+    from planner.sim.film import write_gif
 
     frames = [np.full((8, 8, 3), v, np.uint8) for v in (0, 128, 255)]
     gif = write_gif(frames, tmp_path / "film.gif")

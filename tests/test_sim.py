@@ -19,7 +19,8 @@ from planner.contacts import contact_patches
 from planner.errors import SpecError
 from planner.hand import Hand
 from planner.objects import make_object
-from planner.sim.replay import ReplayReport, replay_plan
+from planner.sim.replay import replay_plan
+from planner.sim.report import ReplayReport
 
 BOX_SIZE = (0.03, 0.03, 0.03)
 BOX_POS = (0.02, -0.02, 0.025)  # palm frame: between the opposed thumb and index/middle pads
@@ -239,7 +240,7 @@ def test_replay_gif_reads_like_the_plan_film(hand, grasp, index_lifted, tmp_path
 def test_gif_frames_keep_the_simulated_clock():
     """Frame delays are whole centiseconds adding up to the simulated time (no drift): 30 fps
     of simulation gives 30/40 ms delays; the last frame is held before the loop restarts."""
-    from planner.sim.render import gif_durations_ms
+    from planner.sim.film import gif_durations_ms
 
     d = gif_durations_ms(np.arange(31) * 8 / 240.0, hold_ms=1000)
     assert set(d[:-1]) == {30, 40} and sum(d[:-1]) == 1000 and d[-1] == 1000
@@ -416,7 +417,7 @@ def test_closure_disagreement_is_never_a_pass(hand, grasp):
 def test_gravity_set_replays_every_direction_with_its_own_verdict(hand, grasp, tmp_path):
     """--gravity-set 2 replays palm down and palm up (the hand's palm normal) and prints one
     line per direction; the lift of the thumb fails in the set, naming the thumb."""
-    from planner.sim.replay import replay_gravity_set
+    from planner.sim.verify import replay_gravity_set
 
     result = replay_gravity_set(_plan(hand, grasp, lift="thumb"), 2, hand=hand)
     names = [n for n, _, _ in result.directions]
@@ -469,6 +470,7 @@ def test_armature_floor_keeps_the_stiffest_spring_stable_with_margin():
 
     from planner.model import Friction
     from planner.sim import controller as C
+    from planner.sim import inputs as inp
     from planner.sim import replay as R
 
     def radius(w):  # state (x, v dt): v+ = v - w^2 x - 2 w v, x+ = x + v+
@@ -478,12 +480,12 @@ def test_armature_floor_keeps_the_stiffest_spring_stable_with_margin():
     assert radius(2.5 ** 0.5 * C.ARMATURE_OMEGA_DT) < 1.0  # 2.5x the stiffness still converges
     assert radius(0.9) > 1.0  # the model is not vacuous: too little inertia diverges
 
-    rd = R._read_plan(_library_plan("box"))
+    rd = inp.typed_plan(_library_plan("box"))
     params = dict(dt=1 / 240, contact_model="mean", gravity=[0, 0, 9.81], finger_force_n=None,
                   solver_iterations=150, filter_k=12)
     cid = p.connect(p.DIRECT)
     try:
-        sim = R._Sim(cid, rd, R._load_hand(rd, list(rd.joints)), list(rd.joints), dict(rd.object),
+        sim = R._Sim(cid, rd, inp.load_hand_info(rd, list(rd.joints)), list(rd.joints), dict(rd.object),
                      Friction(**rd.friction), params, 500, [], visual=False)
         ctl = sim.ctl
         ctl.command(dict(zip(rd.joints, rd.states[0].q)), (), moving=None)  # every finger free

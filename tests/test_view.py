@@ -211,8 +211,9 @@ def test_film_frames_are_readable(plan_path):
     """640x480 frames with a caption banner, contacts in the fingers' colours and the moving
     finger coloured only while a step runs; one fixed camera along the palm normal."""
     from planner.plan import read_plan
-    from planner.sim.render import finger_rgb, plan_frames
-    from planner.view import hand_of_plan, object_of_plan, plain_plan
+    from planner.frames import hand_of_plan, object_of_plan, plain_plan
+    from planner.sim.film import plan_frames
+    from planner.sim.render import finger_rgb
 
     plan = plain_plan(read_plan(plan_path))
     hand = hand_of_plan(plan, plan_path)

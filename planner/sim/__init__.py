@@ -1,18 +1,19 @@
 """pybullet replay of regrasp plans: the only package that imports pybullet.
 
 `replay_plan` executes a plan with gravity on and re-measures contacts and force
-closure from the simulator; `ContactFilter` is the thesis's temporal contact filter
-(pure numpy, importable without pybullet).
+closure from the simulator; `ContactFilter` is the thesis's temporal contact filter and
+`ReplayReport` / `StateReport` what a replay reports (pure numpy, importable without pybullet).
 """
 
 from planner.sim.contact_filter import ContactFilter, FilteredContact
+from planner.sim.report import ReplayReport, StateReport
 
 __all__ = ["ContactFilter", "FilteredContact", "ReplayReport", "StateReport", "replay_plan"]
 
 
 def __getattr__(name):
     # pybullet is loaded only when the replay itself is used
-    if name in ("ReplayReport", "StateReport", "replay_plan"):
+    if name == "replay_plan":
         from planner.sim import replay
 
         return getattr(replay, name)

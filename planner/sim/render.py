@@ -7,10 +7,11 @@ connection, so a caller (e.g. the replay) can render from its own simulation.
 from __future__ import annotations
 
 import contextlib
-import os
 from pathlib import Path
 
 import numpy as np
+from PIL import Image, ImageDraw, ImageFont
+from scipy.spatial.transform import Rotation
 
 from planner.errors import SimulationError
 from planner.sim.scene import hand_body, object_body, p
@@ -21,8 +22,6 @@ HAND_RGBA = (0.72, 0.74, 0.78, 1.0)
 
 def _pose(T: np.ndarray) -> tuple[list[float], list[float]]:
     """(position, quat_xyzw) of a 4x4 pose."""
-    from scipy.spatial.transform import Rotation
-
     return list(map(float, T[:3, 3])), list(map(float, Rotation.from_matrix(T[:3, :3]).as_quat()))
 
 
@@ -154,7 +153,8 @@ def _add_markers(markers, T_root_palm: np.ndarray, client: int) -> list[int]:
 
 MOVING_RGBA = (0.90, 0.0, 0.49, 1.0)
 CONTACT_RGBA = (0.10, 0.75, 0.20, 1.0)
-_FINGER_RGB = ((31, 119, 180), (44, 160, 44), (148, 103, 189), (140, 86, 75), (23, 190, 207), (188, 189, 34))
+#: finger colours (RGB), in hand.yaml finger order: the palette of `regrasp view` too
+FINGER_RGB = ((31, 119, 180), (44, 160, 44), (148, 103, 189), (140, 86, 75), (23, 190, 207), (188, 189, 34))
 
 
 def finger_links(body: int, hand, finger: str, client: int) -> list[int]:
@@ -200,8 +200,6 @@ def _project(points_world, view, proj, width: int, height: int) -> np.ndarray:
 
 
 def _font(size: int):
-    from PIL import ImageFont
-
     try:
         return ImageFont.load_default(size=size)
     except TypeError:  # Pillow < 10.1: fixed bitmap font
@@ -222,8 +220,6 @@ def annotate(img: np.ndarray, caption: str | None = None, markers_px=(), arrow=N
         legend: [(label, rgb, filled)]: a row of dots (filled, or rings) and labels along the
             bottom-left (e.g. each finger's colour, filled when it touches).
     """
-    from PIL import Image, ImageDraw
-
     im = Image.fromarray(img)
     draw = ImageDraw.Draw(im)
     r = max(3, img.shape[1] // 160)
@@ -278,7 +274,7 @@ def _draw_arrow(draw, width: int, height: int, dx: float, dy: float, label: str)
     draw.text((max(2, min(cx - w / 2, width - w - 4)), cy + r + 3), label, fill=ink, font=font)
 
 
-def _rgb255(rgba) -> tuple[int, int, int]:
+def rgb255(rgba) -> tuple[int, int, int]:
     return tuple(int(round(255 * float(v))) if float(v) <= 1.0 else int(v) for v in rgba[:3])
 
 
@@ -324,8 +320,6 @@ def render_png(
     Returns:
         The written path.
     """
-    from PIL import Image
-
     img = render_image(hand, q, obj, width=width, height=height, client=client, distance_m=distance_m,
                        yaw_deg=yaw_deg, pitch_deg=pitch_deg, markers=markers, caption=caption,
                        moving_finger=moving_finger)
@@ -457,7 +451,7 @@ class HandScene:
             tips = [m[1] for m in markers]
             tip_uv = [None if tp is None else _project([R @ np.asarray(tp, float) + t], view, proj, self.width,
                                                        self.height)[0] for tp in tips]
-            px = [(uv[i], tip_uv[i], _rgb255(m[2])) for i, m in enumerate(markers)]
+            px = [(uv[i], tip_uv[i], rgb255(m[2])) for i, m in enumerate(markers)]
         arrow = None
         if gravity is not None and np.linalg.norm(gravity) > 0:
             # camera coordinates (x right, y up, looking along -z) of the gravity direction
@@ -491,7 +485,7 @@ def render_image(hand, q, obj, *, width=640, height=480, client=None, **kwargs) 
 def finger_rgb(hand, finger: str) -> tuple[int, int, int]:
     """The colour a finger's contacts are drawn in (the same palette as `regrasp view`)."""
     names = list(hand.fingers)
-    return _FINGER_RGB[names.index(finger) % len(_FINGER_RGB)] if finger in names else (90, 90, 90)
+    return FINGER_RGB[names.index(finger) % len(FINGER_RGB)] if finger in names else (90, 90, 90)
 
 
 def patch_markers(hand, obj, patches, normal_len_m: float = 0.015, T_palm_obj=None) -> list:
@@ -508,134 +502,3 @@ def patch_markers(hand, obj, patches, normal_len_m: float = 0.015, T_palm_obj=No
             pp = R @ pt + t
             out.append((pp, pp - normal_len_m * (R @ n) / np.linalg.norm(n), rgb))
     return out
-
-
-def plan_frames(plan, hand, obj, *, frames_per_step: int = 8, width: int = 640, height: int = 480,
-                client: int | None = None) -> list[np.ndarray]:
-    """Pictures of a plan (`planner.plan.read_plan` data), step by step along the finger paths,
-    each with a caption (step, finger, action, the state's metric and removable fingers), the
-    state's contacts drawn and the moving finger coloured; one fixed camera for the film."""
-    from planner.view import resample
-
-    index = {j: i for i, j in enumerate(hand.joint_names)}
-
-    def q_of(st):
-        q = np.array(hand.q_open, dtype=float)
-        for j, v in st["q"].items():
-            if j in index:
-                q[index[j]] = float(v)
-        return q
-
-    def markers(i):
-        pts = {f: (pa["points"], pa["normals"]) for f, pa in plan["states"][i]["patches"].items()}
-        return patch_markers(hand, obj, pts, normal_len_m=0.2 * max(float(s) for s in obj.size))
-
-    def caption(i, head):
-        st = plan["states"][i]
-        c = st["closure"]
-        return (f"{head}\nstate {i}: {'force closure' if c['is_force_closure'] else 'NO closure'}, metric "
-                f"{float(c['metric']):.4g}, removable: {', '.join(st.get('removable') or []) or '-'}")
-
-    states, steps = plan["states"], plan["steps"]
-    frames = []
-    with HandScene(hand, q_of(states[0]), obj, client=client, width=width, height=height) as scene:
-        all_pts = np.array([m[0] for i in range(len(states)) for m in markers(i)])
-        camera = contact_camera(hand, scene.T_root_palm, all_pts if len(all_pts) else None,
-                                np.asarray(obj.T_palm_obj)[:3, 3], scene.reach_m())
-        frames.append(scene.image(q_of(states[0]), markers=markers(0), camera=camera,
-                                  caption=caption(0, f"initial grasp, {len(steps)} steps"),
-                                  touching=set(states[0]["patches"])))
-        for k, sp in enumerate(steps):
-            a, b = int(sp["from_state"]), int(sp["to_state"])
-            q = q_of(states[a])
-            cols = [index[j] for j in sp["joints"]]
-            path = np.asarray(sp["path"], float).reshape(-1, len(cols)) if sp["path"] else q[cols][None]
-            for j, qf in enumerate(resample(path, frames_per_step)):
-                q[cols] = qf
-                i = a if j < frames_per_step / 2 else b
-                head = f"step {k + 1}/{len(steps)}: {sp['finger']} {sp['action']} (state {a} -> {b})"
-                frames.append(scene.image(q, markers=markers(i), camera=camera, moving_finger=sp["finger"],
-                                          caption=caption(i, head), touching=set(states[i]["patches"])))
-    return frames
-
-
-def gif_palette(frame: np.ndarray, colors: int = 128):
-    """A palette for a whole film, from its first frame: the frame's own colours (median
-    cut), every shade of the finger, moving-finger and object colours (they appear later),
-    and the exact marker and text colours. One palette for every frame: no flicker between
-    frames, and quantizing a frame to it costs ~1 ms instead of a median cut's ~30 ms."""
-    from PIL import Image
-
-    exact = [*_FINGER_RGB, _rgb255(MOVING_RGBA), (90, 90, 90), (20, 24, 32), (0, 0, 0), (255, 255, 255)]
-    bases = [np.array(c, float) for c in (*_FINGER_RGB, _rgb255(MOVING_RGBA), _rgb255(OBJECT_RGBA),
-                                          _rgb255(HAND_RGBA))]
-    shades = [b * k for b in bases for k in np.linspace(0.3, 1.0, 8)]
-    shades += [b + (255 - b) * a for b in bases for a in (0.25, 0.5)]
-    h, w = frame.shape[:2]
-    block = max(1, (h * w) // (4 * len(shades)))  # the shades weigh a fifth of the sample
-    swatch = np.repeat(np.clip(np.round(shades), 0, 255).astype(np.uint8), block, axis=0)
-    sample = np.concatenate([frame.reshape(-1, 3), swatch])[None]
-    cut = Image.fromarray(sample).quantize(colors=colors - len(exact), method=Image.Quantize.MEDIANCUT)
-    rgb = list(cut.getpalette()[: 3 * (colors - len(exact))]) + [int(v) for c in exact for v in c]
-    pal = Image.new("P", (1, 1))
-    pal.putpalette(rgb)
-    return pal
-
-
-def gif_frame(frame: np.ndarray, palette=None):
-    """An RGB frame as a GIF palette image (a third of the memory), quantized to `palette`
-    (`gif_palette`; None: the frame's own)."""
-    from PIL import Image
-
-    im = Image.fromarray(frame)
-    return im.quantize(palette=palette if palette is not None else gif_palette(frame), dither=Image.Dither.NONE)
-
-
-def gif_durations_ms(times_s, hold_ms: int = 1000) -> list[int]:
-    """Display time of each frame shot at `times_s` (seconds, increasing) so the film runs
-    at the clock's speed: GIF delays are whole centiseconds, so each frame ends at its
-    successor's time rounded to 10 ms (no drift over the film); the last frame is held
-    `hold_ms` (the pause before the loop restarts)."""
-    t = np.asarray(times_s, float)
-    ends = np.round((t - t[0]) * 100.0).astype(int) * 10
-    return [int(v) for v in np.diff(ends)] + [int(hold_ms)]
-
-
-def write_gif(frames: list, path, frame_ms: int = 120, hold_ms: int = 900, durations_ms=None) -> Path:
-    """An animated GIF of RGB frames (arrays, or `gif_frame` images), written atomically.
-
-    Without ``durations_ms`` every frame shows `frame_ms`, the first and last `hold_ms`;
-    with it (one per frame, e.g. `gif_durations_ms`) those times."""
-    import tempfile
-
-    from PIL import Image
-
-    if not frames:
-        raise SimulationError("no frames to write")
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    palette = None
-    images = []
-    for f in frames:
-        if not isinstance(f, Image.Image):
-            palette = gif_palette(f) if palette is None else palette
-            f = gif_frame(f, palette)
-        images.append(f)
-    if durations_ms is None:
-        durations = [frame_ms] * len(images)
-        durations[0] = durations[-1] = hold_ms
-    else:
-        durations = [int(d) for d in durations_ms]
-        if len(durations) != len(images):
-            raise SimulationError(f"{len(durations)} frame durations for {len(images)} frames")
-    fd, tmp = tempfile.mkstemp(prefix=".gif-", suffix=".gif", dir=path.parent)
-    os.close(fd)
-    try:
-        images[0].save(tmp, save_all=True, append_images=images[1:], duration=durations, loop=0)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path

@@ -3,7 +3,8 @@
 The replay (`planner.sim.replay`) and the pictures (`planner.sim.render`) both build their
 scenes here, so a hand or an object looks and collides the same in a film as in the
 physics. Every call names its client: nothing relies on a global connection. Importing
-this module imports pybullet (its build banner silenced).
+this module imports pybullet (its build banner silenced). `urdf_problem` says whether
+pybullet can simulate a hand's URDF at all (``regrasp hand check``).
 """
 
 from __future__ import annotations
@@ -93,3 +94,17 @@ def object_body(client: int, shape: str, size, mesh_path, position, quat_xyzw, m
     return p.createMultiBody(baseMass=float(mass_kg), baseCollisionShapeIndex=c, baseVisualShapeIndex=v,
                              basePosition=[float(x) for x in position], baseOrientation=[float(x) for x in quat_xyzw],
                              physicsClientId=client)
+
+
+def urdf_problem(urdf_path: str, joint_names) -> str | None:
+    """Why pybullet cannot simulate a hand URDF with these joints (one line), or None."""
+    cid = p.connect(p.DIRECT)
+    try:
+        body = p.loadURDF(urdf_path, useFixedBase=True, flags=p.URDF_IGNORE_VISUAL_SHAPES, physicsClientId=cid)
+        names = {p.getJointInfo(body, i, physicsClientId=cid)[1].decode() for i in range(p.getNumJoints(body, physicsClientId=cid))}
+        missing = [j for j in joint_names if j not in names]
+        return f"joints {missing[:4]} are not in the URDF pybullet loads" if missing else None
+    except p.error as err:
+        return f"cannot load {urdf_path}: {err}"
+    finally:
+        p.disconnect(physicsClientId=cid)

@@ -1,8 +1,9 @@
 """Replays under several gravity directions in parallel processes, and plan verification.
 
-`replay_directions` runs one `planner.sim.replay.replay_plan` per direction, each in its own
-pybullet client; with ``workers > 1`` in worker processes (forked on Linux, so the hand is
-not loaded again). Every replay is deterministic and independent of the others, so the
+`replay_gravity_set` replays a plan under a gravity set of `planner.gravity` (its
+`GravitySetReport` says which directions failed). `replay_directions` runs one
+`planner.sim.replay.replay_plan` per direction, each in its own pybullet client; with
+``workers > 1`` in worker processes (forked on Linux, so the hand is not loaded again). Every replay is deterministic and independent of the others, so the
 reports are those of a serial run, in the directions' order.
 
 `verify_plan` is what ``regrasp plan --execution`` runs before it returns a plan: the plan as
@@ -13,16 +14,22 @@ the planner can remove that transition and search again.
 
 from __future__ import annotations
 
+import logging
 import math
 import multiprocessing
 import os
 import time
-from collections.abc import Sequence
-from concurrent.futures import ProcessPoolExecutor
+from collections.abc import Mapping, Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
+from pathlib import Path
 
+from planner.errors import InputError
+from planner.gravity import gravity_directions
 from planner.plan import Plan, plan_from_data
-from planner.sim.replay import ReplayReport, replay_plan
+from planner.sim.inputs import plan_hand, typed_plan
+from planner.sim.replay import replay_plan
+from planner.sim.report import GravitySetReport, ReplayReport
 
 #: The job the forked workers run (set before the pool forks; read only in the workers).
 _JOB: dict = {}
@@ -72,8 +79,6 @@ def replay_directions(plan: Plan, hand, directions: Sequence[tuple[str, Sequence
                 out.append(_one(i))
                 _log_done(directions[i][0], out[-1], i + 1, n)
             return out
-        from concurrent.futures import as_completed
-
         with ProcessPoolExecutor(max_workers=min(workers, n), mp_context=multiprocessing.get_context("fork")) as pool:
             futures = {pool.submit(_one, i): i for i in range(n)}
             done: dict[int, object] = {}
@@ -88,9 +93,57 @@ def replay_directions(plan: Plan, hand, directions: Sequence[tuple[str, Sequence
 
 def _log_done(name: str, report, k: int, n: int) -> None:
     """One progress record per replayed direction (`planner.regrasp.log`; the CLI shows it)."""
-    import logging
-
     logging.getLogger("planner").info("replay %d/%d %s: %s", k, n, name, "PASS" if report.passed else "FAIL")
+
+
+def replay_gravity_set(plan: Mapping | str | os.PathLike, n: int = 6, *, hand=None, g_mps2: float = 9.81,
+                       film: Sequence[str] | None = None, strict: bool = False, workers: int | None = None,
+                       **kwargs) -> GravitySetReport:
+    """Replay a plan under several gravity directions of the palm frame (`planner.gravity`).
+
+    Args:
+        plan: plan data or file, as for `replay_plan`.
+        n: set size (`planner.gravity.GRAVITY_SET_SIZES`): 1 palm down, 2 palm down and up,
+            6 with the four sideways directions, 7 with gravity off too.
+        hand: the plan's `planner.hand.Hand` (loaded from the plan when None).
+        g_mps2: gravity magnitude.
+        film: the direction names filmed when ``gif`` or ``mp4`` is given (default: all).
+        strict: refuse a plan file whose recorded inputs changed or are gone (`replay_plan`).
+        workers: processes the directions are replayed in (`planner.sim.verify.replay_directions`;
+            default: the cores available; the reports are those of a serial run).
+        **kwargs: passed to `replay_plan` (not ``gravity``; a ``gif`` path gets the direction
+            name inserted before its suffix).
+
+    Returns:
+        GravitySetReport; ``passed`` only when every direction passed.
+    """
+    if "gravity" in kwargs:
+        raise InputError("replay_gravity_set takes no gravity: it replays the set's directions")
+    rd = typed_plan(plan, strict)  # read and verified once for every direction
+    if hand is None:
+        hand = plan_hand(rd)
+    directions = gravity_directions(hand.palm_normal, n, g_mps2)
+    names = [name for name, _ in directions]
+    unknown = sorted(set(film or ()) - set(names))
+    if unknown:
+        raise InputError(f"cannot film {', '.join(unknown)}: the gravity set of {n} has {', '.join(names)}")
+    kw = dict(kwargs)
+    for key in ("gif", "mp4"):
+        if kw.get(key) is not None:
+            path = Path(kw[key])
+            kw[key] = [None if film is not None and name not in film else path.with_name(f"{path.stem}_{name}{path.suffix}")
+                       for name in names]
+    reports = replay_directions(rd, hand, directions, workers=workers, **kw)
+    out = [(name, g, r) for (name, g), r in zip(directions, reports)]
+    failed = [(name, r) for name, _, r in out if not r.passed]
+    if not failed:
+        worst_mm = max(r.max_drift_mm for _, _, r in out)
+        worst_deg = max(r.max_drift_deg for _, _, r in out)
+        verdict = f"PASS in all {len(out)} gravity directions: max drift {worst_mm:.1f} mm / {worst_deg:.1f} deg"
+    else:
+        verdict = (f"FAIL in {len(failed)}/{len(out)} gravity directions: "
+                   + "; ".join(f"{name}: {r.verdict.removeprefix('FAIL: ')}" for name, r in failed))
+    return GravitySetReport(not failed, verdict, tuple(out))
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,141 @@
+"""What a replay is built from: the typed plan, its hand and its object.
+
+`typed_plan` reads a plan (file, data or `planner.plan.Plan`) through `planner.plan`'s one
+parser; `plan_hand` and `load_hand_info` load the plan's hand and check every joint value of
+the plan against its limits; `create_object` builds the plan's object as a pybullet body
+(`planner.sim.scene.object_body`) with its mass. Files the plan names resolve relative to
+the plan file (`resolve_plan_file`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from planner.errors import UnknownNameError
+from planner.fileio import check_hand_file
+from planner.objects import SHAPES, SIZE_LENGTHS, SIZE_MEANING, make_object
+from planner.plan import Plan, plan_file, plan_from_data, read_plan
+from planner.sim.scene import object_body
+
+#: A plan's joint values may exceed the hand's limits by this much (rad or m): rounding.
+JOINT_LIMIT_TOL = 1e-3
+
+
+def typed_plan(plan, strict: bool = False) -> Plan:
+    """The typed plan of `planner.plan` (its one parser): a file is read and verified by
+    `read_plan` (integrity, structure, closures, inputs; ``strict``: a changed or missing
+    input is an error, not a warning), plan data is checked by `plan_from_data`, a `Plan`
+    is used as it is."""
+    if isinstance(plan, Plan):
+        return plan
+    if isinstance(plan, Mapping):
+        return plan_from_data(dict(plan))
+    return read_plan(plan, strict=strict)
+
+
+@dataclass(frozen=True)
+class HandInfo:
+    """What the replay takes from the plan's hand (`load_hand_info`)."""
+
+    urdf_path: str
+    fingers: dict[str, tuple[str, ...]]  # finger -> joint names
+    T_palm_base: np.ndarray  # pose of the URDF root link in the palm frame
+    hand: Any  # planner.hand.Hand: Jacobians for the controller
+    palm_normal: tuple[float, float, float]
+
+
+def resolve_plan_file(path_str: str, plan_path: str) -> Path | None:
+    """A file the plan names (`planner.plan.plan_file`: relative to the plan file)."""
+    found = plan_file(path_str, plan_path)
+    return None if found is None else found.resolve()
+
+
+def T_palm_root(hand) -> np.ndarray:
+    """Pose of the URDF root link in the palm frame (identity when the root is the palm)."""
+    root = getattr(getattr(hand, "model", None), "frames", None)
+    if root is None or len(root) < 2 or not hasattr(hand, "link_pose"):
+        return np.eye(4)
+    root_name = root[1].name  # frame 0 is "universe", frame 1 the root link
+    if root_name == getattr(hand, "palm_frame", root_name):
+        return np.eye(4)
+    return np.asarray(hand.link_pose(hand.q_open, root_name), dtype=float)
+
+
+def plan_hand(plan: Plan):
+    """The plan's `planner.hand.Hand`: from its spec file when it resolves (read once, checked
+    to be a hand spec without quoting the file), else by its name."""
+    from planner.hand import Hand  # pinocchio and coal: loaded only when a hand is
+
+    spec = plan.hand.get("spec")
+    if spec:
+        resolved = resolve_plan_file(str(spec), plan.source or "<plan>")
+        if resolved is not None:
+            if resolved.is_file():
+                return Hand(resolved, check_hand_file(resolved, plan.source or "<plan>", "hand.spec"))
+            return Hand.load(resolved)
+    return Hand.load(str(plan.hand["name"]))
+
+
+def load_hand_info(plan: Plan, joints: list[str], hand=None) -> HandInfo:
+    """Hand URDF, finger -> joints and the pinocchio model of the plan's hand; every joint
+    value of the plan must lie within the hand's limits (``JOINT_LIMIT_TOL`` beyond)."""
+    if hand is None:
+        hand = plan_hand(plan)
+    missing = [j for j in joints if j not in hand.joint_names]
+    if missing:
+        raise plan.error("joints", f"joints {missing[:5]} are not joints of hand {hand.name!r}")
+    names = list(hand.joint_names)
+    lo = np.array([hand.lower[names.index(j)] for j in joints]) - JOINT_LIMIT_TOL
+    hi = np.array([hand.upper[names.index(j)] for j in joints]) + JOINT_LIMIT_TOL
+    for i, st in enumerate(plan.states):
+        bad = np.flatnonzero((np.asarray(st.q) < lo) | (np.asarray(st.q) > hi))
+        if len(bad):
+            j = joints[bad[0]]
+            raise plan.error(f"states[{i}].q.{j}", f"{st.q[bad[0]]:.6g} is outside the joint's limits "
+                                                   f"[{lo[bad[0]] + JOINT_LIMIT_TOL:.4g}, {hi[bad[0]] - JOINT_LIMIT_TOL:.4g}]")
+    for i, step in enumerate(plan.steps):
+        k = [joints.index(j) for j in step.joints]
+        path = np.asarray(step.path)
+        bad = np.argwhere((path < lo[k]) | (path > hi[k]))
+        if len(bad):
+            w, c = bad[0]
+            raise plan.error(f"steps[{i}].path[{w}]", f"joint {step.joints[c]} at {path[w, c]:.6g} is outside its "
+                                                      f"limits [{lo[k][c] + JOINT_LIMIT_TOL:.4g}, {hi[k][c] - JOINT_LIMIT_TOL:.4g}]")
+    fingers = {f: tuple(fg.joints) for f, fg in hand.fingers.items()}
+    return HandInfo(str(hand.urdf_path), fingers, T_palm_root(hand), hand, tuple(hand.palm_normal))
+
+
+#: The replay's object colour (its films).
+OBJECT_RGBA = (0.85, 0.45, 0.15, 1.0)
+
+
+def create_object(cid: int, rd: Plan, obj: dict, density_kg_m3: float) -> tuple[int, float, float]:
+    """The object's pybullet body (`planner.sim.scene.object_body`), its mass (kg:
+    ``obj["mass_kg"]``, else volume x ``density_kg_m3``) and its smallest half-extent (m)."""
+    shape = str(obj["shape"])
+    size = [float(v) for v in obj["size"]]
+    if shape not in SHAPES:
+        raise UnknownNameError("object shape", shape, SHAPES)
+    if len(size) not in SIZE_LENGTHS[shape]:
+        raise rd.error("object.size", f"a {shape} size is {SIZE_MEANING[shape]}")
+    resolved = None
+    if shape == "mesh":
+        mesh = obj.get("mesh")
+        resolved = resolve_plan_file(str(mesh), rd.source or "<plan>") if mesh else None
+        if resolved is None:
+            raise rd.error("object.mesh", f"mesh file {mesh!r} not found")
+    model = make_object(shape, size, mesh_path=resolved)
+    radius = float(np.min(model.extents)) / 2
+    mass = obj.get("mass_kg")  # a `Plan` always records one: the planner's
+    if mass is None:
+        mass = density_kg_m3 * model.volume_m3
+    mass = float(mass)
+    if not mass > 0:
+        raise rd.error("object.mass_kg", f"expected a positive mass, got {mass}")
+    body = object_body(cid, shape, size, resolved, obj["position"], obj["quat_xyzw"], mass, OBJECT_RGBA)
+    return body, mass, radius
