@@ -245,7 +245,7 @@ def scaled_spec(spec, factors: Sequence[float]):
             return float(abs(axis_z) * L / 2 + r * np.sqrt(max(0.0, 1 - axis_z ** 2)))
         return float(sz[0])
     shift = np.array([0.0, 0.0, low(size) - low(obj.size)])
-    new_obj = replace(obj, size=size, position=tuple(np.asarray(obj.position, float) + shift))
+    new_obj = obj.replaced(size=size, position=tuple(np.asarray(obj.position, float) + shift))
     fingers = []
     for f in spec.fingers:
         if f.kind == "contact" and f.point_obj is not None:

@@ -63,7 +63,7 @@ def as_postures(path: str):
 
 
 def perturb(spec, hand, rng, point_sigma_m, posture_sigma_rad, free_prob):
-    obj = spec.object.make()
+    obj = spec.object
     fingers = []
     touching = [f.name for f in spec.fingers if f.kind != "free"]
     anchor = touching[int(rng.integers(len(touching)))] if touching else None

@@ -151,7 +151,7 @@ def scaled(spec, mode: str, scale: float, palm_normal):
     obj = spec.object
     if obj.shape == "mesh":
         f = (scale,) * len(obj.size)
-        new = replace(spec, object=replace(obj, size=tuple(s * scale for s in obj.size)),
+        new = replace(spec, object=obj.replaced(size=tuple(s * scale for s in obj.size)),
                       fingers=tuple(replace(fs, point_obj=tuple(float(v) * scale for v in fs.point_obj))
                                     if fs.kind == "contact" and fs.point_obj is not None else fs for fs in spec.fingers),
                       name=f"{spec.name}_x{scale:.2f}")
@@ -160,15 +160,15 @@ def scaled(spec, mode: str, scale: float, palm_normal):
         new = scaled_spec(spec, f)
     n = np.asarray(palm_normal, float)
     shift = n * (_support(obj, new.object.size, -n) - _support(obj, obj.size, -n))
-    return replace(new, object=replace(new.object, position=tuple(float(v) for v in np.asarray(obj.position, float) + shift)))
+    return replace(new, object=new.object.replaced(position=tuple(float(v) for v in np.asarray(obj.position, float) + shift)))
 
 
 def heavier(spec, factor: float):
     """The spec with its object's ``mass_kg`` (every library grasp gives it) times ``factor``."""
     obj = spec.object
-    if obj.mass_kg is None:
+    if not obj.mass_given:
         raise ValueError(f"{spec.name}: --heavy needs object.mass_kg in the grasp file")
-    return replace(spec, object=replace(obj, mass_kg=float(obj.mass_kg) * factor), name=f"{spec.name}_m{factor:g}")
+    return replace(spec, object=obj.replaced(mass_kg=float(obj.mass_kg) * factor), name=f"{spec.name}_m{factor:g}")
 
 
 def turn_axis(name: str, palm_normal) -> np.ndarray:
@@ -187,7 +187,7 @@ def turned(spec, axis_name: str, deg: float, palm_normal):
 
     obj = spec.object
     R = Rotation.from_rotvec(np.radians(deg) * turn_axis(axis_name, palm_normal)) * Rotation.from_quat(obj.quat_xyzw)
-    return replace(spec, object=replace(obj, quat_xyzw=tuple(float(v) for v in R.as_quat())),
+    return replace(spec, object=obj.replaced(quat_xyzw=tuple(float(v) for v in R.as_quat())),
                    name=f"{spec.name}_{axis_name}{deg:+.0f}")
 
 

@@ -40,7 +40,6 @@ from planner.frames import object_of_plan
 from planner.grasp import PENETRATION_TOL_M as _GRASP_PENETRATION_TOL_M
 from planner.grasp import load_grasp, realize
 from planner.model import Friction
-from planner.objects import default_mass_kg
 from planner.plan import Plan, plan_hand_ref, read_plan, recorded_input
 
 #: A patch point farther than this from the object's surface is not on it, m.
@@ -159,11 +158,9 @@ def _check_inputs(plan, rep: AuditReport, grasps: dict) -> None:
         qa, qb = np.asarray(po.get("quat_xyzw") or [0, 0, 0, 0], float), np.asarray(o.quat_xyzw, float)
         if abs(abs(float(qa @ qb)) / max(np.linalg.norm(qa) * np.linalg.norm(qb), 1e-300) - 1.0) > INPUT_TOL:
             rep.add(f"object.quat_xyzw: {list(qa)} differs from the {name} grasp's {list(qb)}")
-        mass = o.mass_kg
-        if mass is None:  # the planner used the default density's (`planner.plan.Plan`)
-            mass = default_mass_kg(o.shape, o.size, o.mesh_path, spec.path)
+        mass = o.mass_kg  # the given or the default density's, as the planner used (`planner.plan.Plan`)
         if not math.isclose(float(po.get("mass_kg") or 0.0), float(mass), rel_tol=1e-6):
-            rep.add(f"object.mass_kg: {po.get('mass_kg')} kg, the {name} grasp {'says' if o.mass_kg is not None else 'gives (default density)'} {mass:.6g} kg")
+            rep.add(f"object.mass_kg: {po.get('mass_kg')} kg, the {name} grasp {'says' if o.mass_given else 'gives (default density)'} {mass:.6g} kg")
         f = spec.friction
         for key in ("mu", "gamma"):
             mine, theirs = plan.friction.get(key), getattr(f, key, None)

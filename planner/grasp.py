@@ -48,7 +48,7 @@ import numpy as np
 from planner.errors import KinematicsError, PlannerError, SpecError
 from planner.fileio import Reader, check_grasp_file, describe
 from planner.model import Friction
-from planner.objects import SHAPES, SIZE_LENGTHS, SIZE_MEANING
+from planner.objects import SHAPES, SIZE_LENGTHS, SIZE_MEANING, GraspObject
 
 SCHEMA_VERSION = 1
 #: A contact point may lie this far from the object surface (it is projected onto it).
@@ -74,55 +74,6 @@ _FRICTION_KEYS = ("mu", "gamma", "edges")
 
 
 # --------------------------------------------------------------------------- data
-
-
-@dataclass(frozen=True)
-class ObjectSpec:
-    """The object of a grasp file, as written (metres, palm frame).
-
-    Attributes:
-        shape: box, cylinder, sphere or mesh.
-        size: box (x, y, z) full extents; cylinder (radius, length); sphere (radius,);
-            mesh scale (s,) or (sx, sy, sz).
-        position: object centre in the palm frame, metres.
-        quat_xyzw: object orientation in the palm frame (unit quaternion).
-        mesh_path: absolute mesh file path, or None.
-        mass_kg: mass, or None.
-    """
-
-    shape: str
-    size: tuple[float, ...]
-    position: tuple[float, float, float]
-    quat_xyzw: tuple[float, float, float, float]
-    mesh_path: str | None = None
-    mass_kg: float | None = None
-
-    @property
-    def T_palm_obj(self) -> np.ndarray:
-        """(4, 4) pose of the object frame in the palm frame."""
-        from scipy.spatial.transform import Rotation
-
-        T = np.eye(4)
-        T[:3, :3] = Rotation.from_quat(self.quat_xyzw).as_matrix()
-        T[:3, 3] = self.position
-        return T
-
-    def make(self):
-        """Build the `planner.objects.GraspObject` this spec describes."""
-        from planner.objects import make_object
-
-        return make_object(self.shape, self.size, self.T_palm_obj, mesh_path=self.mesh_path, mass_kg=self.mass_kg)
-
-    def to_dict(self) -> dict:
-        """Plain-data form, the ``object:`` block of grasp and plan files."""
-        return {
-            "shape": self.shape,
-            "size": list(self.size),
-            "position": list(self.position),
-            "quat_xyzw": list(self.quat_xyzw),
-            "mesh": self.mesh_path,
-            "mass_kg": self.mass_kg,
-        }
 
 
 @dataclass(frozen=True)
@@ -153,7 +104,7 @@ class GraspSpec:
         name: grasp name.
         hand: the hand reference as written in the file.
         hand_ref: a bundled hand's name (`planner.resources`) or an absolute path to a hand.yaml.
-        object: the object, see `ObjectSpec`.
+        object: the object (`planner.objects.GraspObject`, its geometry built).
         friction: `planner.model.Friction` (mu, gamma in metres, edges).
         fingers: one `FingerSpec` per finger of the hand, in the hand's finger order
             (fingers the file does not list are ``free``).
@@ -164,7 +115,7 @@ class GraspSpec:
     name: str
     hand: str
     hand_ref: str
-    object: ObjectSpec
+    object: GraspObject
     friction: Any
     fingers: tuple[FingerSpec, ...]
     description: str = ""
@@ -307,7 +258,7 @@ class RealizedGrasp:
             "grasp": self.spec.name,
             "file": self.spec.path,
             "hand": self.hand.name,
-            "object": self.spec.object.to_dict(),
+            "object": self.spec.object.to_data(),
             "friction": {"mu": self.friction.mu, "gamma": self.friction.gamma, "edges": self.friction.edges},
             "force_closure": self.is_force_closure,
             "metric": self.metric,
@@ -412,11 +363,7 @@ def parse_grasp(data: Mapping, path) -> GraspSpec:
         raise r.fail(f"cannot load hand {hand_text!r}: {err}", "hand") from err
 
     # -- object
-    obj_spec = parse_object(r, data["object"], path.parent)
-    try:
-        obj = obj_spec.make()
-    except (PlannerError, OSError, ValueError) as err:
-        raise r.fail(str(err), "object") from err
+    obj = parse_object(r, data["object"], path.parent)
 
     # -- friction
     fr = r.child("friction").mapping(string_keys=True)
@@ -450,16 +397,17 @@ def parse_grasp(data: Mapping, path) -> GraspSpec:
         name=name,
         hand=hand_text,
         hand_ref=hand_ref,
-        object=obj_spec,
+        object=obj,
         friction=friction,
         fingers=tuple(fingers),
         description=description,
     )
 
 
-def parse_object(r: Reader, value, base_dir: Path) -> ObjectSpec:
-    """The ``object:`` block ``value`` of the file `r` reads (`planner.fileio.Reader`), key
-    path ``object``; a relative mesh path is relative to ``base_dir``."""
+def parse_object(r: Reader, value, base_dir: Path) -> GraspObject:
+    """The object of the ``object:`` block ``value`` of the file `r` reads
+    (`planner.fileio.Reader`), key path ``object``, its geometry built; a relative mesh path
+    is relative to ``base_dir``."""
     o = r.at(value, "object").mapping(string_keys=True)
     o.keys(_OBJECT_KEYS, required=("shape", "size", "position", "quat_xyzw"))
     shape = o.child("shape").choice(SHAPES, "shape")
@@ -484,7 +432,11 @@ def parse_object(r: Reader, value, base_dir: Path) -> ObjectSpec:
     mass = o.get("mass_kg")
     if mass is not None:
         mass = o.child("mass_kg").number(positive=True)
-    return ObjectSpec(shape, size, position, quat, mesh_path, mass)
+    block = {"shape": shape, "size": size, "position": position, "quat_xyzw": quat, "mesh": mesh_path, "mass_kg": mass}
+    try:
+        return GraspObject.from_data(block)
+    except (PlannerError, OSError, ValueError) as err:
+        raise r.fail(str(err), "object") from err
 
 
 def _parse_finger(r: Reader, hand, finger, obj) -> FingerSpec:
@@ -756,7 +708,7 @@ def realize(spec: GraspSpec, hand=None) -> RealizedGrasp:
     from planner.hand import UnreachableError
 
     hand = load_hand(spec.hand_ref) if hand is None else hand
-    obj = spec.object.make()
+    obj = spec.object
     q = np.array(hand.q_open, dtype=float, copy=True)
     notes = []
     unreachable = []  # every finger out of reach is named, not only the first

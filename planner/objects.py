@@ -15,6 +15,7 @@ from types import MappingProxyType
 from typing import TYPE_CHECKING
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from planner.errors import InputError, UnknownNameError
 
@@ -140,6 +141,12 @@ class GraspObject:
         T_palm_obj: (4, 4) read-only pose of the object in the palm frame.
         mesh_path: mesh file for shape "mesh", else None.
         mass_kg: mass (default: volume x 500 kg/m^3).
+        mass_given: False when ``mass_kg`` is the default (the file gave none).
+
+    The one object type of the planner: grasp files, plans, synthesis, the replay and the
+    pictures hold it. Its file form (the ``object:`` block of grasp and plan files) is
+    `to_data` / `from_data`; the pose keeps the quaternion it was given with, so a file read
+    and written again says the same. Two objects are equal when their file forms are.
     """
 
     shape: str
@@ -149,6 +156,71 @@ class GraspObject:
     mass_kg: float = 0.0
     _mesh: "MeshData | None" = field(default=None, repr=False, compare=False)
     _geometry: object = field(default=None, repr=False, compare=False)
+    mass_given: bool = True
+    _quat_xyzw: tuple | None = field(default=None, repr=False, compare=False)
+
+    # ------------------------------------------------------------- file form
+    @classmethod
+    def from_data(cls, data: Mapping, base_dir=None) -> "GraspObject":
+        """The object of an ``object:`` block (keys shape, size, position, quat_xyzw, and
+        optionally mesh, mass_kg), already validated (`planner.grasp.parse_object` checks a
+        grasp file's, with the file and key in its errors).
+
+        Args:
+            data: the block; ``quat_xyzw`` a unit quaternion [x, y, z, w] (palm frame),
+                ``position`` metres (palm frame); ``mass_kg`` None or absent: the default.
+            base_dir: folder a relative ``mesh`` path is relative to (default: as given).
+        """
+        quat = tuple(float(v) for v in data["quat_xyzw"])
+        T = np.eye(4)
+        T[:3, :3] = Rotation.from_quat(quat).as_matrix()
+        T[:3, 3] = data["position"]
+        mesh = data.get("mesh")
+        if mesh is not None and base_dir is not None and not Path(mesh).is_absolute():
+            mesh = str(Path(base_dir) / mesh)
+        mass = data.get("mass_kg")
+        obj = make_object(data["shape"], tuple(data["size"]), T, mesh_path=mesh, mass_kg=mass)
+        object.__setattr__(obj, "_quat_xyzw", quat)
+        return obj
+
+    def to_data(self) -> dict:
+        """Plain-data form, the ``object:`` block of grasp and plan files (``mass_kg`` None
+        when the default; ``mesh`` the path as held)."""
+        return {
+            "shape": self.shape,
+            "size": list(self.size),
+            "position": list(self.position),
+            "quat_xyzw": list(self.quat_xyzw),
+            "mesh": self.mesh_path,
+            "mass_kg": self.mass_kg if self.mass_given else None,
+        }
+
+    def replaced(self, **changes) -> "GraspObject":
+        """The object with some of its file-form entries changed (size, position, quat_xyzw,
+        mesh, mass_kg; None for the default mass), geometry rebuilt."""
+        unknown = set(changes) - {"shape", "size", "position", "quat_xyzw", "mesh", "mass_kg"}
+        if unknown:
+            raise InputError(f"unknown object entries {sorted(unknown)}; entries are shape, size, position, "
+                             "quat_xyzw, mesh, mass_kg")
+        return GraspObject.from_data({**self.to_data(), **changes})
+
+    @property
+    def position(self) -> tuple[float, float, float]:
+        """Object centre in the palm frame, metres."""
+        return tuple(float(v) for v in self.T_palm_obj[:3, 3])
+
+    @property
+    def quat_xyzw(self) -> tuple[float, float, float, float]:
+        """Object orientation in the palm frame, the unit quaternion it was given with."""
+        if self._quat_xyzw is not None:
+            return self._quat_xyzw
+        return tuple(float(v) for v in Rotation.from_matrix(self.T_palm_obj[:3, :3]).as_quat())
+
+    def __eq__(self, other) -> bool:
+        return isinstance(other, GraspObject) and self.to_data() == other.to_data()
+
+    def __hash__(self) -> int:
+        return hash((self.shape, self.size, self.position, self.quat_xyzw, self.mesh_path))
 
     @property
     def geometry(self) -> coal.CollisionGeometry:
@@ -181,7 +253,8 @@ class GraspObject:
     def with_pose(self, T_palm_obj) -> "GraspObject":
         """The same object at another pose (geometry shared)."""
         T = _check_pose(T_palm_obj)
-        return GraspObject(self.shape, self.size, T, self.mesh_path, self.mass_kg, self._mesh, self._geometry)
+        return GraspObject(self.shape, self.size, T, self.mesh_path, self.mass_kg, self._mesh, self._geometry,
+                           self.mass_given)
 
     # ------------------------------------------------------------- sampling
     def sample_surface(self, n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -496,6 +569,7 @@ def make_object(shape: str, size, T_palm_obj=None, mesh_path=None, mass_kg=None)
         if not (np.isfinite(mass) and mass > 0):
             raise InputError(f"mass_kg must be > 0, got {mass_kg!r}")
     object.__setattr__(obj, "mass_kg", float(mass))
+    object.__setattr__(obj, "mass_given", mass_kg is not None)
     return obj
 
 

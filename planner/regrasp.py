@@ -69,7 +69,7 @@ def check_same_setup(initial, final) -> None:
         ("object.mesh", a.object.mesh_path, b.object.mesh_path),
         ("object.position", a.object.position, b.object.position),
         ("object.quat_xyzw", a.object.quat_xyzw, b.object.quat_xyzw),
-        ("object.mass_kg", a.object.mass_kg, b.object.mass_kg),  # None (volume x density) differs from a number
+        ("object.mass_kg", a.object.to_data()["mass_kg"], b.object.to_data()["mass_kg"]),  # None (volume x density) differs from a number
         ("friction", (a.friction.mu, a.friction.gamma, a.friction.edges), (b.friction.mu, b.friction.gamma, b.friction.edges)),
     ]
     for key, va, vb in checks:
@@ -538,7 +538,7 @@ def _make_plan(initial, final, options, inputs, problem, G, best, others, motion
     parameters["grip_cone_sides"] = GRIP_CONE_SIDES if directions else None
     return Plan(
         hand={"name": hand.name, "spec": spec.hand_ref},
-        object=spec.object.to_dict(),
+        object=spec.object.to_data(),
         friction={"mu": spec.friction.mu, "gamma": spec.friction.gamma, "edges": spec.friction.edges},
         inputs=dict(inputs),
         parameters=parameters,

@@ -44,6 +44,7 @@ from planner.errors import PlannerError, SpecError
 from planner.fileio import MAX_GRASP_BYTES, Reader, read_yaml
 from planner.grip import HOLD_FACTOR
 from planner.motion import retreat_blocked
+from planner.objects import GraspObject
 
 #: Two grasps are near-duplicates when every chosen finger's mean contact point (palm frame)
 #: and the object centre differ by less than this, and the contact normals by less than
@@ -132,7 +133,7 @@ def load_object_file(path) -> tuple[dict, dict | None, bool]:
     out = {"shape": spec.shape, "size": [float(v) for v in spec.size]}
     if spec.mesh_path:
         out["mesh"] = spec.mesh_path
-    if spec.mass_kg is not None:
+    if spec.mass_given:
         out["mass_kg"] = float(spec.mass_kg)
     if fixed:
         out["position"] = [float(v) for v in spec.position]
@@ -168,10 +169,7 @@ def _sweep(hand, finger, q, alphas, radius: float = 0.0) -> tuple[np.ndarray, np
 
 
 def _object_of(block):
-    from planner.grasp import ObjectSpec
-
-    return ObjectSpec(block["shape"], tuple(block["size"]), tuple(block["position"]), tuple(block["quat_xyzw"]),
-                      block.get("mesh"), block.get("mass_kg")).make()
+    return GraspObject.from_data(block)
 
 
 def _palm_distance(hand, q, block) -> float:

@@ -121,9 +121,9 @@ def test_exp7_heavy_set_scales_mass_and_budget_together():
     spec = load_spec(extra[0]["initial"])
     h = e7.heavier(spec, 4.0)
     assert h.object.mass_kg == pytest.approx(4.0 * spec.object.mass_kg)
-    assert replace(h.object, mass_kg=spec.object.mass_kg) == spec.object and h.fingers == spec.fingers
+    assert h.object.replaced(mass_kg=spec.object.mass_kg) == spec.object and h.fingers == spec.fingers
     with pytest.raises(ValueError, match="mass_kg"):
-        e7.heavier(replace(spec, object=replace(spec.object, mass_kg=None)), 2.0)
+        e7.heavier(replace(spec, object=spec.object.replaced(mass_kg=None)), 2.0)
 
 
 def test_exp8_quick_plans_a_synthesized_pair_three_ways(tmp_path, capsys):

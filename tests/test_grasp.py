@@ -106,7 +106,7 @@ def test_realize_contact_lands_on_the_requested_point():
     """A pad contact is placed within a few millimetres of the requested surface point without penetrating."""
     spec = load_grasp(BOX_PE)
     hand = load_hand(spec.hand_ref)
-    obj = spec.object.make()
+    obj = spec.object
     p = np.array(spec.finger("thumb").point_obj)
     q, patch = realize_contact(hand, obj, "thumb", p, hand.q_open)
     assert patch is not None
