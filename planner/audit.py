@@ -30,16 +30,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
 from planner.closure import grasp_closure
 from planner.errors import AuditError, PlannerError
-from planner.frames import object_of_plan
 from planner.grasp import PENETRATION_TOL_M as _GRASP_PENETRATION_TOL_M
 from planner.grasp import load_grasp, realize
-from planner.model import Friction
 from planner.plan import Plan, plan_hand_ref, read_plan, recorded_input
 
 #: A patch point farther than this from the object's surface is not on it, m.
@@ -149,22 +146,22 @@ def _check_inputs(plan, rep: AuditReport, grasps: dict) -> None:
     for name, spec in grasps.items():
         rep.count("input grasps")
         o, po = spec.object, plan.object
-        if o.shape != po.get("shape"):
-            rep.add(f"object.shape: {po.get('shape')!r}, the {name} grasp's object is a {o.shape!r}")
+        if o.shape != po.shape:
+            rep.add(f"object.shape: {po.shape!r}, the {name} grasp's object is a {o.shape!r}")
             continue
-        for key, mine, theirs in (("size", po.get("size"), o.size), ("position", po.get("position"), o.position)):
-            if mine is None or len(mine) != len(theirs) or not np.allclose(mine, theirs, atol=INPUT_TOL, rtol=0):
-                rep.add(f"object.{key}: {list(mine or [])} differs from the {name} grasp's {list(theirs)}")
-        qa, qb = np.asarray(po.get("quat_xyzw") or [0, 0, 0, 0], float), np.asarray(o.quat_xyzw, float)
+        for key, mine, theirs in (("size", po.size, o.size), ("position", po.position, o.position)):
+            if len(mine) != len(theirs) or not np.allclose(mine, theirs, atol=INPUT_TOL, rtol=0):
+                rep.add(f"object.{key}: {list(mine)} differs from the {name} grasp's {list(theirs)}")
+        qa, qb = np.asarray(po.quat_xyzw, float), np.asarray(o.quat_xyzw, float)
         if abs(abs(float(qa @ qb)) / max(np.linalg.norm(qa) * np.linalg.norm(qb), 1e-300) - 1.0) > INPUT_TOL:
             rep.add(f"object.quat_xyzw: {list(qa)} differs from the {name} grasp's {list(qb)}")
         mass = o.mass_kg  # the given or the default density's, as the planner used (`planner.plan.Plan`)
-        if not math.isclose(float(po.get("mass_kg") or 0.0), float(mass), rel_tol=1e-6):
-            rep.add(f"object.mass_kg: {po.get('mass_kg')} kg, the {name} grasp {'says' if o.mass_given else 'gives (default density)'} {mass:.6g} kg")
+        if not math.isclose(po.mass_kg, float(mass), rel_tol=1e-6):
+            rep.add(f"object.mass_kg: {po.mass_kg} kg, the {name} grasp {'says' if o.mass_given else 'gives (default density)'} {mass:.6g} kg")
         f = spec.friction
         for key in ("mu", "gamma"):
-            mine, theirs = plan.friction.get(key), getattr(f, key, None)
-            if theirs is not None and (mine is None or not math.isclose(float(mine), float(theirs), rel_tol=1e-6)):
+            mine, theirs = getattr(plan.friction, key), getattr(f, key)
+            if not math.isclose(mine, theirs, rel_tol=1e-6):
                 rep.add(f"friction.{key}: {mine}, the {name} grasp says {theirs}")
 
 
@@ -205,7 +202,7 @@ def _check_states(plan, hand, obj, rep: AuditReport) -> list:
     Returns every state's `HandState`."""
     from planner.contacts import contact_patches  # pinocchio and coal: loaded only when a plan is checked
 
-    friction = Friction(**plan.friction)
+    friction = plan.friction
     poses = []
     fk_cache: dict = {}
     # a plan made with one mean contact per finger records the mean of the finger's patch:
@@ -371,7 +368,7 @@ def audit_plan(plan, hand=None, paths: bool = True) -> AuditReport:
         from planner.hand import Hand  # pinocchio and coal: loaded only when a hand is
 
         hand = Hand.load(plan_hand_ref(plan.hand, plan.source))
-    obj = object_of_plan(plan.to_dict(), Path(src))
+    obj = plan.object
     grasps = _input_grasps(plan)
     _check_inputs(plan, rep, grasps)
     if not _check_hand(plan, hand, rep):

@@ -12,9 +12,8 @@ from pathlib import Path
 from typing import Mapping
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
-from planner.objects import make_object
+from planner.objects import GraspObject
 from planner.plan import plan_file, plan_hand_ref
 
 
@@ -52,11 +51,10 @@ def hand_of_plan(plan: Mapping, plan_path: Path):
     return Hand.load(plan_hand_ref(plan.get("hand") or {}, plan_path))
 
 
-def object_of_plan(plan: Mapping, plan_path: Path):
-    """The plan's `planner.objects.GraspObject` at its planned pose (palm frame)."""
-    o = plan["object"]
-    T = pose_matrix(Rotation.from_quat(o["quat_xyzw"]).as_matrix(), o["position"])
-    mesh = o.get("mesh")
-    if mesh:
-        mesh = str(plan_file(mesh, plan_path) or mesh)
-    return make_object(o["shape"], tuple(o["size"]), T, mesh_path=mesh, mass_kg=o.get("mass_kg"))
+def object_of_plan(plan: Mapping, plan_path: Path) -> GraspObject:
+    """The `planner.objects.GraspObject` of plain plan data (its ``object`` block; a mesh
+    path relative to the plan file) at its planned pose (palm frame)."""
+    o = dict(plan["object"])
+    if o.get("mesh"):
+        o["mesh"] = str(plan_file(o["mesh"], plan_path) or o["mesh"])
+    return GraspObject.from_data(o)

@@ -50,7 +50,7 @@ from planner.closure import CONTACT_MODELS, grasp_closure
 from planner.errors import IntegrityError, PlannerError, PlannerWarning, SpecError, UnknownNameError
 from planner.fileio import MAX_GRASP_BYTES, MAX_PLAN_BYTES, Reader, load_json, load_yaml, read_limited, sha256_file, shown, write_atomic
 from planner.model import Friction
-from planner.objects import SHAPES, SIZE_LENGTHS, SIZE_MEANING, default_mass_kg
+from planner.objects import SHAPES, SIZE_LENGTHS, SIZE_MEANING, GraspObject
 from planner.resources import bundled_grasp, bundled_grasp_name, bundled_hand_name, is_hand_path
 
 SCHEMA_VERSION = 2
@@ -195,8 +195,9 @@ class Alternative:
 class Plan:
     """A finger-gaiting plan, ready to export (or read back by `read_plan`).
 
-    ``object["mass_kg"]`` is always the mass the planner used: when the grasp gave none
-    it is filled with `planner.objects.default_mass_kg` (volume x density), so the
+    ``object`` is a `planner.objects.GraspObject` and ``friction`` a `planner.model.Friction`
+    (their file forms are accepted and converted); the file's ``object.mass_kg`` is always
+    the mass the planner used (the grasp's, or volume x density when it gave none), so the
     replay simulates the same object. ``source`` is the file it was read from (None for
     a plan made in memory); relative paths in it (inputs, mesh, hand spec) are relative
     to that file's folder. ``plan["states"]`` reads the plan as plain data (the file's
@@ -204,8 +205,8 @@ class Plan:
     """
 
     hand: Mapping[str, Any]
-    object: Mapping[str, Any]
-    friction: Mapping[str, Any]
+    object: GraspObject
+    friction: Friction
     inputs: Mapping[str, Any]
     parameters: Mapping[str, Any]
     summary: Mapping[str, Any]
@@ -216,10 +217,13 @@ class Plan:
     source: str | None = field(default=None, compare=False)
 
     def __post_init__(self):
-        obj = dict(self.object)
-        if obj.get("mass_kg") is None and obj.get("shape") is not None:
-            obj["mass_kg"] = default_mass_kg(obj["shape"], obj["size"], obj.get("mesh"), self.source)
-            object.__setattr__(self, "object", obj)
+        if isinstance(self.object, Mapping):  # the file form: a relative mesh is relative to the plan file
+            obj = dict(self.object)
+            if isinstance(obj.get("mesh"), str):
+                obj["mesh"] = str(_absolute(obj["mesh"], self.source))
+            object.__setattr__(self, "object", GraspObject.from_data(obj))
+        if isinstance(self.friction, Mapping):
+            object.__setattr__(self, "friction", Friction(**self.friction))
 
     def __getitem__(self, key: str):
         return self.to_dict()[key]
@@ -250,7 +254,7 @@ class Plan:
     def _content(self, relative_to) -> dict:
         inputs = {k: _input_record(v, relative_to, self.source) for k, v in _plain(self.inputs).items()}
         hand = _plain(self.hand)
-        obj = _plain(self.object)
+        obj = _plain({**self.object.to_data(), "mass_kg": self.object.mass_kg})
         if isinstance(hand.get("spec"), str):
             hand["spec"] = _hand_spec(hand["spec"], relative_to, self.source)
         if relative_to is not None and isinstance(obj.get("mesh"), str):
@@ -260,7 +264,7 @@ class Plan:
             "kind": PLAN_KIND,
             "hand": hand,
             "object": obj,
-            "friction": _plain(self.friction),
+            "friction": _plain(self.friction.to_data()),
             "inputs": inputs,
             "parameters": _plain(self.parameters),
             "summary": _plain(self.summary),
@@ -448,7 +452,7 @@ def _check_digest(data: Mapping, src: str) -> None:
 def _check_closures(plan: Plan, src: str) -> None:
     """Every state's recorded closure must be the closure of its patches (ms per state)."""
 
-    friction = Friction(**plan.friction)
+    friction = plan.friction
     for i, st in enumerate(plan.states):
         c = grasp_closure(dict(st.patches), friction) if st.patches else None
         fc = bool(c.is_force_closure) if c is not None else False

@@ -4,6 +4,7 @@ their integrity. Every case is a small generated input: the command exits 2 (bad
 
 import errno
 import hashlib
+import json
 import math
 import os
 import re
@@ -205,10 +206,12 @@ def test_mesh_mass_is_recorded_as_the_planner_used_it(tmp_path):
     obj = {"shape": "mesh", "size": [1.0], "position": [0, 0, 0.05], "quat_xyzw": [0, 0, 0, 1], "mesh": str(mesh)}
     plan = type(plan)(**{**plan.__dict__, "object": obj})
     expect = DEFAULT_DENSITY_KG_M3 * make_object("mesh", [1.0], mesh_path=mesh).volume_m3
-    assert plan.object["mass_kg"] == pytest.approx(expect) and expect > 0
-    back = read_plan(write_plan(plan, tmp_path / "p.json"))
-    assert back.object["mass_kg"] == pytest.approx(expect, rel=1e-9)
-    assert back.object["mesh"] == os.path.relpath(mesh, tmp_path)
+    assert plan.object.mass_kg == pytest.approx(expect) and expect > 0
+    written = write_plan(plan, tmp_path / "p.json")
+    back = read_plan(written)
+    assert back.object.mass_kg == pytest.approx(expect, rel=1e-9)
+    assert json.loads(written.read_text())["object"]["mesh"] == os.path.relpath(mesh, tmp_path)  # relative in the file
+    assert back.object.mesh_path == str(mesh)
 
 
 # ------------------------------------------------------------------ 3/4. bounds and bad values

@@ -485,8 +485,8 @@ def test_armature_floor_keeps_the_stiffest_spring_stable_with_margin():
                   solver_iterations=150, filter_k=12)
     cid = p.connect(p.DIRECT)
     try:
-        sim = R._Sim(cid, rd, inp.load_hand_info(rd, list(rd.joints)), list(rd.joints), dict(rd.object),
-                     Friction(**rd.friction), params, 500, [], visual=False)
+        sim = R._Sim(cid, rd, inp.load_hand_info(rd, list(rd.joints)), list(rd.joints), rd.object,
+                     rd.friction, params, 500, [], visual=False)
         ctl = sim.ctl
         ctl.command(dict(zip(rd.joints, rd.states[0].q)), (), moving=None)  # every finger free
         F1 = C.squeeze_force_n(ctl.mass, ctl.g_max, 1, ctl.friction.mu, ctl.floor_n)

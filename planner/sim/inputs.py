@@ -16,9 +16,8 @@ from typing import Any
 
 import numpy as np
 
-from planner.errors import UnknownNameError
 from planner.fileio import check_hand_file
-from planner.objects import SHAPES, SIZE_LENGTHS, SIZE_MEANING, make_object
+from planner.objects import GraspObject
 from planner.plan import Plan, plan_file, plan_from_data, read_plan
 from planner.sim.scene import object_body
 
@@ -114,28 +113,12 @@ def load_hand_info(plan: Plan, joints: list[str], hand=None) -> HandInfo:
 OBJECT_RGBA = (0.85, 0.45, 0.15, 1.0)
 
 
-def create_object(cid: int, rd: Plan, obj: dict, density_kg_m3: float) -> tuple[int, float, float]:
-    """The object's pybullet body (`planner.sim.scene.object_body`), its mass (kg:
-    ``obj["mass_kg"]``, else volume x ``density_kg_m3``) and its smallest half-extent (m)."""
-    shape = str(obj["shape"])
-    size = [float(v) for v in obj["size"]]
-    if shape not in SHAPES:
-        raise UnknownNameError("object shape", shape, SHAPES)
-    if len(size) not in SIZE_LENGTHS[shape]:
-        raise rd.error("object.size", f"a {shape} size is {SIZE_MEANING[shape]}")
-    resolved = None
-    if shape == "mesh":
-        mesh = obj.get("mesh")
-        resolved = resolve_plan_file(str(mesh), rd.source or "<plan>") if mesh else None
-        if resolved is None:
-            raise rd.error("object.mesh", f"mesh file {mesh!r} not found")
-    model = make_object(shape, size, mesh_path=resolved)
-    radius = float(np.min(model.extents)) / 2
-    mass = obj.get("mass_kg")  # a `Plan` always records one: the planner's
-    if mass is None:
-        mass = density_kg_m3 * model.volume_m3
-    mass = float(mass)
-    if not mass > 0:
-        raise rd.error("object.mass_kg", f"expected a positive mass, got {mass}")
-    body = object_body(cid, shape, size, resolved, obj["position"], obj["quat_xyzw"], mass, OBJECT_RGBA)
-    return body, mass, radius
+def create_object(cid: int, obj: GraspObject, density_kg_m3: float) -> tuple[int, float, float]:
+    """The object's pybullet body (`planner.sim.scene.object_body`), its mass (kg: the
+    plan's, which records the planner's; volume x ``density_kg_m3`` for an object without
+    one) and its smallest half-extent (m)."""
+    radius = float(np.min(obj.extents)) / 2
+    mass = obj.mass_kg if obj.mass_given else density_kg_m3 * obj.volume_m3
+    body = object_body(cid, obj.shape, list(obj.size), obj.mesh_path, list(obj.position), list(obj.quat_xyzw),
+                       float(mass), OBJECT_RGBA)
+    return body, float(mass), radius

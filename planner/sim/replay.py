@@ -60,7 +60,6 @@ from scipy.spatial.transform import Rotation
 from planner.closure import apply_contact_model, grasp_closure
 from planner.errors import InputError, SimulationError
 from planner.handtool import replay_inertia
-from planner.model import Friction
 from planner.sim.contact_filter import ContactFilter
 from planner.sim.controller import TOUCH_TOL_M, Controller
 from planner.sim.inputs import HandInfo, create_object, load_hand_info, typed_plan
@@ -186,7 +185,7 @@ def replay_plan(
         SimulationError: pybullet could not set up the scene, or ffmpeg is missing for mp4.
     """
     rd = typed_plan(plan, strict)
-    joints, states, steps, obj, friction = list(rd.joints), rd.states, rd.steps, dict(rd.object), Friction(**rd.friction)
+    joints, states, steps, obj, friction = list(rd.joints), rd.states, rd.steps, rd.object, rd.friction
     positive = [("dt", dt), ("drift_mm_max", drift_mm_max), ("drift_deg_max", drift_deg_max),
                 ("drop_mm", drop_mm), ("joint_speed_rad_s", joint_speed_rad_s)]
     if finger_force_n is not None:
@@ -322,9 +321,9 @@ class _Sim:
         self.hand = hand_body(cid, info.urdf_path, base_pos=base_pos, base_quat_xyzw=base_quat,
                               inertia_from_file=True, visual=visual)
         bodies.append(self.hand)
-        self.obj, self.mass, radius_m = create_object(cid, rd, obj, density_kg_m3)
+        self.obj, self.mass, radius_m = create_object(cid, obj, density_kg_m3)
         bodies.append(self.obj)
-        self.T_ref = _T(obj["position"], obj["quat_xyzw"])
+        self.T_ref = _T(obj.position, obj.quat_xyzw)
         self._p_ref = tuple(float(v) for v in self.T_ref[:3, 3])
         self._quat_ref = tuple(float(v) for v in Rotation.from_matrix(self.T_ref[:3, :3]).as_quat())
 
