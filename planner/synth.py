@@ -43,7 +43,7 @@ from planner.collision import LINK_EPS_M
 from planner.errors import PlannerError, SpecError
 from planner.fileio import MAX_GRASP_BYTES, Reader, read_yaml
 from planner.grip import HOLD_FACTOR
-from planner.motion import retreat_blocked
+from planner.retreat import retreat_blocked
 
 #: Two grasps are near-duplicates when every chosen finger's mean contact point (palm frame)
 #: and the object centre differ by less than this, and the contact normals by less than
