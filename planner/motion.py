@@ -32,6 +32,9 @@ from collections.abc import Iterator, Mapping
 from types import MappingProxyType
 
 import numpy as np
+from ompl import base as ob
+from ompl import geometric as og
+from ompl import util as ou
 
 from planner.errors import InputError, MotionError, UnknownNameError
 from planner.finger_scene import (
@@ -69,8 +72,6 @@ _PLANNER_CLASSES = {
 
 
 def _registered_planners() -> Mapping[str, str]:
-    from ompl import geometric as og
-
     return MappingProxyType({k: v for k, v in _PLANNER_CLASSES.items() if hasattr(og, v)})
 
 
@@ -96,8 +97,6 @@ def _planner_class_name(name: str) -> str:
 @contextlib.contextmanager
 def _ompl_output(verbose: bool) -> Iterator[None]:
     """OMPL's log level is global: silence it (or open it up) and restore it after."""
-    from ompl import util as ou
-
     previous = ou.getLogLevel()
     ou.setLogLevel(ou.LOG_INFO if verbose else ou.LOG_NONE)
     try:
@@ -129,10 +128,6 @@ def _solve_ompl(
     Every OMPL object is local to this frame (see the module docstring), so the caller
     raises its error after they are gone.
     """
-    from ompl import base as ob
-    from ompl import geometric as og
-    from ompl import util as ou
-
     n = len(start)
     with _ompl_output(False):
         # Re-seeding OMPL's generator of seeds makes the samplers created below
