@@ -2,132 +2,37 @@
 
 A `PlannerError` becomes one line on stderr and exit code 2 (bad input) or the
 command's own failure code; any other exception is a bug and shows its traceback.
+Here: the parser, the checks of the arguments before any work, and ``main``; the
+commands themselves are `planner.commands` (and ``demo``, below, which runs them).
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
+import logging
 import os
 import sys
 import tempfile
+import warnings
+from pathlib import Path
 
-from planner.errors import NoSequenceError, PlannerError, one_line
+import planner
+from planner import commands
+from planner.errors import NoSequenceError, PlannerError, PlannerWarning, one_line
+from planner.fileio import check_grasp_file, check_output
 from planner.gravity import GRAVITY_SET_SIZES
+from planner.resources import bundled_grasp
 
 DEMO_INITIAL = "icub/cylinder_parallel_extension.yaml"  # bundled grasps (planner.resources)
 DEMO_FINAL = "icub/cylinder_ir2m.yaml"
 DEMO_OUT = "regrasp-demo"
 
 
-def _cmd_plan(args: argparse.Namespace) -> int:
-    import time
-
-    from planner.grasp import load_grasp, realize
-    from planner.plan import plan_format, write_plan
-    from planner.grasp import input_record
-    from planner.options import PlanOptions
-    from planner.regrasp import check_same_setup, plan_regrasp
-
-    if args.output:
-        plan_format(args.output)  # refuse a bad suffix before any work
-    t0 = time.perf_counter()
-    chosen = dict(contact_model=args.contact_model, rank=args.rank,
-                  gravity=tuple(args.gravity) if args.gravity is not None else None, gravity_set=args.gravity_set)
-    if not args.execution:  # the thesis's defaults; --execution brings its own (PlanOptions.for_execution)
-        chosen.update(contact_model=args.contact_model or "patch", rank=args.rank or "metric")
-    options = (PlanOptions.for_execution if args.execution else PlanOptions)(
-        strategy=args.strategy,
-        alternatives=args.alternatives,
-        intermediate=args.intermediate,
-        seed=args.seed,
-        motion=not args.no_motion,
-        motion_planner=args.motion_planner,
-        motion_timeout_s=args.motion_timeout,
-        max_lifted=args.max_lifted,
-        max_finger_force_n=args.max_finger_force,
-        time_limit_s=args.time_limit,
-        max_rounds=args.max_rounds,
-        **({"verify": False} if args.no_verify else {}),
-        **chosen,
-    )
-    specs = [load_grasp(args.initial), load_grasp(args.final)]
-    check_same_setup(*specs)
-    initial, final = (realize(s).require_placed() for s in specs)
-    inputs = {k: input_record(p) for k, p in (("initial", args.initial), ("final", args.final))}
-    result = plan_regrasp(initial, final, options, inputs, verbose=args.verbose)
-    plan = result.plan
-    if args.output:  # written before anything is printed: a closed pipe (| head) cannot lose it
-        write_plan(plan, args.output)
-    gripped = plan.states[0].grip_force_n is not None
-    print(f"{'step':>4}  {'finger':<8} {'action':<5} {'state':>5}  {'metric':>10}  " + ("grip N  " if gripped else "") + "removable")
-    for i, step in enumerate(plan.steps):
-        st = plan.states[step.to_state]
-        grip = f"{st.grip_force_n:>6.3f}  " if gripped else ""
-        print(f"{i:>4}  {step.finger:<8} {step.action:<5} {step.to_state:>5}  {st.metric:>10.4g}  {grip}{','.join(st.removable) or '-'}")
-    s = plan.summary
-    for rank, alt in enumerate(result.alternatives, start=2):
-        grip = f", grip {alt.bottleneck_grip:.3f} N" if alt.bottleneck_grip is not None else ""
-        print(f"alternative {rank}: bottleneck {alt.bottleneck:.4g}{grip}, {alt.gait_steps} gait steps: "
-              f"{' '.join(alt.order(result.graph.graph['problem']))}")
-    print(
-        f"{s['strategy']}: {s['gait_steps']} gait steps ({len(plan.steps)} motions), bottleneck metric "
-        f"{s['bottleneck_metric']:.4g}"
-        + (f", largest grip {s['bottleneck_grip_force_n']:.3f} N" if s["bottleneck_grip_force_n"] is not None else "")
-        + f" (ranked by {s['rank']}), graph {s['graph_nodes']} states / {s['graph_edges']} edges "
-        f"({s['blocked_states']} blocked), {time.perf_counter() - t0:.2f} s"
-        + (f", written to {args.output}" if args.output else "")
-    )
-    check = s.get("verification")
-    if check is not None:
-        names = ", ".join(check["directions"])
-        print(f"verified in pybullet: held in {len(check['directions'])} gravity directions ({names}), "
-              f"{check['attempts']} sequence(s) replayed in {result.verify_s:.1f} s"
-              + (f" ({len(check['rejected'])} rejected: " + "; ".join(f"{r['direction']} at step {r['step']}"
-                                                                    for r in check['rejected']) + ")"
-                 if check["rejected"] else "") + "; --no-verify skips it")
-    return 0
-
-
-def _cmd_check(args: argparse.Namespace) -> int:
-    """Realize one grasp, print the report (text or JSON), draw it (``--png``); exit 0 force
-    closure and as written (no `RealizedGrasp.problems`), 1 not, 2 bad input."""
-    import json
-
-    from planner.grasp_report import check_text, contact_markers
-    from planner.grasp import load_grasp, realize
-
-    grasp = realize(load_grasp(args.grasp))
-    if args.png:
-        from planner.sim.render import render_png
-
-        render_png(grasp.hand, grasp.q, grasp.obj, args.png, markers=contact_markers(grasp))
-    if args.json:
-        print(json.dumps(grasp.summary(), indent=1))
-    else:
-        print(check_text(grasp))
-        if args.png:
-            print(f"picture written to {args.png} (contacts: dots with their inward normals; green ok, orange "
-                  "warning, red problem)")
-    return 0 if grasp.ok else 1
-
-
-def _cmd_synth(args: argparse.Namespace) -> int:
-    """Synthesize force-closure grasps; exit 0 when -n were written, 1 fewer, 2 bad input."""
-    from planner.synth import run_synth
-
-    return run_synth(args.hand, args.object, args.fingers, args.n, args.output, gravity=args.gravity, seed=args.seed,
-                     max_finger_force_n=args.max_finger_force, mu=args.mu, gamma=args.gamma,
-                     max_attempts=args.max_attempts, quiet=args.quiet)
-
-
 def _cmd_demo(args: argparse.Namespace) -> int:
     """Plan the bundled cylinder example (parallel extension -> IR2M) for execution and
-    replay it under the six gravity directions it was planned for, and gravity off."""
-    from pathlib import Path
-
-    from planner.resources import bundled_grasp
-
+    replay it under the six gravity directions it was planned for, and gravity off.
+    Here, not in `planner.commands`: it runs the other commands through `main`."""
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise PlannerError(f"--out {out}: exists and is not a directory; name a directory for the demo's outputs")
@@ -152,140 +57,9 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     return verdict
 
 
-def _cmd_verify(args: argparse.Namespace) -> int:
-    """Check a plan against physics and its inputs (`planner.audit`): exit 0 sound, 1 not."""
-    from planner.audit import audit_plan
-    from planner.plan import read_plan
-
-    rep = audit_plan(read_plan(args.plan, strict=args.strict))
-    for line in rep.problems:
-        print(f"FAIL {line}")
-    print(rep.summary())
-    return 0 if rep.ok else 1
-
-
-def _cmd_hand(args: argparse.Namespace) -> int:
-    """``hand init URDF -o hand.yaml``: a hand.yaml with every guess explained; ``hand check
-    HAND``: what a planner or simulator cannot use in it (exit 1 on an error)."""
-    from planner import handtool
-
-    if args.hand_command == "init":
-        import yaml
-
-        from planner.fileio import write_atomic
-
-        spec, rep = handtool.init_hand(args.urdf, args.package_dir or ())
-        out = os.path.abspath(args.output)
-        urdf = os.path.abspath(args.urdf)
-        spec["urdf"] = os.path.relpath(urdf, os.path.dirname(out))  # a hand.yaml moves with its URDF
-        if spec.get("package_dirs"):
-            spec["package_dirs"] = [os.path.relpath(os.path.abspath(d), os.path.dirname(out)) for d in spec["package_dirs"]]
-        header = "# written by regrasp hand init: every guess below is explained on its output; check and edit\n"
-        write_atomic(args.output, header + yaml.safe_dump(spec, sort_keys=False, default_flow_style=None))
-        for f in rep.findings:
-            print(f.line())
-        print(f"wrote {args.output}: {len(spec['fingers'])} fingers ({', '.join(spec['fingers'])}); "
-              f"next: regrasp hand check {args.output}")
-        return 1 if rep.errors else 0
-    rep = handtool.check_hand(args.hand)
-    for f in rep.findings:
-        print(f.line())
-    n_warn = sum(f.level == "warning" for f in rep.findings)
-    print(f"{args.hand}: {len(rep.errors)} error(s), {n_warn} warning(s)")
-    return 1 if rep.errors else 0
-
-
-def _cmd_view(args: argparse.Namespace) -> int:
-    """Write the interactive 3D page (one self-contained HTML file) of a plan or a grasp."""
-    from planner.view import view_command
-
-    return view_command(args.source, args.output, report=args.report, gif=args.gif)
-
-
-def _print_states(report) -> None:
-    print(f"{'state':>5}  {'plan fingers':<24} {'plan FC':>7} {'plan metric':>11}  {'sim fingers':<24} "
-          f"{'sim FC':>6} {'sim metric':>10}  {'drift mm':>8} {'drift deg':>9}  contacts off the plan's")
-    for s in report.states:
-        if not s.reached:
-            print(f"{s.index:>5}  {','.join(s.planned_fingers) or '-':<24} {str(s.planned_force_closure):>7} "
-                  f"{s.planned_metric:>11.4g}  {'(not reached)':<24}")
-            continue
-        print(f"{s.index:>5}  {','.join(s.planned_fingers) or '-':<24} {str(s.planned_force_closure):>7} "
-              f"{s.planned_metric:>11.4g}  {','.join(s.sim_fingers) or '-':<24} {str(s.sim_force_closure):>6} "
-              f"{s.sim_metric:>10.4g}  {s.drift_mm:>8.2f} {s.drift_deg:>9.2f}  "
-              + (", ".join(f"{f} {d:.1f} mm" for f, d in sorted(s.contact_offset_mm.items()) if d >= 1.0) or "-"))
-
-
-def _compare_verification(plan, result) -> None:
-    """Say whether this replay gives the verdicts the planner's verification recorded."""
-    recorded = (plan.summary or {}).get("verification")
-    if not isinstance(recorded, dict) or not isinstance(recorded.get("directions"), dict):
-        return
-    now = {name: r.passed for name, _, r in result.directions}
-    common = [n for n in recorded["directions"] if n in now]
-    differ = [n for n in common if bool(recorded["directions"][n].get("passed")) != now[n]]
-    if differ:
-        print(f"warning: verdicts differ from the plan's verification in {', '.join(differ)}")
-    elif common:
-        print(f"same verdicts as the plan's verification in {len(common)} direction(s)")
-
-
-def _cmd_replay(args: argparse.Namespace) -> int:
-    """Replay a plan in pybullet; exit 0 pass, 1 fail (dropped, drifted or closure disagrees), 2 bad input."""
-    import json
-
-    from planner.sim.replay import replay_plan
-    from planner.sim.verify import replay_gravity_set
-
-    kw = dict(gui=args.gui, gif=args.gif, gif_every=args.gif_every, mp4=args.mp4,
-              drift_mm_max=args.drift_mm, drift_deg_max=args.drift_deg, strict=args.strict)
-    if args.film and args.gravity_set is None:
-        raise PlannerError("--film names directions of --gravity-set: give --gravity-set N too")
-    if args.gravity_set is not None and args.gravity is not None:
-        raise PlannerError("--gravity and --gravity-set exclude each other: give one")
-    if args.workers is not None and args.workers < 1:
-        raise PlannerError(f"--workers must be >= 1, got {args.workers}")
-    from planner.audit import require_sound
-    from planner.plan import read_plan
-
-    plan = read_plan(args.plan, strict=args.strict)  # read (and its inputs checked) once
-    require_sound(plan)  # intact is not right: a resealed, physically wrong plan is refused here
-    import logging
-
-    log = logging.getLogger("planner")
-    log.info("plan verified against physics (%d states, %d steps); simulating", len(plan.states), len(plan.steps))
-    if args.gravity_set is not None:
-        film = [d.strip() for d in args.film.split(",") if d.strip()] if args.film else None
-        workers = 1 if args.gui else args.workers
-        result = replay_gravity_set(plan, args.gravity_set, film=film, workers=workers, **kw)
-        print(f"{'gravity':<10} {'g (palm frame)':<22} {'verdict':<5} {'drift mm':>8} {'drift deg':>9} {'closure':>8}  why")
-        for name, g, r in result.directions:
-            agree, reached = r.closure_agreement
-            why = r.reasons[0] if r.reasons and not r.passed else ""
-            print(f"{name:<10} {'[' + ' '.join(f'{v:+.2f}' for v in g) + ']':<22} {'PASS' if r.passed else 'FAIL':<5} "
-                  f"{r.max_drift_mm:>8.2f} {r.max_drift_deg:>9.2f} {f'{agree}/{reached}':>8}  {why}")
-        data, passed, verdict = result.to_dict(), result.passed, result.verdict
-        _compare_verification(plan, result)
-    else:
-        report = replay_plan(plan, **kw, **({"gravity": tuple(args.gravity)} if args.gravity else {}))
-        _print_states(report)
-        agree, reached = report.closure_agreement
-        print(f"force closure agrees at {agree}/{reached} states; simulated {report.sim_time_s:.2f} s "
-              f"in {report.wall_time_s:.2f} s" + (f"; GIF {report.gif} ({report.gif_frames} frames)" if report.gif else ""))
-        data, passed, verdict = report.to_dict(), report.passed, report.verdict
-    if args.report:
-        from planner.fileio import write_atomic
-
-        write_atomic(args.report, json.dumps(data, indent=1) + "\n")
-    print(verdict)
-    return 0 if passed else 1
-
-
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="regrasp", description=__doc__.splitlines()[0])
-    from planner import __version__
-
-    parser.add_argument("--version", action="version", version=f"regrasp {__version__}")
+    parser.add_argument("--version", action="version", version=f"regrasp {planner.__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
     demo = sub.add_parser("demo", help="plan and replay the bundled cylinder example")
     demo.add_argument("--out", default=DEMO_OUT, metavar="DIR",
@@ -296,7 +70,7 @@ def build_parser() -> argparse.ArgumentParser:
     check.add_argument("grasp", help="grasp YAML")
     check.add_argument("--json", action="store_true", help="machine-readable output")
     check.add_argument("--png", metavar="FILE", help="render the hand holding the object (headless)")
-    check.set_defaults(func=_cmd_check)
+    check.set_defaults(func=commands.cmd_check)
 
     plan = sub.add_parser("plan", help="plan a finger-gaiting sequence between two grasps")
     plan.add_argument("initial", help="grasp YAML the hand holds now")
@@ -341,7 +115,7 @@ def build_parser() -> argparse.ArgumentParser:
     plan.add_argument("--motion-timeout", type=float, default=2.0, metavar="S", help="time budget per finger path, s")
     plan.add_argument("-v", "--verbose", action="store_true",
                       help="show the motion planner's and the C++ libraries' console output and every warning")
-    plan.set_defaults(func=_cmd_plan)
+    plan.set_defaults(func=commands.cmd_plan)
     synth = sub.add_parser("synth", help="generate force-closure grasp files for a hand and an object")
     synth.add_argument("hand", help="hand name under robots/ (icub_right, allegro_right) or a hand.yaml")
     synth.add_argument("object", help="object YAML: the object: block of a grasp file (shape, size[, position, "
@@ -361,7 +135,7 @@ def build_parser() -> argparse.ArgumentParser:
     synth.add_argument("--gamma", type=float, default=None, help="torsional friction, m (default: the object file's, else 0.004)")
     synth.add_argument("--max-attempts", type=int, default=None, metavar="K", help="candidates sampled at most (default 60 n)")
     synth.add_argument("-q", "--quiet", action="store_true", help="no progress lines on stderr")
-    synth.set_defaults(func=_cmd_synth)
+    synth.set_defaults(func=commands.cmd_synth)
     replay = sub.add_parser("replay", help="execute a plan in pybullet with gravity on and check the object stays put")
     replay.add_argument("plan", help="plan file (.yaml/.yml or .json)")
     replay.add_argument("--gif", metavar="FILE", help="write an animated GIF (headless TinyRenderer)")
@@ -384,14 +158,14 @@ def build_parser() -> argparse.ArgumentParser:
     replay.add_argument("--film", metavar="NAMES",
                         help="with --gravity-set and --gif/--mp4: film only these directions (comma-separated, "
                              "e.g. palm_down; default all, one file per direction)")
-    replay.set_defaults(func=_cmd_replay)
+    replay.set_defaults(func=commands.cmd_replay)
     verify = sub.add_parser("verify", help="check a plan against physics and its inputs, without simulation: "
                                            "contacts on the surface and at the joints' kinematics, paths free, "
                                            "the chain from the initial to the final grasp")
     verify.add_argument("plan", help="plan file (.yaml/.yml or .json)")
     verify.add_argument("--strict", action="store_true",
                         help="refuse a plan whose recorded input files changed or are gone (default: a warning)")
-    verify.set_defaults(func=_cmd_verify)
+    verify.set_defaults(func=commands.cmd_verify)
     hand = sub.add_parser("hand", help="your own hand: write a hand.yaml from a URDF (init), check one (check)")
     hsub = hand.add_subparsers(dest="hand_command", required=True)
     hinit = hsub.add_parser("init", help="infer fingers, tips, pads, closing joints and the palm normal from a URDF")
@@ -401,15 +175,15 @@ def build_parser() -> argparse.ArgumentParser:
                        help="a folder holding the ROS packages of package:// mesh paths (repeatable)")
     hcheck = hsub.add_parser("check", help="report what a planner or simulator cannot use in a hand, one line each")
     hcheck.add_argument("hand", help="a bundled hand's name or a hand.yaml")
-    hand.set_defaults(func=_cmd_hand)
+    hand.set_defaults(func=commands.cmd_hand)
     view = sub.add_parser("view", help="write an interactive 3D page (one offline HTML file) of a plan or a grasp")
     view.add_argument("source", help="plan file (.yaml/.yml/.json) or grasp YAML")
     view.add_argument("-o", "--output", required=True, metavar="FILE", help="the page to write (.html)")
     view.add_argument("--report", metavar="FILE", help="replay report (regrasp replay --report) shown next to the plan")
     view.add_argument("--gif", metavar="FILE", help="also a 640x480 GIF: captions, contacts, the moving finger coloured")
-    view.set_defaults(func=_cmd_view)
-    commands = [c for n, c in sub.choices.items() if n not in ("synth", "hand")] + [hinit, hcheck]
-    for cmd in commands + [synth]:  # -q/--quiet and -v/--verbose on every command
+    view.set_defaults(func=commands.cmd_view)
+    parsers = [c for n, c in sub.choices.items() if n not in ("synth", "hand")] + [hinit, hcheck]
+    for cmd in parsers + [synth]:  # -q/--quiet and -v/--verbose on every command
         if cmd is not synth:
             cmd.add_argument("-q", "--quiet", action="store_true", help="no progress lines on stderr")
         if cmd is not plan:
@@ -450,15 +224,14 @@ def _option_name(dest: str) -> str:
 def option_limits() -> dict:
     """Every numeric option's range by argparse dest: the planner's (`PlanOptions`'s
     table under its option names) and `OPTION_LIMITS`."""
-    from planner.options import PLAN_OPTION_FLAGS, PLAN_OPTION_LIMITS
+    from planner.options import PLAN_OPTION_FLAGS, PLAN_OPTION_LIMITS  # deferred: scipy, networkx (~0.25 s)
 
     return {**{PLAN_OPTION_FLAGS.get(k, k): v for k, v in PLAN_OPTION_LIMITS.items()}, **OPTION_LIMITS}
 
 
 def _validate(args: argparse.Namespace) -> None:
     """Numeric ranges (`option_limits`) and output paths, before any work."""
-    from planner.fileio import check_output
-    from planner.options import in_range, option_range
+    from planner.options import in_range, option_range  # deferred: scipy, networkx (~0.25 s)
 
     for dest, (low, high, open_low) in option_limits().items():
         value = getattr(args, dest, None)
@@ -478,8 +251,6 @@ def _validate(args: argparse.Namespace) -> None:
     if args.command == "replay" and getattr(args, "gravity_set", None) is not None:
         # a gravity set films into one file per direction (FILE_<direction>.gif): each of those
         # names may not be an input either (a plan called q_palm_down.yaml and --gif q.yaml)
-        from pathlib import Path
-
         every = ("palm_down", "palm_up", "off") + tuple(f"side_{s}{a}" for a in "xyz" for s in "+-")
         for key in ("gif", "mp4"):
             out = getattr(args, key, None)
@@ -488,8 +259,6 @@ def _validate(args: argparse.Namespace) -> None:
                 for name in every:
                     check_output(p.with_name(f"{p.stem}_{name}{p.suffix}"), inputs, f"--{key}")
         if getattr(args, key, None) is not None:
-            from planner.fileio import check_grasp_file
-
             check_grasp_file(getattr(args, key))
 
 
@@ -558,8 +327,6 @@ class _Noise:
 def _progress(prefix: str, fd: int | None, quiet: bool):
     """The ``planner`` logger's INFO records (a long plan's rounds, paths, replays) as lines
     on the terminal while a command runs: only when stderr is a terminal, never with -q."""
-    import logging
-
     on = not quiet and fd is not None and os.isatty(fd)
     if not on:
         yield
@@ -612,10 +379,6 @@ def _quiet_stderr(off: bool):
 def _warnings_as_lines(prefix: str, verbose: bool):
     """PlannerWarnings become one ``warning:`` line each; other warnings (numpy
     RuntimeWarnings...) only show with --verbose."""
-    import warnings
-
-    from planner.errors import PlannerWarning
-
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:

@@ -180,14 +180,14 @@ class _EdgeFailed(Exception):
 
 def _forbid_stuck_contacts(lazy: LazyGraph, hand, obj, bad: _EdgeFailed, stuck: dict) -> None:
     """After a failed gait: a contact of it the finger cannot back off whatever the other
-    fingers do (`planner.motion.retreat_blocked`, cached in ``stuck`` per finger and slot)
+    fingers do (`planner.retreat.retreat_blocked`, cached in ``stuck`` per finger and slot)
     is never lifted off nor landed on again (one test instead of a re-plan per state); the
     initial or final grasp's contact of a finger that must move ends the search at once.
 
     Raises:
         NoSequenceError: the finger must leave its initial contact or reach its final one.
     """
-    from planner.motion import retreat_blocked
+    from planner.retreat import retreat_blocked
 
     problem = lazy.problem
     i = problem.fingers.index(bad.finger)

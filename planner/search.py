@@ -470,7 +470,7 @@ class LazyGraph:
 
     def forbid(self, finger_index: int, slot: int) -> None:
         """Drop, for good, every move lifting a finger off a contact or landing it there (a
-        contact the finger cannot back off in any state: `planner.motion.retreat_blocked`)."""
+        contact the finger cannot back off in any state: `planner.retreat.retreat_blocked`)."""
         self.forbidden.add((finger_index, slot))
         for u, v in list(self.G.edges):
             if u[finger_index] == slot and v[finger_index] == LIFTED or \

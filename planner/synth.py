@@ -19,8 +19,8 @@ the top level or under an ``object:`` key (so a grasp file works too; its fricti
 used unless ``--mu``/``--gamma`` are given).
 - Without ``position``: the object pose is sampled too (an "approach"): the object centre
   is put where the chosen fingers' pads of a random pre-shape would all touch a ball of the
-  object's inner radius (`_sample_candidate`), with a random orientation, and the fingers
-  close onto it from the pre-shape.
+  object's inner radius (`planner.synth_sample.sample_candidate`), with a random
+  orientation, and the fingers close onto it from the pre-shape.
 - With ``position`` (and ``quat_xyzw``, default identity): the object stays there (all
   grasps share the pose, so any two of them can be a regrasp pair) and only the finger
   pre-shapes are sampled.
@@ -33,18 +33,22 @@ import os
 import sys
 import tempfile
 import time
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import yaml
 
+from planner.closure import CONTACT_MODELS, apply_contact_model, grasp_closure, min_grip_force
 from planner.collision import LINK_EPS_M
-from planner.errors import PlannerError, SpecError
+from planner.errors import PlannerError, SpecError, UnknownNameError
 from planner.fileio import MAX_GRASP_BYTES, Reader, read_yaml
-from planner.grip import HOLD_FACTOR
-from planner.motion import retreat_blocked
-from planner.objects import GraspObject
+from planner.grasp import load_hand, parse_grasp, parse_object, realize, resolve_hand_ref
+from planner.grip import HOLD_FACTOR, grasp_hold
+from planner.model import Friction
+from planner.retreat import retreat_blocked
+from planner.synth_sample import PALM_CLEARANCE_M, closes_onto, inner_radius, object_of, sample_candidate
 
 #: Two grasps are near-duplicates when every chosen finger's mean contact point (palm frame)
 #: and the object centre differ by less than this, and the contact normals by less than
@@ -52,28 +56,6 @@ from planner.objects import GraspObject
 DUPLICATE_TOL_M = 0.005
 #: Default friction when the object file has none (the bundled grasps' values).
 DEFAULT_FRICTION = {"mu": 0.9, "gamma": 0.004, "edges": 5}
-#: A sampled object pose keeps this clearance from the palm (m).
-PALM_CLEARANCE_M = 0.002
-#: Each finger's centre curve (`_sample_candidate`) must pass within this many inner radii
-#: of the object centre.
-SWEEP_REACH = 2.0
-#: Random pre-shapes drawn per attempt; the best scored (`_score`: centre curves meeting at a
-#: common point, or at the fixed object centre, with opposing pads) is tried.
-PRESHAPES_PER_ATTEMPT = 6
-#: The same with the object pose fixed: a random pre-shape rarely passes near a given centre,
-#: and a draw costs only its sweeps' forward kinematics (Allegro 15 mm ball, thumb-index-middle,
-#: 5 grasps: 112 attempts with 6 draws, 13 with 40).
-FIXED_PRESHAPES_PER_ATTEMPT = 40
-#: Weight of the pads' opposition in a pre-shape's score (`_score`), against the gap in inner radii.
-OPPOSITION_WEIGHT = 1.0
-#: A sampled object centre is jittered by N(0, JITTER x inner radius) per axis.
-JITTER = 0.3
-#: The object centre sits this many inner radii in front of the pads (`_sample_candidate`).
-CENTRE_OFFSET = 1.0
-#: Sampled poses (jitter and orientation) tried per attempt until no finger starts inside.
-POSE_TRIES = 4
-#: Fraction of their range the closing joints of a pre-shape start closed by.
-_PRESHAPE_CLOSE = (0.0, 0.3)
 
 
 @dataclass(frozen=True)
@@ -104,8 +86,6 @@ def load_object_file(path) -> tuple[dict, dict | None, bool]:
     Raises:
         SpecError: naming the file and key.
     """
-    from planner.grasp import parse_object
-
     path = Path(path)
     # the bounded reader: size, nesting, aliases and integer digits limited, a FIFO refused
     r = Reader(path, read_yaml(path, MAX_GRASP_BYTES, "object file"))
@@ -139,187 +119,6 @@ def load_object_file(path) -> tuple[dict, dict | None, bool]:
         out["position"] = [float(v) for v in spec.position]
         out["quat_xyzw"] = [float(v) for v in spec.quat_xyzw]
     return out, friction, fixed
-
-
-def _random_quat(rng) -> list[float]:
-    q = rng.normal(size=4)
-    q /= np.linalg.norm(q)
-    return [float(v) for v in q]
-
-
-def _sweep(hand, finger, q, alphas, radius: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
-    """Where the finger's pad goes along its closing motion from q (closing joints at
-    ``start + alpha (upper - start)``, as `Hand.close_finger` moves them): (len(alphas), 3)
-    palm-frame points ``radius`` in front of the pad (along its outward normal: the centre a
-    ball of that radius touching the pad there would have; the pad itself for 0) and the
-    pad's unit outward normals."""
-    cidx = np.array([hand.joint_names.index(j) for j in finger.close_joints])
-    start = q[cidx]
-    p_link = np.asarray(finger.pad_p_link, dtype=float)
-    n_link = np.asarray(finger.pad_n_link if finger.pad_n_link is not None else (0.0, 0.0, 0.0), dtype=float)
-    pts, nrm = [], []
-    for a in alphas:
-        qa = q.copy()
-        qa[cidx] = start + a * (hand.upper[cidx] - start)
-        T = hand.link_pose(qa, finger.pad_link)
-        n = T[:3, :3] @ n_link
-        pts.append(T[:3, :3] @ p_link + T[:3, 3] + radius * n)
-        nrm.append(n)
-    return np.array(pts), np.array(nrm)
-
-
-def _object_of(block):
-    return GraspObject.from_data(block)
-
-
-def _palm_distance(hand, q, block) -> float:
-    """Signed distance (m) between the palm's links and the object of ``block``."""
-    import coal
-
-    obj = _object_of(block)
-    T = obj.T_palm_obj
-    tf = coal.Transform3s(np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3]))
-    req = coal.DistanceRequest()
-    best = np.inf
-    for link, finger, geom, tf_link in hand.collision_objects(q):
-        if finger is None:
-            best = min(best, coal.distance(geom, tf_link, obj.geometry, tf, req, coal.DistanceResult()))
-    return float(best)
-
-
-def _meeting_point(sweeps, iterations: int = 8) -> np.ndarray:
-    """The point where the sweeps come closest together (approximately minimax): from every
-    sample of every sweep, alternate "nearest sample of each sweep" and "their centroid" a few
-    times; the start whose largest distance to a sweep ends smallest wins. Cost linear in the
-    number of fingers (the exhaustive search over one sample per finger was 10^fingers)."""
-    S = np.asarray(sweeps)                                     # (fingers, samples, 3)
-    c = S.reshape(-1, 3).copy()                                # (starts, 3)
-    for _ in range(iterations):
-        d = np.linalg.norm(c[:, None, None, :] - S[None], axis=3)   # (starts, fingers, samples)
-        nearest = S[np.arange(len(S))[None, :], np.argmin(d, axis=2)]  # (starts, fingers, 3)
-        c = nearest.mean(axis=1)
-    worst = np.max(np.min(np.linalg.norm(c[:, None, None, :] - S[None], axis=3), axis=2), axis=1)
-    return c[int(np.argmin(worst))]
-
-
-def _opposition(normals) -> float:
-    """Length of the mean of the fingers' unit pad normals: 0 when they oppose each other
-    (they can squeeze the object between them), 1 when they all push the same way."""
-    return float(np.linalg.norm(np.mean(normals, axis=0)))
-
-
-def _sample_candidate(hand, fingers, obj_block, fixed, rng, obj_radius, palm_clearance_m: float = PALM_CLEARANCE_M):
-    """(object block with a pose, {finger: pre-shape}, "") of one attempt, or (block, None, why).
-
-    Pre-shape: the joints that do not close (abduction, opposition) uniform in their range,
-    the closing joints a little into theirs. Each finger's closing motion (the thesis's
-    procedure, `Hand.close_finger`) sweeps its pad along a curve; the point ``obj_radius`` in
-    front of the pad (along its outward normal) sweeps the "centre curve": where the centre
-    of a ball of that radius touching the pad would be. Without a fixed pose the object
-    centre is put where the fingers' centre curves come closest together (`_meeting_point`),
-    jittered, with a random orientation. Of `PRESHAPES_PER_ATTEMPT` draws
-    (`FIXED_PRESHAPES_PER_ATTEMPT` with the pose fixed) the one kept has
-    the best score: the largest distance from the centre to a centre curve (in inner radii)
-    plus `OPPOSITION_WEIGHT` times how much the pads at their nearest points push the same
-    way (`_opposition`: a ball between fingers that all close from one side is pushed, not
-    held). A draw whose fingers collide with each other (or the palm) where their centre
-    curves pass nearest the centre is not kept. Attempts whose centre curves do not pass
-    within `SWEEP_REACH` inner radii of the centre are dropped before any closing.
-    """
-    from planner.contacts import collisions
-
-    alphas = np.linspace(0.0, 1.0, 10)
-    names = [f.name for f in fingers]
-    best = None
-    for _ in range(FIXED_PRESHAPES_PER_ATTEMPT if fixed else PRESHAPES_PER_ATTEMPT):  # keep the best scored
-        q = np.array(hand.q_open, dtype=float)
-        for f in fingers:
-            idx = np.array(f.q_index)
-            lo, hi = hand.lower[idx], hand.upper[idx]
-            closing = np.array([j in f.close_joints for j in f.joints])
-            start = np.clip(q[idx], lo, hi)
-            frac = rng.uniform(*_PRESHAPE_CLOSE, size=len(idx))
-            q[idx] = np.where(closing, start + frac * (hi - start), rng.uniform(lo, hi))
-        swept = [_sweep(hand, f, q, alphas, CENTRE_OFFSET * obj_radius) for f in fingers]
-        centre = np.asarray(obj_block["position"], dtype=float) if fixed else _meeting_point([c for c, _ in swept])
-        score = _score(swept, centre, obj_radius)
-        if best is not None and (False, score) >= (best[0], best[1]):  # cannot beat the best
-            continue
-        # the fingers where they would touch: a pre-shape whose fingers collide there ranks last
-        q_touch = q.copy()
-        for f, (c, _) in zip(fingers, swept):
-            cidx = np.array([hand.joint_names.index(j) for j in f.close_joints])
-            a = alphas[int(np.argmin(np.linalg.norm(c - centre, axis=1)))]
-            q_touch[cidx] = q[cidx] + a * (hand.upper[cidx] - q[cidx])
-        collide = len(fingers) > 1 and bool(collisions(hand, q_touch, None, fingers=names))
-        if best is None or (collide, score) < (best[0], best[1]):
-            best = (collide, score, q, swept, centre)
-    _, _, q, swept, centre = best
-    block = dict(obj_block)
-    if not fixed:
-        # a few jittered centres and orientations: the first that no finger (closing joints
-        # open, as the closing procedure starts) is inside of
-        q_free = q.copy()
-        for f in fingers:
-            cidx = [hand.joint_names.index(j) for j in f.close_joints]
-            q_free[cidx] = np.clip(np.asarray(hand.q_open)[cidx], hand.lower[cidx], hand.upper[cidx])
-        mid = centre
-        for _ in range(POSE_TRIES):
-            centre = mid + rng.normal(scale=JITTER * obj_radius, size=3)
-            block["quat_xyzw"] = [0.0, 0.0, 0.0, 1.0] if block["shape"] == "sphere" else _random_quat(rng)
-            block["position"] = [float(v) for v in centre]
-            # out of the palm: push the object along the palm normal until it clears the palm
-            d = _palm_distance(hand, q, block)
-            if d < palm_clearance_m:
-                centre = centre + (palm_clearance_m - d) * np.asarray(hand.palm_normal)
-                block["position"] = [float(v) for v in centre]
-            obj = _object_of(block)
-            if all(hand.state(q_free).finger_object_distance(obj, f.name) >= 0.0 for f in fingers):
-                break
-    if max(float(np.min(np.linalg.norm(c - centre, axis=1))) for c, _ in swept) > SWEEP_REACH * obj_radius:
-        return block, None, "sweeps miss the object"
-    return block, {f.name: q[list(f.q_index)].copy() for f in fingers}, ""
-
-
-def _score(swept, centre, obj_radius) -> float:
-    """Lower is better: the largest distance from ``centre`` to a finger's centre curve, in
-    inner radii, plus `OPPOSITION_WEIGHT` x `_opposition` of the pad normals there."""
-    gaps, normals = [], []
-    for c, n in swept:
-        d = np.linalg.norm(c - centre, axis=1)
-        k = int(np.argmin(d))
-        gaps.append(float(d[k]))
-        normals.append(n[k])
-    return max(gaps) / obj_radius + (OPPOSITION_WEIGHT * _opposition(normals) if len(swept) > 1 else 0.0)
-
-
-def inner_radius(obj_block) -> float:
-    """Half the smallest extent of the object (m): how close a pad sweep must pass to its centre."""
-    block = {**obj_block, "position": (0.0, 0.0, 0.0), "quat_xyzw": (0.0, 0.0, 0.0, 1.0)}
-    return 0.5 * float(np.min(_object_of(block).extents))
-
-
-def _closes_onto(hand, fingers, obj, preshape) -> dict | None:
-    """Cheap pre-filter: close the fingers; (patches, "") when every one touches, else (None, why)."""
-    from planner.closure import grasp_closure
-    from planner.contacts import contact_patches
-
-    q = np.array(hand.q_open, dtype=float)
-    for f in fingers:
-        q[list(f.q_index)] = preshape[f.name]
-    for f in fingers:
-        if hand.state(q).finger_object_distance(obj, f.name) < 0.0:
-            # the closing procedure starts from a finger free of the object: open its closing joints
-            cidx = [hand.joint_names.index(j) for j in f.close_joints]
-            q[cidx] = np.clip(np.asarray(hand.q_open)[cidx], hand.lower[cidx], hand.upper[cidx])
-            if hand.state(q).finger_object_distance(obj, f.name) < 0.0:
-                return None, "a finger starts inside the object"
-            preshape[f.name] = q[list(f.q_index)].copy()
-        q = np.asarray(hand.close_finger(f, q, obj), dtype=float)
-    patches = contact_patches(hand, q, obj, fingers=[f.name for f in fingers])
-    if len(patches) < len(fingers):
-        return None, "a finger misses the object"
-    return patches, ""
 
 
 def _grasp_data(hand_ref, obj_block, friction, fingers, preshape, name, description) -> dict:
@@ -387,11 +186,6 @@ def synthesize(hand_ref: str, obj_block: dict, fingers, n: int, *, fixed: bool, 
     Returns:
         `SynthResult` with up to n grasps, best closure metric first.
     """
-    from planner.model import Friction
-    from planner.closure import apply_contact_model, grasp_closure, min_grip_force
-    from planner.grip import grasp_hold
-    from planner.grasp import load_hand, parse_grasp, realize
-
     t0 = time.perf_counter()
     hand = load_hand(hand_ref)
     chosen = [hand.finger(f) for f in fingers]
@@ -401,9 +195,6 @@ def synthesize(hand_ref: str, obj_block: dict, fingers, n: int, *, fixed: bool, 
     fr = Friction(friction["mu"], friction["gamma"], friction.get("edges", 5))
     if n < 1:
         raise PlannerError(f"synth: -n must be at least 1, got {n}")
-    from planner.closure import CONTACT_MODELS
-    from planner.errors import UnknownNameError
-
     if contact_model not in CONTACT_MODELS:
         raise UnknownNameError("contact model", contact_model, CONTACT_MODELS)
     if not 0 < friction_margin <= 1:
@@ -413,8 +204,6 @@ def synthesize(hand_ref: str, obj_block: dict, fingers, n: int, *, fixed: bool, 
     inner = inner_radius(obj_block)
     kept: list[tuple[np.ndarray, SynthGrasp]] = []
     passed = dups = 0
-    from collections import Counter
-
     rejected = Counter()
     base = Path(base_dir)
     attempt = 0
@@ -422,11 +211,11 @@ def synthesize(hand_ref: str, obj_block: dict, fingers, n: int, *, fixed: bool, 
         if len(kept) >= n:
             attempt -= 1
             break
-        block, preshape, why = _sample_candidate(hand, chosen, obj_block, fixed, rng, inner, palm_clearance_m)
+        block, preshape, why = sample_candidate(hand, chosen, obj_block, fixed, rng, inner, palm_clearance_m)
         if preshape is None:
             rejected[why] += 1
             continue
-        patches, why = _closes_onto(hand, chosen, _object_of(block), preshape)
+        patches, why = closes_onto(hand, chosen, object_of(block), preshape)
         if patches is None:
             rejected[why] += 1
             continue
@@ -582,8 +371,6 @@ def run_synth(hand: str, object_path, fingers: str, n: int, out_dir, *, gravity=
               max_finger_force_n: float | None = None, mu=None, gamma=None, max_attempts=None, quiet=False) -> int:
     """``regrasp synth``: synthesize, write, print a summary. Exit 0 when n grasps were written,
     1 when fewer (those found are written), 2 (PlannerError) on bad input."""
-    from planner.grasp import load_hand, resolve_hand_ref
-
     if not 1 <= n <= MAX_GRASPS:
         raise PlannerError(f"synth: -n must be in 1..{MAX_GRASPS}, got {n}")
     if max_attempts is not None and not 1 <= max_attempts <= MAX_ATTEMPTS:

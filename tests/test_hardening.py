@@ -416,12 +416,12 @@ def test_malformed_meshes_are_input_errors(tmp_path, name, content, expect):
 
 def test_ctrl_c_is_one_line_and_exit_130(monkeypatch, grasps, capsys):
     """KeyboardInterrupt during a command: 'interrupted', exit 130, no traceback."""
-    import planner.cli as cli
+    import planner.commands as commands
 
     def interrupted(_args):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(cli, "_cmd_check", interrupted)
+    monkeypatch.setattr(commands, "cmd_check", interrupted)
     code, err = _run(capsys, "check", grasps[0])
     assert code == 130 and err == ["regrasp check: interrupted"]
 
@@ -501,7 +501,7 @@ def test_library_chatter_and_warnings_stay_off_stderr(capsys, grasps, monkeypatc
     PlannerWarning is one 'warning:' line."""
     import warnings
 
-    import planner.cli as cli
+    import planner.commands as commands
 
     def noisy(_args):
         os.write(2, b"urdfdom: some chatter\n")
@@ -509,7 +509,7 @@ def test_library_chatter_and_warnings_stay_off_stderr(capsys, grasps, monkeypatc
         warnings.warn("input changed", PlannerWarning)
         raise InputError("bad thing")
 
-    monkeypatch.setattr(cli, "_cmd_check", noisy)
+    monkeypatch.setattr(commands, "cmd_check", noisy)
     code, err = _run(capsys, "check", grasps[0])
     assert code == 2 and err == ["regrasp check: warning: input changed", "regrasp check: error: bad thing"]
 

@@ -19,13 +19,8 @@ import pytest
 from planner.errors import InputError, MotionError, UnknownNameError
 from planner.grasp import realize_contact
 from planner.hand import Hand
-from planner.motion import (
-    DEFAULT_CLEARANCE_M,
-    DEFAULT_TOUCH_TOL_M,
-    available_planners,
-    plan_finger_move,
-    plan_gait_step,
-)
+from planner.finger_scene import DEFAULT_CLEARANCE_M, DEFAULT_TOUCH_TOL_M
+from planner.motion import available_planners, plan_finger_move, plan_gait_step
 from planner.objects import make_object
 
 RECHECK_RAD = 0.005
@@ -370,7 +365,7 @@ def test_mesh_box_collision_queries_agree_with_the_primitive_box(hand, held_box,
     tolerated penetration, a contact clearance or a move clearance) give the same answers for
     a box mesh as for the primitive box, at seeded configurations around the contacts: some
     clear, some touching, some sunk in by more than the touch tolerance."""
-    from planner.motion import _FingerScene
+    from planner.finger_scene import FingerScene
 
     rng = np.random.default_rng(7)
     margins = (-DEFAULT_TOUCH_TOL_M, -0.0003, 0.0, DEFAULT_CLEARANCE_M)
@@ -378,8 +373,8 @@ def test_mesh_box_collision_queries_agree_with_the_primitive_box(hand, held_box,
     for finger, qs in sorted(contact_qs.items()):
         idx = list(hand.fingers[finger].q_index)
         lo, hi = np.asarray(hand.lower)[idx], np.asarray(hand.upper)[idx]
-        prim = _FingerScene(hand, held_box, qs[0], finger, DEFAULT_TOUCH_TOL_M)
-        mesh = _FingerScene(hand, held_box_mesh, qs[0], finger, DEFAULT_TOUCH_TOL_M)
+        prim = FingerScene(hand, held_box, qs[0], finger, DEFAULT_TOUCH_TOL_M)
+        mesh = FingerScene(hand, held_box_mesh, qs[0], finger, DEFAULT_TOUCH_TOL_M)
         for q in qs:
             for _ in range(12):
                 qf = np.clip(q[idx] + rng.normal(scale=0.06, size=len(idx)), lo, hi)

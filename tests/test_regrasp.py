@@ -287,7 +287,7 @@ def test_mesh_pair_plans_with_finger_paths_and_every_state_rechecks(tmp_path):
     import coal
 
     from planner.hand import Hand
-    from planner.motion import DEFAULT_TOUCH_TOL_M
+    from planner.finger_scene import DEFAULT_TOUCH_TOL_M
 
     a, b = MESH_PAIR
     out = tmp_path / "mesh.yaml"
@@ -609,7 +609,7 @@ def test_a_contact_no_finger_path_can_leave_ends_the_search_at_once():
     (its opposition joint is at its limit), so the planner says so after the first failed
     gait instead of re-planning around each state; the index, in the same grasp, can let go."""
     from planner.errors import NoSequenceError
-    from planner.motion import retreat_blocked
+    from planner.retreat import retreat_blocked
 
     gi = realize(load_grasp(JAMMED / "icub_thumb_jammed.yaml"), None)
     gf = realize(load_grasp(JAMMED / "icub_thumb_jammed_final.yaml"), None)

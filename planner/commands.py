@@ -1,0 +1,239 @@
+"""The commands of `regrasp` (`planner.cli`): one ``cmd_<name>(args) -> exit code`` each.
+
+`planner.cli` parses and validates the arguments, then calls one of these; its ``main``
+turns a `PlannerError` into one line and an exit code. The modules a command needs beyond
+the light ones imported here are imported inside it, each marked with why: scipy,
+networkx, the kinematics and collision back ends (pinocchio, coal), OMPL and pybullet load
+only for the command that uses them, so ``regrasp --help`` and argument errors stay fast
+and ``regrasp check`` loads neither pybullet nor OMPL. ``regrasp demo`` runs other commands
+through ``main`` and lives in `planner.cli`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import time
+
+import yaml
+
+from planner import handtool
+from planner.errors import PlannerError
+from planner.fileio import write_atomic
+
+
+def cmd_plan(args: argparse.Namespace) -> int:
+    from planner.grasp import input_record, load_grasp, realize  # deferred: ~30 ms (objects, meshes)
+    from planner.options import PlanOptions  # deferred: scipy, networkx (~0.25 s)
+    from planner.plan import plan_format, write_plan  # deferred: scipy (~0.2 s)
+    from planner.regrasp import check_same_setup, plan_regrasp  # deferred: scipy, networkx; OMPL when planning
+
+    if args.output:
+        plan_format(args.output)  # refuse a bad suffix before any work
+    t0 = time.perf_counter()
+    chosen = dict(contact_model=args.contact_model, rank=args.rank,
+                  gravity=tuple(args.gravity) if args.gravity is not None else None, gravity_set=args.gravity_set)
+    if not args.execution:  # the thesis's defaults; --execution brings its own (PlanOptions.for_execution)
+        chosen.update(contact_model=args.contact_model or "patch", rank=args.rank or "metric")
+    options = (PlanOptions.for_execution if args.execution else PlanOptions)(
+        strategy=args.strategy,
+        alternatives=args.alternatives,
+        intermediate=args.intermediate,
+        seed=args.seed,
+        motion=not args.no_motion,
+        motion_planner=args.motion_planner,
+        motion_timeout_s=args.motion_timeout,
+        max_lifted=args.max_lifted,
+        max_finger_force_n=args.max_finger_force,
+        time_limit_s=args.time_limit,
+        max_rounds=args.max_rounds,
+        **({"verify": False} if args.no_verify else {}),
+        **chosen,
+    )
+    specs = [load_grasp(args.initial), load_grasp(args.final)]
+    check_same_setup(*specs)
+    initial, final = (realize(s).require_placed() for s in specs)
+    inputs = {k: input_record(p) for k, p in (("initial", args.initial), ("final", args.final))}
+    result = plan_regrasp(initial, final, options, inputs, verbose=args.verbose)
+    plan = result.plan
+    if args.output:  # written before anything is printed: a closed pipe (| head) cannot lose it
+        write_plan(plan, args.output)
+    gripped = plan.states[0].grip_force_n is not None
+    print(f"{'step':>4}  {'finger':<8} {'action':<5} {'state':>5}  {'metric':>10}  " + ("grip N  " if gripped else "") + "removable")
+    for i, step in enumerate(plan.steps):
+        st = plan.states[step.to_state]
+        grip = f"{st.grip_force_n:>6.3f}  " if gripped else ""
+        print(f"{i:>4}  {step.finger:<8} {step.action:<5} {step.to_state:>5}  {st.metric:>10.4g}  {grip}{','.join(st.removable) or '-'}")
+    s = plan.summary
+    for rank, alt in enumerate(result.alternatives, start=2):
+        grip = f", grip {alt.bottleneck_grip:.3f} N" if alt.bottleneck_grip is not None else ""
+        print(f"alternative {rank}: bottleneck {alt.bottleneck:.4g}{grip}, {alt.gait_steps} gait steps: "
+              f"{' '.join(alt.order(result.graph.graph['problem']))}")
+    print(
+        f"{s['strategy']}: {s['gait_steps']} gait steps ({len(plan.steps)} motions), bottleneck metric "
+        f"{s['bottleneck_metric']:.4g}"
+        + (f", largest grip {s['bottleneck_grip_force_n']:.3f} N" if s["bottleneck_grip_force_n"] is not None else "")
+        + f" (ranked by {s['rank']}), graph {s['graph_nodes']} states / {s['graph_edges']} edges "
+        f"({s['blocked_states']} blocked), {time.perf_counter() - t0:.2f} s"
+        + (f", written to {args.output}" if args.output else "")
+    )
+    check = s.get("verification")
+    if check is not None:
+        names = ", ".join(check["directions"])
+        print(f"verified in pybullet: held in {len(check['directions'])} gravity directions ({names}), "
+              f"{check['attempts']} sequence(s) replayed in {result.verify_s:.1f} s"
+              + (f" ({len(check['rejected'])} rejected: " + "; ".join(f"{r['direction']} at step {r['step']}"
+                                                                    for r in check['rejected']) + ")"
+                 if check["rejected"] else "") + "; --no-verify skips it")
+    return 0
+
+
+def cmd_check(args: argparse.Namespace) -> int:
+    """Realize one grasp, print the report (text or JSON), draw it (``--png``); exit 0 force
+    closure and as written (no `RealizedGrasp.problems`), 1 not, 2 bad input."""
+    from planner.grasp import load_grasp, realize  # deferred: ~30 ms (objects, meshes)
+    from planner.grasp_report import check_text, contact_markers  # deferred: scipy (~0.2 s)
+
+    grasp = realize(load_grasp(args.grasp))
+    if args.png:
+        from planner.sim.render import render_png  # deferred: pybullet, only with --png
+
+        render_png(grasp.hand, grasp.q, grasp.obj, args.png, markers=contact_markers(grasp))
+    if args.json:
+        print(json.dumps(grasp.summary(), indent=1))
+    else:
+        print(check_text(grasp))
+        if args.png:
+            print(f"picture written to {args.png} (contacts: dots with their inward normals; green ok, orange "
+                  "warning, red problem)")
+    return 0 if grasp.ok else 1
+
+
+def cmd_synth(args: argparse.Namespace) -> int:
+    """Synthesize force-closure grasps; exit 0 when -n were written, 1 fewer, 2 bad input."""
+    from planner.synth import run_synth  # deferred: scipy, coal (~0.25 s)
+
+    return run_synth(args.hand, args.object, args.fingers, args.n, args.output, gravity=args.gravity, seed=args.seed,
+                     max_finger_force_n=args.max_finger_force, mu=args.mu, gamma=args.gamma,
+                     max_attempts=args.max_attempts, quiet=args.quiet)
+
+
+
+def cmd_verify(args: argparse.Namespace) -> int:
+    """Check a plan against physics and its inputs (`planner.audit`): exit 0 sound, 1 not."""
+    from planner.audit import audit_plan  # deferred: scipy (~0.2 s)
+    from planner.plan import read_plan  # deferred: scipy (~0.2 s)
+
+    rep = audit_plan(read_plan(args.plan, strict=args.strict))
+    for line in rep.problems:
+        print(f"FAIL {line}")
+    print(rep.summary())
+    return 0 if rep.ok else 1
+
+
+def cmd_hand(args: argparse.Namespace) -> int:
+    """``hand init URDF -o hand.yaml``: a hand.yaml with every guess explained; ``hand check
+    HAND``: what a planner or simulator cannot use in it (exit 1 on an error)."""
+    if args.hand_command == "init":
+        spec, rep = handtool.init_hand(args.urdf, args.package_dir or ())
+        out = os.path.abspath(args.output)
+        urdf = os.path.abspath(args.urdf)
+        spec["urdf"] = os.path.relpath(urdf, os.path.dirname(out))  # a hand.yaml moves with its URDF
+        if spec.get("package_dirs"):
+            spec["package_dirs"] = [os.path.relpath(os.path.abspath(d), os.path.dirname(out)) for d in spec["package_dirs"]]
+        header = "# written by regrasp hand init: every guess below is explained on its output; check and edit\n"
+        write_atomic(args.output, header + yaml.safe_dump(spec, sort_keys=False, default_flow_style=None))
+        for f in rep.findings:
+            print(f.line())
+        print(f"wrote {args.output}: {len(spec['fingers'])} fingers ({', '.join(spec['fingers'])}); "
+              f"next: regrasp hand check {args.output}")
+        return 1 if rep.errors else 0
+    rep = handtool.check_hand(args.hand)
+    for f in rep.findings:
+        print(f.line())
+    n_warn = sum(f.level == "warning" for f in rep.findings)
+    print(f"{args.hand}: {len(rep.errors)} error(s), {n_warn} warning(s)")
+    return 1 if rep.errors else 0
+
+
+def cmd_view(args: argparse.Namespace) -> int:
+    """Write the interactive 3D page (one self-contained HTML file) of a plan or a grasp."""
+    from planner.view import view_command  # deferred: scipy (~0.2 s)
+
+    return view_command(args.source, args.output, report=args.report, gif=args.gif)
+
+
+def _print_states(report) -> None:
+    print(f"{'state':>5}  {'plan fingers':<24} {'plan FC':>7} {'plan metric':>11}  {'sim fingers':<24} "
+          f"{'sim FC':>6} {'sim metric':>10}  {'drift mm':>8} {'drift deg':>9}  contacts off the plan's")
+    for s in report.states:
+        if not s.reached:
+            print(f"{s.index:>5}  {','.join(s.planned_fingers) or '-':<24} {str(s.planned_force_closure):>7} "
+                  f"{s.planned_metric:>11.4g}  {'(not reached)':<24}")
+            continue
+        print(f"{s.index:>5}  {','.join(s.planned_fingers) or '-':<24} {str(s.planned_force_closure):>7} "
+              f"{s.planned_metric:>11.4g}  {','.join(s.sim_fingers) or '-':<24} {str(s.sim_force_closure):>6} "
+              f"{s.sim_metric:>10.4g}  {s.drift_mm:>8.2f} {s.drift_deg:>9.2f}  "
+              + (", ".join(f"{f} {d:.1f} mm" for f, d in sorted(s.contact_offset_mm.items()) if d >= 1.0) or "-"))
+
+
+def _compare_verification(plan, result) -> None:
+    """Say whether this replay gives the verdicts the planner's verification recorded."""
+    recorded = (plan.summary or {}).get("verification")
+    if not isinstance(recorded, dict) or not isinstance(recorded.get("directions"), dict):
+        return
+    now = {name: r.passed for name, _, r in result.directions}
+    common = [n for n in recorded["directions"] if n in now]
+    differ = [n for n in common if bool(recorded["directions"][n].get("passed")) != now[n]]
+    if differ:
+        print(f"warning: verdicts differ from the plan's verification in {', '.join(differ)}")
+    elif common:
+        print(f"same verdicts as the plan's verification in {len(common)} direction(s)")
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    """Replay a plan in pybullet; exit 0 pass, 1 fail (dropped, drifted or closure disagrees), 2 bad input."""
+    from planner.sim.replay import replay_plan  # deferred: pybullet
+    from planner.sim.verify import replay_gravity_set  # deferred: pybullet
+
+    kw = dict(gui=args.gui, gif=args.gif, gif_every=args.gif_every, mp4=args.mp4,
+              drift_mm_max=args.drift_mm, drift_deg_max=args.drift_deg, strict=args.strict)
+    if args.film and args.gravity_set is None:
+        raise PlannerError("--film names directions of --gravity-set: give --gravity-set N too")
+    if args.gravity_set is not None and args.gravity is not None:
+        raise PlannerError("--gravity and --gravity-set exclude each other: give one")
+    if args.workers is not None and args.workers < 1:
+        raise PlannerError(f"--workers must be >= 1, got {args.workers}")
+    from planner.audit import require_sound  # deferred: scipy (~0.2 s)
+    from planner.plan import read_plan  # deferred: scipy (~0.2 s)
+
+    plan = read_plan(args.plan, strict=args.strict)  # read (and its inputs checked) once
+    require_sound(plan)  # intact is not right: a resealed, physically wrong plan is refused here
+    log = logging.getLogger("planner")
+    log.info("plan verified against physics (%d states, %d steps); simulating", len(plan.states), len(plan.steps))
+    if args.gravity_set is not None:
+        film = [d.strip() for d in args.film.split(",") if d.strip()] if args.film else None
+        workers = 1 if args.gui else args.workers
+        result = replay_gravity_set(plan, args.gravity_set, film=film, workers=workers, **kw)
+        print(f"{'gravity':<10} {'g (palm frame)':<22} {'verdict':<5} {'drift mm':>8} {'drift deg':>9} {'closure':>8}  why")
+        for name, g, r in result.directions:
+            agree, reached = r.closure_agreement
+            why = r.reasons[0] if r.reasons and not r.passed else ""
+            print(f"{name:<10} {'[' + ' '.join(f'{v:+.2f}' for v in g) + ']':<22} {'PASS' if r.passed else 'FAIL':<5} "
+                  f"{r.max_drift_mm:>8.2f} {r.max_drift_deg:>9.2f} {f'{agree}/{reached}':>8}  {why}")
+        data, passed, verdict = result.to_dict(), result.passed, result.verdict
+        _compare_verification(plan, result)
+    else:
+        report = replay_plan(plan, **kw, **({"gravity": tuple(args.gravity)} if args.gravity else {}))
+        _print_states(report)
+        agree, reached = report.closure_agreement
+        print(f"force closure agrees at {agree}/{reached} states; simulated {report.sim_time_s:.2f} s "
+              f"in {report.wall_time_s:.2f} s" + (f"; GIF {report.gif} ({report.gif_frames} frames)" if report.gif else ""))
+        data, passed, verdict = report.to_dict(), report.passed, report.verdict
+    if args.report:
+        write_atomic(args.report, json.dumps(data, indent=1) + "\n")
+    print(verdict)
+    return 0 if passed else 1
+

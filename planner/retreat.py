@@ -1,0 +1,254 @@
+"""Lift and land: a finger backing off a contact along its normal (no OMPL).
+
+A lift retreats the contact point a few mm along the outward normal with damped
+least-squares steps of its Jacobian (first keeping the link's orientation, then the point
+only), else pushes every link near the object away along its own normal, else opens the
+finger; a land is a lift from the target contact, reversed (`planner.motion.plan_gait_step`).
+`retreat_blocked` says whether a contact can be left at all, whatever the other fingers do
+(used by synthesis and the planner to drop such contacts before any path is planned).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from planner.errors import InputError, MotionError
+from planner.finger_scene import DEFAULT_CLEARANCE_M, DEFAULT_TOUCH_TOL_M, FingerScene, densify, finger_of
+
+DEFAULT_LIFT_M = 0.005
+"""Retreat of the contact point along the outward normal in a lift (and approach in a land)."""
+MAX_LIFT_M = 0.03
+"""A lift gives up when the finger is not clear of the object after this retreat."""
+_ROTATION_WEIGHT_M = 0.03
+"""Rigid retreat: a link rotation error of 1 rad weighs as much as this translation error."""
+_LIFT_LAG_M = 0.002
+"""A retreat step whose contact point trails its target by more than this is stuck (it slides)."""
+_REPEL_MARGIN_M = 0.003
+"""`_retreat_repel` pushes away every link within the clearance plus this of the object."""
+
+
+# ------------------------------------------------------------------ lift and land
+
+
+def _inward_normal(scene: FingerScene, p_object_palm: np.ndarray) -> np.ndarray:
+    """Inward contact normal (palm frame) at the object point nearest to the finger."""
+    T_palm_obj = scene.T_palm_obj
+    R = T_palm_obj[:3, :3]
+    p_obj = R.T @ (p_object_palm - T_palm_obj[:3, 3])
+    _, n_out_obj, _ = scene.obj.closest_surface(p_obj)
+    n_in = -(R @ np.asarray(n_out_obj, dtype=float))
+    return n_in / np.linalg.norm(n_in)
+
+
+def _retreat_dls(
+    scene: FingerScene,
+    a: np.ndarray,
+    n_in: np.ndarray,
+    link: str,
+    p_link: np.ndarray,
+    *,
+    rotation_weight_m: float,
+    touch_margin: float,
+    lift_m: float,
+    clearance_m: float,
+    step_m: float,
+    damping: float = 1e-3,
+) -> list[np.ndarray] | None:
+    """Damped least squares moving ``p_link`` (on ``link``) along ``-n_in``; None if stuck.
+
+    ``rotation_weight_m`` > 0 also asks the link to keep its orientation (a rigid
+    retreat, so no other point of the link swings into the object), weighted so that
+    1 rad of rotation costs as much as that many metres of position error.
+    """
+    hand = scene.hand
+    k_link = scene.moving_links.index(link)
+    lo = np.asarray(hand.lower, dtype=float)[scene.idx]
+    hi = np.asarray(hand.upper, dtype=float)[scene.idx]
+
+    def point(q):
+        T = scene.link_poses(q)[k_link]
+        return T[:3, :3] @ p_link + T[:3, 3]
+
+    p0 = point(a)
+    rows = 6 if rotation_weight_m > 0 else 3
+    W = np.array([1.0, 1.0, 1.0] + [rotation_weight_m] * 3)[:rows, None]
+    path = [a.copy()]
+    q = a.copy()
+    s = 0.0
+    while s < MAX_LIFT_M:
+        s += step_m
+        target = p0 - s * n_in
+        for _ in range(3):
+            J = np.asarray(hand.frame_jacobian(scene.full_q(q), link, p_link), dtype=float)[:rows][:, scene.idx]
+            err = np.zeros(rows)
+            err[:3] = target - point(q)  # orientation target: no rotation (zero rows)
+            Jw = W * J
+            ew = W[:, 0] * err
+            dq = np.linalg.solve(Jw.T @ Jw + damping**2 * np.eye(len(q)), Jw.T @ ew)
+            q = np.clip(q + dq, lo, hi)
+        if float(np.dot(p0 - point(q), n_in)) < s - _LIFT_LAG_M or not scene.is_valid(q, touch_margin):
+            return None
+        path.append(q.copy())
+        if s >= lift_m - 1e-12 and scene.is_valid(q, clearance_m):
+            return path
+    return None
+
+
+def _retreat_repel(
+    scene: FingerScene,
+    a: np.ndarray,
+    contact_link: str,
+    *,
+    touch_margin: float,
+    lift_m: float,
+    clearance_m: float,
+    step_m: float,
+    damping: float = 1e-3,
+) -> list[np.ndarray] | None:
+    """Push every link near the object away along its own surface normal; None if stuck.
+
+    For a finger wrapped around an edge, backing off the contact point alone drags
+    another phalanx along the object. Here each link within ``clearance_m + _REPEL_MARGIN_M`` (and
+    the contact link) asks its nearest point to gain ``step_m`` of distance per step:
+    one row ``n_out . J_point`` each, solved by damped least squares. Ends when the
+    contact link is ``lift_m`` and every link ``clearance_m`` away from the object.
+    """
+    hand = scene.hand
+    lo = np.asarray(hand.lower, dtype=float)[scene.idx]
+    hi = np.asarray(hand.upper, dtype=float)[scene.idx]
+    path = [a.copy()]
+    q = a.copy()
+    best, since_best = -math.inf, 0
+    for _ in range(int(MAX_LIFT_M / step_m)):
+        rows = []
+        for d, link, p_link_palm, p_object_palm in scene.object_distances(q):
+            if d >= clearance_m + _REPEL_MARGIN_M and link != contact_link:
+                continue
+            n_out = -_inward_normal(scene, p_object_palm)
+            p_link = scene.point_on_link(q, link, p_link_palm)
+            J = np.asarray(hand.frame_jacobian(scene.full_q(q), link, p_link), dtype=float)[:3][:, scene.idx]
+            rows.append(n_out @ J)
+        A = np.array(rows)
+        dq = A.T @ np.linalg.solve(A @ A.T + damping**2 * np.eye(len(A)), np.full(len(A), step_m))
+        q = np.clip(q + dq, lo, hi)
+        if not scene.is_valid(q, touch_margin):
+            return None
+        path.append(q.copy())
+        distances = {}
+        for d, link, _, _ in scene.object_distances(q):
+            distances[link] = min(d, distances.get(link, math.inf))
+        if distances[contact_link] >= lift_m and min(distances.values()) >= clearance_m:
+            return path
+        progress = min(distances.values())
+        if progress > best + 1e-5:
+            best, since_best = progress, 0
+        else:
+            since_best += 1
+            if since_best >= 5:  # joint limits: no link gets farther any more
+                return None
+    return None
+
+
+def retreat(
+    scene: FingerScene,
+    a: np.ndarray,
+    n_in_palm,
+    *,
+    lift_m: float,
+    clearance_m: float,
+    resolution_rad: float,
+    what: str,
+    step_m: float = 0.0005,
+) -> np.ndarray:
+    """Path from the contact configuration ``a`` backing off along the outward normal.
+
+    The contact point is the point of the finger nearest to the object, fixed on its
+    link. Damped least-squares steps of its Jacobian move it along ``-n_in_palm`` by
+    ``step_m`` at a time until it has retreated ``lift_m`` and the whole finger keeps
+    ``clearance_m`` from the object (at most ``MAX_LIFT_M``); first keeping the link's
+    orientation (a rigid retreat), then, if that is stuck, the point only. If another
+    phalanx stays against the object, every link near it is pushed away along its own
+    normal (:func:`_retreat_repel`); last, the finger opens toward its open posture.
+    Every state may touch the object no deeper than the contact itself or
+    ``touch_tol_m``. Returns (m, n_finger_joints), first row ``a``.
+    """
+    hand = scene.hand
+    name = scene.finger.name
+    d0, link, p_palm, p_object_palm = scene.object_distance(a)
+    n_in = _inward_normal(scene, p_object_palm) if n_in_palm is None else np.asarray(n_in_palm, float)
+    norm = np.linalg.norm(n_in)
+    if n_in.shape != (3,) or not np.isfinite(norm) or norm < 1e-9:
+        raise InputError(f"contact normal of finger {name} must be a non-zero 3-vector; got {n_in_palm!r}")
+    n_in = n_in / norm
+    touch_margin = min(-scene.touch_tol_m, d0 - 1e-6)  # never deeper than the contact
+    p_link = scene.point_on_link(a, link, p_palm)
+    for rotation_weight_m in (_ROTATION_WEIGHT_M, 0.0):
+        path = _retreat_dls(
+            scene, a, n_in, link, p_link, rotation_weight_m=rotation_weight_m,
+            touch_margin=touch_margin, lift_m=lift_m, clearance_m=clearance_m, step_m=step_m,
+        )
+        if path is not None:
+            return densify(np.array(path), resolution_rad)
+    path = _retreat_repel(
+        scene, a, link, touch_margin=touch_margin, lift_m=lift_m, clearance_m=clearance_m, step_m=step_m,
+    )
+    if path is not None:
+        return densify(np.array(path), resolution_rad)
+
+    # Fallback: open the finger along a joint-space line, first only the closing
+    # (flexion) joints, keeping abduction/opposition, then toward the whole open posture.
+    lo = np.asarray(hand.lower, dtype=float)[scene.idx]
+    hi = np.asarray(hand.upper, dtype=float)[scene.idx]
+    q_open = np.clip(np.asarray(hand.q_open, dtype=float)[scene.idx], lo, hi)
+    closing = np.isin(np.asarray(scene.finger.joints), np.asarray(scene.finger.close_joints or scene.finger.joints))
+    for target in (np.where(closing, q_open, a), q_open):
+        line = densify(np.array([a, target]), resolution_rad)
+        for k, q in enumerate(line[1:], start=1):
+            if not scene.is_valid(q, touch_margin):
+                break
+            distances = scene.object_distances(q)
+            lifted = min(d for d, l, _, _ in distances if l == link) >= lift_m
+            if lifted and min(d for d, *_ in distances) >= clearance_m and scene.is_valid(q, clearance_m):
+                return line[: k + 1]
+    raise MotionError(
+        f"finger {name}: cannot {what} (contact on {link}): neither a {lift_m * 1000:.1f} mm "
+        f"retreat along the contact normal nor opening the finger is free"
+    )
+
+
+def retreat_blocked(
+    hand,
+    obj,
+    q_finger,
+    finger: str,
+    *,
+    clearance_m: float = DEFAULT_CLEARANCE_M,
+    touch_tol_m: float = DEFAULT_TOUCH_TOL_M,
+    lift_m: float = DEFAULT_LIFT_M,
+    resolution_rad: float = 0.01,
+) -> str | None:
+    """Why a finger cannot back off a contact whatever the other fingers do, or None.
+
+    The lift of `plan_gait_step` (`retreat`, the same margins) from the finger's contact
+    configuration ``q_finger`` with every other finger at its open posture: a contact whose
+    finger is held against the object by its own joint limits (a thumb pressed sideways at
+    full opposition) cannot be left, nor landed on (a landing is a lift reversed), in any
+    state. Returns the reason, naming the finger, the link and the joints at a limit.
+    """
+    f = finger_of(hand, finger)
+    q_ref = np.array(hand.q_open, dtype=float)
+    q_ref[list(f.q_index)] = q_finger
+    scene = FingerScene(hand, obj, q_ref, finger, touch_tol_m)
+    a = np.asarray(q_finger, dtype=float)
+    try:
+        retreat(scene, a, None, lift_m=lift_m, clearance_m=clearance_m, resolution_rad=resolution_rad,
+                 what="back off this contact")
+    except MotionError as err:
+        lo = np.asarray(hand.lower, dtype=float)[scene.idx]
+        hi = np.asarray(hand.upper, dtype=float)[scene.idx]
+        tol = max(resolution_rad, 0.05 * float(np.max(hi - lo)))
+        at = [f"{j} {a[k]:.2f} rad (limit {lo[k] if a[k] - lo[k] < hi[k] - a[k] else hi[k]:.2f})"
+              for k, j in enumerate(f.joints) if min(a[k] - lo[k], hi[k] - a[k]) <= tol]
+        return (f"{err}, even with every other finger open" + (f"; near their limits: {', '.join(at)}" if at else ""))
