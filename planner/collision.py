@@ -10,9 +10,10 @@ procedure, realization, the graph's finger checks and the OMPL validity check):
   "default" allowed-collision matrix) and the geometry pairs that are checked, in a fixed
   order (plans record contacts and collisions in that order).
 - `HandState`, a hand at a configuration ``q`` (in the spirit of pink's ``Configuration``):
-  ``q`` is copied and read-only; forward kinematics and the geometry transforms are computed
-  lazily, once, on the first query that needs them. `HandState.with_finger` moves one finger
-  and re-poses only that finger's geometries.
+  it reads one `planner.kinematics.Kinematics` (its own ``pinocchio.Data``, forward
+  kinematics run once at construction, ``q`` copied and read-only); the geometry transforms
+  are computed lazily, once, on the first query that needs them. `HandState.with_finger`
+  moves one finger and re-poses only that finger's geometries.
 
 All poses are in the palm frame. Signed distances are negative for penetration.
 The pybullet replay is not built on this on purpose: its contacts are the simulator's
@@ -21,7 +22,6 @@ measurement, which the replay compares with the plan.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Iterable, Mapping
@@ -30,7 +30,8 @@ import coal
 import numpy as np
 import pinocchio as pin
 
-from planner.errors import InputError, UnknownNameError
+from planner.errors import UnknownNameError
+from planner.kinematics import KinematicModel, Kinematics
 
 LINK_EPS_M = 1e-6
 """Penetration between two links below this is not a collision (also: shapes closer than
@@ -85,15 +86,6 @@ class LinkDistance:
     p_link_palm: np.ndarray
     p_obj_palm: np.ndarray
     geometries: tuple[int, ...]
-
-
-def checked_q(nq: int, q, copy: bool = False) -> np.ndarray:
-    """``q`` as a float array of shape (nq,) (a copy when ``copy``), or InputError."""
-    q = np.array(q, dtype=float) if copy else np.asarray(q, dtype=float)
-    # q @ q is finite only when every entry is (squares cannot cancel); 4x cheaper than isfinite
-    if q.shape != (nq,) or not (math.isfinite(q @ q) or np.isfinite(q).all()):
-        raise InputError(f"q must be {nq} finite numbers in the order of hand.joint_names, got shape {q.shape}")
-    return q
 
 
 def transform(T: np.ndarray) -> coal.Transform3s:
@@ -173,6 +165,7 @@ class CollisionModel:
 
     Attributes:
         model: the pinocchio model the geometries hang on.
+        kinematic_model: its `planner.kinematics.KinematicModel` (with the palm frame).
         geometries: every `Geometry`, in URDF order (capsules merged).
         links: links with geometry, in order of first geometry.
         link_geometries: link -> indices of its geometries.
@@ -193,8 +186,9 @@ class CollisionModel:
                 `LINK_EPS_M`) are allowed too (q = 0, the open posture).
         """
         self.model = model
-        self.T_palm_world = pin.SE3(T_palm_world)
-        self.palm_is_root = self.T_palm_world.isIdentity(1e-12)
+        self.kinematic_model = KinematicModel(model, T_palm_world)
+        self.T_palm_world = self.kinematic_model.T_palm_world
+        self.palm_is_root = self.kinematic_model.palm_is_root
         self._T_palm_world_h = np.linalg.inv(self.T_palm_world.inverse().homogeneous)
         self.geometries = tuple(geometries)
         self.finger_joints: Mapping[str, tuple[int, ...]] = MappingProxyType(
@@ -209,8 +203,6 @@ class CollisionModel:
                               for f in dict.fromkeys(g.finger for g in self.geometries)}
         self._finger_links = {f: tuple(dict.fromkeys(self.geometries[i].link for i in ids))
                               for f, ids in self._finger_geoms.items()}
-        self._data = model.createData()  # scratch forward kinematics, see HandState._fk
-        self._fk_owner = None
         self.allowed = frozenset(frozenset(p) for p in allowed)
         self.pairs = self._checked_pairs()
         by_design = set()
@@ -265,28 +257,46 @@ class CollisionModel:
         return HandState(self, q)
 
 
-
 class HandState:
-    """A hand at a configuration: immutable; FK and geometry transforms computed once, lazily.
+    """A hand at a configuration: immutable; FK once, geometry transforms once, lazily.
 
-    Build with ``hand.state(q)`` (or ``hand.collision.state(q)``). Every query reads this
-    state: nobody calls a function that silently recomputes or reads a stale
-    ``pinocchio.Data``. Not thread-safe (the lazy FK uses the model's scratch data).
+    Build with ``hand.state(q)`` (or ``hand.collision.state(q)``): the state makes its own
+    `planner.kinematics.Kinematics` (one ``pinocchio.Data``, FK at construction). Every
+    query reads this state: nobody calls a function that silently recomputes or reads a
+    stale ``pinocchio.Data``. `HandState.on` reads a caller's `Kinematics` instead (an
+    iterative procedure updating one): that state is valid until the caller updates it.
+    Not thread-safe.
 
     Attributes:
         model: the hand's `CollisionModel`.
         q: (nq,) read-only joint configuration (order ``hand.joint_names``).
+        kinematics: the `planner.kinematics.Kinematics` it reads.
     """
 
-    __slots__ = ("model", "q", "_tf", "_origin", "_moved", "_moved_T", "_cache")
+    __slots__ = ("model", "q", "kinematics", "_generation", "_tf", "_origin", "_moved", "_moved_T", "_cache")
 
     def __init__(self, model: CollisionModel, q):
+        self._init(model, Kinematics(model.kinematic_model, q))
+
+    @classmethod
+    def on(cls, model: CollisionModel, kinematics: Kinematics) -> "HandState":
+        """The hand as posed by ``kinematics`` (a `Kinematics` of ``model``'s hand), without a
+        copy: valid until ``kinematics`` is updated (a query then raises RuntimeError)."""
+        if kinematics.kinematic_model is not model.kinematic_model:
+            raise ValueError("the Kinematics belongs to another hand")
+        state = cls.__new__(cls)
+        state._init(model, kinematics)
+        return state
+
+    def _init(self, model: CollisionModel, kinematics: Kinematics) -> None:
         self.model = model
-        q = checked_q(model.model.nq, q, copy=True)
-        q.flags.writeable = False
-        self.q = q
+        self.kinematics = kinematics
+        self._generation = kinematics.generation
+        self.q = kinematics.q
         self._tf: dict[int, coal.Transform3s] = {}
-        self._origin = self  # the state whose other fingers this one shares (see with_finger)
+        # the state whose other fingers this one shares (see with_finger); None: this one
+        # (not ``self``: no reference cycle, a state and its pinocchio.Data go when unused)
+        self._origin: HandState | None = None
         self._moved: str | None = None
         self._moved_T: np.ndarray | None = None
         # computed once: ("center", i), ("links", id(obj)) -> (obj, {link: LinkDistance}),
@@ -294,13 +304,12 @@ class HandState:
         self._cache: dict = {}
 
     # ------------------------------------------------------------------ kinematics
-    def _fk(self):
-        """The model's scratch data holding this state's forward kinematics (run when needed)."""
-        m = self.model
-        if m._fk_owner is not self:
-            pin.forwardKinematics(m.model, m._data, self.q)
-            m._fk_owner = self
-        return m._data
+    def _kinematics(self) -> Kinematics:
+        """The kinematics this state reads (RuntimeError when updated since, `HandState.on`)."""
+        kin = self.kinematics
+        if kin.generation != self._generation:
+            raise RuntimeError("this HandState's Kinematics was updated to another configuration since")
+        return kin
 
     def transform(self, i: int) -> coal.Transform3s:
         """T_palm_geom of geometry ``i`` as a coal transform (computed once)."""
@@ -311,7 +320,7 @@ class HandState:
                 kin = self._origin._finger_kinematics(self._moved)
                 tf = transform(self._finger_poses(self._moved)[kin["geoms"].index(i)])
             else:
-                M = self._fk().oMi[g.joint_id] * g.placement
+                M = self._kinematics().joint_placement(g.joint_id) * g.placement
                 if not self.model.palm_is_root:
                     M = self.model.T_palm_world * M
                 tf = coal.Transform3s(M.rotation, M.translation)
@@ -323,7 +332,7 @@ class HandState:
         c = self._cache.get(("center", i))
         if c is None:
             g = self.model.geometries[i]
-            c = self._fk().oMi[g.joint_id].act(g.center)
+            c = self._kinematics().joint_placement(g.joint_id).act(g.center)
             if not self.model.palm_is_root:
                 c = self.model.T_palm_world.act(c)
             self._cache[("center", i)] = c
@@ -331,13 +340,23 @@ class HandState:
 
     def link_pose(self, link: str) -> np.ndarray:
         """T_palm_link (4, 4) of a link or frame."""
-        m = self.model.model
-        if not m.existFrame(link):
-            raise UnknownNameError("link", str(link), sorted({f.name for f in m.frames}))
-        M = pin.updateFramePlacement(m, self._fk(), m.getFrameId(link))
-        if not self.model.palm_is_root:
-            M = self.model.T_palm_world * M
-        return M.homogeneous
+        return self._kinematics().frame_pose(self.model.kinematic_model.frame_id(link))
+
+    def frame_jacobian(self, link: str, p_link=None) -> np.ndarray:
+        """Jacobian (6, nq) of a point of a link (`Hand.frame_jacobian`), palm-aligned,
+        linear rows first; ``p_link`` in the link frame (default its origin)."""
+        return self._kinematics().frame_jacobian(self.model.kinematic_model.frame_id(link), p_link)[0]
+
+    def point_jacobians(self, points, angular: bool = False) -> list[np.ndarray]:
+        """Linear Jacobians (3, nq) of points fixed to links (`Hand.point_jacobians`): points
+        are (link or frame name, (3,) point in the PALM frame) pairs; (6, nq) with ``angular``."""
+        km = self.model.kinematic_model
+        return self._kinematics().point_jacobians([(km.frame_id(link), p) for link, p in points], angular)
+
+    def gravity_torques(self, g_palm) -> np.ndarray:
+        """Joint torques (nq,) holding the hand's own links under gravity ``g_palm`` ((3,)
+        m/s^2, palm frame), N m (`planner.kinematics.Kinematics.gravity_torques`)."""
+        return self._kinematics().gravity_torques(g_palm)
 
     def collision_objects(self) -> list[tuple[str, str | None, coal.CollisionGeometry, coal.Transform3s]]:
         """Every shape posed: (link, finger or None for the palm, coal shape, T_palm_geom)."""
@@ -355,7 +374,7 @@ class HandState:
         joints = self.model.finger_joints.get(finger)
         if joints is None:
             raise UnknownNameError("finger", str(finger), list(self.model.finger_joints))
-        origin = self._origin if self._moved in (None, finger) else self
+        origin = self._origin if self._moved in (None, finger) and self._origin is not None else self
         q = np.array(self.q)
         q[list(joints)] = q_finger
         child = HandState(self.model, q)
@@ -386,11 +405,9 @@ class HandState:
     def finger_link_poses(self, finger: str) -> np.ndarray:
         """T_palm_link (k, 4, 4) of the finger's links with geometry (`CollisionModel.finger_links`)."""
         kin = self._origin._finger_kinematics(finger) if self._moved == finger else self._finger_kinematics(finger)
-        m = self.model
-        pin.framesForwardKinematics(m.model, m._data, self.q)
-        m._fk_owner = self
-        oMf = m._data.oMf
-        return m._T_palm_world_h @ np.array([oMf[f].homogeneous for f in kin["frames"]])
+        kinematics = self._kinematics()
+        return self.model._T_palm_world_h @ np.array([kinematics.root_frame_placement(f).homogeneous
+                                                      for f in kin["frames"]])
 
     def _finger_poses(self, finger: str) -> np.ndarray:
         """T_palm_geom (k, 4, 4) of a finger's geometries, from its link poses."""

@@ -310,7 +310,8 @@ def _cached_hand(ref: str):
 
 
 def load_hand(ref: str):
-    """`Hand.load(ref)`, cached: hands are read-only once loaded."""
+    """`Hand.load(ref)`, cached: hands are read-only once loaded (no pinocchio.Data, no
+    per-query state: every kinematic query runs on a state of its own, `planner.kinematics`)."""
     return _cached_hand(ref)
 
 

@@ -195,9 +195,9 @@ def finger_statics(hand, finger: str, q, points_obj, T_palm_obj, effort=None) ->
         dist = [state.point_distance(pt, hand.collision.link_geometries[l]) for l in links]
         on.append(links[int(np.argmin(dist))])
     cols = list(fg.q_index)
-    Js = hand.point_jacobians(q, list(zip(on, pts_palm)), angular=True)
+    Js = state.point_jacobians(list(zip(on, pts_palm)), angular=True)
     jac = np.array([np.vstack([R.T @ J[:3, cols], R.T @ J[3:, cols]]) for J in Js]).reshape(-1, 6, len(cols))
-    G = np.stack([hand.gravity_torques(q, e)[cols] for e in np.eye(3)], axis=1)  # (nj, 3) per unit g_palm
+    G = np.stack([state.gravity_torques(e)[cols] for e in np.eye(3)], axis=1)  # (nj, 3) per unit g_palm
     tau_max = np.asarray(hand.effort, dtype=float)[cols] if effort is None else np.asarray(effort, dtype=float)
     return FingerStatics(finger, tuple(fg.joints), jac, G @ R, tau_max)
 

@@ -37,9 +37,10 @@ import coal
 import numpy as np
 import pinocchio as pin
 
-from planner.collision import CollisionModel, Geometry, HandState, checked_q, convex_hull
+from planner.collision import CollisionModel, Geometry, HandState, convex_hull
 from planner.errors import InputError, KinematicsError, SpecError, UnknownNameError
 from planner.fileio import MAX_GRASP_BYTES, Reader, read_yaml
+from planner.kinematics import Kinematics, checked_q
 from planner.resources import HAND_SPEC, bundled_hands, hand_dir, robots_dir
 
 ROBOTS_DIR = robots_dir()  # the bundled hands (planner.resources), wherever the package is installed
@@ -201,7 +202,8 @@ class Hand:
     """A hand model: pinocchio kinematics, coal geometry and the finger structure.
 
     Use ``Hand.load("icub_right")`` or ``Hand.load("path/to/hand.yaml")``.
-    Not thread-safe: queries reuse one ``pinocchio.Data``.
+    Read-only once loaded: it holds no ``pinocchio.Data``; every kinematic query runs on a
+    state of its own (`Hand.kinematics`, `Hand.state`), so one hand can serve many callers.
     """
 
     def __init__(self, spec_path: Path, spec: dict):
@@ -273,7 +275,6 @@ class Hand:
         if locked:
             full = pin.buildReducedModel(full, locked, pin.neutral(full))
         self.model = full
-        self.data = self.model.createData()
         for jid in range(1, self.model.njoints):
             if self.model.joints[jid].nq != 1:
                 raise SpecError(sp, "urdf", f"joint {self.model.names[jid]!r} is not 1-dof; "
@@ -303,8 +304,6 @@ class Hand:
         if abs(np.linalg.norm(self.palm_normal) - 1.0) > 1e-6:
             raise r.fail(f"expected a unit vector (palm frame), got {list(self.palm_normal)}", "palm_normal")
         self._T_palm_world = self.model.frames[pid].placement.inverse()
-        self._palm_is_root = self._T_palm_world.isIdentity(1e-12)
-        self._frame_ids: dict[str, int] = {}
 
         # open posture
         q_open = np.clip(np.zeros(self.model.nq), self.lower, self.upper)
@@ -468,21 +467,20 @@ class Hand:
             raise UnknownNameError("finger", str(finger), self.fingers) from None
 
     def _fid(self, frame: str) -> int:
-        fid = self._frame_ids.get(frame)
-        if fid is None:
-            if not self.model.existFrame(frame):
-                names = sorted({f.name for f in self.model.frames})
-                raise UnknownNameError("link", str(frame), names)
-            fid = self._frame_ids[frame] = self.model.getFrameId(frame)
-        return fid
+        return self.collision.kinematic_model.frame_id(frame)
 
     def _check_q(self, q) -> np.ndarray:
         return checked_q(self.model.nq, q)
 
     def state(self, q) -> HandState:
-        """The hand at ``q`` (nq,): the kinematic state every collision query reads
-        (`planner.collision.HandState`; FK once, lazily)."""
+        """The hand at ``q`` (nq,): the state every kinematic and collision query reads
+        (`planner.collision.HandState`; FK once, at construction)."""
         return HandState(self.collision, q)
+
+    def kinematics(self, q) -> Kinematics:
+        """The hand's kinematics at ``q`` (nq,) (`planner.kinematics.Kinematics`: its own
+        ``pinocchio.Data``, FK once; `Kinematics.update` moves it explicitly)."""
+        return Kinematics(self.collision.kinematic_model, q)
 
     # --------------------------------------------------------------- kinematics
     def link_pose(self, q, link: str) -> np.ndarray:
@@ -495,12 +493,7 @@ class Hand:
             T_palm_link: (4, 4).
         """
         q = self._check_q(q)
-        fid = self._fid(link)
-        pin.forwardKinematics(self.model, self.data, q)
-        M = pin.updateFramePlacement(self.model, self.data, fid)
-        if not self._palm_is_root:
-            M = self._T_palm_world * M
-        return M.homogeneous
+        return self.kinematics(q).frame_pose(self._fid(link))
 
     def frame_jacobian(self, q, link: str, p_link=None) -> np.ndarray:
         """Jacobian of a point of a link, palm-aligned, linear rows first.
@@ -513,8 +506,7 @@ class Hand:
             J: (6, nq): rows 0-2 d(p_palm)/dq, rows 3-5 the link's angular velocity in the palm frame.
         """
         q = self._check_q(q)
-        J, _, _ = self._point_jacobian(q, self._fid(link), p_link)
-        return J
+        return self.kinematics(q).frame_jacobian(self._fid(link), p_link)[0]
 
     def point_jacobians(self, q, points, angular: bool = False) -> list[np.ndarray]:
         """Linear Jacobians of points fixed to links, palm frame, with one kinematics pass.
@@ -528,20 +520,7 @@ class Hand:
             with ``p_link`` the point in the link's frame; (6, nq) with ``angular`` (rows 3-5
             the link's angular velocity, palm frame).
         """
-        q = self._check_q(q)
-        pin.computeJointJacobians(self.model, self.data, q)
-        out = []
-        for link, p_palm in points:
-            fid = self._fid(link)
-            M = pin.updateFramePlacement(self.model, self.data, fid)
-            J = pin.getFrameJacobian(self.model, self.data, fid, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
-            Jv, Jw, o = J[:3], J[3:], M.translation
-            if not self._palm_is_root:
-                Rp = self._T_palm_world.rotation
-                Jv, Jw, o = Rp @ Jv, Rp @ Jw, self._T_palm_world.act(o)
-            Jp = Jv - _skew(np.asarray(p_palm, dtype=float) - o) @ Jw  # v_p = v_o + w x (p - o)
-            out.append(np.vstack([Jp, Jw]) if angular else Jp)
-        return out
+        return self.state(q).point_jacobians(points, angular)
 
     def gravity_torques(self, q, g_palm) -> np.ndarray:
         """Joint torques that hold the hand's own links still under gravity.
@@ -552,31 +531,7 @@ class Hand:
         Returns:
             (nq,) torques, N m (generalized gravity of the URDF's masses).
         """
-        q = self._check_q(q)
-        g = np.asarray(g_palm, dtype=float).reshape(3)
-        if not self._palm_is_root:
-            g = self._T_palm_world.rotation.T @ g
-        self.model.gravity.linear = g
-        return pin.computeGeneralizedGravity(self.model, self.data, q).copy()
-
-    def _point_jacobian(self, q, fid, p_link=None):
-        pin.computeJointJacobians(self.model, self.data, q)
-        M = pin.updateFramePlacement(self.model, self.data, fid)
-        J = pin.getFrameJacobian(self.model, self.data, fid, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED).copy()
-        p = M.translation.copy()
-        if p_link is not None:
-            r = M.rotation @ np.asarray(p_link, dtype=float)
-            p = p + r
-            # v_p = v_o + w x r
-            J[:3] -= _skew(r) @ J[3:]
-        R = M.rotation
-        if not self._palm_is_root:
-            Rp = self._T_palm_world.rotation
-            J[:3] = Rp @ J[:3]
-            J[3:] = Rp @ J[3:]
-            p = self._T_palm_world.act(p)
-            R = Rp @ R
-        return J, p, R
+        return self.kinematics(q).gravity_torques(g_palm)
 
     # ----------------------------------------------------------------- geometry
     def collision_objects(self, q) -> list[tuple[str, str | None, coal.CollisionGeometry, coal.Transform3s]]:
@@ -647,10 +602,11 @@ class Hand:
         rng = np.random.default_rng(seed)
         starts = [q0[idx], np.array(f.q_open), 0.5 * (lo + hi)]
         starts += [rng.uniform(lo, hi) for _ in range(max(0, restarts - len(starts)))]
-        best = self._ik_starts(starts, q0, idx, lo, hi, fid, p_link, target, n_link, n_des, max_iter)
+        kin = self.kinematics(q0)  # the one kinematic state every iteration updates
+        best = _ik_starts(kin, starts, q0, idx, lo, hi, fid, p_link, target, n_link, n_des, max_iter)
         dropped = False
         if best[0] >= IK_TOL_M and n_des is not None:
-            pos_only = self._ik_starts(starts, q0, idx, lo, hi, fid, p_link, target, None, None, max_iter)
+            pos_only = _ik_starts(kin, starts, q0, idx, lo, hi, fid, p_link, target, None, None, max_iter)
             dropped = pos_only[0] < IK_TOL_M
             if dropped or pos_only[0] < best[0]:
                 best = pos_only
@@ -666,67 +622,9 @@ class Hand:
                 f"{dist * 1e3:.1f} mm along {np.round(direction, 3).tolist()} (palm frame)",
                 target_palm=target, closest_palm=p, direction_palm=direction, distance_m=dist)
         if n_des is not None and dropped:
-            nerr = float(np.arccos(np.clip((self._point_jacobian(q, fid, p_link)[2] @ n_link) @ n_des, -1.0, 1.0)))
+            nerr = float(np.arccos(np.clip((kin.update(q).frame_jacobian(fid, p_link)[2] @ n_link) @ n_des, -1.0, 1.0)))
         return IKResult(q=q, position_error_m=float(err), normal_error_rad=float(nerr) if n_des is not None else None,
                         normal_dropped=dropped)
-
-    def _ik_starts(self, starts, q0, idx, lo, hi, fid, p_link, target, n_link, n_des, max_iter):
-        """Best (position error, normal error, q, point reached) over DLS runs from the starts."""
-        best = None
-        for s in starts:
-            q = q0.copy()
-            q[idx] = np.clip(s, lo, hi)
-            q, err, nerr, p = self._dls(q, idx, lo, hi, fid, p_link, target, n_link, n_des, max_iter)
-            cand = (err, nerr, q, p)
-            if err < IK_TOL_M and (best is None or best[0] >= IK_TOL_M or nerr < best[1] - 1e-6):
-                best = cand
-            elif best is None or (best[0] >= IK_TOL_M and err < best[0]):
-                best = cand
-            if best[0] < IK_TOL_M and (n_des is None or best[1] < 0.05):
-                break
-        return best
-
-    def _dls(self, q, idx, lo, hi, fid, p_link, target, n_link, n_des, max_iter):
-        lam2 = 1e-6        # damping^2 (m^2)
-        k_n = 0.5          # gain of the normal-alignment task (per iteration)
-        err = np.inf
-        prev = np.inf
-        stall = 0
-        for _ in range(max_iter):
-            J, p, R = self._point_jacobian(q, fid, p_link)
-            e = target - p
-            err = float(np.linalg.norm(e))
-            e_n = np.cross(R @ n_link, n_des) if n_des is not None else None
-            if err < _IK_GOAL_M and (e_n is None or np.linalg.norm(e_n) < 1e-4):
-                break
-            Jp = J[:3, idx]
-            A = Jp @ Jp.T + lam2 * np.eye(3)
-            dq = Jp.T @ np.linalg.solve(A, e)
-            if e_n is not None:
-                Jn = J[3:, idx]
-                Jp_pinv = Jp.T @ np.linalg.inv(A)
-                N = np.eye(len(idx)) - Jp_pinv @ Jp
-                JnN = Jn @ N
-                dq += N @ (JnN.T @ np.linalg.solve(JnN @ JnN.T + 1e-3 * np.eye(3), k_n * e_n - Jn @ dq))
-            step = np.max(np.abs(dq))
-            if step > 0.3:
-                dq *= 0.3 / step
-            q_new = q.copy()
-            q_new[idx] = np.clip(q[idx] + dq, lo, hi)
-            q = q_new
-            if err > prev - 1e-7:
-                stall += 1
-                if stall > 15:
-                    break
-            else:
-                stall = 0
-            prev = min(prev, err)
-        J, p, R = self._point_jacobian(q, fid, p_link)
-        err = float(np.linalg.norm(target - p))
-        nerr = 0.0
-        if n_des is not None:
-            nerr = float(np.arccos(np.clip((R @ n_link) @ n_des, -1.0, 1.0)))
-        return q, err, nerr, p
 
     # ----------------------------------------------------------------- closing
     def close_finger(self, finger, q, obj, steps: int = 20, backoff: float = 1e-3) -> np.ndarray:
@@ -758,8 +656,10 @@ class Hand:
             qa[cidx] = start + alpha * span
             return qa
 
+        kin = self.kinematics(q)  # the one kinematic state every step updates
+
         def gap(qa):
-            return self.state(qa).finger_object_distance(obj, f.name)
+            return HandState.on(self.collision, kin.update(qa)).finger_object_distance(obj, f.name)
 
         def colliding(alpha):
             return gap(at(alpha)) < 0.0
@@ -785,5 +685,63 @@ class Hand:
         return qc
 
 
-def _skew(v) -> np.ndarray:
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+def _ik_starts(kin: Kinematics, starts, q0, idx, lo, hi, fid, p_link, target, n_link, n_des, max_iter):
+    """Best (position error, normal error, q, point reached) over DLS runs from the starts."""
+    best = None
+    for s in starts:
+        q = q0.copy()
+        q[idx] = np.clip(s, lo, hi)
+        q, err, nerr, p = _dls(kin, q, idx, lo, hi, fid, p_link, target, n_link, n_des, max_iter)
+        cand = (err, nerr, q, p)
+        if err < IK_TOL_M and (best is None or best[0] >= IK_TOL_M or nerr < best[1] - 1e-6):
+            best = cand
+        elif best is None or (best[0] >= IK_TOL_M and err < best[0]):
+            best = cand
+        if best[0] < IK_TOL_M and (n_des is None or best[1] < 0.05):
+            break
+    return best
+
+
+def _dls(kin: Kinematics, q, idx, lo, hi, fid, p_link, target, n_link, n_des, max_iter):
+    """Damped least squares from q: (q, position error, normal error, point reached); every
+    iteration updates ``kin`` to its q."""
+    lam2 = 1e-6        # damping^2 (m^2)
+    k_n = 0.5          # gain of the normal-alignment task (per iteration)
+    err = np.inf
+    prev = np.inf
+    stall = 0
+    for _ in range(max_iter):
+        J, p, R = kin.update(q).frame_jacobian(fid, p_link)
+        e = target - p
+        err = float(np.linalg.norm(e))
+        e_n = np.cross(R @ n_link, n_des) if n_des is not None else None
+        if err < _IK_GOAL_M and (e_n is None or np.linalg.norm(e_n) < 1e-4):
+            break
+        Jp = J[:3, idx]
+        A = Jp @ Jp.T + lam2 * np.eye(3)
+        dq = Jp.T @ np.linalg.solve(A, e)
+        if e_n is not None:
+            Jn = J[3:, idx]
+            Jp_pinv = Jp.T @ np.linalg.inv(A)
+            N = np.eye(len(idx)) - Jp_pinv @ Jp
+            JnN = Jn @ N
+            dq += N @ (JnN.T @ np.linalg.solve(JnN @ JnN.T + 1e-3 * np.eye(3), k_n * e_n - Jn @ dq))
+        step = np.max(np.abs(dq))
+        if step > 0.3:
+            dq *= 0.3 / step
+        q_new = q.copy()
+        q_new[idx] = np.clip(q[idx] + dq, lo, hi)
+        q = q_new
+        if err > prev - 1e-7:
+            stall += 1
+            if stall > 15:
+                break
+        else:
+            stall = 0
+        prev = min(prev, err)
+    J, p, R = kin.update(q).frame_jacobian(fid, p_link)
+    err = float(np.linalg.norm(target - p))
+    nerr = 0.0
+    if n_des is not None:
+        nerr = float(np.arccos(np.clip((R @ n_link) @ n_des, -1.0, 1.0)))
+    return q, err, nerr, p

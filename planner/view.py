@@ -151,7 +151,6 @@ class _Scene:
         except (RuntimeError, ValueError) as err:
             raise SpecError(str(hand.urdf_path), "visual", f"cannot load the visual geometry: {err}") from err
         self.vmodel, self.vdata = vmodel, vmodel.createData()
-        self.pdata = hand.model.createData()
         self.pv = MeshcatVisualizer(hand.model, None, vmodel)
         self.pv.initViewer(viewer=self.vis)
         self.pv.loadViewerModel(rootNodeName="regrasp/hand", visual_color=_rgba(HAND_COLOR))
@@ -233,11 +232,9 @@ class _Scene:
 
     def transforms(self, q) -> list[np.ndarray]:
         """World (model root) pose of every visual geometry at q, as meshcat draws it."""
-        import pinocchio as pin  # pinocchio's visualizer: loaded only when a page is drawn
         from pinocchio.visualize.meshcat_visualizer import applyScalingOnHomegeneousTransform
 
-        pin.forwardKinematics(self.hand.model, self.pdata, np.asarray(q, float))
-        pin.updateGeometryPlacements(self.hand.model, self.pdata, self.vmodel, self.vdata)
+        self.hand.kinematics(np.asarray(q, float)).place_geometries(self.vmodel, self.vdata)
         out = []
         for i, g in enumerate(self.vmodel.geometryObjects):
             out.append(applyScalingOnHomegeneousTransform(self.vdata.oMg[i].homogeneous, g.meshScale))

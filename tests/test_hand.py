@@ -188,7 +188,7 @@ def test_ik_falls_back_to_position_only_when_the_normal_task_fails(name):
     posture): the normal task drags the clamped joints off the target, so the combined task
     misses it; the IK then reaches it position-only and says so (the issue's Allegro contacts
     refused as out of reach)."""
-    from planner.hand import IK_TOL_M
+    from planner.hand import IK_TOL_M, _ik_starts
 
     hand = Hand.load(name)
     rng = np.random.default_rng(3)
@@ -202,10 +202,11 @@ def test_ik_falls_back_to_position_only_when_the_normal_task_fails(name):
         r = hand.ik_solve(f.name, target, hand.q_open, normal_palm=n_away)
         assert np.linalg.norm(_pad_palm(hand, f.name, r.q) - target) < IK_TOL_M
         # position-only runs only after the combined task failed; then the normal is far off
-        combined = hand._ik_starts([hand.q_open[idx], np.array(f.q_open), 0.5 * (hand.lower[idx] + hand.upper[idx])],
-                                   hand.q_open, np.array(idx), hand.lower[idx], hand.upper[idx],
-                                   hand._fid(f.pad_link), np.array(f.pad_p_link), target, np.array(f.pad_n_link),
-                                   n_away, 150)
+        combined = _ik_starts(hand.kinematics(hand.q_open),
+                              [hand.q_open[idx], np.array(f.q_open), 0.5 * (hand.lower[idx] + hand.upper[idx])],
+                              hand.q_open, np.array(idx), hand.lower[idx], hand.upper[idx],
+                              hand._fid(f.pad_link), np.array(f.pad_p_link), target, np.array(f.pad_n_link),
+                              n_away, 150)
         if r.normal_dropped:
             dropped += 1
             assert combined[0] >= IK_TOL_M

@@ -444,7 +444,8 @@ class Controller:
         ``gravity`` (the gravity of the load solved for): the planner's limits, at the
         simulator's contacts."""
         gravity = np.asarray(gravity, dtype=float)
-        g_q = self.hand.gravity_torques(q, gravity) if gravity.any() else np.zeros(len(q))
+        state = self.hand.state(q)  # one kinematic state for the gravity torques and the Jacobians
+        g_q = state.gravity_torques(gravity) if gravity.any() else np.zeros(len(q))
         rows = []
         by_finger: dict[str, list[int]] = {}
         for i, c in enumerate(contacts):
@@ -452,8 +453,8 @@ class Controller:
                 by_finger.setdefault(c.finger, []).append(i)
         # one kinematics pass for every commanded contact
         order = [i for idx in by_finger.values() for i in idx]
-        J_all = dict(zip(order, self.hand.point_jacobians(
-            q, [(self.link_name[contacts[i].link], contacts[i].point) for i in order], angular=True)))
+        J_all = dict(zip(order, state.point_jacobians(
+            [(self.link_name[contacts[i].link], contacts[i].point) for i in order], angular=True)))
         for f, idx in by_finger.items():
             cols = [self.col[j] for j in self.hand.fingers[f].joints]
             Js = [J_all[i] for i in idx]
