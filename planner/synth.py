@@ -34,6 +34,7 @@ import sys
 import tempfile
 import time
 from collections import Counter
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -47,6 +48,7 @@ from planner.fileio import MAX_GRASP_BYTES, Reader, read_yaml
 from planner.grasp import load_hand, parse_grasp, parse_object, realize, resolve_hand_ref
 from planner.grip import HOLD_FACTOR, grasp_hold
 from planner.model import Friction
+from planner.objects import GraspObject
 from planner.retreat import retreat_blocked
 from planner.synth_sample import PALM_CLEARANCE_M, closes_onto, inner_radius, object_of, sample_candidate
 
@@ -80,8 +82,9 @@ class SynthResult:
     rejected: dict = None   # reason -> attempts dropped for it
 
 
-def load_object_file(path) -> tuple[dict, dict | None, bool]:
-    """Read an object file: (object block, friction block or None, pose_fixed).
+def load_object_file(path) -> tuple[GraspObject, dict | None, bool]:
+    """Read an object file: (the object, friction block or None, pose_fixed); an object
+    file without a pose is at the palm frame's origin (synthesis samples its pose).
 
     Raises:
         SpecError: naming the file and key.
@@ -110,24 +113,17 @@ def load_object_file(path) -> tuple[dict, dict | None, bool]:
             raise
         # the block sits at the top level: its keys have no "object." prefix there
         raise SpecError(str(path), err.key.removeprefix("object").lstrip("."), err.message) from err
-    out = {"shape": spec.shape, "size": [float(v) for v in spec.size]}
-    if spec.mesh_path:
-        out["mesh"] = spec.mesh_path
-    if spec.mass_given:
-        out["mass_kg"] = float(spec.mass_kg)
-    if fixed:
-        out["position"] = [float(v) for v in spec.position]
-        out["quat_xyzw"] = [float(v) for v in spec.quat_xyzw]
-    return out, friction, fixed
+    return spec, friction, fixed
 
 
-def _grasp_data(hand_ref, obj_block, friction, fingers, preshape, name, description) -> dict:
+def _grasp_data(hand_ref, obj: GraspObject, friction, fingers, preshape, name, description) -> dict:
+    block = obj.to_data()
     return {
         "schema_version": 1,
         "name": name,
         "description": description,
         "hand": hand_ref,
-        "object": {k: obj_block[k] for k in ("shape", "size", "position", "quat_xyzw", "mesh", "mass_kg") if k in obj_block},
+        "object": {k: v for k, v in block.items() if v is not None},  # no mesh, no mass: not written
         "friction": dict(friction),
         "fingers": {f.name: {"posture": [float(v) for v in preshape[f.name]]} for f in fingers},
     }
@@ -150,7 +146,7 @@ def _is_duplicate(a: np.ndarray, b: np.ndarray) -> bool:
     return bool(np.max(np.linalg.norm(a - b, axis=1)) < DUPLICATE_TOL_M)
 
 
-def synthesize(hand_ref: str, obj_block: dict, fingers, n: int, *, fixed: bool, friction=None, seed: int = 0,
+def synthesize(hand_ref: str, obj: GraspObject | Mapping, fingers, n: int, *, fixed: bool, friction=None, seed: int = 0,
                gravity=None, max_finger_force_n: float | None = None, max_attempts: int | None = None, base_dir=".",
                progress=None, contact_model: str = "patch", friction_margin: float = 1.0,
                hold_factor: float = HOLD_FACTOR, palm_clearance_m: float = PALM_CLEARANCE_M) -> SynthResult:
@@ -158,10 +154,10 @@ def synthesize(hand_ref: str, obj_block: dict, fingers, n: int, *, fixed: bool, 
 
     Args:
         hand_ref: hand name under robots/ or an absolute hand.yaml path.
-        obj_block: the object block (`load_object_file`); with ``position`` when ``fixed``.
+        obj: the object (`load_object_file`), or its ``object:`` block; at its pose when ``fixed``.
         fingers: names of the fingers that grasp (the others stay open).
         n: grasps wanted.
-        fixed: keep the object pose of ``obj_block`` (True) or sample it per attempt.
+        fixed: keep the object's pose (True) or sample it per attempt.
         friction: {mu, gamma, edges} (default `DEFAULT_FRICTION`).
         seed: seed of every random choice (the result depends on nothing else).
         gravity: None, a (3,) palm-frame gravity (m/s^2) or several, (k, 3): keep grasps holding
@@ -201,7 +197,8 @@ def synthesize(hand_ref: str, obj_block: dict, fingers, n: int, *, fixed: bool, 
         raise PlannerError(f"synth: friction_margin must be in (0, 1], got {friction_margin!r}")
     max_attempts = 60 * n if max_attempts is None else max_attempts
     rng = np.random.default_rng(seed)
-    inner = inner_radius(obj_block)
+    obj = object_of(obj)
+    inner = inner_radius(obj)
     kept: list[tuple[np.ndarray, SynthGrasp]] = []
     passed = dups = 0
     rejected = Counter()
@@ -211,18 +208,18 @@ def synthesize(hand_ref: str, obj_block: dict, fingers, n: int, *, fixed: bool, 
         if len(kept) >= n:
             attempt -= 1
             break
-        block, preshape, why = sample_candidate(hand, chosen, obj_block, fixed, rng, inner, palm_clearance_m)
+        placed, preshape, why = sample_candidate(hand, chosen, obj, fixed, rng, inner, palm_clearance_m)
         if preshape is None:
             rejected[why] += 1
             continue
-        patches, why = closes_onto(hand, chosen, object_of(block), preshape)
+        patches, why = closes_onto(hand, chosen, placed, preshape)
         if patches is None:
             rejected[why] += 1
             continue
         if not grasp_closure(patches, fr).is_force_closure:
             rejected["not force closure"] += 1
             continue
-        data = _grasp_data(hand_ref, block, friction, chosen, preshape, "candidate", "")
+        data = _grasp_data(hand_ref, placed, friction, chosen, preshape, "candidate", "")
         try:
             spec = parse_grasp(data, base / "candidate.yaml")
         except SpecError:
@@ -392,7 +389,7 @@ def run_synth(hand: str, object_path, fingers: str, n: int, out_dir, *, gravity=
                            f"(fingers of {h.name}: {', '.join(h.fingers)})")
     for f in names:
         h.finger(f)
-    obj_block, file_friction, fixed = load_object_file(object_path)
+    obj, file_friction, fixed = load_object_file(object_path)
     friction = dict(DEFAULT_FRICTION)
     if isinstance(file_friction, dict):
         friction.update({k: file_friction[k] for k in ("mu", "gamma", "edges") if k in file_friction})
@@ -401,9 +398,9 @@ def run_synth(hand: str, object_path, fingers: str, n: int, out_dir, *, gravity=
     if gamma is not None:
         friction["gamma"] = gamma
     # refuse before any work when the first names are taken
-    _refuse_overwrite(output_names(out_dir, h.name, obj_block["shape"], n), [object_path])
+    _refuse_overwrite(output_names(out_dir, h.name, obj.shape, n), [object_path])
     progress = None if quiet else (lambda line: print(line, file=sys.stderr, flush=True))
-    result = synthesize(hand_ref, obj_block, names, n, fixed=fixed, friction=friction, seed=seed, gravity=gravity,
+    result = synthesize(hand_ref, obj, names, n, fixed=fixed, friction=friction, seed=seed, gravity=gravity,
                         max_finger_force_n=max_finger_force_n, max_attempts=max_attempts, base_dir=out_dir,
                         progress=progress)
     paths = write_grasps(result, out_dir, h.name, seed=seed, fingers=names, inputs=[object_path])
@@ -411,7 +408,7 @@ def run_synth(hand: str, object_path, fingers: str, n: int, out_dir, *, gravity=
         grip = f"  grip {g.grip_force_n:.3f} N" if g.grip_force_n is not None else ""
         print(f"{path}  metric {g.grasp.metric:.4g}{grip}")
     rate = len(paths) / result.seconds if result.seconds > 0 else math.inf
-    print(f"synth: {len(paths)}/{n} grasps of {obj_block['shape']} with {h.name} ({','.join(names)}) in "
+    print(f"synth: {len(paths)}/{n} grasps of {obj.shape} with {h.name} ({','.join(names)}) in "
           f"{result.seconds:.1f} s ({rate:.2f} grasps/s), {result.attempts} attempts, {result.candidates_passed} "
           f"passed the check, {result.duplicates} near-duplicates removed, pose "
           f"{'fixed by the object file' if fixed else 'sampled'}, seed {seed}")

@@ -67,13 +67,15 @@ def _sweep(hand, finger, q, alphas, radius: float = 0.0) -> tuple[np.ndarray, np
 
 
 def object_of(block) -> GraspObject:
-    """The object of a synthesis object block (the ``object:`` file form)."""
-    return GraspObject.from_data(block)
+    """The object of a synthesis object block (the ``object:`` file form; no pose: the palm
+    frame's origin), or the object itself."""
+    if isinstance(block, GraspObject):
+        return block
+    return GraspObject.from_data({"position": [0.0, 0.0, 0.0], "quat_xyzw": [0.0, 0.0, 0.0, 1.0], **block})
 
 
-def _palm_distance(hand, q, block) -> float:
-    """Signed distance (m) between the palm's links and the object of ``block``."""
-    obj = object_of(block)
+def _palm_distance(hand, q, obj: GraspObject) -> float:
+    """Signed distance (m) between the palm's links and the object."""
     T = obj.T_palm_obj
     tf = coal.Transform3s(np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3]))
     req = coal.DistanceRequest()
@@ -105,8 +107,9 @@ def _opposition(normals) -> float:
     return float(np.linalg.norm(np.mean(normals, axis=0)))
 
 
-def sample_candidate(hand, fingers, obj_block, fixed, rng, obj_radius, palm_clearance_m: float = PALM_CLEARANCE_M):
-    """(object block with a pose, {finger: pre-shape}, "") of one attempt, or (block, None, why).
+def sample_candidate(hand, fingers, obj: GraspObject, fixed, rng, obj_radius,
+                     palm_clearance_m: float = PALM_CLEARANCE_M):
+    """(the object at its pose, {finger: pre-shape}, "") of one attempt, or (object, None, why).
 
     Pre-shape: the joints that do not close (abduction, opposition) uniform in their range,
     the closing joints a little into theirs. Each finger's closing motion (the thesis's
@@ -136,7 +139,7 @@ def sample_candidate(hand, fingers, obj_block, fixed, rng, obj_radius, palm_clea
             frac = rng.uniform(*_PRESHAPE_CLOSE, size=len(idx))
             q[idx] = np.where(closing, start + frac * (hi - start), rng.uniform(lo, hi))
         swept = [_sweep(hand, f, q, alphas, CENTRE_OFFSET * obj_radius) for f in fingers]
-        centre = np.asarray(obj_block["position"], dtype=float) if fixed else _meeting_point([c for c, _ in swept])
+        centre = np.asarray(obj.position, dtype=float) if fixed else _meeting_point([c for c, _ in swept])
         score = _score(swept, centre, obj_radius)
         if best is not None and (False, score) >= (best[0], best[1]):  # cannot beat the best
             continue
@@ -150,7 +153,7 @@ def sample_candidate(hand, fingers, obj_block, fixed, rng, obj_radius, palm_clea
         if best is None or (collide, score) < (best[0], best[1]):
             best = (collide, score, q, swept, centre)
     _, _, q, swept, centre = best
-    block = dict(obj_block)
+    placed = obj
     if not fixed:
         # a few jittered centres and orientations: the first that no finger (closing joints
         # open, as the closing procedure starts) is inside of
@@ -161,19 +164,18 @@ def sample_candidate(hand, fingers, obj_block, fixed, rng, obj_radius, palm_clea
         mid = centre
         for _ in range(POSE_TRIES):
             centre = mid + rng.normal(scale=JITTER * obj_radius, size=3)
-            block["quat_xyzw"] = [0.0, 0.0, 0.0, 1.0] if block["shape"] == "sphere" else _random_quat(rng)
-            block["position"] = [float(v) for v in centre]
+            quat = [0.0, 0.0, 0.0, 1.0] if obj.shape == "sphere" else _random_quat(rng)
+            placed = obj.replaced(quat_xyzw=quat, position=[float(v) for v in centre])
             # out of the palm: push the object along the palm normal until it clears the palm
-            d = _palm_distance(hand, q, block)
+            d = _palm_distance(hand, q, placed)
             if d < palm_clearance_m:
                 centre = centre + (palm_clearance_m - d) * np.asarray(hand.palm_normal)
-                block["position"] = [float(v) for v in centre]
-            obj = object_of(block)
-            if all(hand.state(q_free).finger_object_distance(obj, f.name) >= 0.0 for f in fingers):
+                placed = obj.replaced(quat_xyzw=quat, position=[float(v) for v in centre])
+            if all(hand.state(q_free).finger_object_distance(placed, f.name) >= 0.0 for f in fingers):
                 break
     if max(float(np.min(np.linalg.norm(c - centre, axis=1))) for c, _ in swept) > SWEEP_REACH * obj_radius:
-        return block, None, "sweeps miss the object"
-    return block, {f.name: q[list(f.q_index)].copy() for f in fingers}, ""
+        return placed, None, "sweeps miss the object"
+    return placed, {f.name: q[list(f.q_index)].copy() for f in fingers}, ""
 
 
 def _score(swept, centre, obj_radius) -> float:
@@ -188,10 +190,9 @@ def _score(swept, centre, obj_radius) -> float:
     return max(gaps) / obj_radius + (OPPOSITION_WEIGHT * _opposition(normals) if len(swept) > 1 else 0.0)
 
 
-def inner_radius(obj_block) -> float:
+def inner_radius(obj: GraspObject) -> float:
     """Half the smallest extent of the object (m): how close a pad sweep must pass to its centre."""
-    block = {**obj_block, "position": (0.0, 0.0, 0.0), "quat_xyzw": (0.0, 0.0, 0.0, 1.0)}
-    return 0.5 * float(np.min(object_of(block).extents))
+    return 0.5 * float(np.min(obj.extents))
 
 
 def closes_onto(hand, fingers, obj, preshape) -> dict | None:
