@@ -37,11 +37,12 @@ import coal
 import numpy as np
 import pinocchio as pin
 
-from planner.collision import CollisionModel, Geometry, HandState, convex_hull
+from planner.collision import CollisionModel, Geometry, HandState
 from planner.errors import InputError, KinematicsError, SpecError, UnknownNameError
 from planner.fileio import MAX_GRASP_BYTES, Reader, read_yaml
 from planner.kinematics import Kinematics, checked_q
 from planner.resources import HAND_SPEC, bundled_hands, hand_dir, robots_dir
+from planner.signed_distance import convex_hull
 
 ROBOTS_DIR = robots_dir()  # the bundled hands (planner.resources), wherever the package is installed
 SCHEMA_VERSION = 1
