@@ -32,19 +32,14 @@ import pinocchio as pin
 
 from planner.errors import UnknownNameError
 from planner.kinematics import KinematicModel, Kinematics
+from planner.signed_distance import (bounding_sphere, object_transform, signed_distance_geometry, transform,
+                                      transform_matrix)
 
 LINK_EPS_M = 1e-6
 """Penetration between two links below this is not a collision (also: shapes closer than
 this at q = 0 or the open posture overlap by design and their pair is allowed)."""
-MESH_CONVEX_TOL_M = 1e-4
-"""A mesh whose vertices and face centroids all lie within this of its convex hull's
-boundary counts as convex: its hull stands for it in signed distances, off by at most
-this (a tenth of the touch tolerance). Meshes of smooth convex shapes are rarely convex
-to the micrometre: the non-planar quads of grasps/meshes/rounded_box.obj fold inward by
-up to 26 um."""
 
 _POINT = coal.Sphere(1e-7)  # a point, for point-to-link distances
-_SDF_GEOMETRY_CACHE: dict[int, tuple] = {}  # id(geometry) -> (geometry, its signed-distance geometry)
 
 
 @dataclass(frozen=True, eq=False)
@@ -88,76 +83,6 @@ class LinkDistance:
     geometries: tuple[int, ...]
 
 
-def transform(T: np.ndarray) -> coal.Transform3s:
-    """A (4, 4) pose as a coal transform."""
-    return coal.Transform3s(np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3]))
-
-
-def object_transform(obj) -> coal.Transform3s:
-    """The object's pose in the palm frame as a coal transform."""
-    return transform(np.asarray(obj.T_palm_obj))
-
-
-def bounding_sphere(geometry) -> tuple[np.ndarray, float]:
-    """(centre (3,) in the geometry frame, radius) of a coal geometry's local AABB."""
-    geometry.computeLocalAABB()
-    return np.array(geometry.aabb_center, dtype=float), float(geometry.aabb_radius)
-
-
-def signed_distance_geometry(obj):
-    """The coal geometry whose signed distance to a finger link is the object's.
-
-    coal's collision query refuses a negative security margin (a tolerated penetration)
-    for a ``BVHModel`` ("Negative security margin are not handled yet for BVHModel"), and
-    its distance query on a mesh is the smallest distance to any one triangle, a thin
-    plate: when a link sinks into the solid it measures how far the link must move to
-    clear one triangle, often sideways off it, so it reports a fraction of the depth (a
-    capsule 2.6 mm deep into a 5 mm gridded box mesh reads 0.7 mm). Primitives
-    (box, cylinder, sphere) are convex and coal's GJK/EPA gives their exact signed
-    distance: they are returned as they are. A mesh is replaced by its convex hull (a
-    ``coal.Convex``, where GJK/EPA is exact too) when the mesh is convex, i.e. the hull is
-    the object (every vertex and face centroid on the hull's boundary within
-    ``MESH_CONVEX_TOL_M``). A non-convex mesh keeps its triangles: its hull would report
-    a finger resting in a concavity as deep inside, so the per-triangle distance (the
-    measure the contacts and the closing procedure use for meshes) is kept: exact
-    while the link is outside, it can under-report the depth once a link sinks in. A link
-    wholly inside a mesh touches no triangle and reads as clear (as in coal's collision
-    query with a positive margin); paths are checked every ``resolution_rad`` from outside,
-    so they cannot get there without crossing the surface.
-    """
-    geometry = obj.geometry
-    if not isinstance(geometry, coal.BVHModelBase):
-        return geometry
-    cached = _SDF_GEOMETRY_CACHE.get(id(geometry))
-    if cached is None:  # the entry holds the geometry, so its id is not reused meanwhile
-        if len(_SDF_GEOMETRY_CACHE) >= 8:
-            _SDF_GEOMETRY_CACHE.pop(next(iter(_SDF_GEOMETRY_CACHE)))
-        cached = _SDF_GEOMETRY_CACHE[id(geometry)] = (geometry, _mesh_signed_distance_geometry(geometry))
-    return cached[1]
-
-
-def _mesh_signed_distance_geometry(geometry):
-    """The convex hull of a convex ``BVHModel`` as a ``coal.Convex``, else the mesh itself."""
-    from scipy.spatial import ConvexHull
-
-    V = np.asarray(geometry.vertices(), dtype=float)
-    F = np.array([[t[0], t[1], t[2]] for t in map(geometry.tri_indices, range(geometry.num_tris))], dtype=np.int64)
-    hull = ConvexHull(V)
-    probes = np.concatenate([V, V[F].mean(axis=1)])
-    gap = -(probes @ hull.equations[:, :3].T + hull.equations[:, 3]).max(axis=1)  # >= 0 inside
-    if gap.max() > MESH_CONVEX_TOL_M:
-        return geometry
-    return convex_hull(V[hull.vertices])
-
-
-def convex_hull(points) -> "coal.ConvexBase":
-    """The convex hull of (n, 3) points as a coal convex shape (its local AABB computed)."""
-    pts = coal.StdVec_Vec3s()
-    for v in np.asarray(points, dtype=float):
-        pts.append(np.ascontiguousarray(v))
-    convex = coal.Convex.convexHull(pts, False, "Qt")
-    convex.computeLocalAABB()
-    return convex
 
 
 class CollisionModel:
@@ -398,7 +323,7 @@ class HandState:
                 "frames": [m.getFrameId(link) for link in links],
                 "link_of": np.array([links.index(self.model.geometries[i].link) for i in geoms]),
                 "T_link_geom": np.array([np.linalg.inv(self.link_pose(self.model.geometries[i].link))
-                                         @ _matrix(self.transform(i)) for i in geoms]),  # (k, 4, 4)
+                                         @ transform_matrix(self.transform(i)) for i in geoms]),  # (k, 4, 4)
             }
         return kin
 
@@ -562,13 +487,6 @@ class HandState:
         return entry[1]
 
 
-def _matrix(tf: coal.Transform3s) -> np.ndarray:
-    T = np.eye(4)
-    T[:3, :3] = tf.getRotation()
-    T[:3, 3] = tf.getTranslation()
-    return T
-
-
 class _ClearanceScene:
     """One moving finger against the object and the rest of the hand, as posed in ``base``.
 
@@ -586,7 +504,7 @@ class _ClearanceScene:
         self.moving_centers = np.array([spheres[i][0] for i in self.moving])  # (k, 3) geometry frames
         self.moving_radii = np.array([spheres[i][1] for i in self.moving])
         self.static_tf = [base.transform(s) for s in self.static]
-        T_static = [_matrix(tf) for tf in self.static_tf]
+        T_static = [transform_matrix(tf) for tf in self.static_tf]
         self.static_centers = (np.array([T[:3, :3] @ spheres[s][0] + T[:3, 3] for s, T in zip(self.static, T_static)])
                                if self.static else np.zeros((0, 3)))
         self.static_radii = np.array([spheres[s][1] for s in self.static])

@@ -33,7 +33,7 @@ class FingerScene:
     fingers and the object keep their pose, and their side of the clearance check is built
     once). A configuration is valid (`HandState.clearance`) when every link of the finger
     is at least ``object_margin_m`` from the object (negative: tolerated penetration, a
-    signed distance on a mesh object too, `planner.collision.signed_distance_geometry`) and
+    signed distance on a mesh object too, `planner.signed_distance.signed_distance_geometry`) and
     does not penetrate the palm, the other fingers or the non-adjacent links of its own
     finger (touching is fine; the allowed pairs and the 1 um threshold of
     ``planner.contacts.collisions``).

@@ -565,7 +565,7 @@ def place_contact(hand, obj, finger, p_obj, q_seed, link=None):
     the direction to move the target.
     """
     from planner.contacts import contact_patches
-    from planner.hand import UnreachableError
+    from planner.ik import UnreachableError
 
     f = _finger_of(hand, finger)
     p_surf, n_out, _ = obj.closest_surface(np.asarray(p_obj, dtype=float).reshape(3))
@@ -612,7 +612,7 @@ def _reachable_point(hand, obj, f, err, q_seed, link):
     """A surface point the finger's pad does reach (the IK succeeds there, as `place_contact`
     places it): from where the failed IK got, projected onto the surface, again from where
     that one got, at most `REACH_HINT_STEPS` times. None when none of them is reachable."""
-    from planner.hand import UnreachableError
+    from planner.ik import UnreachableError
 
     T = np.asarray(obj.T_palm_obj)
     R, t = T[:3, :3], T[:3, 3]
@@ -638,7 +638,7 @@ def _reachable_point(hand, obj, f, err, q_seed, link):
 def _unreachable_in_object_frame(err, obj, p_surf, reachable=None):
     """The IK's `UnreachableError` re-worded in the object frame, with a surface point the
     finger does reach (`_reachable_point`), or the advice to move the object."""
-    from planner.hand import UnreachableError
+    from planner.ik import UnreachableError
 
     T = np.asarray(obj.T_palm_obj)
     R, t = T[:3, :3], T[:3, 3]
@@ -706,7 +706,7 @@ def realize(spec: GraspSpec, hand=None) -> RealizedGrasp:
     """
     from planner.closure import grasp_closure, removable_fingers
     from planner.contacts import collisions, contact_patches, link_contacts, touching_links
-    from planner.hand import UnreachableError
+    from planner.ik import UnreachableError
 
     hand = load_hand(spec.hand_ref) if hand is None else hand
     obj = spec.object

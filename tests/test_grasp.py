@@ -405,7 +405,7 @@ def test_unreachable_contact_says_where_to_move_it(tmp_path):
     """A contact point out of reach: the error gives the closest approach and the direction to
     move the point, in the object frame; moving the target that way by that distance reaches the
     closest point the IK found."""
-    from planner.hand import UnreachableError
+    from planner.ik import UnreachableError
 
     d = _sphere4()
     d["object"]["position"] = [0.045, -0.005, 0.2]  # far above the hand: ring cannot reach its top
@@ -447,7 +447,7 @@ def test_out_of_reach_names_every_finger_and_its_suggestion_is_reachable(tmp_pat
     import yaml
 
     from planner.grasp import load_grasp, realize
-    from planner.hand import UnreachableError
+    from planner.ik import UnreachableError
 
     data = {"schema_version": 1, "name": "cube", "hand": "icub_right",
             "object": {"shape": "box", "size": [0.04, 0.04, 0.04], "position": [0.03, -0.01, 0.035],

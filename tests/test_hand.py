@@ -188,7 +188,7 @@ def test_ik_falls_back_to_position_only_when_the_normal_task_fails(name):
     posture): the normal task drags the clamped joints off the target, so the combined task
     misses it; the IK then reaches it position-only and says so (the issue's Allegro contacts
     refused as out of reach)."""
-    from planner.hand import IK_TOL_M, _ik_starts
+    from planner.ik import IK_TOL_M, _ik_starts
 
     hand = Hand.load(name)
     rng = np.random.default_rng(3)
@@ -216,7 +216,7 @@ def test_ik_falls_back_to_position_only_when_the_normal_task_fails(name):
 
 def test_unreachable_target_reports_the_closest_point_and_direction(icub):
     """The error carries the closest point reached and the unit direction from the target to it."""
-    from planner.hand import UnreachableError
+    from planner.ik import UnreachableError
 
     with pytest.raises(UnreachableError) as info:
         icub.ik("index", [0.2, 0.0, 0.0], icub.q_open)
