@@ -35,9 +35,10 @@ import numpy as np
 
 from planner.closure import grasp_closure
 from planner.errors import AuditError, PlannerError
-from planner.grasp import PENETRATION_TOL_M as _GRASP_PENETRATION_TOL_M
-from planner.grasp import load_grasp, realize
+from planner.grasp import load_grasp
 from planner.plan import Plan, plan_hand_ref, read_plan, recorded_input
+from planner.realization import PENETRATION_TOL_M as _GRASP_PENETRATION_TOL_M
+from planner.realization import realize
 
 #: A patch point farther than this from the object's surface is not on it, m.
 SURFACE_TOL_M = 1e-3
@@ -51,7 +52,7 @@ NORMAL_PROBE_M = 2e-3
 #: kinematics puts the finger's contact, m.
 FK_TOL_M = 2e-3
 #: Deepest a link may be inside the object at a state or along a path (beyond the path's
-#: own ends), m: the planner's realized contacts are within `planner.grasp.PENETRATION_TOL_M`
+#: own ends), m: the planner's realized contacts are within `planner.realization.PENETRATION_TOL_M`
 #: (0.5 mm); twice that leaves room for the files' rounding.
 PENETRATION_TOL_M = 2 * _GRASP_PENETRATION_TOL_M
 #: Deepest two links of different fingers (or a finger and the palm) may overlap, m.

@@ -37,9 +37,10 @@ from planner.audit import require_sound
 from planner.errors import InputError, SpecError
 from planner.fileio import MAX_PLAN_BYTES, load_json, load_yaml, read_limited
 from planner.frames import hand_of_plan, object_of_plan, plain_plan, pose_matrix, resample
-from planner.grasp import load_grasp, realize
+from planner.grasp import load_grasp
 from planner.objects import load_mesh
 from planner.plan import read_plan
+from planner.realization import realize
 from planner.view_page import PAGE
 
 #: frames drawn per plan step (finger paths are resampled by joint-space arc length)
