@@ -25,10 +25,11 @@ from pathlib import Path
 import numpy as np
 
 from planner.errors import KinematicsError, MotionError
-from planner.grasp import load_grasp, realize, realize_contact
+from planner.grasp import load_grasp
 from planner.hand import Hand
 from planner.motion import plan_finger_move, plan_gait_step
 from planner.objects import make_object
+from planner.realization import realize, realize_contact
 
 ROOT = Path(__file__).resolve().parents[1]
 

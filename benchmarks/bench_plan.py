@@ -33,8 +33,9 @@ import time
 from pathlib import Path
 
 from planner.errors import NoSequenceError
-from planner.grasp import load_grasp, realize
+from planner.grasp import load_grasp
 from planner.options import PlanOptions
+from planner.realization import realize
 from planner.regrasp import plan_regrasp
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -190,9 +190,10 @@ def main() -> None:
 def directions(repeats: int) -> None:
     """The demo's 7-direction replay (the cylinder pair planned with --execution, unverified)
     one direction after the other against one process per core; the verdicts must agree."""
-    from planner.grasp import load_grasp, realize
+    from planner.grasp import load_grasp
     from planner.gravity import gravity_directions
     from planner.options import PlanOptions
+    from planner.realization import realize
     from planner.regrasp import plan_regrasp
     from planner.resources import bundled_grasp
     from planner.sim.verify import as_written, default_workers, replay_directions

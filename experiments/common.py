@@ -187,7 +187,7 @@ def load_spec(path: str):
 @functools.lru_cache(maxsize=None)
 def realized(path: str):
     """The realized grasp of a library file (cached per process)."""
-    from planner.grasp import realize
+    from planner.realization import realize
 
     return realize(load_spec(path))
 
@@ -229,7 +229,7 @@ def scaled_spec(spec, factors: Sequence[float]):
     The object's pad-side extreme (palm -z: where it rests on the finger pads) stays where
     it was; contact points keep their tangential position and move onto the new surface
     (`_onto_scaled_surface`); posture fingers keep their postures and are re-closed onto
-    the new surface by `planner.grasp.realize`.
+    the new surface by `planner.realization.realize`.
     """
     obj = spec.object
     size = tuple(float(s) * float(f) for s, f in zip(obj.size, factors))

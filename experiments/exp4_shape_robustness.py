@@ -54,8 +54,9 @@ def as_postures(path: str):
 
 def task(t: dict) -> dict:
     from planner.errors import PlannerError
-    from planner.grasp import load_hand, realize
+    from planner.grasp import load_hand
     from planner.options import PlanOptions
+    from planner.realization import realize
     from planner.regrasp import plan_regrasp
 
     row = {"pair": t["pair"], "method": t["method"], "mode": t["mode"], "scale": t["scale"]}

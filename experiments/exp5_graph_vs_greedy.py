@@ -91,8 +91,9 @@ def task(t: dict) -> dict:
 
     from planner.errors import NoSequenceError, PlannerError
     from planner.graph import Evaluator, add_node
-    from planner.grasp import load_hand, realize
+    from planner.grasp import load_hand
     from planner.options import PlanOptions
+    from planner.realization import realize
     from planner.regrasp import plan_regrasp
     from planner.search import LazyGraph, greedy
     from planner.slots import build_problem

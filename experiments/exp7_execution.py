@@ -250,7 +250,8 @@ def replay_all(plan: dict, hand, n: int) -> list[tuple[str, object, float]]:
 
 def task(t: dict) -> list[dict]:
     from planner.closure import apply_contact_model, grasp_closure
-    from planner.grasp import load_hand, realize
+    from planner.grasp import load_hand
+    from planner.realization import realize
     from planner.regrasp import plan_regrasp
 
     t0 = time.perf_counter()

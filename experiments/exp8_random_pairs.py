@@ -254,7 +254,8 @@ def plan_path(folder: Path, hand: str, obj: str, n: int) -> Path:
 
 
 def pair_task(t: dict) -> dict:
-    from planner.grasp import load_hand, parse_grasp, realize
+    from planner.grasp import load_hand, parse_grasp
+    from planner.realization import realize
 
     t0 = time.perf_counter()
     a, b = t["initial"], t["final"]

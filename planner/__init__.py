@@ -50,9 +50,9 @@ _EXPORTS = {
     "contact_patches": "planner.contacts",
     # grasps
     "GraspSpec": "planner.grasp",
-    "RealizedGrasp": "planner.grasp",
+    "RealizedGrasp": "planner.realization",
     "load_grasp": "planner.grasp",
-    "realize": "planner.grasp",
+    "realize": "planner.realization",
     # graph and planning
     "GaitProblem": "planner.graph",
     "Slot": "planner.graph",

@@ -36,9 +36,9 @@ def plan(initial, final, *, execution: bool = False, output: PathLike | None = N
     """
     # the facade imports what a command runs when it runs: `import planner` stays light
     from planner.errors import UnknownNameError
-    from planner.grasp import realized_grasp
     from planner.options import PlanOptions
     from planner.plan import plan_format, write_plan
+    from planner.realization import realized_grasp
     from planner.regrasp import check_same_setup, plan_regrasp
 
     valid = {f.name for f in fields(PlanOptions)}
@@ -90,7 +90,8 @@ def check(grasp):
     ``problems`` (why it is not what the file asks) and ``warnings``. ``grasp``: a grasp
     file, a `GraspSpec` or a `RealizedGrasp` (returned as it is)."""
     # the facade imports what a command runs when it runs: `import planner` stays light
-    from planner.grasp import GraspSpec, RealizedGrasp, load_grasp, realize
+    from planner.grasp import GraspSpec, load_grasp
+    from planner.realization import RealizedGrasp, realize
 
     if isinstance(grasp, RealizedGrasp):
         return grasp

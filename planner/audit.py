@@ -34,10 +34,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from planner.closure import grasp_closure
+from planner.contacts import contact_patches
 from planner.errors import AuditError, PlannerError
-from planner.grasp import PENETRATION_TOL_M as _GRASP_PENETRATION_TOL_M
-from planner.grasp import load_grasp, realize
+from planner.grasp import load_grasp
+from planner.hand import Hand
 from planner.plan import Plan, plan_hand_ref, read_plan, recorded_input
+from planner.realization import PENETRATION_TOL_M as _GRASP_PENETRATION_TOL_M
+from planner.realization import realize
 
 #: A patch point farther than this from the object's surface is not on it, m.
 SURFACE_TOL_M = 1e-3
@@ -51,7 +54,7 @@ NORMAL_PROBE_M = 2e-3
 #: kinematics puts the finger's contact, m.
 FK_TOL_M = 2e-3
 #: Deepest a link may be inside the object at a state or along a path (beyond the path's
-#: own ends), m: the planner's realized contacts are within `planner.grasp.PENETRATION_TOL_M`
+#: own ends), m: the planner's realized contacts are within `planner.realization.PENETRATION_TOL_M`
 #: (0.5 mm); twice that leaves room for the files' rounding.
 PENETRATION_TOL_M = 2 * _GRASP_PENETRATION_TOL_M
 #: Deepest two links of different fingers (or a finger and the palm) may overlap, m.
@@ -200,7 +203,6 @@ def _q(plan, hand, state_q) -> np.ndarray:
 def _check_states(plan, hand, obj, rep: AuditReport) -> list:
     """Contacts on the surface, at the forward kinematics, no penetration, removable, closure.
     Returns every state's `HandState`."""
-    from planner.contacts import contact_patches  # pinocchio and coal: loaded only when a plan is checked
 
     friction = plan.friction
     poses = []
@@ -365,8 +367,6 @@ def audit_plan(plan, hand=None, paths: bool = True) -> AuditReport:
     src = plan.source or "<plan>"
     rep = AuditReport(str(src))
     if hand is None:
-        from planner.hand import Hand  # pinocchio and coal: loaded only when a hand is
-
         hand = Hand.load(plan_hand_ref(plan.hand, plan.source))
     obj = plan.object
     grasps = _input_grasps(plan)

@@ -25,9 +25,10 @@ from planner.fileio import write_atomic
 
 
 def cmd_plan(args: argparse.Namespace) -> int:
-    from planner.grasp import input_record, load_grasp, realize  # deferred: ~30 ms (objects, meshes)
+    from planner.grasp import input_record, load_grasp  # deferred: objects, the hand: pinocchio, coal (~0.1 s)
     from planner.options import PlanOptions  # deferred: scipy, networkx (~0.25 s)
     from planner.plan import plan_format, write_plan  # deferred: scipy (~0.2 s)
+    from planner.realization import realize  # deferred: closure, contacts: scipy (~0.05 s more)
     from planner.regrasp import check_same_setup, plan_regrasp  # deferred: scipy, networkx; OMPL when planning
 
     if args.output:
@@ -93,8 +94,9 @@ def cmd_plan(args: argparse.Namespace) -> int:
 def cmd_check(args: argparse.Namespace) -> int:
     """Realize one grasp, print the report (text or JSON), draw it (``--png``); exit 0 force
     closure and as written (no `RealizedGrasp.problems`), 1 not, 2 bad input."""
-    from planner.grasp import load_grasp, realize  # deferred: ~30 ms (objects, meshes)
+    from planner.grasp import load_grasp  # deferred: objects, the hand: pinocchio, coal (~0.1 s)
     from planner.grasp_report import check_text, contact_markers  # deferred: scipy (~0.2 s)
+    from planner.realization import realize  # deferred: closure, contacts: scipy (~0.05 s more)
 
     grasp = realize(load_grasp(args.grasp))
     if args.png:

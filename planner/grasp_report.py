@@ -1,6 +1,6 @@
 """The report of a realized grasp (`regrasp check`): its text and the contact markers of its picture.
 
-`planner.grasp` realizes a grasp file (`realize` -> `RealizedGrasp`, whose ``summary`` is
+`planner.realization` realizes a grasp file (`realize` -> `RealizedGrasp`, whose ``summary`` is
 the JSON form); this module words it for a person.
 """
 
@@ -10,8 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from planner.grasp import AT_LIMIT_RAD, CONTACT_WARN_M, PENETRATION_TOL_M, RealizedGrasp
 from planner.grip import FRICTION_MARGIN, HOLD_FACTOR
+from planner.realization import AT_LIMIT_RAD, CONTACT_WARN_M, PENETRATION_TOL_M, RealizedGrasp
 
 
 def object_text(obj) -> str:

@@ -325,7 +325,7 @@ def plan_regrasp(
     """Plan a finger-gaiting sequence from one realized grasp to another.
 
     Args:
-        initial, final: `planner.grasp.RealizedGrasp` (same hand, object, pose, friction), or
+        initial, final: `planner.realization.RealizedGrasp` (same hand, object, pose, friction), or
             grasp files (paths) or `GraspSpec`s, realized here.
         options: planner parameters.
         inputs: what to record under the plan's ``inputs`` (paths and sha256).
@@ -338,11 +338,11 @@ def plan_regrasp(
         NoSequenceError: no sequence exists (or none whose moves can be executed);
             the message says why.
     """
-    from planner.grasp import RealizedGrasp
+    from planner.realization import RealizedGrasp
 
     if not isinstance(initial, RealizedGrasp) or not isinstance(final, RealizedGrasp):
         # paths or GraspSpecs: realized here, their files recorded as the CLI records them
-        from planner.grasp import realized_grasp
+        from planner.realization import realized_grasp
 
         (initial, rec_i), (final, rec_f) = realized_grasp(initial), realized_grasp(final)
         if inputs is None:

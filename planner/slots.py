@@ -334,7 +334,7 @@ def build_problem(initial, final, options: PlanOptions) -> GaitProblem:
     """Contact slots of every finger and the start/goal nodes of the graph.
 
     Args:
-        initial, final: `planner.grasp.RealizedGrasp` of the same hand and object.
+        initial, final: `planner.realization.RealizedGrasp` of the same hand and object.
     """
     hand = initial.hand
     fingers = tuple(hand.fingers)

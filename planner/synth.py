@@ -5,8 +5,8 @@ pre-shapes, closes the chosen fingers onto the object with the thesis's closing 
 (eqs. (8)-(9), `planner.hand.Hand.close_finger`: every closing joint advances by the same
 fraction of its range, halving the step and reversing on contact, then backs off 0.1 % until
 free), and keeps a candidate when it passes the same honest check as ``regrasp check``
-(`planner.grasp.realize`: every chosen finger touches, nothing penetrates the object, the
-palm or another finger beyond `planner.grasp.PENETRATION_TOL_M`, no closing joint at its
+(`planner.realization.realize`: every chosen finger touches, nothing penetrates the object, the
+palm or another finger beyond `planner.realization.PENETRATION_TOL_M`, no closing joint at its
 limit, force closure) and, with a gravity, holds twice the object's weight within the hand's
 joint torque limits (`planner.grip`, the model `plan` uses). Near-duplicates are
 removed, the rest ranked by the closure metric and written as grasp YAML files that
@@ -45,10 +45,11 @@ from planner.closure import CONTACT_MODELS, apply_contact_model, grasp_closure, 
 from planner.collision import LINK_EPS_M
 from planner.errors import PlannerError, SpecError, UnknownNameError
 from planner.fileio import MAX_GRASP_BYTES, Reader, read_yaml
-from planner.grasp import load_hand, parse_grasp, parse_object, realize, resolve_hand_ref
+from planner.grasp import load_hand, parse_grasp, parse_object, resolve_hand_ref
 from planner.grip import HOLD_FACTOR, grasp_hold
 from planner.model import Friction
 from planner.objects import GraspObject
+from planner.realization import realize
 from planner.retreat import retreat_blocked
 from planner.synth_sample import PALM_CLEARANCE_M, closes_onto, inner_radius, object_of, sample_candidate
 
@@ -65,7 +66,7 @@ class SynthGrasp:
     """One synthesized grasp: its file data and the realized grasp that passed the check."""
 
     data: dict
-    grasp: object           # planner.grasp.RealizedGrasp
+    grasp: object           # planner.realization.RealizedGrasp
     grip_force_n: float | None
     attempt: int
 

@@ -31,15 +31,17 @@ from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
+import pinocchio as pin
 from scipy.spatial.transform import Rotation
 
 from planner.audit import require_sound
 from planner.errors import InputError, SpecError
 from planner.fileio import MAX_PLAN_BYTES, load_json, load_yaml, read_limited
 from planner.frames import hand_of_plan, object_of_plan, plain_plan, pose_matrix, resample
-from planner.grasp import load_grasp, realize
+from planner.grasp import load_grasp
 from planner.objects import load_mesh
 from planner.plan import read_plan
+from planner.realization import realize
 from planner.view_page import PAGE
 
 #: frames drawn per plan step (finger paths are resampled by joint-space arc length)
@@ -137,10 +139,8 @@ class _Scene:
     """Builds the meshcat scene and the page's data for one hand, object and list of states."""
 
     def __init__(self, hand, obj, mu: float):
-        import pinocchio as pin  # pinocchio's visualizer: loaded only when a page is drawn
-
         meshcat, self.mg = _meshcat()
-        from pinocchio.visualize import MeshcatVisualizer  # needs meshcat, imported just above
+        from pinocchio.visualize import MeshcatVisualizer  # imports meshcat: only when a page is drawn
 
         self.hand, self.obj, self.mu = hand, obj, float(mu)
         self.rec = _CommandRecorder()
@@ -232,7 +232,7 @@ class _Scene:
 
     def transforms(self, q) -> list[np.ndarray]:
         """World (model root) pose of every visual geometry at q, as meshcat draws it."""
-        from pinocchio.visualize.meshcat_visualizer import applyScalingOnHomegeneousTransform
+        from pinocchio.visualize.meshcat_visualizer import applyScalingOnHomegeneousTransform  # imports meshcat
 
         self.hand.kinematics(np.asarray(q, float)).place_geometries(self.vmodel, self.vdata)
         out = []

@@ -471,7 +471,8 @@ def test_outside_distance_on_a_shared_face_converges_in_few_steps(monkeypatch):
     baseline and Wolfe's algorithm stops after a handful of corral solves (it used to
     cycle, adding and dropping equally distant rows, for ~25 000 solves)."""
     import planner.hull as closure_module
-    from planner.grasp import realize, load_grasp
+    from planner.grasp import load_grasp
+    from planner.realization import realize
     from pathlib import Path
 
     g = realize(load_grasp(Path(__file__).resolve().parents[1] / "grasps/icub/box_parallel_extension.yaml"))

@@ -13,7 +13,8 @@ import yaml
 from planner.cli import main
 from planner.closure import apply_contact_model, grasp_closure
 from planner.errors import PlannerError, SpecError
-from planner.grasp import PENETRATION_TOL_M, SURFACE_TOL_M, load_grasp, load_hand, realize, realize_contact
+from planner.grasp import SURFACE_TOL_M, load_grasp, load_hand
+from planner.realization import PENETRATION_TOL_M, realize, realize_contact
 
 ROOT = Path(__file__).resolve().parent.parent
 GRASPS = sorted((ROOT / "grasps").rglob("*.yaml"))
@@ -446,8 +447,9 @@ def test_out_of_reach_names_every_finger_and_its_suggestion_is_reachable(tmp_pat
 
     import yaml
 
-    from planner.grasp import load_grasp, realize
+    from planner.grasp import load_grasp
     from planner.ik import UnreachableError
+    from planner.realization import realize
 
     data = {"schema_version": 1, "name": "cube", "hand": "icub_right",
             "object": {"shape": "box", "size": [0.04, 0.04, 0.04], "position": [0.03, -0.01, 0.035],

@@ -135,7 +135,8 @@ def test_finger_statics_match_finite_differences_and_pinocchio_gravity():
     """The object-frame contact Jacobian of a finger is the finite difference of its contact
     point (fixed to the link) over the finger's joints, and its gravity rows give pinocchio's
     generalized gravity for any gravity vector."""
-    from planner.grasp import load_grasp, realize
+    from planner.grasp import load_grasp
+    from planner.realization import realize
     from planner.resources import bundled_grasp
 
     g = realize(load_grasp(bundled_grasp("icub/sphere_ir2m.yaml")))
@@ -217,8 +218,9 @@ def test_a_failed_verification_removes_the_transition_and_the_search_goes_on(mon
     rejected sequence and the directions it passed in. A failure at state 0 ends the search."""
     import planner.sim.verify as verify
     from planner.errors import NoSequenceError
-    from planner.grasp import load_grasp, realize
+    from planner.grasp import load_grasp
     from planner.options import PlanOptions
+    from planner.realization import realize
     from planner.regrasp import plan_regrasp
     from planner.resources import bundled_grasp
 
@@ -271,8 +273,9 @@ def test_when_every_sequence_fails_in_the_simulator_more_contacts_are_tried_then
     fails with one line naming the sequences that failed in the simulator."""
     import planner.sim.verify as verify
     from planner.errors import NoSequenceError
-    from planner.grasp import load_grasp, realize
+    from planner.grasp import load_grasp
     from planner.options import PlanOptions
+    from planner.realization import realize
     from planner.regrasp import RESUME_ROUNDS, plan_regrasp
     from planner.resources import bundled_grasp
 
@@ -322,10 +325,11 @@ def test_state_holds_as_planned_only_with_the_plans_fingers():
 def test_parallel_replays_equal_serial_ones(tmp_path):
     """replay_directions with two worker processes gives the serial run's reports, number for
     number (each replay is deterministic and independent)."""
-    from planner.grasp import load_grasp, realize
+    from planner.grasp import load_grasp
     from planner.gravity import gravity_directions
     from planner.plan import read_plan, write_plan
     from planner.options import PlanOptions
+    from planner.realization import realize
     from planner.regrasp import plan_regrasp
     from planner.resources import bundled_grasp
     from planner.sim.verify import replay_directions

@@ -841,8 +841,9 @@ def test_a_failing_pair_is_explained_the_same_under_cpu_load():
     import re
 
     from planner.errors import NoSequenceError
-    from planner.grasp import load_grasp, realize
+    from planner.grasp import load_grasp
     from planner.options import PlanOptions
+    from planner.realization import realize
     from planner.regrasp import plan_regrasp as plan
 
     data = Path(__file__).parent / "data" / "grasps"

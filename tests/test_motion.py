@@ -17,11 +17,11 @@ import numpy as np
 import pytest
 
 from planner.errors import InputError, MotionError, UnknownNameError
-from planner.grasp import realize_contact
 from planner.hand import Hand
 from planner.finger_scene import DEFAULT_CLEARANCE_M, DEFAULT_TOUCH_TOL_M
 from planner.motion import available_planners, plan_finger_move, plan_gait_step
 from planner.objects import make_object
+from planner.realization import realize_contact
 
 RECHECK_RAD = 0.005
 

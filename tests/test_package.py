@@ -213,10 +213,11 @@ def test_plan_records_other_files_relative_to_itself(tmp_path):
     of a bundled hand is recorded by the hand's name."""
     import shutil
 
-    from planner.grasp import load_grasp, realize
+    from planner.grasp import load_grasp
     from planner.plan import plan_hand_ref, read_plan, write_plan
     from planner.grasp import input_record
     from planner.options import PlanOptions
+    from planner.realization import realize
     from planner.regrasp import plan_regrasp
     from planner.resources import bundled_grasp, hand_dir
 

@@ -10,9 +10,10 @@ import yaml
 from planner.cli import main
 from planner.model import Friction
 from planner.closure import grasp_closure
-from planner.grasp import load_grasp, realize
+from planner.grasp import load_grasp
 from planner.options import PlanOptions
 from planner.plan import read_plan
+from planner.realization import realize
 from planner.regrasp import plan_regrasp
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -296,8 +296,9 @@ LIBRARY_PAIRS = {
 def _library_plan(pair: str) -> dict:
     """A bundled pair planned in execution mode (mean contacts, six gravity directions,
     grip ranking) with finger paths, once per test session."""
-    from planner.grasp import load_grasp, realize
+    from planner.grasp import load_grasp
     from planner.options import PlanOptions
+    from planner.realization import realize
     from planner.regrasp import plan_regrasp
 
     if pair not in _LIBRARY_PLANS:

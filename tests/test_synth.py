@@ -12,7 +12,8 @@ from scipy.optimize import linprog
 
 from planner.cli import main
 from planner.closure import min_grip_force
-from planner.grasp import load_grasp, realize
+from planner.grasp import load_grasp
+from planner.realization import realize
 
 ROOT = Path(__file__).resolve().parent.parent
 BALL = {"shape": "sphere", "size": [0.015], "mass_kg": 0.03}

@@ -236,7 +236,8 @@ def test_film_frames_are_readable(plan_path):
 def test_check_png_markers_are_drawn(tmp_path):
     """`render_png` keeps its signature and draws markers and a caption; the default camera
     looks at the markers from the grasping side (it sees them: they are inside the image)."""
-    from planner.grasp import load_grasp, realize
+    from planner.grasp import load_grasp
+    from planner.realization import realize
     from planner.sim.render import patch_markers, render_png
 
     g = realize(load_grasp(INITIAL))
@@ -255,7 +256,8 @@ def test_a_failing_grasp_page_lists_every_problem(tmp_path):
     shows them under "fails regrasp check"."""
     import yaml
 
-    from planner.grasp import load_grasp, realize
+    from planner.grasp import load_grasp
+    from planner.realization import realize
     from planner.view import grasp_page_data
 
     data = {"schema_version": 1, "name": "cube", "hand": "icub_right",
