@@ -38,7 +38,7 @@ def plan(initial, final, *, execution: bool = False, output: PathLike | None = N
     from planner.errors import UnknownNameError
     from planner.grasp import realized_grasp
     from planner.options import PlanOptions
-    from planner.plan import plan_format, write_plan
+    from planner.plan_data import plan_format, write_plan
     from planner.regrasp import check_same_setup, plan_regrasp
 
     valid = {f.name for f in fields(PlanOptions)}
@@ -62,7 +62,7 @@ def replay(plan, *, gravity_set: int | None = None, **kwargs: Any):
     """Execute a plan in pybullet (``regrasp replay``), after the physics checks of `verify`.
 
     Args:
-        plan: a plan file, a `planner.plan.Plan` or plan data.
+        plan: a plan file, a `planner.plan_data.Plan` or plan data.
         gravity_set: replay under 1, 2, 6 or 7 gravity directions (`planner.gravity`), in
             parallel processes (``workers=N``); None: one replay, palm down unless
             ``gravity=(gx, gy, gz)`` is given.
@@ -73,7 +73,8 @@ def replay(plan, *, gravity_set: int | None = None, **kwargs: Any):
     """
     # the facade imports what a command runs when it runs: `import planner` stays light
     from planner.audit import require_sound
-    from planner.plan import Plan, plan_from_data, read_plan
+    from planner.plan import plan_from_data, read_plan
+    from planner.plan_data import Plan
     from planner.sim.replay import replay_plan
     from planner.sim.verify import replay_gravity_set
 

@@ -32,7 +32,7 @@ from planner.errors import MotionError, NoSequenceError, SpecError, UnknownNameE
 from planner.explain import explain_failure, failure_analysis
 from planner.graph import LIFTED, GaitProblem, annotate_removable, seed_graph
 from planner.options import PlanOptions, gravity_directions_of
-from planner.plan import Alternative, Plan, PlanState, PlanStep
+from planner.plan_data import Alternative, Plan, PlanState, PlanStep
 from planner.search import GaitSequence, LazyGraph, greedy
 from planner.slots import add_intermediate, add_slots, build_problem, holding_grasp, node_q
 

@@ -324,7 +324,8 @@ def test_parallel_replays_equal_serial_ones(tmp_path):
     number (each replay is deterministic and independent)."""
     from planner.grasp import load_grasp, realize
     from planner.gravity import gravity_directions
-    from planner.plan import read_plan, write_plan
+    from planner.plan import read_plan
+    from planner.plan_data import write_plan
     from planner.options import PlanOptions
     from planner.regrasp import plan_regrasp
     from planner.resources import bundled_grasp
