@@ -17,6 +17,9 @@ from dataclasses import fields
 from pathlib import Path
 from typing import Any
 
+# The facade's imports are inside its functions on purpose: each function imports what its
+# command runs when it runs, so `import planner` (which re-exports these functions) stays light.
+
 PathLike = str | os.PathLike
 
 
@@ -34,7 +37,6 @@ def plan(initial, final, *, execution: bool = False, output: PathLike | None = N
     Returns:
         `planner.regrasp.PlanResult` (``.plan``, ``.sequence``, ``.alternatives``, ...).
     """
-    # the facade imports what a command runs when it runs: `import planner` stays light
     from planner.errors import UnknownNameError
     from planner.grasp import realized_grasp
     from planner.options import PlanOptions
@@ -71,7 +73,6 @@ def replay(plan, *, gravity_set: int | None = None, **kwargs: Any):
     Returns:
         `ReplayReport` (one replay) or `GravitySetReport` (``gravity_set``).
     """
-    # the facade imports what a command runs when it runs: `import planner` stays light
     from planner.audit import require_sound
     from planner.plan import plan_from_data, read_plan
     from planner.plan_data import Plan
@@ -90,7 +91,6 @@ def check(grasp):
     """Realize one grasp (``regrasp check``): `RealizedGrasp` with its contacts, closure,
     ``problems`` (why it is not what the file asks) and ``warnings``. ``grasp``: a grasp
     file, a `GraspSpec` or a `RealizedGrasp` (returned as it is)."""
-    # the facade imports what a command runs when it runs: `import planner` stays light
     from planner.grasp import GraspSpec, RealizedGrasp, load_grasp, realize
 
     if isinstance(grasp, RealizedGrasp):
@@ -101,7 +101,6 @@ def check(grasp):
 def verify(plan):
     """Check a plan against physics and its inputs without simulation (``regrasp verify``):
     `planner.audit.AuditReport` (``ok``, ``problems``)."""
-    # the facade imports what a command runs when it runs: `import planner` stays light
     from planner.audit import audit_plan
 
     return audit_plan(plan)
@@ -117,7 +116,6 @@ def synth(hand, object_block: dict, fingers, n: int = 1, *, fixed: bool = False,
         n: grasps wanted.
         fixed: keep the object's pose (else it is sampled too).
     """
-    # the facade imports what a command runs when it runs: `import planner` stays light
     from planner.grasp import resolve_hand_ref
     from planner.synth import synthesize
 

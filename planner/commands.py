@@ -28,7 +28,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
     from planner.grasp import input_record, load_grasp, realize  # deferred: ~30 ms (objects, meshes)
     from planner.options import PlanOptions  # deferred: scipy, networkx (~0.25 s)
     from planner.plan_data import plan_format, write_plan  # deferred: scipy (~0.2 s)
-    from planner.regrasp import check_same_setup, plan_regrasp  # deferred: scipy, networkx; OMPL when planning
+    from planner.regrasp import check_same_setup, plan_regrasp  # deferred: scipy, networkx, pinocchio, coal; OMPL when planning
 
     if args.output:
         plan_format(args.output)  # refuse a bad suffix before any work
