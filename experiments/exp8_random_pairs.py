@@ -34,7 +34,7 @@ Also: ``execution_set`` (N), ``planned_for`` (the generic names of the N directi
 execution plan was made for), ``exec_planned_for`` (the replay passed in every one of them
 that was replayed; gravity off is ``exec_off``, never planned for), ``planned_for_fail`` (the
 first failing verdict among them), ``verdict_<direction>`` (each replay's verdict line) and,
-with ``--save-plans DIR``, ``plan_file``: the execution plan written (`planner.plan.write_plan`,
+with ``--save-plans DIR``, ``plan_file``: the execution plan written (`planner.plan_data.write_plan`,
 JSON, replayable with ``regrasp replay``) to DIR/<hand>_<object>_<pair>.json, the object label
 with ``_`` for spaces and the pair numbered from 1 per hand and object as in the ``pair`` column.
 
@@ -288,7 +288,7 @@ def pair_task(t: dict) -> dict:
             row["verify_attempts"] = check.get("attempts")
             row["verify_s"] = res.verify_s
             if t.get("save_plans"):
-                from planner.plan import write_plan
+                from planner.plan_data import write_plan
 
                 row["plan_file"] = str(write_plan(res.plan, plan_path(t["save_plans"], t["hand"], t["object"], t["index"])))
             if t.get("coverage"):
@@ -321,7 +321,7 @@ def fresh_replay(plan, n_set: int, plan_file: str | None = None) -> dict:
     import subprocess
     import tempfile
 
-    from planner.plan import write_plan
+    from planner.plan_data import write_plan
 
     with tempfile.TemporaryDirectory() as tmp:
         path = plan_file or str(write_plan(plan, Path(tmp) / "plan.json"))

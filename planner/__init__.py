@@ -71,9 +71,9 @@ _EXPORTS = {
     "replay_gravity_set": "planner.sim.verify",
     "replay_plan": "planner.sim.replay",
     # plans
-    "Plan": "planner.plan",
+    "Plan": "planner.plan_data",
     "read_plan": "planner.plan",
-    "write_plan": "planner.plan",
+    "write_plan": "planner.plan_data",
 }
 
 __all__ = sorted([*_EXPORTS, "plan"])

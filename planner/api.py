@@ -17,6 +17,9 @@ from dataclasses import fields
 from pathlib import Path
 from typing import Any
 
+# The facade's imports are inside its functions on purpose: each function imports what its
+# command runs when it runs, so `import planner` (which re-exports these functions) stays light.
+
 PathLike = str | os.PathLike
 
 
@@ -34,10 +37,9 @@ def plan(initial, final, *, execution: bool = False, output: PathLike | None = N
     Returns:
         `planner.regrasp.PlanResult` (``.plan``, ``.sequence``, ``.alternatives``, ...).
     """
-    # the facade imports what a command runs when it runs: `import planner` stays light
     from planner.errors import UnknownNameError
     from planner.options import PlanOptions
-    from planner.plan import plan_format, write_plan
+    from planner.plan_data import plan_format, write_plan
     from planner.realization import realized_grasp
     from planner.regrasp import check_same_setup, plan_regrasp
 
@@ -62,7 +64,7 @@ def replay(plan, *, gravity_set: int | None = None, **kwargs: Any):
     """Execute a plan in pybullet (``regrasp replay``), after the physics checks of `verify`.
 
     Args:
-        plan: a plan file, a `planner.plan.Plan` or plan data.
+        plan: a plan file, a `planner.plan_data.Plan` or plan data.
         gravity_set: replay under 1, 2, 6 or 7 gravity directions (`planner.gravity`), in
             parallel processes (``workers=N``); None: one replay, palm down unless
             ``gravity=(gx, gy, gz)`` is given.
@@ -71,9 +73,9 @@ def replay(plan, *, gravity_set: int | None = None, **kwargs: Any):
     Returns:
         `ReplayReport` (one replay) or `GravitySetReport` (``gravity_set``).
     """
-    # the facade imports what a command runs when it runs: `import planner` stays light
     from planner.audit import require_sound
-    from planner.plan import Plan, plan_from_data, read_plan
+    from planner.plan import plan_from_data, read_plan
+    from planner.plan_data import Plan
     from planner.sim.replay import replay_plan
     from planner.sim.verify import replay_gravity_set
 
@@ -89,7 +91,6 @@ def check(grasp):
     """Realize one grasp (``regrasp check``): `RealizedGrasp` with its contacts, closure,
     ``problems`` (why it is not what the file asks) and ``warnings``. ``grasp``: a grasp
     file, a `GraspSpec` or a `RealizedGrasp` (returned as it is)."""
-    # the facade imports what a command runs when it runs: `import planner` stays light
     from planner.grasp import GraspSpec, load_grasp
     from planner.realization import RealizedGrasp, realize
 
@@ -101,7 +102,6 @@ def check(grasp):
 def verify(plan):
     """Check a plan against physics and its inputs without simulation (``regrasp verify``):
     `planner.audit.AuditReport` (``ok``, ``problems``)."""
-    # the facade imports what a command runs when it runs: `import planner` stays light
     from planner.audit import audit_plan
 
     return audit_plan(plan)
@@ -117,7 +117,6 @@ def synth(hand, object_block: dict, fingers, n: int = 1, *, fixed: bool = False,
         n: grasps wanted.
         fixed: keep the object's pose (else it is sampled too).
     """
-    # the facade imports what a command runs when it runs: `import planner` stays light
     from planner.grasp import resolve_hand_ref
     from planner.synth import synthesize
 

@@ -38,7 +38,8 @@ from planner.contacts import contact_patches
 from planner.errors import AuditError, PlannerError
 from planner.grasp import load_grasp
 from planner.hand import Hand
-from planner.plan import Plan, plan_hand_ref, read_plan, recorded_input
+from planner.plan import read_plan, recorded_input
+from planner.plan_data import Plan, plan_hand_ref
 from planner.realization import PENETRATION_TOL_M as _GRASP_PENETRATION_TOL_M
 from planner.realization import realize
 
@@ -158,7 +159,7 @@ def _check_inputs(plan, rep: AuditReport, grasps: dict) -> None:
         qa, qb = np.asarray(po.quat_xyzw, float), np.asarray(o.quat_xyzw, float)
         if abs(abs(float(qa @ qb)) / max(np.linalg.norm(qa) * np.linalg.norm(qb), 1e-300) - 1.0) > INPUT_TOL:
             rep.add(f"object.quat_xyzw: {list(qa)} differs from the {name} grasp's {list(qb)}")
-        mass = o.mass_kg  # the given or the default density's, as the planner used (`planner.plan.Plan`)
+        mass = o.mass_kg  # the given or the default density's, as the planner used (`planner.plan_data.Plan`)
         if not math.isclose(po.mass_kg, float(mass), rel_tol=1e-6):
             rep.add(f"object.mass_kg: {po.mass_kg} kg, the {name} grasp {'says' if o.mass_given else 'gives (default density)'} {mass:.6g} kg")
         f = spec.friction
@@ -355,7 +356,7 @@ def audit_plan(plan, hand=None, paths: bool = True) -> AuditReport:
     """Check a plan against physics and its inputs (see the module's docstring).
 
     Args:
-        plan: a `planner.plan.Plan` (e.g. `read_plan`'s) or the path of a plan file.
+        plan: a `planner.plan_data.Plan` (e.g. `read_plan`'s) or the path of a plan file.
         hand: the plan's `planner.hand.Hand`; default the one its ``hand.spec`` names.
         paths: check the finger paths' waypoints (False: states, chain and inputs only).
 

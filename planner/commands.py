@@ -27,9 +27,9 @@ from planner.fileio import write_atomic
 def cmd_plan(args: argparse.Namespace) -> int:
     from planner.grasp import input_record, load_grasp  # deferred: objects, the hand: pinocchio, coal (~0.1 s)
     from planner.options import PlanOptions  # deferred: scipy, networkx (~0.25 s)
-    from planner.plan import plan_format, write_plan  # deferred: scipy (~0.2 s)
+    from planner.plan_data import plan_format, write_plan  # deferred: scipy (~0.2 s)
     from planner.realization import realize  # deferred: closure, contacts: scipy (~0.05 s more)
-    from planner.regrasp import check_same_setup, plan_regrasp  # deferred: scipy, networkx; OMPL when planning
+    from planner.regrasp import check_same_setup, plan_regrasp  # deferred: scipy, networkx, pinocchio, coal; OMPL when planning
 
     if args.output:
         plan_format(args.output)  # refuse a bad suffix before any work

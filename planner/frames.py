@@ -14,7 +14,7 @@ from typing import Mapping
 import numpy as np
 
 from planner.objects import GraspObject
-from planner.plan import plan_file, plan_hand_ref
+from planner.plan_data import plan_file, plan_hand_ref
 
 
 def pose_matrix(R=None, t=None) -> np.ndarray:

@@ -40,6 +40,8 @@ Numbers, derived rather than tuned:
 
 This module is pure numpy/scipy over arrays; `finger_statics` is the one function that
 reads a hand (its Jacobians and gravity torques), so the graph search stays hand-agnostic.
+It is one concept, kept whole although slightly over 600 lines: the finger statics, the two
+linear programs and their constants are one force model the planner and the replay share.
 """
 
 from __future__ import annotations

@@ -334,7 +334,7 @@ def _provisional(spec: dict):
     """The hand `init_hand` is writing, loaded to use the planner's kinematics and geometry:
     `Hand` takes the spec as data (no file), its paths made absolute (the URDF's and the
     ``package_dirs``, given relative to the working directory)."""
-    from planner.hand import Hand  # pinocchio and coal: loaded only when a hand is
+    from planner.hand import Hand  # pinocchio and coal: loaded only when a hand is built (`regrasp --help` imports this module)
 
     data = dict(spec)
     data["urdf"] = str(Path(spec["urdf"]).resolve())
@@ -428,7 +428,7 @@ def _suggested_effort(hand, boxes) -> float:
 
 def check_hand(ref) -> HandReport:
     """What a planner or a simulator cannot use in a hand (see the module's docstring)."""
-    from planner.hand import Hand  # pinocchio and coal: loaded only when a hand is
+    from planner.hand import Hand  # pinocchio and coal: loaded only when a hand is built (`regrasp --help` imports this module)
 
     rep = HandReport()
     hand = Hand.load(ref)

@@ -15,6 +15,7 @@ from types import MappingProxyType
 from typing import TYPE_CHECKING
 
 import numpy as np
+from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from planner.errors import InputError, UnknownNameError
@@ -382,8 +383,6 @@ class MeshData:
     """
 
     def __init__(self, V, F):
-        from scipy.spatial import cKDTree
-
         self.V = _readonly(V)
         self.F = np.array(F, dtype=np.int64)
         self.F.flags.writeable = False
@@ -432,7 +431,7 @@ _MESH_CACHE_SIZE = 4
 
 
 def _mesh_and_bvh(mesh_path, scale):
-    import coal
+    import coal  # coal: only where geometry is built (the shape table and `GraspObject` need none)
 
     try:
         path = Path(mesh_path).resolve()
@@ -535,7 +534,7 @@ def make_object(shape: str, size, T_palm_obj=None, mesh_path=None, mass_kg=None)
     Raises:
         UnknownNameError: unknown shape. InputError: bad size, pose, mass or mesh.
     """
-    import coal
+    import coal  # coal: only where geometry is built (the shape table and `GraspObject` need none)
 
     if shape not in SHAPES:
         raise UnknownNameError("shape", str(shape), SHAPES)

@@ -6,10 +6,12 @@
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass
 
 from planner.closure import CONTACT_MODELS
 from planner.errors import InputError, PlannerError, UnknownNameError
+from planner.gravity import GRAVITY_SET_SIZES, gravity_directions
 from planner.grip import FRICTION_MARGIN, HOLD_FACTOR
 from planner.search import RANKS
 
@@ -51,8 +53,6 @@ def option_range(low, high, open_low: bool) -> str:
 
 def in_range(value, low, high, open_low: bool) -> bool:
     """A real number (an integer when ``low`` is one; never a bool) within the range."""
-    import numbers
-
     if isinstance(value, bool) or not isinstance(value, numbers.Integral if isinstance(low, int) else numbers.Real):
         return False
     return math.isfinite(value) and (low < value if open_low else low <= value) and value <= high
@@ -171,8 +171,6 @@ class PlanOptions:
         if not (isinstance(self.friction_margin, (int, float)) and 0 < self.friction_margin <= 1):
             raise PlannerError(f"friction_margin must be in (0, 1], got {self.friction_margin!r}")
         if self.gravity_set is not None:
-            from planner.gravity import GRAVITY_SET_SIZES
-
             if self.gravity is not None:
                 raise PlannerError("give either a gravity vector or a gravity set, not both")
             if isinstance(self.gravity_set, bool) or self.gravity_set not in GRAVITY_SET_SIZES:
@@ -208,8 +206,6 @@ def gravity_directions_of(options: PlanOptions, hand) -> list[tuple[str, tuple[f
     if options.gravity is not None:
         return [("gravity", tuple(float(v) for v in options.gravity))]
     if options.gravity_set is not None:
-        from planner.gravity import gravity_directions
-
         # [:n]: planner.gravity returns palm down *and* palm up for n = 1 (its docstring says
         # palm down only); the first n entries are the documented set for every size.
         return gravity_directions(hand.palm_normal, options.gravity_set)[: options.gravity_set]

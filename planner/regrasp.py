@@ -32,7 +32,9 @@ from planner.errors import MotionError, NoSequenceError, SpecError, UnknownNameE
 from planner.explain import explain_failure, failure_analysis
 from planner.graph import LIFTED, GaitProblem, annotate_removable, seed_graph
 from planner.options import PlanOptions, gravity_directions_of
-from planner.plan import Alternative, Plan, PlanState, PlanStep
+from planner.plan_data import Alternative, Plan, PlanState, PlanStep
+from planner.realization import RealizedGrasp, realized_grasp
+from planner.retreat import retreat_blocked
 from planner.search import GaitSequence, LazyGraph, greedy
 from planner.slots import add_intermediate, add_slots, build_problem, holding_grasp, node_q
 
@@ -94,7 +96,7 @@ def _straight_gait(hand, obj, q_a, q_b, finger, **_):
 
 
 def _motion_gait(options: PlanOptions, verbose: bool = False):
-    from planner.motion import available_planners, plan_gait_step
+    from planner.motion import available_planners, plan_gait_step  # OMPL: only when finger motions are planned
 
     if options.motion_planner not in available_planners():
         raise UnknownNameError("motion planner", options.motion_planner, available_planners())
@@ -187,8 +189,6 @@ def _forbid_stuck_contacts(lazy: LazyGraph, hand, obj, bad: _EdgeFailed, stuck: 
     Raises:
         NoSequenceError: the finger must leave its initial contact or reach its final one.
     """
-    from planner.retreat import retreat_blocked
-
     problem = lazy.problem
     i = problem.fingers.index(bad.finger)
     for slot in sorted({bad.lift_from, bad.land_on} - {None, LIFTED}):
@@ -338,12 +338,8 @@ def plan_regrasp(
         NoSequenceError: no sequence exists (or none whose moves can be executed);
             the message says why.
     """
-    from planner.realization import RealizedGrasp
-
     if not isinstance(initial, RealizedGrasp) or not isinstance(final, RealizedGrasp):
         # paths or GraspSpecs: realized here, their files recorded as the CLI records them
-        from planner.realization import realized_grasp
-
         (initial, rec_i), (final, rec_f) = realized_grasp(initial), realized_grasp(final)
         if inputs is None:
             inputs = {k: v for k, v in (("initial", rec_i), ("final", rec_f)) if v is not None}
@@ -364,7 +360,7 @@ def plan_regrasp(
     verifying = options.verify and bool(directions) and options.strategy == "graph"
     verified, rejected, verify_s, workers, plan = None, [], 0.0, None, None
     if verifying:
-        from planner.sim.verify import default_workers, verify_plan
+        from planner.sim.verify import default_workers, verify_plan  # pybullet: only when verifying
 
         workers = options.workers or default_workers()
     if options.strategy == "greedy":  # thesis Algorithm 2: only visits the states it walks through

@@ -21,13 +21,14 @@ from __future__ import annotations
 
 import heapq
 import itertools
+import time
 from dataclasses import dataclass, field
 from typing import Mapping, Sequence
 
 import networkx as nx
 import numpy as np
 
-from planner.errors import InputError, NoSequenceError
+from planner.errors import InputError, NoSequenceError, UnknownNameError
 from planner.graph import LIFTED, Evaluator, GaitProblem, Node, add_node, seed_graph, within_lift_bound
 
 RANKS = ("metric", "grip")
@@ -181,8 +182,6 @@ def search(G: nx.DiGraph, k: int = 1, *, rank: str = "metric", max_expansions: i
         InputError: unknown ``rank``, or ``rank="grip"`` on a graph without grip forces.
     """
     if rank not in RANKS:
-        from planner.errors import UnknownNameError
-
         raise UnknownNameError("rank", rank, RANKS)
     G.graph["search_exact"] = True
     start, goal = G.graph["start"], G.graph["goal"]
@@ -312,8 +311,6 @@ class LazyGraph:
     def __init__(self, problem: GaitProblem, rank: str = "metric", evaluator: Evaluator | None = None,
                  deadline: float | None = None):
         if rank not in RANKS:
-            from planner.errors import UnknownNameError
-
             raise UnknownNameError("rank", rank, RANKS)
         if rank == "grip" and not problem.all_loads():
             raise InputError("grip ranking needs the grip force of every state: plan with a gravity (a load)")
@@ -357,8 +354,6 @@ class LazyGraph:
         again with its true key, an evaluated one is expanded: its successors are pushed
         unevaluated, keyed by the best value they can have (their parent's). Returns how many
         states were expanded."""
-        import time
-
         p, G, ev, done = self.problem, self.G, self.ev, 0
         blocked, pending = G.graph["blocked"], self._pending
         while self._top() is not None and self._top() <= bound:

@@ -19,8 +19,10 @@ from dataclasses import replace
 from typing import Callable, Mapping
 
 import numpy as np
+from scipy.spatial import cKDTree
 
-from planner.closure import apply_contact_model
+from planner.closure import apply_contact_model, batch_grasp_closure
+from planner.contacts import collisions, contact_patches
 from planner.graph import LIFTED, GaitProblem, Slot
 from planner.grip import finger_statics
 from planner.options import PlanOptions, gravity_directions_of
@@ -84,8 +86,6 @@ def _pool_postures(hand, obj, finger: str) -> tuple[np.ndarray, np.ndarray]:
     n_obj = (pads[:, :3, :3] @ n_link) @ T[:3, :3]
     # distance to the surface from a dense sample of it (the nearest sample's tangent
     # plane): vectorized, for every shape; the closing procedure makes the exact contact
-    from scipy.spatial import cKDTree
-
     cloud, cloud_n = obj.sample_surface(POOL_SURFACE_SAMPLES, np.random.default_rng(0))
     _, nearest = cKDTree(cloud).query(p_obj)
     d = np.einsum("ij,ij->i", p_obj - cloud[nearest], cloud_n[nearest])
@@ -100,8 +100,6 @@ def _closed_contacts(hand, obj, finger: str, postures) -> list[tuple[np.ndarray,
     """Each posture closed onto the object (`Hand.close_finger`), kept when the finger
     touches and neither penetrates the object nor hits the palm or its own links:
     (points, inward normals, the finger's joint values) per contact, in order."""
-    from planner.contacts import collisions, contact_patches
-
     f = hand.fingers[finger]
     idx = list(f.q_index)
     out = []
@@ -191,8 +189,6 @@ def _pick_intermediate(problem: GaitProblem, hand, obj, finger: str, n: int, con
     initial contacts. A candidate lies at least ``MIN_SLOT_SPACING_M`` from the finger's
     other contacts; one that collides in every context is not used.
     """
-    from planner.closure import batch_grasp_closure
-
     have = list(problem.slots[finger])
     i = problem.fingers.index(finger)
     if not contexts:
@@ -266,8 +262,6 @@ def holding_grasp(problem: GaitProblem, hand, obj, lifted: str, contact_model: s
     its slot (one of its own, or a new contact labelled as the next intermediate slot) for
     every finger touching in it; {} when there is none.
     """
-    from planner.closure import batch_grasp_closure
-
     others = [f for f in problem.fingers if f != lifted]
     options = {f: list(problem.slots[f]) + _candidates(problem, hand, obj, f, contact_model, spaced=False) for f in others}
     check = pairwise_collision_check(hand, {**problem.slots, **{f: tuple(v) for f, v in options.items()}})
@@ -430,8 +424,6 @@ def _modelled(slot: Slot, contact_model: str) -> Slot:
 
 def pairwise_collision_check(hand, slots: Mapping[str, tuple[Slot, ...]]) -> Callable[[str, int, str, int], bool]:
     """compatible(fa, sa, fb, sb): finger a at slot sa and b at sb do not collide."""
-    from planner.contacts import collisions
-
     link_finger = {}
     for f, finger in hand.fingers.items():
         for link in finger.contact_links:

@@ -465,7 +465,7 @@ def plan_page_data(plan: Mapping, plan_path, hand=None, report_path=None) -> tup
 
 
 def grasp_page_data(grasp, grasp_path) -> tuple[_Scene, dict]:
-    """Scene and page data of one realized grasp (`planner.grasp.realize`): what `check` finds."""
+    """Scene and page data of one realized grasp (`planner.realization.realize`): what `check` finds."""
     scene = _Scene(grasp.hand, grasp.obj, grasp.friction.mu)
     patches = {f: {"points": p, "normals": n} for f, (p, n) in grasp.patches.items()}
     fingers = {f.name: f.kind for f in grasp.spec.fingers}

@@ -13,7 +13,8 @@ import pytest
 
 from planner.audit import audit_plan
 from planner.cli import main
-from planner.plan import integrity_record, read_plan
+from planner.plan import read_plan
+from planner.plan_data import integrity_record
 from planner.resources import bundled_grasp
 
 PAIRS = {

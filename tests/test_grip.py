@@ -327,7 +327,8 @@ def test_parallel_replays_equal_serial_ones(tmp_path):
     number (each replay is deterministic and independent)."""
     from planner.grasp import load_grasp
     from planner.gravity import gravity_directions
-    from planner.plan import read_plan, write_plan
+    from planner.plan import read_plan
+    from planner.plan_data import write_plan
     from planner.options import PlanOptions
     from planner.realization import realize
     from planner.regrasp import plan_regrasp

@@ -22,7 +22,8 @@ from planner.cli import main
 from planner.model import Friction
 from planner.closure import closure_from_wrenches, contact_wrenches, grasp_closure
 from planner.errors import InputError, IntegrityError, OutputError, PlannerWarning, SpecError
-from planner.plan import dumps_plan, plan_from_data, read_plan, write_plan
+from planner.plan import plan_from_data, read_plan
+from planner.plan_data import dumps_plan, write_plan
 
 ROOT = Path(__file__).resolve().parent.parent
 BOX_PE = ROOT / "grasps/icub/box_parallel_extension.yaml"
@@ -93,7 +94,7 @@ def test_read_only_directory_is_refused(tmp_path, grasps, capsys):
 
 def test_full_disk_leaves_the_old_file_and_no_temp(tmp_path, monkeypatch):
     """A write that fails (ENOSPC) is an OutputError; the old plan is untouched, no temp file."""
-    from planner.plan import Plan  # noqa: F401 - the tiny plan of test_plan
+    from planner.plan_data import Plan  # noqa: F401 - the tiny plan of test_plan
 
     sys.path.insert(0, str(Path(__file__).parent))
     from test_plan import tiny_plan

@@ -180,7 +180,8 @@ def test_plan_of_bundled_grasps_names_them_and_replays_from_anywhere(tmp_path, m
     import warnings
 
     from planner.cli import main
-    from planner.plan import plan_hand_ref, read_plan
+    from planner.plan import read_plan
+    from planner.plan_data import plan_hand_ref
     from planner.resources import bundled_grasp
 
     a, b = (bundled_grasp(n) for n in ("icub/cylinder_parallel_extension.yaml", "icub/cylinder_ir2m.yaml"))
@@ -214,7 +215,8 @@ def test_plan_records_other_files_relative_to_itself(tmp_path):
     import shutil
 
     from planner.grasp import load_grasp
-    from planner.plan import plan_hand_ref, read_plan, write_plan
+    from planner.plan import read_plan
+    from planner.plan_data import plan_hand_ref, write_plan
     from planner.grasp import input_record
     from planner.options import PlanOptions
     from planner.realization import realize
@@ -255,7 +257,7 @@ def test_data_is_found_only_through_planner_resources():
     """No module but planner/resources.py locates data from its own file (a repo-root fallback
     works in a checkout and breaks in a wheel); a plan's relative file is looked up next to
     the plan only, never in the repository."""
-    from planner.plan import plan_file, plan_hand_ref
+    from planner.plan_data import plan_file, plan_hand_ref
 
     root = Path(planner.__file__).parent
     users = sorted(p.relative_to(root).as_posix() for p in root.rglob("*.py")

@@ -10,7 +10,8 @@ import yaml
 from planner.model import Friction
 from planner.closure import grasp_closure
 from planner.errors import PlannerWarning, SpecError
-from planner.plan import SCHEMA_VERSION, Alternative, Plan, PlanState, PlanStep, dumps_plan, read_plan, write_plan
+from planner.plan import read_plan
+from planner.plan_data import SCHEMA_VERSION, Alternative, Plan, PlanState, PlanStep, dumps_plan, write_plan
 
 FRICTION = Friction(0.9, 0.003, 5)
 PTS = np.array([[0.01, 0.0, 0.02], [0.011, 0.001, 0.02]])

@@ -62,7 +62,7 @@ def test_parallel_extension_to_ir2m_is_planned_and_rechecks(pair, realized, tmp_
     initial, final = (realized(p) for p in PAIRS[pair])
     result = plan_regrasp(initial, final, PlanOptions(motion=False, alternatives=8))
     path = tmp_path / "plan.yaml"
-    from planner.plan import write_plan
+    from planner.plan_data import write_plan
 
     write_plan(result.plan, path)
     assert result.plan.summary["gait_steps"] >= 2
@@ -140,7 +140,7 @@ def test_exported_paths_recheck_with_coal(realized, tmp_path):
     """
     import coal
 
-    from planner.plan import write_plan
+    from planner.plan_data import write_plan
 
     initial, final = (realized(p) for p in PAIRS["box"])
     result = plan_regrasp(initial, final, PlanOptions(motion=True, seed=3))

@@ -19,7 +19,7 @@ from PIL import Image
 from planner.errors import SimulationError
 from planner.frames import resample
 from planner.gravity import gravity_directions
-from planner.plan import Plan
+from planner.plan_data import Plan
 from planner.sim.inputs import HandInfo
 from planner.sim.render import (FINGER_RGB, HAND_RGBA, MOVING_RGBA, OBJECT_RGBA, HandScene, contact_camera,
                                 hand_reach_m, patch_markers, rgb255)

@@ -1,6 +1,6 @@
 """What a replay is built from: the typed plan, its hand and its object.
 
-`typed_plan` reads a plan (file, data or `planner.plan.Plan`) through `planner.plan`'s one
+`typed_plan` reads a plan (file, data or `planner.plan_data.Plan`) through `planner.plan`'s one
 parser; `plan_hand` and `load_hand_info` load the plan's hand and check every joint value of
 the plan against its limits; `create_object` builds the plan's object as a pybullet body
 (`planner.sim.scene.object_body`) with its mass. Files the plan names resolve relative to
@@ -18,7 +18,8 @@ import numpy as np
 
 from planner.fileio import check_hand_file
 from planner.objects import GraspObject
-from planner.plan import Plan, plan_file, plan_from_data, read_plan
+from planner.plan import plan_from_data, read_plan
+from planner.plan_data import Plan, plan_file
 from planner.sim.scene import object_body
 
 #: A plan's joint values may exceed the hand's limits by this much (rad or m): rounding.
@@ -49,7 +50,7 @@ class HandInfo:
 
 
 def resolve_plan_file(path_str: str, plan_path: str) -> Path | None:
-    """A file the plan names (`planner.plan.plan_file`: relative to the plan file)."""
+    """A file the plan names (`planner.plan_data.plan_file`: relative to the plan file)."""
     found = plan_file(path_str, plan_path)
     return None if found is None else found.resolve()
 

@@ -44,6 +44,10 @@ Friction. Bullet multiplies the two bodies' lateral friction and combines spinni
 as ``s_a * mu_b + s_b * mu_a``; with the hand links at lateral friction 1 and spinning 0 and
 the object at ``mu`` and ``gamma``, every finger-object contact gets exactly the plan's
 ``mu`` (Coulomb) and ``gamma`` (torsional, metres) of the soft-finger model (thesis eq. 1).
+
+This module is one concept, kept whole although slightly over 600 lines: the replay loop and
+its verdict share the per-state measurements, and split apart either half would only read the
+other's state.
 """
 
 from __future__ import annotations

@@ -26,7 +26,8 @@ from pathlib import Path
 
 from planner.errors import InputError
 from planner.gravity import gravity_directions
-from planner.plan import Plan, plan_from_data
+from planner.plan import plan_from_data
+from planner.plan_data import Plan
 from planner.sim.inputs import plan_hand, typed_plan
 from planner.sim.replay import replay_plan
 from planner.sim.report import GravitySetReport, ReplayReport
@@ -58,7 +59,7 @@ def replay_directions(plan: Plan, hand, directions: Sequence[tuple[str, Sequence
     """One replay per named gravity direction (palm frame, m/s^2), in parallel processes.
 
     Args:
-        plan: a `planner.plan.Plan` (read and checked).
+        plan: a `planner.plan_data.Plan` (read and checked).
         hand: its `planner.hand.Hand`.
         directions: (name, gravity (3,)) pairs.
         workers: processes (default `default_workers`; 1: in this process, one after the other).
