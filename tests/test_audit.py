@@ -5,7 +5,6 @@ wrote pass."""
 
 from __future__ import annotations
 
-import copy
 import json
 
 import numpy as np

@@ -8,7 +8,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from planner.collision import CollisionModel, Geometry, HandState
+from planner.collision import CollisionModel, Geometry
 from planner.errors import InputError
 from planner.grasp import load_hand
 from planner.objects import make_object

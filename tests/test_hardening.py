@@ -21,7 +21,7 @@ import yaml
 from planner.cli import main
 from planner.model import Friction
 from planner.closure import closure_from_wrenches, contact_wrenches, grasp_closure
-from planner.errors import InputError, IntegrityError, OutputError, PlannerWarning, SpecError
+from planner.errors import InputError, OutputError, PlannerWarning, SpecError
 from planner.plan import plan_from_data, read_plan
 from planner.plan_data import dumps_plan, write_plan
 

@@ -1,7 +1,6 @@
 """Plan export: schema, determinism, atomic writes and validation of plan files."""
 
 import json
-import warnings
 
 import numpy as np
 import pytest

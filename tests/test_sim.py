@@ -469,7 +469,6 @@ def test_armature_floor_keeps_the_stiffest_spring_stable_with_margin():
     than that (every joint's spring sits at that omega dt when a free finger squeezes alone)."""
     import pybullet as p
 
-    from planner.model import Friction
     from planner.sim import controller as C
     from planner.sim import inputs as inp
     from planner.sim import replay as R
