@@ -57,7 +57,7 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from planner.errors import InputError
+from planner.errors import InputError, UnknownNameError
 from planner.hull import Closure, Hull, wrench_closure
 from planner.lp import solve_highs
 from planner.model import Friction, cross, tangent_basis
@@ -212,8 +212,6 @@ def apply_contact_model(patches: Mapping[str, tuple], model: str) -> dict[str, t
         InputError: a patch is not a pair of (n, 3) arrays, or its normals cancel out.
     """
     if model not in CONTACT_MODELS:
-        from planner.errors import UnknownNameError
-
         raise UnknownNameError("contact model", model, CONTACT_MODELS)
     out = {}
     for finger, points, normals in _patch_items(patches):

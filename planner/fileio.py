@@ -25,6 +25,8 @@ path (``fingers.index.contact.point``, ``states[3].q``) and what was expected.
 
 from __future__ import annotations
 
+import hashlib
+import json
 import math
 import os
 import stat
@@ -175,7 +177,6 @@ def load_yaml(text: str, path: str | os.PathLike, what: str):
 def load_json(text: str, path: str | os.PathLike):
     """Parse JSON text: a `SpecError` naming the file (and the first line of the parser's
     complaint, never the content) for bad syntax, out-of-range numbers or deep nesting."""
-    import json
 
     try:
         return json.loads(text)
@@ -553,7 +554,6 @@ def sha256_file(path: str | os.PathLike, max_bytes: int | None = None) -> str | 
     """Hex sha256 of a regular file, read in 1 MiB chunks (a huge or sparse file never sits
     in memory); None when it is not a regular file, cannot be read or holds more than
     ``max_bytes``."""
-    import hashlib
 
     try:
         st = os.stat(path)

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import coal
 import numpy as np
+from scipy.spatial import ConvexHull
 
 MESH_CONVEX_TOL_M = 1e-4
 """A mesh whose vertices and face centroids all lie within this of its convex hull's
@@ -82,7 +83,6 @@ def signed_distance_geometry(obj):
 
 def _mesh_signed_distance_geometry(geometry):
     """The convex hull of a convex ``BVHModel`` as a ``coal.Convex``, else the mesh itself."""
-    from scipy.spatial import ConvexHull
 
     V = np.asarray(geometry.vertices(), dtype=float)
     F = np.array([[t[0], t[1], t[2]] for t in map(geometry.tri_indices, range(geometry.num_tris))], dtype=np.int64)

@@ -35,7 +35,7 @@ def quiet_native_output():
             os.close(fd)
 
 
-with quiet_native_output():
+with quiet_native_output():  # pybullet prints its build banner on the C stdout at import
     import pybullet as p
 
 
