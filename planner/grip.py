@@ -247,7 +247,7 @@ def grip_program(patches: Mapping[str, tuple], statics: Mapping[str, FingerStati
     if not 0 < margin <= 1:
         raise InputError(f"friction margin must be in (0, 1], got {margin!r}")
     fr = Friction(friction.mu * margin, friction.gamma * margin, int(cone_sides))
-    blocks, torque, at, names, fingers = [], [], {}, [], []
+    blocks, torque, at, fingers = [], [], {}, []
     per_point = 2 * fr.edges
     for finger, (points, normals) in patches.items():
         P = np.asarray(points, dtype=float).reshape(-1, 3)

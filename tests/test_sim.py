@@ -378,7 +378,7 @@ def test_balanced_forces_hold_the_load_inside_the_shrunk_cones():
     """Property (seeded): for random three- and four-contact grasps of a sphere the forces
     balance the weight (force and moment about the centre) and stay inside the friction cone
     of the margin that was used; an unbalanceable set (all normals alike) gives None."""
-    from planner.sim.controller import CONE_MARGINS, balance_forces
+    from planner.grip import CONE_MARGINS, balance_forces
 
     rng = np.random.default_rng(7)
     fr = Friction(mu=0.8, gamma=0.0, edges=5)

@@ -57,7 +57,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 from planner.model import Contact, Friction
-from planner.grip import CONE_MARGINS, balance_forces, torque_rows  # noqa: F401 - CONE_MARGINS re-exported
+from planner.grip import balance_forces, torque_rows
 from planner.sim.scene import p  # pybullet, imported with its build banner silenced
 
 #: Physics steps between two force solutions (at 240 Hz: 60 Hz).

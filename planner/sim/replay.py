@@ -31,7 +31,7 @@ Squeeze (grasp force optimization). At every state the contact of each touching 
 is in equilibrium under gravity: ``min sum |f_i - F n_i|_1`` subject to the net wrench
 balancing ``m g``, every ``f_i`` inside half the friction cone (then 3/4, then the whole
 cone if needed; at each step point forces first, then with the soft-finger torsion that
-the simulator's spinning friction provides: `planner.sim.controller.CONE_MARGINS`), no
+the simulator's spinning friction provides: `planner.grip.CONE_MARGINS`), no
 component above ``MAX_FORCE_RATIO * F`` and a normal force of at least ``MIN_NORMAL_RATIO * F``
 (``F = finger_force_n``; `planner.sim.controller.balance_forces`). Plain normal squeezing is kept only when no balanced forces exist
 at those contacts. The finger then presses with joint torques ``tau = J_f^T f_i``
