@@ -60,7 +60,7 @@ import numpy as np
 from planner.errors import InputError, UnknownNameError
 from planner.hull import Closure, Hull, wrench_closure
 from planner.lp import solve_highs
-from planner.model import Friction, cross, tangent_basis
+from planner.model import Friction, Patch, cross, tangent_basis
 
 __all__ = [
     "CONTACT_MODELS",
@@ -201,7 +201,7 @@ def closure_from_wrenches(W) -> Closure:
     return wrench_closure(_check_wrenches(W))[0]
 
 
-def apply_contact_model(patches: Mapping[str, tuple], model: str) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+def apply_contact_model(patches: Mapping[str, tuple], model: str) -> dict[str, Patch]:
     """Patches as the closure test sees them under a contact model (`CONTACT_MODELS`).
 
     "patch" returns the patches unchanged; "mean" replaces each by one point, the mean of
@@ -223,7 +223,7 @@ def apply_contact_model(patches: Mapping[str, tuple], model: str) -> dict[str, t
             if not norm > 1e-9:
                 raise InputError(f"the normals of finger {finger!r} cancel out: no mean contact normal")
             p, n = p.mean(axis=0, keepdims=True), (m / norm)[None, :]
-        out[finger] = (p, n)
+        out[finger] = Patch(p, n)
     return out
 
 

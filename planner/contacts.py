@@ -15,7 +15,7 @@ import numpy as np
 
 from planner.collision import HandState
 from planner.errors import InputError, UnknownNameError
-from planner.model import Contact
+from planner.model import Contact, Patch
 
 TOUCH_TOL_M = 1e-3
 RING_RADII_M = (1.5e-3, 3.0e-3)
@@ -91,7 +91,7 @@ def _link_patch(state, obj, T_obj_palm, T_palm_obj, query, touch_tol_m):
 
 
 def contact_patches(hand, q, obj, touch_tol_m: float = TOUCH_TOL_M, fingers=None
-                    ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+                    ) -> dict[str, Patch]:
     """Contact patches of a hand configuration on the object.
 
     Args:
@@ -121,7 +121,7 @@ def contact_patches(hand, q, obj, touch_tol_m: float = TOUCH_TOL_M, fingers=None
             P.append(p)
             N.append(n)
         if P:
-            out[f] = (np.vstack(P), np.vstack(N))
+            out[f] = Patch(np.vstack(P), np.vstack(N))
     return out
 
 

@@ -35,7 +35,7 @@ from planner.closure import batch_grasp_closure, min_grip_force
 from planner.errors import InputError, NoSequenceError
 from planner.grip import HOLD_FACTOR, Capacity, FingerStatics, grip_program, hold_capacity, holds_by_bound, torque_demand
 from planner.hull import Closure
-from planner.model import Friction
+from planner.model import Friction, Patch
 
 LIFTED = -1
 """Slot index of a finger that does not touch the object."""
@@ -233,13 +233,13 @@ class GaitProblem:
                 out[f] = self.slots[f][s].statics
         return out
 
-    def patches(self, node: Node) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    def patches(self, node: Node) -> dict[str, Patch]:
         """Touching finger -> (points, normals) of a node."""
         out = {}
         for f, s in zip(self.fingers, node):
             if s != LIFTED:
                 slot = self.slots[f][s]
-                out[f] = (slot.points, slot.normals)
+                out[f] = Patch(slot.points, slot.normals)
         return out
 
     def labels(self, node: Node) -> dict[str, str]:

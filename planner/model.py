@@ -7,6 +7,9 @@ pictures) holds these and nothing else for them:
 - `Friction`: the soft-finger Coulomb model of a grasp (thesis eq. 1), validated once.
 - `Contact`: one touching link: finger, link, a point and the inward unit normal (the
   direction the finger pushes, DESIGN "The maths"), in a frame the contact names.
+- `Patch`: the contacts of one finger as the closure reads them, ``(points, normals)``;
+  a grasp state's contacts are ``{finger: Patch}`` (the "patches" of grasps, graph states,
+  plans and the replay).
 - `tangent_basis`: the one right-handed basis ``(t1, t2, n)`` of a contact normal, used by
   the closure's cone edges (thesis eq. 2) and by the grip force problem's pyramids alike.
 
@@ -18,6 +21,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -136,3 +140,16 @@ class Contact:
         """Plain-data form (the ``contacts`` of `regrasp check --json`)."""
         return {"finger": self.finger, "link": self.link, "point": [float(v) for v in self.point],
                 "normal": [float(v) for v in self.normal], "penetration_m": float(self.penetration_m)}
+
+
+class Patch(NamedTuple):
+    """The contact points of one finger, the closure's unit (thesis section IX-D: every point,
+    not their mean). A tuple, so ``points, normals = patch`` reads it.
+
+    Attributes:
+        points: (n, 3) contact points on the object's surface, object frame, metres.
+        normals: (n, 3) unit normals INTO the object at those points, object frame.
+    """
+
+    points: np.ndarray
+    normals: np.ndarray

@@ -26,7 +26,7 @@ import planner
 from planner.closure import CONTACT_MODELS, grasp_closure
 from planner.errors import IntegrityError, PlannerError, PlannerWarning, SpecError, UnknownNameError
 from planner.fileio import MAX_GRASP_BYTES, MAX_PLAN_BYTES, Reader, load_json, load_yaml, read_limited, sha256_file, shown
-from planner.model import Friction
+from planner.model import Friction, Patch
 from planner.objects import SHAPES, SIZE_LENGTHS, SIZE_MEANING
 from planner.plan_data import (ACTIONS, PLAN_KIND, SCHEMA_VERSION, Alternative, Plan, PlanState, PlanStep,
                                canonical_sha256, plan_file, plan_format)
@@ -269,7 +269,7 @@ def _check_state(s: Reader, i: int, joints: tuple[str, ...]) -> PlanState:
             raise patch.fail("needs points and normals of equal length")
         if np.any(np.abs(np.linalg.norm(nrm, axis=1) - 1.0) > 1e-6):
             raise patch.fail("expected unit normals", "normals")
-        patches[f] = (pts, nrm)
+        patches[f] = Patch(pts, nrm)
     if fingers and not set(patches) <= set(fingers):
         raise s.fail(f"fingers {sorted(set(patches) - set(fingers))} are not in {key}.fingers", "patches")
     closure = s.child("closure").mapping()

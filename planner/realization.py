@@ -25,6 +25,7 @@ from planner.grasp import GraspSpec, input_record, load_grasp, load_hand
 from planner.gravity import gravity_directions
 from planner.grip import grasp_hold
 from planner.ik import UnreachableError
+from planner.model import Patch
 
 #: Contact fingers are placed this far out along the surface normal, then closed onto it.
 APPROACH_M = 0.004
@@ -415,7 +416,7 @@ def realize(spec: GraspSpec, hand=None) -> RealizedGrasp:
     state = hand.state(q)
     q = state.q
     patches = contact_patches(hand, state, obj)
-    patches = {k: (_ro(p), _ro(n)) for k, (p, n) in patches.items()}
+    patches = {k: Patch(_ro(p), _ro(n)) for k, (p, n) in patches.items()}
     closure = grasp_closure(patches, spec.friction)
     removable = frozenset(removable_fingers(patches, spec.friction)) if patches else frozenset()
     touching = {k: tuple(v) for k, v in touching_links(hand, state, obj).items()}

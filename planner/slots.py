@@ -25,6 +25,7 @@ from planner.closure import apply_contact_model, batch_grasp_closure
 from planner.contacts import collisions, contact_patches
 from planner.graph import LIFTED, GaitProblem, Slot
 from planner.grip import finger_statics
+from planner.model import Patch
 from planner.options import PlanOptions, gravity_directions_of
 
 
@@ -298,7 +299,7 @@ def holding_grasp(problem: GaitProblem, hand, obj, lifted: str, contact_model: s
                 if t != LIFTED:
                     options[g][t] = with_statics(hand, obj, options[g][t])
         touching = {g: options[g][t] for g, t in a.items() if t != LIFTED}
-        patches = {g: (s.points, s.normals) for g, s in touching.items()}
+        patches = {g: Patch(s.points, s.normals) for g, s in touching.items()}
         statics = {g: s.statics for g, s in touching.items() if s.statics is not None}
         if problem.load_refusal(patches, statics) is not None:
             continue

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from planner.errors import InputError
+from planner.model import Patch
 
 ContactKey = Hashable
 """Identifies one contact, e.g. ``(link_name, body_name)`` as in Table I."""
@@ -123,7 +124,7 @@ class ContactFilter:
         """The contacts currently kept, ``{key: FilteredContact}``."""
         return dict(self._contacts)
 
-    def patches(self, group: Callable[[ContactKey], str | None]) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    def patches(self, group: Callable[[ContactKey], str | None]) -> dict[str, Patch]:
         """Group the kept contacts into closure patches.
 
         Args:
@@ -141,4 +142,4 @@ class ContactFilter:
             a = acc.setdefault(name, ([], []))
             a[0].append(c.points)
             a[1].append(c.normals)
-        return {name: (np.vstack(p), np.vstack(n)) for name, (p, n) in acc.items()}
+        return {name: Patch(np.vstack(p), np.vstack(n)) for name, (p, n) in acc.items()}
