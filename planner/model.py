@@ -17,8 +17,6 @@ The object of a grasp is `planner.objects.GraspObject` (its geometry needs coal,
 lives with the shape code); its file form is `GraspObject.to_data` / `from_data`.
 """
 
-from __future__ import annotations
-
 import math
 from dataclasses import dataclass
 from typing import NamedTuple
