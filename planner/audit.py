@@ -9,7 +9,9 @@ recorded inputs, with the planner's own models:
   every joint value within the URDF limits;
 - **contacts**: every state's patch points lie on the object's surface (within
   ``SURFACE_TOL_M``) with an inward normal of the surface there (within ``NORMAL_TOL_DEG``
-  of its normal cone: on an edge, any normal between the faces'); the
+  of its normal cone: on an edge, any normal between the faces'; a mean contact, of the
+  mean of the hand's own patch normals at the state's joints, which on a box edge is no
+  face's normal); the
   hand's forward kinematics at the state's joints puts each touching finger on the
   object where its patch is (mean points within ``FK_TOL_M``), no link deeper in the
   object than ``PENETRATION_TOL_M`` and no lifted finger touching it;
@@ -33,7 +35,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from planner.closure import grasp_closure
+from planner.closure import apply_contact_model, grasp_closure
 from planner.contacts import contact_patches
 from planner.errors import AuditError, PlannerError
 from planner.grasp import load_grasp
@@ -235,6 +237,12 @@ def _check_states(plan, hand, obj, rep: AuditReport) -> list:
                 ps, _, _ = obj.closest_surface(p_obj)
                 worst_d = max(worst_d, float(np.linalg.norm(np.asarray(ps) - p_obj)))
                 worst_a = max(worst_a, _normal_error_deg(obj, np.asarray(ps, float), np.asarray(n_in, float)))
+            if mean_model and len(pts) == 1 and f in fk:
+                # a mean contact's normal is the mean of its patch's normals: where the patch
+                # spans two faces (a box edge) it is no face's normal; its reference is the
+                # mean of the hand's own patch at the state's joints
+                n_fk = apply_contact_model({f: fk[f]}, "mean")[f].normals[0]
+                worst_a = min(worst_a, _angle_deg(np.asarray(nrm, float)[0], n_fk))
             tol = SURFACE_TOL_M + _mean_sag(obj, fk.get(f)) if mean_model and len(pts) == 1 else SURFACE_TOL_M
             if worst_d > tol:
                 rep.add(f"states[{i}].patches.{f}: a contact point lies {worst_d * 1000:.1f} mm off the object's "

@@ -6,6 +6,7 @@ wrote pass."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -267,3 +268,36 @@ def test_a_mean_contact_below_a_curved_surface_is_the_model_not_an_error(tmp_pat
     _reseal(d, bad)
     problems = audit_plan(read_plan(bad), paths=False).problems
     assert any("thumb" in p and "off the object's surface" in p for p in problems), problems
+
+
+def test_a_mean_contact_across_a_box_edge_keeps_its_mean_normal(tmp_path):
+    """The bundled Allegro box pair planned for execution: the index finger's patch spans two
+    faces, so its mean contact's normal (the mean of the patch's normals) is 21 deg from the
+    face under the mean point, and `verify` refused the plan the planner had verified in
+    pybullet. The audit takes the mean of the hand's own patch normals as a mean contact's
+    reference, and still refuses that normal turned by 30 deg."""
+    from planner.options import PlanOptions
+    from planner.regrasp import plan_regrasp
+
+    root = Path(__file__).resolve().parents[1] / "grasps" / "allegro"
+    res = plan_regrasp(root / "box_four_finger.yaml", root / "box_tripod.yaml",
+                       PlanOptions.for_execution(verify=False, motion=False))
+    report = audit_plan(res.plan, paths=False)
+    assert report.ok, report.problems
+    d = json.loads(json.dumps(res.plan.to_dict()))
+    turned = 0
+    for st in d["states"]:
+        patch = st["patches"].get("index")
+        if patch is None:
+            continue
+        n = np.asarray(patch["normals"][0])
+        t = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
+        t /= np.linalg.norm(t)
+        a = np.radians(30.0)
+        patch["normals"][0] = (np.cos(a) * n + np.sin(a) * t).tolist()  # unit, 30 deg off
+        turned += 1
+    assert turned
+    bad = tmp_path / "bad.json"
+    _reseal(d, bad)
+    problems = audit_plan(read_plan(bad), paths=False).problems
+    assert any("index" in p and "contact normal" in p for p in problems), problems
