@@ -34,7 +34,7 @@ demo: $(RUNTIME)
 
 # the API reference from the docstrings (pdoc, in the dev extra): build/api/index.html; every
 # module of the package (planner's __all__ alone would list only what it re-exports)
-MODULES = $(filter-out planner.plan planner.synth,$(subst /,.,$(basename $(filter-out %__init__.py %__main__.py,$(wildcard planner/*.py planner/sim/*.py)))))
+MODULES = $(filter-out planner.plan,$(subst /,.,$(basename $(filter-out %__init__.py %__main__.py,$(wildcard planner/*.py planner/sim/*.py)))))
 api-docs: $(STAMP)
 	OPENBLAS_NUM_THREADS=1 $(BIN)/python -m pdoc -o build/api planner $(MODULES)
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import argparse
 
-from planner.synth import synthesize
+from planner.synthesis import synthesize
 
 OBJECTS = [
     ("sphere r15", {"shape": "sphere", "size": [0.015]}),

@@ -8,7 +8,7 @@ and the worst *intermediate* metric (start and goal excluded; the bottleneck is 
 final grasp itself, shared by every ordering). The thesis's four sequences are marked:
 the needed fingers repositioned one at a time (index-first or ring-first), then the
 unneeded fingers lifted (little-first or thumb-first). Also counts the longer simple
-paths (detours that lift and re-land a finger) and checks that `planner.search.search`
+paths (detours that lift and re-land a finger) and checks that `planner.gait_search.search`
 returns a minimal ordering with the best bottleneck. Every pair is run under both contact
 models: "patch" (every patch point, the thesis) and "mean" (one contact per finger, what
 executable plans use).
@@ -52,7 +52,7 @@ def task(t: dict) -> dict:
 
     from planner.graph import build_graph
     from planner.options import PlanOptions
-    from planner.search import search
+    from planner.gait_search import search
     from planner.slots import build_problem
 
     from planner.errors import PlannerError

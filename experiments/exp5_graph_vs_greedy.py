@@ -95,7 +95,7 @@ def task(t: dict) -> dict:
     from planner.options import PlanOptions
     from planner.realization import realize
     from planner.regrasp import plan_regrasp
-    from planner.search import LazyGraph, greedy
+    from planner.gait_search import LazyGraph, greedy
     from planner.slots import build_problem
 
     rng = np.random.default_rng(t["seed"])

@@ -1,4 +1,4 @@
-"""Exp. 6 - planning time versus problem size (synthetic patches, planner.graph and planner.search only).
+"""Exp. 6 - planning time versus problem size (synthetic patches, planner.graph and planner.gait_search only).
 
 Synthetic gait problems on a sphere (radius 30 mm, mu 0.9, gamma 4 mm, 5 cone edges):
 every finger has an initial slot, a final slot and N intermediate slots, each a patch of P
@@ -64,7 +64,7 @@ def make_problem(rng, n_fingers, n_inter, n_points):
 
 def task(t: dict) -> dict:
     from planner.graph import build_graph
-    from planner.search import LazyGraph, search
+    from planner.gait_search import LazyGraph, search
 
     rng = np.random.default_rng(t["seed"])
     prob, attempts = make_problem(rng, t["fingers"], t["intermediate"], t["points"])

@@ -139,9 +139,9 @@ def synth_task(t: dict) -> dict:
 
 
 def _synthesize(out: dict, what: str, *args, **kw):
-    """`planner.synth.synthesize`, or None when it raised: the error is appended to
+    """`planner.synthesis.synthesize`, or None when it raised: the error is appended to
     ``out["errors"]`` as one line naming ``what`` (the finger set, or the pose search)."""
-    from planner.synth import synthesize
+    from planner.synthesis import synthesize
 
     try:
         return synthesize(*args, **kw)
@@ -151,7 +151,7 @@ def _synthesize(out: dict, what: str, *args, **kw):
 
 
 def execution_ready(hand_ref: str) -> dict:
-    """`planner.synth.synthesize` keywords for grasps that execution mode can plan with: force
+    """`planner.synthesis.synthesize` keywords for grasps that execution mode can plan with: force
     closure with one mean contact per finger, and the weight held in the 6 gravity directions
     of ``PlanOptions.for_execution()`` within its force budget, with its friction reserve."""
     from planner.grasp import load_hand

@@ -57,9 +57,9 @@ _EXPORTS = {
     "GaitProblem": "planner.graph",
     "Slot": "planner.graph",
     "build_graph": "planner.graph",
-    "GaitSequence": "planner.search",
-    "greedy": "planner.search",
-    "search": "planner.search",
+    "GaitSequence": "planner.gait_search",
+    "greedy": "planner.gait_search",
+    "search": "planner.gait_search",
     "PlanOptions": "planner.options",
     "plan_regrasp": "planner.regrasp",
     # the grip model (what the hand's joints hold)

@@ -108,7 +108,7 @@ def verify(plan):
 
 
 def synth(hand, object_block: dict, fingers, n: int = 1, *, fixed: bool = False, **kwargs: Any):
-    """Synthesize force-closure grasps (``regrasp synth``): `planner.synth.synthesize`.
+    """Synthesize force-closure grasps (``regrasp synth``): `planner.synthesis.synthesize`.
 
     Args:
         hand: a bundled hand's name or a hand.yaml path.
@@ -118,7 +118,7 @@ def synth(hand, object_block: dict, fingers, n: int = 1, *, fixed: bool = False,
         fixed: keep the object's pose (else it is sampled too).
     """
     from planner.grasp import resolve_hand_ref
-    from planner.synth import synthesize
+    from planner.synthesis import synthesize
 
     names = [f.strip() for f in fingers.split(",")] if isinstance(fingers, str) else list(fingers)
     return synthesize(resolve_hand_ref(str(hand), Path.cwd()), dict(object_block), names, n, fixed=fixed, **kwargs)

@@ -115,7 +115,7 @@ def cmd_check(args: argparse.Namespace) -> int:
 
 def cmd_synth(args: argparse.Namespace) -> int:
     """Synthesize force-closure grasps; exit 0 when -n were written, 1 fewer, 2 bad input."""
-    from planner.synth import run_synth  # deferred: scipy, coal (~0.25 s)
+    from planner.synthesis import run_synth  # deferred: scipy, coal (~0.25 s)
 
     return run_synth(args.hand, args.object, args.fingers, args.n, args.output, gravity=args.gravity, seed=args.seed,
                      max_finger_force_n=args.max_finger_force, mu=args.mu, gamma=args.gamma,

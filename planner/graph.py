@@ -14,8 +14,8 @@ thus a finger-gaiting sequence that keeps force closure throughout.
 new layer of states in one batch closure call; states that are not force closure are
 recorded as blocked and never expanded, so states that cannot matter are never built.
 `Evaluator` caches what the states need (closure per state, collisions per slot pair,
-grip forces); `seed_graph` starts the graph that `planner.search.LazyGraph` and
-`planner.search.greedy` grow. Ranking paths through the graph: `planner.search`; why no
+grip forces); `seed_graph` starts the graph that `planner.gait_search.LazyGraph` and
+`planner.gait_search.greedy` grow. Ranking paths through the graph: `planner.gait_search`; why no
 path exists: `planner.explain`.
 
 This module is pure numpy/networkx: it knows nothing of hands or simulators. Slots
@@ -418,7 +418,7 @@ class Evaluator:
 
 
 def seed_graph(problem: GaitProblem, evaluator: Evaluator | None = None) -> nx.DiGraph:
-    """A graph holding only the initial state (what `planner.search.greedy` and `planner.search.LazyGraph` grow).
+    """A graph holding only the initial state (what `planner.gait_search.greedy` and `planner.gait_search.LazyGraph` grow).
 
     Args:
         evaluator: caches to reuse (from an earlier round over fewer slots, see
@@ -487,7 +487,7 @@ def add_node(G: nx.DiGraph, ev: Evaluator, v: Node) -> None:
 
 
 def annotate_removable(G: nx.DiGraph, nodes) -> None:
-    """Set the ``removable`` attribute (thesis Algorithm 1) of the given nodes (`planner.search.LazyGraph`
+    """Set the ``removable`` attribute (thesis Algorithm 1) of the given nodes (`planner.gait_search.LazyGraph`
     leaves it unset: it needs the closure of every single-finger lift)."""
     ev: Evaluator = G.graph["evaluator"]
     for v in dict.fromkeys(nodes):

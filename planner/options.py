@@ -13,7 +13,7 @@ from planner.closure import CONTACT_MODELS
 from planner.errors import InputError, PlannerError, UnknownNameError
 from planner.gravity import GRAVITY_SET_SIZES, gravity_directions
 from planner.grip import FRICTION_MARGIN, HOLD_FACTOR
-from planner.search import RANKS
+from planner.gait_search import RANKS
 
 STRATEGIES = ("graph", "greedy")
 #: Friction fraction execution-mode plans must hold their load with: the grip model's
@@ -105,7 +105,7 @@ class PlanOptions:
             plan for several hand orientations at once, the named gravity directions of
             `planner.gravity.gravity_directions` (from the hand's ``palm_normal``). A state
             must then hold the weight in each of them. Exclusive with ``gravity``.
-        rank: how sequences are ranked (`planner.search.RANKS`): "metric" (the thesis:
+        rank: how sequences are ranked (`planner.gait_search.RANKS`): "metric" (the thesis:
             largest worst-case closure metric first) or "grip" (smallest largest grip force
             along the sequence first, then fewest gait steps, then the metric ranking;
             needs ``gravity`` or ``gravity_set``).

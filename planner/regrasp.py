@@ -4,7 +4,7 @@
    request (``intermediate`` N), N intermediate contacts from the finger's reachable
    contacts (`planner.slots.reachable_contacts`: in-limit postures closed onto the object,
    cached per hand and object).
-2. `planner.search.LazyGraph` (ranked best-first search evaluating only the states it
+2. `planner.gait_search.LazyGraph` (ranked best-first search evaluating only the states it
    reaches; or the greedy baseline) over those slots, with finger-finger collisions
    checked pairwise with coal. Anytime (``intermediate`` 0, ``time_limit_s`` > 0): when no
    sequence exists, rounds of intermediate contacts for the fingers that block progress
@@ -35,7 +35,7 @@ from planner.options import PlanOptions, gravity_directions_of
 from planner.plan_data import Alternative, Plan, PlanState, PlanStep
 from planner.realization import RealizedGrasp, realized_grasp
 from planner.retreat import retreat_blocked
-from planner.search import GaitSequence, LazyGraph, greedy
+from planner.gait_search import GaitSequence, LazyGraph, greedy
 from planner.slots import add_intermediate, add_slots, build_problem, holding_grasp, node_q
 
 

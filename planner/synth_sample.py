@@ -1,10 +1,10 @@
 """Candidates of grasp synthesis: a sampled pre-shape (and object pose), the fingers closed onto it.
 
-`sample_candidate` draws the hand pre-shapes of one attempt of `planner.synth.synthesize`
+`sample_candidate` draws the hand pre-shapes of one attempt of `planner.synthesis.synthesize`
 and, when the object pose is not fixed, puts the object where the chosen fingers' closing
 motions would all touch it; `closes_onto` closes the fingers with the thesis's procedure
 (`planner.hand.Hand.close_finger`) and keeps a candidate whose every finger touches. The
-check, the ranking and the files are `planner.synth`.
+check, the ranking and the files are `planner.synthesis`.
 """
 
 from __future__ import annotations

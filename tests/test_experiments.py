@@ -156,7 +156,7 @@ def test_exp8_synthesis_crash_loses_one_finger_set_not_the_sweep(monkeypatch):
     grasps are kept."""
     from types import SimpleNamespace
 
-    import planner.synth
+    import planner.synthesis
     from experiments import exp8_random_pairs as exp8
     from planner.errors import PlannerError
 
@@ -168,7 +168,7 @@ def test_exp8_synthesis_crash_loses_one_finger_set_not_the_sweep(monkeypatch):
         g = SimpleNamespace(data=dict(pose, fingers=fingers, seed=seed), grasp=SimpleNamespace(metric=0.5))
         return SimpleNamespace(grasps=[g] * n, attempts=7, seconds=0.1)
 
-    monkeypatch.setattr(planner.synth, "synthesize", fake)
+    monkeypatch.setattr(planner.synthesis, "synthesize", fake)
     out = exp8.synth_task({"hand": "allegro_right", "object": "x", "block": {"shape": "sphere", "size": [0.02]},
                            "sets": ["a,b,c", "a,b"], "per_set": 2, "seed": 5})
     assert out["pose_from"] == "a,b" and out["pose"] == [[0.0, 0.0, 0.1], [0.0, 0.0, 0.0, 1.0]]

@@ -16,7 +16,7 @@ from planner.closure import grasp_closure, min_grip_force
 from planner.errors import InputError, NoSequenceError, UnknownNameError
 from planner.explain import explain_failure
 from planner.graph import LIFTED, GaitProblem, Slot, build_graph
-from planner.search import LazyGraph, greedy, search
+from planner.gait_search import LazyGraph, greedy, search
 
 R = 0.03
 FRICTION = Friction(mu=0.5, gamma=0.004, edges=5)
@@ -392,7 +392,7 @@ def test_fewest_gaits_to_goal_is_exact():
     """gaits_to_goal (the search's gait bound): from the start, the fewest gaits over every
     simple start-goal path (brute force), on random problems, over the whole graph and over
     the states no worse than the best bottleneck."""
-    from planner.search import gaits_to_goal
+    from planner.gait_search import gaits_to_goal
 
     checked = 0
     for seed in range(8):

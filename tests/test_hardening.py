@@ -694,7 +694,7 @@ def test_replay_gravity_set_gif_names_may_not_be_inputs(tmp_path, capsys):
 def test_synth_never_overwrites_a_file_named_like_its_temporary(tmp_path):
     """synth writes through a temporary file of its own: a user's FILE.yaml.tmp next to the
     output is left as it was, and no temporary file remains."""
-    from planner.synth import output_names, synthesize, write_grasps
+    from planner.synthesis import output_names, synthesize, write_grasps
 
     r = synthesize("icub_right", {"shape": "sphere", "size": [0.02], "mass_kg": 0.03}, ["thumb", "index", "middle"], 1,
                    fixed=False, seed=0, max_attempts=60)

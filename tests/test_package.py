@@ -33,9 +33,9 @@ def test_python_dash_m_runs():
 
 
 def test_core_maths_imports_without_heavy_back_ends():
-    """planner.closure, planner.graph, planner.search and planner.explain import without pinocchio, coal, OMPL or pybullet."""
+    """planner.closure, planner.graph, planner.gait_search and planner.explain import without pinocchio, coal, OMPL or pybullet."""
     code = (
-        "import sys, planner.closure, planner.graph, planner.search, planner.explain, planner.plan\n"
+        "import sys, planner.closure, planner.graph, planner.gait_search, planner.explain, planner.plan\n"
         "heavy = [m for m in ('pinocchio', 'coal', 'ompl', 'pybullet') if m in sys.modules]\n"
         "print(','.join(heavy))\n"
     )
@@ -267,3 +267,22 @@ def test_data_is_found_only_through_planner_resources():
     assert plan_file("robots/icub_right/hand.yaml", plan_path) is None
     assert plan_file("robots/icub_right/hand.yaml", REPO / "p.yaml") == REPO / "robots/icub_right/hand.yaml"
     assert plan_hand_ref({"name": "icub_right", "spec": "robots/icub_right/hand.yaml"}, plan_path) == "icub_right"
+
+
+def test_no_submodule_shadows_a_public_name():
+    """Importing a submodule binds it as an attribute of the package: a module named like a
+    name of ``planner.__all__`` replaces that function once anything imports it (the API's
+    ``planner.synth`` became the module after its first call). Only ``planner.plan`` is both,
+    on purpose: the module is callable."""
+    import pkgutil
+
+    import planner
+
+    modules = {m.name for m in pkgutil.iter_modules(planner.__path__)}
+    assert set(planner.__all__) & modules == {"plan"}
+    import planner.gait_search  # noqa: F401 - the imports that used to rebind the names
+    import planner.synthesis  # noqa: F401
+
+    assert callable(planner.synth) and not isinstance(planner.synth, type(planner))
+    assert callable(planner.search) and not isinstance(planner.search, type(planner))
+    assert callable(planner.plan) and hasattr(planner.plan, "read_plan")

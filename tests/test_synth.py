@@ -148,7 +148,7 @@ def test_synth_for_execution_keeps_grasps_holding_in_every_direction_with_mean_c
     from planner.model import Friction
     from planner.closure import apply_contact_model
     from planner.gravity import gravity_directions
-    from planner.synth import synthesize
+    from planner.synthesis import synthesize
 
     dirs = np.array([g for _, g in gravity_directions((0.0, 0.0, 1.0), 6)])
     r = synthesize("icub_right", dict(BALL), ["thumb", "index", "middle"], 1, fixed=False, seed=0,
@@ -175,7 +175,7 @@ def test_synth_says_why_when_it_finds_too_few_and_has_a_tripod_default(tmp_path,
     hand's next two fingers."""
     from planner.cli import main
     from planner.hand import Hand
-    from planner.synth import default_fingers
+    from planner.synthesis import default_fingers
 
     far = tmp_path / "far.yaml"
     far.write_text("shape: sphere\nsize: [0.02]\nposition: [0.3, 0.3, 0.3]\n")
