@@ -173,9 +173,7 @@ class GraspObject:
             base_dir: folder a relative ``mesh`` path is relative to (default: as given).
         """
         quat = tuple(float(v) for v in data["quat_xyzw"])
-        T = np.eye(4)
-        T[:3, :3] = Rotation.from_quat(quat).as_matrix()
-        T[:3, 3] = data["position"]
+        T = _pose(data["position"], quat)
         mesh = data.get("mesh")
         if mesh is not None and base_dir is not None and not Path(mesh).is_absolute():
             mesh = str(Path(base_dir) / mesh)
@@ -203,6 +201,11 @@ class GraspObject:
         if unknown:
             raise InputError(f"unknown object entries {sorted(unknown)}; entries are shape, size, position, "
                              "quat_xyzw, mesh, mass_kg")
+        if set(changes) <= {"position", "quat_xyzw"}:  # a new pose: the same geometry and mass
+            quat = tuple(float(v) for v in changes.get("quat_xyzw", self.quat_xyzw))
+            T = _check_pose(_pose(changes.get("position", self.position), quat))
+            return GraspObject(self.shape, self.size, T, self.mesh_path, self.mass_kg, self._mesh, self._geometry,
+                               self.mass_given, quat)
         return GraspObject.from_data({**self.to_data(), **changes})
 
     @property
@@ -509,6 +512,14 @@ def _closest_on_triangles(p, a, b, c):
     m = (d6 >= 0) & (d5 <= d6)
     out[m] = c[m]
     return out
+
+
+def _pose(position, quat_xyzw) -> np.ndarray:
+    """(4, 4) pose of a position (3,) and a unit quaternion [x, y, z, w] (the file form's)."""
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_quat(quat_xyzw).as_matrix()
+    T[:3, 3] = position
+    return T
 
 
 def _check_pose(T) -> np.ndarray:
