@@ -14,7 +14,7 @@ from typing import Mapping
 import numpy as np
 
 from planner.objects import GraspObject
-from planner.plan_data import plan_file, plan_hand_ref
+from planner.plan_data import plan_hand_ref, plan_object
 
 
 def pose_matrix(R=None, t=None) -> np.ndarray:
@@ -52,9 +52,6 @@ def hand_of_plan(plan: Mapping, plan_path: Path):
 
 
 def object_of_plan(plan: Mapping, plan_path: Path) -> GraspObject:
-    """The `planner.objects.GraspObject` of plain plan data (its ``object`` block; a mesh
-    path relative to the plan file) at its planned pose (palm frame)."""
-    o = dict(plan["object"])
-    if o.get("mesh"):
-        o["mesh"] = str(plan_file(o["mesh"], plan_path) or o["mesh"])
-    return GraspObject.from_data(o)
+    """The `planner.objects.GraspObject` of plain plan data at its planned pose (palm frame):
+    `planner.plan_data.plan_object`, the rule a `Plan` reads its object with."""
+    return plan_object(plan["object"], plan_path)

@@ -193,11 +193,8 @@ class Plan:
     source: str | None = field(default=None, compare=False)
 
     def __post_init__(self):
-        if isinstance(self.object, Mapping):  # the file form: a relative mesh is relative to the plan file
-            obj = dict(self.object)
-            if isinstance(obj.get("mesh"), str):
-                obj["mesh"] = str(_absolute(obj["mesh"], self.source))
-            object.__setattr__(self, "object", GraspObject.from_data(obj))
+        if isinstance(self.object, Mapping):  # the file form
+            object.__setattr__(self, "object", plan_object(self.object, self.source))
         if isinstance(self.friction, Mapping):
             object.__setattr__(self, "friction", Friction(**self.friction))
 
@@ -256,6 +253,15 @@ def _absolute(path: str, source: str | None) -> Path:
     plan file; the working directory for a plan made in memory)."""
     p = Path(path)
     return Path(os.path.abspath(p if p.is_absolute() else (Path(source).parent if source else Path.cwd()) / p))
+
+
+def plan_object(data: Mapping[str, Any], source) -> GraspObject:
+    """The object of a plan's ``object`` block (its file form): a relative ``mesh`` is
+    relative to the plan file ``source`` (the working directory for a plan made in memory)."""
+    obj = dict(data)
+    if isinstance(obj.get("mesh"), str):
+        obj["mesh"] = str(_absolute(obj["mesh"], None if source in (None, "<plan>") else str(source)))
+    return GraspObject.from_data(obj)
 
 
 def _relative(path: str, folder, source: str | None) -> str:
