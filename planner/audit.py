@@ -41,6 +41,7 @@ from planner.errors import AuditError, PlannerError
 from planner.grasp import load_grasp
 from planner.hand import Hand
 from planner.plan import read_plan, recorded_input
+from planner.model import PALM
 from planner.plan_data import Plan, plan_hand_ref
 from planner.realization import PENETRATION_TOL_M as _GRASP_PENETRATION_TOL_M
 from planner.realization import realize
@@ -109,6 +110,26 @@ def _angle_deg(a, b) -> float:
     a, b = np.asarray(a, float), np.asarray(b, float)
     c = float(a @ b / max(np.linalg.norm(a) * np.linalg.norm(b), 1e-300))
     return math.degrees(math.acos(max(-1.0, min(1.0, c))))
+
+
+def _modelled_reference(fk_patch, model: str, links, n_points: int) -> list | None:
+    """Per recorded point of a "mean"/"link" patch, the hand's own patch it is the mean of at
+    the state's joints: (its points (m, 3), its normalized mean normal); None where unknown."""
+    if fk_patch is None:
+        return None
+    pts, nrm = np.asarray(fk_patch[0], float), np.asarray(fk_patch[1], float)
+    whole = (pts, _unit(nrm.mean(axis=0)))
+    if model == "mean" or links is None or getattr(fk_patch, "links", None) is None:
+        return [whole if n_points == 1 else None] * n_points
+    out = []
+    for link in links:
+        idx = [k for k, l in enumerate(fk_patch.links) if str(l) == str(link)]
+        out.append((pts[idx], _unit(nrm[idx].mean(axis=0))) if idx else None)
+    return out
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / max(float(np.linalg.norm(v)), 1e-300)
 
 
 def _mean_sag(obj, fk_patch) -> float:
@@ -210,9 +231,12 @@ def _check_states(plan, hand, obj, rep: AuditReport) -> list:
     friction = plan.friction
     poses = []
     fk_cache: dict = {}
-    # a plan made with one mean contact per finger records the mean of the finger's patch:
-    # on a curved surface, or a patch over two links, it lies below the surface
-    mean_model = (plan.parameters or {}).get("contact_model") == "mean"
+    # a plan made with one mean contact per finger ("mean") or per touching link ("link")
+    # records the mean of a patch: on a curved surface, or a patch over two links, it lies
+    # below the surface, and its normal is the mean of the patch's normals
+    model = (plan.parameters or {}).get("contact_model", "patch")
+    modelled = model in ("mean", "link")
+    palm_fk = None
     for i, st in enumerate(plan.states):
         q = _q(plan, hand, st.q)
         hs = hand.state(q)
@@ -224,47 +248,69 @@ def _check_states(plan, hand, obj, rep: AuditReport) -> list:
                 fk_cache[key] = contact_patches(hand, hs, obj, fingers=[f]).get(f)
             if fk_cache[key] is not None:
                 fk[f] = fk_cache[key]
-        for f, (pts, nrm) in st.patches.items():
+        if i == 0:  # the palm does not move: its contact is the same in every state
+            palm_fk = contact_patches(hand, hs, obj, fingers=[], palm=True).get(PALM)
+        if palm_fk is not None:
+            fk[PALM] = palm_fk
+        for f, patch in st.patches.items():
+            pts, nrm = patch
             rep.count("contacts", len(pts))
-            if f not in hand.fingers:
-                rep.add(f"states[{i}].patches.{f}: not a finger of {hand.name}")
+            if f not in hand.fingers and f != PALM:
+                rep.add(f"states[{i}].patches.{f}: not a finger of {hand.name} (nor {PALM})")
                 continue
+            ref = _modelled_reference(fk.get(f), model, getattr(patch, "links", None), len(pts)) if modelled else None
             worst_d, worst_a = 0.0, 0.0
             # every patch's first point (the contact itself) and a spread of the ring points:
             # an edit moves a patch as a whole, and a mesh's surface query costs per triangle
             pick = sorted(set(np.linspace(0, len(pts) - 1, min(len(pts), POINTS_PER_PATCH)).round().astype(int)))
-            for p_obj, n_in in zip(np.asarray(pts)[pick], np.asarray(nrm)[pick]):
+            tol = SURFACE_TOL_M
+            for k in pick:
+                p_obj, n_in = np.asarray(pts[k], float), np.asarray(nrm[k], float)
                 ps, _, _ = obj.closest_surface(p_obj)
-                worst_d = max(worst_d, float(np.linalg.norm(np.asarray(ps) - p_obj)))
-                worst_a = max(worst_a, _normal_error_deg(obj, np.asarray(ps, float), np.asarray(n_in, float)))
-            if mean_model and len(pts) == 1 and f in fk:
-                # a mean contact's normal is the mean of its patch's normals: where the patch
-                # spans two faces (a box edge) it is no face's normal; its reference is the
-                # mean of the hand's own patch at the state's joints
-                n_fk = apply_contact_model({f: fk[f]}, "mean")[f].normals[0]
-                worst_a = min(worst_a, _angle_deg(np.asarray(nrm, float)[0], n_fk))
-            tol = SURFACE_TOL_M + _mean_sag(obj, fk.get(f)) if mean_model and len(pts) == 1 else SURFACE_TOL_M
-            if worst_d > tol:
+                d = float(np.linalg.norm(np.asarray(ps) - p_obj))
+                a = _normal_error_deg(obj, np.asarray(ps, float), n_in)
+                if ref is not None and ref[k] is not None:
+                    # a mean contact's normal is the mean of its patch's normals: where the patch
+                    # spans two faces (a box edge) it is no face's normal; its reference is the
+                    # mean of the hand's own patch (of that link) at the state's joints
+                    ref_pts, ref_n = ref[k]
+                    a = min(a, _angle_deg(n_in, ref_n))
+                    tol = max(tol, SURFACE_TOL_M + _mean_sag(obj, (ref_pts,)))
+                    d_ok = d <= SURFACE_TOL_M + _mean_sag(obj, (ref_pts,))
+                else:
+                    d_ok = d <= SURFACE_TOL_M
+                if not d_ok:
+                    worst_d = max(worst_d, d)
+                worst_a = max(worst_a, a)
+            if worst_d > 0:
                 rep.add(f"states[{i}].patches.{f}: a contact point lies {worst_d * 1000:.1f} mm off the object's "
                         f"surface (tolerance {tol * 1000:.1f} mm)")
             if worst_a > NORMAL_TOL_DEG:
                 rep.add(f"states[{i}].patches.{f}: a contact normal is {worst_a:.0f} deg from the surface's inward "
                         f"normal there (tolerance {NORMAL_TOL_DEG:.0f} deg)")
         for f in st.patches:
-            if f not in hand.fingers:
+            if f not in hand.fingers and f != PALM:
                 continue
             if f not in fk:
-                d = hs.finger_object_distance(obj, f)
-                rep.add(f"states[{i}].patches.{f}: at the state's joints finger {f} is {d * 1000:.1f} mm from the "
-                        f"object: it does not touch where the plan says")
+                d = (min((ld.distance_m for ld in hs.link_object(obj, hand.collision.finger_links(None)).values()),
+                         default=math.inf) if f == PALM else hs.finger_object_distance(obj, f))
+                rep.add(f"states[{i}].patches.{f}: at the state's joints {'the palm' if f == PALM else 'finger ' + f} "
+                        f"is {d * 1000:.1f} mm from the object: it does not touch where the plan says")
                 continue
-            off = float(np.linalg.norm(np.mean(st.patches[f][0], axis=0) - np.mean(fk[f][0], axis=0)))
+            mine = fk[f] if not modelled else apply_contact_model({f: fk[f]}, model)[f]
+            if modelled and getattr(st.patches[f], "links", None) is None:
+                mine = apply_contact_model({f: fk[f]}, "mean")[f]
+            off = float(np.linalg.norm(np.mean(st.patches[f][0], axis=0) - np.mean(mine[0], axis=0)))
             if off > FK_TOL_M:
-                rep.add(f"states[{i}].patches.{f}: the finger touches the object {off * 1000:.1f} mm from its "
-                        f"recorded contact (forward kinematics at the state's joints; tolerance {FK_TOL_M * 1000:.0f} mm)")
+                rep.add(f"states[{i}].patches.{f}: the {'palm' if f == PALM else 'finger'} touches the object "
+                        f"{off * 1000:.1f} mm from its recorded contact (forward kinematics at the state's joints; "
+                        f"tolerance {FK_TOL_M * 1000:.0f} mm)")
         for f in fk:
             if f not in st.patches:
-                rep.add(f"states[{i}]: finger {f} touches the object at the state's joints but the plan has it lifted")
+                if f != PALM:
+                    rep.add(f"states[{i}]: finger {f} touches the object at the state's joints but the plan has it lifted")
+                elif model == "link":  # plans since whole-hand grasps count a touching palm
+                    rep.add(f"states[{i}]: the palm touches the object but the plan does not count it as a contact")
         for link, ld in hs.link_object(obj, [l for f in hand.fingers for l in hand.fingers[f].links]
                                        + list(hand.collision.finger_links(None))).items():
             if ld.distance_m < -PENETRATION_TOL_M:
@@ -275,6 +321,9 @@ def _check_states(plan, hand, obj, rep: AuditReport) -> list:
                 rep.add(f"states[{i}]: links {a} and {b} overlap by {depth * 1000:.1f} mm")
         patches = st.patches
         for f in st.removable:
+            if f == PALM:
+                rep.add(f"states[{i}].removable: the palm is never removable (it is not lifted)")
+                continue
             if f not in patches:  # a lifted finger is trivially removable
                 continue
             rest = {g: v for g, v in patches.items() if g != f}

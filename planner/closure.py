@@ -60,7 +60,7 @@ import numpy as np
 from planner.errors import InputError, UnknownNameError
 from planner.hull import Closure, Hull, wrench_closure
 from planner.lp import solve_highs
-from planner.model import Friction, Patch, cross, tangent_basis
+from planner.model import PALM, Friction, Patch, cross, tangent_basis
 
 __all__ = [
     "CONTACT_MODELS",
@@ -78,8 +78,12 @@ __all__ = [
 #: patch with its own friction cone (thesis section VII: all contact points of a link).
 #: "mean": one contact per finger at the mean point with the mean normal (thesis fig. 13,
 #: "mean"); this is what a rigid fingertip gives in a physics engine, so plans made with
-#: it are the ones that hold in the replay.
-CONTACT_MODELS = ("patch", "mean")
+#: it are the ones that hold in the replay. "link": one contact per touching link of each
+#: owner (finger or palm) at the mean of that link's points, with their mean normal: a
+#: finger holding with two phalanges pushes through two contacts, as it does in a physics
+#: engine, instead of one point between them (inside the object on a convex one); a patch
+#: whose links are not known (schema 2 plans) is one contact, as "mean". Execution mode's.
+CONTACT_MODELS = ("patch", "mean", "link")
 
 #: Largest contact point coordinate, m (object frames are centred on the object).
 MAX_COORD_M = 1e3
@@ -201,11 +205,21 @@ def closure_from_wrenches(W) -> Closure:
     return wrench_closure(_check_wrenches(W))[0]
 
 
+def _mean_contact(owner, p: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """One contact at the mean point with the normalized mean normal, (1, 3) each."""
+    m = n.mean(axis=0)
+    norm = float(np.linalg.norm(m))
+    if not norm > 1e-9:
+        raise InputError(f"the normals of {owner!r} cancel out: no mean contact normal")
+    return p.mean(axis=0, keepdims=True), (m / norm)[None, :]
+
+
 def apply_contact_model(patches: Mapping[str, tuple], model: str) -> dict[str, Patch]:
     """Patches as the closure test sees them under a contact model (`CONTACT_MODELS`).
 
     "patch" returns the patches unchanged; "mean" replaces each by one point, the mean of
-    its points, with the normalized mean of its normals.
+    its points, with the normalized mean of its normals; "link" does that per touching link
+    (`Patch.links`; a patch without links is one contact), keeping the link of each.
 
     Raises:
         UnknownNameError: model is not one of `CONTACT_MODELS`.
@@ -215,15 +229,23 @@ def apply_contact_model(patches: Mapping[str, tuple], model: str) -> dict[str, P
         raise UnknownNameError("contact model", model, CONTACT_MODELS)
     out = {}
     for finger, points, normals in _patch_items(patches):
+        links = getattr(patches[finger], "links", None)
         p, n = _as_arrays(points, normals)
-        if model == "mean" and len(p):
-            p, n = _unit_normals(p, n)
-            m = n.mean(axis=0)
-            norm = float(np.linalg.norm(m))
-            if not norm > 1e-9:
-                raise InputError(f"the normals of finger {finger!r} cancel out: no mean contact normal")
-            p, n = p.mean(axis=0, keepdims=True), (m / norm)[None, :]
-        out[finger] = Patch(p, n)
+        if model == "patch" or not len(p):
+            out[finger] = Patch(p, n, links)
+            continue
+        p, n = _unit_normals(p, n)
+        if model == "mean" or links is None:
+            mp, mn = _mean_contact(finger, p, n)
+            out[finger] = Patch(mp, mn, None if links is None or len(set(links)) > 1 else links[:1])
+            continue
+        ps, ns, ls = [], [], []
+        for link, idx in Patch(p, n, links).link_groups():
+            mp, mn = _mean_contact(f"{finger}/{link}", p[idx], n[idx])
+            ps.append(mp)
+            ns.append(mn)
+            ls.append(link)
+        out[finger] = Patch(np.vstack(ps), np.vstack(ns), ls)
     return out
 
 
@@ -323,13 +345,16 @@ def removable_fingers(patches: Mapping[str, tuple], friction: Friction) -> froze
 
     Returns:
         frozenset of finger names; fingers with an empty patch are removable; empty when the
-        grasp itself is not force closure.
+        grasp itself is not force closure. The palm's patch (`PALM`) holds but is never
+        removable.
     """
     full, blocks = _finger_wrenches(patches, friction)
     if not wrench_closure(full, decide_only=True)[0].is_force_closure:
         return frozenset()
     removable = set()
     for finger, block in blocks.items():
+        if finger == PALM:  # the palm is never lifted
+            continue
         if len(block) == 0:
             removable.add(finger)
             continue
@@ -403,12 +428,17 @@ def min_grip_force(patches: Mapping[str, tuple], friction: Friction, load, *,
     W, blocks = _finger_wrenches(patches, friction)
     if not w_ext.any():
         return 0.0
-    sizes = [len(b) for b in blocks.values() if len(b)]
-    if not sizes:
+    spans, start = [], 0
+    for owner, b in blocks.items():
+        if len(b) and owner != PALM:  # the rigid palm presses as hard as the fingers make it
+            spans.append((start, start + len(b)))
+        start += len(b)
+    if not start:
         return math.inf
+    sizes = spans
     k = len(W)
     A_ub = np.zeros((len(sizes), k + 1))
-    for i, (a, b) in enumerate(zip(np.cumsum([0] + sizes[:-1]), np.cumsum(sizes))):
+    for i, (a, b) in enumerate(spans):
         A_ub[i, a:b] = 1.0
     A_ub[:, k] = -1.0
     c = np.zeros(k + 1)

@@ -15,7 +15,7 @@ import numpy as np
 
 from planner.collision import HandState
 from planner.errors import InputError, UnknownNameError
-from planner.model import Contact, Patch
+from planner.model import PALM, Contact, Patch
 
 TOUCH_TOL_M = 1e-3
 RING_RADII_M = (1.5e-3, 3.0e-3)
@@ -90,7 +90,12 @@ def _link_patch(state, obj, T_obj_palm, T_palm_obj, query, touch_tol_m):
     return np.array(pts), -np.array(nrm)
 
 
-def contact_patches(hand, q, obj, touch_tol_m: float = TOUCH_TOL_M, fingers=None
+def _owner_links(hand, owner: str) -> tuple[str, ...]:
+    """The contact links of a finger, or the palm's links with geometry (`PALM`)."""
+    return hand.collision.finger_links(None) if owner == PALM else hand.fingers[owner].contact_links
+
+
+def contact_patches(hand, q, obj, touch_tol_m: float = TOUCH_TOL_M, fingers=None, palm: bool = False
                     ) -> dict[str, Patch]:
     """Contact patches of a hand configuration on the object.
 
@@ -100,19 +105,21 @@ def contact_patches(hand, q, obj, touch_tol_m: float = TOUCH_TOL_M, fingers=None
         obj: planner.objects.GraspObject.
         touch_tol_m: a link touches when its distance to the object is at most this.
         fingers: restrict to these fingers (default all).
+        palm: also the palm's patch (key `PALM`) when a palm link touches.
     Returns:
-        finger -> (p_obj (n, 3), n_in_obj (n, 3)) for touching fingers only; several points per
-        touching link; normals are unit and point into the object. Ready for
-        planner.closure.grasp_closure.
+        owner -> `Patch` (points (n, 3), inward unit normals (n, 3), the link of every point)
+        for touching fingers (and the palm) only, several points per touching link, object
+        frame. Ready for planner.closure.grasp_closure.
     """
     state = _state(hand, q)
     T_palm_obj = obj.T_palm_obj
     T_obj_palm = np.linalg.inv(T_palm_obj)
     out = {}
-    for f in _fingers(hand, fingers):
-        links = hand.fingers[f].contact_links
+    owners = _fingers(hand, fingers) + ([PALM] if palm else [])
+    for f in owners:
+        links = _owner_links(hand, f)
         queries = state.link_object(obj, links)
-        P, N = [], []
+        P, N, L = [], [], []
         for link in links:
             qy = queries.get(link)
             if qy is None or qy.distance_m > touch_tol_m:
@@ -120,8 +127,9 @@ def contact_patches(hand, q, obj, touch_tol_m: float = TOUCH_TOL_M, fingers=None
             p, n = _link_patch(state, obj, T_obj_palm, T_palm_obj, qy, touch_tol_m)
             P.append(p)
             N.append(n)
+            L.extend([link] * len(p))
         if P:
-            out[f] = Patch(np.vstack(P), np.vstack(N))
+            out[f] = Patch(np.vstack(P), np.vstack(N), L)
     return out
 
 
@@ -153,13 +161,14 @@ def collisions(hand, q, obj=None, touch_tol_m: float = TOUCH_TOL_M, fingers=None
     return out
 
 
-def link_contacts(hand, q, obj, touch_tol_m: float = TOUCH_TOL_M, fingers=None) -> list[Contact]:
+def link_contacts(hand, q, obj, touch_tol_m: float = TOUCH_TOL_M, fingers=None, palm: bool = False) -> list[Contact]:
     """One realized contact per touching link: where, with which normal, how deep.
 
     Args:
         hand, q, obj: as `contact_patches`.
         touch_tol_m: a link touches when its signed distance to the object is at most this.
         fingers: restrict to these fingers (default all).
+        palm: also the palm's touching links (``finger`` None), after the fingers'.
     Returns:
         list (hand finger order, then the finger's contact_links order) of
         `planner.model.Contact` in the object frame: ``point`` the link's closest
@@ -169,8 +178,8 @@ def link_contacts(hand, q, obj, touch_tol_m: float = TOUCH_TOL_M, fingers=None) 
     state = _state(hand, q)
     T_obj_palm = np.linalg.inv(obj.T_palm_obj)
     out = []
-    for f in _fingers(hand, fingers):
-        links = hand.fingers[f].contact_links
+    for f in _fingers(hand, fingers) + ([PALM] if palm else []):
+        links = _owner_links(hand, f)
         queries = state.link_object(obj, links)
         for link in links:
             qy = queries.get(link)
@@ -178,5 +187,5 @@ def link_contacts(hand, q, obj, touch_tol_m: float = TOUCH_TOL_M, fingers=None) 
                 continue
             d = qy.distance_m
             p, n_out, _ = obj.closest_surface(_witness_obj(T_obj_palm, qy))
-            out.append(Contact(f, link, p, -np.asarray(n_out, dtype=float), frame="obj", distance_m=d))
+            out.append(Contact(None if f == PALM else f, link, p, -np.asarray(n_out, dtype=float), frame="obj", distance_m=d))
     return out

@@ -25,7 +25,8 @@ carry finger joint values for the caller; collisions come in as a pairwise predi
 from __future__ import annotations
 
 import itertools
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from types import MappingProxyType
 from typing import Callable, Mapping, Sequence
 
 import networkx as nx
@@ -62,6 +63,7 @@ class Slot:
         statics: the finger's contact Jacobians, gravity torques and joint limits at this
             contact (`planner.grip.FingerStatics`), or None: with them a problem with loads
             bounds the grip by the joints (`GaitProblem`).
+        links: the link each point is on (`planner.model.Patch.links`), or None.
     """
 
     finger: str
@@ -70,8 +72,18 @@ class Slot:
     normals: np.ndarray
     q: np.ndarray | None = None
     statics: FingerStatics | None = None
+    links: tuple | None = None
+
+    @property
+    def patch(self) -> Patch:
+        """The slot's contacts as a `planner.model.Patch` (with their links)."""
+        return Patch(self.points, self.normals, self.links)
 
     def __post_init__(self):
+        if self.links is not None:
+            object.__setattr__(self, "links", tuple(self.links))
+            if len(self.links) != len(self.points):
+                raise InputError(f"slot {self.finger}/{self.label}: {len(self.points)} points but {len(self.links)} links")
         object.__setattr__(self, "points", _frozen(self.points))
         object.__setattr__(self, "normals", _frozen(self.normals))
         if self.q is not None:
@@ -116,6 +128,10 @@ class GaitProblem:
             friction scaled by ``grip_friction_margin``.
         hold_factor: the multiple of each load the torque model requires (default
             `planner.grip.HOLD_FACTOR`).
+        support: contacts every state has and no move lifts: owner -> `Patch` (the palm,
+            `planner.model.PALM`, when the object rests on it; rigid, so no statics: it pushes
+            inside its friction cone with no joint limit). A finger may lift when the other
+            fingers and the support keep the state valid.
     """
 
     fingers: tuple[str, ...]
@@ -132,8 +148,13 @@ class GaitProblem:
     grip_friction_margin: float = 1.0
     load_gravity: np.ndarray | None = None
     hold_factor: float = HOLD_FACTOR
+    support: Mapping[str, Patch] = field(default_factory=dict)
 
     def __post_init__(self):
+        object.__setattr__(self, "support", MappingProxyType(dict(self.support)))
+        for owner in self.support:
+            if owner in self.fingers:
+                raise InputError(f"support {owner!r} is a finger: a finger's contacts are slots, lifted and landed")
         if not (isinstance(self.grip_friction_margin, (int, float)) and 0 < self.grip_friction_margin <= 1):
             raise InputError(f"grip_friction_margin must be in (0, 1], got {self.grip_friction_margin!r}")
         if self.load is not None:
@@ -234,12 +255,12 @@ class GaitProblem:
         return out
 
     def patches(self, node: Node) -> dict[str, Patch]:
-        """Touching finger -> (points, normals) of a node."""
+        """Owner -> `Patch` of a node: its touching fingers, then the `support` (the palm)."""
         out = {}
         for f, s in zip(self.fingers, node):
             if s != LIFTED:
-                slot = self.slots[f][s]
-                out[f] = Patch(slot.points, slot.normals)
+                out[f] = self.slots[f][s].patch
+        out.update(self.support)
         return out
 
     def labels(self, node: Node) -> dict[str, str]:

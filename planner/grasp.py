@@ -23,8 +23,16 @@ A grasp file (``grasps/**/*.yaml``, schema_version 1)::
       middle: {posture: [0.0, 0.6, 0.4, 0.3]}        # the finger's joints in hand.yaml order,
                                                      # then closed onto the object
       little: free                                   # open posture, not touching
+    palm: hold                            # optional: hold | free | auto (default auto)
 
 Fingers of the hand that the file does not list are free (open posture).
+
+``palm`` says what the palm (the links of the hand's base) does: ``auto`` (default) counts
+it as a contact when it touches the object (within the touch tolerance, 1 mm), like any
+finger link; ``hold`` requires it to touch (the object rests on or is pressed against it:
+`check` fails when it does not); ``free`` requires it not to touch (a fingertip grasp: `check`
+fails when it does). A touching palm holds like a rigid link: it pushes only, inside its
+friction cone, with no joint limit, and is never lifted.
 
 A validated file is a `GraspSpec`; `planner.realization` turns it into a hand configuration
 (`realize` -> `RealizedGrasp`).
@@ -51,7 +59,9 @@ SURFACE_TOL_M = 0.002
 #: Joint values in a posture may exceed the limits by this much (rounding in files).
 LIMIT_TOL_RAD = 1e-6
 
-_TOP_KEYS = ("schema_version", "name", "description", "hand", "object", "friction", "fingers")
+_TOP_KEYS = ("schema_version", "name", "description", "hand", "object", "friction", "fingers", "palm")
+#: Values of a grasp file's ``palm:`` key (module docstring).
+PALM_MODES = ("auto", "hold", "free")
 _OBJECT_KEYS = ("shape", "size", "position", "quat_xyzw", "mesh", "mass_kg")
 _FRICTION_KEYS = ("mu", "gamma", "edges")
 
@@ -91,6 +101,7 @@ class GraspSpec:
         friction: `planner.model.Friction` (mu, gamma in metres, edges).
         fingers: one `FingerSpec` per finger of the hand, in the hand's finger order
             (fingers the file does not list are ``free``).
+        palm: ``auto``, ``hold`` or ``free`` (`PALM_MODES`, module docstring).
         description: free text from the file.
     """
 
@@ -103,6 +114,7 @@ class GraspSpec:
     fingers: tuple[FingerSpec, ...]
     description: str = ""
     schema_version: int = SCHEMA_VERSION
+    palm: str = "auto"
 
     def finger(self, name: str) -> FingerSpec:
         """The spec of finger `name` (UnknownNameError if the hand has none)."""
@@ -222,6 +234,7 @@ def parse_grasp(data: Mapping, path) -> GraspSpec:
         fingers.append(_parse_finger(fingers_data.child(fname), hand, finger, obj))
     if not any(f.kind != "free" for f in fingers):
         raise r.fail("no finger touches the object; give at least one contact or posture", "fingers")
+    palm = r.child("palm").choice(PALM_MODES, "palm mode", valid="valid:") if r.get("palm") is not None else "auto"
 
     return GraspSpec(
         path=str(path),
@@ -232,6 +245,7 @@ def parse_grasp(data: Mapping, path) -> GraspSpec:
         friction=friction,
         fingers=tuple(fingers),
         description=description,
+        palm=palm,
     )
 
 

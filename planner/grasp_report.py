@@ -38,12 +38,21 @@ def check_text(grasp: RealizedGrasp, hold: list | None = None) -> str:
     for name, f in report["fingers"].items():
         out.append(f"{name:<8} {f['kind']:<8} {f['contact_points']:>6}  {'yes' if f['removable'] else 'no':<9}  "
                    f"{', '.join(f['touching_links']) or '-'}")
+    palm = report["palm"]
+    gap = "" if palm["distance_m"] is None else f", {palm['distance_m'] * 1e3:.1f} mm from the object"
+    if palm["holds"]:
+        words = f"touches ({', '.join(palm['touching_links'])}), holds with {palm['contact_points']} point(s)"
+    elif palm["touching"]:
+        words = f"touches ({', '.join(palm['touching_links'])}) but is kept out of the grasp (palm: free)"
+    else:
+        words = "does not touch" + gap
+    out.append(f"{'palm':<8} {palm['mode']:<8} {palm['contact_points']:>6}  {'never':<9}  {words}")
     out.append("realized contacts (object frame, mm; normal into the object):")
     out.append(f"  {'finger':<8} {'link':<20} {'point':>26}  {'normal':>22}  penetration")
     for c in grasp.contacts:
         p = " ".join(f"{v * 1e3:+8.2f}" for v in c.point)
         n = " ".join(f"{v:+6.3f}" for v in c.normal)
-        out.append(f"  {c.finger:<8} {c.link:<20} {p:>26}  {n:>22}  {c.penetration_m * 1e3:.2f} mm")
+        out.append(f"  {c.finger or 'palm':<8} {c.link:<20} {p:>26}  {n:>22}  {c.penetration_m * 1e3:.2f} mm")
     for a, b, depth in grasp.collisions:
         out.append(f"collision: {a} - {b}, {depth * 1000:.2f} mm")
     for w in grasp.warnings:
@@ -55,8 +64,11 @@ def check_text(grasp: RealizedGrasp, hold: list | None = None) -> str:
     mean = report["mean_contact_closure"]
     out.append(f"with one mean contact per finger (--contact-model mean): force closure "
                f"{'yes' if mean['force_closure'] else 'no'}, metric {mean['metric']:.4g}")
+    link = report["link_contact_closure"]
+    out.append(f"with one contact per touching link (--contact-model link, execution mode): force closure "
+               f"{'yes' if link['force_closure'] else 'no'}, metric {link['metric']:.4g}")
     if hold:
-        out.append(f"load held within the joints' torque limits (mean contacts, {FRICTION_MARGIN:g} of the friction; "
+        out.append(f"load held within the joints' torque limits (a contact per link, {FRICTION_MARGIN:g} of the friction; "
                    f"execution mode needs {HOLD_FACTOR:g}x the weight, {grasp.obj.mass_kg * 1e3:.4g} g):")
         for h in hold:
             out.append(f"  {'ok  ' if h.holds else 'LOW '} {h.words()}")

@@ -55,7 +55,7 @@ import numpy as np
 from planner.closure import GRIP_CONE_SIDES, checked_load, contact_wrenches
 from planner.errors import InputError
 from planner.lp import highs_lp, solve_highs
-from planner.model import Friction, tangent_basis
+from planner.model import PALM, Friction, tangent_basis
 
 #: Multiple of the object's weight a state must hold (module docstring).
 HOLD_FACTOR = 2.0
@@ -167,7 +167,7 @@ class Demand:
 # --------------------------------------------------------------------------- statics of a hand
 
 
-def finger_statics(hand, finger: str, q, points_obj, T_palm_obj, effort=None) -> FingerStatics:
+def finger_statics(hand, finger: str, q, points_obj, T_palm_obj, effort=None, links=None) -> FingerStatics:
     """A finger's contact Jacobians and gravity torques at a configuration, object frame.
 
     Args:
@@ -177,10 +177,12 @@ def finger_statics(hand, finger: str, q, points_obj, T_palm_obj, effort=None) ->
         points_obj: (n, 3) the finger's contact points, object frame.
         T_palm_obj: (4, 4) object pose in the palm frame.
         effort: (n_joints,) limits to use instead of ``hand.effort``.
+        links: the link of each point (`planner.model.Patch.links`), or None.
 
     Returns:
-        `FingerStatics`; each point's Jacobian is that of the finger's contact link nearest
-        to it (a mean contact lies between the touching links' points).
+        `FingerStatics`; each point's Jacobian is that of its link when ``links`` names one
+        of the finger's contact links, else of the finger's contact link nearest to it (a
+        mean contact lies between the touching links' points).
     """
     fg = hand.fingers[finger]
     T = np.asarray(T_palm_obj, dtype=float)
@@ -188,9 +190,14 @@ def finger_statics(hand, finger: str, q, points_obj, T_palm_obj, effort=None) ->
     pts_obj = np.asarray(points_obj, dtype=float).reshape(-1, 3)
     pts_palm = pts_obj @ R.T + T[:3, 3]
     state = hand.state(q)
+    point_links = links
     links = [l for l in fg.contact_links if l in hand.collision.link_geometries] or [fg.tip_frame]
     on = []
-    for pt in pts_palm:
+    given = [None] * len(pts_palm) if point_links is None else list(point_links)
+    for pt, named in zip(pts_palm, given):
+        if named in links:
+            on.append(named)
+            continue
         if len(links) == 1:
             on.append(links[0])
             continue
@@ -305,18 +312,26 @@ def _binding(prog: GripProgram, lam: np.ndarray, force_cap_n: float | None, tau_
         ratio = np.abs(tau) / prog.tau_max
         i = int(np.argmax(ratio))
         best, best_ratio = Limit(prog.names[i][0], prog.names[i][1], float(abs(tau[i])), float(prog.tau_max[i])), float(ratio[i])
-    if force_cap_n is not None and len(prog.cap_rows):
+    capped = _capped(prog)
+    if force_cap_n is not None and len(capped):
+        fn = prog.cap_rows[capped] @ lam
+        i = int(capped[int(np.argmax(fn))])
         fn = prog.cap_rows @ lam
-        i = int(np.argmax(fn))
         if fn[i] / force_cap_n > best_ratio:
             best, best_ratio = Limit(prog.fingers[i], None, float(fn[i]), float(force_cap_n)), float(fn[i] / force_cap_n)
     return best if best_ratio > 0.98 else None
 
 
+def _capped(prog: GripProgram) -> np.ndarray:
+    """Indices of the cap rows of fingers (the palm's force is not capped: it is rigid)."""
+    return np.array([i for i, f in enumerate(prog.fingers) if f != PALM], dtype=int)
+
+
 def _cap_rows(prog: GripProgram, force_cap_n: float | None, extra_cols: int):
-    if force_cap_n is None or not len(prog.cap_rows):
+    rows = prog.cap_rows[_capped(prog)] if len(prog.cap_rows) else prog.cap_rows
+    if force_cap_n is None or not len(rows):
         return np.zeros((0, len(prog.W) + extra_cols)), np.zeros(0)
-    return np.c_[prog.cap_rows, np.zeros((len(prog.cap_rows), extra_cols))], np.full(len(prog.cap_rows), float(force_cap_n))
+    return np.c_[rows, np.zeros((len(rows), extra_cols))], np.full(len(rows), float(force_cap_n))
 
 
 def hold_capacity(patches: Mapping[str, tuple], statics: Mapping[str, FingerStatics], friction: Friction, load,
@@ -607,8 +622,10 @@ class DirectionHold:
 
 def grasp_statics(hand, q, patches: Mapping[str, tuple], T_palm_obj) -> dict[str, FingerStatics]:
     """`finger_statics` of every touching finger of a grasp (``patches`` as the model sees
-    them, e.g. after `planner.closure.apply_contact_model`)."""
-    return {f: finger_statics(hand, f, q, pts, T_palm_obj) for f, (pts, _) in patches.items() if len(pts)}
+    them, e.g. after `planner.closure.apply_contact_model`); the palm (`PALM`) has no joints,
+    so no statics: its contacts push inside their cones without a limit."""
+    return {f: finger_statics(hand, f, q, patch[0], T_palm_obj, links=getattr(patch, "links", None))
+            for f, patch in patches.items() if f != PALM and len(patch[0])}
 
 
 def grasp_hold(hand, q, patches: Mapping[str, tuple], T_palm_obj, mass_kg: float, friction: Friction,

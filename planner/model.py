@@ -7,9 +7,9 @@ pictures) holds these and nothing else for them:
 - `Friction`: the soft-finger Coulomb model of a grasp (thesis eq. 1), validated once.
 - `Contact`: one touching link: finger, link, a point and the inward unit normal (the
   direction the finger pushes, DESIGN "The maths"), in a frame the contact names.
-- `Patch`: the contacts of one finger as the closure reads them, ``(points, normals)``;
-  a grasp state's contacts are ``{finger: Patch}`` (the "patches" of grasps, graph states,
-  plans and the replay).
+- `Patch`: the contacts of one owner (a finger or the palm, `PALM`) as the closure reads
+  them, ``(points, normals)``, with the link each point is on; a grasp state's contacts are
+  ``{owner: Patch}`` (the "patches" of grasps, graph states, plans and the replay).
 - `tangent_basis`: the one right-handed basis ``(t1, t2, n)`` of a contact normal, used by
   the closure's cone edges (thesis eq. 2) and by the grip force problem's pyramids alike.
 
@@ -19,8 +19,6 @@ lives with the shape code); its file form is `GraspObject.to_data` / `from_data`
 
 import math
 from dataclasses import dataclass
-from typing import NamedTuple
-
 import numpy as np
 
 from planner.errors import InputError
@@ -140,14 +138,77 @@ class Contact:
                 "normal": [float(v) for v in self.normal], "penetration_m": float(self.penetration_m)}
 
 
-class Patch(NamedTuple):
-    """The contact points of one finger, the closure's unit (thesis section IX-D: every point,
-    not their mean). A tuple, so ``points, normals = patch`` reads it.
+#: The owner key of the palm's contacts: a grasp state's patches are ``{owner: Patch}``,
+#: the owner a finger or `PALM` (the links of the hand's base, no finger's). The palm is
+#: rigid: it pushes only, inside its friction cone, with no joint limit, and is never lifted.
+PALM = "palm"
+
+
+class Patch(tuple):
+    """The contact points of one owner (a finger or `PALM`), the closure's unit (thesis
+    section IX-D: every point, not their mean). A pair, so ``points, normals = patch`` reads
+    it; ``links`` says which link each point is on.
 
     Attributes:
         points: (n, 3) contact points on the object's surface, object frame, metres.
         normals: (n, 3) unit normals INTO the object at those points, object frame.
+        links: None (not known: a schema 2 plan, a hand-made patch) or one link per point
+            (its URDF name, or its simulator index), so the "link" contact model
+            (`planner.closure.apply_contact_model`) can give every touching link its own
+            contact.
     """
 
-    points: np.ndarray
-    normals: np.ndarray
+    __slots__ = ()
+    #: A named pair for `dataclasses.asdict` and `json` (links are left out of those forms).
+    _fields = ("points", "normals")
+
+    def __new__(cls, points, normals, links=None):
+        self = tuple.__new__(cls, (points, normals, None if links is None else tuple(links)))
+        if links is not None and len(self[2]) != len(points):
+            raise InputError(f"a patch has {len(points)} points but {len(self[2])} links")
+        return self
+
+    def __iter__(self):  # unpacks as (points, normals)
+        yield self[0]
+        yield self[1]
+
+    def __len__(self) -> int:
+        return 2
+
+    def __eq__(self, other):
+        return tuple.__eq__(self, other) if isinstance(other, Patch) else tuple(self) == other
+
+    __hash__ = None
+
+    def __reduce__(self):
+        return (Patch, (self[0], self[1], self[2]))
+
+    def __repr__(self) -> str:
+        return f"Patch(points={self[0]!r}, normals={self[1]!r}, links={self[2]!r})"
+
+    @property
+    def points(self) -> np.ndarray:
+        return self[0]
+
+    @property
+    def normals(self) -> np.ndarray:
+        return self[1]
+
+    @property
+    def links(self) -> tuple | None:
+        return self[2]
+
+    def link_groups(self) -> list[tuple[object, np.ndarray]]:
+        """``[(link, point indices)]`` in first-point order; one group (link None) when the
+        links are not known."""
+        if self[2] is None:
+            return [(None, np.arange(len(self[0])))]
+        order: dict = {}
+        for i, link in enumerate(self[2]):
+            order.setdefault(link, []).append(i)
+        return [(link, np.asarray(idx)) for link, idx in order.items()]
+
+
+def holders(patches) -> tuple[str, ...]:
+    """The fingers of a state's patches (every owner but `PALM`), in order."""
+    return tuple(k for k in patches if k != PALM)

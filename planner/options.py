@@ -21,6 +21,12 @@ STRATEGIES = ("graph", "greedy")
 #: (43 pairs, with the 1 N budget of before): 1.0 plans 33 pairs, 26 hold in all 7 gravity
 #: directions; 0.75 plans 24, 22 hold; 0.5 plans 17, 17 hold.
 EXECUTION_FRICTION_MARGIN = FRICTION_MARGIN
+#: Execution mode's contact model: one contact per touching link (a finger holding with two
+#: phalanges pushes through two contacts, the palm through its own), as a physics engine's
+#: rigid links do; "mean" (one contact per finger, the model before whole-hand grasps) is
+#: still accepted for comparison.
+EXECUTION_CONTACT_MODEL = "link"
+EXECUTION_CONTACT_MODELS = ("link", "mean")
 
 
 #: Ranges of the numeric planner options, checked by `PlanOptions` and, under their
@@ -76,8 +82,9 @@ class PlanOptions:
         same_slot_tol_rad: initial and final contacts closer than this (max joint
             difference) are one slot: the finger does not move.
         contact_model: "patch" (every patch point has a friction cone, as in the thesis)
-            or "mean" (one contact per finger at the patch mean: what a rigid fingertip
-            gives in the simulator; `planner.closure.CONTACT_MODELS`). Every state's
+            or "mean" (one contact per finger at the patch mean) or "link" (one contact per
+            touching link: what rigid links give in the simulator, execution mode's;
+            `planner.closure.CONTACT_MODELS`). Every state's
             closure, removability and exported patches use it.
         gravity: None (default: force closure only, as in the thesis) or the gravity
             vector in the palm frame, m/s^2, e.g. (0, 0, 9.81) with the palm facing down.
@@ -110,7 +117,7 @@ class PlanOptions:
             along the sequence first, then fewest gait steps, then the metric ranking;
             needs ``gravity`` or ``gravity_set``).
         execution: label of plans meant to be executed (`PlanOptions.for_execution`): it
-            requires the "mean" contact model, the "grip" ranking and a gravity.
+            requires the "link" (or "mean") contact model, the "grip" ranking and a gravity.
         max_rounds: with ``intermediate`` 0 the planner is anytime: when no sequence exists
             with the current contacts, it adds intermediate contacts
             (`planner.regrasp.INTERMEDIATE_PER_ROUND` per finger that blocks progress, from
@@ -149,10 +156,10 @@ class PlanOptions:
 
     @classmethod
     def for_execution(cls, **overrides) -> "PlanOptions":
-        """Options for a plan that is to be executed: one mean contact per finger (what rigid
-        fingertips give), gravity set 6 (palm down, palm up and the four sideways
+        """Options for a plan that is to be executed: one contact per touching link (what
+        rigid links give in a physics engine, `EXECUTION_CONTACT_MODEL`), gravity set 6 (palm down, palm up and the four sideways
         directions) unless ``gravity`` or ``gravity_set`` is given, grip ranking."""
-        kw = dict(contact_model="mean", rank="grip", execution=True, friction_margin=EXECUTION_FRICTION_MARGIN,
+        kw = dict(contact_model=EXECUTION_CONTACT_MODEL, rank="grip", execution=True, friction_margin=EXECUTION_FRICTION_MARGIN,
                   verify=True)
         if overrides.get("gravity") is None and overrides.get("gravity_set") is None:
             kw["gravity_set"] = 6
@@ -181,8 +188,8 @@ class PlanOptions:
         if self.rank == "grip" and self.gravity is None and self.gravity_set is None:
             raise PlannerError("grip ranking needs a gravity: give --gravity GX GY GZ or --gravity-set N "
                                "(PlanOptions gravity or gravity_set)")
-        if self.execution and (self.contact_model != "mean" or self.rank != "grip"):
-            raise PlannerError(f"execution mode plans with the 'mean' contact model and grip ranking, got contact "
+        if self.execution and (self.contact_model not in EXECUTION_CONTACT_MODELS or self.rank != "grip"):
+            raise PlannerError(f"execution mode plans with the 'link' (or 'mean') contact model and grip ranking, got contact "
                                f"model {self.contact_model!r} and rank {self.rank!r}")
         if self.strategy not in STRATEGIES:
             raise UnknownNameError("strategy", self.strategy, STRATEGIES)

@@ -26,14 +26,14 @@ import planner
 from planner.closure import CONTACT_MODELS, grasp_closure
 from planner.errors import IntegrityError, PlannerError, PlannerWarning, SpecError, UnknownNameError
 from planner.fileio import MAX_GRASP_BYTES, MAX_PLAN_BYTES, Reader, load_json, load_yaml, read_limited, sha256_file, shown
-from planner.model import Friction, Patch
+from planner.model import PALM, Friction, Patch
 from planner.objects import SHAPES, SIZE_LENGTHS, SIZE_MEANING
 from planner.plan_data import (ACTIONS, PLAN_KIND, SCHEMA_VERSION, Alternative, Plan, PlanState, PlanStep,
                                canonical_sha256, plan_file, plan_format)
 from planner.resources import bundled_grasp
 
 #: Versions `read_plan` reads (1: no integrity record, read with a warning).
-READABLE_VERSIONS = (1, 2)
+READABLE_VERSIONS = (1, 2, 3)
 
 #: Ranges a plan file must respect (README "Hardening / plan integrity").
 MAX_STATES = 10_000          # states (and steps) per plan
@@ -269,9 +269,16 @@ def _check_state(s: Reader, i: int, joints: tuple[str, ...]) -> PlanState:
             raise patch.fail("needs points and normals of equal length")
         if np.any(np.abs(np.linalg.norm(nrm, axis=1) - 1.0) > 1e-6):
             raise patch.fail("expected unit normals", "normals")
-        patches[f] = Patch(pts, nrm)
-    if fingers and not set(patches) <= set(fingers):
-        raise s.fail(f"fingers {sorted(set(patches) - set(fingers))} are not in {key}.fingers", "patches")
+        links = None
+        if patch.get("links") is not None:
+            links_r = patch.child("links").seq(MAX_POINTS)
+            links = tuple(links_r.at(link).name() for link in links_r.value)
+            if len(links) != len(pts):
+                raise links_r.fail(f"expected one link per point ({len(pts)}), got {len(links)}")
+        patches[f] = Patch(pts, nrm, links)
+    owners = set(patches) - {PALM}
+    if fingers and not owners <= set(fingers):
+        raise s.fail(f"fingers {sorted(owners - set(fingers))} are not in {key}.fingers", "patches")
     closure = s.child("closure").mapping()
     fc = closure.get("is_force_closure")
     if not isinstance(fc, bool):
@@ -334,7 +341,7 @@ def _check_step(s: Reader, i: int, joints: tuple[str, ...], states: tuple[PlanSt
                      f"{'on' if on_a else 'off'} the object in state {frm} and "
                      f"{'on' if on_b else 'off'} in state {to}", "action")
     if set(a.patches) - {finger} != set(b.patches) - {finger}:
-        raise s.fail(f"fingers other than {finger} change contact between states {frm} and {to}")
+        raise s.fail(f"fingers other than {finger} (or the palm) change contact between states {frm} and {to}")
     return PlanStep(finger, action, frm, to, sj, tuple(tuple(float(v) for v in wp) for wp in path))
 
 

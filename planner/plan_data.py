@@ -40,11 +40,11 @@ import yaml
 
 from planner.errors import SpecError
 from planner.fileio import write_atomic
-from planner.model import Friction
+from planner.model import PALM, Friction, holders
 from planner.objects import GraspObject
 from planner.resources import bundled_grasp_name, bundled_hand_name, is_hand_path
 
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
 PLAN_KIND = "regrasp-plan"
 FLOAT_DIGITS = 10
 ACTIONS = ("lift", "move", "land")
@@ -63,13 +63,23 @@ def _vecs(a: np.ndarray) -> list[list[float]]:
     return [[_num(v) for v in row] for row in np.asarray(a, dtype=float).reshape(len(a), -1)]
 
 
+def _patch_dict(patch) -> dict:
+    """A patch's file form: points, normals and (schema 3, when known) the link of each point."""
+    out = {"points": _vecs(patch[0]), "normals": _vecs(patch[1])}
+    links = getattr(patch, "links", None)
+    if links is not None:
+        out["links"] = [str(link) for link in links]
+    return out
+
+
 @dataclass(frozen=True)
 class PlanState:
     """One hand configuration of the plan.
 
     Attributes:
         fingers: finger -> slot label ("initial", "final", "int3", "lifted").
-        patches: touching finger -> (p_obj (n, 3), n_in_obj (n, 3)).
+        patches: owner -> `planner.model.Patch` (p_obj (n, 3), n_in_obj (n, 3), links):
+            the touching fingers, then the palm (`planner.model.PALM`) when it holds.
         is_force_closure: closure of ``patches``.
         metric: signed closure metric of ``patches`` (see planner.closure).
         removable: fingers removable from this state (thesis Algorithm 1).
@@ -96,15 +106,18 @@ class PlanState:
 
     @property
     def touching(self) -> tuple[str, ...]:
-        """The fingers on the object (those with a contact patch)."""
-        return tuple(self.patches)
+        """The fingers on the object (those with a contact patch; the palm is not a finger)."""
+        return holders(self.patches)
+
+    @property
+    def palm_holds(self) -> bool:
+        """The palm is one of the state's contacts (`planner.model.PALM`)."""
+        return PALM in self.patches
 
     def to_dict(self, joints: tuple[str, ...]) -> dict:
         return {
             "fingers": dict(self.fingers),
-            "patches": {
-                f: {"points": _vecs(p), "normals": _vecs(n)} for f, (p, n) in self.patches.items()
-            },
+            "patches": {f: _patch_dict(patch) for f, patch in self.patches.items()},
             "closure": {"is_force_closure": bool(self.is_force_closure), "metric": _num(self.metric)},
             "grip_force_n": None if self.grip_force_n is None else _num(self.grip_force_n),
             "grip_force_by_gravity_n": None if self.grip_force_by_gravity_n is None

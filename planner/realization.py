@@ -25,7 +25,7 @@ from planner.grasp import GraspSpec, input_record, load_grasp, load_hand
 from planner.gravity import gravity_directions
 from planner.grip import grasp_hold
 from planner.ik import UnreachableError
-from planner.model import Patch
+from planner.model import PALM, Patch
 
 #: Contact fingers are placed this far out along the surface normal, then closed onto it.
 APPROACH_M = 0.004
@@ -124,15 +124,15 @@ class RealizedGrasp:
             return self.closure
         return grasp_closure(apply_contact_model(self.patches, contact_model), self.friction)
 
-    def mean_contact_closure(self) -> dict:
-        """Closure with one mean contact per finger (contact model "mean"): whether the grasp
-        also holds with the point contacts a rigid fingertip gives in the simulator."""
+    def mean_contact_closure(self, contact_model: str = "mean") -> dict:
+        """Closure with one mean contact per finger (contact model "mean", or another one):
+        whether the grasp also holds with the point contacts rigid links give in the simulator."""
         if not self.patches:
             return {"force_closure": False, "metric": float("nan")}
-        c = self.closure_under("mean")
+        c = self.closure_under(contact_model)
         return {"force_closure": bool(c.is_force_closure), "metric": float(c.metric)}
 
-    def hold(self, contact_model: str = "mean") -> list:
+    def hold(self, contact_model: str = "link") -> list:
         """How the grasp holds its object in the six hand orientations of execution mode
         (`planner.gravity`, gravity set 6): `planner.grip.DirectionHold` per direction (the
         joints' torque limits, 3/4 of the friction, under ``contact_model``); [] when not
@@ -142,6 +142,18 @@ class RealizedGrasp:
         patches = apply_contact_model(self.patches, contact_model)
         return grasp_hold(self.hand, self.q, patches, self.obj.T_palm_obj, self.obj.mass_kg, self.friction,
                           gravity_directions(self.hand.palm_normal, 6))
+
+    def palm_summary(self) -> dict:
+        """Whether the palm touches and holds: the file's ``palm:`` mode, the palm links within
+        the touch tolerance, its contact points (0 when it does not hold: not touching, or
+        ``palm: free``) and the nearest palm-object distance, m."""
+        links = [c.link for c in self.contacts if c.finger is None]
+        gap = min((ld.distance_m for ld in self.hand.state(self.q).link_object(
+            self.obj, self.hand.collision.finger_links(None)).values()), default=None)
+        pts = self.patches.get(PALM)
+        return {"mode": self.spec.palm, "touching": bool(links), "touching_links": links,
+                "holds": pts is not None, "contact_points": 0 if pts is None else int(len(pts[0])),
+                "distance_m": None if gap is None else float(gap)}
 
     def summary(self, hold: list | None = None) -> dict:
         """Plain-data report (what ``regrasp check --json`` prints); ``hold``: `hold`'s result
@@ -166,7 +178,9 @@ class RealizedGrasp:
             "metric": self.metric,
             "removable": sorted(self.removable),
             "mean_contact_closure": self.mean_contact_closure(),
+            "link_contact_closure": self.mean_contact_closure("link"),
             "fingers": fingers,
+            "palm": self.palm_summary(),
             "missing": list(self.missing),
             "collisions": [[a, b, float(d)] for a, b, d in self.collisions],
             "joints": {n: float(v) for n, v in zip(self.hand.joint_names, self.q)},
@@ -415,18 +429,31 @@ def realize(spec: GraspSpec, hand=None) -> RealizedGrasp:
     # one state, queried once: link-object distances are computed once for all four queries
     state = hand.state(q)
     q = state.q
-    patches = contact_patches(hand, state, obj)
-    patches = {k: Patch(_ro(p), _ro(n)) for k, (p, n) in patches.items()}
+    patches = contact_patches(hand, state, obj, palm=True)
+    palm_touches = PALM in patches
+    if spec.palm == "free":  # the file keeps the palm out of the grasp (a problem if it touches)
+        patches.pop(PALM, None)
+    patches = {k: Patch(_ro(p), _ro(n), v.links) for k, v in patches.items() for p, n in [v]}
     closure = grasp_closure(patches, spec.friction)
     removable = frozenset(removable_fingers(patches, spec.friction)) if patches else frozenset()
     touching = {k: tuple(v) for k, v in touching_links(hand, state, obj).items()}
+    if PALM in patches:
+        touching[PALM] = tuple(dict.fromkeys(patches[PALM].links))
     finger_q = {}
     for name, f in hand.fingers.items():
         finger_q[name] = _ro(q[list(f.q_index)])
     missing = tuple(fs.name for fs in spec.fingers if fs.kind != "free" and fs.name not in patches)
     colls = tuple((str(a), str(b), float(d)) for a, b, d in collisions(hand, state, obj, touch_tol_m=PENETRATION_TOL_M))
-    contacts = tuple(link_contacts(hand, state, obj))
+    contacts = tuple(link_contacts(hand, state, obj, palm=True))
     problems, warnings = grasp_findings(spec, hand, obj, state, contacts, missing, colls)
+    if spec.palm == "hold" and not palm_touches:
+        gap = min((ld.distance_m for ld in state.link_object(obj, hand.collision.finger_links(None)).values()),
+                  default=float("inf"))
+        problems.append(f"palm: hold, but the palm does not touch the object (misses it by {gap * 1e3:.1f} mm; "
+                        f"touching is within {TOUCH_TOL_M * 1e3:g} mm)")
+    elif spec.palm == "free" and palm_touches:
+        problems.append(f"palm: free, but the palm touches the object (within {TOUCH_TOL_M * 1e3:g} mm): it would "
+                        f"carry part of the load; move the object away from it or say palm: auto or hold")
     return RealizedGrasp(
         spec=spec,
         hand=hand,

@@ -25,7 +25,7 @@ from planner.closure import apply_contact_model, batch_grasp_closure
 from planner.contacts import collisions, contact_patches
 from planner.graph import LIFTED, GaitProblem, Slot
 from planner.grip import finger_statics
-from planner.model import Patch
+from planner.model import PALM
 from planner.options import PlanOptions, gravity_directions_of
 
 
@@ -97,10 +97,11 @@ def _pool_postures(hand, obj, finger: str) -> tuple[np.ndarray, np.ndarray]:
     return _POOLS[key]
 
 
-def _closed_contacts(hand, obj, finger: str, postures) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+def _closed_contacts(hand, obj, finger: str, postures) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, tuple]]:
     """Each posture closed onto the object (`Hand.close_finger`), kept when the finger
     touches and neither penetrates the object nor hits the palm or its own links:
-    (points, inward normals, the finger's joint values) per contact, in order."""
+    (points, inward normals, the finger's joint values, the link of every point) per
+    contact, in order."""
     f = hand.fingers[finger]
     idx = list(f.q_index)
     out = []
@@ -111,11 +112,11 @@ def _closed_contacts(hand, obj, finger: str, postures) -> list[tuple[np.ndarray,
         patch = contact_patches(hand, q, obj, fingers=[finger]).get(finger)
         if patch is None or len(patch[0]) == 0 or collisions(hand, q, obj, fingers=(finger,)):
             continue
-        out.append((np.asarray(patch[0]), np.asarray(patch[1]), q[idx]))
+        out.append((np.asarray(patch[0]), np.asarray(patch[1]), q[idx], patch.links))
     return out
 
 
-def reachable_contacts(hand, obj, finger: str) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], ...]:
+def reachable_contacts(hand, obj, finger: str) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray, tuple], ...]:
     """Contacts one finger can make on the object, reachable by construction.
 
     ``POOL_POSTURES`` seeded random postures of the finger (in its joint limits, the other
@@ -129,8 +130,8 @@ def reachable_contacts(hand, obj, finger: str) -> tuple[tuple[np.ndarray, np.nda
     cached; deterministic.
 
     Returns:
-        (points (n, 3), inward normals (n, 3), the finger's joint values) per contact, in
-        farthest-point order.
+        (points (n, 3), inward normals (n, 3), the finger's joint values, the link of every
+        point) per contact, in farthest-point order.
     """
     key = (str(hand.spec_path), hand.name, _object_key(obj), finger)
     if key not in _POOLS:
@@ -139,7 +140,7 @@ def reachable_contacts(hand, obj, finger: str) -> tuple[tuple[np.ndarray, np.nda
     return _POOLS[key]
 
 
-def local_contacts(hand, obj, finger: str, anchor: np.ndarray) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], ...]:
+def local_contacts(hand, obj, finger: str, anchor: np.ndarray) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray, tuple], ...]:
     """Contacts of one finger a short step from one of its own contacts (``anchor``, its
     patch points): the postures of `_pool_postures` facing the surface between
     ``MIN_SLOT_SPACING_M`` and ``LOCAL_RADIUS_M`` from the anchor, ``LOCAL_SIZE`` of them
@@ -238,8 +239,8 @@ def _candidates(problem: GaitProblem, hand, obj, finger: str, contact_model: str
     for s in have[: _fixed_slots(have)] if local else ():
         pool += local_contacts(hand, obj, finger, s.points)
     out = []
-    for points, normals, qf in pool:
-        slot = _modelled(Slot(finger, "candidate", points, normals, qf), contact_model)
+    for points, normals, qf, links in pool:
+        slot = _modelled(Slot(finger, "candidate", points, normals, qf, links=links), contact_model)
         if not spaced or not any(near(s, slot) for s in have):
             out.append(slot)
     return out
@@ -299,7 +300,7 @@ def holding_grasp(problem: GaitProblem, hand, obj, lifted: str, contact_model: s
                 if t != LIFTED:
                     options[g][t] = with_statics(hand, obj, options[g][t])
         touching = {g: options[g][t] for g, t in a.items() if t != LIFTED}
-        patches = {g: Patch(s.points, s.normals) for g, s in touching.items()}
+        patches = {**{g: s.patch for g, s in touching.items()}, **problem.support}
         statics = {g: s.statics for g, s in touching.items() if s.statics is not None}
         if problem.load_refusal(patches, statics) is not None:
             continue
@@ -339,14 +340,14 @@ def build_problem(initial, final, options: PlanOptions) -> GaitProblem:
         fs: list[Slot] = []
         s_idx = g_idx = LIFTED
         if f in initial.patches:
-            fs.append(Slot(f, "initial", *initial.patches[f], _finger_q(hand, f, initial.q)))
+            fs.append(Slot(f, "initial", *initial.patches[f], _finger_q(hand, f, initial.q), links=initial.patches[f].links))
             s_idx = 0
         if f in final.patches:
             qf = _finger_q(hand, f, final.q)
             if fs and np.max(np.abs(fs[0].q - qf)) <= options.same_slot_tol_rad:
                 g_idx = 0
             else:
-                fs.append(Slot(f, "final", *final.patches[f], qf))
+                fs.append(Slot(f, "final", *final.patches[f], qf, links=final.patches[f].links))
                 g_idx = len(fs) - 1
         slots[f] = tuple(_modelled(s, options.contact_model) for s in fs)
         start.append(s_idx)
@@ -361,7 +362,13 @@ def build_problem(initial, final, options: PlanOptions) -> GaitProblem:
         slots = {f: tuple(with_statics(hand, initial.obj, s) for s in ss) for f, ss in slots.items()}
     compatible = pairwise_collision_check(initial.hand, slots)
     cap = None if options.max_finger_force_n is None else float(options.max_finger_force_n)
+    # the palm holds where both grasps have it (they share the object's pose, so a palm
+    # contact is the same in both): a fixed contact of every state, never lifted
+    support = {}
+    if PALM in initial.patches and PALM in final.patches:
+        support[PALM] = apply_contact_model({PALM: initial.patches[PALM]}, options.contact_model)[PALM]
     problem = GaitProblem(fingers, slots, tuple(start), tuple(goal), initial.friction, compatible, options.max_lifted,
+                          support=support,
                           max_grip_force_n=cap, loads=loads, load_names=names or (),
                           grip_friction_margin=float(options.friction_margin), load_gravity=gravities,
                           hold_factor=float(options.hold_factor))
@@ -412,15 +419,15 @@ def with_statics(hand, obj, slot: Slot) -> Slot:
         return slot
     q = np.array(hand.q_open, dtype=float)
     q[list(hand.fingers[slot.finger].q_index)] = slot.q
-    return replace(slot, statics=finger_statics(hand, slot.finger, q, slot.points, obj.T_palm_obj))
+    return replace(slot, statics=finger_statics(hand, slot.finger, q, slot.points, obj.T_palm_obj, links=slot.links))
 
 
 def _modelled(slot: Slot, contact_model: str) -> Slot:
     """The slot with its patch as the closure test sees it under ``contact_model``."""
     if contact_model == "patch":
         return slot
-    points, normals = apply_contact_model({slot.finger: (slot.points, slot.normals)}, contact_model)[slot.finger]
-    return replace(slot, points=points, normals=normals)
+    patch = apply_contact_model({slot.finger: slot.patch}, contact_model)[slot.finger]
+    return replace(slot, points=patch.points, normals=patch.normals, links=patch.links)
 
 
 def pairwise_collision_check(hand, slots: Mapping[str, tuple[Slot, ...]]) -> Callable[[str, int, str, int], bool]:

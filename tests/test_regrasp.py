@@ -511,7 +511,7 @@ def test_reachable_contacts_touch_the_object_within_joint_limits():
     idx = list(hand.fingers["ring"].q_index)
     lo, hi = np.asarray(hand.lower)[idx], np.asarray(hand.upper)[idx]
     radius = obj.size[0]
-    for points, normals, qf in pool:
+    for points, normals, qf, _ in pool:
         assert np.all(qf >= lo - 1e-9) and np.all(qf <= hi + 1e-9)
         assert np.allclose(np.linalg.norm(points, axis=1), radius, atol=1.5e-3)
         assert np.all(np.einsum("ij,ij->i", normals, -points / np.linalg.norm(points, axis=1, keepdims=True)) > 0.95)
@@ -520,7 +520,7 @@ def test_reachable_contacts_touch_the_object_within_joint_limits():
         again = contact_patches(hand, q, obj, fingers=["ring"])["ring"]
         assert np.allclose(again[0], points, atol=1e-9)
         assert collisions(hand, q, obj, fingers=("ring",)) == []
-    spread = np.ptp(np.array([p.mean(axis=0) for p, _, _ in pool]), axis=0)
+    spread = np.ptp(np.array([p.mean(axis=0) for p, _, _, _ in pool]), axis=0)
     assert np.max(spread) > 0.015  # spread over the reachable surface, not one spot
 
 
@@ -541,7 +541,7 @@ def test_local_contacts_are_small_steps_from_the_anchor_and_near_counts_normals(
     assert len(steps) >= 3 and local_contacts(hand, obj, "ring", anchor) is steps
     idx = list(hand.fingers["ring"].q_index)
     lo, hi = np.asarray(hand.lower)[idx], np.asarray(hand.upper)[idx]
-    for points, normals, qf in steps:
+    for points, normals, qf, _ in steps:
         assert np.all(qf >= lo - 1e-9) and np.all(qf <= hi + 1e-9)
         q = np.array(hand.q_open, float)
         q[idx] = qf

@@ -131,15 +131,17 @@ class ContactFilter:
             group: maps a contact key to a patch name (e.g. link -> finger); None skips it.
 
         Returns:
-            ``{name: (points (n,3), normals (n,3))}`` with all points of the contacts in
-            that group, the form `planner.closure.grasp_closure` takes.
+            ``{name: Patch}`` with all points of the contacts in that group, the form
+            `planner.closure.grasp_closure` takes; each point's link is its contact's key
+            (so the "link" contact model gives every contact key its own contact).
         """
-        acc: dict[str, tuple[list, list]] = {}
+        acc: dict[str, tuple[list, list, list]] = {}
         for key, c in self._contacts.items():
             name = group(key)
             if name is None:
                 continue
-            a = acc.setdefault(name, ([], []))
+            a = acc.setdefault(name, ([], [], []))
             a[0].append(c.points)
             a[1].append(c.normals)
-        return {name: Patch(np.vstack(p), np.vstack(n)) for name, (p, n) in acc.items()}
+            a[2].extend([key] * len(c.points))
+        return {name: Patch(np.vstack(p), np.vstack(n), links) for name, (p, n, links) in acc.items()}

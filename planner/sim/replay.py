@@ -64,6 +64,7 @@ from scipy.spatial.transform import Rotation
 from planner.closure import apply_contact_model, grasp_closure
 from planner.errors import InputError, SimulationError
 from planner.handtool import replay_inertia
+from planner.model import PALM
 from planner.sim.contact_filter import ContactFilter
 from planner.sim.controller import TOUCH_TOL_M, Controller
 from planner.sim.inputs import HandInfo, create_object, load_hand_info, typed_plan
@@ -280,14 +281,14 @@ def replay_plan(
     for r in disagree:
         plan_fc = "force closure" if r.planned_force_closure else "not force closure"
         sim_fc = "force closure" if r.sim_force_closure else "not force closure"
-        missing = sorted(set(r.planned_fingers) - set(r.sim_fingers))
+        missing = sorted(set(r.planned_fingers) - {PALM} - set(r.sim_fingers))
         reasons.append(f"state {r.index}: plan {plan_fc}, simulator {sim_fc} (touching: "
                        f"{', '.join(r.sim_fingers) or 'nothing'}" + (f"; lost: {', '.join(missing)}" if missing else "") + ")")
     for r in other:
         if r in disagree:
             continue
         extra = sorted(set(r.carriers) - set(r.planned_fingers))
-        idle = sorted(set(r.planned_fingers) - set(r.sim_fingers))
+        idle = sorted(set(r.planned_fingers) - {PALM} - set(r.sim_fingers))
         words = ([f"carried by {', '.join(extra)} too"] if extra else []) + ([f"{', '.join(idle)} not touching"] if idle else [])
         reasons.append(f"state {r.index}: the plan holds with {', '.join(r.planned_fingers)}; in the simulator "
                        + "; ".join(words) + f" (forces: {', '.join(f'{f} {v:.2f} N' for f, v in sorted(r.carried_n.items()))})")
@@ -532,7 +533,7 @@ class _Sim:
         carriers = tuple(sorted(f for f, v in carried.items() if v >= threshold))
         offsets = {f: round(1000.0 * float(np.linalg.norm(np.mean(patches[f][0], axis=0) - np.mean(pts, axis=0))), 3)
                    for f, (pts, _) in state.patches.items() if f in patches and len(patches[f][0]) and len(pts)}
-        return StateReport(index, True, self.steps_done * self.dt, state.touching, tuple(sorted(patches)),
+        return StateReport(index, True, self.steps_done * self.dt, tuple(state.patches), tuple(sorted(patches)),
                            state.is_force_closure, state.metric, fc, metric, n_pts, mm, deg, patches,
                            {f: round(v, 6) for f, v in sorted(carried.items())}, carriers, offsets)
 
@@ -612,7 +613,7 @@ class _Sim:
             if i in reports:
                 out.append(reports[i])
             else:
-                out.append(StateReport(i, False, self.steps_done * self.dt, s.touching, (), s.is_force_closure, s.metric,
+                out.append(StateReport(i, False, self.steps_done * self.dt, tuple(s.patches), (), s.is_force_closure, s.metric,
                                        None, None, 0, float("nan"), float("nan")))
         mm, deg = self.last
         return out, not ok, self.max_mm, self.max_deg, mm, deg, self.steps_done, self.failure, self.fail_step

@@ -15,6 +15,8 @@ from typing import Any
 
 import numpy as np
 
+from planner.model import PALM
+
 
 @dataclass(frozen=True)
 class StateReport:
@@ -24,7 +26,8 @@ class StateReport:
         index: index into the plan's states.
         reached: False when the replay stopped (object dropped) before this state.
         time_s: simulated time at which the state was measured.
-        planned_fingers: fingers with contact patches in the plan.
+        planned_fingers: owners with contact patches in the plan: its touching fingers, and
+            "palm" when the plan has the palm hold (`planner.model.PALM`).
         sim_fingers: fingers (or "palm") touching the object in the filtered sim contacts.
         planned_force_closure, planned_metric: the plan's closure of this state.
         sim_force_closure, sim_metric: closure recomputed from the filtered sim contacts
@@ -63,9 +66,12 @@ class StateReport:
 
     @property
     def holds_as_planned(self) -> bool:
-        """The object is held by the plan's fingers: nothing else carries it (not the palm,
-        not a finger the plan has lifted) and every one of them touches it."""
-        return self.reached and set(self.carriers) <= set(self.planned_fingers) <= set(self.sim_fingers)
+        """The object is held by the plan's contacts: nothing else carries it (not the palm
+        unless the plan has it hold, not a finger the plan has lifted) and every planned
+        finger touches it (a planned palm need not: it only pushes, and under a gravity that
+        pulls the object off it the fingers hold alone, as the grip model has it)."""
+        planned = set(self.planned_fingers)
+        return self.reached and set(self.carriers) <= planned and planned - {PALM} <= set(self.sim_fingers)
 
 
 @dataclass(frozen=True)
