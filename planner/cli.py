@@ -21,7 +21,7 @@ import planner
 from planner import commands
 from planner.errors import NoSequenceError, PlannerError, PlannerWarning, one_line
 from planner.fileio import check_grasp_file, check_output
-from planner.gravity import GRAVITY_SET_SIZES
+from planner.gravity import GRAVITY_NAMES, GRAVITY_SET_SIZES, gravity_name_error
 from planner.resources import bundled_grasp
 
 DEMO_INITIAL = "icub/cylinder_parallel_extension.yaml"  # bundled grasps (planner.resources)
@@ -70,6 +70,9 @@ def build_parser() -> argparse.ArgumentParser:
     check.add_argument("grasp", help="grasp YAML")
     check.add_argument("--json", action="store_true", help="machine-readable output")
     check.add_argument("--png", metavar="FILE", help="render the hand holding the object (headless)")
+    check.add_argument("--gravity", action=_GravityArgument, default=None,
+                       help="report the load held under this gravity only (palm frame, m/s^2, or a NAME: "
+                            + _GRAVITY_NAMES_HELP + ") instead of the six directions of execution mode")
     check.set_defaults(func=commands.cmd_check)
 
     plan = sub.add_parser("plan", help="plan a finger-gaiting sequence between two grasps")
@@ -93,9 +96,10 @@ def build_parser() -> argparse.ArgumentParser:
                       help="closure from every patch point (patch, default: the thesis) or from one mean contact "
                            "per finger (mean: what the simulator's rigid fingertips give; --execution's)")
     plan.add_argument("--max-lifted", type=int, default=None, metavar="N", help="at most N fingers lifted at once")
-    plan.add_argument("--gravity", type=float, nargs=3, metavar=("GX", "GY", "GZ"), default=None,
+    plan.add_argument("--gravity", action=_GravityArgument, default=None,
                       help="also require every state to hold twice the object's weight under this gravity (palm "
-                           "frame, m/s^2, e.g. 0 0 9.81 palm down) within the hand's joint torque limits")
+                           "frame, m/s^2, e.g. 0 0 9.81 palm down, or a NAME: " + _GRAVITY_NAMES_HELP + ") within "
+                           "the hand's joint torque limits")
     plan.add_argument("--gravity-set", type=int, default=None, metavar="N",
                       help="like --gravity for several hand orientations at once: 1 palm down, 2 and palm up, "
                            "6 and the four sideways directions, 7 and gravity off (from the hand's palm_normal)")
@@ -125,9 +129,9 @@ def build_parser() -> argparse.ArgumentParser:
                             "thumb and the hand's next two fingers; without a thumb its first three)")
     synth.add_argument("-n", type=int, default=20, help="grasps to write (default 20)")
     synth.add_argument("-o", "--output", required=True, metavar="DIR", help="folder for the grasp files (never overwritten)")
-    synth.add_argument("--gravity", type=float, nargs=3, metavar=("GX", "GY", "GZ"), default=None,
-                       help="keep grasps that hold twice the weight under this gravity (palm frame, m/s^2) within "
-                            "the hand's joint torque limits")
+    synth.add_argument("--gravity", action=_GravityArgument, default=None,
+                       help="keep grasps that hold twice the weight under this gravity (palm frame, m/s^2, or a "
+                            "NAME: " + _GRAVITY_NAMES_HELP + ") within the hand's joint torque limits")
     synth.add_argument("--max-finger-force", type=float, default=None, metavar="N",
                        help="with --gravity: an extra cap on every finger's normal force, N (default none)")
     synth.add_argument("--seed", type=int, default=0, help="seed (default 0); same seed, same files")
@@ -147,8 +151,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help="refuse a plan whose recorded input files changed or are gone (default: a warning)")
     replay.add_argument("--drift-mm", type=float, default=5.0, metavar="X", help="largest allowed object drift, mm (default 5)")
     replay.add_argument("--drift-deg", type=float, default=5.0, metavar="Y", help="largest allowed object rotation, deg (default 5)")
-    replay.add_argument("--gravity", type=float, nargs=3, metavar=("GX", "GY", "GZ"),
-                        help="gravity in the palm frame, m/s^2 (default: palm facing down, along the hand's palm_normal)")
+    replay.add_argument("--gravity", action=_GravityArgument,
+                        help="gravity in the palm frame, m/s^2, or a NAME: " + _GRAVITY_NAMES_HELP + " (default: "
+                             "palm facing down, along the hand's palm_normal)")
     replay.add_argument("--gravity-set", type=int, choices=GRAVITY_SET_SIZES, metavar="N",
                         help="replay under N gravity directions of the palm frame with a verdict per direction: "
                              "1 palm down, 2 and palm up, 6 and the four sideways directions, 7 and gravity off")
@@ -210,11 +215,77 @@ EXIT_BROKEN_PIPE = 141
 
 
 class _Parser(argparse.ArgumentParser):
-    """argparse with its errors as one line (no usage block) and exit code 2."""
+    """argparse with its errors as one line (no usage block) and exit code 2; ``--gravity``
+    takes 3 numbers or one name (`_GravityArgument`)."""
 
     def error(self, message: str):
         message = one_line(str(message).strip())  # a user's option may hold a line break or an escape
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+    def parse_known_args(self, args=None, namespace=None):
+        if args is None:
+            args = sys.argv[1:]
+        if isinstance(self._option_string_actions.get("--gravity"), _GravityArgument):
+            args = _gravity_name_explicit(list(args))
+        return super().parse_known_args(args, namespace)
+
+    def _get_nargs_pattern(self, action):
+        if isinstance(action, _GravityArgument):
+            return "(A(?:AA)?)"  # 3 values when 3 follow, else 1 (a name, made explicit: --gravity=NAME)
+        return super()._get_nargs_pattern(action)
+
+
+#: The names of ``--gravity NAME`` in the help (`planner.gravity.GRAVITY_NAMES`).
+_GRAVITY_NAMES_HELP = "palm_down, palm_up, side_+x ... side_-z, thumb_up, thumb_down, fingers_up, fingers_down, off"
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def _gravity_name_explicit(args: list[str]) -> list[str]:
+    """``--gravity NAME`` as ``--gravity=NAME``: one value, so the positionals after a name
+    stay positionals (3 numbers take the 3 tokens after the option, as before)."""
+    out = []
+    i = 0
+    while i < len(args):
+        a = args[i]
+        if a == "--":
+            return out + args[i:]
+        if a == "--gravity" and i + 1 < len(args) and not args[i + 1].startswith("-") and not _is_number(args[i + 1]):
+            out.append(f"--gravity={args[i + 1]}")
+            i += 2
+            continue
+        out.append(a)
+        i += 1
+    return out
+
+
+class _GravityArgument(argparse.Action):
+    """``--gravity GX GY GZ`` (a list of 3 floats, as ``type=float, nargs=3`` gave) or
+    ``--gravity NAME`` (the name, a str, resolved against the hand by the command:
+    `planner.gravity.named_gravity`); anything else is one line naming the choices."""
+
+    def __init__(self, option_strings, dest, **kwargs):
+        super().__init__(option_strings, dest, nargs=3, metavar=("GX", "GY", "GZ"), **kwargs)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        if len(values) == 3:
+            out = []
+            for v in values:
+                try:
+                    out.append(float(v))
+                except ValueError:
+                    raise argparse.ArgumentError(self, f"invalid float value: {v!r}") from None
+            setattr(namespace, self.dest, out)
+        elif len(values) == 1 and values[0] in GRAVITY_NAMES:
+            setattr(namespace, self.dest, values[0])
+        else:
+            parser.error(gravity_name_error())
 
 
 def _option_name(dest: str) -> str:

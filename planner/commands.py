@@ -15,6 +15,7 @@ import argparse
 import json
 import logging
 import os
+import sys
 import time
 
 import yaml
@@ -24,8 +25,14 @@ from planner.errors import PlannerError
 from planner.fileio import write_atomic
 
 
+def _gravity_line(name: str, g, hand_name: str) -> str:
+    """The line saying what a named ``--gravity`` resolved to."""
+    label = "gravity" if name == "gravity" else f"gravity {name}"  # "gravity": 3 numbers
+    return f"{label}: [{' '.join(f'{v:+.3f}' for v in g)}] m/s^2 in the palm frame of {hand_name}"
+
+
 def cmd_plan(args: argparse.Namespace) -> int:
-    from planner.grasp import input_record, load_grasp  # deferred: objects, the hand: pinocchio, coal (~0.1 s)
+    from planner.grasp import input_record, load_grasp, load_hand  # deferred: objects, the hand: pinocchio, coal (~0.1 s)
     from planner.options import PlanOptions  # deferred: scipy, networkx (~0.25 s)
     from planner.plan_data import plan_format, write_plan  # deferred: scipy (~0.2 s)
     from planner.realization import realize  # deferred: closure, contacts: scipy (~0.05 s more)
@@ -34,8 +41,16 @@ def cmd_plan(args: argparse.Namespace) -> int:
     if args.output:
         plan_format(args.output)  # refuse a bad suffix before any work
     t0 = time.perf_counter()
-    chosen = dict(contact_model=args.contact_model, rank=args.rank,
-                  gravity=tuple(args.gravity) if args.gravity is not None else None, gravity_set=args.gravity_set)
+    gravity, gname, specs = None, None, None
+    if args.gravity is not None and not isinstance(args.gravity, str):
+        gravity = tuple(args.gravity)
+    elif isinstance(args.gravity, str):  # a name (planner.gravity.named_gravity): the grasps' hand resolves it
+        from planner.gravity import named_gravity
+
+        gname, specs = args.gravity, [load_grasp(args.initial), load_grasp(args.final)]
+        check_same_setup(*specs)
+        gravity = named_gravity(gname, load_hand(specs[0].hand_ref))  # the vector is what the plan records
+    chosen = dict(contact_model=args.contact_model, rank=args.rank, gravity=gravity, gravity_set=args.gravity_set)
     if not args.execution:  # the thesis's defaults; --execution brings its own (PlanOptions.for_execution)
         chosen.update(contact_model=args.contact_model or "patch", rank=args.rank or "metric")
     options = (PlanOptions.for_execution if args.execution else PlanOptions)(
@@ -53,8 +68,9 @@ def cmd_plan(args: argparse.Namespace) -> int:
         **({"verify": False} if args.no_verify else {}),
         **chosen,
     )
-    specs = [load_grasp(args.initial), load_grasp(args.final)]
-    check_same_setup(*specs)
+    if specs is None:
+        specs = [load_grasp(args.initial), load_grasp(args.final)]
+        check_same_setup(*specs)
     initial, final = (realize(s).require_placed() for s in specs)
     inputs = {k: input_record(p) for k, p in (("initial", args.initial), ("final", args.final))}
     result = plan_regrasp(initial, final, options, inputs, verbose=args.verbose)
@@ -62,6 +78,8 @@ def cmd_plan(args: argparse.Namespace) -> int:
     if args.output:  # written before anything is printed: a closed pipe (| head) cannot lose it
         write_plan(plan, args.output)
     gripped = plan.states[0].grip_force_n is not None
+    if gname is not None:
+        print(_gravity_line(gname, gravity, initial.hand.name))
     print(f"{'step':>4}  {'finger':<8} {'action':<5} {'state':>5}  {'metric':>10}  " + ("grip N  " if gripped else "") + "removable")
     for i, step in enumerate(plan.steps):
         st = plan.states[step.to_state]
@@ -82,31 +100,65 @@ def cmd_plan(args: argparse.Namespace) -> int:
     )
     check = s.get("verification")
     if check is not None:
-        names = ", ".join(check["directions"])
+        shown = {"gravity": gname} if gname is not None else {}  # a named --gravity by its name
+        names = ", ".join(shown.get(d, d) for d in check["directions"])
         print(f"verified in pybullet: held in {len(check['directions'])} gravity directions ({names}), "
               f"{check['attempts']} sequence(s) replayed in {result.verify_s:.1f} s"
-              + (f" ({len(check['rejected'])} rejected: " + "; ".join(f"{r['direction']} at step {r['step']}"
+              + (f" ({len(check['rejected'])} rejected: " + "; ".join(f"{shown.get(r['direction'], r['direction'])} "
+                                                                    f"at step {r['step']}"
                                                                     for r in check['rejected']) + ")"
                  if check["rejected"] else "") + "; --no-verify skips it")
     return 0
 
 
+def _hold_under(grasp, name: str, g) -> list:
+    """`RealizedGrasp.hold` under one gravity (``--gravity``) instead of execution mode's six:
+    the same contact model (``hold``'s default, the one the report names), the joints' torque
+    limits, its share of the friction; [] when not force closure under that model."""
+    import inspect
+
+    from planner.closure import apply_contact_model  # deferred: scipy
+    from planner.grip import grasp_hold  # deferred: scipy
+
+    model = inspect.signature(type(grasp).hold).parameters["contact_model"].default
+    if not grasp.patches or not grasp.closure_under(model).is_force_closure:
+        return []
+    return grasp_hold(grasp.hand, grasp.q, apply_contact_model(grasp.patches, model), grasp.obj.T_palm_obj,
+                      grasp.obj.mass_kg, grasp.friction, [(name, g)])
+
+
 def cmd_check(args: argparse.Namespace) -> int:
     """Realize one grasp, print the report (text or JSON), draw it (``--png``); exit 0 force
-    closure and as written (no `RealizedGrasp.problems`), 1 not, 2 bad input."""
+    closure and as written (no `RealizedGrasp.problems`), 1 not, 2 bad input. With
+    ``--gravity`` (3 numbers, "gravity"; or a name) the load held is reported under it alone."""
     from planner.grasp import load_grasp  # deferred: objects, the hand: pinocchio, coal (~0.1 s)
     from planner.grasp_report import check_text, contact_markers  # deferred: scipy (~0.2 s)
     from planner.realization import realize  # deferred: closure, contacts: scipy (~0.05 s more)
 
     grasp = realize(load_grasp(args.grasp))
+    hold = gline = gdata = None
+    if args.gravity is not None:
+        from planner.gravity import named_gravity
+
+        name = args.gravity if isinstance(args.gravity, str) else "gravity"
+        g = named_gravity(name, grasp.hand) if isinstance(args.gravity, str) else tuple(float(v) for v in args.gravity)
+        hold = _hold_under(grasp, name, g)
+        gline, gdata = _gravity_line(name, g, grasp.hand.name), {"name": name, "vector": list(g)}
     if args.png:
         from planner.sim.render import render_png  # deferred: pybullet, only with --png
 
         render_png(grasp.hand, grasp.q, grasp.obj, args.png, markers=contact_markers(grasp))
     if args.json:
-        print(json.dumps(grasp.summary(), indent=1))
+        data = grasp.summary(hold)
+        if gdata is not None:
+            data["gravity"] = gdata
+        print(json.dumps(data, indent=1))
     else:
-        print(check_text(grasp))
+        text = check_text(grasp, hold)
+        if gline is not None:  # before the verdict, the report's last line
+            head, _, verdict = text.rpartition("\n")
+            text = f"{head}\n{gline}\n{verdict}"
+        print(text)
         if args.png:
             print(f"picture written to {args.png} (contacts: dots with their inward normals; green ok, orange "
                   "warning, red problem)")
@@ -117,7 +169,21 @@ def cmd_synth(args: argparse.Namespace) -> int:
     """Synthesize force-closure grasps; exit 0 when -n were written, 1 fewer, 2 bad input."""
     from planner.synthesis import run_synth  # deferred: scipy, coal (~0.25 s)
 
-    return run_synth(args.hand, args.object, args.fingers, args.n, args.output, gravity=args.gravity, seed=args.seed,
+    gravity = args.gravity
+    if isinstance(gravity, str):  # a name: the hand resolves it (planner.gravity.named_gravity)
+        from pathlib import Path
+
+        from planner.grasp import load_hand, resolve_hand_ref
+        from planner.gravity import named_gravity
+
+        try:
+            hand = load_hand(resolve_hand_ref(args.hand, Path.cwd()))
+        except (RuntimeError, OSError) as err:  # a symlink loop, an unreadable folder
+            raise PlannerError(f"synth: hand {args.hand}: cannot be resolved: {err}") from None
+        gravity = named_gravity(args.gravity, hand)
+        if not args.quiet:
+            print(f"synth: {_gravity_line(args.gravity, gravity, hand.name)}", file=sys.stderr, flush=True)
+    return run_synth(args.hand, args.object, args.fingers, args.n, args.output, gravity=gravity, seed=args.seed,
                      max_finger_force_n=args.max_finger_force, mu=args.mu, gamma=args.gamma,
                      max_attempts=args.max_attempts, quiet=args.quiet)
 
@@ -228,7 +294,15 @@ def cmd_replay(args: argparse.Namespace) -> int:
         data, passed, verdict = result.to_dict(), result.passed, result.verdict
         _compare_verification(plan, result)
     else:
-        report = replay_plan(plan, **kw, **({"gravity": tuple(args.gravity)} if args.gravity else {}))
+        gravity = tuple(args.gravity) if args.gravity and not isinstance(args.gravity, str) else None
+        if isinstance(args.gravity, str):  # a name: the plan's hand resolves it
+            from planner.gravity import named_gravity
+            from planner.sim.inputs import plan_hand  # deferred: pybullet
+
+            hand = plan_hand(plan)
+            gravity = named_gravity(args.gravity, hand)
+            print(_gravity_line(args.gravity, gravity, hand.name))
+        report = replay_plan(plan, **kw, **({"gravity": gravity} if gravity is not None else {}))
         _print_states(report)
         agree, reached = report.closure_agreement
         print(f"force closure agrees at {agree}/{reached} states; simulated {report.sim_time_s:.2f} s "
