@@ -13,8 +13,10 @@ from __future__ import annotations
 
 import networkx as nx
 
-from planner.errors import NoSequenceError
+from planner.closure import grasp_closure
+from planner.errors import NoSequenceError, PlannerError
 from planner.graph import LIFTED, Evaluator, GaitProblem, Node
+from planner.model import PALM
 
 
 def _slot_words(problem: GaitProblem, finger: str, s: int) -> str:
@@ -48,15 +50,35 @@ def _reason_words(ev: Evaluator, finger: str, action: str, w: Node, reason: str)
     if reason == "not force closure":
         c = ev.closure.get(w)
         metric = f", metric {c.metric:.3g}" if c is not None else ""
-        rest = ", ".join(f for f in ev.problem.patches(w)) or "no finger"
+        rest = ", ".join(f for f in ev.problem.patches(w)) or "no finger"  # the palm too, when it holds
         return f"{'without it' if action == 'lift' else 'with it'} the grasp ({rest}) is not force closure{metric}"
     return reason
+
+
+def _palm_remedy(ev: Evaluator, finger: str, w: Node) -> str:
+    """Whether palm support would let ``finger`` lift into state ``w`` (its contacts cannot
+    hold the object): "" when the palm holds already or the hand has no palm."""
+    p = ev.problem
+    if p.support or p.palm_hint is None:
+        return ""
+    patch, gap = p.palm_hint
+    patches = {**p.patches(w), PALM: patch}
+    try:
+        fc = grasp_closure(patches, p.friction).is_force_closure
+        holds = fc and (not p.all_loads() or p.load_refusal(patches, p.statics(w)) is None)
+    except PlannerError:
+        return ""
+    where = f"it is {gap * 1e3:.1f} mm from it" if gap > 0 else "it touches it"
+    if holds:
+        return (f"; {finger} can lift if the object rests on the palm ({where}: place the object against "
+                f"the palm and write palm: hold)")
+    return f"; palm support would not let it lift either ({where})"
 
 
 def _cannot_hold(reason: str) -> bool:
     """A state refused because its contacts cannot hold the object (not force closure, or
     over the grip force budget), not because fingers collide or too many are lifted."""
-    return reason == "not force closure" or reason.startswith("need over")
+    return reason == "not force closure" or reason.startswith("need over") or "its weight" in reason
 
 
 def failure_analysis(G: nx.DiGraph) -> dict:
@@ -112,7 +134,8 @@ def failure_analysis(G: nx.DiGraph) -> dict:
             tried = [m for m in moves if m[1] == i and m[2] == "lift"]
             if tried:  # the refused lift nearest the end of the best partial sequence
                 u, _, _, w = max(tried, key=lambda m: (on_partial.get(m[0], -1), -dist[m[0]]))
-                lift_blocked[f] = (u, _reason_words(ev, f, "lift", w, G.graph["blocked"][w]))
+                lift_blocked[f] = (u, _reason_words(ev, f, "lift", w, G.graph["blocked"][w])
+                                   + (_palm_remedy(ev, f, w) if _cannot_hold(G.graph["blocked"][w]) else ""))
                 score[f] += 3
                 if _cannot_hold(G.graph["blocked"][w]):
                     need_holders(w, f)
@@ -143,7 +166,8 @@ def failure_analysis(G: nx.DiGraph) -> dict:
         action = "lift" if closest[i] != LIFTED else "land"
         w = closest[:i] + ((LIFTED,) if action == "lift" else (goal[i],)) + closest[i + 1:]
         if w in G.graph["blocked"]:
-            stuck.append((f, action, _reason_words(ev, f, action, w, G.graph["blocked"][w])))
+            stuck.append((f, action, _reason_words(ev, f, action, w, G.graph["blocked"][w])
+                          + (_palm_remedy(ev, f, w) if action == "lift" and _cannot_hold(G.graph["blocked"][w]) else "")))
             if _cannot_hold(G.graph["blocked"][w]) and action == "lift":
                 need_holders(w, f)
             need_room(f, w)

@@ -132,6 +132,10 @@ class GaitProblem:
             `planner.model.PALM`, when the object rests on it; rigid, so no statics: it pushes
             inside its friction cone with no joint limit). A finger may lift when the other
             fingers and the support keep the state valid.
+        palm_hint: ``(patch, gap_m)`` when the palm does not hold: the contact the palm would
+            make if the object rested on it (its nearest point, the palm's normal there) and how
+            far the object is from it, m; explanations say whether that would let a blocked
+            finger lift (`planner.explain`).
     """
 
     fingers: tuple[str, ...]
@@ -149,6 +153,7 @@ class GaitProblem:
     load_gravity: np.ndarray | None = None
     hold_factor: float = HOLD_FACTOR
     support: Mapping[str, Patch] = field(default_factory=dict)
+    palm_hint: tuple | None = None
 
     def __post_init__(self):
         object.__setattr__(self, "support", MappingProxyType(dict(self.support)))

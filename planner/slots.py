@@ -25,7 +25,7 @@ from planner.closure import apply_contact_model, batch_grasp_closure
 from planner.contacts import collisions, contact_patches
 from planner.graph import LIFTED, GaitProblem, Slot
 from planner.grip import finger_statics
-from planner.model import PALM
+from planner.model import PALM, Patch
 from planner.options import PlanOptions, gravity_directions_of
 
 
@@ -368,13 +368,33 @@ def build_problem(initial, final, options: PlanOptions) -> GaitProblem:
     if PALM in initial.patches and PALM in final.patches:
         support[PALM] = apply_contact_model({PALM: initial.patches[PALM]}, options.contact_model)[PALM]
     problem = GaitProblem(fingers, slots, tuple(start), tuple(goal), initial.friction, compatible, options.max_lifted,
-                          support=support,
+                          support=support, palm_hint=None if support else palm_hint(initial, options.contact_model),
                           max_grip_force_n=cap, loads=loads, load_names=names or (),
                           grip_friction_margin=float(options.friction_margin), load_gravity=gravities,
                           hold_factor=float(options.hold_factor))
     if options.intermediate:
         problem, _ = add_intermediate(problem, initial, {f: options.intermediate for f in fingers}, options)
     return problem
+
+
+def palm_hint(grasp, contact_model: str) -> tuple | None:
+    """The contact the palm would make if the object rested on it, and the gap: ``(Patch, gap_m)``
+    (object frame; the point of the object nearest the palm, the inward normal along the
+    palm-to-object direction), or None when the hand has no palm geometry."""
+    hand, obj = grasp.hand, grasp.obj
+    dist = hand.state(grasp.q).link_object(obj, hand.collision.finger_links(None))
+    if not dist:
+        return None
+    link, ld = min(dist.items(), key=lambda kv: kv[1].distance_m)
+    d = np.asarray(ld.p_obj_palm, float) - np.asarray(ld.p_link_palm, float)
+    if not np.linalg.norm(d) > 1e-9:
+        return None
+    T = np.asarray(obj.T_palm_obj, dtype=float)
+    R = T[:3, :3]
+    p_obj = R.T @ (np.asarray(ld.p_obj_palm, float) - T[:3, 3])
+    n_obj = R.T @ (d / np.linalg.norm(d))
+    patch = Patch(p_obj[None, :], n_obj[None, :], (link,))
+    return apply_contact_model({PALM: patch}, contact_model)[PALM], float(ld.distance_m)
 
 
 def add_intermediate(problem: GaitProblem, initial, wanted: Mapping[str, int], options: PlanOptions,

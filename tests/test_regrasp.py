@@ -351,7 +351,7 @@ def test_execution_mode_plans_the_cylinder_pair_and_every_state_rechecks_closure
     assert main(["plan", str(a), str(b), "-o", str(out), "--execution"]) == 0
     data = recheck_plan_file(out)
     par = data["parameters"]
-    assert par["execution"] and par["contact_model"] == "mean" and par["rank"] == "grip" and par["gravity_set"] == 6
+    assert par["execution"] and par["contact_model"] == "link" and par["rank"] == "grip" and par["gravity_set"] == 6
     assert {d["name"]: d["gravity"] for d in par["gravity_directions"]} == ICUB_GRAVITY_SET_6
     assert par["grip_cone_sides"] == 16 and data["summary"]["rank"] == "grip"
     # execution plans keep a friction reserve: their grip is computed with mu and gamma scaled

@@ -336,7 +336,7 @@ def test_library_plan_holds_and_agrees_at_every_state(pair, gravity):
     finger paths, the replay keeps the object within 5 mm / 5 deg, and the simulator's
     closure agrees with the plan's at every state of the gait."""
     plan = _library_plan(pair)
-    assert plan["parameters"]["contact_model"] == "mean"
+    assert plan["parameters"]["contact_model"] == "link"
     assert {s["finger"] for s in plan["steps"]} >= {"index", "ring", "little"}
     report = replay_plan(plan, gravity=gravity)
     assert report.passed, report.verdict
