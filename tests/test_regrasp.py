@@ -364,7 +364,8 @@ def test_execution_mode_plans_the_cylinder_pair_and_every_state_rechecks_closure
     grips, bracketed = [], set()
     for i, state in enumerate(data["states"]):
         patches = {f: (np.array(p["points"]), np.array(p["normals"])) for f, p in state["patches"].items()}
-        assert all(len(p) == 1 for p, _ in patches.values())  # one mean contact per finger
+        # one contact per touching link (the "link" model), each point naming its own link
+        assert all(len(p["links"]) == len(set(p["links"])) == len(p["points"]) >= 1 for p in state["patches"].values())
         per_dir = {}
         for name, g in ICUB_GRAVITY_SET_6.items():
             load = np.r_[mass * R.T @ np.array(g), np.zeros(3)]
@@ -387,7 +388,7 @@ def test_execution_mode_plans_the_cylinder_pair_and_every_state_rechecks_closure
     assert data["summary"]["bottleneck_grip_force_n"] == pytest.approx(max(grips), rel=1e-9)
     assert all(alt["bottleneck_grip_force_n"] >= max(grips) * (1 - 1e-9) for alt in data["alternatives"])
     # the metric ranking on the same states does not need less grip than the grip ranking
-    by_metric = plan_regrasp(realized(a), realized(b), PlanOptions(motion=False, contact_model="mean", gravity_set=6,
+    by_metric = plan_regrasp(realized(a), realized(b), PlanOptions(motion=False, contact_model="link", gravity_set=6,
                                                                    friction_margin=k))
     assert by_metric.sequence.bottleneck_grip >= max(grips) * (1 - 1e-9)
     # verified in the six directions before it was returned; the record is part of the bytes
