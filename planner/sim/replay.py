@@ -389,6 +389,7 @@ class _Sim:
         self.trajectory: dict = {"joints": list(info.hand.joint_names), "t": [], "q": [], "object_position": [],
                                  "object_quat_xyzw": []}
         self.failure: str | None = None
+        self.palm_holds = False  # the plan has the palm hold (set by `run`)
         self.fail_step: int | None = None  # plan step (-1: state 0) at which the drift first left the limits
         self.step_k = -1
         self.carried: dict[str, float] = {}  # finger or "palm" -> summed normal force over the sampling window
@@ -485,7 +486,7 @@ class _Sim:
             what.append(f"contact lost: {', '.join(lost)}")
         if not self.ctl.balanced:
             what.append("no forces at the touching links balance the load inside the friction cones")
-        stray = sorted(f for f in touching if f not in self.ctl.holding)
+        stray = sorted(f for f in touching if f not in self.ctl.holding and not (f == PALM and self.palm_holds))
         if stray:
             what.append(f"touched by {', '.join(stray)} (not holding)")
         now: dict[str, list] = {}
@@ -540,6 +541,7 @@ class _Sim:
     def run(self, states, steps, recorder=None, every=8, realtime=False):
         self.recorder, self.every, self.realtime = recorder, every, realtime
         self.released = False
+        self.palm_holds = bool(states) and states[0].palm_holds  # the plan's palm contact (one object pose)
         ctl, prm = self.ctl, self.params
         g_full = np.asarray(prm["gravity"], float)
         self._reset_q(self._q(states[0]))
