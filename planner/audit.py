@@ -128,6 +128,17 @@ def _modelled_reference(fk_patch, model: str, links, n_points: int) -> list | No
     return out
 
 
+def _as_recorded(patch, model: str, recorded):
+    """A patch of the hand (at a state's joints, or of an input grasp) as a plan records it
+    under its contact model: the per-link means ("link"; one mean when the recorded patch
+    names no links, as schema 2 plans), the mean ("mean"), or every point ("patch")."""
+    if model not in ("mean", "link"):
+        return patch
+    if model == "link" and getattr(recorded, "links", None) is None:
+        model = "mean"
+    return apply_contact_model({"p": patch}, model)["p"]
+
+
 def _unit(v: np.ndarray) -> np.ndarray:
     return v / max(float(np.linalg.norm(v)), 1e-300)
 
@@ -297,9 +308,7 @@ def _check_states(plan, hand, obj, rep: AuditReport) -> list:
                 rep.add(f"states[{i}].patches.{f}: at the state's joints {'the palm' if f == PALM else 'finger ' + f} "
                         f"is {d * 1000:.1f} mm from the object: it does not touch where the plan says")
                 continue
-            mine = fk[f] if not modelled else apply_contact_model({f: fk[f]}, model)[f]
-            if modelled and getattr(st.patches[f], "links", None) is None:
-                mine = apply_contact_model({f: fk[f]}, "mean")[f]
+            mine = _as_recorded(fk[f], model, st.patches[f])
             off = float(np.linalg.norm(np.mean(st.patches[f][0], axis=0) - np.mean(mine[0], axis=0)))
             if off > FK_TOL_M:
                 rep.add(f"states[{i}].patches.{f}: the {'palm' if f == PALM else 'finger'} touches the object "
@@ -402,8 +411,10 @@ def _check_chain(plan, hand, rep: AuditReport, grasps: dict) -> None:
                     f"{', '.join(have) or 'no finger'}, the {name} grasp with {', '.join(want)}: the plan does not "
                     f"{'start' if index == 0 else 'end'} at the {name} grasp")
             continue
+        model = (plan.parameters or {}).get("contact_model", "patch")
         for f in want:
-            off = float(np.linalg.norm(np.mean(st.patches[f][0], axis=0) - np.mean(g.patches[f][0], axis=0)))
+            ref = _as_recorded(g.patches[f], model, st.patches[f])
+            off = float(np.linalg.norm(np.mean(st.patches[f][0], axis=0) - np.mean(ref[0], axis=0)))
             if off > FK_TOL_M:
                 rep.add(f"states[{index}].patches.{f}: {off * 1000:.1f} mm from the {name} grasp's contact: the plan "
                         f"does not {'start' if index == 0 else 'end'} at the {name} grasp")
