@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import logging
 import math
+import re
 import time
 from dataclasses import asdict, dataclass, replace
 from typing import Any, Mapping
@@ -154,6 +155,24 @@ def _plan_motions(hand, obj, problem, seq: GaitSequence, gait_fn, cache: dict) -
 def _rejected_words(rejected) -> str:
     """Sequences the simulator rejected, in words: order, direction, step and verdict each."""
     return "; ".join(f"{' '.join(x['order'])}: {x['direction']} at step {x['step']}: {x['verdict']}" for x in rejected)
+
+
+def _rejected_summary(rejected, planned: list[str]) -> str:
+    """The rejected sequences merged by where they failed ("5 at lift thumb in side_-x, ..."),
+    and what the user can act on: the directions that failed, when others held."""
+    where: dict[tuple[str, str], int] = {}
+    for x in rejected:
+        m = re.search(r"step \d+ \((\w+ [^,)]+)", x["verdict"])
+        move = m.group(1) if m else f"step {x['step']}"
+        where[(move, x["direction"])] = where.get((move, x["direction"]), 0) + 1
+    parts = [f"{n} at {move} in {d}" for (move, d), n in sorted(where.items(), key=lambda kv: (-kv[1], kv[0]))]
+    failed = sorted({x["direction"] for x in rejected})
+    words = "failed " + ", ".join(parts)
+    if len(planned) > len(failed):
+        words += (f"; only {', '.join(failed)} of the {len(planned)} planned direction(s) failed: if the hand will "
+                  f"not be held so, plan for the orientations it will be held in (--gravity NAME, e.g. "
+                  f"--gravity {next(d for d in planned if d not in failed)})")
+    return words
 
 
 def _step_edges(seq: GaitSequence, motions) -> list[tuple]:
@@ -443,8 +462,8 @@ def plan_regrasp(
             if len(rejected) >= options.verify_attempts:
                 raise NoSequenceError(
                     f"no sequence held in the simulator in {len(rejected)} attempt(s) (--verify-attempts; "
-                    f"{verify_s:.1f} s of replays): {_rejected_words(rejected[:3])}; --no-verify returns the best "
-                    "sequence unverified")
+                    f"{verify_s:.1f} s of replays): {_rejected_summary(rejected, [n for n, _ in directions])}; "
+                    f"the first: {_rejected_words(rejected[:1])}; --no-verify returns the best sequence unverified")
             # the re-search is bounded by the graph, not by the clock the replays spent: a
             # deadline passed during them would stop it where the last search stood (and make
             # the plan depend on the machine's load and the number of workers)

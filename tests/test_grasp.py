@@ -7,6 +7,8 @@ import math
 from pathlib import Path
 
 import numpy as np
+
+from planner.model import PALM
 import pytest
 import yaml
 
@@ -60,12 +62,14 @@ def test_library_grasp_names_exist(path):
 
 @pytest.mark.parametrize("path", GRASPS, ids=lambda p: str(p.relative_to(ROOT / "grasps")))
 def test_library_grasp_is_force_closure_without_self_collision(path, realized):
-    """Every library grasp realizes to force closure, every placed finger touches, no hand part collides."""
+    """Every library grasp realizes to force closure, every placed finger touches, no hand part
+    collides; the palm holds exactly where the file says palm: hold."""
     g = realized[path]
     assert g.is_force_closure and g.metric > 0
     assert g.missing == ()
     assert g.collisions == ()
-    assert set(g.patches) == set(g.spec.contact_fingers)
+    assert set(g.patches) - {PALM} == set(g.spec.contact_fingers)
+    assert (PALM in g.patches) == (g.spec.palm == "hold")
     for p, n in g.patches.values():
         assert np.all(np.isfinite(p)) and np.all(np.isfinite(n))
         assert np.allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-6)
