@@ -188,10 +188,10 @@ class Controller:
         free finger gets, one-finger squeeze), as the reflected rotor inertia of a geared
         finger motor would; returns (n_movable,) the inertia floor per joint, kg m^2."""
         F = max(self.force_override or 0.0, squeeze_force_n(self.mass, self.g_max, 1, self.friction.mu, self.floor_n))
-        q = np.array(self.hand.q_open)
+        state = self.hand.state(np.array(self.hand.q_open))
         floor = np.zeros(len(self.movable))
         for name, finger in self.hand.fingers.items():
-            J = self.hand.frame_jacobian(q, finger.pad_link, finger.pad_p_link)[:3]
+            J = state.frame_jacobian(finger.pad_link, finger.pad_p_link)[:3]
             reach = max([float(np.linalg.norm(J[:, self.col[j]])) for j in finger.joints] + [MIN_LEVER_M])
             kp_max = max(FREE_SHARE, POSTURE_SHARE) * F / self.travel_m * reach ** 2
             inertia = kp_max * (dt_s / ARMATURE_OMEGA_DT) ** 2
@@ -322,35 +322,38 @@ class Controller:
 
     # -- control law ------------------------------------------------------------------
 
-    def _finger_jacobians(self, q: np.ndarray, contacts: Sequence[Contact]) -> list[np.ndarray]:
+    def _finger_jacobians(self, state, contacts: Sequence[Contact]) -> list[np.ndarray]:
         """(3, n_finger_joints) linear Jacobian of each contact point (fixed to its link)
-        over its finger's joints, one kinematics pass for all."""
-        Js = self.hand.point_jacobians(q, [(self.link_name[c.link], c.point) for c in contacts])
+        over its finger's joints at the update's kinematic state, one pass for all."""
+        Js = state.point_jacobians([(self.link_name[c.link], c.point) for c in contacts])
         return [J[:, [self.col[j] for j in self.hand.fingers[c.finger].joints]] for c, J in zip(contacts, Js)]
 
     def _update(self) -> None:
         q = self.q()
+        # one kinematic state per update: the gravity torques, the force solution's joint rows,
+        # the contact Jacobians and the posture springs all read it (FK once)
+        state = self.hand.state(q)
         tau = np.zeros(len(self.movable))
         if self.gravity.any():
-            g_q = self.hand.gravity_torques(q, self.gravity)
+            g_q = state.gravity_torques(self.gravity)
             for j, tj in zip(self.hand.joint_names, g_q):
                 tau[self.hand_pos[self.jidx[j]]] = tj
         F = self.force_n
         contacts = [c for c in self.contacts() if c.finger is None or c.finger in self.holding]
-        forces = self._balanced(contacts, F, q)
+        forces = self._balanced(contacts, F, state)
         self.forces = {}
         pushing = [(c, f_c) for c, f_c in zip(contacts, forces) if c.finger is not None and np.any(f_c)]
-        for (c, f_c), J in zip(pushing, self._finger_jacobians(q, [c for c, _ in pushing])):
+        for (c, f_c), J in zip(pushing, self._finger_jacobians(state, [c for c, _ in pushing])):
             self.forces[c.link] = self.forces.get(c.link, 0.0) + f_c
             t = J.T @ f_c
             for j, tj in zip(self.hand.fingers[c.finger].joints, t):
                 tau[self.hand_pos[self.jidx[j]]] += tj
         self.tau = tau
         if self._tick % (16 * UPDATE_EVERY) == 0 or self._motors_stale:
-            self._set_motors(q, F)
+            self._set_motors(state, F)
             self._motors_stale = False
 
-    def _balanced(self, contacts: list[Contact], F: float, q: np.ndarray) -> list[np.ndarray]:
+    def _balanced(self, contacts: list[Contact], F: float, state) -> list[np.ndarray]:
         """Forces of the contacts (zero for passive ones): the balanced solution, blended for
         the handover of fingers with a share below 1."""
         if not contacts:
@@ -404,7 +407,7 @@ class Controller:
                 commanded = [contacts[i] for i in idx]
                 # the rows hold the fingers' own weight under the gravity of this load (the ramp
                 # blends the solutions for no load and the full load; g(q) is linear in gravity)
-                rows = self._joint_rows(q, commanded, load[:3] / self.mass if self.mass > 0 else np.zeros(3))
+                rows = self._joint_rows(state, commanded, load[:3] / self.mass if self.mass > 0 else np.zeros(3))
                 # the joints' limits say what the fingers can hold; only fingers without limits
                 # keep the ratio cap on their forces
                 bounded = all(c.finger is None or c.finger in self.limited for c in commanded)
@@ -438,14 +441,13 @@ class Controller:
         s = min(fading.values())
         return [s * a + (1.0 - s) * b for a, b in zip(full, without)]
 
-    def _joint_rows(self, q: np.ndarray, contacts: Sequence[Contact], gravity) -> list:
+    def _joint_rows(self, state, contacts: Sequence[Contact], gravity) -> list:
         """The joint torque limits of every commanded finger over its contacts' forces and
         torsions (`planner.grip.torque_rows`) at ``q``, its own weight compensated under
         ``gravity`` (the gravity of the load solved for): the planner's limits, at the
         simulator's contacts."""
         gravity = np.asarray(gravity, dtype=float)
-        state = self.hand.state(q)  # one kinematic state for the gravity torques and the Jacobians
-        g_q = state.gravity_torques(gravity) if gravity.any() else np.zeros(len(q))
+        g_q = state.gravity_torques(gravity) if gravity.any() else np.zeros(len(state.q))
         rows = []
         by_finger: dict[str, list[int]] = {}
         for i, c in enumerate(contacts):
@@ -464,14 +466,14 @@ class Controller:
                 rows.append((idx, A, b))
         return rows
 
-    def _set_motors(self, q: np.ndarray, F: float) -> None:
+    def _set_motors(self, state, F: float) -> None:
         """Posture springs: a pad displacement of ``travel_m`` costs ``share * F``
         (``share``: ``POSTURE_SHARE`` for holding fingers, ``FREE_SHARE`` for the others),
         i.e. ``Kp_j = share F / travel |J_pad[:, j]|^2``, saturating at ``share F |J_pad[:, j]|``;
         damping critical for the joint's armature."""
         kp, cap = np.zeros(len(self.movable)), np.zeros(len(self.movable))
         for name, finger in self.hand.fingers.items():
-            J = self.hand.frame_jacobian(q, finger.pad_link, finger.pad_p_link)[:3]
+            J = state.frame_jacobian(finger.pad_link, finger.pad_p_link)[:3]
             share = FREE_SHARE if (name == self.moving or name not in self.holding) else POSTURE_SHARE
             for j in finger.joints:
                 lever = max(float(np.linalg.norm(J[:, self.col[j]])), MIN_LEVER_M)
