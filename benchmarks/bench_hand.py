@@ -40,7 +40,7 @@ def main():
         qs.append(q)
 
     def fk_and_object_check(q):
-        hand.link_pose(q, f.tip_frame)
+        hand.state(q).link_pose(f.tip_frame)
         return collisions(hand, q, obj, fingers=["index"])
 
     t_fk_col = median_time_s(fk_and_object_check, [(q,) for q in qs])
@@ -49,13 +49,13 @@ def main():
 
     targets = []
     for q in qs[:200]:
-        T_pad = hand.link_pose(q, f.pad_link)
+        T_pad = hand.state(q).link_pose(f.pad_link)
         targets.append((T_pad[:3, :3] @ np.array(f.pad_p_link) + T_pad[:3, 3],))
     t_ik = median_time_s(lambda p: hand.ik("index", p, hand.q_open), targets)
     errs = []
     for (p,) in targets:
         q = hand.ik("index", p, hand.q_open)
-        T_pad = hand.link_pose(q, f.pad_link)
+        T_pad = hand.state(q).link_pose(f.pad_link)
         errs.append(np.linalg.norm(T_pad[:3, :3] @ np.array(f.pad_p_link) + T_pad[:3, 3] - p))
     t_close = median_time_s(lambda q: hand.close_finger("index", q, obj), [(hand.q_open,)] * 20)
 

@@ -125,7 +125,7 @@ def replay_inertia(hand) -> dict[str, tuple[float, np.ndarray, np.ndarray]]:
 
 
 def _tip_point(hand, q, link: str, p_link) -> np.ndarray:
-    T = hand.link_pose(q, link)
+    T = hand.state(q).link_pose(link)
     return T[:3, :3] @ np.asarray(p_link, float) + T[:3, 3]
 
 
@@ -371,7 +371,7 @@ def _pad(hand, link: str, boxes, palm_normal, q) -> tuple[np.ndarray, np.ndarray
     size = boxes[link]
     centre = _box_centre(hand, link)
     k = int(np.argmax(size))
-    T = hand.link_pose(q, link)
+    T = hand.state(q).link_pose(link)
     R = T[:3, :3]
     # the object sits on the palm-normal side of the palm; a closed finger's pad faces back
     # toward the palm: at the open posture the pad faces the palm normal's side
@@ -464,7 +464,7 @@ def check_hand(ref) -> HandReport:
             rep.add("warning", f"fingers.{name}.pad", "no normal: IK places the tip without orienting the pad; "
                                                       "give pad: {link, point, normal}")
             continue
-        R = hand.link_pose(q_open, fg.pad_link)[:3, :3]
+        R = hand.state(q_open).link_pose(fg.pad_link)[:3, :3]
         c = float((R @ np.asarray(fg.pad_n_link)) @ n)
         if c < 0.0 and name != "thumb":
             rep.add("warning", f"fingers.{name}.pad", f"its normal points away from the palm's side at the open posture "

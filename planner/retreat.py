@@ -81,7 +81,7 @@ def _retreat_dls(
         s += step_m
         target = p0 - s * n_in
         for _ in range(3):
-            J = np.asarray(hand.frame_jacobian(scene.full_q(q), link, p_link), dtype=float)[:rows][:, scene.idx]
+            J = np.asarray(hand.state(scene.full_q(q)).frame_jacobian(link, p_link), dtype=float)[:rows][:, scene.idx]
             err = np.zeros(rows)
             err[:3] = target - point(q)  # orientation target: no rotation (zero rows)
             Jw = W * J
@@ -128,7 +128,7 @@ def _retreat_repel(
                 continue
             n_out = -_inward_normal(scene, p_object_palm)
             p_link = scene.point_on_link(q, link, p_link_palm)
-            J = np.asarray(hand.frame_jacobian(scene.full_q(q), link, p_link), dtype=float)[:3][:, scene.idx]
+            J = np.asarray(hand.state(scene.full_q(q)).frame_jacobian(link, p_link), dtype=float)[:3][:, scene.idx]
             rows.append(n_out @ J)
         A = np.array(rows)
         dq = A.T @ np.linalg.solve(A @ A.T + damping**2 * np.eye(len(A)), np.full(len(A), step_m))

@@ -82,7 +82,7 @@ def _pool_postures(hand, obj, finger: str) -> tuple[np.ndarray, np.ndarray]:
     pads = np.empty((len(postures), 4, 4))
     for k, qf in enumerate(postures):  # forward kinematics of every posture
         q[idx] = qf
-        pads[k] = hand.link_pose(q, f.pad_link)
+        pads[k] = hand.state(q).link_pose(f.pad_link)
     p_obj = (pads[:, :3, :] @ p_link - T[:3, 3]) @ T[:3, :3]
     n_obj = (pads[:, :3, :3] @ n_link) @ T[:3, :3]
     # distance to the surface from a dense sample of it (the nearest sample's tangent

@@ -167,7 +167,7 @@ class _Scene:
         self.finger_color = {f: FINGER_COLORS[i % len(FINGER_COLORS)] for i, f in enumerate(self.fingers)}
         # palm frame -> page: palm normal up; hand geometry is placed in the model's world frame
         # the model's world is its root link: T_palm_world = pose of the root link in the palm frame
-        T_palm_world = np.asarray(hand.link_pose(hand.q_open, hand.model.frames[1].name), dtype=float)
+        T_palm_world = np.asarray(hand.state(hand.q_open).link_pose(hand.model.frames[1].name), dtype=float)
         self.T_palm_world = T_palm_world
         self.R_page = _rot_to_z(hand.palm_normal)
         self.vis["regrasp"].set_transform(pose_matrix(self.R_page))

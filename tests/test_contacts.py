@@ -103,7 +103,7 @@ def test_collisions_detect_penetration(icub):
     assert collisions(icub, icub.q_open) == []
     q = icub.q_open.copy()
     T = np.eye(4)
-    T[:3, 3] = icub.link_pose(q, "index_intermediate")[:3, 3]
+    T[:3, 3] = icub.state(q).link_pose("index_intermediate")[:3, 3]
     hits = collisions(icub, q, make_object("box", (0.02, 0.02, 0.02), T))
     assert any(b == "object" and a.startswith("index") and depth > TOUCH_TOL_M for a, b, depth in hits)
     q = icub.q_open.copy()
@@ -130,7 +130,7 @@ def test_allegro_closing_touches_a_sphere():
     q_mid = hand.q_open.copy()
     for j in f.close_joints:
         q_mid[hand.joint_names.index(j)] = 0.6
-    T_pad = hand.link_pose(q_mid, f.pad_link)
+    T_pad = hand.state(q_mid).link_pose(f.pad_link)
     p = T_pad[:3, :3] @ np.array(f.pad_p_link) + T_pad[:3, 3]
     n = T_pad[:3, :3] @ np.array(f.pad_n_link)
     T = np.eye(4)
@@ -152,7 +152,7 @@ def test_ik_placement_then_closing_touches_without_penetration(icub, box_grasp):
     R, t = obj.T_palm_obj[:3, :3], obj.T_palm_obj[:3, 3]   # object y axis = palm y axis
     # on the +x face, in the middle finger's flexion plane (the finger has no abduction)
     f = icub.fingers["middle"]
-    T_pad = icub.link_pose(q0, f.pad_link)
+    T_pad = icub.state(q0).link_pose(f.pad_link)
     y_plane = (T_pad[:3, :3] @ np.array(f.pad_p_link) + T_pad[:3, 3])[1]
     p_obj = np.array([0.012, y_plane - t[1], 0.0])
     q1 = icub.ik("middle", R @ p_obj + t, q0, normal_palm=R @ [-1.0, 0.0, 0.0])

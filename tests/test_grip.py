@@ -148,19 +148,19 @@ def test_finger_statics_match_finite_differences_and_pinocchio_gravity():
         p_palm = R @ p_obj[0] + T[:3, 3]
         link = min(hand.fingers[f].contact_links,
                    key=lambda l: hand.state(g.q).point_distance(p_palm, hand.collision.link_geometries[l]))
-        T0 = hand.link_pose(g.q, link)
+        T0 = hand.state(g.q).link_pose(link)
         p_link = np.linalg.inv(T0) @ np.r_[p_palm, 1.0]
         cols = list(hand.fingers[f].q_index)
         num = np.zeros((3, len(cols)))
         for k, c in enumerate(cols):
             dq = np.zeros(len(g.q))
             dq[c] = 1e-6
-            hi = R.T @ (hand.link_pose(g.q + dq, link) @ p_link)[:3]
-            lo = R.T @ (hand.link_pose(g.q - dq, link) @ p_link)[:3]
+            hi = R.T @ (hand.state(g.q + dq).link_pose(link) @ p_link)[:3]
+            lo = R.T @ (hand.state(g.q - dq).link_pose(link) @ p_link)[:3]
             num[:, k] = (hi - lo) / 2e-6
         np.testing.assert_allclose(st.jacobians[0, :3], num, atol=1e-6)
         g_obj = np.array([1.0, -2.0, 9.0])
-        np.testing.assert_allclose(st.gravity @ g_obj, hand.gravity_torques(g.q, R @ g_obj)[cols], atol=1e-12)
+        np.testing.assert_allclose(st.gravity @ g_obj, hand.state(g.q).gravity_torques(R @ g_obj)[cols], atol=1e-12)
         np.testing.assert_allclose(st.effort, hand.effort[cols])
 
 

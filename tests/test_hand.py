@@ -26,7 +26,7 @@ def icub():
 
 def _pad_palm(hand, finger, q):
     f = hand.fingers[finger]
-    T = hand.link_pose(q, f.pad_link)
+    T = hand.state(q).link_pose(f.pad_link)
     return T[:3, :3] @ np.array(f.pad_p_link) + T[:3, 3]
 
 
@@ -40,8 +40,8 @@ def test_spec_loads_in_pinocchio(spec):
     for f in hand.fingers.values():
         assert [hand.joint_names[i] for i in f.q_index] == list(f.joints)
         assert set(f.contact_links) <= set(f.links)
-        hand.link_pose(hand.q_open, f.tip_frame)
-    assert hand.collision_objects(hand.q_open)
+        hand.state(hand.q_open).link_pose(f.tip_frame)
+    assert hand.state(hand.q_open).collision_objects()
 
 
 @pytest.mark.parametrize("spec", SPECS, ids=lambda p: p.parent.name)
@@ -67,7 +67,7 @@ def test_icub_fingertips_match_fact_sheet(icub):
     """At q = 0 the iCub fingertip frames are within 2 mm of the published positions."""
     q = np.zeros(icub.model.nq)
     for finger, tip in ICUB_TIPS.items():
-        p = icub.link_pose(q, icub.fingers[finger].tip_frame)[:3, 3]
+        p = icub.state(q).link_pose(icub.fingers[finger].tip_frame)[:3, 3]
         assert np.linalg.norm(p - np.array(tip)) < 2e-3, finger
 
 
@@ -83,10 +83,10 @@ def test_positive_flexion_curls_toward_grasping_face(icub):
     for f in icub.fingers.values():
         q = np.zeros(icub.model.nq)
         q[icub.joint_names.index("thumb_0")] = np.pi / 2   # opposed thumb
-        before = icub.link_pose(q, f.tip_frame)[:3, 3]
+        before = icub.state(q).link_pose(f.tip_frame)[:3, 3]
         for j in f.close_joints:
             q[icub.joint_names.index(j)] += 0.3
-        after = icub.link_pose(q, f.tip_frame)[:3, 3]
+        after = icub.state(q).link_pose(f.tip_frame)[:3, 3]
         if f.name == "thumb":   # opposed thumb curls toward the fingers (+x)
             assert after[0] > before[0] + 0.01
         else:
@@ -102,13 +102,13 @@ def test_frame_jacobian_matches_finite_differences(name):
         q = rng.uniform(hand.lower, hand.upper)
         for f in hand.fingers.values():
             p_link = np.array(f.pad_p_link)
-            J = hand.frame_jacobian(q, f.pad_link, p_link)
+            J = hand.state(q).frame_jacobian(f.pad_link, p_link)
             eps = 1e-6
             Jn = np.zeros_like(J)
             for i in range(hand.model.nq):
                 dq = np.zeros(hand.model.nq)
                 dq[i] = eps
-                Tp, Tm = hand.link_pose(q + dq, f.pad_link), hand.link_pose(q - dq, f.pad_link)
+                Tp, Tm = hand.state(q + dq).link_pose(f.pad_link), hand.state(q - dq).link_pose(f.pad_link)
                 Jn[:3, i] = ((Tp[:3, :3] - Tm[:3, :3]) @ p_link + Tp[:3, 3] - Tm[:3, 3]) / (2 * eps)
                 dR = (Tp[:3, :3] - Tm[:3, :3]) / (2 * eps) @ Tp[:3, :3].T   # skew(omega)
                 Jn[3:, i] = [dR[2, 1], dR[0, 2], dR[1, 0]]
@@ -124,18 +124,18 @@ def test_point_jacobians_of_palm_points_match_finite_differences(name):
     q = rng.uniform(hand.lower, hand.upper)
     points = []
     for f in hand.fingers.values():
-        T = hand.link_pose(q, f.pad_link)
+        T = hand.state(q).link_pose(f.pad_link)
         points.append((f.pad_link, T[:3, :3] @ (np.array(f.pad_p_link) + [0.002, -0.001, 0.003]) + T[:3, 3]))
-    Js = hand.point_jacobians(q, points)
+    Js = hand.state(q).point_jacobians(points)
     eps = 1e-6
     for (link, p_palm), J in zip(points, Js):
-        T = hand.link_pose(q, link)
+        T = hand.state(q).link_pose(link)
         p_link = T[:3, :3].T @ (p_palm - T[:3, 3])
         Jn = np.zeros((3, hand.model.nq))
         for i in range(hand.model.nq):
             dq = np.zeros(hand.model.nq)
             dq[i] = eps
-            Tp, Tm = hand.link_pose(q + dq, link), hand.link_pose(q - dq, link)
+            Tp, Tm = hand.state(q + dq).link_pose(link), hand.state(q - dq).link_pose(link)
             Jn[:, i] = ((Tp[:3, :3] - Tm[:3, :3]) @ p_link + Tp[:3, 3] - Tm[:3, 3]) / (2 * eps)
         assert J.shape == (3, hand.model.nq) and np.allclose(J, Jn, atol=1e-6), link
 
@@ -168,9 +168,9 @@ def test_ik_aligns_pad_normal_when_possible(icub):
     for _ in range(5):
         q_true = icub.q_open.copy()
         q_true[idx] = rng.uniform(icub.lower[idx], icub.upper[idx])
-        n = icub.link_pose(q_true, f.pad_link)[:3, :3] @ np.array(f.pad_n_link)
+        n = icub.state(q_true).link_pose(f.pad_link)[:3, :3] @ np.array(f.pad_n_link)
         q = icub.ik("index", _pad_palm(icub, "index", q_true), icub.q_open, normal_palm=n)
-        n_got = icub.link_pose(q, f.pad_link)[:3, :3] @ np.array(f.pad_n_link)
+        n_got = icub.state(q).link_pose(f.pad_link)[:3, :3] @ np.array(f.pad_n_link)
         assert np.degrees(np.arccos(np.clip(n_got @ n, -1, 1))) < 5.0
 
 
@@ -198,7 +198,7 @@ def test_ik_falls_back_to_position_only_when_the_normal_task_fails(name):
         q_true = hand.q_open.copy()
         q_true[idx] = hand.lower[idx] + rng.uniform(0.3, 0.7, len(idx)) * (hand.upper[idx] - hand.lower[idx])
         target = _pad_palm(hand, f.name, q_true)
-        n_away = -(hand.link_pose(q_true, f.pad_link)[:3, :3] @ np.array(f.pad_n_link))
+        n_away = -(hand.state(q_true).link_pose(f.pad_link)[:3, :3] @ np.array(f.pad_n_link))
         r = hand.ik_solve(f.name, target, hand.q_open, normal_palm=n_away)
         assert np.linalg.norm(_pad_palm(hand, f.name, r.q) - target) < IK_TOL_M
         # position-only runs only after the combined task failed; then the normal is far off
@@ -232,9 +232,9 @@ def test_bad_names_and_sizes(icub):
     with pytest.raises(UnknownNameError, match="index, little, middle, ring, thumb"):
         icub.ik("pinky", [0, 0, 0], icub.q_open)
     with pytest.raises(UnknownNameError, match="index_distal"):
-        icub.link_pose(icub.q_open, "index_distl")
+        icub.state(icub.q_open).link_pose("index_distl")
     with pytest.raises(InputError):
-        icub.link_pose(np.zeros(3), "palm")
+        icub.state(np.zeros(3)).link_pose("palm")
     with pytest.raises(UnknownNameError, match="icub_right"):
         Hand.load("no_such_hand")
 

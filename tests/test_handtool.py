@@ -50,7 +50,7 @@ def test_init_writes_a_hand_that_loads_checks_and_grasps(tmp_path, capsys):
     q = hand.q_open.copy()
     for j in hand.fingers["index"].close_joints:
         q[hand.joint_names.index(j)] = hand.upper[hand.joint_names.index(j)] * 0.5
-    R = hand.link_pose(q, hand.fingers["index"].pad_link)[:3, :3]
+    R = hand.state(q).link_pose(hand.fingers["index"].pad_link)[:3, :3]
     assert float((R @ np.asarray(hand.fingers["index"].pad_n_link)) @ np.asarray(hand.palm_normal)) < 0.5
     assert main(["hand", "check", str(out)]) == 0
     assert re.search(r"0 error\(s\)", capsys.readouterr().out)

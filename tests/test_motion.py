@@ -65,7 +65,7 @@ def _distance(g1, T1, g2, T2):
 
 
 def _bodies(hand, q):
-    return [(link, finger, geom, _tf_matrix(tf)) for link, finger, geom, tf in hand.collision_objects(q)]
+    return [(link, finger, geom, _tf_matrix(tf)) for link, finger, geom, tf in hand.state(q).collision_objects()]
 
 
 @pytest.fixture(scope="module")
@@ -216,7 +216,7 @@ def test_every_planner_finds_the_detour(hand, obstacle, planner):
 def test_goal_inside_the_object_raises(hand):
     """A goal that puts the finger inside the object is a MotionError, not a path."""
     q_start, q_goal, idx = _index_move(hand)
-    T_palm_link = hand.link_pose(q_goal, "index_distal")
+    T_palm_link = hand.state(q_goal).link_pose("index_distal")
     block = make_object("box", (0.03, 0.03, 0.03), _pose(T_palm_link[:3, 3]))
     with pytest.raises(MotionError, match="goal"):
         plan_finger_move(hand, block, q_start, q_goal, "index", timeout_s=0.2)
@@ -291,7 +291,7 @@ def test_lift_backs_off_along_the_given_normal(hand, held_box, contact_qs):
         if best is None or d < best[0]:
             best = (d, link, np.array(res.getNearestPoint1()))
     _, link, p_palm = best
-    T0, T1 = hand.link_pose(q_a, link), hand.link_pose(q_end, link)
+    T0, T1 = hand.state(q_a).link_pose(link), hand.state(q_end).link_pose(link)
     p_link = T0[:3, :3].T @ (p_palm - T0[:3, 3])
     motion = (T1[:3, :3] @ p_link + T1[:3, 3]) - p_palm
     along = motion @ -n_in_palm

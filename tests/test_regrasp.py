@@ -162,7 +162,7 @@ def test_exported_paths_recheck_with_coal(realized, tmp_path):
             fine.extend(a + (b - a) * t for t in np.arange(1, n + 1) / n)
         for wp in fine:
             q[idx] = wp
-            for link, finger, geom, tf in hand.collision_objects(q):
+            for link, finger, geom, tf in hand.state(q).collision_objects():
                 if finger != step["finger"]:
                     continue
                 d = coal.distance(geom, tf, obj.geometry, tf_obj, coal.DistanceRequest(), coal.DistanceResult())
@@ -231,12 +231,12 @@ def test_gravity_aware_plan_holds_twice_the_weight_within_the_joint_limits_when_
         assert cap.factor >= HOLD_FACTOR
         total = sum(f.sum(axis=0) for f in cap.forces.values())
         np.testing.assert_allclose(total, -cap.factor * load[:3], atol=1e-6)
-        tau = hand.gravity_torques(q, g_palm)
+        tau = hand.state(q).gravity_torques(g_palm)
         for f, forces in cap.forces.items():
             p_palm = patches[f][0] @ R.T + T[:3, 3]
             link = min(hand.fingers[f].contact_links,
                        key=lambda l: hand.state(q).point_distance(p_palm[0], hand.collision.link_geometries[l]))
-            (J,) = hand.point_jacobians(q, [(link, p_palm[0])], angular=True)
+            (J,) = hand.state(q).point_jacobians([(link, p_palm[0])], angular=True)
             tau = tau + J[:3].T @ (R @ forces[0]) + J[3:].T @ (R @ cap.moments[f][0])
             n = patches[f][1][0]  # inside the cone (the plan's friction margin), torsion too
             fn, k = float(forces[0] @ n), data["parameters"]["friction_margin"]
@@ -314,7 +314,7 @@ def test_mesh_pair_plans_with_finger_paths_and_every_state_rechecks(tmp_path):
         pieces = [p0 + np.outer(np.arange(1, n + 1) / n, p1 - p0) for p0, p1, n in zip(path[:-1], path[1:], counts)]
         for wp in np.vstack([path[:1], *pieces]):
             q[idx] = wp
-            capsules = [(g, tf) for _, f, g, tf in hand.collision_objects(q) if f == step["finger"]]
+            capsules = [(g, tf) for _, f, g, tf in hand.state(q).collision_objects() if f == step["finger"]]
             assert all(isinstance(g, coal.Capsule) for g, _ in capsules)
             for g, tf in capsules:
                 axis_palm = np.asarray(tf.getRotation())[:, 2] * g.halfLength

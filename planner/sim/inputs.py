@@ -63,7 +63,7 @@ def T_palm_root(hand) -> np.ndarray:
     root_name = root[1].name  # frame 0 is "universe", frame 1 the root link
     if root_name == getattr(hand, "palm_frame", root_name):
         return np.eye(4)
-    return np.asarray(hand.link_pose(hand.q_open, root_name), dtype=float)
+    return np.asarray(hand.state(hand.q_open).link_pose(root_name), dtype=float)
 
 
 def plan_hand(plan: Plan):

@@ -351,7 +351,7 @@ class HandScene:
         try:
             self.body = load_hand(hand, q, client)
             self.bodies.append(self.body)
-            T_palm_root = np.asarray(hand.link_pose(np.asarray(q, float), root_link_name(self.body, client)))
+            T_palm_root = np.asarray(hand.state(np.asarray(q, float)).link_pose(root_link_name(self.body, client)))
             self.T_root_palm = np.linalg.inv(T_palm_root)
             T_root_obj = np.linalg.solve(T_palm_root, np.asarray(obj.T_palm_obj))
             self.bodies.append(add_object(obj, T_root_obj, client))
@@ -472,7 +472,8 @@ def hand_reach_m(hand, q, centre, size) -> float:
     """Radius around `centre` (palm frame) that holds the hand's links at q and an object
     of `size` (the distance `contact_camera` keeps)."""
     c = np.asarray(centre, float)
-    pts = [np.asarray(hand.link_pose(np.asarray(q, float), link))[:3, 3] for link in hand.links]
+    state = hand.state(np.asarray(q, float))
+    pts = [np.asarray(state.link_pose(link))[:3, 3] for link in hand.links]
     return float(max([np.linalg.norm(x - c) for x in pts] + [0.5 * max(float(v) for v in size)]))
 
 
