@@ -169,9 +169,9 @@ def _rejected_summary(rejected, planned: list[str]) -> str:
     failed = sorted({x["direction"] for x in rejected})
     words = "failed " + ", ".join(parts)
     if len(planned) > len(failed):
-        words += (f"; only {', '.join(failed)} of the {len(planned)} planned direction(s) failed: if the hand will "
-                  f"not be held so, plan for the orientations it will be held in (--gravity NAME, e.g. "
-                  f"--gravity {next(d for d in planned if d not in failed)})")
+        words += (f"; every rejection came from {', '.join(failed)} of the {len(planned)} planned direction(s): if "
+                  f"the hand will not be held so, plan for the orientations it will be held in (--gravity NAME, "
+                  f"e.g. palm_up, or --gravity-set N)")
     return words
 
 
@@ -379,7 +379,7 @@ def plan_regrasp(
     verifying = options.verify and bool(directions) and options.strategy == "graph"
     verified, rejected, verify_s, workers, plan = None, [], 0.0, None, None
     if verifying:
-        from planner.sim.verify import default_workers, verify_plan  # pybullet: only when verifying
+        from planner.sim.verify import default_workers, verify_suspects_first  # pybullet: only when verifying
 
         workers = options.workers or default_workers()
     if options.strategy == "greedy":  # thesis Algorithm 2: only visits the states it walks through
@@ -444,7 +444,9 @@ def plan_regrasp(
                               search_info)
             log.info("verifying in pybullet: attempt %d, %d direction(s) in %d process(es)", len(rejected) + 1,
                      len(directions), min(workers, len(directions)))
-            check = verify_plan(plan, hand, directions, workers=workers)
+            # the directions that rejected a sequence before are replayed first: a sequence
+            # they reject again costs their replays only (a bound on the work, not the time)
+            check = verify_suspects_first(plan, hand, directions, {r["direction"] for r in rejected}, workers=workers)
             verify_s += check.wall_time_s
             log.info("verification %s (%.1f s)", "passed" if check.passed else "failed: " + check.first_failure()[0],
                      check.wall_time_s)

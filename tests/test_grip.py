@@ -243,7 +243,10 @@ def test_a_failed_verification_removes_the_transition_and_the_search_goes_on(mon
     unverified = plan_regrasp(a, b, PlanOptions.for_execution(motion=False, time_limit_s=0, verify=False))
     res = plan_regrasp(a, b, opts)
     rec = res.plan.summary["verification"]
-    assert len(calls) == 2 and rec["attempts"] == 2 and rec["passed"]
+    # the second sequence is replayed palm down first (the direction that rejected the first
+    # one), then in the other directions: two replay batches of one plan
+    assert len(calls) == 3 and calls[1] == calls[2] and rec["attempts"] == 2 and rec["passed"]
+    assert set(rec["directions"]) == {"palm_down", "palm_up", "side_+x", "side_-x", "side_+y", "side_-y"}
     assert rec["rejected"][0]["step"] == 1 and rec["rejected"][0]["direction"] == "palm_down"
     assert rec["rejected"][0]["order"] == list(unverified.sequence.order(unverified.graph.graph["problem"]))
     assert calls[0] == [s.finger + ":" + s.action for s in unverified.plan.steps]

@@ -253,3 +253,29 @@ def test_refusal_says_the_palm_would_let_the_thumb_lift(tmp_path):
     text = str(err.value)
     assert "thumb cannot be lifted" in text and "thumb can lift if the object rests on the palm" in text
     assert "5.0 mm from it" in text
+
+
+def test_verification_replays_the_directions_that_rejected_before_first(monkeypatch):
+    """A direction that rejected an earlier sequence is replayed first; when it rejects again
+    the others are not replayed, and when it passes every direction is, in their order."""
+    import planner.sim.verify as V
+
+    calls = []
+
+    def fake(plan, hand, directions, *, workers=None):
+        names = [n for n, _ in directions]
+        calls.append(names)
+        rows = tuple((n, n != "bad", "v", None if n != "bad" else 2, False, 0.0, 0.0) for n in names)
+        return V.Verification(all(r[1] for r in rows), rows, 1.0)
+
+    monkeypatch.setattr(V, "verify_plan", fake)
+    dirs = [("a", (0, 0, 1)), ("bad", (0, 0, -1)), ("c", (1, 0, 0))]
+    got = V.verify_suspects_first(None, None, dirs, {"bad"})
+    assert calls == [["bad"]] and not got.passed and got.first_failure()[:2] == ("bad", 2)
+    calls.clear()
+    good = [("a", (0, 0, 1)), ("c", (1, 0, 0)), ("d", (0, 1, 0))]
+    got = V.verify_suspects_first(None, None, good, {"c"})
+    assert calls == [["c"], ["a", "d"]] and got.passed and [r[0] for r in got.directions] == ["a", "c", "d"]
+    calls.clear()
+    V.verify_suspects_first(None, None, good, set())
+    assert calls == [["a", "c", "d"]]

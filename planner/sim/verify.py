@@ -197,3 +197,21 @@ def verify_plan(plan: Plan, hand, directions: Sequence[tuple[str, Sequence[float
                   float(r.max_drift_deg))
                  for (name, _), r in zip(directions, reports))
     return Verification(all(r[1] for r in rows), rows, time.perf_counter() - t0)
+
+
+def verify_suspects_first(plan: Plan, hand, directions: Sequence[tuple[str, Sequence[float]]], suspects,
+                          *, workers: int | None = None) -> Verification:
+    """`verify_plan`, the ``suspects`` (direction names that rejected an earlier sequence)
+    replayed first: when one of them fails, the others are not replayed (the verdict is that
+    of the suspects: deterministic, since which directions are suspects depends only on the
+    earlier verdicts); when they all pass, the rest are, and the result covers every
+    direction in ``directions`` order, as `verify_plan`'s."""
+    first = [d for d in directions if d[0] in set(suspects)]
+    if not first or len(first) == len(directions):
+        return verify_plan(plan, hand, directions, workers=workers)
+    a = verify_plan(plan, hand, first, workers=workers)
+    if not a.passed:
+        return a
+    b = verify_plan(plan, hand, [d for d in directions if d[0] not in set(suspects)], workers=workers)
+    rows = {r[0]: r for r in a.directions + b.directions}
+    return Verification(b.passed, tuple(rows[name] for name, _ in directions), a.wall_time_s + b.wall_time_s)
