@@ -42,6 +42,7 @@ from planner.errors import SpecError, UnknownNameError
 from planner.fileio import MAX_GRASP_BYTES, Reader, read_yaml
 from planner.ik import IKResult, close_finger, ik_solve
 from planner.kinematics import Kinematics, checked_q
+from planner.model import PALM
 from planner.resources import HAND_SPEC, bundled_hands, hand_dir, robots_dir
 from planner.signed_distance import convex_hull
 
@@ -226,6 +227,8 @@ class Hand:
         for fname, fr in fingers_r.items():
             if not isinstance(fname, str) or not fname.strip():
                 raise fr.fail(f"a finger name must be a word (e.g. index), got {fname!r}")
+            if fname == PALM:  # the palm's contacts are keyed by it (planner.model.PALM)
+                raise fr.fail(f"{PALM!r} names the hand's base links, not a finger; call the finger something else")
             fr.mapping(with_value=False)
             fr.require("joints", "tip_frame", message="missing required key")
             joints_r = fr.child("joints")

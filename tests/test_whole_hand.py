@@ -279,3 +279,22 @@ def test_verification_replays_the_directions_that_rejected_before_first(monkeypa
     calls.clear()
     V.verify_suspects_first(None, None, good, set())
     assert calls == [["a", "c", "d"]]
+
+
+def test_a_finger_cannot_be_called_palm(tmp_path):
+    """'palm' keys the palm's contacts, so a hand.yaml finger of that name is refused, naming
+    the file and the key."""
+    import shutil
+
+    from planner.errors import SpecError
+    from planner.hand import Hand
+    from planner.resources import hand_dir
+
+    src = hand_dir("icub_right")
+    for f in src.iterdir():
+        if f.is_file():
+            shutil.copy(f, tmp_path / f.name)
+    text = (tmp_path / "hand.yaml").read_text().replace("\n  little:\n", "\n  palm:\n")
+    (tmp_path / "hand.yaml").write_text(text)
+    with pytest.raises(SpecError, match=r"fingers\.palm.*names the hand's base links"):
+        Hand.load(str(tmp_path / "hand.yaml"))
