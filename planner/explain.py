@@ -11,6 +11,8 @@ Pure networkx, like `planner.graph`.
 
 from __future__ import annotations
 
+import re
+
 import networkx as nx
 
 from planner.closure import grasp_closure
@@ -185,6 +187,31 @@ def failure_analysis(G: nx.DiGraph) -> dict:
             "blockers": blockers, "goal_reason": goal_reason, "distance": dist[closest]}
 
 
+def _names(fingers: list[str]) -> str:
+    """'thumb', 'index and ring', 'index, middle and ring'."""
+    return fingers[0] if len(fingers) == 1 else f"{', '.join(fingers[:-1])} and {fingers[-1]}"
+
+
+def _next_move(a: dict) -> str:
+    """What the user can do next, from the analysis: palm support, more fingers lifted at once,
+    room for a landing, or new contacts for the finger that most blocks progress."""
+    whys = [why for _, why in a["lift_blocked"].values()] + [why for _, _, why in a["stuck"]]
+    if any("rests on the palm" in why for why in whys):
+        return "to go on: rest the object on the palm (palm: hold), which lets a blocked finger lift"
+    for f, why in a["landing_blocked"].items():
+        m = re.match(r"it would collide with (\w+)", next(iter(why)))
+        if m:
+            return (f"to go on: {f}'s final contact collides with {m.group(1)}, which must move first: new contacts "
+                    f"for {m.group(1)} (--max-rounds N or --intermediate N)")
+    if any(why == "too many fingers lifted" for why in whys):
+        return "to go on: allow more fingers off the object at once (--max-lifted N)"
+    if not a["blockers"]:
+        return ""
+    f, others = a["blockers"][0], a["blockers"][1:3]
+    also = f" (then {_names(others)})" if others else ""
+    return f"to go on: new contacts for {f}{also} are the most likely to open a sequence (--max-rounds N or --intermediate N)"
+
+
 def explain_failure(G: nx.DiGraph, intermediate_tried: bool, tried: str | None = None) -> NoSequenceError:
     """Why no sequence connects start and goal, in words: the error the CLI prints.
 
@@ -200,19 +227,28 @@ def explain_failure(G: nx.DiGraph, intermediate_tried: bool, tried: str | None =
     lines = []
     if a["goal_reason"]:
         lines.append(f"the final grasp itself is not a valid state ({a['goal_reason']})")
+    merged: dict[tuple[str, str], list[str]] = {}  # the same clause for several fingers is said once
     for f, (u, why) in a["lift_blocked"].items():
         where = "the initial grasp" if u == p.start else f"any reached state (e.g. {_state_words(p, u)})"
-        lines.append(f"{f} cannot be lifted in {where}: {why}")
+        merged.setdefault((where, why), []).append(f)
+    for (where, why), fingers in merged.items():
+        lines.append(f"{_names(fingers)} cannot be lifted in {where}: {why}")
+    landing: dict[str, list[str]] = {}
     for f, why in a["landing_blocked"].items():
         parts = [text + (f" ({n} states)" if n > 1 else "") for text, n in why.items()]
-        lines.append(f"{f} cannot land on its final contact: {'; '.join(parts)}")
+        landing.setdefault("; ".join(parts), []).append(f)
+    for why, fingers in landing.items():
+        lines.append(f"{_names(fingers)} cannot land on {'its' if len(fingers) == 1 else 'their'} final contact: {why}")
     steps = [_move_words(p, u, v) for u, v in zip(a["partial"], a["partial"][1:])]
     lines.append(f"best partial sequence ({len(steps)} moves{': ' + ', '.join(steps) if steps else ''}) ends "
                  f"{a['distance']} finger(s) from the final grasp in: {_state_words(p, a['closest'])}")
+    stuck: dict[tuple[str, str], list[str]] = {}
     for f, action, why in a["stuck"]:
         if f not in a["lift_blocked"] and f not in a["landing_blocked"]:
-            move = "be lifted" if action == "lift" else "land on its final contact"
-            lines.append(f"there {f} cannot {move}: {why}")
+            stuck.setdefault((action, why), []).append(f)
+    for (action, why), fingers in stuck.items():
+        move = "be lifted" if action == "lift" else f"land on {'its' if len(fingers) == 1 else 'their'} final contact"
+        lines.append(f"there {_names(fingers)} cannot {move}: {why}")
     if not (a["lift_blocked"] or a["landing_blocked"] or a["stuck"] or a["goal_reason"]):
         # nothing was refused: the search stopped before it tried the moves that remain
         left = [f for i, f in enumerate(p.fingers) if a["closest"][i] != G.graph["goal"][i]]
@@ -226,6 +262,9 @@ def explain_failure(G: nx.DiGraph, intermediate_tried: bool, tried: str | None =
         lines.append("no intermediate contacts were tried (give --intermediate N or a --time-limit)")
     else:
         lines.append("intermediate contacts were tried")
+    act = _next_move(a)
+    if act:
+        lines.append(act)
     reasons: dict[str, int] = {}
     for r in G.graph["blocked"].values():
         reasons[r] = reasons.get(r, 0) + 1

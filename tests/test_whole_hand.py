@@ -298,3 +298,15 @@ def test_a_finger_cannot_be_called_palm(tmp_path):
     (tmp_path / "hand.yaml").write_text(text)
     with pytest.raises(SpecError, match=r"fingers\.palm.*names the hand's base links"):
         Hand.load(str(tmp_path / "hand.yaml"))
+
+
+def test_explanations_merge_repeated_clauses_and_name_a_next_move():
+    """The same reason for two fingers is one clause naming both, and the refusal ends with a
+    move the user can make (here: let more fingers off the object at once)."""
+    a, b = (realize(load_grasp(bundled_grasp(x))) for x in ("icub/sphere_four_finger.yaml", "icub/sphere_ir2m.yaml"))
+    with pytest.raises(NoSequenceError) as err:
+        plan_regrasp(a, b, PlanOptions.for_execution(max_rounds=0, max_lifted=1, verify=False, motion=False))
+    text = str(err.value)
+    assert "index and ring cannot be lifted in the initial grasp: too many fingers lifted" in text
+    assert text.count("too many fingers lifted") == 1
+    assert text.endswith("to go on: allow more fingers off the object at once (--max-lifted N)")
