@@ -86,7 +86,8 @@ def contact_markers(grasp: RealizedGrasp, highlight: str | None = None, normal_l
 
     Each realized contact is a dot with its inward normal drawn as a line ending at the
     point (the direction the finger pushes). Red: a finger with a problem; orange: a
-    finger with a warning; the ``highlight`` finger (e.g. the moving one) yellow; else green.
+    finger with a warning; the ``highlight`` finger (e.g. the moving one) yellow; the palm's
+    contacts grey; else green.
     """
     T = np.asarray(grasp.obj.T_palm_obj)
     R, t = T[:3, :3], T[:3, 3]
@@ -95,8 +96,8 @@ def contact_markers(grasp: RealizedGrasp, highlight: str | None = None, normal_l
     out = []
     for c in grasp.contacts:
         f = c.finger
-        rgba = ((1.0, 0.9, 0.0, 1.0) if f == highlight else (0.9, 0.1, 0.1, 1.0) if f in bad
-                else (1.0, 0.5, 0.0, 1.0) if f in warn else (0.1, 0.8, 0.2, 1.0))
+        rgba = ((1.0, 0.9, 0.0, 1.0) if f is not None and f == highlight else (0.9, 0.1, 0.1, 1.0) if f in bad
+                else (1.0, 0.5, 0.0, 1.0) if f in warn else (0.35, 0.35, 0.35, 1.0) if f is None else (0.1, 0.8, 0.2, 1.0))
         p = R @ c.point + t
         out.append((p, p - normal_len_m * (R @ c.normal), rgba))
     return out
