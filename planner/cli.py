@@ -126,7 +126,7 @@ def build_parser() -> argparse.ArgumentParser:
                                       "quat_xyzw, mass_kg, mesh]); without position the object pose is sampled too")
     synth.add_argument("--fingers", default=None,
                        help="comma-separated fingers that grasp, e.g. thumb,index,middle (default: a tripod, the "
-                            "thumb and the hand's next two fingers; without a thumb its first three)")
+                            "thumb and the hand's next two fingers; without a thumb its first three; with --palm all)")
     synth.add_argument("-n", type=int, default=20, help="grasps to write (default 20)")
     synth.add_argument("-o", "--output", required=True, metavar="DIR", help="folder for the grasp files (never overwritten)")
     synth.add_argument("--gravity", action=_GravityArgument, default=None,
@@ -138,6 +138,9 @@ def build_parser() -> argparse.ArgumentParser:
     synth.add_argument("--mu", type=float, default=None, help="friction coefficient (default: the object file's, else 0.9)")
     synth.add_argument("--gamma", type=float, default=None, help="torsional friction, m (default: the object file's, else 0.004)")
     synth.add_argument("--max-attempts", type=int, default=None, metavar="K", help="candidates sampled at most (default 60 n)")
+    synth.add_argument("--palm", action="store_true",
+                       help="whole-hand grasps: the object against the palm, which holds too (files say palm: hold); "
+                            "with every finger by default (power grasps); a fixed position must touch the palm")
     synth.add_argument("-q", "--quiet", action="store_true", help="no progress lines on stderr")
     synth.set_defaults(func=commands.cmd_synth)
     replay = sub.add_parser("replay", help="execute a plan in pybullet with gravity on and check the object stays put")

@@ -2,9 +2,10 @@
 
 `sample_candidate` draws the hand pre-shapes of one attempt of `planner.synthesis.synthesize`
 and, when the object pose is not fixed, puts the object where the chosen fingers' closing
-motions would all touch it; `closes_onto` closes the fingers with the thesis's procedure
-(`planner.hand.Hand.close_finger`) and keeps a candidate whose every finger touches. The
-check, the ranking and the files are `planner.synthesis`.
+motions would all touch it (clear of the palm, or with ``palm`` against it: a palm-supported
+or power grasp); `closes_onto` closes the fingers with the thesis's procedure
+(`planner.hand.Hand.close_finger`) and keeps a candidate whose every finger (and with
+``palm`` the palm) touches. The check, the ranking and the files are `planner.synthesis`.
 """
 
 from __future__ import annotations
@@ -12,11 +13,32 @@ from __future__ import annotations
 import coal
 import numpy as np
 
-from planner.contacts import collisions, contact_patches
+from planner.contacts import TOUCH_TOL_M, collisions, contact_patches
+from planner.model import PALM
 from planner.objects import GraspObject
 
 #: A sampled object pose keeps this clearance from the palm (m).
 PALM_CLEARANCE_M = 0.002
+#: With ``palm`` a sampled object pose is moved along the palm normal until its signed
+#: distance to the palm is this (m): half the touch tolerance (`TOUCH_TOL_M`, within which
+#: the palm counts as touching). Not 0: the object must not penetrate the palm (coal's
+#: signed distance would decide between touching and colliding, and the replay's object
+#: would start pushed out of it). Not the tolerance itself: the palm's patch also takes the
+#: object-surface points around the nearest one (`planner.contacts.RING_RADII_M`, up to
+#: 3 mm) that are within the tolerance, and on a curved object they lie farther from the
+#: palm (0.3 mm on a 15 mm ball, 0.45 mm on a 10 mm one): half a millimetre of gap keeps
+#: them in, so the palm pushes over an area and resists torsion, not at a single point; it
+#: also leaves the placement's `PALM_GAP_TOL_M` far inside the band.
+PALM_TOUCH_GAP_M = 0.5 * TOUCH_TOL_M
+#: The palm placement stops when the gap is this close to `PALM_TOUCH_GAP_M` (m).
+PALM_GAP_TOL_M = 5e-5
+#: Steps of the palm placement (each moves the object along the palm normal by the gap's
+#: error: one step when its nearest point faces the palm); an object beside or behind the
+#: palm does not get there: "object not against the palm".
+PALM_PLACE_STEPS = 8
+#: Points per side of the grid on the palm's grasping face that pulls the fingers' meeting
+#: point onto the palm (`sample_candidate` with ``palm``).
+PALM_GRID = 7
 #: Each finger's centre curve (`sample_candidate`) must pass within this many inner radii
 #: of the object centre.
 SWEEP_REACH = 2.0
@@ -74,16 +96,65 @@ def object_of(block) -> GraspObject:
     return GraspObject.from_data({"position": [0.0, 0.0, 0.0], "quat_xyzw": [0.0, 0.0, 0.0, 1.0], **block})
 
 
-def _palm_distance(hand, q, obj: GraspObject) -> float:
-    """Signed distance (m) between the palm's links and the object."""
+def _palm_shapes(hand, q=None) -> list:
+    """(coal shape, its Transform3s in the palm frame) of every palm link (they do not move with q)."""
+    q = np.asarray(hand.q_open if q is None else q, dtype=float)
+    return [(geom, tf) for _, finger, geom, tf in hand.collision_objects(q) if finger is None]
+
+
+def _palm_gap(palm, obj: GraspObject) -> float:
+    """Signed distance (m) between the palm's shapes (`_palm_shapes`) and the object."""
     T = obj.T_palm_obj
     tf = coal.Transform3s(np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3]))
     req = coal.DistanceRequest()
     best = np.inf
-    for link, finger, geom, tf_link in hand.collision_objects(q):
-        if finger is None:
-            best = min(best, coal.distance(geom, tf_link, obj.geometry, tf, req, coal.DistanceResult()))
+    for geom, tf_link in palm:
+        best = min(best, coal.distance(geom, tf_link, obj.geometry, tf, req, coal.DistanceResult()))
     return float(best)
+
+
+def _palm_distance(hand, q, obj: GraspObject) -> float:
+    """Signed distance (m) between the palm's links and the object."""
+    return _palm_gap(_palm_shapes(hand, q), obj)
+
+
+def _palm_face(hand, palm, offset: float, k: int = PALM_GRID) -> np.ndarray:
+    """(k*k, 3) palm-frame points on the palm's grasping face, ``offset`` in front of it: the
+    face of the palm links' bounding box (axes: ``palm_normal`` and two across it) farthest
+    along the normal, a k x k grid over it. Where the centre of a ball of radius ``offset``
+    resting on a flat palm would be."""
+    n = np.asarray(hand.palm_normal, dtype=float)
+    a = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    u = np.cross(n, a)
+    u /= np.linalg.norm(u)
+    v = np.cross(n, u)
+    B = np.array([u, v, n])                                     # rows: the box axes
+    pts = []
+    for geom, tf in palm:
+        geom.computeLocalAABB()
+        lo, hi = np.asarray(geom.aabb_local.min_), np.asarray(geom.aabb_local.max_)
+        corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+        pts.append(corners @ np.asarray(tf.getRotation()).T + np.asarray(tf.getTranslation()))
+    c = np.vstack(pts) @ B.T                                    # corners in (u, v, n)
+    lo, hi = c.min(axis=0), c.max(axis=0)
+    gu, gv = np.meshgrid(np.linspace(lo[0], hi[0], k), np.linspace(lo[1], hi[1], k), indexing="ij")
+    return gu.reshape(-1, 1) * u + gv.reshape(-1, 1) * v + (hi[2] + offset) * n
+
+
+def place_against_palm(hand, palm, obj: GraspObject, centre, quat, gap: float = PALM_TOUCH_GAP_M):
+    """The object at orientation ``quat``, its centre moved from ``centre`` along the hand's
+    ``palm_normal`` (either way) until its signed distance to the palm is ``gap`` (within
+    `PALM_GAP_TOL_M`), or None when `PALM_PLACE_STEPS` steps do not get it there (it lies
+    beside or behind the palm's grasping face)."""
+    n = np.asarray(hand.palm_normal, dtype=float)
+    centre = np.asarray(centre, dtype=float)
+    for _ in range(PALM_PLACE_STEPS):
+        placed = obj.replaced(quat_xyzw=quat, position=[float(v) for v in centre])
+        d = _palm_gap(palm, placed)
+        if abs(d - gap) <= PALM_GAP_TOL_M:
+            return placed
+        centre = centre - (d - gap) * n
+    return None
 
 
 def _meeting_point(sweeps, iterations: int = 8) -> np.ndarray:
@@ -91,6 +162,8 @@ def _meeting_point(sweeps, iterations: int = 8) -> np.ndarray:
     sample of every sweep, alternate "nearest sample of each sweep" and "their centroid" a few
     times; the start whose largest distance to a sweep ends smallest wins. Cost linear in the
     number of fingers (the exhaustive search over one sample per finger was 10^fingers)."""
+    if len({len(s) for s in sweeps}) > 1:  # sweeps of different lengths (a palm grid among them)
+        return _meeting_point_ragged(sweeps, iterations)
     S = np.asarray(sweeps)                                     # (fingers, samples, 3)
     c = S.reshape(-1, 3).copy()                                # (starts, 3)
     for _ in range(iterations):
@@ -101,6 +174,16 @@ def _meeting_point(sweeps, iterations: int = 8) -> np.ndarray:
     return c[int(np.argmin(worst))]
 
 
+def _meeting_point_ragged(sweeps, iterations: int = 8) -> np.ndarray:
+    """`_meeting_point` of point sets of different sizes (one loop per set)."""
+    S = [np.asarray(s, dtype=float) for s in sweeps]
+    c = np.vstack(S)
+    for _ in range(iterations):
+        c = np.mean([s[np.argmin(np.linalg.norm(c[:, None, :] - s[None], axis=2), axis=1)] for s in S], axis=0)
+    worst = np.max([np.min(np.linalg.norm(c[:, None, :] - s[None], axis=2), axis=1) for s in S], axis=0)
+    return c[int(np.argmin(worst))]
+
+
 def _opposition(normals) -> float:
     """Length of the mean of the fingers' unit pad normals: 0 when they oppose each other
     (they can squeeze the object between them), 1 when they all push the same way."""
@@ -108,7 +191,7 @@ def _opposition(normals) -> float:
 
 
 def sample_candidate(hand, fingers, obj: GraspObject, fixed, rng, obj_radius,
-                     palm_clearance_m: float = PALM_CLEARANCE_M):
+                     palm_clearance_m: float = PALM_CLEARANCE_M, palm: bool = False):
     """(the object at its pose, {finger: pre-shape}, "") of one attempt, or (object, None, why).
 
     Pre-shape: the joints that do not close (abduction, opposition) uniform in their range,
@@ -125,9 +208,30 @@ def sample_candidate(hand, fingers, obj: GraspObject, fixed, rng, obj_radius,
     held). A draw whose fingers collide with each other (or the palm) where their centre
     curves pass nearest the centre is not kept. Attempts whose centre curves do not pass
     within `SWEEP_REACH` inner radii of the centre are dropped before any closing.
+
+    With ``palm`` (a palm-supported or power grasp) the object goes AGAINST the palm instead
+    of ``palm_clearance_m`` clear of it: the palm's grasping face (`_palm_face`, the centres
+    of a ball of the inner radius resting on it) is one more curve in the meeting point, the
+    draws are scored at that point moved onto the face, with the palm pushing along its
+    normal among the pads (`_opposition`); the sampled centre (jittered as above; a box or
+    cylinder resting on one of its faces or its side, `_resting_quat`) is then moved along
+    the palm normal, either way, until the object is `PALM_TOUCH_GAP_M` from the palm
+    (`place_against_palm`), and kept when no finger, chosen or not, starts inside it. The
+    palm-specific reasons: "object not against the palm" (the centre lies beside or behind
+    the palm: moving along the normal does not bring it there), "an unused finger is inside
+    the object on the palm", "sweeps miss the object on the palm". With a fixed pose nothing
+    moves (`planner.synthesis.synthesize` checks that the object touches the palm).
     """
     alphas = np.linspace(0.0, 1.0, 10)
     names = [f.name for f in fingers]
+    n_palm = np.asarray(hand.palm_normal, dtype=float) if palm else None
+    if palm and not fixed:
+        # the side the object rests on, first: how high its centre sits above the palm
+        R_rest = _resting_rotation(rng, obj, n_palm)
+        height = _half_height(obj, R_rest, n_palm) if R_rest is not None else CENTRE_OFFSET * obj_radius
+        shapes = _palm_shapes(hand)
+        face = _palm_face(hand, shapes, height + PALM_TOUCH_GAP_M)
+        face_level = float(face[0] @ n_palm)
     best = None
     for _ in range(FIXED_PRESHAPES_PER_ATTEMPT if fixed else PRESHAPES_PER_ATTEMPT):  # keep the best scored
         q = np.array(hand.q_open, dtype=float)
@@ -139,8 +243,14 @@ def sample_candidate(hand, fingers, obj: GraspObject, fixed, rng, obj_radius,
             frac = rng.uniform(*_PRESHAPE_CLOSE, size=len(idx))
             q[idx] = np.where(closing, start + frac * (hi - start), rng.uniform(lo, hi))
         swept = [_sweep(hand, f, q, alphas, CENTRE_OFFSET * obj_radius) for f in fingers]
-        centre = np.asarray(obj.position, dtype=float) if fixed else _meeting_point([c for c, _ in swept])
-        score = _score(swept, centre, obj_radius)
+        if fixed:
+            centre = np.asarray(obj.position, dtype=float)
+        elif palm:  # the fingers' meeting point, with the palm's face as one more curve, on the face
+            centre = _meeting_point([c for c, _ in swept] + [face])
+            centre = centre + (face_level - centre @ n_palm) * n_palm  # onto the face
+        else:
+            centre = _meeting_point([c for c, _ in swept])
+        score = _score(swept, centre, obj_radius, n_palm if palm else None)
         if best is not None and (False, score) >= (best[0], best[1]):  # cannot beat the best
             continue
         # the fingers where they would touch: a pre-shape whose fingers collide there ranks last
@@ -162,32 +272,110 @@ def sample_candidate(hand, fingers, obj: GraspObject, fixed, rng, obj_radius,
             cidx = [hand.joint_names.index(j) for j in f.close_joints]
             q_free[cidx] = np.clip(np.asarray(hand.q_open)[cidx], hand.lower[cidx], hand.upper[cidx])
         mid = centre
-        for _ in range(POSE_TRIES):
-            centre = mid + rng.normal(scale=JITTER * obj_radius, size=3)
-            quat = [0.0, 0.0, 0.0, 1.0] if obj.shape == "sphere" else _random_quat(rng)
-            placed = obj.replaced(quat_xyzw=quat, position=[float(v) for v in centre])
-            # out of the palm: push the object along the palm normal until it clears the palm
-            d = _palm_distance(hand, q, placed)
-            if d < palm_clearance_m:
-                centre = centre + (palm_clearance_m - d) * np.asarray(hand.palm_normal)
+        if palm:
+            state = hand.state(q_free)
+            placed = None
+            for _ in range(POSE_TRIES):
+                quat = _resting_quat(rng, obj, R_rest, n_palm)
+                cand = place_against_palm(hand, shapes, obj, mid + rng.normal(scale=JITTER * obj_radius, size=3), quat)
+                if cand is None:
+                    continue
+                placed, centre = cand, np.asarray(cand.position, dtype=float)
+                if all(state.finger_object_distance(placed, f) >= 0.0 for f in hand.fingers):
+                    break
+            if placed is None:
+                return obj, None, "object not against the palm"
+            if any(state.finger_object_distance(placed, f) < 0.0 for f in hand.fingers if f not in names):
+                return placed, None, "an unused finger is inside the object on the palm"
+        else:
+            for _ in range(POSE_TRIES):
+                centre = mid + rng.normal(scale=JITTER * obj_radius, size=3)
+                quat = [0.0, 0.0, 0.0, 1.0] if obj.shape == "sphere" else _random_quat(rng)
                 placed = obj.replaced(quat_xyzw=quat, position=[float(v) for v in centre])
-            if all(hand.state(q_free).finger_object_distance(placed, f.name) >= 0.0 for f in fingers):
-                break
+                # out of the palm: push the object along the palm normal until it clears the palm
+                d = _palm_distance(hand, q, placed)
+                if d < palm_clearance_m:
+                    centre = centre + (palm_clearance_m - d) * np.asarray(hand.palm_normal)
+                    placed = obj.replaced(quat_xyzw=quat, position=[float(v) for v in centre])
+                if all(hand.state(q_free).finger_object_distance(placed, f.name) >= 0.0 for f in fingers):
+                    break
     if max(float(np.min(np.linalg.norm(c - centre, axis=1))) for c, _ in swept) > SWEEP_REACH * obj_radius:
-        return placed, None, "sweeps miss the object"
+        return placed, None, "sweeps miss the object" + (" on the palm" if palm else "")
     return placed, {f.name: q[list(f.q_index)].copy() for f in fingers}, ""
 
 
-def _score(swept, centre, obj_radius) -> float:
+def _rotation_onto(a, b) -> np.ndarray:
+    """The smallest rotation matrix taking unit vector ``a`` onto unit vector ``b``."""
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    v, c = np.cross(a, b), float(a @ b)
+    if c < -1.0 + 1e-12:  # opposite: half a turn about any axis across a
+        e = np.array([1.0, 0.0, 0.0]) if abs(a[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+        k = np.cross(a, e)
+        k /= np.linalg.norm(k)
+        return 2.0 * np.outer(k, k) - np.eye(3)
+    K = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+    return np.eye(3) + K + K @ K / (1.0 + c)
+
+
+def _resting_rotation(rng, obj: GraspObject, normal) -> np.ndarray | None:
+    """How an object lies on the palm: the rotation (palm frame from object frame) that puts
+    a box on one of its six faces, a cylinder on its side (2/3 of the draws, the axis along
+    a random direction across the palm normal) or on an end (the face's outward normal
+    against the palm normal); the identity for a sphere; None (any orientation) for a mesh."""
+    if obj.shape == "sphere":
+        return np.eye(3)
+    if obj.shape == "box":
+        axis = np.eye(3)[rng.integers(3)] * rng.choice([-1.0, 1.0])
+    elif obj.shape == "cylinder":
+        if rng.uniform() < 2.0 / 3.0:  # on its side: the outward normal of a side line, across the axis
+            th = rng.uniform(0.0, 2.0 * np.pi)
+            axis = np.array([np.cos(th), np.sin(th), 0.0])
+        else:
+            axis = np.array([0.0, 0.0, rng.choice([-1.0, 1.0])])
+    else:
+        return None
+    return _rotation_onto(axis, -np.asarray(normal, dtype=float))
+
+
+def _half_height(obj: GraspObject, R, normal) -> float:
+    """How far the object (rotated by R) reaches from its centre toward the palm, along
+    minus the palm normal: the centre's height above a flat palm it rests on."""
+    d = np.asarray(R).T @ -np.asarray(normal, dtype=float)     # the direction, object frame
+    if obj.shape == "sphere":
+        return float(obj.size[0])
+    if obj.shape == "box":
+        return float(0.5 * np.abs(d) @ np.asarray(obj.size, dtype=float))
+    r, length = obj.size                                        # cylinder, axis z
+    return float(r * np.sqrt(max(0.0, 1.0 - d[2] ** 2)) + 0.5 * length * abs(d[2]))
+
+
+def _resting_quat(rng, obj: GraspObject, R_rest, normal) -> list[float]:
+    """The orientation of one pose try on the palm: ``R_rest`` (`_resting_rotation`) turned
+    about the palm normal by a random angle (a sphere's identity; any orientation for None)."""
+    from scipy.spatial.transform import Rotation
+
+    if R_rest is None:
+        return _random_quat(rng)
+    if obj.shape == "sphere":
+        return [0.0, 0.0, 0.0, 1.0]
+    n = np.asarray(normal, dtype=float)
+    R = Rotation.from_rotvec(rng.uniform(0.0, 2.0 * np.pi) * n).as_matrix() @ R_rest
+    return [float(v) for v in Rotation.from_matrix(R).as_quat()]
+
+
+def _score(swept, centre, obj_radius, palm_normal=None) -> float:
     """Lower is better: the largest distance from ``centre`` to a finger's centre curve, in
-    inner radii, plus `OPPOSITION_WEIGHT` x `_opposition` of the pad normals there."""
+    inner radii, plus `OPPOSITION_WEIGHT` x `_opposition` of the pad normals there (and of
+    the palm's push, along ``palm_normal``, when given)."""
     gaps, normals = [], []
     for c, n in swept:
         d = np.linalg.norm(c - centre, axis=1)
         k = int(np.argmin(d))
         gaps.append(float(d[k]))
         normals.append(n[k])
-    return max(gaps) / obj_radius + (OPPOSITION_WEIGHT * _opposition(normals) if len(swept) > 1 else 0.0)
+    if palm_normal is not None:
+        normals.append(np.asarray(palm_normal, dtype=float))
+    return max(gaps) / obj_radius + (OPPOSITION_WEIGHT * _opposition(normals) if len(normals) > 1 else 0.0)
 
 
 def inner_radius(obj: GraspObject) -> float:
@@ -195,8 +383,9 @@ def inner_radius(obj: GraspObject) -> float:
     return 0.5 * float(np.min(obj.extents))
 
 
-def closes_onto(hand, fingers, obj, preshape) -> dict | None:
-    """Cheap pre-filter: close the fingers; (patches, "") when every one touches, else (None, why)."""
+def closes_onto(hand, fingers, obj, preshape, palm: bool = False) -> dict | None:
+    """Cheap pre-filter: close the fingers; (patches, "") when every one (and with ``palm`` the
+    palm: its patch is among them, key `PALM`) touches, else (None, why)."""
     q = np.array(hand.q_open, dtype=float)
     for f in fingers:
         q[list(f.q_index)] = preshape[f.name]
@@ -209,7 +398,9 @@ def closes_onto(hand, fingers, obj, preshape) -> dict | None:
                 return None, "a finger starts inside the object"
             preshape[f.name] = q[list(f.q_index)].copy()
         q = np.asarray(hand.close_finger(f, q, obj), dtype=float)
-    patches = contact_patches(hand, q, obj, fingers=[f.name for f in fingers])
-    if len(patches) < len(fingers):
+    patches = contact_patches(hand, q, obj, fingers=[f.name for f in fingers], palm=palm)
+    if len([k for k in patches if k != PALM]) < len(fingers):
         return None, "a finger misses the object"
+    if palm and PALM not in patches:
+        return None, "object not against the palm"
     return patches, ""

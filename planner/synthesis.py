@@ -24,6 +24,14 @@ used unless ``--mu``/``--gamma`` are given).
 - With ``position`` (and ``quat_xyzw``, default identity): the object stays there (all
   grasps share the pose, so any two of them can be a regrasp pair) and only the finger
   pre-shapes are sampled.
+
+Whole-hand grasps (``--palm``, ``synthesize(..., palm=True)``): the object is placed AGAINST
+the palm instead of clear of it (`planner.synth_sample.sample_candidate`: moved along the
+hand's ``palm_normal`` until it is `planner.synth_sample.PALM_TOUCH_GAP_M` from the palm),
+the palm's patch is part of every closure and hold test, and the written files say
+``palm: hold`` (so ``check`` fails them if the palm does not touch). With all fingers (the
+default fingers with ``--palm``) these are power grasps. A fixed pose is kept and must
+touch the palm already (`check_palm_pose`).
 """
 
 from __future__ import annotations
@@ -43,15 +51,17 @@ import yaml
 
 from planner.closure import CONTACT_MODELS, apply_contact_model, grasp_closure, min_grip_force
 from planner.collision import LINK_EPS_M
+from planner.contacts import TOUCH_TOL_M
 from planner.errors import PlannerError, SpecError, UnknownNameError
 from planner.fileio import MAX_GRASP_BYTES, Reader, read_yaml
 from planner.grasp import load_hand, parse_grasp, parse_object, resolve_hand_ref
 from planner.grip import HOLD_FACTOR, grasp_hold
 from planner.model import Friction
 from planner.objects import GraspObject
-from planner.realization import realize
+from planner.realization import PENETRATION_TOL_M, realize
 from planner.retreat import retreat_blocked
-from planner.synth_sample import PALM_CLEARANCE_M, closes_onto, inner_radius, object_of, sample_candidate
+from planner.synth_sample import (PALM_CLEARANCE_M, _palm_distance, closes_onto, inner_radius, object_of,
+                                  sample_candidate)
 
 #: Two grasps are near-duplicates when every chosen finger's mean contact point (palm frame)
 #: and the object centre differ by less than this, and the contact normals by less than
@@ -81,6 +91,7 @@ class SynthResult:
     duplicates: int
     seconds: float
     rejected: dict = None   # reason -> attempts dropped for it
+    palm: bool = False      # whole-hand grasps (the object against the palm)
 
 
 def load_object_file(path) -> tuple[GraspObject, dict | None, bool]:
@@ -117,8 +128,9 @@ def load_object_file(path) -> tuple[GraspObject, dict | None, bool]:
     return spec, friction, fixed
 
 
-def _grasp_data(hand_ref, obj: GraspObject, friction, fingers, preshape, name, description) -> dict:
+def _grasp_data(hand_ref, obj: GraspObject, friction, fingers, preshape, name, description, palm=False) -> dict:
     block = obj.to_data()
+    palm_key = {"palm": "hold"} if palm else {}
     return {
         "schema_version": 1,
         "name": name,
@@ -127,6 +139,7 @@ def _grasp_data(hand_ref, obj: GraspObject, friction, fingers, preshape, name, d
         "object": {k: v for k, v in block.items() if v is not None},  # no mesh, no mass: not written
         "friction": dict(friction),
         "fingers": {f.name: {"posture": [float(v) for v in preshape[f.name]]} for f in fingers},
+        **palm_key,
     }
 
 
@@ -147,10 +160,27 @@ def _is_duplicate(a: np.ndarray, b: np.ndarray) -> bool:
     return bool(np.max(np.linalg.norm(a - b, axis=1)) < DUPLICATE_TOL_M)
 
 
+def check_palm_pose(hand, obj: GraspObject) -> None:
+    """With ``--palm`` and a fixed pose: PlannerError (one line) unless the object touches the
+    palm there (within `planner.contacts.TOUCH_TOL_M`) without penetrating it (beyond
+    `planner.realization.PENETRATION_TOL_M`)."""
+    d = _palm_distance(hand, hand.q_open, obj)
+    at = "[" + ", ".join(f"{v:.4f}" for v in obj.position) + "]"
+    n = "[" + ", ".join(f"{v:g}" for v in hand.palm_normal) + "]"
+    if d > TOUCH_TOL_M:
+        raise PlannerError(f"synth: --palm: the object at its fixed position {at} is {d * 1e3:.1f} mm from the palm "
+                           f"(the palm touches within {TOUCH_TOL_M * 1e3:g} mm): move it onto the palm (palm_normal "
+                           f"{n}), remove position to let synth place it, or drop --palm")
+    if d < -PENETRATION_TOL_M:
+        raise PlannerError(f"synth: --palm: the object at its fixed position {at} is {-d * 1e3:.1f} mm inside the palm "
+                           f"(tolerance {PENETRATION_TOL_M * 1e3:g} mm): move it out along palm_normal {n}")
+
+
 def synthesize(hand_ref: str, obj: GraspObject | Mapping, fingers, n: int, *, fixed: bool, friction=None, seed: int = 0,
                gravity=None, max_finger_force_n: float | None = None, max_attempts: int | None = None, base_dir=".",
                progress=None, contact_model: str = "patch", friction_margin: float = 1.0,
-               hold_factor: float = HOLD_FACTOR, palm_clearance_m: float = PALM_CLEARANCE_M) -> SynthResult:
+               hold_factor: float = HOLD_FACTOR, palm_clearance_m: float = PALM_CLEARANCE_M,
+               palm: bool = False) -> SynthResult:
     """Sample, close, check, de-duplicate and rank grasps.
 
     Args:
@@ -179,6 +209,9 @@ def synthesize(hand_ref: str, obj: GraspObject | Mapping, fingers, n: int, *, fi
         max_attempts: candidates sampled at most (default 60 n).
         base_dir: where the grasp files will live (anchors relative paths in error messages).
         progress: None or callable(str) for progress lines.
+        palm: whole-hand grasps: the object against the palm (``palm_clearance_m`` unused),
+            the palm's patch in the closure and hold tests, ``palm: hold`` in the files; a
+            fixed pose must touch the palm (`check_palm_pose`, before any sampling).
 
     Returns:
         `SynthResult` with up to n grasps, best closure metric first.
@@ -200,6 +233,8 @@ def synthesize(hand_ref: str, obj: GraspObject | Mapping, fingers, n: int, *, fi
     rng = np.random.default_rng(seed)
     obj = object_of(obj)
     inner = inner_radius(obj)
+    if palm and fixed:
+        check_palm_pose(hand, obj)
     kept: list[tuple[np.ndarray, SynthGrasp]] = []
     passed = dups = 0
     rejected = Counter()
@@ -209,32 +244,32 @@ def synthesize(hand_ref: str, obj: GraspObject | Mapping, fingers, n: int, *, fi
         if len(kept) >= n:
             attempt -= 1
             break
-        placed, preshape, why = sample_candidate(hand, chosen, obj, fixed, rng, inner, palm_clearance_m)
+        placed, preshape, why = sample_candidate(hand, chosen, obj, fixed, rng, inner, palm_clearance_m, palm=palm)
         if preshape is None:
             rejected[why] += 1
             continue
-        patches, why = closes_onto(hand, chosen, placed, preshape)
+        patches, why = closes_onto(hand, chosen, placed, preshape, palm=palm)
         if patches is None:
             rejected[why] += 1
             continue
         if not grasp_closure(patches, fr).is_force_closure:
             rejected["not force closure"] += 1
             continue
-        data = _grasp_data(hand_ref, placed, friction, chosen, preshape, "candidate", "")
+        data = _grasp_data(hand_ref, placed, friction, chosen, preshape, "candidate", "", palm=palm)
         try:
             spec = parse_grasp(data, base / "candidate.yaml")
         except SpecError:
             continue
         g = realize(spec, hand)
         if not g.ok:
-            rejected["check: " + (g.problems[0].split(":")[0].split(" ")[0] if g.problems else "not force closure")] += 1
+            rejected[_check_reason(g)] += 1
             continue
         if any(depth > LINK_EPS_M for _, _, depth in g.finger_collisions):
             # `check` tolerates half a millimetre between hand parts; the planner's states and
             # finger paths do not (an overlapping finger can never lift off)
             rejected["fingers overlap each other or the palm"] += 1
             continue
-        patches = dict(g.patches)
+        patches = dict(g.patches)  # with palm: hold, the palm's patch among them (rigid in the grip model)
         if contact_model != "patch":
             if not g.closure_under(contact_model).is_force_closure:
                 rejected[f"not force closure with {contact_model} contacts"] += 1
@@ -271,7 +306,18 @@ def synthesize(hand_ref: str, obj: GraspObject | Mapping, fingers, n: int, *, fi
             progress(f"synth: {len(kept)}/{n} grasps after {attempt} attempts, {time.perf_counter() - t0:.1f} s")
     ranked = sorted((c for _, c in kept), key=lambda c: (-c.grasp.metric, c.attempt))
     return SynthResult(grasps=tuple(ranked), attempts=attempt, candidates_passed=passed, duplicates=dups,
-                       seconds=time.perf_counter() - t0, rejected=dict(rejected))
+                       seconds=time.perf_counter() - t0, rejected=dict(rejected), palm=palm)
+
+
+def _check_reason(g) -> str:
+    """The rejection reason of a candidate `realize` did not pass: "check: " and the first
+    problem's first word (the palm's own: "check: the palm does not touch the object")."""
+    if not g.problems:
+        return "check: not force closure"
+    first = g.problems[0]
+    if first.startswith("palm:"):
+        return "check: the palm does not touch the object" if "does not touch" in first else "check: palm"
+    return "check: " + first.split(":")[0].split(" ")[0]
 
 
 def output_names(out_dir, hand_name: str, shape: str, n: int) -> list[Path]:
@@ -356,19 +402,24 @@ def _check_out_dir(out_dir) -> None:
         raise PlannerError(f"synth: -o {d}: {'the folder' if d.exists() else d.parent} is not writable")
 
 
-def default_fingers(hand) -> list[str]:
+def default_fingers(hand, palm: bool = False) -> list[str]:
     """The default finger set of `run_synth`: a tripod, the thumb and the hand's next two
-    fingers in its hand.yaml order (the first three fingers when it has no thumb)."""
+    fingers in its hand.yaml order (the first three fingers when it has no thumb); with
+    ``palm`` every finger (a power grasp)."""
     names = list(hand.fingers)
+    if palm:
+        return names
     if "thumb" in names:
         return ["thumb"] + [f for f in names if f != "thumb"][:2]
     return names[:3]
 
 
 def run_synth(hand: str, object_path, fingers: str, n: int, out_dir, *, gravity=None, seed: int = 0,
-              max_finger_force_n: float | None = None, mu=None, gamma=None, max_attempts=None, quiet=False) -> int:
+              max_finger_force_n: float | None = None, mu=None, gamma=None, max_attempts=None, quiet=False,
+              palm: bool = False) -> int:
     """``regrasp synth``: synthesize, write, print a summary. Exit 0 when n grasps were written,
-    1 when fewer (those found are written), 2 (PlannerError) on bad input."""
+    1 when fewer (those found are written), 2 (PlannerError) on bad input. ``palm``: whole-hand
+    grasps (``--palm``, `synthesize`), every finger by default."""
     if not 1 <= n <= MAX_GRASPS:
         raise PlannerError(f"synth: -n must be in 1..{MAX_GRASPS}, got {n}")
     if max_attempts is not None and not 1 <= max_attempts <= MAX_ATTEMPTS:
@@ -380,9 +431,10 @@ def run_synth(hand: str, object_path, fingers: str, n: int, out_dir, *, gravity=
         raise PlannerError(f"synth: hand {hand}: cannot be resolved: {err}") from None
     h = load_hand(hand_ref)
     if fingers is None:
-        fingers = ",".join(default_fingers(h))
+        fingers = ",".join(default_fingers(h, palm))
         if not quiet:
-            print(f"synth: --fingers {fingers} (the default tripod)", file=sys.stderr, flush=True)
+            what = "every finger: power grasps with --palm" if palm else "the default tripod"
+            print(f"synth: --fingers {fingers} ({what})", file=sys.stderr, flush=True)
     names = [f.strip() for f in fingers.split(",") if f.strip()]
     twice = sorted({f for f in names if names.count(f) > 1})
     if twice:
@@ -401,9 +453,11 @@ def run_synth(hand: str, object_path, fingers: str, n: int, out_dir, *, gravity=
     # refuse before any work when the first names are taken
     _refuse_overwrite(output_names(out_dir, h.name, obj.shape, n), [object_path])
     progress = None if quiet else (lambda line: print(line, file=sys.stderr, flush=True))
+    if palm and fixed:  # before any work: the fixed pose must touch the palm
+        check_palm_pose(h, obj)
     result = synthesize(hand_ref, obj, names, n, fixed=fixed, friction=friction, seed=seed, gravity=gravity,
                         max_finger_force_n=max_finger_force_n, max_attempts=max_attempts, base_dir=out_dir,
-                        progress=progress)
+                        progress=progress, palm=palm)
     paths = write_grasps(result, out_dir, h.name, seed=seed, fingers=names, inputs=[object_path])
     for path, g in zip(paths, result.grasps):
         grip = f"  grip {g.grip_force_n:.3f} N" if g.grip_force_n is not None else ""
@@ -412,7 +466,8 @@ def run_synth(hand: str, object_path, fingers: str, n: int, out_dir, *, gravity=
     print(f"synth: {len(paths)}/{n} grasps of {obj.shape} with {h.name} ({','.join(names)}) in "
           f"{result.seconds:.1f} s ({rate:.2f} grasps/s), {result.attempts} attempts, {result.candidates_passed} "
           f"passed the check, {result.duplicates} near-duplicates removed, pose "
-          f"{'fixed by the object file' if fixed else 'sampled'}, seed {seed}")
+          f"{'fixed by the object file' if fixed else 'sampled'}{' against the palm (palm: hold)' if palm else ''}, "
+          f"seed {seed}")
     if len(paths) < n:
         print(rejection_table(result))
     return 0 if len(paths) >= n else 1
@@ -420,7 +475,10 @@ def run_synth(hand: str, object_path, fingers: str, n: int, out_dir, *, gravity=
 
 def rejection_table(result: SynthResult) -> str:
     """Why candidates were dropped, most frequent first (what `run_synth` prints when it found
-    fewer grasps than asked), with what to try."""
+    fewer grasps than asked), with what to try. With ``--palm`` the palm's own reasons are
+    among them (`planner.synth_sample.sample_candidate`: "object not against the palm", "an
+    unused finger is inside the object on the palm", "sweeps miss the object on the palm";
+    "check: the palm does not touch the object")."""
     rows = sorted((result.rejected or {}).items(), key=lambda kv: (-kv[1], kv[0]))
     if not rows:
         return "no candidate was rejected: raise --max-attempts"
@@ -428,7 +486,14 @@ def rejection_table(result: SynthResult) -> str:
     lines = [f"  {'rejected because':<{width}}  candidates"] + [f"  {r:<{width}}  {k:>10}" for r, k in rows]
     hints = []
     top = rows[0][0]
-    if any(w in top for w in ("reach", "IK", "touch", "miss")):
+    if "inside" in top and result.palm:
+        hints.append("the object on the palm is where a finger lies: fewer fingers (--fingers) or another size")
+    elif any(w in top for w in ("on the palm", "against the palm", "palm does not touch")) or (
+            result.palm and "miss" in top):
+        hints.append("the fingers meet away from the palm, or cannot reach back to an object on it: a larger "
+                     "object, fewer fingers (e.g. --fingers thumb,index,middle: a palm-supported tripod), or "
+                     "drop --palm")
+    elif any(w in top for w in ("reach", "IK", "touch", "miss")):
         hints.append("the fingers do not reach the object there: move it (position) or let synth sample the pose")
     if "force closure" in top:
         hints.append("add a finger that opposes the others (e.g. the thumb) or raise --max-attempts")
