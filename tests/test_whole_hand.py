@@ -310,3 +310,25 @@ def test_explanations_merge_repeated_clauses_and_name_a_next_move():
     assert "index and ring cannot be lifted in the initial grasp: too many fingers lifted" in text
     assert text.count("too many fingers lifted") == 1
     assert text.endswith("to go on: allow more fingers off the object at once (--max-lifted N)")
+
+
+def test_schema_2_plans_still_read_verify_and_replay(tmp_path):
+    """A plan as the planner wrote it before whole-hand grasps (schema 2: no links, no palm;
+    execution mode with one mean contact per finger) reads, passes verify and replays."""
+    a, b = (bundled_grasp(x) for x in ("icub/cylinder_parallel_extension.yaml", "icub/cylinder_ir2m.yaml"))
+    out = tmp_path / "plan.json"
+    assert main(["plan", str(a), str(b), "-o", str(out), "--execution", "--contact-model", "mean", "--no-verify"]) == 0
+    data = json.loads(out.read_text())
+    data["schema_version"] = 2
+    for s in data["states"]:
+        assert PALM not in s["patches"]
+        for p in s["patches"].values():
+            p.pop("links", None)
+    data["integrity"] = integrity_record(data)
+    old = tmp_path / "old.json"
+    old.write_text(json.dumps(data))
+    plan = read_plan(old)
+    assert all(p.links is None for s in plan.states for p in s.patches.values())
+    assert audit_plan(plan).ok
+    report = replay_plan(old, gravity=(0.0, 0.0, 9.81))
+    assert report.passed, report.verdict
