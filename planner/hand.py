@@ -450,65 +450,10 @@ class Hand:
         ``pinocchio.Data``, FK once; `Kinematics.update` moves it explicitly)."""
         return Kinematics(self.collision.kinematic_model, q)
 
-    # --------------------------------------------------------------- kinematics
-    def link_pose(self, q, link: str) -> np.ndarray:
-        """Pose of a link (or any frame) in the palm frame.
-
-        Args:
-            q: (nq,) joint angles, order ``joint_names``.
-            link: link or frame name.
-        Returns:
-            T_palm_link: (4, 4).
-        """
-        q = self._check_q(q)
-        return self.kinematics(q).frame_pose(self._fid(link))
-
-    def frame_jacobian(self, q, link: str, p_link=None) -> np.ndarray:
-        """Jacobian of a point of a link, palm-aligned, linear rows first.
-
-        Args:
-            q: (nq,) joint angles.
-            link: link or frame name.
-            p_link: (3,) point in the link frame (default its origin).
-        Returns:
-            J: (6, nq): rows 0-2 d(p_palm)/dq, rows 3-5 the link's angular velocity in the palm frame.
-        """
-        q = self._check_q(q)
-        return self.kinematics(q).frame_jacobian(self._fid(link), p_link)[0]
-
-    def point_jacobians(self, q, points, angular: bool = False) -> list[np.ndarray]:
-        """Linear Jacobians of points fixed to links, palm frame, with one kinematics pass.
-
-        Args:
-            q: (nq,) joint angles.
-            points: (link or frame name, (3,) point in the PALM frame) pairs.
-            angular: also return the link's angular rows.
-        Returns:
-            one (3, nq) ``d(p_palm)/dq`` per point, as ``frame_jacobian(q, link, p_link)[:3]``
-            with ``p_link`` the point in the link's frame; (6, nq) with ``angular`` (rows 3-5
-            the link's angular velocity, palm frame).
-        """
-        return self.state(q).point_jacobians(points, angular)
-
-    def gravity_torques(self, q, g_palm) -> np.ndarray:
-        """Joint torques that hold the hand's own links still under gravity.
-
-        Args:
-            q: (nq,) joint angles.
-            g_palm: (3,) gravity vector in the palm frame, m/s^2.
-        Returns:
-            (nq,) torques, N m (generalized gravity of the URDF's masses).
-        """
-        return self.kinematics(q).gravity_torques(g_palm)
-
-    # ----------------------------------------------------------------- geometry
-    def collision_objects(self, q) -> list[tuple[str, str | None, coal.CollisionGeometry, coal.Transform3s]]:
-        """Every collision shape of the hand posed at q (`HandState.collision_objects`).
-
-        Returns:
-            list of (link, finger name or None for the palm, coal shape, Transform3s in the palm frame).
-        """
-        return self.state(q).collision_objects()
+    # Kinematic and geometric queries (link poses, Jacobians, gravity torques, posed collision
+    # shapes) are made on one state, ``hand.state(q)`` (`planner.collision.HandState`: FK once
+    # at construction), never on the hand with a ``q``: several queries of one configuration
+    # share its forward kinematics.
 
     def ik(self, finger, target_palm, q0, link: str | None = None, p_link=None, normal_palm=None,
            restarts: int = 8, max_iter: int = 150, seed: int = 0) -> np.ndarray:

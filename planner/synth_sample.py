@@ -81,7 +81,7 @@ def _sweep(hand, finger, q, alphas, radius: float = 0.0) -> tuple[np.ndarray, np
     for a in alphas:
         qa = q.copy()
         qa[cidx] = start + a * (hand.upper[cidx] - start)
-        T = hand.link_pose(qa, finger.pad_link)
+        T = hand.state(qa).link_pose(finger.pad_link)
         n = T[:3, :3] @ n_link
         pts.append(T[:3, :3] @ p_link + T[:3, 3] + radius * n)
         nrm.append(n)
@@ -99,7 +99,7 @@ def object_of(block) -> GraspObject:
 def _palm_shapes(hand, q=None) -> list:
     """(coal shape, its Transform3s in the palm frame) of every palm link (they do not move with q)."""
     q = np.asarray(hand.q_open if q is None else q, dtype=float)
-    return [(geom, tf) for _, finger, geom, tf in hand.collision_objects(q) if finger is None]
+    return [(geom, tf) for _, finger, geom, tf in hand.state(q).collision_objects() if finger is None]
 
 
 def _palm_gap(palm, obj: GraspObject) -> float:
