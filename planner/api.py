@@ -28,11 +28,12 @@ def plan(initial, final, *, execution: bool = False, output: PathLike | None = N
 
     Args:
         initial, final: grasp files (paths), `planner.grasp.GraspSpec` or `RealizedGrasp`.
-        execution: `PlanOptions.for_execution` (mean contacts, six gravity directions, the grip
-            model, verified in pybullet) instead of the thesis's defaults.
+        execution: `PlanOptions.for_execution` (one contact per touching link, six gravity
+            directions, the grip model, verified in pybullet) instead of the thesis's defaults.
         output: also write the plan there (``.yaml``/``.json``), atomically.
         **options: any `planner.options.PlanOptions` field (e.g. ``time_limit_s=5``,
-            ``motion=False``, ``verify=False``).
+            ``motion=False``, ``verify=False``); ``gravity`` may be a name (``"palm_up"``,
+            `planner.gravity.named_gravity`).
 
     Returns:
         `planner.regrasp.PlanResult` (``.plan``, ``.sequence``, ``.alternatives``, ...).
@@ -52,6 +53,10 @@ def plan(initial, final, *, execution: bool = False, output: PathLike | None = N
     a, rec_a = realized_grasp(initial)
     b, rec_b = realized_grasp(final)
     check_same_setup(a.spec, b.spec)
+    if isinstance(options.get("gravity"), str):  # a named orientation (planner.gravity.named_gravity)
+        from planner.gravity import named_gravity
+
+        options["gravity"] = named_gravity(options["gravity"], a.hand)
     opts = (PlanOptions.for_execution if execution else PlanOptions)(**options)
     inputs = {k: v for k, v in (("initial", rec_a), ("final", rec_b)) if v is not None}
     result = plan_regrasp(a, b, opts, inputs)

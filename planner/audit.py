@@ -248,6 +248,10 @@ def _check_states(plan, hand, obj, rep: AuditReport) -> list:
     model = (plan.parameters or {}).get("contact_model", "patch")
     modelled = model in ("mean", "link")
     palm_fk = None
+    # plans written since whole-hand grasps (their patches name their links) count a touching
+    # palm as a contact; older ones could not
+    whole_hand = any(getattr(p, "links", None) is not None for st in plan.states for p in st.patches.values())
+    palm_ignored: list[int] = []
     for i, st in enumerate(plan.states):
         q = _q(plan, hand, st.q)
         hs = hand.state(q)
@@ -318,8 +322,8 @@ def _check_states(plan, hand, obj, rep: AuditReport) -> list:
             if f not in st.patches:
                 if f != PALM:
                     rep.add(f"states[{i}]: finger {f} touches the object at the state's joints but the plan has it lifted")
-                elif model == "link":  # plans since whole-hand grasps count a touching palm
-                    rep.add(f"states[{i}]: the palm touches the object but the plan does not count it as a contact")
+                elif whole_hand:  # plans since whole-hand grasps count a touching palm
+                    palm_ignored.append(i)
         for link, ld in hs.link_object(obj, [l for f in hand.fingers for l in hand.fingers[f].links]
                                        + list(hand.collision.finger_links(None))).items():
             if ld.distance_m < -PENETRATION_TOL_M:
@@ -339,6 +343,10 @@ def _check_states(plan, hand, obj, rep: AuditReport) -> list:
             if not rest or not grasp_closure(rest, friction).is_force_closure:
                 rep.add(f"states[{i}].removable: {f} is marked removable but the other fingers are not force "
                         f"closure without it")
+    if palm_ignored:
+        which = f"states[{palm_ignored[0]}]" if len(palm_ignored) == 1 else \
+            f"states {', '.join(map(str, palm_ignored[:6]))}{' ...' if len(palm_ignored) > 6 else ''}"
+        rep.add(f"{which}: the palm touches the object but the plan does not count it as a contact")
     return poses
 
 

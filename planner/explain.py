@@ -72,8 +72,9 @@ def _palm_remedy(ev: Evaluator, finger: str, w: Node) -> str:
         return ""
     where = f"it is {gap * 1e3:.1f} mm from it" if gap > 0 else "it touches it"
     if holds:
-        return (f"; {finger} can lift if the object rests on the palm ({where}: place the object against "
-                f"the palm and write palm: hold)")
+        return (f"; resting the object on the palm would likely let {finger} lift ({where}; with the palm's contact "
+                f"added where the object is nearest it and the fingers' contacts kept, the rest holds: place the "
+                f"object against the palm and write palm: hold)")
     return f"; palm support would not let it lift either ({where})"
 
 
@@ -196,7 +197,7 @@ def _next_move(a: dict) -> str:
     """What the user can do next, from the analysis: palm support, more fingers lifted at once,
     room for a landing, or new contacts for the finger that most blocks progress."""
     whys = [why for _, why in a["lift_blocked"].values()] + [why for _, _, why in a["stuck"]]
-    if any("rests on the palm" in why for why in whys):
+    if any("resting the object on the palm would" in why for why in whys):
         return "to go on: rest the object on the palm (palm: hold), which lets a blocked finger lift"
     for f, why in a["landing_blocked"].items():
         m = re.match(r"it would collide with (\w+)", next(iter(why)))

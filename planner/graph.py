@@ -321,10 +321,11 @@ class Evaluator:
             raise InputError("a problem can only be extended by appending slots")
         same = (problem.friction == old.friction and problem.max_grip_force_n == old.max_grip_force_n
                 and problem.grip_friction_margin == old.grip_friction_margin and problem.hold_factor == old.hold_factor
-                and problem.max_lifted == old.max_lifted
+                and problem.max_lifted == old.max_lifted and dict(problem.support).keys() == dict(old.support).keys()
+                and all(_same_array(problem.support[k][0], old.support[k][0]) for k in problem.support)
                 and all(_same_array(getattr(problem, k), getattr(old, k)) for k in ("load", "loads", "load_gravity")))
         if not same:
-            raise InputError("a problem can only be extended with the same friction, loads and grip limits")
+            raise InputError("a problem can only be extended with the same friction, loads, grip limits and support")
         self.problem = problem
 
     def collision_pair(self, node: Node) -> tuple[str, str] | None:

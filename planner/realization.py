@@ -94,7 +94,11 @@ class RealizedGrasp:
 
     def require_placed(self) -> "RealizedGrasp":
         """This grasp, or PlannerError (one line) when a finger the file places does not touch
-        the object: a plan must not treat it as lifted."""
+        the object (a plan must not treat it as lifted) or the palm is not what the file's
+        ``palm:`` says (held and not touching, or free and touching)."""
+        palm = [p for p in self.problems if p.startswith("palm: ")]
+        if palm:
+            raise PlannerError(f"{self.spec.path}: {palm[0]}; run regrasp check on it")
         if self.missing:
             name = self.missing[0]
             gap = self.hand.state(self.q).finger_object_distance(self.obj, name)
@@ -448,9 +452,13 @@ def realize(spec: GraspSpec, hand=None) -> RealizedGrasp:
     problems, warnings = grasp_findings(spec, hand, obj, state, contacts, missing, colls)
     if spec.palm == "hold" and not palm_touches:
         gap = min((ld.distance_m for ld in state.link_object(obj, hand.collision.finger_links(None)).values()),
-                  default=float("inf"))
-        problems.append(f"palm: hold, but the palm does not touch the object (misses it by {gap * 1e3:.1f} mm; "
-                        f"touching is within {TOUCH_TOL_M * 1e3:g} mm)")
+                  default=None)
+        if gap is None:
+            problems.append(f"palm: hold, but hand {hand.name} has no palm collision geometry (no link of its base "
+                            f"has a <collision>): the palm cannot hold")
+        else:
+            problems.append(f"palm: hold, but the palm does not touch the object (misses it by {gap * 1e3:.1f} mm; "
+                            f"touching is within {TOUCH_TOL_M * 1e3:g} mm)")
     elif spec.palm == "free" and palm_touches:
         problems.append(f"palm: free, but the palm touches the object (within {TOUCH_TOL_M * 1e3:g} mm): it would "
                         f"carry part of the load; move the object away from it or say palm: auto or hold")

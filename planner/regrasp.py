@@ -168,10 +168,13 @@ def _rejected_summary(rejected, planned: list[str]) -> str:
     parts = [f"{n} at {move} in {d}" for (move, d), n in sorted(where.items(), key=lambda kv: (-kv[1], kv[0]))]
     failed = sorted({x["direction"] for x in rejected})
     words = "failed " + ", ".join(parts)
+    if len(rejected) > 1:
+        words += (" (each sequence after the first was replayed first in the directions that had rejected one, and "
+                  "not in the others when one of those rejected it again)")
     if len(planned) > len(failed):
-        words += (f"; every rejection came from {', '.join(failed)} of the {len(planned)} planned direction(s): if "
-                  f"the hand will not be held so, plan for the orientations it will be held in (--gravity NAME, "
-                  f"e.g. palm_up, or --gravity-set N)")
+        words += (f"; every rejection was in {', '.join(failed)} of the {len(planned)} planned direction(s): if the "
+                  f"hand will not be held so, plan for the orientations it will be held in (--gravity NAME, e.g. "
+                  f"palm_up, or --gravity-set N)")
     return words
 
 

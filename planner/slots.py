@@ -23,6 +23,7 @@ from scipy.spatial import cKDTree
 
 from planner.closure import apply_contact_model, batch_grasp_closure
 from planner.contacts import collisions, contact_patches
+from planner.errors import PlannerError
 from planner.graph import LIFTED, GaitProblem, Slot
 from planner.grip import finger_statics
 from planner.model import PALM, Patch
@@ -204,7 +205,7 @@ def _pick_intermediate(problem: GaitProblem, hand, obj, finger: str, n: int, con
         for ctx in contexts:
             held = [(g, s) for j, (g, s) in enumerate(zip(problem.fingers, ctx)) if j != i and s != LIFTED]
             ok = [j for j in range(len(cands)) if all(compatible(finger, len(have) + j, g, s) for g, s in held)]
-            base = {g: (problem.slots[g][s].points, problem.slots[g][s].normals) for g, s in held}
+            base = {**{g: (problem.slots[g][s].points, problem.slots[g][s].normals) for g, s in held}, **problem.support}
             closures = batch_grasp_closure([{**base, finger: (cands[j].points, cands[j].normals)} for j in ok],
                                            problem.friction)
             for j, c in zip(ok, closures):
@@ -280,8 +281,8 @@ def holding_grasp(problem: GaitProblem, hand, obj, lifted: str, contact_model: s
     for f in others:
         grown = [{**a, f: j} for a in beam for j in [LIFTED] + list(range(len(options[f])))]
         touching = [k for k, a in enumerate(grown) if any(t != LIFTED for t in a.values())]
-        found = batch_grasp_closure([{g: (options[g][t].points, options[g][t].normals) for g, t in grown[k].items()
-                                      if t != LIFTED} for k in touching], problem.friction)
+        found = batch_grasp_closure([{**{g: (options[g][t].points, options[g][t].normals) for g, t in grown[k].items()
+                                         if t != LIFTED}, **problem.support} for k in touching], problem.friction)
         closures = [None] * len(grown)
         for k, c in zip(touching, found):
             closures[k] = c
@@ -365,6 +366,11 @@ def build_problem(initial, final, options: PlanOptions) -> GaitProblem:
     # the palm holds where both grasps have it (they share the object's pose, so a palm
     # contact is the same in both): a fixed contact of every state, never lifted
     support = {}
+    if (PALM in initial.patches) != (PALM in final.patches):
+        holds, free = (initial, final) if PALM in initial.patches else (final, initial)
+        raise PlannerError(f"{free.spec.path}: palm: {free.spec.palm} keeps the palm out of this grasp, but it holds in "
+                           f"{holds.spec.path} (palm: {holds.spec.palm}); with one object pose the palm touches in both: "
+                           f"give both files the same palm mode")
     if PALM in initial.patches and PALM in final.patches:
         support[PALM] = apply_contact_model({PALM: initial.patches[PALM]}, options.contact_model)[PALM]
     problem = GaitProblem(fingers, slots, tuple(start), tuple(goal), initial.friction, compatible, options.max_lifted,

@@ -160,10 +160,18 @@ def _is_duplicate(a: np.ndarray, b: np.ndarray) -> bool:
     return bool(np.max(np.linalg.norm(a - b, axis=1)) < DUPLICATE_TOL_M)
 
 
+def require_palm(hand) -> None:
+    """PlannerError (one line) when the hand has no palm collision geometry (``--palm``)."""
+    if not hand.collision.finger_links(None):
+        raise PlannerError(f"synth: --palm: hand {hand.name} has no palm collision geometry (no link of its base has "
+                           f"a <collision>): there is nothing to rest the object on")
+
+
 def check_palm_pose(hand, obj: GraspObject) -> None:
     """With ``--palm`` and a fixed pose: PlannerError (one line) unless the object touches the
     palm there (within `planner.contacts.TOUCH_TOL_M`) without penetrating it (beyond
     `planner.realization.PENETRATION_TOL_M`)."""
+    require_palm(hand)
     d = _palm_distance(hand, hand.q_open, obj)
     at = "[" + ", ".join(f"{v:.4f}" for v in obj.position) + "]"
     n = "[" + ", ".join(f"{v:g}" for v in hand.palm_normal) + "]"
@@ -233,6 +241,8 @@ def synthesize(hand_ref: str, obj: GraspObject | Mapping, fingers, n: int, *, fi
     rng = np.random.default_rng(seed)
     obj = object_of(obj)
     inner = inner_radius(obj)
+    if palm:
+        require_palm(hand)
     if palm and fixed:
         check_palm_pose(hand, obj)
     kept: list[tuple[np.ndarray, SynthGrasp]] = []
@@ -430,6 +440,8 @@ def run_synth(hand: str, object_path, fingers: str, n: int, out_dir, *, gravity=
     except (RuntimeError, OSError) as err:  # a symlink loop, an unreadable folder
         raise PlannerError(f"synth: hand {hand}: cannot be resolved: {err}") from None
     h = load_hand(hand_ref)
+    if palm:
+        require_palm(h)
     if fingers is None:
         fingers = ",".join(default_fingers(h, palm))
         if not quiet:

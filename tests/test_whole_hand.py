@@ -225,7 +225,7 @@ def test_palm_plans_are_audited(tmp_path):
             del s["patches"][PALM]
 
     problems = resealed(drop_palm)
-    assert any("the palm touches the object but the plan does not count it" in p for p in problems), problems
+    assert sum("the palm touches the object but the plan does not count it" in p for p in problems) == 1, problems
 
 
 def test_execution_mode_accepts_the_mean_model_for_comparison():
@@ -251,7 +251,7 @@ def test_refusal_says_the_palm_would_let_the_thumb_lift(tmp_path):
     with pytest.raises(NoSequenceError) as err:
         plan_regrasp(g0, g1, PlanOptions.for_execution(max_rounds=0, verify=False, motion=False))
     text = str(err.value)
-    assert "thumb cannot be lifted" in text and "thumb can lift if the object rests on the palm" in text
+    assert "thumb cannot be lifted" in text and "resting the object on the palm would likely let thumb lift" in text
     assert "5.0 mm from it" in text
 
 
@@ -332,3 +332,84 @@ def test_schema_2_plans_still_read_verify_and_replay(tmp_path):
     assert audit_plan(plan).ok
     report = replay_plan(old, gravity=(0.0, 0.0, 9.81))
     assert report.passed, report.verdict
+
+
+def test_plan_refuses_a_grasp_whose_palm_is_not_as_written(tmp_path, capsys):
+    """`plan` refuses, in one line naming the file and the palm key, what `check` fails: the
+    palm touching where the file says palm: free, or not touching where it says hold."""
+    paths = {}
+    for mode, z in (("free", 0.028), ("hold", 0.033)):
+        for rel in BALL_PAIRS["icub"]:
+            data = _grasp_data(rel)
+            data["palm"] = mode
+            data["object"]["position"] = [0.005, 0.008, z]
+            p = tmp_path / f"{mode}_{rel.split('/')[1]}"
+            p.write_text(yaml.safe_dump(data))
+            paths.setdefault(mode, []).append(p)
+    for mode, why in (("free", "palm: free, but the palm touches"), ("hold", "palm: hold, but the palm does not touch")):
+        a, b = paths[mode]
+        assert main(["plan", str(a), str(b), "--no-motion"]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and str(a) in err and why in err, err
+
+
+def test_a_problem_extended_with_another_palm_support_is_refused():
+    from planner.graph import Evaluator
+
+    patches = _box_on_palm()
+    slots = {"left": (Slot("left", "initial", *patches["left"]),), "right": (Slot("right", "initial", *patches["right"]),)}
+    p = GaitProblem(("left", "right"), slots, (0, 0), (0, 0), FR, support={PALM: patches[PALM]})
+    ev = Evaluator(p)
+    ev.extend(p)  # the same support: fine
+    moved = Patch(patches[PALM].points + [0.0, 0.0, 0.001], patches[PALM].normals, patches[PALM].links)
+    with pytest.raises(InputError, match="support"):
+        ev.extend(GaitProblem(("left", "right"), slots, (0, 0), (0, 0), FR, support={PALM: moved}))
+    with pytest.raises(InputError, match="support"):
+        ev.extend(GaitProblem(("left", "right"), slots, (0, 0), (0, 0), FR))
+
+
+def test_a_suspect_that_passes_lets_every_other_direction_decide(monkeypatch):
+    import planner.sim.verify as V
+
+    def fake(plan, hand, directions, *, workers=None):
+        rows = tuple((n, n != "late", "v", 3 if n == "late" else None, False, 0.0, 0.0) for n, _ in directions)
+        return V.Verification(all(r[1] for r in rows), rows, 1.0)
+
+    monkeypatch.setattr(V, "verify_plan", fake)
+    dirs = [("a", (0, 0, 1)), ("late", (0, 0, -1)), ("c", (1, 0, 0))]
+    got = V.verify_suspects_first(None, None, dirs, {"c"})
+    assert not got.passed and got.first_failure()[:2] == ("late", 3) and [r[0] for r in got.directions] == ["a", "late", "c"]
+
+
+def test_the_api_takes_named_orientations():
+    import planner
+
+    a, b = (bundled_grasp(x) for x in BALL_PAIRS["icub"])
+    named = planner.plan(a, b, execution=True, gravity="palm_up", verify=False, motion=False)
+    vector = planner.plan(a, b, execution=True, gravity=(0.0, 0.0, -9.81), verify=False, motion=False)
+    assert list(named.plan.parameters["gravity"]) == [0.0, 0.0, -9.81]
+    assert named.plan.to_dict() == vector.plan.to_dict()
+
+
+def test_synth_palm_on_a_hand_without_palm_geometry_is_one_line(tmp_path, capsys):
+    import re as _re
+    import shutil
+
+    from planner.resources import hand_dir
+
+    src = hand_dir("icub_right")
+    for f in src.iterdir():
+        if f.is_file():
+            shutil.copy(f, tmp_path / f.name)
+    urdf = tmp_path / "icub_right.urdf"
+    text = urdf.read_text()
+    palm = text.index('<link name="palm">')
+    end = text.index("</link>", palm)
+    urdf.write_text(text[:palm] + _re.sub(r"<collision>.*?</collision>", "", text[palm:end], flags=_re.S) + text[end:])
+    obj = tmp_path / "ball.yaml"
+    obj.write_text(yaml.safe_dump({"shape": "sphere", "size": [0.025], "mass_kg": 0.05}))
+    out = tmp_path / "out"
+    out.mkdir()
+    assert main(["synth", str(tmp_path / "hand.yaml"), str(obj), "--palm", "-n", "1", "-o", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "no palm collision geometry" in err, err
