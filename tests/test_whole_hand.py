@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import pickle
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -312,25 +313,18 @@ def test_explanations_merge_repeated_clauses_and_name_a_next_move():
     assert text.endswith("to go on: allow more fingers off the object at once (--max-lifted N)")
 
 
-def test_schema_2_plans_still_read_verify_and_replay(tmp_path):
-    """A plan as the planner wrote it before whole-hand grasps (schema 2: no links, no palm;
-    execution mode with one mean contact per finger) reads, passes verify and replays."""
-    a, b = (bundled_grasp(x) for x in ("icub/cylinder_parallel_extension.yaml", "icub/cylinder_ir2m.yaml"))
-    out = tmp_path / "plan.json"
-    assert main(["plan", str(a), str(b), "-o", str(out), "--execution", "--contact-model", "mean", "--no-verify"]) == 0
-    data = json.loads(out.read_text())
-    data["schema_version"] = 2
-    for s in data["states"]:
-        assert PALM not in s["patches"]
-        for p in s["patches"].values():
-            p.pop("links", None)
-    data["integrity"] = integrity_record(data)
-    old = tmp_path / "old.json"
-    old.write_text(json.dumps(data))
-    plan = read_plan(old)
+def test_schema_2_plans_still_read_verify_and_replay():
+    """A plan written by the planner before whole-hand grasps (schema 2, commit 5b82ab1: the
+    bundled cylinder pair in execution mode with one mean contact per finger, no links, no
+    palm; tests/data/plans) reads, passes verify and replays palm down."""
+    path = Path(__file__).parent / "data" / "plans" / "schema2_cylinder_execution.json"
+    assert json.loads(path.read_text())["schema_version"] == 2
+    plan = read_plan(path)
+    assert plan.parameters["contact_model"] == "mean"
     assert all(p.links is None for s in plan.states for p in s.patches.values())
-    assert audit_plan(plan).ok
-    report = replay_plan(old, gravity=(0.0, 0.0, 9.81))
+    assert all(not s.palm_holds for s in plan.states)
+    assert audit_plan(plan).ok, audit_plan(plan).problems
+    report = replay_plan(path, gravity=(0.0, 0.0, 9.81))
     assert report.passed, report.verdict
 
 
