@@ -10,7 +10,7 @@ A variant whose grasps are not force closure with one mean contact per finger (o
 realized) is "invalid input", counted apart from planning failures.
 
 Every valid pair is planned with finger paths (`planner.regrasp.plan_regrasp`): in
-execution mode when the planner has it (``PlanOptions.for_execution``: mean contacts, grip
+execution mode when the planner has it (``PlanOptions.for_execution``: link contacts by default, grip
 ranking, gravity set 6), otherwise with the mean contact model and gravity palm down; the
 ``mode`` column says which. Each plan is replayed (`planner.sim.replay`) under the seven
 directions of `planner.gravity.gravity_directions(palm_normal, 7)`: palm down, palm up,
@@ -21,7 +21,13 @@ agreement (states where the simulator's closure agrees / states reached) and tim
 
 ``--turned`` adds held-out poses (`TURNS`), ``--heavy`` heavier objects (`HEAVY_FACTORS`).
 
+``--contact-model link|mean`` sets execution mode's contact model (default: its own, "link":
+one contact per touching link, the palm included; "mean": one per finger at its patch mean,
+the model before issue 34); the validity check of the input stays "mean" either way, so both
+runs plan the same pairs. ``--save-plans DIR`` writes every plan.
+
     python experiments/exp7_execution.py [--quick] [--max-pairs N] [--directions 1|2|6|7] [--turned] [--heavy]
+        [--contact-model link|mean] [--save-plans DIR]
     python experiments/exp7_execution.py --from-csv experiments/results/exp7_execution.csv  # re-plot
 """
 
@@ -210,20 +216,24 @@ def generic_direction(name: str, names: list[str]) -> str:
 # ------------------------------------------------------------------ planning and replay
 
 
-def plan_options(palm_normal):
+def plan_options(palm_normal, contact_model: str | None = None):
     """(PlanOptions, mode label, planned-for direction names): execution mode when the
-    planner has it, else mean contacts with gravity palm down."""
+    planner has it (``contact_model``: its contact model, None = execution mode's default),
+    else mean contacts with gravity palm down."""
     from planner.gravity import gravity_directions
     from planner.options import PlanOptions
 
     if hasattr(PlanOptions, "for_execution") and "execution" in {f.name for f in fields(PlanOptions)}:
-        opts = PlanOptions.for_execution()
+        opts = PlanOptions.for_execution(**({"contact_model": contact_model} if contact_model else {}))
         n = getattr(opts, "gravity_set", None)
         if n:
             names = [name for name, _ in gravity_directions(palm_normal, n)]
         else:
             names = ["palm_down"]
-        return opts, f"execution (gravity set {n}, rank {getattr(opts, 'rank', '?')})", names
+        return (opts, f"execution (gravity set {n}, rank {getattr(opts, 'rank', '?')}, contacts {opts.contact_model})",
+                names)
+    if contact_model not in (None, "mean"):
+        raise ValueError(f"this planner has no execution mode: only --contact-model mean, got {contact_model!r}")
     down = gravity_directions(palm_normal, 1)[0][1]
     return (PlanOptions(contact_model="mean", gravity=down, max_finger_force_n=REPLAY_FINGER_FORCE_N),
             "mean + gravity palm down", ["palm_down"])
@@ -248,6 +258,11 @@ def replay_all(plan: dict, hand, n: int) -> list[tuple[str, object, float]]:
     return out
 
 
+def plan_path(folder, pair: str, variant: str) -> Path:
+    """Where ``--save-plans`` writes the plan of a pair and variant (e.g. icub_box_uniform_1.00.json)."""
+    return Path(folder) / f"{pair.replace('/', '_')}_{variant.replace(' ', '_')}.json"
+
+
 def task(t: dict) -> list[dict]:
     from planner.closure import apply_contact_model, grasp_closure
     from planner.grasp import load_hand
@@ -267,9 +282,10 @@ def task(t: dict) -> list[dict]:
     row = {"pair": t["pair"], "hand": hand.name, "family": family(si.object), "shape": si.object.shape,
            "variant": f"{t['mode']} {t['scale']:.2f}", "size": " ".join(f"{v:.4f}" for v in si.object.size),
            "initial": Path(t["initial"]).name, "final": Path(t["final"]).name}
-    opts, mode, planned_for = plan_options(hand.palm_normal)
+    opts, mode, planned_for = plan_options(hand.palm_normal, t.get("contact_model"))
     opts = replace(opts, workers=1)  # the sweep's own workers use the cores
     row["mode"] = mode
+    row["contact_model"] = opts.contact_model
     try:
         gi, gf = realize(si, hand), realize(sf, hand)
         mi = grasp_closure(apply_contact_model(gi.patches, "mean"), gi.friction)
@@ -293,6 +309,10 @@ def task(t: dict) -> list[dict]:
         return [row]
     row.update(planned=True, plan_time_s=time.perf_counter() - tp, gait_steps=res.sequence.gait_steps,
                bottleneck=res.sequence.bottleneck, states=len(res.plan.states), planned_for=" ".join(planned_for))
+    if t.get("save_plans"):
+        from planner.plan_data import write_plan
+
+        row["plan_file"] = str(write_plan(res.plan, plan_path(t["save_plans"], t["pair"], row["variant"])))
     rows = []
     try:
         reports = replay_all(res.plan.to_dict(), hand, t["directions"])
@@ -427,6 +447,11 @@ def main(argv=None) -> dict:
     ap.add_argument("--heavy", action="store_true",
                     help="also every library pair with its object's mass times "
                          + " and ".join(f"{k:g}" for k in HEAVY_FACTORS))
+    ap.add_argument("--contact-model", default=None, choices=("link", "mean"),
+                    help="execution mode's contact model (PlanOptions.for_execution; default: its own, "
+                         "'link' = one contact per touching link, 'mean' = one per finger at its patch mean)")
+    ap.add_argument("--save-plans", type=Path, default=None, metavar="DIR",
+                    help="write each plan to DIR/<hand>_<object>_<variant>.json (replayable with regrasp replay)")
     ap.add_argument("--from-csv", type=Path, default=None,
                     help="no run: summary and plot of an existing exp7 CSV (PNG into --out/--name)")
     args = ap.parse_args(argv)
@@ -434,8 +459,11 @@ def main(argv=None) -> dict:
     if args.from_csv is not None:
         return replot(args.from_csv, args.out / f"{args.name}.png", "exp7 execution", plot, summarize)
     tasks = pair_tasks(args.quick, args.turned, args.heavy)[: args.max_pairs]
+    if args.save_plans is not None:
+        args.save_plans.mkdir(parents=True, exist_ok=True)
     for t in tasks:
-        t["directions"] = args.directions
+        t.update(directions=args.directions, contact_model=args.contact_model,
+                 save_plans=str(args.save_plans) if args.save_plans is not None else None)
     per_pair = run_tasks(task, tasks, args, desc="exp7 execution")
     rows = [r for rs in per_pair for r in rs]
     write_csv(args.out / f"{args.name}.csv", rows)

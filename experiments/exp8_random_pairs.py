@@ -38,11 +38,15 @@ with ``--save-plans DIR``, ``plan_file``: the execution plan written (`planner.p
 JSON, replayable with ``regrasp replay``) to DIR/<hand>_<object>_<pair>.json, the object label
 with ``_`` for spaces and the pair numbered from 1 per hand and object as in the ``pair`` column.
 
+``--save-grasps FILE`` writes the poses and grasps synthesized (JSON); ``--grasps-from FILE``
+plans the pairs of such a file instead of synthesizing (the same pairs under another commit's
+planner: the pairs are drawn from the grasps with ``--seed`` as always).
+
 ``--quick`` (tests, seconds): the Allegro on the 30 mm-radius ball, two finger sets, one pair, straight
 joint-space finger paths instead of OMPL (``--no-motion``).
 
     python experiments/exp8_random_pairs.py [--quick] [--workers N] [--pairs-per-object K] [--directions 1|2|6|7] [--no-motion]
-        [--execution-set 1|2|6] [--save-plans DIR]
+        [--execution-set 1|2|6] [--save-plans DIR] [--save-grasps FILE | --grasps-from FILE]
     python experiments/exp8_random_pairs.py --from-csv experiments/results/exp8_random_pairs.csv   # re-plot
 """
 
@@ -167,6 +171,17 @@ def execution_ready(hand_ref: str) -> dict:
     drift_mm = inspect.signature(replay_plan).parameters["drift_mm_max"].default
     return {"gravity": dirs, "max_finger_force_n": o.max_finger_force_n, "contact_model": o.contact_model,
             "friction_margin": o.friction_margin, "palm_clearance_m": drift_mm / 1000.0}
+
+
+def _plain_json(v):
+    """JSON for the numpy scalars and arrays a grasp's data may hold."""
+    if isinstance(v, np.generic):
+        return v.item()
+    if isinstance(v, np.ndarray):
+        return v.tolist()
+    if isinstance(v, (tuple, set)):
+        return list(v)
+    raise TypeError(f"not JSON: {type(v).__name__}")
 
 
 def draw_pairs(grasps: list[dict], k: int, seed: int) -> list[tuple[int, int]]:
@@ -558,6 +573,11 @@ def main(argv=None) -> dict:
     ap.add_argument("--coverage", action="store_true",
                     help="execution mode only: coverage (plans / pairs whose grasps both hold in the simulator) "
                          "and soundness (plans passing a replay of the written file in a fresh process)")
+    ap.add_argument("--save-grasps", type=Path, default=None, metavar="FILE",
+                    help="write the synthesized poses and grasps (JSON) to FILE, for --grasps-from")
+    ap.add_argument("--grasps-from", type=Path, default=None, metavar="FILE",
+                    help="no synthesis: plan the pairs of the grasps an earlier run saved with --save-grasps "
+                         "(e.g. another commit's grasps, to compare planners on the same pairs)")
     ap.add_argument("--name", default="exp8_random_pairs", help="CSV / PNG file stem in --out")
     ap.add_argument("--from-csv", type=Path, default=None, help="no run: summary and plot of an existing exp8 CSV")
     args = ap.parse_args(argv)
@@ -568,7 +588,17 @@ def main(argv=None) -> dict:
         if args.save_plans.exists() and not args.save_plans.is_dir():
             ap.error(f"--save-plans {args.save_plans}: exists and is not a directory")
         args.save_plans.mkdir(parents=True, exist_ok=True)
-    synth = run_tasks(synth_task, object_tasks(args.quick, args.seed, args.objects), args, desc="exp8 synth")
+    if args.grasps_from is not None:  # the grasps of an earlier run (--save-grasps): no synthesis
+        import json
+
+        synth = json.loads(args.grasps_from.read_text())
+    else:
+        synth = run_tasks(synth_task, object_tasks(args.quick, args.seed, args.objects), args, desc="exp8 synth")
+    if args.save_grasps is not None:
+        import json
+
+        args.save_grasps.parent.mkdir(parents=True, exist_ok=True)
+        args.save_grasps.write_text(json.dumps(synth, default=_plain_json))
     t_synth = time.perf_counter() - t0
     k = args.pairs_per_object or (QUICK["pairs"] if args.quick else PAIRS_PER_OBJECT)
     motion = not (args.quick or args.no_motion)
