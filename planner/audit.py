@@ -307,8 +307,8 @@ def _check_states(plan, hand, obj, rep: AuditReport) -> list:
             if f not in hand.fingers and f != PALM:
                 continue
             if f not in fk:
-                d = (min((ld.distance_m for ld in hs.link_object(obj, hand.collision.finger_links(None)).values()),
-                         default=math.inf) if f == PALM else hs.finger_object_distance(obj, f))
+                d = hs.palm_object_distance(obj) if f == PALM else hs.finger_object_distance(obj, f)
+                d = math.inf if d is None else d
                 rep.add(f"states[{i}].patches.{f}: at the state's joints {'the palm' if f == PALM else 'finger ' + f} "
                         f"is {d * 1000:.1f} mm from the object: it does not touch where the plan says")
                 continue

@@ -395,6 +395,12 @@ class HandState:
                                            req, coal.DistanceResult()))
         return float(best)
 
+    def palm_object_distance(self, obj) -> float | None:
+        """Smallest signed distance between the palm's links and the object (m), from the
+        cached link distances (`link_object`); None when the palm has no collision geometry."""
+        dist = self.link_object(obj, self.model.finger_links(None))
+        return min((ld.distance_m for ld in dist.values()), default=None)
+
     def point_distance(self, p_palm, geometries: Iterable[int]) -> float:
         """Distance from a palm-frame point to the nearest of the given geometries (m)."""
         tf_p = coal.Transform3s(np.eye(3), p_palm)

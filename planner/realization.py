@@ -152,8 +152,7 @@ class RealizedGrasp:
         the touch tolerance, its contact points (0 when it does not hold: not touching, or
         ``palm: free``) and the nearest palm-object distance, m."""
         links = [c.link for c in self.contacts if c.finger is None]
-        gap = min((ld.distance_m for ld in self.hand.state(self.q).link_object(
-            self.obj, self.hand.collision.finger_links(None)).values()), default=None)
+        gap = self.hand.state(self.q).palm_object_distance(self.obj)
         pts = self.patches.get(PALM)
         return {"mode": self.spec.palm, "touching": bool(links), "touching_links": links,
                 "holds": pts is not None, "contact_points": 0 if pts is None else int(len(pts[0])),
@@ -437,7 +436,7 @@ def realize(spec: GraspSpec, hand=None) -> RealizedGrasp:
     palm_touches = PALM in patches
     if spec.palm == "free":  # the file keeps the palm out of the grasp (a problem if it touches)
         patches.pop(PALM, None)
-    patches = {k: Patch(_ro(p), _ro(n), v.links) for k, v in patches.items() for p, n in [v]}
+    patches = {k: Patch(_ro(v.points), _ro(v.normals), v.links) for k, v in patches.items()}
     closure = grasp_closure(patches, spec.friction)
     removable = frozenset(removable_fingers(patches, spec.friction)) if patches else frozenset()
     touching = {k: tuple(v) for k, v in touching_links(hand, state, obj).items()}
@@ -451,8 +450,7 @@ def realize(spec: GraspSpec, hand=None) -> RealizedGrasp:
     contacts = tuple(link_contacts(hand, state, obj, palm=True))
     problems, warnings = grasp_findings(spec, hand, obj, state, contacts, missing, colls)
     if spec.palm == "hold" and not palm_touches:
-        gap = min((ld.distance_m for ld in state.link_object(obj, hand.collision.finger_links(None)).values()),
-                  default=None)
+        gap = state.palm_object_distance(obj)
         if gap is None:
             problems.append(f"palm: hold, but hand {hand.name} has no palm collision geometry (no link of its base "
                             f"has a <collision>): the palm cannot hold")

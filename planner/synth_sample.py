@@ -113,11 +113,6 @@ def _palm_gap(palm, obj: GraspObject) -> float:
     return float(best)
 
 
-def _palm_distance(hand, q, obj: GraspObject) -> float:
-    """Signed distance (m) between the palm's links and the object."""
-    return _palm_gap(_palm_shapes(hand, q), obj)
-
-
 def _palm_face(hand, palm, offset: float, k: int = PALM_GRID) -> np.ndarray:
     """(k*k, 3) palm-frame points on the palm's grasping face, ``offset`` in front of it: the
     face of the palm links' bounding box (axes: ``palm_normal`` and two across it) farthest
@@ -293,8 +288,8 @@ def sample_candidate(hand, fingers, obj: GraspObject, fixed, rng, obj_radius,
                 quat = [0.0, 0.0, 0.0, 1.0] if obj.shape == "sphere" else _random_quat(rng)
                 placed = obj.replaced(quat_xyzw=quat, position=[float(v) for v in centre])
                 # out of the palm: push the object along the palm normal until it clears the palm
-                d = _palm_distance(hand, q, placed)
-                if d < palm_clearance_m:
+                d = hand.state(q).palm_object_distance(placed)  # None: a hand without palm geometry
+                if d is not None and d < palm_clearance_m:
                     centre = centre + (palm_clearance_m - d) * np.asarray(hand.palm_normal)
                     placed = obj.replaced(quat_xyzw=quat, position=[float(v) for v in centre])
                 if all(hand.state(q_free).finger_object_distance(placed, f.name) >= 0.0 for f in fingers):

@@ -60,7 +60,7 @@ from planner.model import Friction
 from planner.objects import GraspObject
 from planner.realization import PENETRATION_TOL_M, realize
 from planner.retreat import retreat_blocked
-from planner.synth_sample import (PALM_CLEARANCE_M, _palm_distance, closes_onto, inner_radius, object_of,
+from planner.synth_sample import (PALM_CLEARANCE_M, closes_onto, inner_radius, object_of,
                                   sample_candidate)
 
 #: Two grasps are near-duplicates when every chosen finger's mean contact point (palm frame)
@@ -172,7 +172,7 @@ def check_palm_pose(hand, obj: GraspObject) -> None:
     palm there (within `planner.contacts.TOUCH_TOL_M`) without penetrating it (beyond
     `planner.realization.PENETRATION_TOL_M`)."""
     require_palm(hand)
-    d = _palm_distance(hand, hand.q_open, obj)
+    d = hand.state(hand.q_open).palm_object_distance(obj)
     at = "[" + ", ".join(f"{v:.4f}" for v in obj.position) + "]"
     n = "[" + ", ".join(f"{v:g}" for v in hand.palm_normal) + "]"
     if d > TOUCH_TOL_M:
