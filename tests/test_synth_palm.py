@@ -16,7 +16,7 @@ from planner.grip import HOLD_FACTOR, grasp_hold
 from planner.hand import Hand
 from planner.model import PALM
 from planner.realization import PENETRATION_TOL_M, realize
-from planner.synth_sample import (PALM_GAP_TOL_M, PALM_TOUCH_GAP_M, _palm_distance, _palm_shapes, object_of,
+from planner.synth_sample import (PALM_GAP_TOL_M, PALM_TOUCH_GAP_M, _palm_shapes, object_of,
                                   place_against_palm)
 from planner.synthesis import SynthResult, default_fingers, rejection_table, synthesize
 
@@ -45,7 +45,7 @@ def test_place_against_palm_moves_the_object_onto_the_palm_either_way(hand_name)
     for start in (c + 0.08 * n, c):  # far out, and inside the palm
         placed = place_against_palm(hand, shapes, box, start, [0.0, 0.0, 0.0, 1.0])
         assert placed is not None
-        d = _palm_distance(hand, hand.q_open, placed)
+        d = hand.state(hand.q_open).palm_object_distance(placed)
         assert abs(d - PALM_TOUCH_GAP_M) <= PALM_GAP_TOL_M
         moved = np.asarray(placed.position) - start
         np.testing.assert_allclose(moved - (moved @ n) * n, 0.0, atol=1e-12)  # along the normal only
