@@ -112,22 +112,6 @@ def _angle_deg(a, b) -> float:
     return math.degrees(math.acos(max(-1.0, min(1.0, c))))
 
 
-def _modelled_reference(fk_patch, model: str, links, n_points: int) -> list | None:
-    """Per recorded point of a "mean"/"link" patch, the hand's own patch it is the mean of at
-    the state's joints: (its points (m, 3), its normalized mean normal); None where unknown."""
-    if fk_patch is None:
-        return None
-    pts, nrm = np.asarray(fk_patch[0], float), np.asarray(fk_patch[1], float)
-    whole = (pts, _unit(nrm.mean(axis=0)))
-    if model == "mean" or links is None or getattr(fk_patch, "links", None) is None:
-        return [whole if n_points == 1 else None] * n_points
-    out = []
-    for link in links:
-        idx = [k for k, l in enumerate(fk_patch.links) if str(l) == str(link)]
-        out.append((pts[idx], _unit(nrm[idx].mean(axis=0))) if idx else None)
-    return out
-
-
 def _as_recorded(patch, model: str, recorded):
     """A patch of the hand (at a state's joints, or of an input grasp) as a plan records it
     under its contact model: the per-link means ("link"; one mean when the recorded patch
@@ -139,17 +123,19 @@ def _as_recorded(patch, model: str, recorded):
     return apply_contact_model({"p": patch}, model)["p"]
 
 
-def _unit(v: np.ndarray) -> np.ndarray:
-    return v / max(float(np.linalg.norm(v)), 1e-300)
-
-
-def _mean_sag(obj, fk_patch) -> float:
-    """How far below the surface the mean of the hand's own patch lies (m; 0 without one):
-    the depth a mean contact has by construction."""
+def _references(fk_patch, model: str, recorded) -> list:
+    """Per recorded point of a "mean"/"link" patch, the hand's own contact it stands for at the
+    state's joints: (point, normal) of the hand's patch as the plan's contact model makes it
+    (`_as_recorded`), matched by link; None where unknown."""
+    n = len(recorded[0])
     if fk_patch is None:
-        return 0.0
-    _, _, d = obj.closest_surface(np.mean(np.asarray(fk_patch[0], float), axis=0))
-    return abs(d)
+        return [None] * n
+    ref = _as_recorded(fk_patch, model, recorded)
+    links = getattr(recorded, "links", None)
+    if model == "mean" or ref.links is None or links is None:
+        return [(ref.points[0], ref.normals[0]) if len(ref.points) == 1 == n else None] * n
+    at = {str(link): k for k, link in enumerate(ref.links)}
+    return [(ref.points[at[str(link)]], ref.normals[at[str(link)]]) if str(link) in at else None for link in links]
 
 
 def _normal_error_deg(obj, p_surface: np.ndarray, n_in: np.ndarray) -> float:
@@ -273,7 +259,7 @@ def _check_states(plan, hand, obj, rep: AuditReport) -> list:
             if f not in hand.fingers and f != PALM:
                 rep.add(f"states[{i}].patches.{f}: not a finger of {hand.name} (nor {PALM})")
                 continue
-            ref = _modelled_reference(fk.get(f), model, getattr(patch, "links", None), len(pts)) if modelled else None
+            refs = _references(fk.get(f), model, patch) if modelled else [None] * len(pts)
             worst_d, worst_a = 0.0, 0.0
             # every patch's first point (the contact itself) and a spread of the ring points:
             # an edit moves a patch as a whole, and a mesh's surface query costs per triangle
@@ -284,17 +270,17 @@ def _check_states(plan, hand, obj, rep: AuditReport) -> list:
                 ps, _, _ = obj.closest_surface(p_obj)
                 d = float(np.linalg.norm(np.asarray(ps) - p_obj))
                 a = _normal_error_deg(obj, np.asarray(ps, float), n_in)
-                if ref is not None and ref[k] is not None:
-                    # a mean contact's normal is the mean of its patch's normals: where the patch
-                    # spans two faces (a box edge) it is no face's normal; its reference is the
-                    # mean of the hand's own patch (of that link) at the state's joints
-                    ref_pts, ref_n = ref[k]
+                tol_k = SURFACE_TOL_M
+                if refs[k] is not None:
+                    # a mean contact lies below a curved surface by construction, and its normal
+                    # is the mean of its patch's normals: where the patch spans two faces (a box
+                    # edge) it is no face's normal; its reference is the hand's own contact (of
+                    # that link) at the state's joints, under the same model
+                    ref_p, ref_n = refs[k]
                     a = min(a, _angle_deg(n_in, ref_n))
-                    tol = max(tol, SURFACE_TOL_M + _mean_sag(obj, (ref_pts,)))
-                    d_ok = d <= SURFACE_TOL_M + _mean_sag(obj, (ref_pts,))
-                else:
-                    d_ok = d <= SURFACE_TOL_M
-                if not d_ok:
+                    tol_k += abs(obj.closest_surface(ref_p)[2])
+                    tol = max(tol, tol_k)
+                if d > tol_k:
                     worst_d = max(worst_d, d)
                 worst_a = max(worst_a, a)
             if worst_d > 0:
