@@ -435,9 +435,8 @@ def min_grip_force(patches: Mapping[str, tuple], friction: Friction, load, *,
         start += len(b)
     if not start:
         return math.inf
-    sizes = spans
     k = len(W)
-    A_ub = np.zeros((len(sizes), k + 1))
+    A_ub = np.zeros((len(spans), k + 1))
     for i, (a, b) in enumerate(spans):
         A_ub[i, a:b] = 1.0
     A_ub[:, k] = -1.0
@@ -446,8 +445,8 @@ def min_grip_force(patches: Mapping[str, tuple], friction: Friction, load, *,
     # the program is homogeneous in the load: solve for the unit load and scale t back, so
     # HiGHS's absolute tolerances cannot decide feasibility for a tiny (or huge) load
     scale = float(np.abs(w_ext).max())
-    res = solve_highs(c, A_ub, np.zeros(len(sizes)), np.c_[W.T, np.zeros(6)], -w_ext / scale, [(0, None)] * (k + 1),
-                      "grip force LP", f" for {len(sizes)} finger(s) and load {np.round(w_ext, 6).tolist()}; "
+    res = solve_highs(c, A_ub, np.zeros(len(spans)), np.c_[W.T, np.zeros(6)], -w_ext / scale, [(0, None)] * (k + 1),
+                      "grip force LP", f" for {len(spans)} finger(s) and load {np.round(w_ext, 6).tolist()}; "
                                        "the grip force is unknown")
     return math.inf if res is None else float(res.x[k]) * scale
 

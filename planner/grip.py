@@ -190,19 +190,17 @@ def finger_statics(hand, finger: str, q, points_obj, T_palm_obj, effort=None, li
     pts_obj = np.asarray(points_obj, dtype=float).reshape(-1, 3)
     pts_palm = pts_obj @ R.T + T[:3, 3]
     state = hand.state(q)
-    point_links = links
-    links = [l for l in fg.contact_links if l in hand.collision.link_geometries] or [fg.tip_frame]
+    candidates = [l for l in fg.contact_links if l in hand.collision.link_geometries] or [fg.tip_frame]
     on = []
-    given = [None] * len(pts_palm) if point_links is None else list(point_links)
-    for pt, named in zip(pts_palm, given):
-        if named in links:
+    for pt, named in zip(pts_palm, [None] * len(pts_palm) if links is None else links):
+        if named in candidates:
             on.append(named)
             continue
-        if len(links) == 1:
-            on.append(links[0])
+        if len(candidates) == 1:
+            on.append(candidates[0])
             continue
-        dist = [state.point_distance(pt, hand.collision.link_geometries[l]) for l in links]
-        on.append(links[int(np.argmin(dist))])
+        dist = [state.point_distance(pt, hand.collision.link_geometries[l]) for l in candidates]
+        on.append(candidates[int(np.argmin(dist))])
     cols = list(fg.q_index)
     Js = state.point_jacobians(list(zip(on, pts_palm)), angular=True)
     jac = np.array([np.vstack([R.T @ J[:3, cols], R.T @ J[3:, cols]]) for J in Js]).reshape(-1, 6, len(cols))
@@ -314,9 +312,8 @@ def _binding(prog: GripProgram, lam: np.ndarray, force_cap_n: float | None, tau_
         best, best_ratio = Limit(prog.names[i][0], prog.names[i][1], float(abs(tau[i])), float(prog.tau_max[i])), float(ratio[i])
     capped = _capped(prog)
     if force_cap_n is not None and len(capped):
-        fn = prog.cap_rows[capped] @ lam
-        i = int(capped[int(np.argmax(fn))])
         fn = prog.cap_rows @ lam
+        i = int(capped[int(np.argmax(fn[capped]))])
         if fn[i] / force_cap_n > best_ratio:
             best, best_ratio = Limit(prog.fingers[i], None, float(fn[i]), float(force_cap_n)), float(fn[i] / force_cap_n)
     return best if best_ratio > 0.98 else None
