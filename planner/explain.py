@@ -57,25 +57,26 @@ def _reason_words(ev: Evaluator, finger: str, action: str, w: Node, reason: str)
     return reason
 
 
-def _palm_remedy(ev: Evaluator, finger: str, w: Node) -> str:
+def _palm_remedy(ev: Evaluator, finger: str, w: Node) -> tuple[str, bool]:
     """Whether palm support would let ``finger`` lift into state ``w`` (its contacts cannot
-    hold the object): "" when the palm holds already or the hand has no palm."""
+    hold the object): (the clause, True when it would); ("", False) when the palm holds
+    already or the hand has no palm."""
     p = ev.problem
     if p.support or p.palm_hint is None:
-        return ""
+        return "", False
     patch, gap = p.palm_hint
     patches = {**p.patches(w), PALM: patch}
     try:
         fc = grasp_closure(patches, p.friction).is_force_closure
         holds = fc and (not p.all_loads() or p.load_refusal(patches, p.statics(w)) is None)
     except PlannerError:
-        return ""
+        return "", False
     where = f"it is {gap * 1e3:.1f} mm from it" if gap > 0 else "it touches it"
     if holds:
         return (f"; resting the object on the palm would likely let {finger} lift ({where}; with the palm's contact "
                 f"added where the object is nearest it and the fingers' contacts kept, the rest holds: place the "
-                f"object against the palm and write palm: hold)")
-    return f"; palm support would not let it lift either ({where})"
+                f"object against the palm and write palm: hold)"), True
+    return f"; palm support would not let it lift either ({where})", False
 
 
 def _cannot_hold(reason: str) -> bool:
@@ -99,7 +100,8 @@ def failure_analysis(G: nx.DiGraph) -> dict:
     added to the state, where it is lifted, it made a valid grasp: the other fingers when a
     lift leaves a state that cannot hold the object (not force closure, or over the grip
     force budget), the finger in the way of a landing),
-    ``goal_reason`` (why the final grasp itself is invalid, or None).
+    ``goal_reason`` (why the final grasp itself is invalid, or None), ``palm_helps`` (fingers
+    that resting the object on the palm would let lift, `_palm_remedy`).
     """
     p: GaitProblem = G.graph["problem"]
     ev: Evaluator = G.graph["evaluator"]
@@ -113,6 +115,7 @@ def failure_analysis(G: nx.DiGraph) -> dict:
     lift_blocked, landing_blocked, score = {}, {}, {f: 0 for f in p.fingers}
     needs: list[tuple[str, Node]] = []
     unheld: list[str] = []
+    palm_helps: list[str] = []  # fingers that resting the object on the palm would let lift
 
     def need_holders(w: Node, lifted: str) -> None:
         """Lifting ``lifted`` left ``w`` unable to hold the object: another finger could help by a
@@ -137,8 +140,10 @@ def failure_analysis(G: nx.DiGraph) -> dict:
             tried = [m for m in moves if m[1] == i and m[2] == "lift"]
             if tried:  # the refused lift nearest the end of the best partial sequence
                 u, _, _, w = max(tried, key=lambda m: (on_partial.get(m[0], -1), -dist[m[0]]))
-                lift_blocked[f] = (u, _reason_words(ev, f, "lift", w, G.graph["blocked"][w])
-                                   + (_palm_remedy(ev, f, w) if _cannot_hold(G.graph["blocked"][w]) else ""))
+                remedy, helps = _palm_remedy(ev, f, w) if _cannot_hold(G.graph["blocked"][w]) else ("", False)
+                lift_blocked[f] = (u, _reason_words(ev, f, "lift", w, G.graph["blocked"][w]) + remedy)
+                if helps:
+                    palm_helps.append(f)
                 score[f] += 3
                 if _cannot_hold(G.graph["blocked"][w]):
                     need_holders(w, f)
@@ -169,8 +174,11 @@ def failure_analysis(G: nx.DiGraph) -> dict:
         action = "lift" if closest[i] != LIFTED else "land"
         w = closest[:i] + ((LIFTED,) if action == "lift" else (goal[i],)) + closest[i + 1:]
         if w in G.graph["blocked"]:
-            stuck.append((f, action, _reason_words(ev, f, action, w, G.graph["blocked"][w])
-                          + (_palm_remedy(ev, f, w) if action == "lift" and _cannot_hold(G.graph["blocked"][w]) else "")))
+            remedy, helps = (_palm_remedy(ev, f, w) if action == "lift" and _cannot_hold(G.graph["blocked"][w])
+                             else ("", False))
+            stuck.append((f, action, _reason_words(ev, f, action, w, G.graph["blocked"][w]) + remedy))
+            if helps:
+                palm_helps.append(f)
             if _cannot_hold(G.graph["blocked"][w]) and action == "lift":
                 need_holders(w, f)
             need_room(f, w)
@@ -185,7 +193,7 @@ def failure_analysis(G: nx.DiGraph) -> dict:
     return {"closest": closest, "partial": partial, "lift_blocked": lift_blocked, "unheld": unheld,
             "landing_blocked": landing_blocked,
             "stuck": stuck, "needs": list(dict.fromkeys(needs)),
-            "blockers": blockers, "goal_reason": goal_reason, "distance": dist[closest]}
+            "blockers": blockers, "goal_reason": goal_reason, "distance": dist[closest], "palm_helps": palm_helps}
 
 
 def _names(fingers: list[str]) -> str:
@@ -197,7 +205,7 @@ def _next_move(a: dict) -> str:
     """What the user can do next, from the analysis: palm support, more fingers lifted at once,
     room for a landing, or new contacts for the finger that most blocks progress."""
     whys = [why for _, why in a["lift_blocked"].values()] + [why for _, _, why in a["stuck"]]
-    if any("resting the object on the palm would" in why for why in whys):
+    if a["palm_helps"]:
         return "to go on: rest the object on the palm (palm: hold), which lets a blocked finger lift"
     for f, why in a["landing_blocked"].items():
         m = re.match(r"it would collide with (\w+)", next(iter(why)))
