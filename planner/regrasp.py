@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import logging
 import math
-import re
 import time
 from dataclasses import asdict, dataclass, replace
 from typing import Any, Mapping
@@ -157,13 +156,12 @@ def _rejected_words(rejected) -> str:
     return "; ".join(f"{' '.join(x['order'])}: {x['direction']} at step {x['step']}: {x['verdict']}" for x in rejected)
 
 
-def _rejected_summary(rejected, planned: list[str]) -> str:
-    """The rejected sequences merged by where they failed ("5 at lift thumb in side_-x, ..."),
-    and what the user can act on: the directions that failed, when others held."""
+def _rejected_summary(rejected, moves: list[str], planned: list[str]) -> str:
+    """The rejected sequences merged by where they failed ("5 at lift thumb in side_-x, ...";
+    ``moves``: the plan step each failed at, "lift thumb"), and what the user can act on: the
+    directions that failed, when others held."""
     where: dict[tuple[str, str], int] = {}
-    for x in rejected:
-        m = re.search(r"step \d+ \((\w+ [^,)]+)", x["verdict"])
-        move = m.group(1) if m else f"step {x['step']}"
+    for x, move in zip(rejected, moves):
         where[(move, x["direction"])] = where.get((move, x["direction"]), 0) + 1
     parts = [f"{n} at {move} in {d}" for (move, d), n in sorted(where.items(), key=lambda kv: (-kv[1], kv[0]))]
     failed = sorted({x["direction"] for x in rejected})
@@ -381,6 +379,7 @@ def plan_regrasp(
     directions = gravity_directions_of(options, hand)
     verifying = options.verify and bool(directions) and options.strategy == "graph"
     verified, rejected, verify_s, workers, plan = None, [], 0.0, None, None
+    rejected_moves: list[str] = []  # the plan step each rejected sequence failed at, in words
     if verifying:
         from planner.sim.verify import default_workers, verify_suspects_first  # pybullet: only when verifying
 
@@ -459,6 +458,7 @@ def plan_regrasp(
             name, step, verdict, at_state = check.first_failure()
             seq = candidates[0]
             rejected.append({"order": list(seq.order(problem)), "direction": name, "step": step, "verdict": verdict})
+            rejected_moves.append(f"{plan.steps[step].action} {plan.steps[step].finger}" if step >= 0 else "state 0")
             if verbose:
                 print(f"verify: sequence {_rejected_words(rejected[-1:])}")
             if step < 0:
@@ -467,7 +467,7 @@ def plan_regrasp(
             if len(rejected) >= options.verify_attempts:
                 raise NoSequenceError(
                     f"no sequence held in the simulator in {len(rejected)} attempt(s) (--verify-attempts; "
-                    f"{verify_s:.1f} s of replays): {_rejected_summary(rejected, [n for n, _ in directions])}; "
+                    f"{verify_s:.1f} s of replays): {_rejected_summary(rejected, rejected_moves, [n for n, _ in directions])}; "
                     f"the first: {_rejected_words(rejected[:1])}; --no-verify returns the best sequence unverified")
             # the re-search is bounded by the graph, not by the clock the replays spent: a
             # deadline passed during them would stop it where the last search stood (and make
