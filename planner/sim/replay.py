@@ -281,14 +281,13 @@ def replay_plan(
     for r in disagree:
         plan_fc = "force closure" if r.planned_force_closure else "not force closure"
         sim_fc = "force closure" if r.sim_force_closure else "not force closure"
-        missing = sorted(set(r.planned_fingers) - {PALM} - set(r.sim_fingers))
+        missing = r.not_touching
         reasons.append(f"state {r.index}: plan {plan_fc}, simulator {sim_fc} (touching: "
                        f"{', '.join(r.sim_fingers) or 'nothing'}" + (f"; lost: {', '.join(missing)}" if missing else "") + ")")
     for r in other:
         if r in disagree:
             continue
-        extra = sorted(set(r.carriers) - set(r.planned_fingers))
-        idle = sorted(set(r.planned_fingers) - {PALM} - set(r.sim_fingers))
+        extra, idle = r.unplanned_carriers, r.not_touching
         words = ([f"carried by {', '.join(extra)} too"] if extra else []) + ([f"{', '.join(idle)} not touching"] if idle else [])
         reasons.append(f"state {r.index}: the plan holds with {', '.join(r.planned_fingers)}; in the simulator "
                        + "; ".join(words) + f" (forces: {', '.join(f'{f} {v:.2f} N' for f, v in sorted(r.carried_n.items()))})")

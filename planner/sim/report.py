@@ -65,13 +65,24 @@ class StateReport:
     contact_offset_mm: Mapping[str, float] = field(default_factory=dict)
 
     @property
+    def not_touching(self) -> tuple[str, ...]:
+        """Planned fingers the simulator has off the object (a planned palm may be: it only
+        pushes), sorted."""
+        return tuple(sorted(set(self.planned_fingers) - {PALM} - set(self.sim_fingers)))
+
+    @property
+    def unplanned_carriers(self) -> tuple[str, ...]:
+        """Carriers the plan does not hold with (the palm when the plan does not count it, a
+        lifted finger), sorted."""
+        return tuple(sorted(set(self.carriers) - set(self.planned_fingers)))
+
+    @property
     def holds_as_planned(self) -> bool:
         """The object is held by the plan's contacts: nothing else carries it (not the palm
         unless the plan has it hold, not a finger the plan has lifted) and every planned
         finger touches it (a planned palm need not: it only pushes, and under a gravity that
         pulls the object off it the fingers hold alone, as the grip model has it)."""
-        planned = set(self.planned_fingers)
-        return self.reached and set(self.carriers) <= planned and planned - {PALM} <= set(self.sim_fingers)
+        return self.reached and not self.unplanned_carriers and not self.not_touching
 
 
 @dataclass(frozen=True)
