@@ -81,9 +81,11 @@ def _pool_postures(hand, obj, finger: str) -> tuple[np.ndarray, np.ndarray]:
     n_link = np.asarray(f.pad_n_link, float)
     q = np.array(hand.q_open, dtype=float)
     pads = np.empty((len(postures), 4, 4))
-    for k, qf in enumerate(postures):  # forward kinematics of every posture
+    kin = hand.kinematics(q)  # one pinocchio.Data, moved to every posture (FK only)
+    pad = kin.kinematic_model.frame_id(f.pad_link)
+    for k, qf in enumerate(postures):
         q[idx] = qf
-        pads[k] = hand.state(q).link_pose(f.pad_link)
+        pads[k] = kin.update(q).frame_pose(pad)
     p_obj = (pads[:, :3, :] @ p_link - T[:3, 3]) @ T[:3, :3]
     n_obj = (pads[:, :3, :3] @ n_link) @ T[:3, :3]
     # distance to the surface from a dense sample of it (the nearest sample's tangent
