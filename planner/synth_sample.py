@@ -78,10 +78,12 @@ def _sweep(hand, finger, q, alphas, radius: float = 0.0) -> tuple[np.ndarray, np
     p_link = np.asarray(finger.pad_p_link, dtype=float)
     n_link = np.asarray(finger.pad_n_link if finger.pad_n_link is not None else (0.0, 0.0, 0.0), dtype=float)
     pts, nrm = [], []
+    kin = hand.kinematics(q)  # one pinocchio.Data, moved along the closing motion (FK only)
+    pad = kin.kinematic_model.frame_id(finger.pad_link)
     for a in alphas:
         qa = q.copy()
         qa[cidx] = start + a * (hand.upper[cidx] - start)
-        T = hand.state(qa).link_pose(finger.pad_link)
+        T = kin.update(qa).frame_pose(pad)
         n = T[:3, :3] @ n_link
         pts.append(T[:3, :3] @ p_link + T[:3, 3] + radius * n)
         nrm.append(n)
