@@ -111,22 +111,6 @@ def cmd_plan(args: argparse.Namespace) -> int:
     return 0
 
 
-def _hold_under(grasp, name: str, g) -> list:
-    """`RealizedGrasp.hold` under one gravity (``--gravity``) instead of execution mode's six:
-    the same contact model (``hold``'s default, the one the report names), the joints' torque
-    limits, its share of the friction; [] when not force closure under that model."""
-    import inspect
-
-    from planner.closure import apply_contact_model  # deferred: scipy
-    from planner.grip import grasp_hold  # deferred: scipy
-
-    model = inspect.signature(type(grasp).hold).parameters["contact_model"].default
-    if not grasp.patches or not grasp.closure_under(model).is_force_closure:
-        return []
-    return grasp_hold(grasp.hand, grasp.q, apply_contact_model(grasp.patches, model), grasp.obj.T_palm_obj,
-                      grasp.obj.mass_kg, grasp.friction, [(name, g)])
-
-
 def cmd_check(args: argparse.Namespace) -> int:
     """Realize one grasp, print the report (text or JSON), draw it (``--png``); exit 0 force
     closure and as written (no `RealizedGrasp.problems`), 1 not, 2 bad input. With
@@ -142,7 +126,7 @@ def cmd_check(args: argparse.Namespace) -> int:
 
         name = args.gravity if isinstance(args.gravity, str) else "gravity"
         g = named_gravity(name, grasp.hand) if isinstance(args.gravity, str) else tuple(float(v) for v in args.gravity)
-        hold = _hold_under(grasp, name, g)
+        hold = grasp.hold(directions=[(name, g)])
         gline, gdata = _gravity_line(name, g, grasp.hand.name), {"name": name, "vector": list(g)}
     if args.png:
         from planner.sim.render import render_png  # deferred: pybullet, only with --png

@@ -136,16 +136,16 @@ class RealizedGrasp:
         c = self.closure_under(contact_model)
         return {"force_closure": bool(c.is_force_closure), "metric": float(c.metric)}
 
-    def hold(self, contact_model: str = "link") -> list:
+    def hold(self, contact_model: str = "link", directions=None) -> list:
         """How the grasp holds its object in the six hand orientations of execution mode
-        (`planner.gravity`, gravity set 6): `planner.grip.DirectionHold` per direction (the
-        joints' torque limits, 3/4 of the friction, under ``contact_model``); [] when not
-        force closure under it."""
+        (`planner.gravity`, gravity set 6), or in ``directions`` ([(name, (3,) gravity, palm
+        frame)]): `planner.grip.DirectionHold` per direction (the joints' torque limits, 3/4
+        of the friction, under ``contact_model``); [] when not force closure under it."""
         if not self.patches or not self.closure_under(contact_model).is_force_closure:
             return []
         patches = apply_contact_model(self.patches, contact_model)
         return grasp_hold(self.hand, self.q, patches, self.obj.T_palm_obj, self.obj.mass_kg, self.friction,
-                          gravity_directions(self.hand.palm_normal, 6))
+                          gravity_directions(self.hand.palm_normal, 6) if directions is None else directions)
 
     def palm_summary(self) -> dict:
         """Whether the palm touches and holds: the file's ``palm:`` mode, the palm links within
