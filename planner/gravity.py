@@ -81,20 +81,18 @@ def gravity_name_error(what: str = "--gravity") -> str:
     return f"{what}: expected 3 numbers GX GY GZ or one of {', '.join(GRAVITY_NAMES)}"
 
 
-def _palm_centre(hand) -> np.ndarray:
+def _palm_centre(state) -> np.ndarray:
     """The palm's centre in the palm frame: the mean of the bounding-sphere centres of the
-    hand's finger-less collision shapes (the palm's links), else the palm frame's origin."""
-    km = hand.collision.kinematic_model
-    kin = hand.kinematics(hand.q_open)
-    centres = [km.T_palm_world.act(kin.joint_placement(g.joint_id).act(np.asarray(g.center, dtype=float)))
-               for g in hand.collision.geometries if g.finger is None]
+    hand's finger-less collision shapes (the palm's links; `HandState.center`), else the palm
+    frame's origin."""
+    centres = [state.center(i) for i in state.model.finger_geometries(None)]
     return np.mean(centres, axis=0) if centres else np.zeros(3)
 
 
-def _finger_base(hand, finger) -> np.ndarray:
-    """Palm-frame position of a finger's first joint at the open posture."""
-    km = hand.collision.kinematic_model
-    M = hand.kinematics(hand.q_open).joint_placement(hand.model.getJointId(finger.joints[0]))
+def _finger_base(state, finger) -> np.ndarray:
+    """Palm-frame position of a finger's first joint in ``state`` (a `HandState`)."""
+    km = state.model.kinematic_model
+    M = state.kinematics.joint_placement(km.model.getJointId(finger.joints[0]))
     return np.asarray(km.T_palm_world.act(M.translation), dtype=float)
 
 
@@ -112,7 +110,8 @@ def hand_axes(hand) -> dict[str, np.ndarray | None]:
     """
     nrm = np.asarray(hand.palm_normal, dtype=float).reshape(3)
     nrm = nrm / np.linalg.norm(nrm)
-    centre = _palm_centre(hand)
+    state = hand.state(hand.q_open)  # one kinematic state for the palm centre and every finger base
+    centre = _palm_centre(state)
 
     def planar(v, *against):
         v = np.asarray(v, dtype=float) - centre
@@ -122,10 +121,10 @@ def hand_axes(hand) -> dict[str, np.ndarray | None]:
         return v / length if length >= _MIN_OFFSET_M else None
 
     others = [f for name, f in hand.fingers.items() if name != "thumb"]
-    fingers = planar(np.mean([_finger_base(hand, f) for f in others], axis=0)) if others else None
+    fingers = planar(np.mean([_finger_base(state, f) for f in others], axis=0)) if others else None
     thumb = None
     if "thumb" in hand.fingers:
-        base = _finger_base(hand, hand.fingers["thumb"])
+        base = _finger_base(state, hand.fingers["thumb"])
         thumb = planar(base, fingers) if fingers is not None else planar(base)
     return {"fingers": fingers, "thumb": thumb}
 
