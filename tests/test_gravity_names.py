@@ -91,7 +91,7 @@ def test_thumb_and_finger_names_come_from_the_hand(hand):
     assert thumb_up @ (thumb - knuckles) < 0  # the thumb sits on the upper side: gravity away from it
     from planner.gravity import _palm_centre
 
-    to_knuckles = knuckles - _palm_centre(hand)
+    to_knuckles = knuckles - _palm_centre(hand.state(hand.q_open))
     to_knuckles -= n * (to_knuckles @ n)
     assert fingers_up @ to_knuckles < 0 < np.asarray(named_gravity("fingers_down", hand)) @ to_knuckles
     expected = {"icub_right": ((0, 1, 0), (-1, 0, 0)), "allegro_right": ((0, -1, 0), (0, 0, -1))}[hand.name]
@@ -103,7 +103,7 @@ def test_thumb_up_points_against_the_thumb_base_in_the_palm_plane(hand):
     from planner.gravity import _palm_centre
 
     n = np.asarray(hand.palm_normal, dtype=float)
-    d = _base(hand, "thumb") - _palm_centre(hand)
+    d = _base(hand, "thumb") - _palm_centre(hand.state(hand.q_open))
     d -= n * (d @ n)
     assert np.asarray(named_gravity("thumb_up", hand)) @ d < 0
     assert np.asarray(named_gravity("thumb_down", hand)) @ d > 0
