@@ -35,19 +35,25 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from planner.closure import apply_contact_model, grasp_closure
+from planner.closure import GRIP_CONE_SIDES, apply_contact_model, grasp_closure, min_grip_force
 from planner.contacts import contact_patches
 from planner.errors import AuditError, PlannerError
 from planner.grasp import load_grasp
 from planner.hand import Hand
 from planner.plan import read_plan, recorded_input
-from planner.model import PALM
+from planner.grip import finger_statics, grip_program, hold_capacity
+from planner.model import PALM, Friction
 from planner.plan_data import Plan, plan_hand_ref
 from planner.realization import PENETRATION_TOL_M as _GRASP_PENETRATION_TOL_M
 from planner.realization import realize
 
 #: A patch point farther than this from the object's surface is not on it, m.
 SURFACE_TOL_M = 1e-3
+#: Recorded numbers (metrics, grip forces, hold factors) and their recomputation agree within
+#: this (relative; the plan's text keeps 10 significant digits) ...
+CLAIM_RTOL = 1e-6
+#: ... or this (absolute: metrics near 0, forces in N, factors).
+CLAIM_ATOL = 1e-9
 #: A patch normal farther than this from the surface's inward normal there, deg.
 NORMAL_TOL_DEG = 20.0
 #: Points of a patch whose surface and normal are checked (the first and an even spread).
@@ -383,6 +389,133 @@ def _check_steps(plan, hand, obj, poses, rep: AuditReport) -> None:
                     f"{overlap[0] * 1000:.1f} mm")
 
 
+def _close(a, b) -> bool:
+    """Two recorded numbers agree (plans round floats to `planner.plan_data.FLOAT_DIGITS`
+    digits; the linear programs agree far better than ``CLAIM_RTOL``)."""
+    if a is None or b is None:
+        return a is None and b is None
+    a, b = float(a), float(b)
+    if math.isinf(a) or math.isinf(b):
+        return a == b
+    return abs(a - b) <= CLAIM_ATOL + CLAIM_RTOL * max(abs(a), abs(b))
+
+
+def _directions(plan, hand, rep: AuditReport) -> list[tuple[str, np.ndarray]]:
+    """(name, gravity in the object frame) of every direction the plan was made for."""
+    rows = (plan.parameters or {}).get("gravity_directions") or []
+    out = []
+    R = np.asarray(plan.object.T_palm_obj, dtype=float)[:3, :3]
+    for k, row in enumerate(rows):
+        try:
+            name, g = str(row["name"]), np.asarray(row["gravity"], dtype=float).reshape(3)
+        except (KeyError, TypeError, ValueError):
+            rep.add(f"parameters.gravity_directions[{k}]: not a name and a 3-vector")
+            continue
+        if not np.all(np.isfinite(g)):
+            rep.add(f"parameters.gravity_directions[{k}]: the gravity is not finite")
+            continue
+        out.append((name, R.T @ g))
+    return out
+
+
+def _check_claims(plan, hand, poses, rep: AuditReport) -> None:
+    """What the plan says of its states and of itself, recomputed from its contacts and the
+    hand: every state's force closure and metric, its grip forces and hold factors (per
+    planned gravity direction), the summary's bottleneck and mean metric and largest grip
+    force, and the shape of a recorded verification. A file cannot claim a number the
+    planner's own models do not give."""
+    params = plan.parameters or {}
+    friction = plan.friction
+    margin = float(params.get("friction_margin", 1.0) or 1.0)
+    grip_friction = friction if margin == 1 else Friction(friction.mu * margin, friction.gamma * margin, friction.edges)
+    sides = int(params.get("grip_cone_sides") or GRIP_CONE_SIDES)
+    cap = params.get("max_finger_force_n")
+    directions = _directions(plan, hand, rep)
+    mass = float(plan.object.mass_kg)
+    metrics: list[float] = []
+    grips: list[float] = []
+    previous = None
+    for i, st in enumerate(plan.states):
+        rep.count("claims")
+        try:
+            c = grasp_closure(st.patches, friction)
+        except PlannerError as e:
+            rep.add(f"states[{i}]: its contacts cannot be evaluated: {e}")
+            continue
+        if bool(c.is_force_closure) != bool(st.is_force_closure):
+            rep.add(f"states[{i}].closure.is_force_closure: the file says {bool(st.is_force_closure)}, its contacts "
+                    f"give {bool(c.is_force_closure)}")
+        if not _close(c.metric, st.metric):
+            rep.add(f"states[{i}].closure.metric: the file says {st.metric:.6g}, its contacts give {c.metric:.6g}")
+        key = tuple((f, np.asarray(p[0]).round(9).tobytes()) for f, p in sorted(st.patches.items()))
+        if key != previous:  # a lift and the move after it end in the same graph state
+            metrics.append(float(c.metric))
+        previous = key
+        if not directions:
+            if st.grip_force_n is not None or st.hold_factor_by_gravity:
+                rep.add(f"states[{i}]: grip forces or hold factors recorded for a plan made without gravity")
+            continue
+        forces = {n: min_grip_force(st.patches, grip_friction, np.r_[mass * g, np.zeros(3)], cone_sides=sides)
+                  for n, g in directions}
+        recorded = dict(st.grip_force_by_gravity_n or {})
+        if set(recorded) != set(forces):
+            rep.add(f"states[{i}].grip_force_by_gravity_n: directions {sorted(recorded)}, the plan's parameters "
+                    f"{sorted(forces)}")
+        for n, f in forces.items():
+            if n in recorded and not _close(recorded[n], f):
+                rep.add(f"states[{i}].grip_force_by_gravity_n.{n}: the file says {recorded[n]:.6g} N, its contacts "
+                        f"give {f:.6g} N")
+        if not _close(st.grip_force_n, max(forces.values())):
+            rep.add(f"states[{i}].grip_force_n: the file says {st.grip_force_n}, its contacts give "
+                    f"{max(forces.values()):.6g} N")
+        grips.append(max(forces.values()))
+        if st.hold_factor_by_gravity is not None:
+            q = np.asarray(poses[i].q, dtype=float) if i < len(poses) else None
+            statics = {f: finger_statics(hand, f, q, p[0], plan.object.T_palm_obj, links=getattr(p, "links", None))
+                       for f, p in st.patches.items() if f in hand.fingers}
+            program = grip_program(st.patches, statics, friction, margin=margin, cone_sides=sides)
+            held = dict(st.hold_factor_by_gravity)
+            for n, g in directions:
+                mine = hold_capacity(st.patches, statics, friction, np.r_[mass * g, np.zeros(3)], g,
+                                     force_cap_n=cap, program=program, witness=False).factor
+                if n not in held:
+                    rep.add(f"states[{i}].hold_factor_by_gravity: no factor for the planned direction {n}")
+                elif not _close(held[n], mine):
+                    rep.add(f"states[{i}].hold_factor_by_gravity.{n}: the file says {held[n]:.6g}x, the hand's "
+                            f"joints hold {mine:.6g}x its weight")
+    s = plan.summary or {}
+    if metrics and "bottleneck_metric" in s and not _close(s["bottleneck_metric"], min(metrics)):
+        rep.add(f"summary.bottleneck_metric: the file says {s['bottleneck_metric']}, its states give {min(metrics):.6g}")
+    if metrics and "mean_metric" in s and not _close(s["mean_metric"], float(np.mean(metrics))):
+        rep.add(f"summary.mean_metric: the file says {s['mean_metric']}, its states give {float(np.mean(metrics)):.6g}")
+    if "bottleneck_grip_force_n" in s and not _close(s["bottleneck_grip_force_n"], max(grips) if grips else None):
+        rep.add(f"summary.bottleneck_grip_force_n: the file says {s['bottleneck_grip_force_n']}, its states give "
+                f"{max(grips) if grips else None}")
+    _check_verification(plan, [n for n, _ in directions], rep)
+
+
+def _check_verification(plan, planned: list[str], rep: AuditReport) -> None:
+    """A recorded verification is a claim the audit cannot re-run (``regrasp replay
+    --gravity-set`` does): it must at least be one the planner could have written: asked for
+    by the parameters, over the planned directions, every one held."""
+    record = (plan.summary or {}).get("verification")
+    if record is None:
+        return
+    rep.count("claims")
+    if not (plan.parameters or {}).get("verify"):
+        rep.add("summary.verification: recorded, but the plan's parameters say it was made without verification")
+        return
+    directions = record.get("directions") if isinstance(record, dict) else None
+    if not isinstance(directions, dict):
+        rep.add("summary.verification.directions: missing or not a mapping of direction -> verdict")
+        return
+    if sorted(directions) != sorted(planned):
+        rep.add(f"summary.verification.directions: {sorted(directions)}, the plan was made for {sorted(planned)}")
+    failed = [n for n, v in directions.items() if not (isinstance(v, dict) and v.get("passed") is True)]
+    if failed:
+        rep.add(f"summary.verification: {', '.join(map(str, failed))} not held, yet the plan was returned")
+
+
 def _check_chain(plan, hand, rep: AuditReport, grasps: dict) -> None:
     """The plan starts at the initial grasp and ends at the final one."""
     if not plan.states:
@@ -439,6 +572,7 @@ def audit_plan(plan, hand=None, paths: bool = True) -> AuditReport:
     poses = _check_states(plan, hand, obj, rep)
     if paths:
         _check_steps(plan, hand, obj, poses, rep)
+    _check_claims(plan, hand, poses, rep)
     _check_chain(plan, hand, rep, grasps)
     return rep
 
@@ -448,11 +582,10 @@ def require_sound(plan, hand=None) -> AuditReport:
     many there are) when the plan fails a check; ``replay`` and ``view`` call it first."""
     if not isinstance(plan, Plan):
         plan = read_plan(plan)
-    # a plan made without motion planning (plan --no-motion) has straight joint-space
-    # segments for paths: they may cut through the object by construction; the replay shows
-    # what they do, and `regrasp verify` still lists them
-    straight = (plan.parameters or {}).get("motion") is False
-    rep = audit_plan(plan, hand, paths=not straight)
+    # every path is checked whatever the file's parameters say (a plan made with --no-motion
+    # has straight joint-space segments: they are refused like any path if they cut the
+    # object or a finger)
+    rep = audit_plan(plan, hand)
     if not rep.ok:
         more = f" (and {rep.total - 1} more: regrasp verify lists them)" if rep.total > 1 else ""
         raise AuditError(rep.source, "", f"the plan fails a physics check: {rep.problems[0]}{more}")

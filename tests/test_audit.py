@@ -173,7 +173,8 @@ def test_resealed_wrong_plans_are_refused_by_verify_and_replay(plans, tmp_path, 
     assert needle in text, text
     if code == 1:  # the physics checks ran: one FAIL line per problem, each naming its place
         fails = [line for line in out.out.splitlines() if line.startswith("FAIL ")]
-        assert fails and all(("states[" in f or "steps[" in f or "object." in f or "friction." in f) for f in fails)
+        assert fails and all(("states[" in f or "steps[" in f or "object." in f or "friction." in f or "summary." in f)
+                             for f in fails)
     # replay refuses it before simulating anything, in one line
     assert main(["replay", str(bad)]) == 2
     err = [line for line in capsys.readouterr().err.strip().splitlines() if "warning: " not in line]
@@ -227,10 +228,10 @@ def test_a_path_into_the_neighbouring_finger_is_refused(plans):
     assert any("overlap" in p and "little" in p for p in mine), rep.problems
 
 
-def test_a_no_motion_plan_replays_with_its_straight_paths_and_verify_still_checks_them(plans, tmp_path, capsys):
-    """plan --no-motion writes straight joint segments that may cut the object by
-    construction: replay and view do not refuse the plan for them (the replay shows what they
-    do); verify still lists them."""
+def test_a_no_motion_plan_is_checked_like_any_plan(plans, tmp_path, capsys):
+    """A file's parameters do not switch a check off: a plan whose parameters say it was made
+    without motion planning has its straight segments checked like any path, by verify, replay
+    and view alike."""
     data = _data(plans)
     data["parameters"]["motion"] = False
     _edit_land_through(data)
@@ -238,8 +239,73 @@ def test_a_no_motion_plan_replays_with_its_straight_paths_and_verify_still_check
     _reseal(data, bad)
     assert main(["verify", str(bad)]) == 1
     assert "into the object" in capsys.readouterr().out
-    assert main(["replay", str(bad)]) in (0, 1)  # simulated, not refused
-    assert "physics check" not in capsys.readouterr().err
+    assert main(["replay", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert "physics check" in err and "into the object" in err, err
+    page = tmp_path / "page.html"
+    assert main(["view", str(bad), "-o", str(page)]) == 2
+    assert not page.exists()
+
+
+def _claim_bottleneck(d):
+    d["summary"]["bottleneck_metric"] = 99.0
+
+
+def _claim_mean(d):
+    d["summary"]["mean_metric"] *= 1.5
+
+
+def _claim_grip(d):  # no force needed, a hundred times the weight held
+    for s in d["states"]:
+        s["grip_force_n"] = 0.0
+        s["grip_force_by_gravity_n"] = {k: 0.0 for k in s["grip_force_by_gravity_n"]}
+        s["hold_factor_by_gravity"] = {k: 100.0 for k in s["hold_factor_by_gravity"]}
+    d["summary"]["bottleneck_grip_force_n"] = 0.0
+
+
+def _claim_hold(d):
+    s = d["states"][len(d["states"]) // 2]
+    s["hold_factor_by_gravity"] = {k: v * 3 for k, v in s["hold_factor_by_gravity"].items()}
+
+
+def _claim_verified(d):  # a verification that never ran
+    names = [g["name"] for g in d["parameters"]["gravity_directions"]]
+    d["summary"]["verification"] = {"passed": True, "attempts": 1, "rejected": [],
+                                    "directions": {n: {"passed": True, "max_drift_mm": 0.1, "max_drift_deg": 0.1}
+                                                   for n in names}}
+
+
+def _claim_verified_wrong_directions(d):
+    _claim_verified(d)
+    d["parameters"]["verify"] = True
+    d["summary"]["verification"]["directions"].popitem()
+
+
+CLAIMS = {
+    "bottleneck metric 99": (_claim_bottleneck, "summary.bottleneck_metric"),
+    "mean metric x1.5": (_claim_mean, "summary.mean_metric"),
+    "grip forces 0, hold factors 100": (_claim_grip, "grip_force"),
+    "hold factors x3 at one state": (_claim_hold, "hold_factor_by_gravity"),
+    "verification that never ran": (_claim_verified, "summary.verification"),
+    "verification over other directions": (_claim_verified_wrong_directions, "summary.verification.directions"),
+}
+
+
+@pytest.mark.parametrize("edit", sorted(CLAIMS))
+def test_recorded_claims_are_recomputed_not_trusted(plans, tmp_path, capsys, edit):
+    """Numbers a plan claims (metrics, grip forces, hold factors, a verification) are re-derived
+    from its contacts and the hand by verify, and replay refuses a plan whose claims are wrong."""
+    fn, needle = CLAIMS[edit]
+    data = _data(plans, "allegro sphere execution")
+    fn(data)
+    bad = tmp_path / "plan.json"
+    _reseal(data, bad, closures=False)
+    assert main(["verify", str(bad)]) == 1
+    out = capsys.readouterr().out
+    assert any(line.startswith("FAIL " + needle) or (line.startswith("FAIL ") and needle in line)
+               for line in out.splitlines()), out
+    assert main(["replay", str(bad)]) == 2
+    assert "physics check" in capsys.readouterr().err
 
 
 def test_a_mean_contact_below_a_curved_surface_is_the_model_not_an_error(tmp_path):
