@@ -45,6 +45,7 @@ from planner.kinematics import Kinematics, checked_q
 from planner.model import PALM
 from planner.resources import HAND_SPEC, bundled_hands, hand_dir, robots_dir
 from planner.signed_distance import convex_hull
+from planner.urdf_check import MAX_MESH_TRIANGLES, MAX_NAME_CHARS, check_urdf, library_message, name_shown, too_many_triangles
 
 ROBOTS_DIR = robots_dir()  # the bundled hands (planner.resources), wherever the package is installed
 SCHEMA_VERSION = 1
@@ -98,44 +99,30 @@ class Finger:
     pad_n_link: tuple[float, float, float] | None = None
 
 
-#: URDF collision shape -> (coal attribute, URDF attribute, factor from coal's value to the URDF's).
-_URDF_SIZES = {
-    "Sphere": (("radius", "radius", 1.0),),
-    "Cylinder": (("radius", "radius", 1.0), ("halfLength", "length", 2.0)),
-    "Cone": (("radius", "radius", 1.0), ("halfLength", "length", 2.0)),
-    "Capsule": (("radius", "radius", 1.0), ("halfLength", "length", 2.0)),
-    "Box": (("halfSide", "size", 2.0),),
-}
-
-
-def _check_urdf_sizes(spec_path: str, urdf_path: str, link: str, go) -> None:
-    """A collision shape's radius, length, size (and a mesh's scale) must be finite and > 0:
-    pinocchio and coal take a negative or zero one and answer nonsense distances."""
-    kind = type(go.geometry).__name__
-    sizes = [(getattr(go.geometry, a), u, f) for a, u, f in _URDF_SIZES.get(kind, ())]
-    if kind not in _URDF_SIZES:
-        kind, sizes = "mesh", [(go.meshScale, "scale", 1.0)]
-    for value, attr, factor in sizes:
-        v = np.atleast_1d(np.asarray(value, dtype=float)) * factor
-        if not np.all(np.isfinite(v) & (v > 0)):
-            shown = " ".join(f"{x:g}" for x in v)
-            raise SpecError(spec_path, "urdf", f"{urdf_path}: link {link!r}: collision {kind.lower()} {attr} must be "
-                                               f"> 0, got {shown}")
-
-
-def _link_shape(spec_path: str, link: str, shape):
+def _link_shape(spec_path: str, urdf_path: str, link: str, go):
     """A link's collision shape as the planner uses it: a mesh (STL/OBJ/DAE, a coal BVH) is
     replaced by its convex hull, as pybullet does for the mesh of a moving link. coal then
     measures signed distances (penetration depth, by GJK/EPA) and accepts the negative
     security margins of the collision checks, which it refuses for a BVH ("Negative
-    security margin are not handled yet for BVHModel")."""
+    security margin are not handled yet for BVHModel").
+
+    `planner.urdf_check` counted the triangles of the mesh formats it reads; a mesh of
+    another format is counted here, before its hull is taken."""
+    shape = go.geometry
     if not isinstance(shape, coal.BVHModelBase):
         return shape
+    label = f"{urdf_path}: link {name_shown(link)}: collision mesh {name_shown(Path(go.meshPath).name)}"
+    if shape.num_tris > MAX_MESH_TRIANGLES:
+        raise SpecError(spec_path, "urdf", too_many_triangles(label, shape.num_tris, MAX_MESH_TRIANGLES))
     V = np.asarray(shape.vertices(), dtype=float) if shape.num_vertices else np.zeros((0, 3))
     if len(V) < 4 or np.linalg.matrix_rank(V - V.mean(axis=0), tol=1e-9) < 3:
-        raise SpecError(spec_path, "urdf", f"link {link!r}: its collision mesh is flat or empty ({len(V)} vertices): "
+        raise SpecError(spec_path, "urdf", f"{label} is flat or empty ({len(V)} vertices): "
                                            "give it a solid mesh or a primitive shape")
-    return convex_hull(V)
+    try:
+        return convex_hull(V)
+    except RuntimeError as err:  # coal: a hull vertex with more than 255 neighbours ("Too many neighbors")
+        raise SpecError(spec_path, "urdf", f"{label}: coal cannot take its convex hull ({library_message(err)}): "
+                                           "simplify the mesh") from None
 
 
 def _merge_capsules(entries):
@@ -210,15 +197,22 @@ class Hand:
         r.require("schema_version", "urdf", "palm_frame", "fingers", message="missing required key")
         if spec["schema_version"] != SCHEMA_VERSION:
             raise r.fail(f"unsupported version {spec['schema_version']!r}; supported: {SCHEMA_VERSION}", "schema_version")
-        self.name = str(spec.get("name", self.spec_path.parent.name))
+        self.name = r.child("name").name(MAX_NAME_CHARS) if "name" in spec else self.spec_path.parent.name
         self.package_dirs = [str((self.spec_path.parent / d).resolve())
                              for d in r.child("package_dirs", []).strings()]
         self.package_dirs += [d for d in _share_dirs() if d not in self.package_dirs]
-        self.urdf_path = self._resolve_urdf(str(spec["urdf"]))
+        self.urdf_path = self._resolve_urdf(r.child("urdf").string())
+        # a relative mesh path is relative to the URDF's folder (as pybullet reads it);
+        # pinocchio looks for it in package_dirs
+        mesh_dirs = [str(Path(self.urdf_path).parent)] + self.package_dirs
+        try:  # our checks first: pinocchio, coal and pybullet hang or crash on some files
+            check_urdf(self.urdf_path, mesh_dirs)
+        except SpecError as err:
+            raise SpecError(sp, "urdf", str(err)) from None
         try:
             full = pin.buildModelFromUrdf(self.urdf_path)
         except (RuntimeError, ValueError) as err:
-            raise SpecError(sp, "urdf", f"pinocchio cannot load {self.urdf_path}: {err}") from err
+            raise SpecError(sp, "urdf", f"pinocchio cannot load {self.urdf_path}: {library_message(err)}") from None
 
         fingers_r = r.child("fingers").mapping("a non-empty mapping finger -> spec", nonempty=True, with_value=False)
         fingers_spec = spec["fingers"]
@@ -287,12 +281,10 @@ class Hand:
 
         # collision geometry
         try:
-            # a relative mesh path is relative to the URDF's folder (as pybullet reads it);
-            # pinocchio looks for it in package_dirs
-            gm = pin.buildGeomFromUrdf(self.model, self.urdf_path, pin.GeometryType.COLLISION,
-                                       package_dirs=[str(Path(self.urdf_path).parent)] + self.package_dirs)
+            gm = pin.buildGeomFromUrdf(self.model, self.urdf_path, pin.GeometryType.COLLISION, package_dirs=mesh_dirs)
         except (RuntimeError, ValueError) as err:
-            raise SpecError(sp, "urdf", f"cannot load collision geometry: {err}") from err
+            raise SpecError(sp, "urdf", f"cannot load the collision geometry of {self.urdf_path}: "
+                                        f"{library_message(err)}") from None
         joint_finger: dict[int, str] = {}
         for fname, fs in fingers_spec.items():
             for j in fs["joints"]:
@@ -308,8 +300,7 @@ class Hand:
         entries = []
         for go in gm.geometryObjects:
             link = self.model.frames[go.parentFrame].name
-            _check_urdf_sizes(sp, self.urdf_path, link, go)
-            entries.append((link, finger_of_joint(go.parentJoint), _link_shape(sp, link, go.geometry), go.parentJoint,
+            entries.append((link, finger_of_joint(go.parentJoint), _link_shape(sp, self.urdf_path, link, go), go.parentJoint,
                             pin.SE3(go.placement)))
         geoms: list[Geometry] = []
         for link, fname, shape, jid, plc in _merge_capsules(entries):
@@ -413,14 +404,14 @@ class Hand:
             rel = urdf[len("package://"):]
             for d in self.package_dirs:
                 cand = Path(d) / rel
-                if cand.is_file():
+                if cand.exists():  # (a FIFO or a device is refused by check_urdf, naming it)
                     return str(cand)
             raise SpecError(str(self.spec_path), "urdf",
                             f"{urdf} not found in package_dirs {self.package_dirs}")
         path = Path(urdf)
         if not path.is_absolute():
             path = self.spec_path.parent / path
-        if not path.is_file():
+        if not path.exists():
             raise SpecError(str(self.spec_path), "urdf", f"file not found: {path}")
         return str(path.resolve())
 

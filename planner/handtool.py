@@ -147,16 +147,22 @@ def init_hand(urdf, package_dirs=()) -> tuple[dict, HandReport]:
     """A hand.yaml (as data) for a URDF, and the guesses made with their reasons.
 
     Raises:
-        SpecError: the URDF cannot be loaded or has no finger (no movable chain).
+        SpecError: the URDF fails `planner.urdf_check`, cannot be loaded or has no finger
+            (no movable chain); the message names the URDF as given.
     """
     import pinocchio as pin  # pinocchio: loaded only when a URDF is read
 
+    from planner.hand import _share_dirs  # pinocchio and coal (see _provisional)
+    from planner.urdf_check import check_urdf, library_message
+
     urdf = Path(urdf)
     rep = HandReport()
+    # our checks before pinocchio's: it hangs on a FIFO, pybullet crashes on a link with two parents
+    check_urdf(urdf, [str(urdf.parent), *map(str, package_dirs), *_share_dirs()])
     try:
         model = pin.buildModelFromUrdf(str(urdf))
     except (RuntimeError, ValueError) as err:
-        raise SpecError(str(urdf), "", f"pinocchio cannot load it: {err}") from None
+        raise SpecError(str(urdf), "", f"pinocchio cannot load it: {library_message(err)}") from None
     bodies = [f for f in model.frames if f.type == pin.FrameType.BODY]
     root = next((f.name for f in bodies if f.parentJoint == 0), None)
     if root is None:
@@ -209,7 +215,7 @@ def init_hand(urdf, package_dirs=()) -> tuple[dict, HandReport]:
             "urdf": str(urdf), "palm_frame": root, "fingers": fingers}
     if package_dirs:
         spec["package_dirs"] = [str(d) for d in package_dirs]
-    hand = _provisional(spec)
+    hand = _provisional(spec, urdf)
     lo, hi = np.asarray(hand.lower), np.asarray(hand.upper)
     q_mid = np.clip(np.zeros(len(lo)), lo, hi)
     boxes = link_boxes(hand)
@@ -330,17 +336,26 @@ def _name_by_geometry(model, named, rep: HandReport):
     return [(names.get(leaf, name), leaf, chain) for name, leaf, chain in named]
 
 
-def _provisional(spec: dict):
+def _provisional(spec: dict, urdf: Path):
     """The hand `init_hand` is writing, loaded to use the planner's kinematics and geometry:
     `Hand` takes the spec as data (no file), its paths made absolute (the URDF's and the
-    ``package_dirs``, given relative to the working directory)."""
+    ``package_dirs``, given relative to the working directory). Its errors name the URDF as
+    the user gave it (the hand.yaml is not written yet)."""
     from planner.hand import Hand  # pinocchio and coal: loaded only when a hand is built (`regrasp --help` imports this module)
 
     data = dict(spec)
     data["urdf"] = str(Path(spec["urdf"]).resolve())
     if spec.get("package_dirs"):
         data["package_dirs"] = [str(Path(d).resolve()) for d in spec["package_dirs"]]
-    return Hand(Path(data["urdf"]).with_name("hand.yaml"), data)
+    unwritten = Path(data["urdf"]).with_name("hand.yaml")
+    try:
+        return Hand(unwritten, data)
+    except SpecError as err:
+        if err.path != str(unwritten):
+            raise
+        # a URDF problem (key "urdf") is said as is; a guess the hand refuses names its key
+        message = err.message.removeprefix(f"{data['urdf']}: ")
+        raise SpecError(str(urdf), "" if err.key == "urdf" else f"guessed {err.key}", message) from None
 
 
 def _far_point(hand, link: str, boxes) -> np.ndarray:

@@ -1,0 +1,520 @@
+"""The URDF check: every hand URDF is read and checked here, by our own code, before
+pinocchio, coal or pybullet see it (`check_urdf`; `planner.hand.Hand` and ``regrasp hand
+init`` call it first). Those libraries hang on a FIFO, run out of memory on ``/dev/zero``,
+crash (a segmentation fault in pybullet's loader) on a link with two parents or a
+10 MB name, and take a NaN radius, a zero joint axis or a negative mass without a word.
+
+The file:
+
+* a regular file of at most `MAX_URDF_BYTES`, UTF-8 XML (`planner.fileio.read_limited`);
+  no DOCTYPE (so no entity can be declared or expanded), at most `MAX_XML_DEPTH` levels of
+  elements, attribute values of at most `MAX_ATTRIBUTE_CHARS` characters;
+* a ``<robot>`` named like its links and joints: names non-empty, at most `MAX_NAME_CHARS`
+  characters, link names unique, joint names unique; at most `MAX_LINKS` links and
+  `MAX_SHAPES` collision and visual shapes;
+* numbers are decimal numbers (``1``, ``-0.5``, ``2e-3``); ``nan``, ``inf`` and text are
+  refused where a number is read: origins, axes, limits, masses, inertias, shape sizes.
+
+The robot:
+
+* shapes: a sphere's radius, a cylinder's (capsule's) radius and length, a box's three
+  sizes are finite and > 0; a mesh's scale is three finite non-zero numbers (a negative
+  one mirrors the mesh: published models do);
+* masses finite and >= 0, inertias finite;
+* joints: a known type, parent and child naming existing links and not the same one,
+  a finite non-zero axis (``|axis| >= MIN_AXIS_NORM``) for revolute, continuous and
+  prismatic joints, a ``<limit>`` with finite effort and velocity >= 0 and
+  finite ``lower <= upper`` for revolute and prismatic ones;
+* the links form one tree: exactly one root (a link that is no joint's child), no link
+  with two parents, no cycle;
+* meshes (``package://``, ``file://``, absolute, or relative to the URDF's folder, then to
+  the package dirs) are regular files of at most `MAX_MESH_BYTES` each and
+  `MAX_MESH_BYTES_TOTAL` together; a collision mesh has at most `MAX_MESH_TRIANGLES`
+  triangles (counted from the file for STL, OBJ, PLY and COLLADA; `planner.hand` counts
+  the loaded mesh of any other format). A mesh past the limit is refused, not decimated:
+  the message says to simplify it.
+
+Every problem is one `SpecError` naming the URDF, the line and the element
+(``hand.urdf: line 52: link 'index_tip': collision sphere radius must be a finite number
+> 0, got nan``); it never quotes text of the file other than a name.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+import stat
+from dataclasses import dataclass
+from pathlib import Path
+
+import pyexpat
+
+from planner.errors import SpecError
+from planner.fileio import read_limited
+
+#: Largest URDF read, bytes (published robots' URDFs are at most ~0.2 MB).
+MAX_URDF_BYTES = 5_000_000
+#: Deepest element nesting accepted (a URDF needs 5: robot/link/collision/geometry/mesh;
+#: ``<gazebo>`` plugin blocks a few more).
+MAX_XML_DEPTH = 32
+#: Longest robot, link or joint name, characters.
+MAX_NAME_CHARS = 256
+#: Longest attribute value of any element, characters (mesh paths included).
+MAX_ATTRIBUTE_CHARS = 4096
+#: Most links of one URDF (a hand has ~25, a humanoid ~100); the collision model pairs links.
+MAX_LINKS = 1000
+#: Most collision and visual shapes together.
+MAX_SHAPES = 4000
+#: Largest mesh file, bytes (published robots' largest, a COLLADA trunk, is 29 MB).
+MAX_MESH_BYTES = 64_000_000
+#: Most mesh bytes one URDF may name, each file counted once.
+MAX_MESH_BYTES_TOTAL = 256_000_000
+#: Most triangles of a collision mesh: the planner uses its convex hull, for which a few
+#: thousand triangles are plenty; coal gives up on a hull vertex with more than 255
+#: neighbours, which a finely meshed sphere's pole has.
+MAX_MESH_TRIANGLES = 200_000
+#: Shortest joint axis accepted (it is normalised).
+MIN_AXIS_NORM = 1e-6
+JOINT_TYPES = ("revolute", "continuous", "prismatic", "fixed", "floating", "planar")
+#: Joint types whose axis is used (fixed, floating and planar joints ignore theirs... planar's is its normal).
+AXIS_JOINTS = ("revolute", "continuous", "prismatic", "planar")
+LIMITED_JOINTS = ("revolute", "prismatic")
+#: Primitive shapes -> their size attributes and how many numbers each holds.
+SHAPE_SIZES = {"sphere": (("radius", 1),), "cylinder": (("radius", 1), ("length", 1)),
+               "capsule": (("radius", 1), ("length", 1)), "box": (("size", 3),)}
+MESH_SUFFIXES_COUNTED = (".stl", ".obj", ".ply", ".dae")
+
+_NUMBER = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?\Z")
+
+
+@dataclass(frozen=True)
+class UrdfSummary:
+    """What `check_urdf` read: the robot's name, its root link, its links and joints (file
+    order) and the mesh files it names (resolved)."""
+
+    path: str
+    robot: str
+    root: str
+    links: tuple[str, ...]
+    joints: tuple[str, ...]
+    meshes: tuple[str, ...]
+
+
+class _Element:
+    """An XML element with the line it starts on (xml.etree keeps no line numbers)."""
+
+    __slots__ = ("tag", "attrib", "children", "line")
+
+    def __init__(self, tag: str, attrib: dict, line: int):
+        self.tag, self.attrib, self.children, self.line = tag, attrib, [], line
+
+    def find(self, tag: str) -> "_Element | None":
+        return next((c for c in self.children if c.tag == tag), None)
+
+    def findall(self, tag: str) -> list["_Element"]:
+        return [c for c in self.children if c.tag == tag]
+
+
+def _shown(values) -> str:
+    """Numbers for a message: ``0.079 -0.067 0.03``, ``nan``."""
+    return " ".join(f"{v:g}" for v in values)
+
+
+def name_shown(name: str, limit: int = 60, *, path: bool = False) -> str:
+    """A name from a file for a message: quoted, at most ``limit`` characters (a long
+    ``path`` keeps its end, the file's name)."""
+    if len(name) <= limit:
+        return repr(name)
+    return repr("..." + name[3 - limit:] if path else name[: limit - 3] + "...")
+
+
+def _parse(text: str, path: str) -> _Element:
+    """The element tree of ``text`` (expat, the parser under xml.etree), refusing a DOCTYPE
+    (hence any entity declaration), deep nesting and long attribute values."""
+
+    def refuse(line: int, message: str):
+        raise SpecError(path, f"line {line}", message)
+
+    parser = pyexpat.ParserCreate()
+    parser.SetParamEntityParsing(pyexpat.XML_PARAM_ENTITY_PARSING_NEVER)
+    stack: list[_Element] = []
+    top: list[_Element] = []
+
+    def start(tag, attrib):
+        line = parser.CurrentLineNumber
+        if len(stack) >= MAX_XML_DEPTH:
+            refuse(line, f"elements nested deeper than {MAX_XML_DEPTH} levels")
+        for key, value in attrib.items():
+            if len(value) > MAX_ATTRIBUTE_CHARS:
+                refuse(line, f"<{tag[:40]}> attribute {name_shown(key, 40)} is {len(value)} characters long; "
+                             f"at most {MAX_ATTRIBUTE_CHARS}")
+        el = _Element(tag, attrib, line)
+        (stack[-1].children if stack else top).append(el)
+        stack.append(el)
+
+    def doctype(*_):
+        refuse(parser.CurrentLineNumber, "a DOCTYPE (entity declarations) is not accepted in a URDF")
+
+    parser.StartElementHandler = start
+    parser.EndElementHandler = lambda tag: stack.pop()
+    parser.StartDoctypeDeclHandler = doctype
+    parser.EntityDeclHandler = lambda *_: doctype()
+    try:
+        parser.Parse(text, True)
+    except pyexpat.ExpatError as err:
+        raise SpecError(path, f"line {err.lineno}", f"not well-formed XML: {pyexpat.ErrorString(err.code)}") from None
+    except RecursionError:  # (expat does not recurse; kept for a future parser)
+        raise SpecError(path, "", "elements nested too deeply") from None
+    if not top:
+        raise SpecError(path, "", "no XML element: not a URDF")
+    return top[0]
+
+
+class _Checker:
+    """The checks of one URDF; `fail` builds the error naming the line and the element."""
+
+    def __init__(self, path: str, package_dirs):
+        self.path = path
+        self.folder = Path(path).parent
+        env = [d for d in os.environ.get("ROS_PACKAGE_PATH", "").split(os.pathsep) if d]
+        env += [os.path.join(d, "share") for d in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if d]
+        self.package_dirs = [str(d) for d in package_dirs] + env
+        self.mesh_bytes: dict[str, int] = {}
+
+    def fail(self, el: _Element, what: str, message: str) -> SpecError:
+        return SpecError(self.path, f"line {el.line}: {what}" if what else f"line {el.line}", message)
+
+    # -- values
+    def name(self, el: _Element, kind: str, attr: str = "name") -> str:
+        value = el.attrib.get(attr)
+        if value is None or not value.strip():
+            raise self.fail(el, f"<{kind}>", f"has no {attr}" if value is None else f"its {attr} is empty")
+        if len(value) > MAX_NAME_CHARS:
+            raise self.fail(el, f"<{kind}>", f"its {attr} is {len(value)} characters long; at most {MAX_NAME_CHARS}")
+        return value
+
+    def values(self, el: _Element, attr: str, count: int, what: str, label: str,
+               default: tuple[float, ...] | None = None) -> tuple[float, ...]:
+        """``count`` numbers of attribute ``attr`` (``default`` when absent, refused when
+        there is no default): decimal numbers, or nan and inf (for a message saying what
+        they break); text is refused without being quoted."""
+        text = el.attrib.get(attr)
+        if text is None:
+            if default is None:
+                raise self.fail(el, what, f"{label}: missing (<{el.tag} {attr}=...>)")
+            return default
+        parts = text.split()
+        if len(parts) != count:
+            raise self.fail(el, what, f"{label}: expected {count} number{'s' if count > 1 else ''}, "
+                                      f"got {len(parts)} values")
+        out = []
+        for part in parts:
+            try:
+                x = float(part)
+            except ValueError:
+                x = None
+            if x is None or (math.isfinite(x) and not _NUMBER.match(part)):  # text, or 1_0 that only Python reads
+                raise self.fail(el, what, f"{label}: expected a decimal number, got a value that is not one")
+            out.append(x)
+        return tuple(out)
+
+    def named(self, elements: list[_Element], kind: str) -> dict[str, _Element]:
+        """name -> element of ``elements`` (the links or the joints), each name checked and once."""
+        out: dict[str, _Element] = {}
+        for el in elements:
+            name = self.name(el, kind)
+            if name in out:
+                raise self.fail(el, f"{kind} {name_shown(name)}", f"a second {kind} of that name (the first is on "
+                                                                  f"line {out[name].line})")
+            out[name] = el
+        return out
+
+    def numbers(self, el: _Element, attr: str, count: int, what: str, label: str,
+                default: tuple[float, ...] | None = None) -> tuple[float, ...]:
+        """`values`, each finite."""
+        values = self.values(el, attr, count, what, label, default)
+        if not all(math.isfinite(v) for v in values):
+            raise self.fail(el, what, f"{label} must be a finite number, got {_shown(values)}" if count == 1
+                            else f"{label} must be finite numbers, got {_shown(values)}")
+        return values
+
+    def positive(self, el: _Element, attr: str, count: int, what: str, label: str, *, nonzero: bool = False):
+        """`values`, each finite and > 0 (``nonzero``: != 0)."""
+        values = self.values(el, attr, count, what, label)
+        if not all(math.isfinite(v) for v in values):
+            rule = "finite non-zero numbers" if nonzero else ("a finite number > 0" if count == 1 else "finite numbers > 0")
+            raise self.fail(el, what, f"{label} must be {rule}, got {_shown(values)}")
+        if nonzero and not all(values):
+            raise self.fail(el, what, f"{label} must be non-zero, got {_shown(values)}")
+        if not nonzero and not all(v > 0 for v in values):
+            raise self.fail(el, what, f"{label} must be > 0, got {_shown(values)}")
+        return values
+
+    def origin(self, parent: _Element, what: str) -> None:
+        el = parent.find("origin")
+        if el is not None:
+            self.numbers(el, "xyz", 3, what, "<origin> xyz", (0.0, 0.0, 0.0))
+            self.numbers(el, "rpy", 3, what, "<origin> rpy", (0.0, 0.0, 0.0))
+
+    def optional(self, el: _Element | None, attrs, what: str, *, nonnegative: bool = False) -> dict:
+        """The attributes ``attrs`` present on ``el``, each one finite number."""
+        out = {}
+        if el is None:
+            return out
+        for attr in attrs:
+            if attr in el.attrib:
+                x = self.numbers(el, attr, 1, what, f"<{el.tag}> {attr}")[0]
+                if nonnegative and x < 0:
+                    raise self.fail(el, what, f"<{el.tag}> {attr} must be >= 0, got {x:g}")
+                out[attr] = x
+        return out
+
+    # -- links
+    def link(self, el: _Element, name: str, shapes: list) -> None:
+        what = f"link {name_shown(name)}"
+        inertial = el.find("inertial")
+        if inertial is not None:
+            self.origin(inertial, what)
+            mass = inertial.find("mass")
+            if mass is None:
+                raise self.fail(inertial, what, "<inertial> has no <mass>")
+            m = self.numbers(mass, "value", 1, what, "mass")[0]
+            if m < 0:
+                raise self.fail(mass, what, f"mass must be >= 0, got {m:g}")
+            inertia = inertial.find("inertia")
+            if inertia is None:
+                raise self.fail(inertial, what, "<inertial> has no <inertia>")
+            for attr in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz"):
+                self.numbers(inertia, attr, 1, what, f"inertia {attr}")
+        for kind in ("collision", "visual"):
+            for shape in el.findall(kind):
+                shapes.append((kind, name, shape))
+                self.origin(shape, what)
+                geometry = shape.find("geometry")
+                if geometry is None:
+                    raise self.fail(shape, what, f"<{kind}> has no <geometry>")
+                known = [g for g in geometry.children if g.tag in SHAPE_SIZES or g.tag == "mesh"]
+                if not known:
+                    raise self.fail(geometry, what, f"<{kind}> <geometry> holds no box, cylinder, sphere or mesh")
+                g = known[0]
+                if g.tag == "mesh":
+                    self.mesh(g, kind, what)
+                    continue
+                for attr, count in SHAPE_SIZES[g.tag]:
+                    self.positive(g, attr, count, what, f"{kind} {g.tag} {attr}")
+
+    def mesh(self, el: _Element, kind: str, what: str) -> None:
+        filename = el.attrib.get("filename")
+        if filename is None or not filename.strip():
+            raise self.fail(el, what, f"{kind} <mesh> has no filename")
+        if "scale" in el.attrib:
+            self.positive(el, "scale", 3, what, f"{kind} mesh scale", nonzero=True)
+        label = f"{kind} mesh {name_shown(filename, path=True)}"
+        path = self.mesh_file(el, what, label, filename, required=kind == "collision")
+        if path is None:
+            return
+        try:
+            st = os.stat(path)
+        except OSError as err:
+            raise self.fail(el, what, f"{label}: cannot read it: {err.strerror}") from None
+        if not stat.S_ISREG(st.st_mode):
+            raise self.fail(el, what, f"{label}: not a regular file")
+        if st.st_size > MAX_MESH_BYTES:
+            raise self.fail(el, what, f"{label} is {st.st_size} bytes; at most {MAX_MESH_BYTES} are read")
+        self.mesh_bytes[str(path)] = st.st_size
+        if sum(self.mesh_bytes.values()) > MAX_MESH_BYTES_TOTAL:
+            raise self.fail(el, what, f"{label}: the URDF's meshes hold more than {MAX_MESH_BYTES_TOTAL} bytes together")
+        if kind == "collision":
+            try:
+                n = mesh_triangles(path, st.st_size)
+            except ValueError as err:
+                raise self.fail(el, what, f"{label}: {err}") from None
+            except OSError as err:
+                raise self.fail(el, what, f"{label}: cannot read it: {err.strerror}") from None
+            if n is not None and n > MAX_MESH_TRIANGLES:
+                raise self.fail(el, what, too_many_triangles(label, n))
+
+    def mesh_file(self, el: _Element, what: str, label: str, filename: str, required: bool) -> Path | None:
+        """Where pinocchio and pybullet find a mesh: ``package://pkg/x`` under a package dir,
+        ``file://`` or an absolute path as is, a relative path in the URDF's folder, then in a
+        package dir. A missing visual mesh is None (pybullet and the pictures go without it;
+        published models name meshes of their authors' machines)."""
+        if filename.startswith("package://"):
+            rel = filename[len("package://"):].lstrip("/")
+            candidates = [Path(d) / rel for d in self.package_dirs]
+        elif filename.startswith("file://"):
+            candidates = [Path(filename[len("file://"):])]
+        elif os.path.isabs(filename):
+            candidates = [Path(filename)]
+        else:
+            candidates = [self.folder / filename] + [Path(d) / filename for d in self.package_dirs]
+        for cand in candidates:
+            if os.path.lexists(cand):
+                return cand
+        if not required:
+            return None
+        where = "in the package dirs" if filename.startswith("package://") else "beside the URDF or in the package dirs"
+        raise self.fail(el, what, f"{label}: file not found {where}")
+
+    # -- joints
+    def joint(self, el: _Element, name: str, links: dict) -> tuple[str, str]:
+        what = f"joint {name_shown(name)}"
+        kind = el.attrib.get("type")
+        if kind not in JOINT_TYPES:
+            raise self.fail(el, what, ("has no type" if kind is None else "unknown type")
+                            + f"; types are {', '.join(JOINT_TYPES)}")
+        ends = []
+        for end in ("parent", "child"):
+            tag = el.find(end)
+            if tag is None:
+                raise self.fail(el, what, f"has no <{end} link=...>")
+            link = self.name(tag, end, "link")
+            if link not in links:
+                raise self.fail(tag, what, f"its {end} link {name_shown(link)} is not a link of the URDF")
+            ends.append(link)
+        if ends[0] == ends[1]:
+            raise self.fail(el, what, f"link {name_shown(ends[0])} is both its parent and its child")
+        self.origin(el, what)
+        axis = el.find("axis")
+        if axis is not None and kind in AXIS_JOINTS:
+            xyz = self.numbers(axis, "xyz", 3, what, "<axis> xyz", (1.0, 0.0, 0.0))
+            if math.sqrt(sum(v * v for v in xyz)) < MIN_AXIS_NORM:
+                raise self.fail(axis, what, f"<axis> xyz must be a non-zero direction (length >= {MIN_AXIS_NORM:g}), "
+                                            f"got {_shown(xyz)}")
+        limit = el.find("limit")
+        if kind in LIMITED_JOINTS and limit is None:
+            raise self.fail(el, what, f"a {kind} joint needs <limit lower upper effort velocity>")
+        if limit is not None:
+            lower = self.numbers(limit, "lower", 1, what, "<limit> lower", (0.0,))[0]
+            upper = self.numbers(limit, "upper", 1, what, "<limit> upper", (0.0,))[0]
+            for attr in ("effort", "velocity"):
+                default = None if kind in LIMITED_JOINTS else (0.0,)
+                x = self.numbers(limit, attr, 1, what, f"<limit> {attr}", default)[0]
+                if x < 0:
+                    raise self.fail(limit, what, f"<limit> {attr} must be >= 0, got {x:g}")
+            if kind in LIMITED_JOINTS and lower > upper:
+                raise self.fail(limit, what, f"<limit> lower {lower:g} > upper {upper:g}")
+        self.optional(el.find("dynamics"), ("damping", "friction"), what, nonnegative=True)
+        self.optional(el.find("safety_controller"), ("soft_lower_limit", "soft_upper_limit", "k_position",
+                                                     "k_velocity"), what)
+        self.optional(el.find("calibration"), ("rising", "falling", "reference_position"), what)
+        mimic = el.find("mimic")
+        if mimic is not None:
+            self.name(mimic, "mimic", "joint")
+            self.optional(mimic, ("multiplier", "offset"), what)
+        return ends[0], ends[1]
+
+
+def too_many_triangles(label: str, n: int, limit: int = MAX_MESH_TRIANGLES) -> str:
+    """The message for a collision mesh of ``n`` triangles, past ``limit``."""
+    return (f"{label} has {n} triangles; at most {limit} in a collision mesh "
+            "(the planner uses its convex hull): simplify it, or give the link a primitive shape")
+
+
+def mesh_triangles(path: str | os.PathLike, size: int) -> int | None:
+    """Triangles (faces, for polygons) of a mesh file read from the file itself, for STL
+    (binary or ASCII), OBJ, PLY and COLLADA; None for another format.
+
+    Raises:
+        ValueError: a binary STL whose header counts more triangles than the file holds.
+    """
+    suffix = Path(path).suffix.lower()
+    if suffix not in MESH_SUFFIXES_COUNTED:
+        return None
+    with open(path, "rb") as fh:
+        if suffix == ".stl":
+            head = fh.read(84)
+            if head[:5].lower() == b"solid":  # ASCII, unless a binary header begins so
+                data = head + fh.read(MAX_MESH_BYTES)
+                if b"endfacet" in data[:4096] or size < 84:
+                    return data.count(b"endfacet")
+            if len(head) < 84:
+                raise ValueError("not an STL file: shorter than a binary STL's header")
+            n = int.from_bytes(head[80:84], "little")
+            if 84 + 50 * n > size:
+                raise ValueError(f"binary STL header counts {n} triangles, the file holds {max(0, size - 84) // 50}")
+            return n
+        data = fh.read(MAX_MESH_BYTES)
+    if suffix == ".obj":
+        return len(re.findall(rb"(?m)^[ \t]*f[ \t]", data))
+    if suffix == ".ply":
+        m = re.search(rb"(?m)^element[ \t]+face[ \t]+(\d{1,12})", data[:65536])
+        return int(m.group(1)) if m else 0
+    return sum(int(c) for c in re.findall(rb"<(?:triangles|polylist|polygons|tristrips|trifans)\b[^>]*?"
+                                          rb"\bcount=\"(\d{1,12})\"", data))
+
+
+def check_urdf(path: str | os.PathLike, package_dirs=()) -> UrdfSummary:
+    """Read a URDF within the limits of this module and check it (see the module's
+    docstring) before any library reads it.
+
+    Args:
+        path: the URDF.
+        package_dirs: folders ``package://`` (and relative) mesh paths are looked up in.
+
+    Raises:
+        SpecError: the file (as given), the line and the element, one line.
+    """
+    path = str(path)
+    text = read_limited(path, MAX_URDF_BYTES, "URDF")
+    robot = _parse(text, path)
+    if robot.tag != "robot":
+        raise SpecError(path, f"line {robot.line}", f"the top element is <{robot.tag[:40]}>, not <robot>: not a URDF")
+    if any(c.tag.startswith("xacro:") for c in robot.children):  # (expanded files keep the xmlns)
+        raise SpecError(path, f"line {robot.line}", "a xacro file, not a URDF: expand it first "
+                                                    "(xacro model.urdf.xacro > model.urdf)")
+    ck = _Checker(path, package_dirs)
+    robot_name = ck.name(robot, "robot")
+    link_els = robot.findall("link")
+    joint_els = robot.findall("joint")
+    if len(link_els) > MAX_LINKS:
+        raise ck.fail(robot, "<robot>", f"{len(link_els)} links; at most {MAX_LINKS}")
+    links = ck.named(link_els, "link")
+    if not links:
+        raise ck.fail(robot, "<robot>", "no <link>")
+    shapes: list = []
+    for name, el in links.items():
+        ck.link(el, name, shapes)
+        if len(shapes) > MAX_SHAPES:
+            raise ck.fail(el, f"link {name_shown(name)}", f"more than {MAX_SHAPES} collision and visual shapes "
+                                                          "in the URDF")
+    joints = ck.named(joint_els, "joint")
+    parent_of: dict[str, tuple[str, str]] = {}  # child link -> (parent link, joint)
+    children: dict[str, list[str]] = {n: [] for n in links}
+    for name, el in joints.items():
+        parent, child = ck.joint(el, name, links)
+        if child in parent_of:
+            raise ck.fail(el, f"joint {name_shown(name)}", f"link {name_shown(child)} has two parents: it is the "
+                                                           f"child of joint {name_shown(parent_of[child][1])} too")
+        parent_of[child] = (parent, name)
+        children[parent].append(child)
+    roots = [n for n in links if n not in parent_of]
+    if len(roots) > 1:
+        raise ck.fail(robot, "<robot>", f"{len(roots)} root links ({', '.join(name_shown(r) for r in roots[:4])}"
+                                        f"{', ...' if len(roots) > 4 else ''}): a URDF's links form one tree, "
+                                        "with one link that is no joint's child")
+    if not roots:
+        raise ck.fail(robot, "<robot>", "every link is a joint's child: the joints form a cycle")
+    reached, todo = set(), [roots[0]]
+    while todo:
+        link = todo.pop()
+        reached.add(link)
+        todo.extend(children[link])
+    lost = [n for n in links if n not in reached]
+    if lost:
+        raise ck.fail(links[lost[0]], f"link {name_shown(lost[0])}", f"not connected to the root link "
+                                                                     f"{name_shown(roots[0])}: the joints form a cycle")
+    return UrdfSummary(path, robot_name, roots[0], tuple(links), tuple(joints), tuple(ck.mesh_bytes))
+
+
+def library_message(err: BaseException) -> str:
+    """A C++ library's exception for a one-line message: its ``message:`` part when it has
+    one (coal and pinocchio put the C++ source file, function and line before it), else its
+    first line that names no source location; at most 200 characters."""
+    text = str(err)
+    m = re.search(r"message:\s*(\S.*)", text)
+    lines = [m.group(1)] if m else [ln.strip() for ln in text.splitlines()
+                                     if ln.strip() and not re.match(r"(From file|in function|at line)\b", ln.strip())]
+    line = lines[0] if lines else type(err).__name__
+    return line if len(line) <= 200 else line[:197] + "..."
