@@ -18,12 +18,12 @@ The file:
 The robot:
 
 * shapes: a sphere's radius, a cylinder's (capsule's) radius and length, a box's three
-  sizes are finite and > 0; a mesh's scale is three finite non-zero numbers (a negative
-  one mirrors the mesh: published models do);
+  sizes are finite, > 0 and at most `MAX_LENGTH_M` (origins' offsets too); a mesh's scale
+  is three finite non-zero numbers (a negative one mirrors the mesh: published models do);
 * masses finite and >= 0, inertias finite;
 * joints: a known type, parent and child naming existing links and not the same one,
-  a finite non-zero axis (``|axis| >= MIN_AXIS_NORM``) for revolute, continuous and
-  prismatic joints, a ``<limit>`` with finite effort and velocity >= 0 and
+  a finite non-zero axis (``|axis| >= MIN_AXIS_NORM``) for revolute, continuous,
+  prismatic and planar joints, a ``<limit>`` with finite effort and velocity >= 0 and
   finite ``lower <= upper`` for revolute and prismatic ones;
 * the links form one tree: exactly one root (a link that is no joint's child), no link
   with two parents, no cycle;
@@ -74,10 +74,14 @@ MAX_MESH_BYTES_TOTAL = 256_000_000
 #: thousand triangles are plenty; coal gives up on a hull vertex with more than 255
 #: neighbours, which a finely meshed sphere's pole has.
 MAX_MESH_TRIANGLES = 200_000
+#: Largest shape size and origin offset, m (published robots: at most ~2 m); a 1e30 m
+#: palm box loads in every library and makes every posture a collision.
+MAX_LENGTH_M = 100.0
 #: Shortest joint axis accepted (it is normalised).
 MIN_AXIS_NORM = 1e-6
 JOINT_TYPES = ("revolute", "continuous", "prismatic", "fixed", "floating", "planar")
-#: Joint types whose axis is used (fixed, floating and planar joints ignore theirs... planar's is its normal).
+#: Joint types whose axis is used (a planar joint's is the plane's normal; fixed and
+#: floating joints ignore theirs).
 AXIS_JOINTS = ("revolute", "continuous", "prismatic", "planar")
 LIMITED_JOINTS = ("revolute", "prismatic")
 #: Primitive shapes -> their size attributes and how many numbers each holds.
@@ -207,7 +211,7 @@ class _Checker:
         parts = text.split()
         if len(parts) != count:
             raise self.fail(el, what, f"{label}: expected {count} number{'s' if count > 1 else ''}, "
-                                      f"got {len(parts)} values")
+                                      f"got {len(parts)} value{'' if len(parts) == 1 else 's'}")
         out = []
         for part in parts:
             try:
@@ -239,8 +243,9 @@ class _Checker:
                             else f"{label} must be finite numbers, got {_shown(values)}")
         return values
 
-    def positive(self, el: _Element, attr: str, count: int, what: str, label: str, *, nonzero: bool = False):
-        """`values`, each finite and > 0 (``nonzero``: != 0)."""
+    def positive(self, el: _Element, attr: str, count: int, what: str, label: str, *, nonzero: bool = False,
+                 high: float = math.inf):
+        """`values`, each finite and > 0 (``nonzero``: != 0), at most ``high`` (metres)."""
         values = self.values(el, attr, count, what, label)
         if not all(math.isfinite(v) for v in values):
             rule = "finite non-zero numbers" if nonzero else ("a finite number > 0" if count == 1 else "finite numbers > 0")
@@ -249,12 +254,16 @@ class _Checker:
             raise self.fail(el, what, f"{label} must be non-zero, got {_shown(values)}")
         if not nonzero and not all(v > 0 for v in values):
             raise self.fail(el, what, f"{label} must be > 0, got {_shown(values)}")
+        if not all(abs(v) <= high for v in values):
+            raise self.fail(el, what, f"{label} must be at most {high:g} m, got {_shown(values)}")
         return values
 
     def origin(self, parent: _Element, what: str) -> None:
         el = parent.find("origin")
         if el is not None:
-            self.numbers(el, "xyz", 3, what, "<origin> xyz", (0.0, 0.0, 0.0))
+            xyz = self.numbers(el, "xyz", 3, what, "<origin> xyz", (0.0, 0.0, 0.0))
+            if not all(abs(v) <= MAX_LENGTH_M for v in xyz):
+                raise self.fail(el, what, f"<origin> xyz must be within {MAX_LENGTH_M:g} m, got {_shown(xyz)}")
             self.numbers(el, "rpy", 3, what, "<origin> rpy", (0.0, 0.0, 0.0))
 
     def optional(self, el: _Element | None, attrs, what: str, *, nonnegative: bool = False) -> dict:
@@ -302,7 +311,7 @@ class _Checker:
                     self.mesh(g, kind, what)
                     continue
                 for attr, count in SHAPE_SIZES[g.tag]:
-                    self.positive(g, attr, count, what, f"{kind} {g.tag} {attr}")
+                    self.positive(g, attr, count, what, f"{kind} {g.tag} {attr}", high=MAX_LENGTH_M)
 
     def mesh(self, el: _Element, kind: str, what: str) -> None:
         filename = el.attrib.get("filename")

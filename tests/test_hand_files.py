@@ -172,6 +172,10 @@ def test_non_finite_and_non_positive_numbers_are_refused_naming_the_element(tmp_
     ('<geometry><sphere radius="0.0065"/></geometry>', '<geometry><cone radius="1"/></geometry>',
      "holds no box, cylinder, sphere or mesh"),
     ('type="revolute"', 'type="hinge"', "joint 'thumb_0': unknown type"),
+    ('<box size="0.079 0.067 0.03"/>', '<box size="1e30 0.067 0.03"/>',
+     "link 'palm': collision box size must be at most 100 m, got 1e+30 0.067 0.03"),
+    ('<origin xyz="0.0211 0 0"', '<origin xyz="0.0211 -1e300 0"', "joint 'thumb_1': <origin> xyz must be within 100 m"),
+    ('<origin xyz="0.0211 0 0"', '<origin xyz="0.0211 0"', "<origin> xyz: expected 3 numbers, got 2 values"),
 ])
 def test_joint_and_shape_rules_are_one_line(tmp_path, capsys, old, new, expect):
     _both(tmp_path, capsys, _edit(URDF_TEXT, old, new), expect)
