@@ -29,10 +29,11 @@ The robot:
   with two parents, no cycle;
 * meshes (``package://``, ``file://``, absolute, or relative to the URDF's folder, then to
   the package dirs) are regular files of at most `MAX_MESH_BYTES` each and
-  `MAX_MESH_BYTES_TOTAL` together; a collision mesh has at most `MAX_MESH_TRIANGLES`
-  triangles (counted from the file for STL, OBJ, PLY and COLLADA; `planner.hand` counts
-  the loaded mesh of any other format). A mesh past the limit is refused, not decimated:
-  the message says to simplify it.
+  `MAX_MESH_BYTES_TOTAL` together, in a format pybullet reads (`MESH_SUFFIXES`: STL, OBJ,
+  COLLADA) whose counts the file can hold; a collision mesh has at most
+  `MAX_MESH_TRIANGLES` triangles (counted from the file; `planner.hand` counts the loaded
+  mesh again). A mesh past the limit is refused, not decimated: the message says to
+  simplify it.
 
 Every problem is one `SpecError` naming the URDF, the line and the element
 (``hand.urdf: line 52: link 'index_tip': collision sphere radius must be a finite number
@@ -87,7 +88,9 @@ LIMITED_JOINTS = ("revolute", "prismatic")
 #: Primitive shapes -> their size attributes and how many numbers each holds.
 SHAPE_SIZES = {"sphere": (("radius", 1),), "cylinder": (("radius", 1), ("length", 1)),
                "capsule": (("radius", 1), ("length", 1)), "box": (("size", 3),)}
-MESH_SUFFIXES_COUNTED = (".stl", ".obj", ".ply", ".dae")
+#: Mesh formats: those pybullet (the replay) reads; it skips another one's shape, so the
+#: replay would simulate a link without its collision shape.
+MESH_SUFFIXES = (".stl", ".obj", ".dae")
 
 _NUMBER = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?\Z")
 
@@ -334,15 +337,14 @@ class _Checker:
         self.mesh_bytes[str(path)] = st.st_size
         if sum(self.mesh_bytes.values()) > MAX_MESH_BYTES_TOTAL:
             raise self.fail(el, what, f"{label}: the URDF's meshes hold more than {MAX_MESH_BYTES_TOTAL} bytes together")
-        if kind == "collision":
-            try:
-                n = mesh_triangles(path, st.st_size)
-            except ValueError as err:
-                raise self.fail(el, what, f"{label}: {err}") from None
-            except OSError as err:
-                raise self.fail(el, what, f"{label}: cannot read it: {err.strerror}") from None
-            if n is not None and n > MAX_MESH_TRIANGLES:
-                raise self.fail(el, what, too_many_triangles(label, n))
+        try:
+            n = mesh_triangles(path, st.st_size)
+        except ValueError as err:
+            raise self.fail(el, what, f"{label}: {err}") from None
+        except OSError as err:
+            raise self.fail(el, what, f"{label}: cannot read it: {err.strerror}") from None
+        if kind == "collision" and n > MAX_MESH_TRIANGLES:
+            raise self.fail(el, what, too_many_triangles(label, n))
 
     def mesh_file(self, el: _Element, what: str, label: str, filename: str, required: bool) -> Path | None:
         """Where pinocchio and pybullet find a mesh: ``package://pkg/x`` under a package dir,
@@ -421,16 +423,18 @@ def too_many_triangles(label: str, n: int, limit: int = MAX_MESH_TRIANGLES) -> s
             "(the planner uses its convex hull): simplify it, or give the link a primitive shape")
 
 
-def mesh_triangles(path: str | os.PathLike, size: int) -> int | None:
-    """Triangles (faces, for polygons) of a mesh file read from the file itself, for STL
-    (binary or ASCII), OBJ, PLY and COLLADA; None for another format.
+def mesh_triangles(path: str | os.PathLike, size: int) -> int:
+    """Triangles (faces, for polygons) of an STL (binary or ASCII), OBJ or COLLADA file,
+    read from the file itself.
 
     Raises:
-        ValueError: a binary STL whose header counts more triangles than the file holds.
+        ValueError: another format, or a count the file cannot hold (a binary STL's header,
+            a COLLADA ``count``): the mesh loader would allocate or wait for what it claims.
     """
     suffix = Path(path).suffix.lower()
-    if suffix not in MESH_SUFFIXES_COUNTED:
-        return None
+    if suffix not in MESH_SUFFIXES:
+        raise ValueError(f"a {suffix or 'suffix-less'} file: meshes are STL, OBJ or COLLADA (.dae), the formats "
+                         "pybullet reads")
     with open(path, "rb") as fh:
         if suffix == ".stl":
             head = fh.read(84)
@@ -445,13 +449,18 @@ def mesh_triangles(path: str | os.PathLike, size: int) -> int | None:
                 raise ValueError(f"binary STL header counts {n} triangles, the file holds {max(0, size - 84) // 50}")
             return n
         data = fh.read(MAX_MESH_BYTES)
-    if suffix == ".obj":
-        return len(re.findall(rb"(?m)^[ \t]*f[ \t]", data))
-    if suffix == ".ply":
-        m = re.search(rb"(?m)^element[ \t]+face[ \t]+(\d{1,12})", data[:65536])
-        return int(m.group(1)) if m else 0
-    return sum(int(c) for c in re.findall(rb"<(?:triangles|polylist|polygons|tristrips|trifans)\b[^>]*?"
-                                          rb"\bcount=\"(\d{1,12})\"", data))
+    if suffix == ".obj":  # (plain substring counts: a regex takes seconds on published meshes)
+        return data.startswith((b"f ", b"f\t")) + data.count(b"\nf ") + data.count(b"\nf\t")
+    faces = 0
+    for m in re.finditer(rb'count="(\d+)"', data):  # each counted item takes a byte at least
+        count = m.group(1)
+        if len(count) > 12 or int(count) > size:
+            raise ValueError(f"a COLLADA count of {int(count) if len(count) <= 12 else 'over 1e12'} items "
+                             f"in a file of {size} bytes")
+        tag = re.match(rb"<(\w+)", data[data.rfind(b"<", 0, m.start()):m.start()])
+        if tag and tag.group(1) in (b"triangles", b"polylist", b"polygons", b"tristrips", b"trifans"):
+            faces += int(count)
+    return faces
 
 
 def check_urdf(path: str | os.PathLike, package_dirs=()) -> UrdfSummary:

@@ -286,6 +286,21 @@ def test_a_collision_mesh_past_the_triangle_limit_is_refused_before_coal(tmp_pat
               "triangles, the file holds 10")
 
 
+@pytest.mark.parametrize("name, content, expect", [
+    ("m.ply", b"ply\nformat ascii 1.0\nelement vertex 999999999\nend_header\n",
+     "a .ply file: meshes are STL, OBJ or COLLADA (.dae), the formats pybullet reads"),  # assimp: no answer in 60 s
+    ("m.dae", b'<COLLADA><float_array count="900000000000">0 0 0</float_array></COLLADA>',
+     "a COLLADA count of 900000000000 items in a file of"),
+    ("m.stl", b"\0" * 80 + (4_000_000_000).to_bytes(4, "little"), "binary STL header counts 4000000000 triangles"),
+    ("m.stl", b"\0" * 40, "not an STL file"),
+])
+def test_a_mesh_whose_loader_would_wait_or_allocate_for_its_claims_is_refused(tmp_path, capsys, name, content, expect):
+    d = _mesh_hand(tmp_path, name)
+    (d / name).write_bytes(content)
+    _one_line(*_run(capsys, "hand", "check", d / "hand.yaml"), "hand.yaml: urdf:", "link 'thumb_proximal'",
+              f"collision mesh '{name}': {expect}")
+
+
 def test_a_mesh_coal_cannot_hull_or_a_format_counted_after_loading_is_one_line(tmp_path, capsys, monkeypatch):
     """A cone of 300 segments (a hull vertex with 300 neighbours: coal's 'Too many
     neighbors'), and the count of a loaded mesh (formats the check does not read)."""
