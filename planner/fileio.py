@@ -387,6 +387,22 @@ class Reader:
             raise bad(f"expected a number in [{low:g}, {high:g}], got {self.got_value(v)}")
         return x
 
+    def quantity(self, low: float, high: float, unit: str = "", *, open_low: bool = False) -> float:
+        """A finite number in [low, high] (``open_low``: in (low, high]), as a float; every
+        message states the range and ``unit`` ("expected a finite number in (0, 1000] kg, got
+        inf", "expected a positive number in ...", "expected a number in ...")."""
+        v = self.value
+        valid = f"{'(' if open_low else '['}{low:g}, {high:g}]{' ' + unit if unit else ''}"
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise self.fail(f"expected a number in {valid}, got {self.got(v)}")
+        x = float(v) if not isinstance(v, int) or abs(v) < 2**63 else math.copysign(math.inf, v)
+        if not math.isfinite(x):
+            raise self.fail(f"expected a finite number in {valid}, got {self.got_value(v)}")
+        if (low < x if open_low else low <= x) and x <= high:
+            return x
+        kind = "a positive number" if x <= 0 and (low > 0 or (open_low and low == 0)) else "a number"
+        raise self.fail(f"expected {kind} in {valid}, got {self.got_value(v)}")
+
     def integer(self, low: float = -math.inf, high: float = math.inf, *, expected: str | None = None) -> int:
         """An integer (not a boolean) in [low, high]: "expected {expected}, got {value}"."""
         v = self.value
@@ -395,9 +411,10 @@ class Reader:
         return v
 
     # -- vectors
-    def vector(self, lengths, meaning: str = "", **number) -> tuple[float, ...]:
+    def vector(self, lengths, meaning: str = "", quantity: tuple | None = None, **number) -> tuple[float, ...]:
         """A list of ``lengths`` (one of them) numbers, each checked by `number` (``number``:
-        its keywords) at its own key path ``key[i]``; ``meaning`` is said in the message."""
+        its keywords), or by `quantity` (``quantity``: its arguments), at its own key path
+        ``key[i]``; ``meaning`` is said in the message."""
         lengths = tuple(lengths)
         expect = " or ".join(str(n) for n in lengths)
         hint = f" ({meaning})" if meaning else ""
@@ -406,7 +423,8 @@ class Reader:
             raise self.fail(f"expected a list of {expect} numbers{hint}, got {self.got(v)}")
         if len(v) not in lengths:
             raise self.fail(f"expected {expect} numbers{hint}, got {len(v)}")
-        return tuple(self.at(x, join_key(self.key, i, index=True)).number(**number) for i, x in enumerate(v))
+        items = [self.at(x, join_key(self.key, i, index=True)) for i, x in enumerate(v)]
+        return tuple(r.quantity(*quantity) if quantity else r.number(**number) for r in items)
 
     def numbers(self, length: int, low: float = -math.inf, high: float = math.inf) -> list[float]:
         """A list of exactly ``length`` numbers in [low, high] (`seq` then `number` per item)."""

@@ -50,8 +50,8 @@ import numpy as np
 from planner.errors import PlannerError, SpecError, UnknownNameError
 from planner.fileio import Reader, check_grasp_file, describe, sha256_file
 from planner.hand import Hand
-from planner.model import Friction
-from planner.objects import SHAPES, SIZE_LENGTHS, SIZE_MEANING, GraspObject
+from planner.model import EDGES_MAX, GAMMA_MAX_M, MU_MAX, Friction
+from planner.objects import GraspObject, read_object
 
 SCHEMA_VERSION = 1
 #: A contact point may lie this far from the object surface (it is projected onto it).
@@ -62,7 +62,6 @@ LIMIT_TOL_RAD = 1e-6
 _TOP_KEYS = ("schema_version", "name", "description", "hand", "object", "friction", "fingers", "palm")
 #: Values of a grasp file's ``palm:`` key (module docstring).
 PALM_MODES = ("auto", "hold", "free")
-_OBJECT_KEYS = ("shape", "size", "position", "quat_xyzw", "mesh", "mass_kg")
 _FRICTION_KEYS = ("mu", "gamma", "edges")
 
 
@@ -208,17 +207,7 @@ def parse_grasp(data: Mapping, path) -> GraspSpec:
     # -- object
     obj = parse_object(r, data["object"], path.parent)
 
-    # -- friction
-    fr = r.child("friction").mapping(string_keys=True)
-    fr.keys(_FRICTION_KEYS, required=("mu", "gamma"))
-    mu = fr.child("mu").number(positive=True)
-    gamma = fr.child("gamma").number(nonnegative=True)
-    edges = fr.child("edges", 5).integer(3, expected="an integer >= 3 (friction cone sides)")
-
-    try:
-        friction = Friction(mu=mu, gamma=gamma, edges=edges)
-    except PlannerError as err:  # Friction's ranges: name the file and key too
-        raise r.fail(str(err), "friction") from None
+    friction = parse_friction(r.child("friction"))
 
     # -- fingers
     fingers_data = r.child("fingers").mapping(string_keys=True)
@@ -251,37 +240,22 @@ def parse_grasp(data: Mapping, path) -> GraspSpec:
 
 def parse_object(r: Reader, value, base_dir: Path) -> GraspObject:
     """The object of the ``object:`` block ``value`` of the file `r` reads
-    (`planner.fileio.Reader`), key path ``object``, its geometry built; a relative mesh path
-    is relative to ``base_dir``."""
-    o = r.at(value, "object").mapping(string_keys=True)
-    o.keys(_OBJECT_KEYS, required=("shape", "size", "position", "quat_xyzw"))
-    shape = o.child("shape").choice(SHAPES, "shape")
-    size = o.child("size").vector(SIZE_LENGTHS[shape], SIZE_MEANING[shape], positive=True)
-    position = o.child("position").vector((3,), "[x, y, z] in metres, palm frame")
-    quat = np.array(o.child("quat_xyzw").vector((4,), "[x, y, z, w]"))
-    norm = float(np.linalg.norm(quat))
-    if abs(norm - 1.0) > 1e-3:
-        raise o.fail(f"expected a unit quaternion [x, y, z, w], got norm {norm:.4g}", "quat_xyzw")
-    quat = tuple(float(v) for v in quat / norm)
-    mesh_path = None
-    if shape == "mesh":
-        if o.get("mesh") is None:
-            raise o.fail("shape mesh needs a mesh file path (relative to the grasp file)", "mesh")
-        mp = Path(o.child("mesh").string())
-        mp = mp if mp.is_absolute() else (base_dir / mp).resolve()
-        if not mp.is_file():
-            raise o.fail(f"mesh file not found: {mp}", "mesh")
-        mesh_path = str(mp)
-    elif o.get("mesh") is not None:
-        raise o.fail(f"only shape mesh takes a mesh file (shape is {shape})", "mesh")
-    mass = o.get("mass_kg")
-    if mass is not None:
-        mass = o.child("mass_kg").number(positive=True)
-    block = {"shape": shape, "size": size, "position": position, "quat_xyzw": quat, "mesh": mesh_path, "mass_kg": mass}
-    try:
-        return GraspObject.from_data(block)
-    except (PlannerError, OSError, ValueError) as err:
-        raise r.fail(str(err), "object") from err
+    (`planner.fileio.Reader`), key path ``object``, checked by the one object-block validator
+    (`planner.objects.check_object_block`) and its geometry built; a relative mesh path is
+    relative to ``base_dir``."""
+    return read_object(r.at(value, "object"), base_dir)
+
+
+def parse_friction(r: Reader) -> Friction:
+    """The ``friction:`` block `r` reads (grasp files, synth object files): ``mu`` in
+    (0, `MU_MAX`], ``gamma`` in [0, `GAMMA_MAX_M`] m, ``edges`` an integer in [3, `EDGES_MAX`]
+    (default 5); errors name the file and the key path (``friction.mu``) and the range."""
+    fr = r.mapping(string_keys=True)
+    fr.keys(_FRICTION_KEYS, required=("mu", "gamma"))
+    mu = fr.child("mu").quantity(0.0, MU_MAX, "(friction coefficient)", open_low=True)
+    gamma = fr.child("gamma").quantity(0.0, GAMMA_MAX_M, "m (torsional friction)")
+    edges = fr.child("edges", 5).integer(3, EDGES_MAX, expected=f"an integer in [3, {EDGES_MAX}] (friction cone sides)")
+    return Friction(mu=mu, gamma=gamma, edges=edges)
 
 
 def _parse_finger(r: Reader, hand, finger, obj) -> FingerSpec:

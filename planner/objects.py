@@ -7,6 +7,7 @@ contact code flips them to get contact normals into the object.
 
 from __future__ import annotations
 
+import math
 import struct
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -19,6 +20,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from planner.errors import InputError, UnknownNameError
+from planner.fileio import Reader
 
 if TYPE_CHECKING:  # coal is imported where geometry is built: the shape table needs no coal
     import coal
@@ -35,10 +37,57 @@ SIZE_MEANING: Mapping[str, str] = MappingProxyType({
     "mesh": "[scale] or [sx, sy, sz]",
 })
 SHAPES: tuple[str, ...] = tuple(SIZE_LENGTHS)
+#: The keys of an ``object:`` block (grasp files, plan files, synth object files, the API).
+OBJECT_KEYS = ("shape", "size", "position", "quat_xyzw", "mesh", "mass_kg")
 DEFAULT_DENSITY_KG_M3 = 500.0   # used when mass_kg is not given
-#: Mesh limits (README "Hardening / plan integrity"): file size and triangle count.
-MAX_MESH_BYTES = 50_000_000
-MAX_MESH_TRIANGLES = 1_000_000
+
+# Ranges of an object, the same for every reader of an object block (`check_object_block`)
+# and for `make_object`; messages state them.
+#: Smallest and largest size entry of a box, cylinder or sphere, and extent of a scaled mesh
+#: (m): a tenth of the touch tolerance (`planner.contacts.TOUCH_TOL_M`, 1 mm), below which an
+#: object's opposite faces are one contact to the planner, up to the plan files' coordinate
+#: range (`planner.plan.MAX_COORD_M`; no hand spans a metre).
+MIN_SIZE_M, MAX_SIZE_M = 1e-4, 10.0
+#: Largest |coordinate| of an object's position in the palm frame (m): the plan files' range.
+MAX_POSITION_M = 10.0
+#: A mesh's scale factors (its size entries); the scaled mesh must also fit `MAX_SIZE_M`.
+MIN_MESH_SCALE, MAX_MESH_SCALE = 1e-6, 1e6
+#: Lightest and heaviest object (kg), given or by default (volume x density). A milligram is
+#: 1e4 times lighter than a finger link of ~10 g, about the mass ratio the simulator's contact
+#: solver still resolves (and a mass of 0 makes its body fixed in space); a tonne is the plan
+#: files' range, far beyond any hand's joint torques (the grip model then says the hand
+#: cannot hold it: it needs finite forces, not an impossible object).
+MIN_MASS_KG, MAX_MASS_KG = 1e-6, 1000.0
+#: A quaternion whose norm is within this of 1 is normalised (a file's rounded digits:
+#: 0.7071068); farther off it is refused (it is not meant as a rotation).
+QUAT_NORM_TOL = 1e-3
+#: A quaternion whose norm is 1 to rounding (within this: ten significant digits, as the
+#: schema 2 plans wrote them) is kept exactly as written, so a normalised quaternion read
+#: again (a plan file's, under its digest) stays bit for bit. The grasp files' rounded
+#: quaternions (0.7071068: 4e-8 off; 9 digits: 1e-9 off) are normalised.
+QUAT_ROUNDING = 1e-10
+
+# Mesh limits (README "Hardening / plan integrity"), checked before the mesh is read.
+#: Most triangles of an object mesh: a 15 cm object (more than the bundled hands span)
+#: meshed with 1 mm edges, the touch tolerance: finer detail is below what any contact test
+#: resolves. A mesh at the limit loads (parse, k-d tree, coal BVH, the convexity test of
+#: `planner.signed_distance`) in a few seconds and ~0.5 GB; decimate a larger one (e.g.
+#: Blender's Decimate modifier or ``meshlab``'s quadric edge collapse).
+MAX_MESH_TRIANGLES = 200_000
+#: Bytes per triangle of the most verbose format read (ASCII STL: seven lines per triangle).
+MESH_BYTES_PER_TRIANGLE = 256
+#: Largest mesh file read, bytes (a binary STL at the limit holds 50 bytes per triangle).
+MAX_MESH_BYTES = MAX_MESH_TRIANGLES * MESH_BYTES_PER_TRIANGLE
+#: Most lines of a text mesh (ASCII STL: 7 per triangle; OBJ: v, vn, vt and f lines).
+MAX_MESH_LINES = 8 * MAX_MESH_TRIANGLES
+#: Most hull-facet candidates the convexity test (`convex_hull_vertices`) examines per probe
+#: point on average; past it the mesh counts as not convex (it keeps its triangles).
+MAX_HULL_CANDIDATES = 200
+
+
+class MeshFileError(InputError):
+    """A mesh file is missing, too large or malformed (the message names the file, and for
+    a malformed text mesh the line, never its content)."""
 
 
 def _readonly(a) -> np.ndarray:
@@ -47,80 +96,142 @@ def _readonly(a) -> np.ndarray:
     return a
 
 
+def check_mesh_file(path) -> None:
+    """Refuse a mesh file before it is read: not a regular file, not .obj/.stl, more than
+    `MAX_MESH_BYTES`, or a binary STL whose header announces more than `MAX_MESH_TRIANGLES`
+    triangles or more than the file holds (`MeshFileError`, naming the file and the limit)."""
+    path = Path(path)
+    try:
+        if not path.is_file():
+            raise MeshFileError(f"mesh file not found (or not a regular file): {path}")
+        ext = path.suffix.lower()
+        if ext not in (".obj", ".stl"):
+            raise MeshFileError(f"unsupported mesh format {ext!r} for {path}; use .obj or .stl")
+        size = path.stat().st_size
+        if size > MAX_MESH_BYTES:
+            raise MeshFileError(f"mesh {path} is {size} bytes; at most {MAX_MESH_BYTES} bytes "
+                                f"({MAX_MESH_TRIANGLES} triangles) are read: decimate it")
+        if ext == ".stl":
+            with open(path, "rb") as fh:
+                head = fh.read(1000)
+            if not _ascii_stl(head) and len(head) >= 84:
+                (n,) = struct.unpack("<I", head[80:84])
+                if n > MAX_MESH_TRIANGLES:
+                    raise MeshFileError(f"mesh {path} has {n} triangles; at most {MAX_MESH_TRIANGLES} are read: "
+                                        f"decimate it")
+                if size < 84 + 50 * n:
+                    raise MeshFileError(f"mesh {path} is malformed: its binary STL header announces {n} triangles, "
+                                        f"the file holds {(size - 84) // 50}")
+    except OSError as err:
+        raise MeshFileError(f"cannot read mesh {path}: {err.strerror}") from None
+
+
 def load_mesh(path, scale=(1.0, 1.0, 1.0)) -> tuple[np.ndarray, np.ndarray]:
-    """Read an OBJ or STL (ASCII or binary) triangle mesh.
+    """Read an OBJ or STL (ASCII or binary) triangle mesh within the mesh limits
+    (`check_mesh_file`, `MAX_MESH_LINES`); a malformed line is named by its number.
 
     Returns:
         vertices (n, 3) scaled, triangles (m, 3) int vertex indices.
+    Raises:
+        MeshFileError: naming the file (and the line or the limit), never quoting it.
     """
     path = Path(path)
-    if not path.is_file():
-        raise InputError(f"mesh file not found: {path}")
-    ext = path.suffix.lower()
-    if ext not in (".obj", ".stl"):
-        raise InputError(f"unsupported mesh format {ext!r} for {path}; use .obj or .stl")
+    check_mesh_file(path)
     try:
-        if path.stat().st_size > MAX_MESH_BYTES:
-            raise InputError(f"mesh {path} is larger than {MAX_MESH_BYTES} bytes")
-        raw = path.read_bytes()
+        with open(path, "rb") as fh:
+            raw = fh.read(MAX_MESH_BYTES + 1)
     except OSError as err:
-        raise InputError(f"cannot read mesh {path}: {err.strerror}") from err
+        raise MeshFileError(f"cannot read mesh {path}: {err.strerror}") from None
+    if len(raw) > MAX_MESH_BYTES:
+        raise MeshFileError(f"mesh {path} is larger than {MAX_MESH_BYTES} bytes")
+    obj = path.suffix.lower() == ".obj"
+    if (obj or _ascii_stl(raw)) and raw.count(b"\n") > MAX_MESH_LINES:
+        raise MeshFileError(f"mesh {path} has more than {MAX_MESH_LINES} lines ({MAX_MESH_TRIANGLES} triangles "
+                            f"are read): decimate it")
     try:
-        V, F = _parse_obj(raw) if ext == ".obj" else _parse_stl(raw)
-    except (ValueError, IndexError, struct.error) as err:
-        raise InputError(f"mesh {path} is malformed: {str(err).splitlines()[0][:80]}") from None
+        V, F = _parse_obj(raw) if obj else _parse_stl(raw)
+    except ValueError as err:
+        raise MeshFileError(f"mesh {path} is malformed: {err}") from None
     if len(F) == 0:
-        raise InputError(f"mesh {path} has no triangles")
+        raise MeshFileError(f"mesh {path} has no triangles")
     if len(F) > MAX_MESH_TRIANGLES:
-        raise InputError(f"mesh {path} has {len(F)} triangles; at most {MAX_MESH_TRIANGLES}")
+        raise MeshFileError(f"mesh {path} has {len(F)} triangles; at most {MAX_MESH_TRIANGLES} are read: decimate it")
     if F.min() < 0 or F.max() >= len(V):
-        raise InputError(f"mesh {path}: a face refers to a vertex that does not exist ({len(V)} vertices)")
+        raise MeshFileError(f"mesh {path}: a face refers to a vertex that does not exist ({len(V)} vertices)")
     if not np.isfinite(V).all() or np.abs(V).max() > 1e6:
-        raise InputError(f"mesh {path}: vertex coordinates must be finite and within 1e6")
+        raise MeshFileError(f"mesh {path}: vertex coordinates must be finite and within 1e6")
     a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
-    if not (np.linalg.norm(np.cross(b - a, c - a), axis=1) > 0).any():
-        raise InputError(f"mesh {path} has no triangle with a non-zero area")
-    used = V[np.unique(F)]
-    extent = float(np.ptp(used, axis=0).max())
-    if np.linalg.matrix_rank(used - used.mean(axis=0), tol=1e-9 * max(extent, 1e-300)) < 3:
-        raise InputError(f"mesh {path} is flat (all its vertices lie in one plane): an object needs a volume")
-    return V * np.asarray(scale, dtype=float), F
+    F = F[np.linalg.norm(np.cross(b - a, c - a), axis=1) > 0]  # a zero-area triangle has no normal
+    if not len(F):
+        raise MeshFileError(f"mesh {path} has no triangle with a non-zero area")
+    used = np.unique(F)
+    extent = float(np.ptp(V[used], axis=0).max())
+    if np.linalg.matrix_rank(V[used] - V[used].mean(axis=0), tol=1e-9 * max(extent, 1e-300)) < 3:
+        raise MeshFileError(f"mesh {path} is flat (all its vertices lie in one plane): an object needs a volume")
+    V = V * np.asarray(scale, dtype=float)
+    reach, extent = float(np.abs(V[used]).max()), float(np.ptp(V[used], axis=0).max())
+    if not (reach <= MAX_SIZE_M and extent >= MIN_SIZE_M):
+        raise MeshFileError(f"mesh {path} scaled by {list(np.ravel(scale))} spans {extent:.3g} m and reaches "
+                            f"{reach:.3g} m from its origin; an object spans at least {MIN_SIZE_M:g} m and lies "
+                            f"within {MAX_SIZE_M:g} m of its origin (object.size scales it)")
+    return V, F
+
+
+def _ascii_stl(head: bytes) -> bool:
+    return head[:5].lower() == b"solid" and b"facet" in head[:1000]
+
+
+def _numbers(parts, line: int, what: str, kind=float) -> list:
+    """``parts`` as numbers; ValueError naming the line and ``what`` it must be (the text is
+    not quoted: a mesh path may point at any file)."""
+    try:
+        return [kind(x) for x in parts]
+    except ValueError:
+        raise ValueError(f"line {line}: {what}") from None
 
 
 def _parse_obj(raw: bytes) -> tuple[np.ndarray, np.ndarray]:
     verts, tris = [], []
-    for line in raw.decode(errors="replace").splitlines():
-        parts = line.split()
+    for line, text in enumerate(raw.decode(errors="replace").splitlines(), start=1):
+        parts = text.split()
         if not parts:
             continue
         if parts[0] == "v":
             if len(parts) < 4:
-                raise ValueError("a vertex line needs 3 coordinates")
-            verts.append([float(x) for x in parts[1:4]])
+                raise ValueError(f"line {line}: a vertex line needs 3 coordinates")
+            verts.append(_numbers(parts[1:4], line, "a vertex line needs 3 numbers"))
         elif parts[0] == "f":
-            idx = [int(p.split("/")[0]) for p in parts[1:]]
+            idx = _numbers([p.split("/")[0] for p in parts[1:]], line,
+                           "a face needs at least 3 vertex indices (1-based integers)", int)
             if len(idx) < 3 or 0 in idx:
-                raise ValueError("a face needs at least 3 vertex indices (1-based)")
+                raise ValueError(f"line {line}: a face needs at least 3 vertex indices (1-based integers)")
             idx = [i - 1 if i > 0 else len(verts) + i for i in idx]
+            if not all(0 <= i < len(verts) for i in idx):
+                raise ValueError(f"line {line}: a face refers to a vertex not defined before it")
             for k in range(1, len(idx) - 1):   # fan-triangulate polygons
                 tris.append([idx[0], idx[k], idx[k + 1]])
             if len(tris) > MAX_MESH_TRIANGLES:
-                raise ValueError(f"more than {MAX_MESH_TRIANGLES} triangles")
+                raise ValueError(f"line {line}: more than {MAX_MESH_TRIANGLES} triangles (decimate it)")
     return np.array(verts, dtype=float).reshape(-1, 3), np.array(tris, dtype=int).reshape(-1, 3)
 
 
 def _parse_stl(raw: bytes) -> tuple[np.ndarray, np.ndarray]:
-    if raw[:5].lower() == b"solid" and b"facet" in raw[:1000]:
-        pts = [[float(x) for x in line.split()[1:4]] for line in raw.decode(errors="replace").splitlines()
-               if line.strip().startswith("vertex")]
+    if _ascii_stl(raw):
+        pts = []
+        for line, text in enumerate(raw.decode(errors="replace").splitlines(), start=1):
+            parts = text.split()
+            if parts and parts[0] == "vertex":
+                if len(parts) != 4:
+                    raise ValueError(f"line {line}: a vertex line needs 3 coordinates")
+                pts.append(_numbers(parts[1:], line, "a vertex line needs 3 numbers"))
         if len(pts) % 3:
-            raise ValueError("the vertex count is not a multiple of 3")
+            raise ValueError(f"the vertex count {len(pts)} is not a multiple of 3")
         tri_pts = np.array(pts, dtype=float).reshape(-1, 3, 3)
     else:
         if len(raw) < 84:
             raise ValueError(f"a binary STL has an 84-byte header, the file has {len(raw)} bytes")
         (n,) = struct.unpack("<I", raw[80:84])
-        if len(raw) < 84 + 50 * n:
+        if n > MAX_MESH_TRIANGLES or len(raw) < 84 + 50 * n:
             raise ValueError(f"the header announces {n} triangles, the file holds {(len(raw) - 84) // 50}")
         rec = np.frombuffer(raw[84:84 + 50 * n], dtype=np.dtype([("n", "<f4", 3), ("v", "<f4", (3, 3)),
                                                                   ("a", "<u2")]))
@@ -164,21 +275,21 @@ class GraspObject:
     @classmethod
     def from_data(cls, data: Mapping, base_dir=None) -> "GraspObject":
         """The object of an ``object:`` block (keys shape, size, position, quat_xyzw, and
-        optionally mesh, mass_kg), already validated (`planner.grasp.parse_object` checks a
-        grasp file's, with the file and key in its errors).
+        optionally mesh, mass_kg), checked by `check_object_block` (a `SpecError` names
+        ``<object block>`` and the key: `read_object` names a file's), geometry built.
 
         Args:
             data: the block; ``quat_xyzw`` a unit quaternion [x, y, z, w] (palm frame),
                 ``position`` metres (palm frame); ``mass_kg`` None or absent: the default.
             base_dir: folder a relative ``mesh`` path is relative to (default: as given).
+        Raises:
+            SpecError: a bad entry. InputError (`MeshFileError`: the mesh): the object
+                cannot be built.
         """
-        quat = tuple(float(v) for v in data["quat_xyzw"])
-        T = _pose(data["position"], quat)
-        mesh = data.get("mesh")
-        if mesh is not None and base_dir is not None and not Path(mesh).is_absolute():
-            mesh = str(Path(base_dir) / mesh)
-        mass = data.get("mass_kg")
-        obj = make_object(data["shape"], tuple(data["size"]), T, mesh_path=mesh, mass_kg=mass)
+        block = check_object_block(Reader("<object block>", data, "object"), base_dir)
+        quat = block["quat_xyzw"]
+        obj = make_object(block["shape"], block["size"], _pose(block["position"], quat), mesh_path=block["mesh"],
+                          mass_kg=block["mass_kg"])
         object.__setattr__(obj, "_quat_xyzw", quat)
         return obj
 
@@ -225,6 +336,12 @@ class GraspObject:
 
     def __hash__(self) -> int:
         return hash((self.shape, self.size, self.position, self.quat_xyzw, self.mesh_path))
+
+    def convex_hull_points(self, tol: float) -> np.ndarray | None:
+        """A mesh's convex hull vertices (k, 3) when the mesh is convex within ``tol``
+        (`convex_hull_vertices`, computed once per mesh and tolerance), else None; None for
+        the other shapes."""
+        return None if self._mesh is None else self._mesh.convex_hull_points(tol)
 
     @property
     def geometry(self) -> coal.CollisionGeometry:
@@ -400,6 +517,14 @@ class MeshData:
         self.reach = float(max(np.linalg.norm(t - centroid, axis=1).max() for t in (self.a, self.b, self.c)))
         self._tree = cKDTree(centroid)
 
+    def convex_hull_points(self, tol: float) -> np.ndarray | None:
+        """`convex_hull_vertices` of this mesh as points (k, 3), computed once per ``tol``."""
+        cache = self.__dict__.setdefault("_hulls", {})
+        if tol not in cache:
+            idx = convex_hull_vertices(self.V, self.F, tol)
+            cache[tol] = None if idx is None else self.V[idx]
+        return cache[tol]
+
     def closest(self, p):
         """(triangle index, closest point (3,), distance, the point is inside the face) of p."""
         _, k0 = self._tree.query(p)
@@ -413,6 +538,58 @@ class MeshData:
         k = int(cand[j])
         w = _barycentric(cp[j], a[j], b[j], c[j])
         return k, cp[j], float(np.sqrt(d2[j])), bool(np.all(w > 1e-9))
+
+
+def convex_hull_vertices(V, F, tol: float) -> np.ndarray | None:
+    """Indices of the convex hull's vertices when every vertex and face centroid of the mesh
+    (V, F) lies within ``tol`` of the hull's boundary (the mesh is convex to ``tol``), else
+    None.
+
+    Exact and sub-quadratic: a probe point p inside the hull is at distance
+    ``min_f -(n_f . p + d_f)`` from its boundary, attained on the facet f* holding the nearest
+    boundary point q; when that distance is at most ``tol``, f*'s centroid lies within
+    ``tol + reach(f*)`` of p (reach: the facet's largest centroid-to-vertex distance). So
+    only facets whose centroids are that close are examined: facets grouped by reach
+    (doubling), one k-d tree per group. A mesh needing more than `MAX_HULL_CANDIDATES`
+    candidates per probe on average (long sliver facets) counts as not convex (it keeps its
+    triangles: `planner.signed_distance`).
+    """
+    from scipy.spatial import ConvexHull
+
+    V = np.asarray(V, dtype=float)
+    F = np.asarray(F, dtype=np.int64)
+    hull = ConvexHull(V)
+    on_hull = np.zeros(len(V), dtype=bool)
+    on_hull[hull.vertices] = True
+    probes = np.concatenate([V[~on_hull], V[F].mean(axis=1)])  # a hull vertex is on the boundary
+    eq = hull.equations
+    tri = V[hull.simplices]
+    centre = tri.mean(axis=1)
+    reach = np.linalg.norm(tri - centre[:, None], axis=2).max(axis=1)
+    order = np.argsort(reach, kind="stable")
+    groups, lo = [], 0
+    while lo < len(order):
+        hi = max(int(np.searchsorted(reach[order], max(2.0 * reach[order[lo]], tol), side="right")), lo + 1)
+        idx = order[lo:hi]
+        groups.append((cKDTree(centre[idx]), idx, tol + float(reach[order[hi - 1]])))
+        lo = hi
+    budget = MAX_HULL_CANDIDATES * len(probes)
+    chunk = 32768
+    for s in range(0, len(probes), chunk):
+        P = probes[s:s + chunk]
+        tree = cKDTree(P)
+        budget -= sum(int(tree.count_neighbors(t, r)) for t, _, r in groups)
+        if budget < 0:
+            return None
+        best = np.full(len(P), np.inf)
+        for t, idx, r in groups:
+            pairs = tree.sparse_distance_matrix(t, r, output_type="ndarray")
+            if len(pairs):
+                i, f = pairs["i"], idx[pairs["j"]]
+                np.minimum.at(best, i, -(np.einsum("ij,ij->i", P[i], eq[f, :3]) + eq[f, 3]))
+        if best.max() > tol:
+            return None
+    return hull.vertices
 
 
 def _barycentric(x, a, b, c) -> np.ndarray:
@@ -511,6 +688,11 @@ def _closest_on_triangles(p, a, b, c):
     out[m] = b[m]
     m = (d6 >= 0) & (d5 <= d6)
     out[m] = c[m]
+    bad = ~np.isfinite(out).all(axis=1)
+    if bad.any():  # a sliver so thin that its weights are 0/0 (float32 STL vertices): its nearest vertex
+        corners = np.stack([a[bad], b[bad], c[bad]], axis=1)
+        near = np.argmin(np.einsum("ijk,ijk->ij", corners - p, corners - p), axis=1)
+        out[bad] = corners[np.arange(len(corners)), near]
     return out
 
 
@@ -533,15 +715,85 @@ def _check_pose(T) -> np.ndarray:
     return _readonly(T)
 
 
+def check_object_block(r: Reader, base_dir=None) -> dict:
+    """The one validator of an ``object:`` block, for every reader of one (grasp files, plan
+    files, synth object files, the API through `GraspObject.from_data`): keys `OBJECT_KEYS`;
+    ``shape`` one of `SHAPES`; ``size`` as `SIZE_LENGTHS` says, each entry in
+    [`MIN_SIZE_M`, `MAX_SIZE_M`] m (a mesh's scale: [`MIN_MESH_SCALE`, `MAX_MESH_SCALE`]);
+    ``position`` within `MAX_POSITION_M`; ``quat_xyzw`` finite, its norm within
+    `QUAT_NORM_TOL` of 1 (normalised, unless 1 to `QUAT_ROUNDING`: kept as written);
+    ``mesh`` for shape mesh only; ``mass_kg`` absent, null or in [`MIN_MASS_KG`, `MAX_MASS_KG`].
+
+    Args:
+        r: the block in its file (`planner.fileio.Reader`: errors name the file and the key
+            path, e.g. ``ball.yaml: object.mass_kg: ...``, and the valid range).
+        base_dir: folder a relative ``mesh`` is relative to: the mesh file must then exist
+            and pass `check_mesh_file` (size and triangle limits, before it is read). None:
+            the path is kept as written (a plan's, relative to the plan; checked when built).
+    Returns:
+        The block: shape, size, position and quat_xyzw as tuples of floats, mesh (a path or
+        None), mass_kg (a float or None).
+    Raises:
+        SpecError: naming r's file and the key path.
+    """
+    o = r.mapping(string_keys=True)
+    o.keys(OBJECT_KEYS, required=("shape", "size", "position", "quat_xyzw"))
+    shape = o.child("shape").choice(SHAPES, "shape")
+    low, high, unit = (MIN_MESH_SCALE, MAX_MESH_SCALE, "") if shape == "mesh" else (MIN_SIZE_M, MAX_SIZE_M, "m")
+    size = o.child("size").vector(SIZE_LENGTHS[shape], SIZE_MEANING[shape], quantity=(low, high, unit))
+    position = o.child("position").vector((3,), "[x, y, z] in metres, palm frame",
+                                           quantity=(-MAX_POSITION_M, MAX_POSITION_M, "m"))
+    quat = o.child("quat_xyzw").vector((4,), "[x, y, z, w]")
+    norm = math.sqrt(sum(v * v for v in quat))
+    if not abs(norm - 1.0) <= QUAT_NORM_TOL:
+        raise o.fail(f"expected a unit quaternion [x, y, z, w] (norm within {QUAT_NORM_TOL:g} of 1: it is "
+                     f"normalised), got norm {norm:.4g}", "quat_xyzw")
+    if abs(norm - 1.0) > QUAT_ROUNDING:
+        quat = tuple(float(v) for v in np.asarray(quat) / norm)
+    mesh = None
+    if shape == "mesh":
+        if o.get("mesh") is None:
+            raise o.fail("shape mesh needs a mesh file path (.obj or .stl, relative to this file)", "mesh")
+        mesh = o.child("mesh").name(4096)
+        if base_dir is not None:
+            mp = Path(mesh) if Path(mesh).is_absolute() else (Path(base_dir) / mesh).resolve()
+            try:
+                check_mesh_file(mp)
+            except MeshFileError as err:
+                raise o.fail(str(err), "mesh") from None
+            mesh = str(mp)
+    elif o.get("mesh") is not None:
+        raise o.fail(f"only shape mesh takes a mesh file (shape is {shape})", "mesh")
+    mass = None
+    if o.get("mass_kg") is not None:
+        mass = o.child("mass_kg").quantity(MIN_MASS_KG, MAX_MASS_KG, "kg")
+    return {"shape": shape, "size": size, "position": position, "quat_xyzw": tuple(quat), "mesh": mesh,
+            "mass_kg": mass}
+
+
+def read_object(r: Reader, base_dir=None) -> GraspObject:
+    """The object of the ``object:`` block ``r`` reads (`check_object_block`), its geometry
+    built; every error a `SpecError` naming r's file and the key (a mesh's: ``.mesh``)."""
+    block = check_object_block(r, base_dir)
+    try:
+        return GraspObject.from_data(block)
+    except MeshFileError as err:
+        raise r.fail(str(err), "mesh") from None
+    except InputError as err:
+        raise r.fail(str(err)) from None
+
+
 def make_object(shape: str, size, T_palm_obj=None, mesh_path=None, mass_kg=None) -> GraspObject:
     """Build a GraspObject and its coal geometry.
 
     Args:
         shape: "box", "cylinder", "sphere" or "mesh".
-        size: see GraspObject.size (metres); every entry finite and > 0.
+        size: see GraspObject.size (metres); every entry in [`MIN_SIZE_M`, `MAX_SIZE_M`]
+            (a mesh's scale in [`MIN_MESH_SCALE`, `MAX_MESH_SCALE`]).
         T_palm_obj: (4, 4) pose in the palm frame (default identity).
-        mesh_path: OBJ/STL file for shape "mesh".
-        mass_kg: > 0, default volume x 500 kg/m^3.
+        mesh_path: OBJ/STL file for shape "mesh" (`load_mesh`: within the mesh limits).
+        mass_kg: in [`MIN_MASS_KG`, `MAX_MASS_KG`], default volume x 500 kg/m^3 (which must
+            be in that range too).
     Raises:
         UnknownNameError: unknown shape. InputError: bad size, pose, mass or mesh.
     """
@@ -555,8 +807,9 @@ def make_object(shape: str, size, T_palm_obj=None, mesh_path=None, mass_kg=None)
         raise InputError(f"{shape} size must be numbers, got {size!r}") from err
     if len(s) not in SIZE_LENGTHS[shape]:
         raise InputError(f"{shape} size must be {SIZE_MEANING[shape]}, got {size!r}")
-    if not all(np.isfinite(x) and x > 0 for x in s):
-        raise InputError(f"{shape} size entries must be finite and > 0 (metres), got {size!r}")
+    low, high, unit = (MIN_MESH_SCALE, MAX_MESH_SCALE, "") if shape == "mesh" else (MIN_SIZE_M, MAX_SIZE_M, " m")
+    if not all(np.isfinite(x) and low <= x <= high for x in s):
+        raise InputError(f"{shape} size entries must be finite and in [{low:g}, {high:g}]{unit}, got {size!r}")
     T = _check_pose(np.eye(4) if T_palm_obj is None else T_palm_obj)
     mesh = None
     if shape == "box":
@@ -572,12 +825,11 @@ def make_object(shape: str, size, T_palm_obj=None, mesh_path=None, mass_kg=None)
     if shape != "mesh":
         geom.computeLocalAABB()
     obj = GraspObject(shape, s, T, None if mesh_path is None else str(mesh_path), 0.0, mesh, geom)
-    if mass_kg is None:
-        mass = DEFAULT_DENSITY_KG_M3 * obj.volume_m3
-    else:
-        mass = float(mass_kg)
-        if not (np.isfinite(mass) and mass > 0):
-            raise InputError(f"mass_kg must be > 0, got {mass_kg!r}")
+    mass = DEFAULT_DENSITY_KG_M3 * obj.volume_m3 if mass_kg is None else float(mass_kg)
+    if not (np.isfinite(mass) and MIN_MASS_KG <= mass <= MAX_MASS_KG):
+        what = f"the default mass (volume x {DEFAULT_DENSITY_KG_M3:g} kg/m^3) is {mass:.3g} kg: give mass_kg; " \
+            if mass_kg is None else ""
+        raise InputError(f"{what}mass_kg must be in [{MIN_MASS_KG:g}, {MAX_MASS_KG:g}] kg, got {mass!r}")
     object.__setattr__(obj, "mass_kg", float(mass))
     object.__setattr__(obj, "mass_given", mass_kg is not None)
     return obj

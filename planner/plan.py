@@ -27,7 +27,7 @@ from planner.closure import CONTACT_MODELS, grasp_closure
 from planner.errors import IntegrityError, PlannerError, PlannerWarning, SpecError, UnknownNameError
 from planner.fileio import MAX_GRASP_BYTES, MAX_PLAN_BYTES, Reader, load_json, load_yaml, read_limited, sha256_file, shown
 from planner.model import PALM, Friction, Patch
-from planner.objects import SHAPES, SIZE_LENGTHS, SIZE_MEANING
+from planner.objects import MeshFileError, check_object_block
 from planner.plan_data import (ACTIONS, PLAN_KIND, SCHEMA_VERSION, Alternative, Plan, PlanState, PlanStep,
                                canonical_sha256, plan_file, plan_format)
 from planner.resources import bundled_grasp
@@ -41,8 +41,7 @@ MAX_WAYPOINTS = 10_000       # waypoints per step path
 MAX_POINTS = 10_000          # points per contact patch
 MAX_JOINTS = 256             # joints per hand
 MAX_JOINT_VALUE = 100.0      # |joint value|, rad or m (the hand's limits are checked by the replay)
-MAX_COORD_M = 10.0           # |object position| and |contact point|, m
-MAX_MASS_KG = 1000.0
+MAX_COORD_M = 10.0           # |contact point|, m (the object's ranges: planner.objects)
 #: A path's ends must equal its states' joint values within this (rad or m).
 PATH_END_TOL = 1e-6
 #: Recorded closure metrics are re-computed within this (relative, absolute).
@@ -220,7 +219,9 @@ def plan_from_data(data: Any, source: str | os.PathLike | None = None) -> Plan:
     try:
         return Plan(dict(hand.value), obj, friction, dict(inputs.value), dict(parameters.value), summary, joints, states,
                     steps, tuple(alternatives), source=None if source is None else src)
-    except PlannerError as err:  # the default mass needs the object (e.g. its mesh file)
+    except MeshFileError as err:  # the object's mesh file (relative to the plan): missing, too large, malformed
+        raise r.fail(str(err), "object.mesh") from None
+    except PlannerError as err:  # the default mass needs the object
         raise r.fail(str(err), "object") from None
 
 
@@ -230,24 +231,9 @@ STEP_KEYS = ("finger", "action", "from_state", "to_state", "joints", "path")
 
 
 def _check_object(r: Reader) -> dict:
-    r.mapping()
-    o = dict(r.value)
-    r.require("shape", "size", "position", "quat_xyzw", message="missing key")
-    shape = r.child("shape").choice(SHAPES, "shape")
-    size = r.child("size").seq(max(SIZE_LENGTHS[shape]), min(SIZE_LENGTHS[shape]))
-    if len(size.value) not in SIZE_LENGTHS[shape]:  # a mesh: 1 or 3, never 2
-        raise size.fail(f"a {shape} size is {SIZE_MEANING[shape]}, got {len(size.value)} entries")
-    o["size"] = [v.number(1e-6, MAX_COORD_M) for _, v in size.items()]
-    o["position"] = r.child("position").numbers(3, -MAX_COORD_M, MAX_COORD_M)
-    quat = r.child("quat_xyzw").numbers(4, -1.0 - 1e-6, 1.0 + 1e-6)
-    if abs(math.sqrt(sum(v * v for v in quat)) - 1.0) > 1e-6:
-        raise r.fail("expected a unit quaternion [x, y, z, w]", "quat_xyzw")
-    o["quat_xyzw"] = quat
-    if o.get("mass_kg") is not None:
-        o["mass_kg"] = r.child("mass_kg").number(1e-9, MAX_MASS_KG)
-    if shape == "mesh":
-        r.child("mesh").name()
-    return o
+    """The plan's object block by the one object-block validator (`check_object_block`: the
+    grasp files' ranges and quaternion rule; a recorded quaternion is kept bit for bit)."""
+    return check_object_block(r.mapping())
 
 
 def _check_state(s: Reader, i: int, joints: tuple[str, ...]) -> PlanState:

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import coal
 import numpy as np
-from scipy.spatial import ConvexHull
 
 MESH_CONVEX_TOL_M = 1e-4
 """A mesh whose vertices and face centroids all lie within this of its convex hull's
@@ -77,21 +76,13 @@ def signed_distance_geometry(obj):
     if cached is None:  # the entry holds the geometry, so its id is not reused meanwhile
         if len(_SDF_GEOMETRY_CACHE) >= 8:
             _SDF_GEOMETRY_CACHE.pop(next(iter(_SDF_GEOMETRY_CACHE)))
-        cached = _SDF_GEOMETRY_CACHE[id(geometry)] = (geometry, _mesh_signed_distance_geometry(geometry))
+        hull = obj.convex_hull_points(MESH_CONVEX_TOL_M)  # sub-quadratic: `planner.objects.convex_hull_vertices`
+        try:
+            sdf = geometry if hull is None else convex_hull(hull)
+        except RuntimeError:  # coal holds at most 254 neighbours per hull vertex (a fine mesh's pole): the triangles
+            sdf = geometry
+        cached = _SDF_GEOMETRY_CACHE[id(geometry)] = (geometry, sdf)
     return cached[1]
-
-
-def _mesh_signed_distance_geometry(geometry):
-    """The convex hull of a convex ``BVHModel`` as a ``coal.Convex``, else the mesh itself."""
-
-    V = np.asarray(geometry.vertices(), dtype=float)
-    F = np.array([[t[0], t[1], t[2]] for t in map(geometry.tri_indices, range(geometry.num_tris))], dtype=np.int64)
-    hull = ConvexHull(V)
-    probes = np.concatenate([V, V[F].mean(axis=1)])
-    gap = -(probes @ hull.equations[:, :3].T + hull.equations[:, 3]).max(axis=1)  # >= 0 inside
-    if gap.max() > MESH_CONVEX_TOL_M:
-        return geometry
-    return convex_hull(V[hull.vertices])
 
 
 def convex_hull(points) -> "coal.ConvexBase":

@@ -54,10 +54,10 @@ from planner.collision import LINK_EPS_M
 from planner.contacts import TOUCH_TOL_M
 from planner.errors import PlannerError, SpecError, UnknownNameError
 from planner.fileio import MAX_GRASP_BYTES, Reader, read_yaml
-from planner.grasp import load_hand, parse_grasp, parse_object, resolve_hand_ref
+from planner.grasp import load_hand, parse_friction, parse_grasp, resolve_hand_ref
 from planner.grip import HOLD_FACTOR, grasp_hold
 from planner.model import Friction
-from planner.objects import GraspObject
+from planner.objects import GraspObject, read_object
 from planner.realization import PENETRATION_TOL_M, realize
 from planner.retreat import retreat_blocked
 from planner.synth_sample import (PALM_CLEARANCE_M, closes_onto, inner_radius, object_of,
@@ -96,10 +96,13 @@ class SynthResult:
 
 def load_object_file(path) -> tuple[GraspObject, dict | None, bool]:
     """Read an object file: (the object, friction block or None, pose_fixed); an object
-    file without a pose is at the palm frame's origin (synthesis samples its pose).
+    file without a pose is at the palm frame's origin (synthesis samples its pose). The
+    object block is checked by the one object-block validator
+    (`planner.objects.check_object_block`), a friction block as a grasp file's
+    (`planner.grasp.parse_friction`).
 
     Raises:
-        SpecError: naming the file and key.
+        SpecError: naming the file, the key path and the valid range.
     """
     path = Path(path)
     # the bounded reader: size, nesting, aliases and integer digits limited, a FIFO refused
@@ -107,25 +110,17 @@ def load_object_file(path) -> tuple[GraspObject, dict | None, bool]:
     data = r.mapping("a YAML mapping: the object block (shape, size, ...) or a file with an object: key",
                      string_keys=True).value
     friction = None
-    key = ""
+    o = r  # the block at the top level: its keys have no "object." prefix there
     if "object" in data:
-        friction = data.get("friction")
-        data, key = r.child("object").mapping(string_keys=True).value, "object"
+        if data.get("friction") is not None:
+            friction = parse_friction(r.child("friction")).to_data()
+        o = r.child("object").mapping(string_keys=True)
     elif "shape" not in data:
         raise r.fail("expected an object block (keys shape, size[, position, quat_xyzw, mesh, mass_kg]) "
                      "at the top level or under an object: key")
-    fixed = "position" in data
-    block = dict(data)
-    block.setdefault("position", [0.0, 0.0, 0.0])
-    block.setdefault("quat_xyzw", [0.0, 0.0, 0.0, 1.0])
-    try:
-        spec = parse_object(r, block, path.parent)
-    except SpecError as err:
-        if key:
-            raise
-        # the block sits at the top level: its keys have no "object." prefix there
-        raise SpecError(str(path), err.key.removeprefix("object").lstrip("."), err.message) from err
-    return spec, friction, fixed
+    fixed = "position" in o.value
+    block = {"position": [0.0, 0.0, 0.0], "quat_xyzw": [0.0, 0.0, 0.0, 1.0], **o.value}
+    return read_object(o.at(block), path.parent), friction, fixed
 
 
 def _grasp_data(hand_ref, obj: GraspObject, friction, fingers, preshape, name, description, palm=False) -> dict:

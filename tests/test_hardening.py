@@ -353,8 +353,8 @@ def _malformed_grasps(tmp_path) -> dict:
         "dup.yaml": (base.replace("friction: {mu: 0.9", "friction: {mu: -1, mu: 0.9"), "duplicate key 'mu'"),
         "big.yaml": (base + "#" * 2_000_000 + "\n", "at most 1000000 bytes"),
         "hand.yaml": (base.replace("hand: icub_right", f"hand: {secret}"), "hand spec"),
-        "mu.yaml": (base.replace("mu: 0.9", "mu: 200.0"), "friction mu must be in [0, 100], got 200"),
-        "edges.yaml": (base.replace("edges: 5", "edges: 1000"), "edges must be an integer in [3, 256]"),
+        "mu.yaml": (base.replace("mu: 0.9", "mu: 200.0"), "friction.mu: expected a number in (0, 100]"),
+        "edges.yaml": (base.replace("edges: 5", "edges: 1000"), "friction.edges: expected an integer in [3, 256]"),
     }
     out = {}
     for name, (text, expect) in cases.items():
@@ -391,7 +391,7 @@ def test_load_grasp_api_reads_within_the_same_bounds(tmp_path):
         assert msg.startswith(str(path)) and expect in msg and "\n" not in msg, (name, msg)
         assert "hunter2" not in msg
         if name in ("mu.yaml", "edges.yaml"):
-            assert err.value.key == "friction"
+            assert err.value.key == "friction." + name.removesuffix(".yaml")
 
 
 @pytest.mark.parametrize("name, content, expect", [
