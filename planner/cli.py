@@ -22,6 +22,7 @@ from planner import commands
 from planner.errors import NoSequenceError, PlannerError, PlannerWarning, one_line
 from planner.fileio import check_grasp_file, check_output
 from planner.gravity import GRAVITY_NAMES, GRAVITY_SET_SIZES, gravity_name_error
+from planner.options import MOTION_CHECKS
 from planner.resources import bundled_grasp
 
 DEMO_INITIAL = "icub/cylinder_parallel_extension.yaml"  # bundled grasps (planner.resources)
@@ -116,7 +117,9 @@ def build_parser() -> argparse.ArgumentParser:
                       help="with --execution: return the best sequence without replaying it in pybullet first")
     plan.add_argument("--no-motion", action="store_true", help="skip OMPL finger paths (straight joint segments)")
     plan.add_argument("--motion-planner", default="rrtconnect", help="OMPL planner name (default rrtconnect)")
-    plan.add_argument("--motion-timeout", type=float, default=2.0, metavar="S", help="time budget per finger path, s")
+    plan.add_argument("--motion-checks", type=int, default=MOTION_CHECKS, metavar="N",
+                      help="work bound per finger path: OMPL's collision checks (not a time, so the plan does not "
+                           "depend on the machine's load)")
     plan.add_argument("-v", "--verbose", action="store_true",
                       help="show the motion planner's and the C++ libraries' console output and every warning")
     plan.set_defaults(func=commands.cmd_plan)

@@ -60,7 +60,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
         seed=args.seed,
         motion=not args.no_motion,
         motion_planner=args.motion_planner,
-        motion_timeout_s=args.motion_timeout,
+        motion_checks=args.motion_checks,
         max_lifted=args.max_lifted,
         max_finger_force_n=args.max_finger_force,
         time_limit_s=args.time_limit,

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import time
 from collections.abc import Iterator, Mapping
 from types import MappingProxyType
 
@@ -48,21 +49,21 @@ from planner.finger_scene import (
     finger_of,
     first_invalid,
 )
+from planner.options import MOTION_CHECKS
 from planner.retreat import DEFAULT_LIFT_M, retreat
 
 # name -> OMPL geometric planner class. Asymptotically optimal planners stop at their
 # first solution (cost threshold +inf): the path is then shortened by PathSimplifier.
-# PRM and PRM* grow their roadmap in a second thread, so their paths are not
-# guaranteed to be reproducible from the seed; every other planner here is. FMT and BFMT are left out:
-# they stop after a fixed number of samples whatever the time budget.
+# Every planner here is reproducible from the seed and stops on the work bound (collision
+# checks, `planner.options.MOTION_CHECKS`). PRM and PRM* are left out: they grow their roadmap
+# in a second thread (paths not reproducible, and the work bound, evaluated from both threads,
+# deadlocks); so are FMT and BFMT: they stop after a fixed number of samples whatever the budget.
 _PLANNER_CLASSES = {
     "rrtconnect": "RRTConnect",
     "rrt": "RRT",
     "rrtstar": "RRTstar",
     "informedrrtstar": "InformedRRTstar",
     "sorrtstar": "SORRTstar",
-    "prm": "PRM",
-    "prmstar": "PRMstar",
     "kpiece": "KPIECE1",
     "bkpiece": "BKPIECE1",
     "lbkpiece": "LBKPIECE1",
@@ -105,6 +106,12 @@ def _ompl_output(verbose: bool) -> Iterator[None]:
         ou.setLogLevel(previous)
 
 
+def _as_checks(max_checks) -> int:
+    if isinstance(max_checks, bool) or int(max_checks) != max_checks:
+        raise InputError(f"max_checks must be a whole number of collision checks; got {max_checks!r}")
+    return int(max_checks)
+
+
 def _ompl_seed(seed: int) -> int:
     # OMPL rejects 0 ("seed cannot be 0") and keeps a 32-bit seed.
     return int(seed) % (2**32 - 1) + 1
@@ -118,12 +125,15 @@ def _solve_ompl(
     upper: np.ndarray,
     *,
     planner: str,
-    timeout_s: float,
+    max_checks: int,
     seed: int,
     resolution_rad: float,
     verbose: bool,
 ) -> np.ndarray | None:
     """Plan in the box ``[lower, upper]`` of R^n; returns the simplified waypoints or None.
+
+    The planner stops at its first solution or after ``max_checks`` calls of ``is_valid``
+    (checked by OMPL once per planner iteration, so a few more may run).
 
     Every OMPL object is local to this frame (see the module docstring), so the caller
     raises its error after they are gone.
@@ -143,7 +153,13 @@ def _solve_ompl(
             bounds.setHigh(i, float(upper[i]))
         space.setBounds(bounds)
         si = ob.SpaceInformation(space)
-        si.setStateValidityChecker(lambda s: bool(is_valid(np.fromiter((s[i] for i in range(n)), float, n))))
+        checks = [0]
+
+        def valid(s) -> bool:
+            checks[0] += 1
+            return bool(is_valid(np.fromiter((s[i] for i in range(n)), float, n)))
+
+        si.setStateValidityChecker(valid)
         # Motions are checked every resolution_rad (L2 norm, so every joint moves less).
         si.setStateValidityCheckingResolution(resolution_rad / space.getMaximumExtent())
         si.setup()
@@ -161,7 +177,7 @@ def _solve_ompl(
         algo.setProblemDefinition(pdef)
         algo.setup()
         ptc = ob.plannerOrTerminationCondition(
-            ob.timedPlannerTerminationCondition(float(timeout_s)),
+            ob.PlannerTerminationCondition(lambda: checks[0] >= max_checks),
             ob.exactSolnPlannerTerminationCondition(pdef),
         )
         algo.solve(ptc)
@@ -189,7 +205,7 @@ def _plan_move(
     b: np.ndarray,
     *,
     planner: str,
-    timeout_s: float,
+    max_checks: int,
     seed: int,
     clearance_m: float,
     resolution_rad: float,
@@ -205,16 +221,17 @@ def _plan_move(
         return straight
     lower = np.asarray(scene.hand.lower, dtype=float)[scene.idx]
     upper = np.asarray(scene.hand.upper, dtype=float)[scene.idx]
+    t0 = time.perf_counter()
     waypoints = _solve_ompl(
         lambda q: scene.is_valid(q, clearance_m),
         a, b, lower, upper,
-        planner=planner, timeout_s=timeout_s, seed=seed,
+        planner=planner, max_checks=max_checks, seed=seed,
         resolution_rad=resolution_rad, verbose=verbose,
     )
     if waypoints is None:
         raise MotionError(
-            f"finger {name}: {planner} found no collision-free path in {timeout_s:g} s "
-            f"(clearance {clearance_m * 1000:.1f} mm)"
+            f"finger {name}: {planner} found no collision-free path in {max_checks} collision checks "
+            f"({time.perf_counter() - t0:.1f} s; clearance {clearance_m * 1000:.1f} mm)"
         )
     waypoints[0], waypoints[-1] = a, b
     path = densify(waypoints, resolution_rad)
@@ -233,7 +250,7 @@ def plan_finger_move(
     finger: str,
     *,
     planner: str = "rrtconnect",
-    timeout_s: float = 1.0,
+    max_checks: int = MOTION_CHECKS,
     seed: int = 0,
     clearance_m: float = DEFAULT_CLEARANCE_M,
     touch_tol_m: float = DEFAULT_TOUCH_TOL_M,
@@ -256,7 +273,7 @@ def plan_finger_move(
         q_goal: hand configuration (nq,); only the finger's joints are read.
         finger: name of the moving finger.
         planner: one of :func:`available_planners`.
-        timeout_s: planning budget in seconds.
+        max_checks: work bound: collision checks of the OMPL search (`MOTION_CHECKS`).
         seed: OMPL random seed.
         clearance_m: distance kept from the object.
         touch_tol_m: finger-object penetration tolerated at contacts (used by the
@@ -271,11 +288,12 @@ def plan_finger_move(
     Raises:
         UnknownNameError: unknown planner or finger.
         InputError: bad shapes, non-finite values or a configuration outside joint limits.
-        MotionError: start or goal in collision, or no path within ``timeout_s``.
+        MotionError: start or goal in collision, or no path within ``max_checks``.
     """
     _planner_class_name(planner)
     f = finger_of(hand, finger)
-    check_positive(timeout_s=timeout_s, clearance_m=clearance_m, resolution_rad=resolution_rad)
+    check_positive(max_checks=max_checks, clearance_m=clearance_m, resolution_rad=resolution_rad)
+    max_checks = _as_checks(max_checks)
     if not (np.isfinite(touch_tol_m) and touch_tol_m >= 0):
         raise InputError(f"touch_tol_m must be >= 0; got {touch_tol_m!r}")
     qs = as_q(hand, q_start, "q_start")
@@ -284,7 +302,7 @@ def plan_finger_move(
     b = check_limits(hand, f, qg[list(f.q_index)], "q_goal")
     scene = FingerScene(hand, obj, qs, finger, touch_tol_m)
     return _plan_move(
-        scene, a, b, planner=planner, timeout_s=timeout_s, seed=seed,
+        scene, a, b, planner=planner, max_checks=max_checks, seed=seed,
         clearance_m=clearance_m, resolution_rad=resolution_rad, verbose=verbose,
     )
 
@@ -301,7 +319,7 @@ def plan_gait_step(
     *,
     q_others=None,
     planner: str = "rrtconnect",
-    timeout_s: float = 1.0,
+    max_checks: int = MOTION_CHECKS,
     seed: int = 0,
     clearance_m: float = DEFAULT_CLEARANCE_M,
     touch_tol_m: float = DEFAULT_TOUCH_TOL_M,
@@ -332,8 +350,8 @@ def plan_gait_step(
             object's surface normal at the point nearest to the finger.
         q_others: configuration (nq,) of the other fingers; default ``q_contact_a``,
             else ``q_contact_b``.
-        planner, timeout_s, seed, clearance_m, touch_tol_m, resolution_rad, verbose:
-            as in :func:`plan_finger_move` (``timeout_s`` bounds the move).
+        planner, max_checks, seed, clearance_m, touch_tol_m, resolution_rad, verbose:
+            as in :func:`plan_finger_move` (``max_checks`` bounds the move).
         lift_m: retreat along the normal in metres.
 
     Returns:
@@ -351,7 +369,8 @@ def plan_gait_step(
     """
     _planner_class_name(planner)
     f = finger_of(hand, finger)
-    check_positive(timeout_s=timeout_s, clearance_m=clearance_m, resolution_rad=resolution_rad, lift_m=lift_m)
+    check_positive(max_checks=max_checks, clearance_m=clearance_m, resolution_rad=resolution_rad, lift_m=lift_m)
+    max_checks = _as_checks(max_checks)
     if not (np.isfinite(touch_tol_m) and touch_tol_m >= 0):
         raise InputError(f"touch_tol_m must be >= 0; got {touch_tol_m!r}")
     if q_contact_a is None and q_contact_b is None:
@@ -374,7 +393,7 @@ def plan_gait_step(
     start = a if lift is None else lift[-1]
     goal = b if land is None else land[0]
     move = _plan_move(
-        scene, start, goal, planner=planner, timeout_s=timeout_s, seed=seed,
+        scene, start, goal, planner=planner, max_checks=max_checks, seed=seed,
         clearance_m=clearance_m, resolution_rad=resolution_rad, verbose=verbose,
     )
     out = {"joints": tuple(f.joints)}

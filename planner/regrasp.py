@@ -104,7 +104,7 @@ def _motion_gait(options: PlanOptions, verbose: bool = False):
     def gait(hand, obj, q_a, q_b, finger):
         return plan_gait_step(
             hand, obj, q_a, q_b, finger,
-            planner=options.motion_planner, timeout_s=options.motion_timeout_s, seed=options.seed,
+            planner=options.motion_planner, max_checks=options.motion_checks, seed=options.seed,
             verbose=verbose,
         )
 
