@@ -23,25 +23,34 @@ from typing import Any
 PathLike = str | os.PathLike
 
 
-def plan(initial, final, *, execution: bool = False, output: PathLike | None = None, **options: Any):
+def plan(initial, final, *, execution: bool = False, output: PathLike | None = None, verbose: bool = False,
+         **options: Any):
     """Plan a finger-gaiting sequence between two grasps (``regrasp plan``).
 
     Args:
         initial, final: grasp files (paths), `planner.grasp.GraspSpec` or `RealizedGrasp`.
         execution: `PlanOptions.for_execution` (one contact per touching link, six gravity
             directions, the grip model, verified in pybullet) instead of the thesis's defaults.
-        output: also write the plan there (``.yaml``/``.json``), atomically.
+        output: also write the plan there (``.yaml``/``.json``), atomically; it may not be a
+            file the planner reads (the grasp files, their hand's files, the object's mesh).
+        verbose: let OMPL log to the console.
         **options: any `planner.options.PlanOptions` field (e.g. ``time_limit_s=5``,
             ``motion=False``, ``verify=False``); ``gravity`` may be a name (``"palm_up"``,
             `planner.gravity.named_gravity`).
+
+    Checks, cheapest first and before any planning: option names, the output's suffix, the
+    two files (read, same hand, object, pose and friction), the output against every input
+    file, the options' values, then the grasps are realized with every finger placed.
 
     Returns:
         `planner.regrasp.PlanResult` (``.plan``, ``.sequence``, ``.alternatives``, ...).
     """
     from planner.errors import UnknownNameError
+    from planner.fileio import check_outputs
+    from planner.grasp import GraspSpec, input_record, load_grasp, load_hand
     from planner.options import PlanOptions
     from planner.plan_data import plan_format, write_plan
-    from planner.realization import realized_grasp
+    from planner.realization import RealizedGrasp, realize
     from planner.regrasp import check_same_setup, plan_regrasp
 
     valid = {f.name for f in fields(PlanOptions)}
@@ -50,46 +59,78 @@ def plan(initial, final, *, execution: bool = False, output: PathLike | None = N
             raise UnknownNameError("plan option", k, valid)
     if output is not None:
         plan_format(output)  # a bad suffix before any work
-    a, rec_a = realized_grasp(initial)
-    b, rec_b = realized_grasp(final)
-    check_same_setup(a.spec, b.spec)
+    grasps = [initial, final]
+    specs = [g.spec if isinstance(g, RealizedGrasp) else g if isinstance(g, GraspSpec) else load_grasp(g)
+             for g in grasps]
+    check_same_setup(*specs)
+    hand = grasps[0].hand if isinstance(grasps[0], RealizedGrasp) else load_hand(specs[0].hand_ref)
+    files = [g for g in grasps if isinstance(g, (str, os.PathLike))] + list(getattr(hand, "files", ()))
+    check_outputs([(output, "-o")], files + [specs[0].object.mesh_path])
     if isinstance(options.get("gravity"), str):  # a named orientation (planner.gravity.named_gravity)
         from planner.gravity import named_gravity
 
-        options["gravity"] = named_gravity(options["gravity"], a.hand)
+        options["gravity"] = named_gravity(options["gravity"], hand)
     opts = (PlanOptions.for_execution if execution else PlanOptions)(**options)
-    inputs = {k: v for k, v in (("initial", rec_a), ("final", rec_b)) if v is not None}
-    result = plan_regrasp(a, b, opts, inputs)
+    a, b = (g if isinstance(g, RealizedGrasp) else realize(s, hand).require_placed() for g, s in zip(grasps, specs))
+    inputs = {k: input_record(g) for k, g in (("initial", initial), ("final", final)) if isinstance(g, (str, os.PathLike))}
+    result = plan_regrasp(a, b, opts, inputs, verbose=verbose)
     if output is not None:
         write_plan(result.plan, output)
     return result
 
 
-def replay(plan, *, gravity_set: int | None = None, **kwargs: Any):
+def replay(plan, *, gravity_set: int | None = None, report: PathLike | None = None, **kwargs: Any):
     """Execute a plan in pybullet (``regrasp replay``), after the physics checks of `verify`.
 
     Args:
         plan: a plan file, a `planner.plan_data.Plan` or plan data.
         gravity_set: replay under 1, 2, 6 or 7 gravity directions (`planner.gravity`), in
             parallel processes (``workers=N``); None: one replay, palm down unless
-            ``gravity=(gx, gy, gz)`` is given.
-        **kwargs: `planner.sim.replay.replay_plan` keywords (``gif``, ``drift_mm_max``, ...).
+            ``gravity=(gx, gy, gz)`` or a name (``"palm_up"``) is given.
+        report: also write the replay's report (JSON) there, atomically.
+        **kwargs: `planner.sim.replay.replay_plan` keywords (``gif``, ``mp4``,
+            ``drift_mm_max``, ...; with ``gravity_set``, ``film``: the directions filmed).
+
+    Every file written (the report, the films, one per filmed direction of a gravity set:
+    ``FILE_<direction>.gif``) is checked before anything is simulated: none may be a file
+    the replay reads (the plan, its recorded grasps, its hand's files, the object's mesh)
+    and no two may be the same.
 
     Returns:
         `ReplayReport` (one replay) or `GravitySetReport` (``gravity_set``).
     """
+    import json
+
     from planner.audit import require_sound
-    from planner.plan import plan_from_data, read_plan
+    from planner.fileio import check_outputs, write_atomic
+    from planner.gravity import gravity_directions, named_gravity
+    from planner.plan import plan_files, plan_from_data, read_plan
     from planner.plan_data import Plan
+    from planner.sim.inputs import plan_hand
     from planner.sim.replay import replay_plan
-    from planner.sim.verify import replay_gravity_set
+    from planner.sim.verify import film_paths, replay_gravity_set
 
     if not isinstance(plan, Plan):
         plan = plan_from_data(dict(plan)) if hasattr(plan, "keys") else read_plan(plan, strict=kwargs.get("strict", False))
-    require_sound(plan)
+    hand = kwargs.pop("hand", None) or plan_hand(plan)
+    require_sound(plan, hand)
+    if isinstance(kwargs.get("gravity"), str):  # a named orientation (planner.gravity.named_gravity)
+        kwargs["gravity"] = named_gravity(kwargs["gravity"], hand)
+    outputs = [(report, "--report")]
+    for key in ("gif", "mp4"):
+        if gravity_set is None:
+            outputs.append((kwargs.get(key), "--" + key))
+        elif kwargs.get(key) is not None:
+            names = [n for n, _ in gravity_directions(hand.palm_normal, gravity_set)]
+            outputs += [(p, "--" + key) for p in film_paths(kwargs[key], names, kwargs.get("film"))]
+    check_outputs(outputs, plan_files(plan, hand))
     if gravity_set is not None:
-        return replay_gravity_set(plan, gravity_set, **kwargs)
-    return replay_plan(plan, **kwargs)
+        result = replay_gravity_set(plan, gravity_set, hand=hand, **kwargs)
+    else:
+        result = replay_plan(plan, hand=hand, **kwargs)
+    if report is not None:
+        write_atomic(report, json.dumps(result.to_dict(), indent=1) + "\n")
+    return result
 
 
 def check(grasp):

@@ -20,7 +20,7 @@ from pathlib import Path
 import planner
 from planner import commands
 from planner.errors import NoSequenceError, PlannerError, PlannerWarning, one_line
-from planner.fileio import check_grasp_file, check_output
+from planner.fileio import check_outputs
 from planner.gravity import GRAVITY_NAMES, GRAVITY_SET_SIZES, gravity_name_error
 from planner.options import MOTION_CHECKS
 from planner.resources import bundled_grasp
@@ -321,22 +321,10 @@ def _validate(args: argparse.Namespace) -> None:
                 raise PlannerError(f"{_option_name(dest)}: {v!r} is out of range; valid: {option_range(low, high, open_low)}")
     inputs = [getattr(args, k, None) for k in _INPUTS.get(args.command, ())]
     outputs = [(getattr(args, k, None), "-o" if k == "output" else "--" + k) for k in _OUTPUTS.get(args.command, ())]
-    named = [o for o, _ in outputs if o is not None]
-    for out, option in outputs:
-        if out is not None:
-            check_output(out, inputs + [o for o in named if o is not out], option)
-    if args.command == "replay" and getattr(args, "gravity_set", None) is not None:
-        # a gravity set films into one file per direction (FILE_<direction>.gif): each of those
-        # names may not be an input either (a plan called q_palm_down.yaml and --gif q.yaml)
-        every = ("palm_down", "palm_up", "off") + tuple(f"side_{s}{a}" for a in "xyz" for s in "+-")
-        for key in ("gif", "mp4"):
-            out = getattr(args, key, None)
-            if out is not None:
-                p = Path(out)
-                for name in every:
-                    check_output(p.with_name(f"{p.stem}_{name}{p.suffix}"), inputs, f"--{key}")
-        if getattr(args, key, None) is not None:
-            check_grasp_file(getattr(args, key))
+    check_outputs(outputs, inputs)
+    # the files a command derives from these (a film per gravity direction) and the files its
+    # inputs name (a plan's grasps, hand, URDF, meshes) are checked once the inputs are read
+    # (`planner.fileio.check_outputs`), before any work
 
 
 _DEPTH = 0  # nesting of main() (demo calls it): only the outermost one redirects stderr

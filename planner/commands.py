@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import logging
 import os
 import sys
 import time
@@ -32,28 +31,17 @@ def _gravity_line(name: str, g, hand_name: str) -> str:
 
 
 def cmd_plan(args: argparse.Namespace) -> int:
-    from planner.grasp import input_record, load_grasp, load_hand  # deferred: objects, the hand: pinocchio, coal (~0.1 s)
-    from planner.options import PlanOptions  # deferred: scipy, networkx (~0.25 s)
-    from planner.plan_data import plan_format, write_plan  # deferred: scipy (~0.2 s)
-    from planner.realization import realize  # deferred: closure, contacts: scipy (~0.05 s more)
-    from planner.regrasp import check_same_setup, plan_regrasp  # deferred: scipy, networkx, pinocchio, coal; OMPL when planning
+    """Plan (`planner.api.plan`, which checks and writes) and print the steps and summary."""
+    from planner.api import plan as plan_api  # deferred: scipy, networkx, pinocchio, coal; OMPL when planning
 
-    if args.output:
-        plan_format(args.output)  # refuse a bad suffix before any work
     t0 = time.perf_counter()
-    gravity, gname, specs = None, None, None
-    if args.gravity is not None and not isinstance(args.gravity, str):
-        gravity = tuple(args.gravity)
-    elif isinstance(args.gravity, str):  # a name (planner.gravity.named_gravity): the grasps' hand resolves it
-        from planner.gravity import named_gravity
-
-        gname, specs = args.gravity, [load_grasp(args.initial), load_grasp(args.final)]
-        check_same_setup(*specs)
-        gravity = named_gravity(gname, load_hand(specs[0].hand_ref))  # the vector is what the plan records
-    chosen = dict(contact_model=args.contact_model, rank=args.rank, gravity=gravity, gravity_set=args.gravity_set)
+    gname = args.gravity if isinstance(args.gravity, str) else None  # a name: the grasps' hand resolves it
+    chosen = dict(contact_model=args.contact_model, rank=args.rank, gravity_set=args.gravity_set,
+                  gravity=gname or (tuple(args.gravity) if args.gravity is not None else None))
     if not args.execution:  # the thesis's defaults; --execution brings its own (PlanOptions.for_execution)
         chosen.update(contact_model=args.contact_model or "patch", rank=args.rank or "metric")
-    options = (PlanOptions.for_execution if args.execution else PlanOptions)(
+    result = plan_api(
+        args.initial, args.final, execution=args.execution, output=args.output, verbose=args.verbose,
         strategy=args.strategy,
         alternatives=args.alternatives,
         intermediate=args.intermediate,
@@ -68,18 +56,10 @@ def cmd_plan(args: argparse.Namespace) -> int:
         **({"verify": False} if args.no_verify else {}),
         **chosen,
     )
-    if specs is None:
-        specs = [load_grasp(args.initial), load_grasp(args.final)]
-        check_same_setup(*specs)
-    initial, final = (realize(s).require_placed() for s in specs)
-    inputs = {k: input_record(p) for k, p in (("initial", args.initial), ("final", args.final))}
-    result = plan_regrasp(initial, final, options, inputs, verbose=args.verbose)
-    plan = result.plan
-    if args.output:  # written before anything is printed: a closed pipe (| head) cannot lose it
-        write_plan(plan, args.output)
-    gripped = plan.states[0].grip_force_n is not None
+    plan = result.plan  # written by plan_api before anything is printed: a closed pipe (| head) cannot lose it
     if gname is not None:
-        print(_gravity_line(gname, gravity, initial.hand.name))
+        print(_gravity_line(gname, plan.parameters["gravity"], plan.hand["name"]))
+    gripped = plan.states[0].grip_force_n is not None
     print(f"{'step':>4}  {'finger':<8} {'action':<5} {'state':>5}  {'metric':>10}  " + ("grip N  " if gripped else "") + "removable")
     for i, step in enumerate(plan.steps):
         st = plan.states[step.to_state]
@@ -246,9 +226,9 @@ def _compare_verification(plan, result) -> None:
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
-    """Replay a plan in pybullet; exit 0 pass, 1 fail (dropped, drifted or closure disagrees), 2 bad input."""
-    from planner.sim.replay import replay_plan  # deferred: pybullet
-    from planner.sim.verify import replay_gravity_set  # deferred: pybullet
+    """Replay a plan in pybullet (`planner.api.replay`, printed); exit 0 pass, 1 fail (dropped,
+    drifted or closure disagrees), 2 bad input."""
+    from planner.api import replay  # deferred: pybullet
 
     kw = dict(gui=args.gui, gif=args.gif, gif_every=args.gif_every, mp4=args.mp4,
               drift_mm_max=args.drift_mm, drift_deg_max=args.drift_deg, strict=args.strict)
@@ -258,42 +238,31 @@ def cmd_replay(args: argparse.Namespace) -> int:
         raise PlannerError("--gravity and --gravity-set exclude each other: give one")
     if args.workers is not None and args.workers < 1:
         raise PlannerError(f"--workers must be >= 1, got {args.workers}")
-    from planner.audit import require_sound  # deferred: scipy (~0.2 s)
     from planner.plan import read_plan  # deferred: scipy (~0.2 s)
 
     plan = read_plan(args.plan, strict=args.strict)  # read (and its inputs checked) once
-    require_sound(plan)  # intact is not right: a resealed, physically wrong plan is refused here
-    log = logging.getLogger("planner")
-    log.info("plan verified against physics (%d states, %d steps); simulating", len(plan.states), len(plan.steps))
     if args.gravity_set is not None:
         film = [d.strip() for d in args.film.split(",") if d.strip()] if args.film else None
-        workers = 1 if args.gui else args.workers
-        result = replay_gravity_set(plan, args.gravity_set, film=film, workers=workers, **kw)
+        result = replay(plan, gravity_set=args.gravity_set, report=args.report, film=film,
+                        workers=1 if args.gui else args.workers, **kw)
         print(f"{'gravity':<10} {'g (palm frame)':<22} {'verdict':<5} {'drift mm':>8} {'drift deg':>9} {'closure':>8}  why")
         for name, g, r in result.directions:
             agree, reached = r.closure_agreement
             why = r.reasons[0] if r.reasons and not r.passed else ""
             print(f"{name:<10} {'[' + ' '.join(f'{v:+.2f}' for v in g) + ']':<22} {'PASS' if r.passed else 'FAIL':<5} "
                   f"{r.max_drift_mm:>8.2f} {r.max_drift_deg:>9.2f} {f'{agree}/{reached}':>8}  {why}")
-        data, passed, verdict = result.to_dict(), result.passed, result.verdict
+        passed, verdict = result.passed, result.verdict
         _compare_verification(plan, result)
     else:
-        gravity = tuple(args.gravity) if args.gravity and not isinstance(args.gravity, str) else None
-        if isinstance(args.gravity, str):  # a name: the plan's hand resolves it
-            from planner.gravity import named_gravity
-            from planner.sim.inputs import plan_hand  # deferred: pybullet
-
-            hand = plan_hand(plan)
-            gravity = named_gravity(args.gravity, hand)
-            print(_gravity_line(args.gravity, gravity, hand.name))
-        report = replay_plan(plan, **kw, **({"gravity": gravity} if gravity is not None else {}))
+        gravity = tuple(args.gravity) if args.gravity and not isinstance(args.gravity, str) else args.gravity
+        report = replay(plan, report=args.report, **kw, **({"gravity": gravity} if gravity is not None else {}))
+        if isinstance(args.gravity, str):
+            print(_gravity_line(args.gravity, report.parameters["gravity"], plan.hand["name"]))
         _print_states(report)
         agree, reached = report.closure_agreement
         print(f"force closure agrees at {agree}/{reached} states; simulated {report.sim_time_s:.2f} s "
               f"in {report.wall_time_s:.2f} s" + (f"; GIF {report.gif} ({report.gif_frames} frames)" if report.gif else ""))
-        data, passed, verdict = report.to_dict(), report.passed, report.verdict
-    if args.report:
-        write_atomic(args.report, json.dumps(data, indent=1) + "\n")
+        passed, verdict = report.passed, report.verdict
     print(verdict)
     return 0 if passed else 1
 

@@ -37,7 +37,7 @@ from typing import Any, Mapping
 import numpy as np
 import yaml
 
-from planner.errors import OutputError, SpecError
+from planner.errors import InputError, OutputError, SpecError
 from planner.resources import is_hand_path
 
 #: Largest grasp or hand YAML file read, bytes (the bundled ones are under 5 kB).
@@ -503,36 +503,74 @@ def check_output(path: str | os.PathLike, inputs=(), option: str = "-o") -> Path
     return out
 
 
-def write_atomic(path: str | os.PathLike, data: str | bytes) -> Path:
-    """Write a file atomically: a temporary file in the same directory, then ``os.replace``.
+def write_atomic(path: str | os.PathLike, data: str | bytes | None = None, *, write=None,
+                 exclusive: bool = False) -> Path:
+    """Write a file atomically: a temporary file in the same directory, then ``os.replace``
+    (the one writer of every output: plans, reports, pages, films, synthesized grasps).
 
     The new file gets the permissions a plain ``open(path, "w")`` would give.
 
+    Args:
+        path: the file to write.
+        data: its content (text is written as UTF-8); or
+        write: a function that writes the temporary file given its path (a GIF encoder).
+        exclusive: never replace a file: fail if ``path`` exists when it is written (a hard
+            link of the temporary file, which fails if the name appeared meanwhile).
+
     Raises:
-        OutputError: the OS refused (no such directory, read-only, disk full...); no
-            temporary file is left behind and an existing file is untouched.
+        OutputError: the OS refused (no such directory, read-only, disk full...), or
+            ``exclusive`` and the file exists; no temporary file is left behind and an
+            existing file is untouched.
     """
+    if (data is None) == (write is None):
+        raise InputError("write_atomic takes data or write, not both or neither")
     path = Path(path)
-    raw = data.encode("utf-8") if isinstance(data, str) else bytes(data)
+    raw = None if data is None else (data.encode("utf-8") if isinstance(data, str) else bytes(data))
     tmp = None
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
         with os.fdopen(fd, "wb") as fh:
-            fh.write(raw)
-            fh.flush()
+            if raw is not None:
+                fh.write(raw)
+        if write is not None:
+            write(tmp)
+        with open(tmp, "rb+") as fh:
             os.fsync(fh.fileno())
         umask = os.umask(0)
         os.umask(umask)
         os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, path)
-        tmp = None
+        if exclusive:
+            os.link(tmp, path)
+        else:
+            os.replace(tmp, path)
+            tmp = None
+    except FileExistsError as err:
+        raise OutputError(f"cannot write {path}: it appeared while writing; nothing was overwritten") from err
     except OSError as err:
         raise OutputError(f"cannot write {path}: {err.strerror or err}") from err
     finally:
         if tmp is not None and os.path.exists(tmp):
             os.unlink(tmp)
     return path
+
+
+def check_outputs(outputs, inputs=()) -> None:
+    """Every output file of one command, before any work: none is an input (`check_output`:
+    also through a link) and no two are the same file.
+
+    Args:
+        outputs: (path or None, option) pairs: every file the command will write, derived
+            names included (a film per gravity direction).
+        inputs: every file the command reads.
+    """
+    named = [(Path(os.fspath(p)), option) for p, option in outputs if p is not None]
+    inputs = [p for p in inputs if p is not None]
+    for k, (out, option) in enumerate(named):
+        check_output(out, inputs, option)
+        for other, other_option in named[:k]:
+            if _same_file(out, other):
+                raise OutputError(f"{option} {out}: is also the file of {other_option}; give them different names")
 
 
 def check_hand_file(path: str | os.PathLike, source: str, key: str = "hand") -> dict:

@@ -206,9 +206,12 @@ class Hand:
         # pinocchio looks for it in package_dirs
         mesh_dirs = [str(Path(self.urdf_path).parent)] + self.package_dirs
         try:  # our checks first: pinocchio, coal and pybullet hang or crash on some files
-            check_urdf(self.urdf_path, mesh_dirs)
+            urdf = check_urdf(self.urdf_path, mesh_dirs)
         except SpecError as err:
             raise SpecError(sp, "urdf", str(err)) from None
+        #: every file the hand is read from (its spec, URDF and meshes): no output may be one
+        self.files = (str(Path(self.spec_path).resolve()), str(Path(self.urdf_path).resolve()),
+                      *(str(Path(m).resolve()) for m in urdf.meshes))
         try:
             full = pin.buildModelFromUrdf(self.urdf_path)
         except (RuntimeError, ValueError) as err:

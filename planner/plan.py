@@ -138,6 +138,20 @@ def recorded_input(rec, source) -> tuple[Path | None, str, str | None] | None:
     return p, shown, None
 
 
+def plan_files(plan: Plan, hand=None) -> list[str]:
+    """Every file a command reading this plan reads, which no output may be: the plan itself,
+    its recorded input grasps, its hand's files (hand.yaml, URDF, meshes: ``hand.files``,
+    ``hand`` the plan's `planner.hand.Hand`) and the object's mesh."""
+    out = [plan.source]
+    for rec in plan.inputs.values():
+        found = recorded_input(rec, plan.source)
+        if found is not None:
+            out.append(found[0])
+    out += list(getattr(hand, "files", ()))
+    out.append(getattr(plan.object, "mesh_path", None))
+    return [str(p) for p in out if p is not None]
+
+
 def _check_inputs(plan: Plan, src: str, strict: bool) -> None:
     for name, rec in plan.inputs.items():
         found = recorded_input(rec, src)

@@ -24,8 +24,6 @@ import base64
 import html
 import json
 import math
-import os
-import tempfile
 import warnings
 from pathlib import Path
 from typing import Any, Mapping
@@ -36,11 +34,11 @@ from scipy.spatial.transform import Rotation
 
 from planner.audit import require_sound
 from planner.errors import InputError, SpecError
-from planner.fileio import MAX_PLAN_BYTES, load_json, load_yaml, read_limited
+from planner.fileio import MAX_PLAN_BYTES, check_outputs, load_json, load_yaml, read_limited, write_atomic
 from planner.frames import hand_of_plan, object_of_plan, plain_plan, pose_matrix, resample
 from planner.grasp import load_grasp
 from planner.objects import load_mesh
-from planner.plan import read_plan
+from planner.plan import plan_files, read_plan
 from planner.realization import realize
 from planner.view_page import PAGE
 
@@ -507,12 +505,20 @@ def _check_suffix(path, suffixes: tuple[str, ...], what: str) -> None:
 
 def load_source(source) -> tuple[str, Any]:
     """("plan", plain plan data) for a plan file, ("grasp", `RealizedGrasp`) for a grasp file."""
+    return read_source(source)[0]
+
+
+def read_source(source) -> tuple[tuple[str, Any], list[str]]:
+    """`load_source` and every file it read (no output may be one): a plan's
+    (`planner.plan.plan_files`) or the grasp file, its hand's files and the object's mesh."""
     source = Path(source)
     if _is_plan_file(source):
         plan = read_plan(source)
-        require_sound(plan)  # a resealed, physically wrong plan is refused before any drawing
-        return "plan", plain_plan(plan)
-    return "grasp", realize(load_grasp(source))
+        hand = hand_of_plan({"hand": plan.hand}, source)
+        require_sound(plan, hand)  # a resealed, physically wrong plan is refused before any drawing
+        return ("plan", plain_plan(plan)), plan_files(plan, hand)
+    g = realize(load_grasp(source))
+    return ("grasp", g), [str(source), *g.hand.files, g.obj.mesh_path]
 
 
 def write_view(source, output, report=None, loaded=None) -> dict:
@@ -534,17 +540,7 @@ def write_view(source, output, report=None, loaded=None) -> dict:
             raise InputError(f"{report}: --report goes with a plan file, and {source} is a grasp")
         scene, data = grasp_page_data(value, source)
     page = scene.html(data, f"regrasp view: {data['title']}")
-    output.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=".view-", suffix=".html", dir=output.parent)
-    try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(page)
-        os.chmod(tmp, 0o644)  # mkstemp makes it private; a page is for sharing
-        os.replace(tmp, output)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    write_atomic(output, page)
     return {"path": str(output), "bytes": len(page.encode()), "states": len(data["states"]),
             "steps": len(data["steps"]), "kind": data["kind"]}
 
@@ -578,9 +574,8 @@ def view_command(source, output, report=None, gif=None) -> int:
     _check_suffix(output, (".html", ".htm"), "page")  # before any work
     if gif is not None:
         _check_suffix(gif, (".gif",), "film")
-        if Path(gif).exists() and Path(gif).resolve() == Path(source).resolve():
-            raise InputError(f"{gif}: refusing to overwrite the input file")
-    loaded = load_source(source)
+    loaded, files = read_source(source)
+    check_outputs([(output, "-o"), (gif, "--gif")], [*files, report])
     out = write_view(source, output, report=report, loaded=loaded)
     what = (f"{out['states']} states, {out['steps']} steps" if out["kind"] == "plan" else "one grasp")
     print(f"wrote {out['path']} ({out['bytes'] / 1e6:.2f} MB, {what}"

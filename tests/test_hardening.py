@@ -398,7 +398,7 @@ def test_load_grasp_api_reads_within_the_same_bounds(tmp_path):
     ("empty.stl", b"", "84-byte header"),
     ("tiny.stl", b"\0" * 40, "84-byte header"),
     ("short.stl", b"\0" * 80 + (1000).to_bytes(4, "little") + b"\0" * 50, "announces 1000"),
-    ("range.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n", "does not exist"),
+    ("range.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n", "not defined"),
     ("noface.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf\n", "at least 3"),
     ("none.obj", b"v 0 0 0\n", "no triangles"),
 ])
@@ -492,7 +492,7 @@ def test_gif_is_written_atomically(tmp_path, monkeypatch):
         raise OSError(errno.ENOSPC, "No space left on device")
 
     monkeypatch.setattr(Image.Image, "save", full)
-    with pytest.raises(OSError):
+    with pytest.raises(OutputError, match="No space left"):
         write_gif(frames[::-1], gif)
     assert gif.read_bytes() == before and [p.name for p in tmp_path.iterdir()] == ["film.gif"]
 
@@ -680,15 +680,16 @@ def test_malformed_corpus_file_is_one_line_exit_2(name, capsys):
 
 def test_replay_gravity_set_gif_names_may_not_be_inputs(tmp_path, capsys):
     """With --gravity-set the GIF is one file per direction (FILE_<direction>.gif): a plan
-    named like one of them is refused before any work (exit 2, one line), and stays a plan."""
+    named like one of them is refused before any simulation (exit 2, one line), and stays a plan."""
     from planner.cli import main
 
-    plan = tmp_path / "q_palm_down.yaml"
-    plan.write_text("not read: the output check comes first\n")
-    assert main(["replay", str(plan), "--gravity-set", "1", "--gif", str(tmp_path / "q.yaml")]) == 2
-    err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and "--gif" in err and "input" in err
-    assert plan.read_text() == "not read: the output check comes first\n"
+    plan = tmp_path / "q_palm_down.json"
+    shutil.copy(ROOT / "tests" / "data" / "plans" / "schema2_cylinder_execution.json", plan)
+    before = plan.read_bytes()
+    assert main(["replay", str(plan), "--gravity-set", "1", "--gif", str(tmp_path / "q.json")]) == 2
+    err = [line for line in capsys.readouterr().err.strip().splitlines() if "warning:" not in line]
+    assert len(err) == 1 and "--gif" in err[0] and "input" in err[0], err
+    assert plan.read_bytes() == before
 
 
 def test_synth_never_overwrites_a_file_named_like_its_temporary(tmp_path):

@@ -17,6 +17,7 @@ import numpy as np
 from PIL import Image
 
 from planner.errors import SimulationError
+from planner.fileio import write_atomic
 from planner.frames import resample
 from planner.gravity import gravity_directions
 from planner.plan_data import Plan
@@ -133,16 +134,8 @@ def write_gif(frames: list, path, frame_ms: int = 120, hold_ms: int = 900, durat
         durations = [int(d) for d in durations_ms]
         if len(durations) != len(images):
             raise SimulationError(f"{len(durations)} frame durations for {len(images)} frames")
-    fd, tmp = tempfile.mkstemp(prefix=".gif-", suffix=".gif", dir=path.parent)
-    os.close(fd)
-    try:
-        images[0].save(tmp, save_all=True, append_images=images[1:], duration=durations, loop=0)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    write_atomic(path, write=lambda tmp: images[0].save(tmp, format="GIF", save_all=True, append_images=images[1:],
+                                                      duration=durations, loop=0))
     return path
 
 
@@ -265,8 +258,11 @@ def write_mp4(frames: list[np.ndarray], path: str, fps: float, ffmpeg: str) -> N
     with tempfile.TemporaryDirectory(prefix="regrasp-mp4-") as tmp:
         for i, f in enumerate(frames):
             Image.fromarray(f).save(os.path.join(tmp, f"{i:05d}.png"))
-        cmd = [ffmpeg, "-y", "-loglevel", "error", "-framerate", f"{fps:.3f}", "-i", os.path.join(tmp, "%05d.png"),
-               "-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2", "-pix_fmt", "yuv420p", str(path)]
-        out = subprocess.run(cmd, capture_output=True, text=True)
-        if out.returncode != 0:
-            raise SimulationError(f"ffmpeg failed writing {path}: {out.stderr.strip().splitlines()[-1:]}")
+        def encode(target):
+            cmd = [ffmpeg, "-y", "-loglevel", "error", "-framerate", f"{fps:.3f}", "-i", os.path.join(tmp, "%05d.png"),
+                   "-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2", "-pix_fmt", "yuv420p", "-f", "mp4", str(target)]
+            out = subprocess.run(cmd, capture_output=True, text=True)
+            if out.returncode != 0:
+                raise SimulationError(f"ffmpeg failed writing {path}: {out.stderr.strip().splitlines()[-1:]}")
+
+        write_atomic(path, write=encode)

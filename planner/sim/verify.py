@@ -97,6 +97,14 @@ def _log_done(name: str, report, k: int, n: int) -> None:
     logging.getLogger("planner").info("replay %d/%d %s: %s", k, n, name, "PASS" if report.passed else "FAIL")
 
 
+def film_paths(path, names: Sequence[str], film: Sequence[str] | None = None) -> list[Path | None]:
+    """The film of each gravity direction of a set: ``FILE_<direction>.ext`` beside ``path``
+    (None for a direction not in ``film``; every direction when ``film`` is None)."""
+    path = Path(path)
+    return [None if film is not None and name not in film else path.with_name(f"{path.stem}_{name}{path.suffix}")
+            for name in names]
+
+
 def replay_gravity_set(plan: Mapping | str | os.PathLike, n: int = 6, *, hand=None, g_mps2: float = 9.81,
                        film: Sequence[str] | None = None, strict: bool = False, workers: int | None = None,
                        **kwargs) -> GravitySetReport:
@@ -131,9 +139,7 @@ def replay_gravity_set(plan: Mapping | str | os.PathLike, n: int = 6, *, hand=No
     kw = dict(kwargs)
     for key in ("gif", "mp4"):
         if kw.get(key) is not None:
-            path = Path(kw[key])
-            kw[key] = [None if film is not None and name not in film else path.with_name(f"{path.stem}_{name}{path.suffix}")
-                       for name in names]
+            kw[key] = film_paths(kw[key], names, film)
     reports = replay_directions(rd, hand, directions, workers=workers, **kw)
     out = [(name, g, r) for (name, g), r in zip(directions, reports)]
     failed = [(name, r) for name, _, r in out if not r.passed]

@@ -1,0 +1,126 @@
+"""No output overwrites an input: every file a command reads (the plan, its recorded grasps,
+the hand.yaml, the URDF, meshes) is protected against every output name the command
+derives, and two outputs of one command never share a path. Each refusal is exit 2, one
+line naming the option, before any simulation; the input is unchanged."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+import yaml
+
+from planner.cli import main
+from planner.resources import bundled_grasp, hand_dir
+
+PAIR = ("icub/box_parallel_extension.yaml", "icub/box_ir2m.yaml")
+
+
+@pytest.fixture(scope="module")
+def setup(tmp_path_factory):
+    """A user's folder: a copy of the hand (hand.yaml beside its URDF), two grasp files that
+    name it, and a plan made from them."""
+    root = tmp_path_factory.mktemp("outputs")
+    hand = root / "hand"
+    shutil.copytree(hand_dir("icub_right"), hand)
+    grasps = []
+    for name in PAIR:
+        data = yaml.safe_load(bundled_grasp(name).read_text())
+        data["hand"] = "hand/hand.yaml"
+        path = root / Path(name).name
+        path.write_text(yaml.safe_dump(data, sort_keys=False))
+        grasps.append(path)
+    plan = root / "plan.json"
+    assert main(["plan", str(grasps[0]), str(grasps[1]), "--no-motion", "-o", str(plan)]) == 0
+    return {"root": root, "hand": hand / "hand.yaml", "urdf": hand / "icub_right.urdf", "initial": grasps[0],
+            "final": grasps[1], "plan": plan}
+
+
+def _snapshot(setup) -> dict:
+    return {k: v.read_bytes() for k, v in setup.items() if isinstance(v, Path) and v.is_file()}
+
+
+def _refused(capsys, argv, option: str) -> str:
+    assert main(argv) == 2
+    err = [line for line in capsys.readouterr().err.strip().splitlines() if "warning:" not in line]
+    assert len(err) == 1 and option in err[0], err
+    return err[0]
+
+
+@pytest.mark.parametrize("target", ["initial", "final", "hand", "urdf", "plan"])
+@pytest.mark.parametrize("option", ["--report", "--gif"])
+def test_replay_outputs_may_not_be_any_file_the_plan_reads(setup, capsys, target, option):
+    before = _snapshot(setup)
+    line = _refused(capsys, ["replay", str(setup["plan"]), option, str(setup[target])], option)
+    assert "input" in line
+    assert _snapshot(setup) == before
+
+
+@pytest.mark.parametrize("target", ["hand", "urdf", "initial"])
+def test_a_derived_film_name_may_not_be_an_input(setup, capsys, target, tmp_path):
+    """--gravity-set films FILE_<direction>.ext: FILE chosen so that the palm-down film is the input."""
+    victim = setup[target]
+    stem = victim.stem.removesuffix("_palm_down")
+    link = victim.with_name(f"{stem}_palm_down{victim.suffix}")
+    if link != victim:  # name the input like a derived film: a second name of the same file
+        link.hardlink_to(victim)
+    try:
+        before = _snapshot(setup)
+        line = _refused(capsys, ["replay", str(setup["plan"]), "--gravity-set", "1", "--gif",
+                                 str(victim.with_name(stem + victim.suffix))], "--gif")
+        assert "input" in line
+        assert _snapshot(setup) == before
+    finally:
+        if link != victim:
+            link.unlink()
+
+
+def test_two_outputs_of_one_replay_never_share_a_path(setup, capsys, tmp_path):
+    """A report named like the palm-down film would lose the film (or the report)."""
+    film = tmp_path / "film.gif"
+    line = _refused(capsys, ["replay", str(setup["plan"]), "--gravity-set", "1", "--gif", str(film),
+                             "--report", str(tmp_path / "film_palm_down.gif")], "--gif")
+    assert "--report" in line
+    assert not list(tmp_path.iterdir())
+
+
+def test_mp4_is_an_output_never_read_as_a_grasp(setup, capsys, tmp_path):
+    """`replay --gravity-set N --mp4 out.mp4` once read out.mp4 as a grasp file (a loop
+    variable left over in the CLI's validation)."""
+    out = tmp_path / "out.mp4"
+    out.write_text("an old film\n")
+    code = main(["replay", str(setup["plan"]), "--gravity-set", "1", "--mp4", str(out), "--report",
+                 str(tmp_path / "r.json")])
+    err = capsys.readouterr().err
+    assert "grasp file" not in err
+    assert code in (0, 1) or "ffmpeg" in err, err  # without ffmpeg: a clear one-line error
+
+
+def test_plan_output_may_not_be_its_hand_or_urdf(setup, capsys):
+    for target in ("hand", "urdf"):
+        before = _snapshot(setup)
+        bad = setup[target].with_suffix(".yaml") if target == "urdf" else setup[target]
+        if target == "urdf":  # a .yaml name of the URDF: a second name (hard link) of the same file
+            bad.hardlink_to(setup["urdf"])
+        try:
+            line = _refused(capsys, ["plan", str(setup["initial"]), str(setup["final"]), "--no-motion", "-o", str(bad)],
+                            "-o")
+            assert "input" in line
+            assert _snapshot(setup) == before
+        finally:
+            if target == "urdf":
+                bad.unlink()
+
+
+def test_view_film_may_not_be_the_plans_inputs(setup, capsys, tmp_path):
+    before = _snapshot(setup)
+    link = setup["initial"].with_suffix(".gif")
+    link.hardlink_to(setup["initial"])
+    try:
+        line = _refused(capsys, ["view", str(setup["plan"]), "-o", str(tmp_path / "p.html"), "--gif", str(link)],
+                        "--gif")
+        assert "input" in line
+        assert _snapshot(setup) == before and not (tmp_path / "p.html").exists()
+    finally:
+        link.unlink()
