@@ -32,6 +32,8 @@ if str(REPO) not in sys.path:  # `python experiments/expN.py` puts only experime
 import numpy as np  # noqa: E402
 
 RESULTS = REPO / "experiments" / "results"
+#: Where --quick runs write by default (ignored by git): never over the committed results.
+QUICK_RESULTS = RESULTS / "quick"
 GRASPS = REPO / "grasps"
 #: Replays run palm up (gravity along the palm's -z), the orientation the library's
 #: parallel-extension grasps are made for, with plans made under the "mean" contact
@@ -45,15 +47,30 @@ REPLAY_FINGER_FORCE_N = 1.0
 # ------------------------------------------------------------------ command line
 
 
+class _ExperimentParser(argparse.ArgumentParser):
+    """The experiments' options; ``--out`` defaults to experiments/results for a full run and
+    to experiments/results/quick for ``--quick``, so a quick run never writes over the
+    committed full-run results."""
+
+    def parse_known_args(self, args=None, namespace=None):
+        ns, rest = super().parse_known_args(args, namespace)
+        if getattr(ns, "out", False) is None:
+            ns.out = QUICK_RESULTS if getattr(ns, "quick", False) else RESULTS
+            ns.out.mkdir(parents=True, exist_ok=True)
+        return ns, rest
+
+
 def parser(description: str) -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(description=description)
+    ap = _ExperimentParser(description=description)
     ap.add_argument("--quick", action="store_true", help="small sweep (seconds to a minute)")
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 1,
                     help="local worker processes (default: all cores; 1 = in this process)")
     ap.add_argument("--dask-scheduler", metavar="ADDRESS", default=None,
                     help="run the sweep on an existing Dask cluster (e.g. tcp://host:8786)")
     ap.add_argument("--seed", type=int, default=0, help="base seed of the sweep")
-    ap.add_argument("--out", type=Path, default=RESULTS, help="directory for CSV and PNG results")
+    ap.add_argument("--out", type=Path, default=None,
+                    help="directory for CSV and PNG results (default experiments/results, with --quick "
+                         "experiments/results/quick: never over the full runs' results)")
     ap.add_argument("--no-progress", action="store_true", help="no progress bar")
     return ap
 

@@ -244,3 +244,13 @@ def test_exp8_pairs_replay_rows_and_reasons(tmp_path, capsys):
                                      "(metric -0.01)")) == "final grasp not force closure with mean contacts"
     assert exp8.reason({"replay_fail": "replay side_2: x"}, {"execution": "cannot land: ring"}) == \
         "execution: cannot land: ring"
+
+
+def test_quick_runs_never_write_over_the_committed_results():
+    """--quick writes to experiments/results/quick unless --out says otherwise; full runs to
+    experiments/results (the committed numbers)."""
+    from experiments.common import QUICK_RESULTS, RESULTS, parser
+
+    assert parser("x").parse_args(["--quick"]).out == QUICK_RESULTS != RESULTS
+    assert parser("x").parse_args([]).out == RESULTS
+    assert parser("x").parse_args(["--quick", "--out", "elsewhere"]).out.name == "elsewhere"

@@ -124,3 +124,20 @@ def test_view_film_may_not_be_the_plans_inputs(setup, capsys, tmp_path):
         assert _snapshot(setup) == before and not (tmp_path / "p.html").exists()
     finally:
         link.unlink()
+
+
+def test_pybullet_never_prints_on_stdout(tmp_path):
+    """A URDF without inertials makes pybullet's loader warn on the C stdout ("b3Warning ... No
+    inertial data"): `hand check` (which loads it in pybullet) prints only its own lines."""
+    import re
+    import subprocess
+    import sys
+
+    hand = tmp_path / "h"
+    shutil.copytree(hand_dir("icub_right"), hand)
+    urdf = hand / "icub_right.urdf"
+    urdf.write_text(re.sub(r"<inertial>.*?</inertial>", "", urdf.read_text(), flags=re.S))
+    out = subprocess.run([sys.executable, "-m", "planner", "hand", "check", str(hand / "hand.yaml")],
+                         capture_output=True, text=True, timeout=300)
+    assert "pybullet: loads the URDF" in out.stdout, out.stdout  # the check ran
+    assert "b3Warning" not in out.stdout and "inertial data" not in out.stdout, out.stdout

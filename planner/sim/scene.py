@@ -87,8 +87,9 @@ def object_body(client: int, shape: str, size, mesh_path, position, quat_xyzw, m
         vis = dict(col)
     else:
         raise SimulationError(f"cannot build a pybullet shape for object shape {shape!r}")
-    c = p.createCollisionShape(physicsClientId=client, **col)
-    v = p.createVisualShape(rgbaColor=list(rgba), physicsClientId=client, **vis)
+    with quiet_native_output():  # a mesh's loader warns on the C stdout
+        c = p.createCollisionShape(physicsClientId=client, **col)
+        v = p.createVisualShape(rgbaColor=list(rgba), physicsClientId=client, **vis)
     if c < 0 or v < 0:
         raise SimulationError(f"pybullet could not create the {shape} object")
     return p.createMultiBody(baseMass=float(mass_kg), baseCollisionShapeIndex=c, baseVisualShapeIndex=v,
@@ -100,7 +101,8 @@ def urdf_problem(urdf_path: str, joint_names) -> str | None:
     """Why pybullet cannot simulate a hand URDF with these joints (one line), or None."""
     cid = p.connect(p.DIRECT)
     try:
-        body = p.loadURDF(urdf_path, useFixedBase=True, flags=p.URDF_IGNORE_VISUAL_SHAPES, physicsClientId=cid)
+        with quiet_native_output():  # missing inertials and meshes are warned of on the C stdout
+            body = p.loadURDF(urdf_path, useFixedBase=True, flags=p.URDF_IGNORE_VISUAL_SHAPES, physicsClientId=cid)
         names = {p.getJointInfo(body, i, physicsClientId=cid)[1].decode() for i in range(p.getNumJoints(body, physicsClientId=cid))}
         missing = [j for j in joint_names if j not in names]
         return f"joints {missing[:4]} are not in the URDF pybullet loads" if missing else None
