@@ -39,11 +39,10 @@ from planner.closure import GRIP_CONE_SIDES, apply_contact_model, grasp_closure,
 from planner.contacts import contact_patches
 from planner.errors import AuditError, PlannerError
 from planner.grasp import load_grasp
-from planner.hand import Hand
 from planner.plan import read_plan, recorded_input
 from planner.grip import finger_statics, grip_program, hold_capacity
 from planner.model import PALM, Friction
-from planner.plan_data import Plan, plan_hand_ref
+from planner.plan_data import Plan, plan_hand
 from planner.realization import PENETRATION_TOL_M as _GRASP_PENETRATION_TOL_M
 from planner.realization import realize
 
@@ -563,7 +562,7 @@ def audit_plan(plan, hand=None, paths: bool = True) -> AuditReport:
     src = plan.source or "<plan>"
     rep = AuditReport(str(src))
     if hand is None:
-        hand = Hand.load(plan_hand_ref(plan.hand, plan.source))
+        hand = plan_hand(plan)
     obj = plan.object
     grasps = _input_grasps(plan)
     _check_inputs(plan, rep, grasps)

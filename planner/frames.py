@@ -14,7 +14,7 @@ from typing import Mapping
 import numpy as np
 
 from planner.objects import GraspObject
-from planner.plan_data import plan_hand_ref, plan_object
+from planner.plan_data import plan_hand, plan_object
 
 
 def pose_matrix(R=None, t=None) -> np.ndarray:
@@ -46,9 +46,7 @@ def plain_plan(plan) -> dict:
 
 def hand_of_plan(plan: Mapping, plan_path: Path):
     """The plan's `planner.hand.Hand` (its ``hand`` block, paths relative to the plan file)."""
-    from planner.hand import Hand  # pinocchio and coal: loaded only when a hand is
-
-    return Hand.load(plan_hand_ref(plan.get("hand") or {}, plan_path))
+    return plan_hand(plan, plan_path)
 
 
 def object_of_plan(plan: Mapping, plan_path: Path) -> GraspObject:

@@ -39,7 +39,7 @@ import numpy as np
 import yaml
 
 from planner.errors import SpecError
-from planner.fileio import write_atomic
+from planner.fileio import check_hand_file, write_atomic
 from planner.model import PALM, Friction, holders
 from planner.objects import GraspObject
 from planner.resources import bundled_grasp_name, bundled_hand_name, is_hand_path
@@ -328,6 +328,24 @@ def plan_hand_ref(hand: Mapping[str, Any], source: str | os.PathLike | None) -> 
         if found is not None:
             return str(found)
     return str(hand.get("name"))
+
+
+def plan_hand(plan, source: str | os.PathLike | None = None):
+    """The plan's `planner.hand.Hand`: the one resolver of a plan's hand (replay, audit, view,
+    films). ``plan``: a `Plan` or plain plan data (then ``source`` is its file). The hand is
+    where `plan_hand_ref` says; a hand.yaml is read within bounds and an error names the
+    plan's ``hand.spec``, never the hand file's content."""
+    from planner.hand import Hand  # pinocchio and coal: loaded only when a hand is
+
+    if isinstance(plan, Plan):
+        block, source = plan.hand, plan.source
+    else:
+        block = plan.get("hand") or {}
+    ref = plan_hand_ref(block, source)
+    path = Path(ref)
+    if is_hand_path(ref) and path.is_file():
+        return Hand(path, check_hand_file(path, str(source or "<plan>"), "hand.spec"))
+    return Hand.load(ref)
 
 
 def canonical_sha256(content: Mapping[str, Any]) -> str:

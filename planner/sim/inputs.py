@@ -4,22 +4,20 @@
 parser; `plan_hand` and `load_hand_info` load the plan's hand and check every joint value of
 the plan against its limits; `create_object` builds the plan's object as a pybullet body
 (`planner.sim.scene.object_body`) with its mass. Files the plan names resolve relative to
-the plan file (`resolve_plan_file`).
+the plan file (`planner.plan_data.plan_file`; its hand: `planner.plan_data.plan_hand`).
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from planner.fileio import check_hand_file
 from planner.objects import GraspObject
 from planner.plan import plan_from_data, read_plan
-from planner.plan_data import Plan, plan_file
+from planner.plan_data import Plan, plan_hand  # noqa: F401 (plan_hand: re-exported for the replay)
 from planner.sim.scene import object_body
 
 #: A plan's joint values may exceed the hand's limits by this much (rad or m): rounding.
@@ -49,12 +47,6 @@ class HandInfo:
     palm_normal: tuple[float, float, float]
 
 
-def resolve_plan_file(path_str: str, plan_path: str) -> Path | None:
-    """A file the plan names (`planner.plan_data.plan_file`: relative to the plan file)."""
-    found = plan_file(path_str, plan_path)
-    return None if found is None else found.resolve()
-
-
 def T_palm_root(hand) -> np.ndarray:
     """Pose of the URDF root link in the palm frame (identity when the root is the palm)."""
     root = getattr(getattr(hand, "model", None), "frames", None)
@@ -64,21 +56,6 @@ def T_palm_root(hand) -> np.ndarray:
     if root_name == getattr(hand, "palm_frame", root_name):
         return np.eye(4)
     return np.asarray(hand.state(hand.q_open).link_pose(root_name), dtype=float)
-
-
-def plan_hand(plan: Plan):
-    """The plan's `planner.hand.Hand`: from its spec file when it resolves (read once, checked
-    to be a hand spec without quoting the file), else by its name."""
-    from planner.hand import Hand  # pinocchio and coal: loaded only when a hand is
-
-    spec = plan.hand.get("spec")
-    if spec:
-        resolved = resolve_plan_file(str(spec), plan.source or "<plan>")
-        if resolved is not None:
-            if resolved.is_file():
-                return Hand(resolved, check_hand_file(resolved, plan.source or "<plan>", "hand.spec"))
-            return Hand.load(resolved)
-    return Hand.load(str(plan.hand["name"]))
 
 
 def load_hand_info(plan: Plan, joints: list[str], hand=None) -> HandInfo:
