@@ -21,7 +21,7 @@ import yaml
 
 from planner import handtool
 from planner.errors import PlannerError
-from planner.fileio import write_atomic
+from planner.fileio import check_outputs, write_atomic
 
 
 def _gravity_line(name: str, g, hand_name: str) -> str:
@@ -95,11 +95,14 @@ def cmd_check(args: argparse.Namespace) -> int:
     """Realize one grasp, print the report (text or JSON), draw it (``--png``); exit 0 force
     closure and as written (no `RealizedGrasp.problems`), 1 not, 2 bad input. With
     ``--gravity`` (3 numbers, "gravity"; or a name) the load held is reported under it alone."""
-    from planner.grasp import load_grasp  # deferred: objects, the hand: pinocchio, coal (~0.1 s)
+    from planner.grasp import load_grasp, load_hand  # deferred: objects, the hand: pinocchio, coal (~0.1 s)
     from planner.grasp_report import check_text, contact_markers  # deferred: scipy (~0.2 s)
     from planner.realization import realize  # deferred: closure, contacts: scipy (~0.05 s more)
 
-    grasp = realize(load_grasp(args.grasp))
+    spec = load_grasp(args.grasp)
+    # the picture may not be a file the check reads (the grasp, its hand's files, the mesh)
+    check_outputs([(args.png, "--png")], [args.grasp, *load_hand(spec.hand_ref).files, spec.object.mesh_path])
+    grasp = realize(spec)
     hold = gline = gdata = None
     if args.gravity is not None:
         from planner.gravity import named_gravity

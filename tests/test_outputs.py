@@ -141,3 +141,16 @@ def test_pybullet_never_prints_on_stdout(tmp_path):
                          capture_output=True, text=True, timeout=300)
     assert "pybullet: loads the URDF" in out.stdout, out.stdout  # the check ran
     assert "b3Warning" not in out.stdout and "inertial data" not in out.stdout, out.stdout
+
+
+def test_check_picture_may_not_be_the_hand_or_grasp(setup, capsys):
+    before = _snapshot(setup)
+    for target in ("hand", "initial"):
+        link = setup[target].with_suffix(".png")
+        link.hardlink_to(setup[target])
+        try:
+            line = _refused(capsys, ["check", str(setup["initial"]), "--png", str(link)], "--png")
+            assert "input" in line
+        finally:
+            link.unlink()
+    assert _snapshot(setup) == before
