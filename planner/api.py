@@ -40,7 +40,9 @@ def plan(initial, final, *, execution: bool = False, output: PathLike | None = N
 
     Checks, cheapest first and before any planning: option names, the output's suffix, the
     two files (read, same hand, object, pose and friction), the output against every input
-    file, the options' values, then the grasps are realized with every finger placed.
+    file, the options' values, then the grasps are realized with every finger placed. Without a
+    gravity (force closure only) a `PlannerWarning` says when an end grasp does not hold its
+    own weight in some hand orientation (`planner.realization.weight_warning`).
 
     Returns:
         `planner.regrasp.PlanResult` (``.plan``, ``.sequence``, ``.alternatives``, ...).
@@ -72,6 +74,15 @@ def plan(initial, final, *, execution: bool = False, output: PathLike | None = N
         options["gravity"] = named_gravity(options["gravity"], hand)
     opts = (PlanOptions.for_execution if execution else PlanOptions)(**options)
     a, b = (g if isinstance(g, RealizedGrasp) else realize(s, hand).require_placed() for g, s in zip(grasps, specs))
+    if opts.gravity is None and opts.gravity_set is None:  # force closure only: say when an end grasp drops its object
+        import warnings
+
+        from planner.errors import PlannerWarning
+        from planner.realization import weight_warning
+
+        words = weight_warning({"initial": a, "final": b})
+        if words is not None:
+            warnings.warn(words, PlannerWarning, stacklevel=2)
     inputs = {k: input_record(g) for k, g in (("initial", initial), ("final", final)) if isinstance(g, (str, os.PathLike))}
     result = plan_regrasp(a, b, opts, inputs, verbose=verbose)
     if output is not None:

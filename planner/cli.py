@@ -73,7 +73,12 @@ def build_parser() -> argparse.ArgumentParser:
     check.add_argument("--png", metavar="FILE", help="render the hand holding the object (headless)")
     check.add_argument("--gravity", action=_GravityArgument, default=None,
                        help="report the load held under this gravity only (palm frame, m/s^2, or a NAME: "
-                            + _GRAVITY_NAMES_HELP + ") instead of the six directions of execution mode")
+                            + _GRAVITY_NAMES_HELP + ") instead of the six directions of execution mode, and "
+                            "exit 1 unless plan --execution --gravity accepts the grasp under it (as --execution)")
+    check.add_argument("--execution", action="store_true",
+                       help="exit 1 unless plan --execution accepts the grasp as an initial or final grasp: force "
+                            "closure with one contact per touching link and twice the weight held in each of the six "
+                            "hand orientations within the joints' torque limits (the failing direction and joint named)")
     check.set_defaults(func=commands.cmd_check)
 
     plan = sub.add_parser("plan", help="plan a finger-gaiting sequence between two grasps")

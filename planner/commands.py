@@ -94,42 +94,51 @@ def cmd_plan(args: argparse.Namespace) -> int:
 def cmd_check(args: argparse.Namespace) -> int:
     """Realize one grasp, print the report (text or JSON), draw it (``--png``); exit 0 force
     closure and as written (no `RealizedGrasp.problems`), 1 not, 2 bad input. With
-    ``--gravity`` (3 numbers, "gravity"; or a name) the load held is reported under it alone."""
+    ``--execution`` also 1 unless ``plan --execution`` accepts it as an end grasp
+    (`planner.realization.execution_verdict`: the execution contact model, the hold factor in
+    the six directions it plans for); with ``--gravity`` (3 numbers, "gravity"; or a name) the
+    same under that gravity alone, as ``plan --execution --gravity``."""
     from planner.grasp import load_grasp, load_hand  # deferred: objects, the hand: pinocchio, coal (~0.1 s)
     from planner.grasp_report import check_text, contact_markers  # deferred: scipy (~0.2 s)
-    from planner.realization import realize  # deferred: closure, contacts: scipy (~0.05 s more)
+    from planner.realization import execution_verdict, realize  # deferred: closure, contacts: scipy (~0.05 s more)
 
     spec = load_grasp(args.grasp)
     # the picture may not be a file the check reads (the grasp, its hand's files, the mesh)
     check_outputs([(args.png, "--png")], [args.grasp, *load_hand(spec.hand_ref).files, spec.object.mesh_path])
     grasp = realize(spec)
-    hold = gline = gdata = None
+    gline = gdata = None
     if args.gravity is not None:
         from planner.gravity import named_gravity
 
         name = args.gravity if isinstance(args.gravity, str) else "gravity"
         g = named_gravity(name, grasp.hand) if isinstance(args.gravity, str) else tuple(float(v) for v in args.gravity)
-        hold = grasp.hold(directions=[(name, g)])
+        verdict = execution_verdict(grasp, g, name)
         gline, gdata = _gravity_line(name, g, grasp.hand.name), {"name": name, "vector": list(g)}
+    else:
+        verdict = execution_verdict(grasp)
+    strict = args.execution or args.gravity is not None
+    passes = grasp.ok and (verdict.ok or not strict)
     if args.png:
         from planner.sim.render import render_png  # deferred: pybullet, only with --png
 
         render_png(grasp.hand, grasp.q, grasp.obj, args.png, markers=contact_markers(grasp))
     if args.json:
-        data = grasp.summary(hold)
+        data = grasp.summary(list(verdict.hold), verdict)
+        data["execution"]["required"] = strict
+        data["passes"] = passes
         if gdata is not None:
             data["gravity"] = gdata
         print(json.dumps(data, indent=1))
     else:
-        text = check_text(grasp, hold)
+        text = check_text(grasp, verdict, strict)
         if gline is not None:  # before the verdict, the report's last line
-            head, _, verdict = text.rpartition("\n")
-            text = f"{head}\n{gline}\n{verdict}"
+            head, _, last = text.rpartition("\n")
+            text = f"{head}\n{gline}\n{last}"
         print(text)
         if args.png:
             print(f"picture written to {args.png} (contacts: dots with their inward normals; green ok, orange "
                   "warning, red problem)")
-    return 0 if grasp.ok else 1
+    return 0 if passes else 1
 
 
 def cmd_synth(args: argparse.Namespace) -> int:

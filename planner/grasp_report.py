@@ -10,8 +10,10 @@ from pathlib import Path
 
 import numpy as np
 
-from planner.grip import FRICTION_MARGIN, HOLD_FACTOR
-from planner.realization import AT_LIMIT_RAD, CONTACT_WARN_M, PENETRATION_TOL_M, RealizedGrasp
+from planner.grip import FRICTION_MARGIN
+from planner.objects import DEFAULT_DENSITY_KG_M3
+from planner.realization import (AT_LIMIT_RAD, CONTACT_WARN_M, PENETRATION_TOL_M, ExecutionVerdict, RealizedGrasp,
+                                  execution_verdict)
 
 
 def object_text(obj) -> str:
@@ -27,9 +29,12 @@ def object_text(obj) -> str:
     return f"mesh {Path(obj.mesh_path).name} {mm} mm (scale {list(obj.size)})"
 
 
-def check_text(grasp: RealizedGrasp, hold: list | None = None) -> str:
-    """The text report of ``regrasp check``."""
-    hold = grasp.hold() if hold is None else hold
+def check_text(grasp: RealizedGrasp, verdict: ExecutionVerdict | None = None, strict: bool = False) -> str:
+    """The text report of ``regrasp check``; ``verdict``: `planner.realization.execution_verdict`'s
+    when already computed (its ``hold`` is the load table); ``strict`` (``--execution``,
+    ``--gravity``): a refusal fails the check."""
+    verdict = execution_verdict(grasp) if verdict is None else verdict
+    hold = verdict.hold
     report = grasp.summary(hold)
     fr = grasp.friction
     out = [f"grasp {grasp.spec.name} ({grasp.spec.path})",
@@ -67,15 +72,22 @@ def check_text(grasp: RealizedGrasp, hold: list | None = None) -> str:
     link = report["link_contact_closure"]
     out.append(f"with one contact per touching link (--contact-model link, execution mode): force closure "
                f"{'yes' if link['force_closure'] else 'no'}, metric {link['metric']:.4g}")
-    if hold:
-        out.append(f"load held within the joints' torque limits (a contact per link, {FRICTION_MARGIN:g} of the friction; "
-                   f"execution mode needs {HOLD_FACTOR:g}x the weight, {grasp.obj.mass_kg * 1e3:.4g} g):")
-        for h in hold:
-            out.append(f"  {'ok  ' if h.holds else 'LOW '} {h.words()}")
-    verdict = "PASS" if grasp.ok else "FAIL"
+    mass = f"{grasp.obj.mass_kg * 1e3:.4g} g" + ("" if grasp.obj.mass_given else " (no mass_kg in the file: "
+                                                   f"its volume at {DEFAULT_DENSITY_KG_M3:g} kg/m^3)")
+    out.append(f"load held within the joints' torque limits (a contact per link, {FRICTION_MARGIN:g} of the friction; "
+               f"execution mode needs {verdict.hold_factor:g}x the weight, {mass}):")
+    for h in hold:
+        out.append(f"  {'ok  ' if h.capacity.factor >= verdict.hold_factor else 'LOW '} {h.words()}")
+    if not hold:
+        out.append(f"  not computed: {grasp.hold_unavailable() or 'no direction'}")
+    names = ", ".join(n for n, _ in verdict.directions)
+    out.append(f"execution mode (plan --execution, {names}): "
+               + ("accepts it as an end grasp" if verdict.ok else f"refuses it: {verdict.reason}")
+               + ("" if strict or verdict.ok else " (check --execution fails it)"))
     why = [] if grasp.is_force_closure else ["not force closure"]
     why += [f"{len(grasp.problems)} problem(s)"] if grasp.problems else []
-    out.append(f"{verdict}{': ' + ', '.join(why) if why else ''} (tolerances: penetration "
+    why += [f"execution mode refuses it: {verdict.brief()}"] if strict and not verdict.ok else []
+    out.append(f"{'FAIL' if why else 'PASS'}{': ' + ', '.join(why) if why else ''} (tolerances: penetration "
                f"{PENETRATION_TOL_M * 1e3:.1f} mm, contact warning {CONTACT_WARN_M * 1e3:.0f} mm, "
                f"joint at a limit within {AT_LIMIT_RAD:g} rad)")
     return "\n".join(out)

@@ -39,6 +39,9 @@ CONTACT_WARN_M = 3e-3
 AT_LIMIT_RAD = 1e-3
 #: `check` warns when a contact's pad faces farther than this from the contact normal.
 NORMAL_WARN_RAD = math.radians(45.0)
+#: The contact models (`planner.closure.CONTACT_MODELS`) in words.
+CONTACT_MODEL_WORDS = {"patch": "every patch point", "mean": "one mean contact per finger",
+                       "link": "one contact per touching link"}
 
 
 # --------------------------------------------------------------------------- data
@@ -147,6 +150,17 @@ class RealizedGrasp:
         return grasp_hold(self.hand, self.q, patches, self.obj.T_palm_obj, self.obj.mass_kg, self.friction,
                           gravity_directions(self.hand.palm_normal, 6) if directions is None else directions)
 
+    def hold_unavailable(self, contact_model: str = "link") -> str | None:
+        """Why `hold` gives no load table under ``contact_model`` (no contact, not force
+        closure under it), None when it gives one."""
+        if not self.patches:
+            return "no finger touches the object"
+        c = self.closure_under(contact_model)
+        if c.is_force_closure:
+            return None
+        return (f"not force closure with {CONTACT_MODEL_WORDS.get(contact_model, contact_model)} (metric {c.metric:.4g}): "
+                f"no contact forces hold every load, so no multiple of the weight is held in every direction")
+
     def palm_summary(self) -> dict:
         """Whether the palm touches and holds: the file's ``palm:`` mode, the palm links within
         the touch tolerance, its contact points (0 when it does not hold: not touching, or
@@ -158,9 +172,9 @@ class RealizedGrasp:
                 "holds": pts is not None, "contact_points": 0 if pts is None else int(len(pts[0])),
                 "distance_m": None if gap is None else float(gap)}
 
-    def summary(self, hold: list | None = None) -> dict:
+    def summary(self, hold: list | None = None, verdict: "ExecutionVerdict | None" = None) -> dict:
         """Plain-data report (what ``regrasp check --json`` prints); ``hold``: `hold`'s result
-        when already computed."""
+        when already computed; ``verdict``: `execution_verdict`'s, reported as ``execution``."""
         fingers = {}
         for f in self.spec.fingers:
             pts = self.patches.get(f.name)
@@ -192,12 +206,133 @@ class RealizedGrasp:
             "hold": {h.name: {"holds": h.holds, "factor": h.capacity.factor, "words": h.words(),
                               "limit": None if h.capacity.limit is None else vars(h.capacity.limit)}
                      for h in (self.hold() if hold is None else hold)},
+            "hold_note": self.hold_unavailable(),
+            **({} if verdict is None else {"execution": verdict.to_data()}),
             "as_written": not self.problems,
             "problems": list(self.problems),
             "warnings": list(self.warnings),
             "tolerances": {"penetration_m": PENETRATION_TOL_M, "contact_warn_m": CONTACT_WARN_M,
                            "at_limit_rad": AT_LIMIT_RAD},
         }
+
+
+@dataclass(frozen=True)
+class ExecutionVerdict:
+    """Whether ``plan --execution`` accepts a grasp as its initial or final grasp
+    (`execution_verdict`), with the load table that explains it.
+
+    Attributes:
+        directions: the gravity directions execution mode plans for: ((name, (3,) palm frame), ...).
+        contact_model: execution mode's (`planner.options.EXECUTION_CONTACT_MODEL`).
+        hold_factor: the multiple of the weight every direction must hold.
+        reason: the planner's own words for refusing the grasp (`planner.graph.Evaluator.blocked_reason`
+            of the grasp as a plan state, or `RealizedGrasp.require_placed`'s), None when it accepts it.
+        hold: `planner.grip.DirectionHold` per direction under ``contact_model`` (() when not
+            force closure under it: `RealizedGrasp.hold`).
+    """
+
+    directions: tuple
+    contact_model: str
+    hold_factor: float
+    reason: str | None
+    hold: tuple = ()
+
+    @property
+    def ok(self) -> bool:
+        return self.reason is None
+
+    @property
+    def failing(self) -> tuple:
+        """The `DirectionHold`s below ``hold_factor``, in direction order."""
+        return tuple(h for h in self.hold if h.capacity.factor < self.hold_factor)
+
+    def brief(self) -> str:
+        """The refusal in a few words: every failing direction with the joint that limits it
+        (``palm_down 0.44x: thumb joint thumb_1``), else the planner's reason; "" when accepted."""
+        if self.ok:
+            return ""
+        if not self.failing:
+            return self.reason
+        return f"below {self.hold_factor:g}x the weight in " + ", ".join(
+            f"{h.name} ({h.capacity.factor:.3g}x" + ("" if h.capacity.limit is None else
+                                                     f": {h.capacity.limit.finger} joint {h.capacity.limit.joint}"
+                                                     if h.capacity.limit.joint else f": {h.capacity.limit.finger}'s force cap")
+            + ")" for h in self.failing)
+
+    def to_data(self) -> dict:
+        """Plain data (``regrasp check --json``'s ``execution``): the verdict, the planner's
+        reason, and per failing direction its factor and the joint that limits it."""
+        return {"accepted": self.ok, "reason": self.reason, "contact_model": self.contact_model,
+                "hold_factor": self.hold_factor, "directions": [n for n, _ in self.directions],
+                "failing": [{"direction": h.name, "factor": h.capacity.factor,
+                             "limit": None if h.capacity.limit is None else vars(h.capacity.limit)}
+                            for h in self.failing]}
+
+
+def execution_verdict(grasp: RealizedGrasp, gravity=None, name: str = "gravity") -> ExecutionVerdict:
+    """Whether ``plan --execution`` (``gravity``: ``plan --execution --gravity``, a (3,)
+    palm-frame vector) accepts ``grasp`` as an end grasp, by the planner's own test, not a
+    copy of it: the fingers placed as the file says (`RealizedGrasp.require_placed`, what
+    `planner.api.plan` asks first), then the grasp as a state of the plan's problem
+    (`planner.slots.build_problem` with `PlanOptions.for_execution`) judged by the search's
+    `planner.graph.Evaluator.blocked_reason`: fingers not colliding, force closure with the
+    execution contact model, and ``hold_factor`` times the weight held in every planned
+    direction within the joints' torque limits (`planner.graph.GaitProblem.load_refusal`)."""
+    from planner.errors import PlannerError as _Refused  # the planner's one-line refusal
+    from planner.graph import Evaluator  # deferred: networkx
+    from planner.options import PlanOptions, gravity_directions_of
+    from planner.slots import build_problem
+
+    opts = PlanOptions.for_execution(gravity=None if gravity is None else tuple(float(v) for v in gravity),
+                                     motion=False, verify=False)
+    directions = tuple(gravity_directions_of(opts, grasp.hand))
+    if gravity is not None:  # the planner names its one direction "gravity"; the report, as the user did
+        directions = ((name, directions[0][1]),)
+    hold = tuple(grasp.hold(opts.contact_model, list(directions)))
+    try:
+        grasp.require_placed()
+    except _Refused as err:
+        return ExecutionVerdict(directions, opts.contact_model, opts.hold_factor, str(err), hold)
+    problem = build_problem(grasp, grasp, opts)
+    ev = Evaluator(problem)
+    ev.evaluate([problem.start])
+    reason = ev.blocked_reason(problem.start)
+    if reason is not None and gravity is not None and reason.startswith("gravity: "):
+        reason = f"{name}: {reason[len('gravity: '):]}"
+    return ExecutionVerdict(directions, opts.contact_model, opts.hold_factor, reason, hold)
+
+
+def unheld_weight(grasp: RealizedGrasp, contact_model: str = "link") -> list:
+    """The grasp's `planner.grip.DirectionHold`s, among the six hand orientations of
+    execution mode, in which it does not hold its own weight (1x, with the whole friction
+    cone, under ``contact_model``) within the joints' torque limits; [] when it holds it in
+    all six."""
+    if not grasp.patches:
+        return []
+    hold = grasp_hold(grasp.hand, grasp.q, apply_contact_model(grasp.patches, contact_model), grasp.obj.T_palm_obj,
+                      grasp.obj.mass_kg, grasp.friction, gravity_directions(grasp.hand.palm_normal, 6), margin=1.0,
+                      demand=False)
+    return [h for h in hold if h.capacity.factor < 1.0]
+
+
+def weight_warning(grasps: Mapping[str, RealizedGrasp], contact_model: str = "link") -> str | None:
+    """One line for a plan made without a gravity (force closure only) whose end grasps
+    (``{"initial": grasp, "final": grasp}``) do not hold their own weight in some hand
+    orientation (`unheld_weight`; by default with one contact per touching link, as the
+    simulator's rigid links push): which grasp, which directions, the weakest with the joint
+    that limits it; None when both hold it in all six."""
+    parts = []
+    for which, g in grasps.items():
+        low = unheld_weight(g, contact_model)
+        if low:
+            worst = min(low, key=lambda h: h.capacity.factor)
+            parts.append(f"the {which} grasp {g.spec.name!r} does not hold its own weight ({g.obj.mass_kg * 1e3:.4g} g) "
+                         f"within the joints' torque limits in {', '.join(h.name for h in low)} (worst {worst.name}: "
+                         f"{worst.capacity.words()}; {CONTACT_MODEL_WORDS[contact_model]}, all the friction)")
+    if not parts:
+        return None
+    return ("; ".join(parts) + "; this plan asks force closure only: plan --execution (or --gravity NAME) requires "
+            "the weight held, regrasp check --execution says whether a grasp can be executed")
 
 
 def _is_object_name(name: str) -> bool:

@@ -1,0 +1,161 @@
+"""``regrasp check --execution`` (and ``--gravity``): the verdict of ``plan --execution`` on an end
+grasp, by the planner's own test; the load section always printed; ``plan`` without a gravity
+warns when an end grasp cannot hold its own weight (issue 36 item 2)."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import warnings
+from pathlib import Path
+
+import pytest
+import yaml
+
+import planner
+from planner.cli import main
+from planner.errors import NoSequenceError, PlannerWarning
+from planner.grasp import load_grasp
+from planner.realization import execution_verdict, realize, weight_warning
+
+ROOT = Path(__file__).resolve().parent.parent
+BOX_IR2M = ROOT / "grasps/icub/box_ir2m.yaml"
+BOX_PE = ROOT / "grasps/icub/box_parallel_extension.yaml"
+
+
+def _bench():
+    spec = importlib.util.spec_from_file_location("bench_check_execution", ROOT / "benchmarks" / "bench_check_execution.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def _write(tmp_path: Path, src: Path, name: str, mass_kg: float | None = None, fingers: dict | None = None) -> Path:
+    data = yaml.safe_load(src.read_text())
+    if mass_kg is not None:
+        data["object"]["mass_kg"] = mass_kg
+    if fingers is not None:
+        data["fingers"] = fingers
+    path = tmp_path / name
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return path
+
+
+def _run(capsys, *argv) -> tuple[int, str, str]:
+    code = main([str(a) for a in argv])
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+@pytest.fixture(scope="module")
+def heavy(tmp_path_factory) -> Path:
+    """box_ir2m holding a 2 kg box: force closure, far beyond the iCub's 0.5 N m joints."""
+    return _write(tmp_path_factory.mktemp("heavy"), BOX_IR2M, "heavy.yaml", mass_kg=2.0)
+
+
+def test_a_2kg_object_fails_check_execution_naming_the_direction_and_joint(capsys, heavy):
+    code, out, _ = _run(capsys, "check", heavy, "--execution")
+    last = out.splitlines()[-1]
+    assert code == 1 and last.startswith("FAIL: execution mode refuses it: below 2x the weight in palm_down (0.439x: "
+                                         "thumb joint thumb_1)")
+    assert "side_+x" not in last  # it holds 2.84x there
+    assert "  LOW  palm_down: holds 0.439x its weight (needs 2x), limited by thumb joint thumb_1" in out
+    # plain check: the same report and verdict, but the exit code of force closure and as written
+    code, out, _ = _run(capsys, "check", heavy)
+    assert code == 0 and out.splitlines()[-1].startswith("PASS")
+    assert "execution mode (plan --execution, palm_down, palm_up, side_+x, side_-x, side_+y, side_-y): refuses it: " \
+           "palm_down: holds 0.439x its weight (needs 2x), limited by thumb joint thumb_1" in out
+    assert "(check --execution fails it)" in out
+
+
+def test_the_verdict_is_the_planners(heavy):
+    """check --execution quotes the refusal plan --execution gives for the same grasp."""
+    verdict = execution_verdict(realize(load_grasp(heavy)))
+    with pytest.raises(NoSequenceError) as err:
+        planner.plan(heavy, heavy, execution=True, motion=False, verify=False)
+    assert str(err.value) == f"the initial grasp is not a valid state: {verdict.reason}"
+    light = realize(load_grasp(BOX_IR2M))
+    assert execution_verdict(light).ok and not execution_verdict(light).failing
+    assert not planner.plan(BOX_IR2M, BOX_IR2M, execution=True, motion=False, verify=False).plan.steps
+
+
+def test_check_gravity_is_the_execution_test_under_that_direction(capsys, heavy):
+    code, out, _ = _run(capsys, "check", heavy, "--gravity", "side_+x")  # holds 2.84x there
+    assert code == 0 and "execution mode (plan --execution, side_+x): accepts it as an end grasp" in out
+    code, out, _ = _run(capsys, "check", heavy, "--gravity", "palm_up")
+    assert code == 1 and out.splitlines()[-2].startswith("gravity palm_up: ")
+    assert out.splitlines()[-1].startswith("FAIL: execution mode refuses it: below 2x the weight in palm_up (0.924x: "
+                                           "ring joint ring_1)")
+    assert "refuses it: palm_up: holds 0.924x" in out  # the planner's "gravity" named as the user named it
+
+
+def test_json_carries_the_verdict(capsys, heavy):
+    code, out, _ = _run(capsys, "check", heavy, "--execution", "--json")
+    data = json.loads(out)
+    ex = data["execution"]
+    assert code == 1 and data["passes"] is False and ex["accepted"] is False and ex["required"] is True
+    assert ex["contact_model"] == "link" and ex["hold_factor"] == 2.0 and len(ex["directions"]) == 6
+    assert ex["reason"].startswith("palm_down: holds 0.439x")
+    assert [f["direction"] for f in ex["failing"]] == ["palm_down", "palm_up", "side_-x", "side_+y", "side_-y"]
+    assert ex["failing"][0]["limit"]["joint"] == "thumb_1" and ex["failing"][0]["factor"] == pytest.approx(0.439, abs=1e-3)
+    assert data["hold_note"] is None and set(data["hold"]) == set(ex["directions"])
+    code, out, _ = _run(capsys, "check", heavy, "--json")
+    data = json.loads(out)
+    assert code == 0 and data["passes"] is True and data["execution"]["required"] is False
+    assert data["execution"]["accepted"] is False
+
+
+def test_the_load_section_is_always_printed(capsys, tmp_path):
+    """Not force closure with a contact per link (here: the thumb alone): the section says why not."""
+    one = _write(tmp_path, BOX_IR2M, "thumb.yaml", fingers={"thumb": yaml.safe_load(BOX_IR2M.read_text())["fingers"]["thumb"]})
+    code, out, _ = _run(capsys, "check", one)
+    lines = out.splitlines()
+    i = next(k for k, line in enumerate(lines) if line.startswith("load held within the joints' torque limits"))
+    assert code == 1 and lines[i + 1].startswith("  not computed: not force closure with one contact per touching link")
+    assert "refuses it: not force closure" in lines[i + 2]
+    code, out, _ = _run(capsys, "check", one, "--json")
+    data = json.loads(out)
+    assert data["hold"] == {} and data["hold_note"].startswith("not force closure")
+    assert data["execution"]["reason"] == "not force closure" and data["execution"]["failing"] == []
+
+
+def test_plan_without_gravity_warns_once_when_an_end_grasp_drops_its_object(capsys, tmp_path):
+    a = _write(tmp_path, BOX_PE, "a.yaml", mass_kg=2.0)
+    b = _write(tmp_path, BOX_IR2M, "b.yaml", mass_kg=2.0)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        planner.plan(a, b, motion=False)
+    ours = [w for w in caught if issubclass(w.category, PlannerWarning)]
+    assert len(ours) == 1
+    text = str(ours[0].message)
+    assert "the initial grasp 'box_parallel_extension' does not hold its own weight (2000 g)" in text
+    assert "the final grasp 'box_ir2m' does not hold its own weight" in text and "palm_down" in text
+    assert "joint thumb_1" in text and "\n" not in text
+    code, out, err = _run(capsys, "plan", a, b, "--no-motion")
+    assert code == 0 and err.count("warning:") == 1 and "regrasp plan: warning: the initial grasp" in err
+    # light objects, or a plan that asks for a gravity: no warning
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        planner.plan(BOX_PE, BOX_IR2M, motion=False)
+        try:
+            planner.plan(a, b, motion=False, gravity="side_+x")
+        except NoSequenceError:
+            pass  # refused or planned: the gravity asked decides, no warning either way
+    assert not [w for w in caught if issubclass(w.category, PlannerWarning)]
+    assert weight_warning({"initial": realize(load_grasp(BOX_PE))}) is None
+
+
+def test_check_agrees_with_the_planner_on_a_seeded_subset():
+    """The benchmark's two verdicts (check --execution --json, plan --execution on the grasp as
+    its own initial and final grasp) on bundled and synthesized grasps at 0.03 and 2 kg.
+    The whole sweep: benchmarks/bench_check_execution.py."""
+    bench = _bench()
+    cases = [c for c in bench.bundled() if c[0] in ("icub/box_ir2m", "allegro/box_tripod", "icub/ball_palm_thumb_across")]
+    cases += bench.synthesized(1, objects={"sphere": bench.OBJECTS["sphere"]})
+    rows = bench.run(cases, masses=(0.03, 2.0), log=lambda line: None)
+    s = bench.summary(rows)
+    assert s["grasps"] == 10 and s["agree"] == 10 and s["reasons_match"] == 10
+    assert 0 < s["refused"] < 10 and s["check_stricter"] == []
+    heavy = {r["grasp"]: r for r in rows if r["mass_kg"] == 2.0}
+    assert heavy["icub/box_ir2m"]["failing"][0]["limit"]["joint"] == "thumb_1"
+    assert heavy["icub/ball_palm_thumb_across"]["plan_accepted"]  # a power grasp: the palm and five fingers hold 2 kg
