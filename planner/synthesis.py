@@ -39,7 +39,6 @@ from __future__ import annotations
 import math
 import os
 import sys
-import tempfile
 import time
 from collections import Counter
 from collections.abc import Mapping
@@ -52,8 +51,8 @@ import yaml
 from planner.closure import CONTACT_MODELS, apply_contact_model, grasp_closure, min_grip_force
 from planner.collision import LINK_EPS_M
 from planner.contacts import TOUCH_TOL_M
-from planner.errors import PlannerError, SpecError, UnknownNameError
-from planner.fileio import MAX_GRASP_BYTES, Reader, read_yaml
+from planner.errors import OutputError, PlannerError, SpecError, UnknownNameError
+from planner.fileio import MAX_GRASP_BYTES, Reader, read_yaml, write_atomic
 from planner.grasp import load_hand, parse_friction, parse_grasp, resolve_hand_ref
 from planner.grip import HOLD_FACTOR, grasp_hold
 from planner.model import Friction
@@ -352,25 +351,13 @@ def write_grasps(result: SynthResult, out_dir, hand_name: str, *, seed: int, fin
             data["object"] = obj
             if os.path.isabs(str(data.get("hand", ""))):  # a hand.yaml path moves with the files
                 data["hand"] = os.path.relpath(data["hand"], Path(out_dir).resolve())
-            # a temporary file of our own (exclusive, a unique name: never a user's file), then a
-            # hard link to the name, which fails if that file appeared meanwhile
-            fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-            try:
-                with os.fdopen(fd, "w", encoding="utf-8") as fh:
-                    fh.write(yaml.safe_dump(data, sort_keys=False, default_flow_style=None))
-                os.link(tmp, path)
-            finally:
-                os.unlink(tmp)
+            # never over a file: one that appeared since the names were checked stops the writing
+            write_atomic(path, yaml.safe_dump(data, sort_keys=False, default_flow_style=None), exclusive=True)
             written.append(path)
-    except FileExistsError as err:
+    except OutputError as err:
         for p in written:
             p.unlink(missing_ok=True)
-        raise PlannerError(f"synth: {err.filename2 or err.filename} appeared while writing; nothing was "
-                           f"overwritten, choose another -o DIR") from err
-    except OSError as err:
-        for p in written:
-            p.unlink(missing_ok=True)
-        raise PlannerError(f"synth: cannot write into {out_dir}: {err}") from err
+        raise OutputError(f"synth: {err}; nothing was kept, choose another -o DIR") from None
     return written
 
 

@@ -154,3 +154,27 @@ def test_check_picture_may_not_be_the_hand_or_grasp(setup, capsys):
         finally:
             link.unlink()
     assert _snapshot(setup) == before
+
+
+def test_the_one_writer_replaces_atomically_or_never(tmp_path):
+    """write_atomic: replaces a file whole; exclusive: never replaces one (synth's grasps);
+    a writer that fails leaves the old file and no temporary file."""
+    from planner.errors import OutputError
+    from planner.fileio import write_atomic
+
+    target = tmp_path / "a.yaml"
+    write_atomic(target, "one\n")
+    write_atomic(target, "two\n")
+    assert target.read_text() == "two\n"
+    with pytest.raises(OutputError, match="appeared while writing"):
+        write_atomic(target, "three\n", exclusive=True)
+
+    def broken(tmp):
+        Path(tmp).write_text("half")
+        raise OSError(28, "No space left on device")
+
+    with pytest.raises(OutputError, match="No space left"):
+        write_atomic(target, write=broken)
+    assert target.read_text() == "two\n" and [p.name for p in tmp_path.iterdir()] == ["a.yaml"]
+    write_atomic(tmp_path / "b.gif", write=lambda tmp: Path(tmp).write_bytes(b"GIF89a"))
+    assert (tmp_path / "b.gif").read_bytes() == b"GIF89a"
