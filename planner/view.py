@@ -40,6 +40,7 @@ from planner.grasp import load_grasp
 from planner.objects import load_mesh
 from planner.plan import plan_files, read_plan
 from planner.realization import realize
+from planner.urdf_check import library_message
 from planner.view_page import PAGE
 
 #: frames drawn per plan step (finger paths are resampled by joint-space arc length)
@@ -147,7 +148,8 @@ class _Scene:
             vmodel = pin.buildGeomFromUrdf(hand.model, str(hand.urdf_path), pin.GeometryType.VISUAL,
                                            package_dirs=list(hand.package_dirs))
         except (RuntimeError, ValueError) as err:
-            raise SpecError(str(hand.urdf_path), "visual", f"cannot load the visual geometry: {err}") from err
+            raise SpecError(str(hand.urdf_path), "visual",
+                            f"cannot load the visual geometry: {library_message(err)}") from None
         self.vmodel, self.vdata = vmodel, vmodel.createData()
         self.pv = MeshcatVisualizer(hand.model, None, vmodel)
         self.pv.initViewer(viewer=self.vis)
