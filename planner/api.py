@@ -80,7 +80,7 @@ def plan(initial, final, *, execution: bool = False, output: PathLike | None = N
         from planner.errors import PlannerWarning
         from planner.realization import weight_warning
 
-        words = weight_warning({"initial": a, "final": b})
+        words = weight_warning({"initial": a, "final": b}, opts.contact_model)
         if words is not None:
             warnings.warn(words, PlannerWarning, stacklevel=2)
     inputs = {k: input_record(g) for k, g in (("initial", initial), ("final", final)) if isinstance(g, (str, os.PathLike))}

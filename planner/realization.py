@@ -315,14 +315,18 @@ def unheld_weight(grasp: RealizedGrasp, contact_model: str = "link") -> list:
     return [h for h in hold if h.capacity.factor < 1.0]
 
 
-def weight_warning(grasps: Mapping[str, RealizedGrasp], contact_model: str = "link") -> str | None:
-    """One line for a plan made without a gravity (force closure only) whose end grasps
-    (``{"initial": grasp, "final": grasp}``) do not hold their own weight in some hand
-    orientation (`unheld_weight`; by default with one contact per touching link, as the
-    simulator's rigid links push): which grasp, which directions, the weakest with the joint
-    that limits it; None when both hold it in all six."""
+def weight_warning(grasps: Mapping[str, RealizedGrasp], planned_with: str = "patch",
+                   contact_model: str = "link") -> str | None:
+    """One line for a plan made without a gravity (force closure only, under the contact
+    model ``planned_with``) whose end grasps (``{"initial": grasp, "final": grasp}``) do not
+    hold their own weight in some hand orientation (`unheld_weight`; by default with one
+    contact per touching link, as the simulator's rigid links push): which grasp, which
+    directions, the weakest with the joint that limits it; None when both hold it in all six.
+    A grasp that is not force closure under ``planned_with`` is left to the planner's refusal."""
     parts = []
     for which, g in grasps.items():
+        if not g.closure_under(planned_with).is_force_closure:
+            continue
         low = unheld_weight(g, contact_model)
         if low:
             worst = min(low, key=lambda h: h.capacity.factor)

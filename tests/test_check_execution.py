@@ -117,6 +117,8 @@ def test_the_load_section_is_always_printed(capsys, tmp_path):
     data = json.loads(out)
     assert data["hold"] == {} and data["hold_note"].startswith("not force closure")
     assert data["execution"]["reason"] == "not force closure" and data["execution"]["failing"] == []
+    # plan leaves such a grasp to its own refusal: no weight warning before it
+    assert weight_warning({"initial": realize(load_grasp(one))}) is None
 
 
 def test_plan_without_gravity_warns_once_when_an_end_grasp_drops_its_object(capsys, tmp_path):
