@@ -93,9 +93,10 @@ def build_parser() -> argparse.ArgumentParser:
                       help="when no sequence exists, intermediate contacts are added for the fingers that block "
                            "progress, round after round, at most N rounds (default 4; 0: none); the result does not "
                            "depend on the machine's load")
-    plan.add_argument("--time-limit", type=float, default=60.0, metavar="S",
-                      help="a cap on the search time, s (default 60; finger paths not counted; reaching it is "
-                           "reported: the result then depends on the machine's speed); 0: no rounds")
+    plan.add_argument("--time-limit", type=float, default=None, metavar="S",
+                      help="an optional cap on the search time, s (default none: the work bounds end the search, "
+                           "so the result does not depend on the machine's load; finger paths not counted; reaching "
+                           "a cap is reported: the result then depends on the machine's speed); 0: no rounds")
     plan.add_argument("--strategy", default="graph", help="graph (ranked search, default) or greedy (thesis Algorithm 2)")
     plan.add_argument("--seed", type=int, default=0, help="seed for sampling and motion planning (default 0)")
     plan.add_argument("--contact-model", default=None, metavar="MODEL",

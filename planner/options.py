@@ -135,9 +135,11 @@ class PlanOptions:
             rounds are deterministic and bounded by this count (and each search by its
             expanded states), not by the clock: the plan, or the explanation of a failure,
             is the same on a loaded machine. 0 disables the rounds.
-        time_limit_s: a cap on the search time (graph strategy), s (0: no rounds). Reaching
-            it is reported (the result then depends on the machine's speed); the work
-            bounds normally end the search first. Finger paths are not counted.
+        time_limit_s: an optional cap on the search time (graph strategy), s; None (the
+            default): no cap, the work bounds (``max_rounds``, expanded states) end the search,
+            so the plan or the refusal is the same on a loaded machine; 0: no rounds. Reaching a
+            cap is reported (the result then depends on the machine's speed). Finger paths are
+            not counted.
     """
 
     strategy: str = "graph"
@@ -156,7 +158,7 @@ class PlanOptions:
     gravity_set: int | None = None
     rank: str = "metric"
     execution: bool = False
-    time_limit_s: float = 60.0
+    time_limit_s: float | None = None
     max_rounds: int = 4
     hold_factor: float = HOLD_FACTOR
     verify: bool = False
@@ -206,7 +208,7 @@ class PlanOptions:
             raise UnknownNameError("contact model", self.contact_model, CONTACT_MODELS)
         for name, (low, high, open_low) in PLAN_OPTION_LIMITS.items():
             value = getattr(self, name)
-            optional = value is None and name in ("max_lifted", "gravity", "max_finger_force_n", "workers")
+            optional = value is None and name in ("max_lifted", "gravity", "max_finger_force_n", "workers", "time_limit_s")
             for v in () if optional else value if isinstance(value, tuple) else (value,):
                 if not in_range(v, low, high, open_low):
                     kind = "an integer" if isinstance(low, int) else "a number"

@@ -6,7 +6,7 @@
    cached per hand and object).
 2. `planner.gait_search.LazyGraph` (ranked best-first search evaluating only the states it
    reaches; or the greedy baseline) over those slots, with finger-finger collisions
-   checked pairwise with coal. Anytime (``intermediate`` 0, ``time_limit_s`` > 0): when no
+   checked pairwise with coal. Anytime (``intermediate`` 0, ``time_limit_s`` not 0): when no
    sequence exists, rounds of intermediate contacts for the fingers that block progress
    (`planner.explain.failure_analysis`) and a new search, until found or out of time.
 3. Finger paths, lazily: only for the gait steps of candidate sequences, best-ranked
@@ -267,8 +267,8 @@ def anytime_search(problem: GaitProblem, initial, options: PlanOptions, t0: floa
     states expanded, whether the ranking is exact, ``found`` (the sequences) and ``tried``
     (a sentence for the failure message).
     """
-    deadline = t0 + options.time_limit_s if options.time_limit_s > 0 and prior is None else None
-    auto = options.intermediate == 0 and options.time_limit_s > 0 and options.max_rounds > 0
+    deadline = t0 + options.time_limit_s if options.time_limit_s and prior is None else None
+    auto = options.intermediate == 0 and options.time_limit_s != 0 and options.max_rounds > 0
     evaluator, added, rounds, expanded, unheld, held = None, {}, 0, 0, {}, set()
     lazy, found, out_of_time = prior, [], False
     removed = set(prior.removed) if prior is not None else set()
@@ -401,7 +401,7 @@ def plan_regrasp(
                  len(candidates), search_info["rounds"], time.perf_counter() - t0)
         resumed = 0
         for _ in range(50):
-            if not candidates and resumed < RESUME_ROUNDS and options.intermediate == 0 and options.time_limit_s > 0 \
+            if not candidates and resumed < RESUME_ROUNDS and options.intermediate == 0 and options.time_limit_s != 0 \
                     and (failed or rejected):
                 # every sequence of this graph failed later: one more round of intermediate
                 # contacts, keeping what was removed
