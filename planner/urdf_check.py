@@ -20,7 +20,7 @@ The robot:
 * shapes: a sphere's radius, a cylinder's (capsule's) radius and length, a box's three
   sizes are finite, > 0 and at most `MAX_LENGTH_M` (origins' offsets too); a mesh's scale
   is three finite non-zero numbers (a negative one mirrors the mesh: published models do);
-* masses finite and >= 0, inertias finite;
+* masses finite and >= 0, inertias finite with moments ixx, iyy, izz >= 0;
 * joints: a known type, parent and child naming existing links and not the same one,
   a finite non-zero axis (``|axis| >= MIN_AXIS_NORM``) for revolute, continuous,
   prismatic and planar joints, a ``<limit>`` with finite effort and velocity >= 0 and
@@ -80,6 +80,9 @@ MAX_MESH_TRIANGLES = 200_000
 MAX_LENGTH_M = 100.0
 #: Shortest joint axis accepted (it is normalised).
 MIN_AXIS_NORM = 1e-6
+#: A moment of inertia below minus this is negative, not a rounded zero, kg m^2 (1e-12: a 1 g
+#: sphere of 0.05 mm radius).
+INERTIA_TOL = 1e-12
 JOINT_TYPES = ("revolute", "continuous", "prismatic", "fixed", "floating", "planar")
 #: Joint types whose axis is used (a planar joint's is the plane's normal; fixed and
 #: floating joints ignore theirs).
@@ -297,8 +300,16 @@ class _Checker:
             inertia = inertial.find("inertia")
             if inertia is None:
                 raise self.fail(inertial, what, "<inertial> has no <inertia>")
-            for attr in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz"):
-                self.numbers(inertia, attr, 1, what, f"inertia {attr}")
+            i = {attr: self.numbers(inertia, attr, 1, what, f"inertia {attr}")[0]
+                 for attr in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")}
+            # a body's moments about its axes are >= 0 (the diagonal of a positive semi-definite
+            # matrix); published robots (tiago, romeo) have products of inertia that make the
+            # matrix slightly indefinite, which the simulators accept, so only the diagonal is held
+            tol = INERTIA_TOL + 1e-9 * max(abs(i["ixx"]), abs(i["iyy"]), abs(i["izz"]))  # -5e-20 in iCub's: rounding
+            negative = [a for a in ("ixx", "iyy", "izz") if i[a] < -tol]
+            if negative:
+                raise self.fail(inertia, what, f"inertia {negative[0]} must be >= 0 (a moment of inertia), "
+                                               f"got {i[negative[0]]:g}")
         for kind in ("collision", "visual"):
             for shape in el.findall(kind):
                 shapes.append((kind, name, shape))

@@ -176,6 +176,7 @@ def test_non_finite_and_non_positive_numbers_are_refused_naming_the_element(tmp_
      "link 'palm': collision box size must be at most 100 m, got 1e+30 0.067 0.03"),
     ('<origin xyz="0.0211 0 0"', '<origin xyz="0.0211 -1e300 0"', "joint 'thumb_1': <origin> xyz must be within 100 m"),
     ('<origin xyz="0.0211 0 0"', '<origin xyz="0.0211 0"', "<origin> xyz: expected 3 numbers, got 2 values"),
+    ('ixx="6.73625e-05"', 'ixx="-6.73625e-05"', "link 'palm': inertia ixx must be >= 0 (a moment of inertia), got -6.73625e-05"),
 ])
 def test_joint_and_shape_rules_are_one_line(tmp_path, capsys, old, new, expect):
     _both(tmp_path, capsys, _edit(URDF_TEXT, old, new), expect)
