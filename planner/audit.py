@@ -40,8 +40,9 @@ from planner.contacts import contact_patches
 from planner.errors import AuditError, PlannerError
 from planner.grasp import load_grasp
 from planner.plan import read_plan, recorded_input
-from planner.grip import finger_statics, grip_program, hold_capacity
+from planner.grip import HOLD_FACTOR, finger_statics, grip_program, hold_capacity
 from planner.model import PALM, Friction
+from planner.options import PLAN_OPTION_LIMITS, in_range, option_range
 from planner.plan_data import Plan, plan_hand
 from planner.realization import PENETRATION_TOL_M as _GRASP_PENETRATION_TOL_M
 from planner.realization import realize
@@ -87,6 +88,7 @@ class AuditReport:
     problems: list[str] = field(default_factory=list)
     checked: dict[str, int] = field(default_factory=dict)
     total: int = 0
+    recorded_verification: bool = False
 
     @property
     def ok(self) -> bool:
@@ -103,7 +105,9 @@ class AuditReport:
     def summary(self) -> str:
         what = ", ".join(f"{n} {k}" for k, n in self.checked.items())
         if self.ok:
-            return f"{self.source}: plan verified ({what})"
+            note = ("; its recorded simulator verification is not re-run here: regrasp replay PLAN --gravity-set N "
+                    "re-runs it" if self.recorded_verification else "")
+            return f"{self.source}: plan verified ({what}){note}"
         more = f" (first {len(self.problems)} listed)" if self.total > len(self.problems) else ""
         return f"{self.source}: {self.total} problem(s){more}; checked {what}"
 
@@ -425,7 +429,22 @@ def _check_claims(plan, hand, poses, rep: AuditReport) -> None:
     planner's own models do not give."""
     params = plan.parameters or {}
     friction = plan.friction
-    margin = float(params.get("friction_margin", 1.0) or 1.0)
+    for name, (low, high, open_low) in PLAN_OPTION_LIMITS.items():  # the parameters a planner could have used
+        value = params.get(name)
+        if name in params and value is not None and not all(
+                in_range(v, low, high, open_low) for v in (value if isinstance(value, (list, tuple)) else (value,))):
+            rep.add(f"parameters.{name}: {value!r} is not a value the planner takes ({option_range(low, high, open_low)})")
+    margin = params.get("friction_margin", 1.0)
+    if not (isinstance(margin, (int, float)) and not isinstance(margin, bool) and 0 < margin <= 1):
+        rep.add(f"parameters.friction_margin: {margin!r} is not in (0, 1]")
+        margin = 1.0
+    margin = float(margin)
+    # a plan for execution holds at least its hold factor in every planned direction, and no
+    # file makes that less than execution mode's own
+    wanted = params.get("hold_factor")
+    wanted = float(wanted) if isinstance(wanted, (int, float)) and not isinstance(wanted, bool) else None
+    if params.get("execution") and wanted is not None and wanted < HOLD_FACTOR:
+        rep.add(f"parameters.hold_factor: {wanted:g}, below execution mode's {HOLD_FACTOR:g}")
     grip_friction = friction if margin == 1 else Friction(friction.mu * margin, friction.gamma * margin, friction.edges)
     sides = int(params.get("grip_cone_sides") or GRIP_CONE_SIDES)
     cap = params.get("max_finger_force_n")
@@ -482,6 +501,9 @@ def _check_claims(plan, hand, poses, rep: AuditReport) -> None:
                 elif not _close(held[n], mine):
                     rep.add(f"states[{i}].hold_factor_by_gravity.{n}: the file says {held[n]:.6g}x, the hand's "
                             f"joints hold {mine:.6g}x its weight")
+                if wanted is not None and mine < wanted * (1 - CLAIM_RTOL) - CLAIM_ATOL:
+                    rep.add(f"states[{i}]: holds {mine:.6g}x its weight in {n}, the plan asks {wanted:g}x "
+                            f"(parameters.hold_factor)")
     s = plan.summary or {}
     if metrics and "bottleneck_metric" in s and not _close(s["bottleneck_metric"], min(metrics)):
         rep.add(f"summary.bottleneck_metric: the file says {s['bottleneck_metric']}, its states give {min(metrics):.6g}")
@@ -501,6 +523,7 @@ def _check_verification(plan, planned: list[str], rep: AuditReport) -> None:
     if record is None:
         return
     rep.count("claims")
+    rep.recorded_verification = True
     if not (plan.parameters or {}).get("verify"):
         rep.add("summary.verification: recorded, but the plan's parameters say it was made without verification")
         return

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 import time
@@ -224,17 +225,29 @@ def _print_states(report) -> None:
 
 
 def _compare_verification(plan, result) -> None:
-    """Say whether this replay gives the verdicts the planner's verification recorded."""
+    """Say whether this replay gives what the planner's verification recorded: the verdicts
+    and the drifts (the replay is deterministic: a record this replay did not write differs)."""
     recorded = (plan.summary or {}).get("verification")
     if not isinstance(recorded, dict) or not isinstance(recorded.get("directions"), dict):
         return
-    now = {name: r.passed for name, _, r in result.directions}
+    now = {name: r for name, _, r in result.directions}
     common = [n for n in recorded["directions"] if n in now]
-    differ = [n for n in common if bool(recorded["directions"][n].get("passed")) != now[n]]
+
+    def differs(name) -> bool:
+        rec = recorded["directions"][name]
+        rec = rec if isinstance(rec, dict) else {}
+        r = now[name]
+        if bool(rec.get("passed")) != r.passed:
+            return True
+        return any(not isinstance(rec.get(k), (int, float)) or abs(rec[k] - v) > 2e-3
+                   for k, v in (("max_drift_mm", r.max_drift_mm), ("max_drift_deg", r.max_drift_deg)) if math.isfinite(v))
+
+    differ = [n for n in common if differs(n)]
     if differ:
-        print(f"warning: verdicts differ from the plan's verification in {', '.join(differ)}")
+        print(f"warning: this replay differs from the plan's recorded verification in {', '.join(differ)} "
+              f"(verdict or drift): the record was not written by a replay of this plan")
     elif common:
-        print(f"same verdicts as the plan's verification in {len(common)} direction(s)")
+        print(f"same verdicts and drifts as the plan's verification in {len(common)} direction(s)")
 
 
 def cmd_replay(args: argparse.Namespace) -> int:

@@ -281,7 +281,17 @@ def _claim_verified_wrong_directions(d):
     d["summary"]["verification"]["directions"].popitem()
 
 
+def _claim_hold_factor_zero(d):  # a parameter that would switch the hold check off
+    d["parameters"]["hold_factor"] = 0
+
+
+def _claim_hold_factor_low(d):
+    d["parameters"]["hold_factor"] = 1.0
+
+
 CLAIMS = {
+    "parameters.hold_factor 0": (_claim_hold_factor_zero, "parameters.hold_factor"),
+    "parameters.hold_factor below execution's": (_claim_hold_factor_low, "parameters.hold_factor"),
     "bottleneck metric 99": (_claim_bottleneck, "summary.bottleneck_metric"),
     "mean metric x1.5": (_claim_mean, "summary.mean_metric"),
     "grip forces 0, hold factors 100": (_claim_grip, "grip_force"),
@@ -367,3 +377,31 @@ def test_a_mean_contact_across_a_box_edge_keeps_its_mean_normal(tmp_path):
     _reseal(d, bad)
     problems = audit_plan(read_plan(bad), paths=False).problems
     assert any("index" in p and "contact normal" in p for p in problems), problems
+
+
+def test_a_replay_tells_a_recorded_verification_it_did_not_write(capsys):
+    """The replay is deterministic: `replay --gravity-set` compares the plan's recorded
+    verification (verdict and drifts per direction) with what it measured now, and says when
+    they differ (a record edited or made up), instead of trusting it."""
+    from types import SimpleNamespace
+
+    from planner.commands import _compare_verification
+
+    def report(passed, mm, deg):
+        return SimpleNamespace(passed=passed, max_drift_mm=mm, max_drift_deg=deg)
+
+    result = SimpleNamespace(directions=[("palm_down", None, report(True, 0.238, 0.775)),
+                                         ("palm_up", None, report(True, 0.249, 0.685))])
+
+    def plan(directions):
+        return SimpleNamespace(summary={"verification": {"passed": True, "directions": directions}})
+
+    same = {"palm_down": {"passed": True, "max_drift_mm": 0.238, "max_drift_deg": 0.775},
+            "palm_up": {"passed": True, "max_drift_mm": 0.249, "max_drift_deg": 0.685}}
+    _compare_verification(plan(same), result)
+    assert "same verdicts and drifts" in capsys.readouterr().out
+    for edit in ({"max_drift_mm": 0.0}, {"max_drift_deg": 9.0}, {"passed": False}, {"max_drift_mm": "0"}):
+        forged = {**same, "palm_down": {**same["palm_down"], **edit}}
+        _compare_verification(plan(forged), result)
+        out = capsys.readouterr().out
+        assert out.startswith("warning:") and "palm_down" in out and "palm_up" not in out.split("in ")[1], out
