@@ -384,10 +384,20 @@ def main(argv: list[str] | None = None) -> int:
         _DEPTH -= 1
 
 
+#: Longest line a message prints: a name or value from a file (up to 1 MB) is cut in the middle.
+MAX_LINE_CHARS = 1000
+
+
 def _say(line: str) -> None:
     """One line on stderr, whatever the message holds (newlines in names included; other
-    control characters, e.g. a terminal escape in a file name, shown escaped)."""
-    print(one_line(" ".join(line.split("\n")).replace("\r", " ")), file=sys.stderr)
+    control characters, e.g. a terminal escape in a file name, shown escaped), at most
+    `MAX_LINE_CHARS` long (the middle of a longer one left out, and said so)."""
+    text = one_line(" ".join(line.split("\n")).replace("\r", " "))
+    if len(text) > MAX_LINE_CHARS:
+        cut = len(text) - MAX_LINE_CHARS + 40
+        head = (MAX_LINE_CHARS - 40) * 2 // 3
+        text = f"{text[:head]} [... {cut} characters ...] {text[head + cut:]}"
+    print(text, file=sys.stderr)
 
 
 class _Noise:

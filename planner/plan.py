@@ -153,14 +153,19 @@ def plan_files(plan: Plan, hand=None) -> list[str]:
 
 
 def _check_inputs(plan: Plan, src: str, strict: bool) -> None:
+    """Recorded inputs gone or changed: an error with ``strict``, else one warning line for all
+    of them (the plan's own states are used)."""
+    problems = []
     for name, rec in plan.inputs.items():
         found = recorded_input(rec, src)
         problem = found[2] if found is not None else None
         if problem and strict:
             raise SpecError(src, f"inputs.{name}", problem)
         if problem:
-            warnings.warn(f"{src}: inputs.{name}: {problem}; replaying the plan's own states", PlannerWarning,
-                          stacklevel=3)
+            problems.append(f"inputs.{name}: {problem}")
+    if problems:
+        warnings.warn(f"{src}: {'; '.join(problems)}; the plan's own states are used (--strict refuses it)",
+                      PlannerWarning, stacklevel=3)
 
 
 def plan_from_data(data: Any, source: str | os.PathLike | None = None) -> Plan:

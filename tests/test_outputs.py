@@ -178,3 +178,20 @@ def test_the_one_writer_replaces_atomically_or_never(tmp_path):
     assert target.read_text() == "two\n" and [p.name for p in tmp_path.iterdir()] == ["a.yaml"]
     write_atomic(tmp_path / "b.gif", write=lambda tmp: Path(tmp).write_bytes(b"GIF89a"))
     assert (tmp_path / "b.gif").read_bytes() == b"GIF89a"
+
+
+def test_an_error_line_stays_bounded_whatever_the_file_holds(tmp_path, capsys):
+    """A 3000-character hand name (a hand.yaml may be 1 MB) is refused in one line of at most
+    `MAX_LINE_CHARS`, the middle left out and said so."""
+    from planner.cli import MAX_LINE_CHARS
+
+    hand = tmp_path / "h"
+    shutil.copytree(hand_dir("icub_right"), hand)
+    spec = yaml.safe_load((hand / "hand.yaml").read_text())
+    spec["name"] = "n" * 3000
+    (hand / "hand.yaml").write_text(yaml.safe_dump(spec, sort_keys=False))
+    assert main(["hand", "check", str(hand / "hand.yaml")]) in (1, 2)
+    out = capsys.readouterr()
+    lines = [line for line in (out.err + out.out).splitlines() if line.strip()]
+    assert lines and all(len(line) <= MAX_LINE_CHARS for line in lines), [len(line) for line in lines]
+    assert any("characters ...]" in line for line in lines)
