@@ -43,7 +43,7 @@ from planner.plan import read_plan, recorded_input
 from planner.grip import HOLD_FACTOR, finger_statics, grip_program, hold_capacity
 from planner.model import PALM, Friction
 from planner.options import PLAN_OPTION_LIMITS, in_range, option_range
-from planner.plan_data import Plan, plan_hand
+from planner.plan_data import Plan, hand_files_record, plan_hand
 from planner.realization import PENETRATION_TOL_M as _GRASP_PENETRATION_TOL_M
 from planner.realization import realize
 
@@ -199,7 +199,17 @@ def _check_inputs(plan, rep: AuditReport, grasps: dict) -> None:
 
 
 def _check_hand(plan, hand, rep: AuditReport) -> bool:
-    """Joint names, step fingers and joints, limits. False: the states cannot be posed."""
+    """The hand's files as recorded, joint names, step fingers and joints, limits. False: the
+    states cannot be posed."""
+    recorded = (plan.hand or {}).get("files")
+    if isinstance(recorded, dict):
+        now = hand_files_record(hand)
+        rep.count("hand files", len(recorded))
+        changed = [f for f in recorded if now.get(f) != recorded[f]]
+        if changed:
+            rep.add(f"hand.files: {', '.join(changed[:4])}{' ...' if len(changed) > 4 else ''} of hand {hand.name} "
+                    f"{'is' if len(changed) == 1 else 'are'} not the file(s) the plan was made with (sha256 differs or "
+                    f"gone): re-plan with the hand as it is now")
     names = list(hand.joint_names)
     missing = [j for j in names if j not in plan.joints]
     unknown = [j for j in plan.joints if j not in names]

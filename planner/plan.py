@@ -194,6 +194,10 @@ def plan_from_data(data: Any, source: str | os.PathLike | None = None) -> Plan:
     hand.child("name").name()
     if hand.get("spec") is not None:
         hand.child("spec").name()
+    if hand.get("files") is not None:  # schema 3 plans since 2026-12-05: path -> sha256 of the hand's files
+        files = hand.child("files").mapping()
+        for name in files.value:
+            files.child(name).name()
     obj = _check_object(r.child("object"))
     friction = r.child("friction").mapping().value
     try:

@@ -39,7 +39,7 @@ import numpy as np
 import yaml
 
 from planner.errors import SpecError
-from planner.fileio import check_hand_file, write_atomic
+from planner.fileio import check_hand_file, sha256_file, write_atomic
 from planner.model import PALM, Friction, holders
 from planner.objects import GraspObject
 from planner.resources import bundled_grasp_name, bundled_hand_name, is_hand_path
@@ -328,6 +328,17 @@ def plan_hand_ref(hand: Mapping[str, Any], source: str | os.PathLike | None) -> 
         if found is not None:
             return str(found)
     return str(hand.get("name"))
+
+
+def hand_files_record(hand) -> dict[str, str]:
+    """What a plan records of its hand's files (``hand.files``): the hand.yaml and the URDF by
+    their names, each mesh by its path relative to the URDF's folder (names that do not depend
+    on where the hand is installed) -> its sha256, so that `planner.audit` refuses a plan whose
+    hand changed since planning."""
+    spec, urdf, *meshes = getattr(hand, "files", ())
+    urdf_dir = Path(urdf).parent
+    names = [Path(spec).name, Path(urdf).name] + [Path(os.path.relpath(m, urdf_dir)).as_posix() for m in meshes]
+    return {n: sha256_file(f) for n, f in zip(names, (spec, urdf, *meshes))}
 
 
 def plan_hand(plan, source: str | os.PathLike | None = None):

@@ -32,7 +32,7 @@ from planner.errors import MotionError, NoSequenceError, SpecError, UnknownNameE
 from planner.explain import explain_failure, failure_analysis
 from planner.graph import LIFTED, GaitProblem, annotate_removable, seed_graph
 from planner.options import PlanOptions, gravity_directions_of
-from planner.plan_data import Alternative, Plan, PlanState, PlanStep
+from planner.plan_data import Alternative, Plan, PlanState, PlanStep, hand_files_record
 from planner.realization import RealizedGrasp, realized_grasp
 from planner.retreat import retreat_blocked
 from planner.gait_search import GaitSequence, LazyGraph, greedy
@@ -557,7 +557,7 @@ def _make_plan(initial, final, options, inputs, problem, G, best, others, motion
     parameters["gravity_directions"] = [{"name": n, "gravity": list(g)} for n, g in directions] or None
     parameters["grip_cone_sides"] = GRIP_CONE_SIDES if directions else None
     return Plan(
-        hand={"name": hand.name, "spec": spec.hand_ref},
+        hand={"name": hand.name, "spec": spec.hand_ref, "files": hand_files_record(hand)},
         object=spec.object.to_data(),
         friction={"mu": spec.friction.mu, "gamma": spec.friction.gamma, "edges": spec.friction.edges},
         inputs=dict(inputs),

@@ -405,3 +405,34 @@ def test_a_replay_tells_a_recorded_verification_it_did_not_write(capsys):
         _compare_verification(plan(forged), result)
         out = capsys.readouterr().out
         assert out.startswith("warning:") and "palm_down" in out and "palm_up" not in out.split("in ")[1], out
+
+
+def test_a_plan_records_its_hand_and_is_refused_after_the_urdf_changed(tmp_path, capsys):
+    """The plan records the sha256 of its hand's files (hand.yaml, URDF, meshes); after the
+    URDF is edited, verify fails naming it and replay refuses the plan in one line."""
+    import shutil
+
+    import yaml
+
+    from planner.resources import hand_dir
+
+    shutil.copytree(hand_dir("icub_right"), tmp_path / "hand")
+    grasps = []
+    for name in PAIRS["icub box"][:2]:
+        data = yaml.safe_load(bundled_grasp(name).read_text())
+        data["hand"] = "hand/hand.yaml"
+        grasps.append(tmp_path / Path(name).name)
+        grasps[-1].write_text(yaml.safe_dump(data, sort_keys=False))
+    plan = tmp_path / "plan.json"
+    assert main(["plan", *map(str, grasps), "--no-motion", "-o", str(plan)]) == 0
+    files = json.loads(plan.read_text())["hand"]["files"]
+    assert set(files) == {"hand.yaml", "icub_right.urdf"} and all(len(v) == 64 for v in files.values())
+    assert main(["verify", str(plan)]) == 0
+    capsys.readouterr()
+    urdf = tmp_path / "hand" / "icub_right.urdf"
+    urdf.write_text(urdf.read_text().replace('effort="0.5"', 'effort="0.6"', 1))
+    assert main(["verify", str(plan)]) == 1
+    assert "FAIL hand.files: icub_right.urdf" in capsys.readouterr().out
+    assert main(["replay", str(plan)]) == 2
+    err = [line for line in capsys.readouterr().err.splitlines() if "warning:" not in line]
+    assert len(err) == 1 and "icub_right.urdf" in err[0], err

@@ -193,7 +193,7 @@ def test_plan_of_bundled_grasps_names_them_and_replays_from_anywhere(tmp_path, m
     assert (tmp_path / "two/deeper/p.yaml").read_text() == text
     assert "initial: {bundled: icub/cylinder_parallel_extension.yaml, sha256: " in text
     assert "final: {bundled: icub/cylinder_ir2m.yaml, sha256: " in text
-    assert "hand: {name: icub_right, spec: icub_right}" in text
+    assert "hand:\n  name: icub_right\n  spec: icub_right\n  files: {hand.yaml: " in text
     _no_machine_paths(text, tmp_path)
     far = tmp_path / "far" / "away"
     far.mkdir(parents=True)
@@ -238,7 +238,7 @@ def test_plan_records_other_files_relative_to_itself(tmp_path):
     out = write_plan(result.plan, tmp_path / "out" / "p.yaml")
     text = out.read_text()
     assert "initial: {path: ../g/cylinder_parallel_extension.yaml, sha256: " in text
-    assert "spec: ../hands/mine/hand.yaml}" in text
+    assert "  spec: ../hands/mine/hand.yaml\n" in text
     _no_machine_paths(text, tmp_path)
     moved = tmp_path.parent / (tmp_path.name + "-moved")
     shutil.copytree(tmp_path, moved)
