@@ -16,6 +16,7 @@ import numpy as np
 from planner.contacts import TOUCH_TOL_M, collisions, contact_patches
 from planner.model import PALM
 from planner.objects import GraspObject
+from planner.retreat import retreat_blocked
 
 #: A sampled object pose keeps this clearance from the palm (m).
 PALM_CLEARANCE_M = 0.002
@@ -49,6 +50,12 @@ PRESHAPES_PER_ATTEMPT = 6
 #: and a draw costs only its sweeps' forward kinematics (Allegro 15 mm ball, thumb-index-middle,
 #: 5 grasps: 112 attempts with 6 draws, 13 with 40).
 FIXED_PRESHAPES_PER_ATTEMPT = 40
+#: With the pose fixed, pre-shapes of each finger closed onto the object per attempt
+#: (`_fixed_candidate`; each costs a closing and a contact patch, ~2 ms).
+FIXED_CLOSED_PER_FINGER = 6
+#: Rounds of the coordinate descent choosing one closed draw per finger with the pose fixed
+#: (`_fixed_candidate`); each round lets every finger answer the others' choice once.
+FIXED_DESCENT_ROUNDS = 3
 #: Weight of the pads' opposition in a pre-shape's score (`_score`), against the gap in inner radii.
 OPPOSITION_WEIGHT = 1.0
 #: A sampled object centre is jittered by N(0, JITTER x inner radius) per axis.
@@ -229,8 +236,10 @@ def sample_candidate(hand, fingers, obj: GraspObject, fixed, rng, obj_radius,
         shapes = _palm_shapes(hand)
         face = _palm_face(hand, shapes, height + PALM_TOUCH_GAP_M)
         face_level = float(face[0] @ n_palm)
+    if fixed:
+        return _fixed_candidate(hand, fingers, obj, rng, obj_radius, alphas, palm)
     best = None
-    for _ in range(FIXED_PRESHAPES_PER_ATTEMPT if fixed else PRESHAPES_PER_ATTEMPT):  # keep the best scored
+    for _ in range(PRESHAPES_PER_ATTEMPT):  # keep the best scored
         q = np.array(hand.q_open, dtype=float)
         for f in fingers:
             idx = np.array(f.q_index)
@@ -240,9 +249,7 @@ def sample_candidate(hand, fingers, obj: GraspObject, fixed, rng, obj_radius,
             frac = rng.uniform(*_PRESHAPE_CLOSE, size=len(idx))
             q[idx] = np.where(closing, start + frac * (hi - start), rng.uniform(lo, hi))
         swept = [_sweep(hand, f, q, alphas, CENTRE_OFFSET * obj_radius) for f in fingers]
-        if fixed:
-            centre = np.asarray(obj.position, dtype=float)
-        elif palm:  # the fingers' meeting point, with the palm's face as one more curve, on the face
+        if palm:  # the fingers' meeting point, with the palm's face as one more curve, on the face
             centre = _meeting_point([c for c, _ in swept] + [face])
             centre = centre + (face_level - centre @ n_palm) * n_palm  # onto the face
         else:
@@ -299,6 +306,135 @@ def sample_candidate(hand, fingers, obj: GraspObject, fixed, rng, obj_radius,
     if max(float(np.min(np.linalg.norm(c - centre, axis=1))) for c, _ in swept) > SWEEP_REACH * obj_radius:
         return placed, None, "sweeps miss the object" + (" on the palm" if palm else "")
     return placed, {f.name: q[list(f.q_index)].copy() for f in fingers}, ""
+
+
+def _finger_draw(hand, finger, q, rng) -> None:
+    """One random pre-shape of ``finger`` written into q: the joints that do not close uniform
+    in their range, the closing joints `_PRESHAPE_CLOSE` of the way from open to their limit."""
+    idx = np.array(finger.q_index)
+    lo, hi = hand.lower[idx], hand.upper[idx]
+    closing = np.array([j in finger.close_joints for j in finger.joints])
+    start = np.clip(np.asarray(hand.q_open, dtype=float)[idx], lo, hi)
+    frac = rng.uniform(*_PRESHAPE_CLOSE, size=len(idx))
+    q[idx] = np.where(closing, start + frac * (hi - start), rng.uniform(lo, hi))
+
+
+def _fixed_candidate(hand, fingers, obj: GraspObject, rng, obj_radius, alphas, palm: bool):
+    """`sample_candidate` with the object pose fixed: each finger's pre-shape is drawn, and
+    closed onto the object, on its own, then one closed draw per finger is chosen.
+
+    Why: a finger's closing motion depends on its own joints only (`Hand.close_finger` moves
+    one finger against the object), but a whole-hand draw needs every finger to pass near the
+    object in the same draw: with k fingers each near with probability p, p^k (four fingers
+    at a grasp's own pose: 352 of 360 attempts had a sweep missing the object).
+
+    Per finger: `FIXED_PRESHAPES_PER_ATTEMPT` random pre-shapes (`_finger_draw`); those whose
+    centre curve (`_sweep`) passes within `SWEEP_REACH` inner radii of the object centre are
+    closed (the first `FIXED_CLOSED_PER_FINGER` of them, as `closes_onto` does: from open
+    closing joints when the pre-shape starts inside), and a draw is kept when the finger then
+    touches (`contact_patches`): its closed joints and its patch's mean unit normal. Choice: the
+    mean of the chosen fingers' normals (and the palm's push with ``palm``) as short as
+    possible (`_opposition`: forces that cancel can squeeze the object), by coordinate descent
+    from each finger's first touching draw, `FIXED_DESCENT_ROUNDS` rounds; then a finger whose
+    closed links collide with another chosen finger or the palm takes its next-best draw that
+    does not (`_untangle`)."""
+    centre = np.asarray(obj.position, dtype=float)
+    base = np.array(hand.q_open, dtype=float)
+    N, Q, C = [], [], []  # per finger: patch normals (k, 3), pre-shapes, closed joints of its touching draws
+    reached = True
+    for f in fingers:
+        idx = list(f.q_index)
+        cidx = [hand.joint_names.index(j) for j in f.close_joints]
+        nn, qs, cs = [], [], []
+        near = 0
+        for _ in range(FIXED_PRESHAPES_PER_ATTEMPT):
+            q = base.copy()
+            _finger_draw(hand, f, q, rng)
+            c, _ = _sweep(hand, f, q, alphas, CENTRE_OFFSET * obj_radius)
+            if float(np.min(np.linalg.norm(c - centre, axis=1))) > SWEEP_REACH * obj_radius:
+                continue
+            near += 1
+            if near > FIXED_CLOSED_PER_FINGER:
+                break
+            if hand.state(q).finger_object_distance(obj, f.name) < 0.0:
+                q[cidx] = np.clip(base[cidx], hand.lower[cidx], hand.upper[cidx])
+                if hand.state(q).finger_object_distance(obj, f.name) < 0.0:
+                    continue
+            pre = q[idx].copy()
+            q = np.asarray(hand.close_finger(f, q, obj), dtype=float)
+            patch = contact_patches(hand, q, obj, fingers=[f.name]).get(f.name)
+            if patch is None:
+                continue
+            m = np.mean(np.asarray(patch[1], dtype=float), axis=0)
+            nn.append(m / max(float(np.linalg.norm(m)), 1e-12))
+            qs.append(pre)
+            cs.append(q[idx].copy())
+        reached = reached and near > 0
+        if not nn:
+            return obj, None, ("a finger misses the object" if reached else "sweeps miss the object") + (
+                " on the palm" if palm else "")
+        N.append(np.array(nn))
+        Q.append(qs)
+        C.append(cs)
+    extra = np.asarray(hand.palm_normal, dtype=float) if palm else np.zeros(3)
+    m = len(fingers) + int(palm)
+    pick = [0] * len(fingers)
+
+    blocked = [set() for _ in fingers]  # draws whose finger could not back off its contact
+
+    def scores(i):
+        rest = extra + sum((N[j][pick[j]] for j in range(len(fingers)) if j != i), np.zeros(3))
+        out = np.linalg.norm((rest + N[i]) / m, axis=1) if m > 1 else np.zeros(len(N[i]))
+        out[list(blocked[i])] = np.inf
+        return out
+
+    for _ in range(FIXED_DESCENT_ROUNDS if m > 1 else 0):
+        for i in range(len(fingers)):
+            pick[i] = int(np.argmin(scores(i)))
+    for i, f in enumerate(fingers):
+        # a finger held against the object by its own joint limits can never let go
+        # (`planner.synthesis` rejects it): its next-best draw, checked the same way
+        while retreat_blocked(hand, obj, C[i][pick[i]], f.name):
+            blocked[i].add(pick[i])
+            if len(blocked[i]) == len(C[i]):
+                return obj, None, "a finger cannot back off its contact"
+            pick[i] = int(np.argmin(scores(i)))
+    if len(fingers) > 1 and not _untangle(hand, fingers, pick, C, scores):
+        return obj, None, "fingers overlap each other or the palm"
+    return obj, {f.name: Q[i][k].copy() for i, (f, k) in enumerate(zip(fingers, pick))}, ""
+
+
+def _untangle(hand, fingers, pick, C, scores) -> bool:
+    """Replace, in ``pick``, the draw of a finger whose closed links (``C``: per finger, the
+    closed joints of each draw) collide with another chosen finger or the palm by its
+    best-scored (``scores(i)``) draw that does not, keeping the others; fingers from the last.
+    False when some still collide."""
+    link_finger = {lk: f.name for f in fingers for lk in hand.fingers[f.name].links}
+
+    def colliding(sel) -> set:
+        q = np.array(hand.q_open, dtype=float)
+        for i, f in enumerate(fingers):
+            q[list(f.q_index)] = C[i][sel[i]]
+        hit = set()
+        for a, b, _ in collisions(hand, q, None, fingers=[f.name for f in fingers]):
+            hit.update(link_finger[x] for x in (a, b) if x in link_finger)
+        return hit
+
+    hit = colliding(pick)
+    for i, f in reversed(list(enumerate(fingers))):
+        if not hit:
+            return True
+        if f.name not in hit:
+            continue
+        sc = scores(i)
+        for k in [int(k) for k in np.argsort(sc, kind="stable") if k != pick[i] and np.isfinite(sc[k])]:
+            trial = list(pick)
+            trial[i] = k
+            now = colliding(trial)
+            if f.name not in now:
+                pick[i], hit = k, now
+                break
+    return not hit
 
 
 def _rotation_onto(a, b) -> np.ndarray:

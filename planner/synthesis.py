@@ -57,7 +57,7 @@ from planner.grasp import load_hand, parse_friction, parse_grasp, resolve_hand_r
 from planner.grip import HOLD_FACTOR, grasp_hold
 from planner.model import Friction
 from planner.objects import GraspObject, read_object
-from planner.realization import PENETRATION_TOL_M, realize
+from planner.realization import PENETRATION_TOL_M, execution_verdict, realize
 from planner.retreat import retreat_blocked
 from planner.synth_sample import (PALM_CLEARANCE_M, closes_onto, inner_radius, object_of,
                                   sample_candidate)
@@ -70,14 +70,33 @@ DUPLICATE_TOL_M = 0.005
 DEFAULT_FRICTION = {"mu": 0.9, "gamma": 0.004, "edges": 5}
 
 
-@dataclass(frozen=True)
 class SynthGrasp:
-    """One synthesized grasp: its file data and the realized grasp that passed the check."""
+    """One synthesized grasp: its file data, closure metric, grip force, the attempt that made it,
+    and whether ``plan --execution`` accepts it (`planner.realization.execution_verdict`: None,
+    or the planner's words for refusing it). ``grasp`` is the realized grasp that passed the
+    check (re-realized from ``data`` on first use when a worker process made it)."""
 
-    data: dict
-    grasp: object           # planner.realization.RealizedGrasp
-    grip_force_n: float | None
-    attempt: int
+    __slots__ = ("data", "grip_force_n", "attempt", "metric", "execution", "_grasp", "_base")
+
+    def __init__(self, data: dict, grasp=None, grip_force_n: float | None = None, attempt: int = 0, *,
+                 metric: float | None = None, execution: str | None = None, base_dir="."):
+        self.data, self.grip_force_n, self.attempt = data, grip_force_n, attempt
+        self.metric = float(grasp.metric if metric is None else metric)
+        self.execution, self._grasp, self._base = execution, grasp, str(base_dir)
+
+    @property
+    def grasp(self):  # planner.realization.RealizedGrasp
+        if self._grasp is None:
+            self._grasp = realize(parse_grasp(self.data, Path(self._base) / "candidate.yaml"))
+        return self._grasp
+
+    @property
+    def execution_ready(self) -> bool:
+        return self.execution is None
+
+    def rank_key(self) -> tuple:
+        """Execution-accepted grasps first, then the larger closure metric, then the earlier attempt."""
+        return (self.execution is not None, -self.metric, self.attempt)
 
 
 @dataclass(frozen=True)
@@ -182,7 +201,7 @@ def synthesize(hand_ref: str, obj: GraspObject | Mapping, fingers, n: int, *, fi
                gravity=None, max_finger_force_n: float | None = None, max_attempts: int | None = None, base_dir=".",
                progress=None, contact_model: str = "patch", friction_margin: float = 1.0,
                hold_factor: float = HOLD_FACTOR, palm_clearance_m: float = PALM_CLEARANCE_M,
-               palm: bool = False) -> SynthResult:
+               palm: bool = False, workers: int = 1) -> SynthResult:
     """Sample, close, check, de-duplicate and rank grasps.
 
     Args:
@@ -214,9 +233,15 @@ def synthesize(hand_ref: str, obj: GraspObject | Mapping, fingers, n: int, *, fi
         palm: whole-hand grasps: the object against the palm (``palm_clearance_m`` unused),
             the palm's patch in the closure and hold tests, ``palm: hold`` in the files; a
             fixed pose must touch the palm (`check_palm_pose`, before any sampling).
+        workers: processes that run attempts (1: this one). Attempt k draws from a
+            generator seeded by (seed, k) and the outcomes are taken in attempt order, so
+            the result is the same for any number of workers.
 
     Returns:
-        `SynthResult` with up to n grasps, best closure metric first.
+        `SynthResult` with up to n grasps ranked by `SynthGrasp.rank_key`: those
+        ``plan --execution`` accepts first (`planner.realization.execution_verdict`: force
+        closure with its contact model, the load held in every planned direction), then by
+        the closure metric.
     """
     t0 = time.perf_counter()
     hand = load_hand(hand_ref)
@@ -224,93 +249,186 @@ def synthesize(hand_ref: str, obj: GraspObject | Mapping, fingers, n: int, *, fi
     if not chosen:
         raise PlannerError("synth: give at least one finger (--fingers thumb,index,...)")
     friction = dict(DEFAULT_FRICTION if friction is None else friction)
-    fr = Friction(friction["mu"], friction["gamma"], friction.get("edges", 5))
     if n < 1:
         raise PlannerError(f"synth: -n must be at least 1, got {n}")
     if contact_model not in CONTACT_MODELS:
         raise UnknownNameError("contact model", contact_model, CONTACT_MODELS)
     if not 0 < friction_margin <= 1:
         raise PlannerError(f"synth: friction_margin must be in (0, 1], got {friction_margin!r}")
+    if workers < 1:
+        raise PlannerError(f"synth: workers must be at least 1, got {workers}")
     max_attempts = 60 * n if max_attempts is None else max_attempts
-    rng = np.random.default_rng(seed)
     obj = object_of(obj)
-    inner = inner_radius(obj)
     if palm:
         require_palm(hand)
     if palm and fixed:
         check_palm_pose(hand, obj)
+    ctx = _Context(hand_ref, hand, [f.name for f in chosen], obj, fixed, friction, seed, gravity, max_finger_force_n,
+                   str(base_dir), contact_model, friction_margin, hold_factor, palm_clearance_m, palm)
     kept: list[tuple[np.ndarray, SynthGrasp]] = []
     passed = dups = 0
     rejected = Counter()
-    base = Path(base_dir)
     attempt = 0
-    for attempt in range(1, max_attempts + 1):
-        if len(kept) >= n:
-            attempt -= 1
-            break
-        placed, preshape, why = sample_candidate(hand, chosen, obj, fixed, rng, inner, palm_clearance_m, palm=palm)
-        if preshape is None:
-            rejected[why] += 1
-            continue
-        patches, why = closes_onto(hand, chosen, placed, preshape, palm=palm)
-        if patches is None:
-            rejected[why] += 1
-            continue
-        if not grasp_closure(patches, fr).is_force_closure:
-            rejected["not force closure"] += 1
-            continue
-        data = _grasp_data(hand_ref, placed, friction, chosen, preshape, "candidate", "", palm=palm)
-        try:
-            spec = parse_grasp(data, base / "candidate.yaml")
-        except SpecError:
-            continue
-        g = realize(spec, hand)
-        if not g.ok:
-            rejected[_check_reason(g)] += 1
-            continue
-        if any(depth > LINK_EPS_M for _, _, depth in g.finger_collisions):
-            # `check` tolerates half a millimetre between hand parts; the planner's states and
-            # finger paths do not (an overlapping finger can never lift off)
-            rejected["fingers overlap each other or the palm"] += 1
-            continue
-        patches = dict(g.patches)  # with palm: hold, the palm's patch among them (rigid in the grip model)
-        if contact_model != "patch":
-            if not g.closure_under(contact_model).is_force_closure:
-                rejected[f"not force closure with {contact_model} contacts"] += 1
-                continue
-            patches = apply_contact_model(patches, contact_model)
-        grip = None
-        if gravity is not None:
-            R = np.asarray(g.obj.T_palm_obj)[:3, :3]
-            grip_fr = Friction(fr.mu * friction_margin, fr.gamma * friction_margin, fr.edges)
-            dirs = np.asarray(gravity, dtype=float).reshape(-1, 3)
-            holds = grasp_hold(hand, g.q, patches, g.obj.T_palm_obj, g.obj.mass_kg, fr,
-                               [(f"g{i}", gv) for i, gv in enumerate(dirs)], force_cap_n=max_finger_force_n,
-                               margin=friction_margin, demand=False)
-            if not all(h.capacity.factor >= hold_factor for h in holds):
-                rejected["weight beyond the hand's limits"] += 1
-                continue
-            grip = max(min_grip_force(patches, grip_fr, np.r_[g.obj.mass_kg * (R.T @ gv), np.zeros(3)]) for gv in dirs)
-        if any(retreat_blocked(hand, g.obj, np.asarray(g.q)[list(f.q_index)], f.name) for f in chosen):
-            # a finger held against the object by its own joint limits can never let go:
-            # no regrasp (nor release) can start from this grasp or reach it
-            rejected["a finger cannot back off its contact"] += 1
-            continue
-        passed += 1
-        feat = _features(g, chosen)
-        cand = SynthGrasp(data=data, grasp=g, grip_force_n=grip, attempt=attempt)
-        twin = next((i for i, (fk, _) in enumerate(kept) if _is_duplicate(fk, feat)), None)
-        if twin is not None:
-            dups += 1
-            if g.metric > kept[twin][1].grasp.metric:
-                kept[twin] = (feat, cand)
-            continue
-        kept.append((feat, cand))
+    for attempt, (why, out) in _outcomes(ctx, max_attempts, workers):
+        if out is None:
+            if why:
+                rejected[why] += 1
+        else:
+            passed += 1
+            feat, cand = out
+            twin = next((i for i, (fk, _) in enumerate(kept) if _is_duplicate(fk, feat)), None)
+            if twin is not None:
+                dups += 1
+                if cand.rank_key() < kept[twin][1].rank_key():
+                    kept[twin] = (feat, cand)
+            else:
+                kept.append((feat, cand))
         if progress is not None:
-            progress(f"synth: {len(kept)}/{n} grasps after {attempt} attempts, {time.perf_counter() - t0:.1f} s")
-    ranked = sorted((c for _, c in kept), key=lambda c: (-c.grasp.metric, c.attempt))
+            top = max(rejected.items(), key=lambda kv: (kv[1], kv[0]))[0] if rejected else ""
+            ready = sum(1 for _, c in kept if c.execution_ready)
+            progress(f"synth: {len(kept)}/{n} grasps ({ready} execution-ready) after {attempt}/{max_attempts} "
+                     f"attempts, {time.perf_counter() - t0:.1f} s" + (f"; most rejected: {top}" if top else ""))
+        if len(kept) >= n:
+            break
+    ranked = sorted((c for _, c in kept), key=SynthGrasp.rank_key)
     return SynthResult(grasps=tuple(ranked), attempts=attempt, candidates_passed=passed, duplicates=dups,
                        seconds=time.perf_counter() - t0, rejected=dict(rejected), palm=palm)
+
+
+@dataclass
+class _Context:
+    """What one attempt needs (`_attempt`); a worker process builds its own hand from ``hand_ref``."""
+
+    hand_ref: str
+    hand: object
+    fingers: list
+    obj: GraspObject
+    fixed: bool
+    friction: dict
+    seed: int
+    gravity: object
+    max_finger_force_n: float | None
+    base_dir: str
+    contact_model: str
+    friction_margin: float
+    hold_factor: float
+    palm_clearance_m: float
+    palm: bool
+
+    def __getstate__(self):
+        return {**self.__dict__, "hand": None}
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        self.hand = load_hand(self.hand_ref)
+
+
+#: Attempts a worker process runs per job (`_outcomes`): enough to amortize the hand-off,
+#: few enough that little work is thrown away when the n-th grasp is found.
+ATTEMPTS_PER_JOB = 4
+_WORKER_CTX: _Context | None = None
+
+
+def _worker_init(ctx: _Context) -> None:
+    global _WORKER_CTX
+    _WORKER_CTX = ctx
+
+
+def _worker_job(first: int, count: int) -> list:
+    return [_attempt(_WORKER_CTX, k) for k in range(first, first + count)]
+
+
+def _outcomes(ctx: _Context, max_attempts: int, workers: int):
+    """(attempt, `_attempt` outcome) for attempts 1..max_attempts, in order; with ``workers``
+    > 1 computed ahead by that many processes. Each attempt draws from its own generator
+    (seeded by (seed, attempt)), so the outcomes, and the grasps kept from them in order, do
+    not depend on the number of workers or on which worker ran what."""
+    if workers == 1 or max_attempts <= ATTEMPTS_PER_JOB:
+        for k in range(1, max_attempts + 1):
+            yield k, _attempt(ctx, k)
+        return
+    import multiprocessing
+    from collections import deque
+    from concurrent.futures import ProcessPoolExecutor
+
+    method = "fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn"
+    pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context(method), initializer=_worker_init,
+                               initargs=(ctx,))
+    pending = deque()
+    nxt = 1
+    try:
+        while nxt <= max_attempts or pending:
+            while nxt <= max_attempts and len(pending) < 2 * workers:
+                count = min(ATTEMPTS_PER_JOB, max_attempts - nxt + 1)
+                pending.append((nxt, pool.submit(_worker_job, nxt, count)))
+                nxt += count
+            first, fut = pending.popleft()
+            for i, out in enumerate(fut.result()):
+                yield first + i, out
+    finally:
+        pool.shutdown(wait=False, cancel_futures=True)
+
+
+def _attempt(ctx: _Context, attempt: int):
+    """One synthesis attempt: (why it was rejected, None) or ("", (features, `SynthGrasp`))."""
+    hand, obj = ctx.hand, ctx.obj
+    chosen = [hand.finger(f) for f in ctx.fingers]
+    rng = np.random.default_rng([ctx.seed, attempt])
+    friction = ctx.friction
+    fr = Friction(friction["mu"], friction["gamma"], friction.get("edges", 5))
+    placed, preshape, why = sample_candidate(hand, chosen, obj, ctx.fixed, rng, inner_radius(obj),
+                                             ctx.palm_clearance_m, palm=ctx.palm)
+    if preshape is None:
+        return why, None
+    patches, why = closes_onto(hand, chosen, placed, preshape, palm=ctx.palm)
+    if patches is None:
+        return why, None
+    if not grasp_closure(patches, fr).is_force_closure:
+        return "not force closure", None
+    data = _grasp_data(ctx.hand_ref, placed, friction, chosen, preshape, "candidate", "", palm=ctx.palm)
+    try:
+        spec = parse_grasp(data, Path(ctx.base_dir) / "candidate.yaml")
+    except SpecError:
+        return "", None
+    g = realize(spec, hand)
+    if not g.ok:
+        return _check_reason(g), None
+    if any(depth > LINK_EPS_M for _, _, depth in g.finger_collisions):
+        # `check` tolerates half a millimetre between hand parts; the planner's states and
+        # finger paths do not (an overlapping finger can never lift off)
+        return "fingers overlap each other or the palm", None
+    patches = dict(g.patches)  # with palm: hold, the palm's patch among them (rigid in the grip model)
+    if ctx.contact_model != "patch":
+        if not g.closure_under(ctx.contact_model).is_force_closure:
+            return f"not force closure with {ctx.contact_model} contacts", None
+        patches = apply_contact_model(patches, ctx.contact_model)
+    grip = None
+    dirs = None if ctx.gravity is None else np.asarray(ctx.gravity, dtype=float).reshape(-1, 3)
+    if dirs is not None:
+        R = np.asarray(g.obj.T_palm_obj)[:3, :3]
+        grip_fr = Friction(fr.mu * ctx.friction_margin, fr.gamma * ctx.friction_margin, fr.edges)
+        holds = grasp_hold(hand, g.q, patches, g.obj.T_palm_obj, g.obj.mass_kg, fr,
+                           [(f"g{i}", gv) for i, gv in enumerate(dirs)], force_cap_n=ctx.max_finger_force_n,
+                           margin=ctx.friction_margin, demand=False)
+        if not all(h.capacity.factor >= ctx.hold_factor for h in holds):
+            return "weight beyond the hand's limits", None
+        grip = max(min_grip_force(patches, grip_fr, np.r_[g.obj.mass_kg * (R.T @ gv), np.zeros(3)]) for gv in dirs)
+    if any(retreat_blocked(hand, g.obj, np.asarray(g.q)[list(f.q_index)], f.name) for f in chosen):
+        # a finger held against the object by its own joint limits can never let go:
+        # no regrasp (nor release) can start from this grasp or reach it
+        return "a finger cannot back off its contact", None
+    # the ranking: does execution mode accept it as an end grasp (its own test, in the
+    # directions it plans for: the one gravity given, else execution mode's set)
+    verdict = execution_verdict(g, dirs[0] if dirs is not None and len(dirs) == 1 else None)
+    in_process = multiprocessing_parent()
+    cand = SynthGrasp(data=data, grasp=g if in_process else None, grip_force_n=grip, attempt=attempt,
+                      metric=g.metric, execution=verdict.reason, base_dir=ctx.base_dir)
+    return "", (_features(g, chosen), cand)
+
+
+def multiprocessing_parent() -> bool:
+    """True in the process that called `synthesize` (not a worker of `_outcomes`)."""
+    return _WORKER_CTX is None
 
 
 def _check_reason(g) -> str:
@@ -344,7 +462,9 @@ def write_grasps(result: SynthResult, out_dir, hand_name: str, *, seed: int, fin
             data["name"] = path.stem
             grip = f", grip force {g.grip_force_n:.3f} N" if g.grip_force_n is not None else ""
             data["description"] = (f"synthesized by regrasp synth (seed {seed}, fingers {','.join(fingers)}, "
-                                   f"attempt {g.attempt}): rank {rank}, closure metric {g.grasp.metric:.4g}{grip}")
+                                   f"attempt {g.attempt}): rank {rank}, closure metric {g.metric:.4g}{grip}, "
+                                   + ("plan --execution accepts it" if g.execution_ready else
+                                      f"plan --execution refuses it: {g.execution}"))
             obj = dict(data["object"])
             if obj.get("mesh"):
                 obj["mesh"] = os.path.relpath(obj["mesh"], Path(out_dir).resolve())
@@ -408,7 +528,7 @@ def default_fingers(hand, palm: bool = False) -> list[str]:
 
 def run_synth(hand: str, object_path, fingers: str, n: int, out_dir, *, gravity=None, seed: int = 0,
               max_finger_force_n: float | None = None, mu=None, gamma=None, max_attempts=None, quiet=False,
-              palm: bool = False) -> int:
+              palm: bool = False, workers: int = 1) -> int:
     """``regrasp synth``: synthesize, write, print a summary. Exit 0 when n grasps were written,
     1 when fewer (those found are written), 2 (PlannerError) on bad input. ``palm``: whole-hand
     grasps (``--palm``, `synthesize`), every finger by default."""
@@ -446,16 +566,19 @@ def run_synth(hand: str, object_path, fingers: str, n: int, out_dir, *, gravity=
         friction["gamma"] = gamma
     # refuse before any work when the first names are taken
     _refuse_overwrite(output_names(out_dir, h.name, obj.shape, n), [object_path])
-    progress = None if quiet else (lambda line: print(line, file=sys.stderr, flush=True))
+    progress = None if quiet else _TerminalProgress.on_stderr()
     if palm and fixed:  # before any work: the fixed pose must touch the palm
         check_palm_pose(h, obj)
     result = synthesize(hand_ref, obj, names, n, fixed=fixed, friction=friction, seed=seed, gravity=gravity,
                         max_finger_force_n=max_finger_force_n, max_attempts=max_attempts, base_dir=out_dir,
-                        progress=progress, palm=palm)
+                        progress=progress, palm=palm, workers=workers)
+    if progress is not None:
+        progress.close()
     paths = write_grasps(result, out_dir, h.name, seed=seed, fingers=names, inputs=[object_path])
     for path, g in zip(paths, result.grasps):
         grip = f"  grip {g.grip_force_n:.3f} N" if g.grip_force_n is not None else ""
-        print(f"{path}  metric {g.grasp.metric:.4g}{grip}")
+        ex = "execution-ready" if g.execution_ready else f"not for --execution: {g.execution}"
+        print(f"{path}  metric {g.metric:.4g}{grip}  {ex}")
     rate = len(paths) / result.seconds if result.seconds > 0 else math.inf
     print(f"synth: {len(paths)}/{n} grasps of {obj.shape} with {h.name} ({','.join(names)}) in "
           f"{result.seconds:.1f} s ({rate:.2f} grasps/s), {result.attempts} attempts, {result.candidates_passed} "
@@ -465,6 +588,38 @@ def run_synth(hand: str, object_path, fingers: str, n: int, out_dir, *, gravity=
     if len(paths) < n:
         print(rejection_table(result))
     return 0 if len(paths) >= n else 1
+
+
+class _TerminalProgress:
+    """`synthesize`'s progress as ONE line rewritten in place on a terminal's stderr (at most
+    `PROGRESS_PERIOD_S` apart), ended by a newline on `close`; `on_stderr` gives None when
+    stderr is not a terminal (a pipe or a file gets no progress, like ``plan``'s)."""
+
+    PROGRESS_PERIOD_S = 0.2
+
+    def __init__(self, stream):
+        self.stream, self.last, self.width = stream, -math.inf, 0
+
+    @classmethod
+    def on_stderr(cls):
+        try:
+            return cls(sys.stderr) if sys.stderr.isatty() else None
+        except (AttributeError, ValueError):
+            return None
+
+    def __call__(self, line: str) -> None:
+        now = time.monotonic()
+        if now - self.last < self.PROGRESS_PERIOD_S:
+            return
+        self.last = now
+        self.stream.write("\r" + line.ljust(self.width))
+        self.stream.flush()
+        self.width = len(line)
+
+    def close(self) -> None:
+        if self.width:
+            self.stream.write("\n")
+            self.stream.flush()
 
 
 def rejection_table(result: SynthResult) -> str:

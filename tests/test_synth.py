@@ -13,7 +13,7 @@ from scipy.optimize import linprog
 from planner.cli import main
 from planner.closure import min_grip_force
 from planner.grasp import load_grasp
-from planner.realization import realize
+from planner.realization import execution_verdict, realize
 
 ROOT = Path(__file__).resolve().parent.parent
 BALL = {"shape": "sphere", "size": [0.015], "mass_kg": 0.03}
@@ -64,15 +64,17 @@ def test_synth_writes_grasps_that_check_accepts_and_are_force_closure(tmp_path, 
     files = sorted(out.glob("*.yaml"))
     assert [f.name for f in files] == [f"icub_right_sphere_0{i}.yaml" for i in (1, 2, 3)]
     capsys.readouterr()
-    metrics = []
+    keys = []
     for f in files:
         assert main(["check", str(f)]) == 0, capsys.readouterr().out
         g = realize(load_grasp(f))
         assert g.ok and set(g.patches) == {"thumb", "index", "middle"}
         assert _independent_force_closure(g.patches, g.friction.mu, g.friction.gamma)
         assert not _independent_force_closure({"index": g.patches["index"]}, g.friction.mu, g.friction.gamma)
-        metrics.append(g.metric)
-    assert metrics == sorted(metrics, reverse=True)  # ranked by the closure metric
+        ready = "plan --execution accepts it" in yaml.safe_load(f.read_text())["description"]
+        assert ready == execution_verdict(g).ok
+        keys.append((not ready, -g.metric))
+    assert keys == sorted(keys)  # execution-accepted first, then by the closure metric
     assert obj.read_text() == yaml.safe_dump(BALL)  # the input is untouched
 
 
@@ -151,7 +153,7 @@ def test_synth_for_execution_keeps_grasps_holding_in_every_direction_with_mean_c
     from planner.synthesis import synthesize
 
     dirs = np.array([g for _, g in gravity_directions((0.0, 0.0, 1.0), 6)])
-    r = synthesize("icub_right", dict(BALL), ["thumb", "index", "middle"], 1, fixed=False, seed=0,
+    r = synthesize("icub_right", dict(BALL), ["thumb", "index", "middle"], 1, fixed=False, seed=1,
                    gravity=dirs, max_finger_force_n=1.0, contact_model="mean", friction_margin=0.75,
                    max_attempts=80)
     assert r.grasps

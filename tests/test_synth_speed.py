@@ -1,0 +1,79 @@
+"""Synthesis where it is needed (issue 36 item 3): at the fixed pose of a grasp it made itself,
+the same grasps for any number of worker processes, ranked by what execution needs, and a
+progress line only on a terminal. Seeded; the rate itself is benchmarks/bench_synth.py's."""
+
+from __future__ import annotations
+
+import io
+
+import pytest
+
+from planner.realization import execution_verdict
+from planner.synthesis import SynthGrasp, _TerminalProgress, synthesize
+
+BALL = {"shape": "sphere", "size": [0.03], "mass_kg": 0.05}
+FOUR = ["thumb", "index", "middle", "ring"]
+
+
+@pytest.fixture(scope="module")
+def own_pose():
+    """The object pose of a four-finger Allegro grasp synth made with the pose sampled."""
+    r = synthesize("allegro_right", dict(BALL), FOUR, 1, fixed=False, seed=0, max_attempts=100)
+    assert r.grasps
+    o = r.grasps[0].data["object"]
+    return dict(BALL, position=o["position"], quat_xyzw=o["quat_xyzw"])
+
+
+def test_synth_at_the_pose_of_its_own_four_finger_grasp_finds_four_finger_grasps(own_pose):
+    """The fingers are drawn and closed one by one at a fixed pose (a whole-hand draw needed
+    every finger near the object at once: 0 of 6 there before, "sweeps miss the object")."""
+    r = synthesize("allegro_right", own_pose, FOUR, 3, fixed=True, seed=1, max_attempts=60)
+    assert len(r.grasps) == 3, r.rejected
+    assert r.rejected.get("sweeps miss the object", 0) == 0
+    for sg in r.grasps:
+        assert sg.data["object"]["position"] == own_pose["position"]
+        assert sg.grasp.ok and set(sg.grasp.patches) == set(FOUR)
+
+
+def test_synth_gives_the_same_grasps_for_one_and_two_workers(own_pose):
+    """Attempt k draws from its own generator (seed, k): the outcome does not depend on which
+    process ran it, nor on how many there are."""
+    one = synthesize("allegro_right", own_pose, ["thumb", "index", "middle"], 4, fixed=True, seed=3, max_attempts=40)
+    two = synthesize("allegro_right", own_pose, ["thumb", "index", "middle"], 4, fixed=True, seed=3, max_attempts=40,
+                     workers=2)
+    assert one.grasps and [g.data for g in one.grasps] == [g.data for g in two.grasps]
+    assert (one.attempts, one.candidates_passed, one.duplicates, one.rejected) == (
+        two.attempts, two.candidates_passed, two.duplicates, two.rejected)
+    assert [g.metric for g in two.grasps] == pytest.approx([g.grasp.metric for g in two.grasps])  # re-realized
+
+
+def test_synth_ranks_execution_accepted_grasps_first():
+    """Each grasp carries plan --execution's own verdict (`execution_verdict`) and the ranking
+    puts the accepted ones first, then the larger closure metric."""
+    r = synthesize("icub_right", dict(BALL), ["thumb", "index", "middle"], 6, fixed=False, seed=2, max_attempts=200)
+    assert r.grasps
+    for sg in r.grasps:
+        assert sg.execution == execution_verdict(sg.grasp).reason
+    keys = [(not sg.execution_ready, -sg.metric) for sg in r.grasps]
+    assert keys == sorted(keys)
+    # the key itself: a refused grasp with a larger metric ranks after an accepted one
+    ok = SynthGrasp({}, grip_force_n=None, attempt=5, metric=0.001, execution=None)
+    refused = SynthGrasp({}, grip_force_n=None, attempt=1, metric=0.01, execution="palm_up: holds 1.1x")
+    assert sorted([refused, ok], key=SynthGrasp.rank_key) == [ok, refused]
+
+
+def test_progress_is_one_line_rewritten_in_place_and_only_on_a_terminal(monkeypatch):
+    """`_TerminalProgress` rewrites one line with a carriage return and ends it on close; not a
+    terminal (a pipe, a file, pytest's capture): no progress object at all."""
+    out = io.StringIO()
+    p = _TerminalProgress(out)
+    p("synth: 0/5 grasps after 10 attempts")
+    p("synth: 1/5 grasps after 11 attempts")  # within the period: not written
+    p.last = -1e9
+    p("synth: 2/5")
+    p.close()
+    text = out.getvalue()
+    assert text.count("\r") == 2 and text.endswith("\n") and "\n" not in text[:-1]
+    assert "1/5" not in text and "2/5" in text
+    monkeypatch.setattr("sys.stderr", io.StringIO())
+    assert _TerminalProgress.on_stderr() is None
