@@ -64,6 +64,11 @@ JITTER = 0.3
 CENTRE_OFFSET = 1.0
 #: Sampled poses (jitter and orientation) tried per attempt until no finger starts inside.
 POSE_TRIES = 4
+#: Pushes of a sampled object out of the opened fingers (`_push_out`) per pose try.
+PUSH_OUT_STEPS = 3
+#: Gap a push leaves between the object and the link that was inside it (m): the closing
+#: procedure's touch resolution is 0.1 % of a joint range, far below this.
+PUSH_OUT_GAP_M = 0.0005
 #: Fraction of their range the closing joints of a pre-shape start closed by.
 _PRESHAPE_CLOSE = (0.0, 0.3)
 
@@ -301,11 +306,38 @@ def sample_candidate(hand, fingers, obj: GraspObject, fixed, rng, obj_radius,
                 if d is not None and d < palm_clearance_m:
                     centre = centre + (palm_clearance_m - d) * np.asarray(hand.palm_normal)
                     placed = obj.replaced(quat_xyzw=quat, position=[float(v) for v in centre])
+                placed = _push_out(hand, q_free, placed, fingers, palm_clearance_m)
                 if all(hand.state(q_free).finger_object_distance(placed, f.name) >= 0.0 for f in fingers):
                     break
+            centre = np.asarray(placed.position, dtype=float)
     if max(float(np.min(np.linalg.norm(c - centre, axis=1))) for c, _ in swept) > SWEEP_REACH * obj_radius:
         return placed, None, "sweeps miss the object" + (" on the palm" if palm else "")
     return placed, {f.name: q[list(f.q_index)].copy() for f in fingers}, ""
+
+
+def _push_out(hand, q_free, placed: GraspObject, fingers, palm_clearance_m: float) -> GraspObject:
+    """The object moved out of the opened fingers (``q_free``: the closing joints open, where
+    the closing procedure starts): up to `PUSH_OUT_STEPS` times, the link that penetrates it
+    deepest pushes it away from the link's witness point by the depth plus `PUSH_OUT_GAP_M`
+    (then out of the palm, as placed). A meeting point of the centre curves can lie where an
+    open finger is (the iCub's thumb on a 30 mm ball: 21 of 29 attempts); the closing would
+    start inside the object."""
+    links = [lk for f in fingers for lk in hand.fingers[f.name].links]
+    n = np.asarray(hand.palm_normal, dtype=float)
+    for _ in range(PUSH_OUT_STEPS):
+        state = hand.state(q_free)
+        worst = min(state.link_object(placed, links).values(), key=lambda ld: ld.distance_m, default=None)
+        if worst is None or worst.distance_m >= 0.0:
+            return placed
+        centre = np.asarray(placed.position, dtype=float)
+        u = centre - np.asarray(worst.p_link_palm, dtype=float)
+        u /= max(float(np.linalg.norm(u)), 1e-12)
+        centre = centre + (PUSH_OUT_GAP_M - worst.distance_m) * u
+        placed = placed.replaced(position=[float(v) for v in centre])
+        d = state.palm_object_distance(placed)
+        if d is not None and d < palm_clearance_m:
+            placed = placed.replaced(position=[float(v) for v in centre + (palm_clearance_m - d) * n])
+    return placed
 
 
 def _finger_draw(hand, finger, q, rng) -> None:
