@@ -26,10 +26,7 @@ Hand spec (schema_version 1)::
 
 from __future__ import annotations
 
-import glob
 import os
-import site
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -39,34 +36,21 @@ import pinocchio as pin
 
 from planner.collision import CollisionModel, Geometry, HandState
 from planner.errors import SpecError, UnknownNameError
-from planner.fileio import MAX_GRASP_BYTES, Reader, read_yaml
+from planner.fileio import MAX_GRASP_BYTES, Reader, read_yaml, repr_short
 from planner.ik import IKResult, close_finger, ik_solve
 from planner.kinematics import Kinematics, checked_q
 from planner.model import PALM
 from planner.resources import HAND_SPEC, bundled_hands, hand_dir, robots_dir
 from planner.signed_distance import convex_hull
-from planner.urdf_check import MAX_MESH_TRIANGLES, MAX_NAME_CHARS, check_urdf, library_message, name_shown, too_many_triangles
+from planner.urdf_check import (MAX_MESH_TRIANGLES, MAX_NAME_CHARS, check_urdf, installed_share_dirs, library_message,
+                                 name_shown, package_search_dirs, register_mesh_dirs, stated_inertias,
+                                 too_many_triangles)
 
 ROBOTS_DIR = robots_dir()  # the bundled hands (planner.resources), wherever the package is installed
 SCHEMA_VERSION = 1
 
 
-def _share_dirs() -> list[str]:
-    """Directories that may hold ROS packages of installed wheels: cmeel wheels
-    (example-robot-data, under ``site-packages/cmeel.prefix/share``) and wheels installing
-    data files under the environment's ``share`` (icub-models: ``<prefix>/share/iCub``)."""
-    roots = list(site.getsitepackages()) + [site.getusersitepackages(), sys.prefix, site.getuserbase()]
-    roots += [p for p in sys.path if p.endswith("site-packages")]
-    out = []
-    for root in roots:
-        for cand in (os.path.join(root, "cmeel.prefix", "share"), os.path.join(root, "share")):
-            if os.path.isdir(cand) and cand not in out and (
-                    os.path.isdir(os.path.join(cand, "example-robot-data")) or root in (sys.prefix, site.getuserbase())):
-                out.append(cand)
-    for cand in glob.glob(os.path.join(sys.prefix, "lib", "python3*", "site-packages", "cmeel.prefix", "share")):
-        if os.path.isdir(cand) and cand not in out:
-            out.append(cand)
-    return out
+_share_dirs = installed_share_dirs  # (the name other modules import)
 
 
 @dataclass(frozen=True)
@@ -193,22 +177,30 @@ class Hand:
 
     def _load(self, spec: dict) -> None:
         sp = str(self.spec_path)
-        r = Reader(sp, spec, got=repr, got_value=repr)
+        r = Reader(sp, spec, got=repr_short, got_value=repr_short)
         r.require("schema_version", "urdf", "palm_frame", "fingers", message="missing required key")
         if spec["schema_version"] != SCHEMA_VERSION:
             raise r.fail(f"unsupported version {spec['schema_version']!r}; supported: {SCHEMA_VERSION}", "schema_version")
         self.name = r.child("name").name(MAX_NAME_CHARS) if "name" in spec else self.spec_path.parent.name
-        self.package_dirs = [str((self.spec_path.parent / d).resolve())
-                             for d in r.child("package_dirs", []).strings()]
-        self.package_dirs += [d for d in _share_dirs() if d not in self.package_dirs]
+        # the hand.yaml's package_dirs, then ROS_PACKAGE_PATH, then the installed wheels' share
+        self.package_dirs = package_search_dirs([str((self.spec_path.parent / d).resolve())
+                                                 for d in r.child("package_dirs", []).strings()], installed=True)
         self.urdf_path = self._resolve_urdf(r.child("urdf").string())
         # a relative mesh path is relative to the URDF's folder (as pybullet reads it);
-        # pinocchio looks for it in package_dirs
+        # pinocchio looks for it in package_dirs. `mesh_dirs` is the one list every library
+        # is given (pinocchio and coal here, the viewer; pybullet a copy of the URDF with the
+        # paths resolved in them, `planner.sim.scene.hand_body`)
         mesh_dirs = [str(Path(self.urdf_path).parent)] + self.package_dirs
+        self.mesh_dirs = tuple(mesh_dirs)
+        register_mesh_dirs(self.urdf_path, mesh_dirs)
         try:  # our checks first: pinocchio, coal and pybullet hang or crash on some files
             urdf = check_urdf(self.urdf_path, mesh_dirs)
         except SpecError as err:
             raise SpecError(sp, "urdf", str(err)) from None
+        #: links without inertia (no <inertial>, or mass 0) -> (mass kg, principal moments kg m^2
+        #: about the link's origin and axes): `planner.urdf_check.stated_inertias`, the same
+        #: in this model (gravity torques) and in pybullet (`planner.sim.scene.hand_body`)
+        self.stated_inertia = stated_inertias(self.urdf_path, mesh_dirs)
         #: every file the hand is read from (its spec, URDF and meshes): no output may be one
         self.files = (str(Path(self.spec_path).resolve()), str(Path(self.urdf_path).resolve()),
                       *(str(Path(m).resolve()) for m in urdf.meshes))
@@ -216,6 +208,12 @@ class Hand:
             full = pin.buildModelFromUrdf(self.urdf_path)
         except (RuntimeError, ValueError) as err:
             raise SpecError(sp, "urdf", f"pinocchio cannot load {self.urdf_path}: {library_message(err)}") from None
+
+        for link, (mass, moments) in self.stated_inertia.items():
+            frame = full.frames[full.getFrameId(link, pin.FrameType.BODY)]
+            R = frame.placement.rotation
+            full.inertias[frame.parentJoint] = full.inertias[frame.parentJoint] + pin.Inertia(
+                mass, frame.placement.translation, R @ np.diag(moments) @ R.T)
 
         fingers_r = r.child("fingers").mapping("a non-empty mapping finger -> spec", nonempty=True, with_value=False)
         fingers_spec = spec["fingers"]

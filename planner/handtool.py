@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from planner.errors import SpecError
+from planner.urdf_check import MAX_NAME_CHARS, name_shown
 
 #: Finger names recognised in link and joint names, in the order a hand.yaml lists them.
 FINGER_WORDS = (("thumb", ("thumb",)), ("index", ("index", "first", "ff")), ("middle", ("middle", "medium", "mf")),
@@ -47,6 +48,13 @@ PLACEHOLDER_FORCE_RATIO = 100.0
 INERTIA_RATIO_MAX = 10.0
 #: A palm normal guess within this of a palm-frame axis is snapped to it, deg.
 SNAP_DEG = 30.0
+#: A finger, when looking for the hands inside a robot's URDF (`hand_candidates`): a serial
+#: chain (no branch) of this many moving joints, from a link to a leaf. A leg or an arm has 6-7
+#: joints (and an arm branches at its hand): neither is a finger.
+FINGER_JOINTS = (2, 5)
+#: A URDF whose only hand has at most this many moving joints outside its sub-tree (a wrist)
+#: is taken whole, those joints locked (the bundled hands' URDFs); more is a robot.
+MAX_WRIST_JOINTS = 3
 
 
 @dataclass
@@ -104,8 +112,8 @@ def replay_inertia(hand) -> dict[str, tuple[float, np.ndarray, np.ndarray]]:
     boxes = link_boxes(hand)
     out = {}
     for f in hand.model.frames:
-        if f.type != pin.FrameType.BODY or f.name not in boxes:
-            continue
+        if f.type != pin.FrameType.BODY or f.name not in boxes or f.name in hand.stated_inertia:
+            continue  # (a link without inertia has its stated one: `planner.urdf_check.stated_inertias`)
         jid = f.parentJoint
         if jid == 0:
             continue
@@ -143,26 +151,94 @@ def _finger_name(words: str, used: set, k: int) -> str:
 # --------------------------------------------------------------------------- init
 
 
-def init_hand(urdf, package_dirs=()) -> tuple[dict, HandReport]:
+def hand_candidates(model) -> list[tuple[str, int, int]]:
+    """The links of a (pinocchio) model below which there are at least 2 fingers (serial
+    chains of `FINGER_JOINTS` moving joints starting on that link's body): (link, fingers,
+    moving joints outside the link's sub-tree), in the model's order. A humanoid with hands
+    gives both hands; a hand URDF its palm (the root, 0 joints outside)."""
+    import pinocchio as pin  # pinocchio: loaded only when a URDF is read
+
+    children: dict[int, list[int]] = {j: [] for j in range(model.njoints)}
+    for j in range(1, model.njoints):
+        children[model.parents[j]].append(j)
+
+    def finger(j: int) -> bool:
+        n = 1
+        while children[j]:
+            if len(children[j]) != 1:
+                return False
+            j, n = children[j][0], n + 1
+        return FINGER_JOINTS[0] <= n <= FINGER_JOINTS[1]
+
+    def below(j: int) -> int:
+        return 1 + sum(below(c) for c in children[j])
+
+    out = []
+    for j in range(model.njoints):
+        n = sum(finger(c) for c in children[j])
+        if n >= 2:
+            link = next((f.name for f in model.frames if f.type == pin.FrameType.BODY and f.parentJoint == j), "")
+            out.append((link, n, (model.njoints - 1) - (below(j) - 1)))
+    return out
+
+
+def _candidates_text(cands) -> str:
+    return ", ".join(f"{name_shown(l)} ({n} fingers)" for l, n, _ in cands)
+
+
+def init_hand(urdf, package_dirs=(), root: str | None = None, cut_path=None) -> tuple[dict, HandReport]:
     """A hand.yaml (as data) for a URDF, and the guesses made with their reasons.
 
+    ``root``: the hand is the sub-tree below that link: its URDF (`rewritten_urdf`, the
+    sub-tree only, that link its root) is written to ``cut_path`` and the hand.yaml names
+    it: pinocchio, coal, pybullet and the viewer all read that file, nothing above it.
+    Without ``root``, a robot's URDF (hands with more than `MAX_WRIST_JOINTS` joints outside
+    them, or several hands) is refused with the candidate hands (`hand_candidates`).
+
     Raises:
-        SpecError: the URDF fails `planner.urdf_check`, cannot be loaded or has no finger
-            (no movable chain); the message names the URDF as given.
+        SpecError: the URDF fails `planner.urdf_check`, cannot be loaded, has no finger
+            (no movable chain) or is a robot's; the message names the URDF as given.
     """
     import pinocchio as pin  # pinocchio: loaded only when a URDF is read
 
+    from planner.fileio import write_atomic
     from planner.hand import _share_dirs  # pinocchio and coal (see _provisional)
-    from planner.urdf_check import check_urdf, library_message
+    from planner.urdf_check import check_urdf, library_message, rewritten_urdf
 
     urdf = Path(urdf)
+    source = urdf
     rep = HandReport()
+    dirs = [*map(str, package_dirs), *_share_dirs()]
     # our checks before pinocchio's: it hangs on a FIFO, pybullet crashes on a link with two parents
-    check_urdf(urdf, [str(urdf.parent), *map(str, package_dirs), *_share_dirs()])
+    check_urdf(urdf, [str(urdf.parent), *dirs])
     try:
         model = pin.buildModelFromUrdf(str(urdf))
     except (RuntimeError, ValueError) as err:
         raise SpecError(str(urdf), "", f"pinocchio cannot load it: {library_message(err)}") from None
+    cands = hand_candidates(model)
+    if root is None:
+        robot = len(cands) > 1 or (len(cands) == 1 and cands[0][2] > MAX_WRIST_JOINTS)
+        if robot:
+            raise SpecError(str(urdf), "", f"a robot's URDF, not a hand's ({model.njoints - 1} moving joints): "
+                                           f"give the hand's link with --root LINK; hands found: {_candidates_text(cands)}")
+    else:
+        if cut_path is None:
+            raise ValueError("init_hand: root needs cut_path (where the hand's URDF is written)")
+        cut_path = Path(cut_path)
+        if cut_path.resolve() == urdf.resolve():
+            raise SpecError(str(cut_path), "", "would overwrite the robot's URDF: write the hand.yaml elsewhere")
+        text = rewritten_urdf(urdf, [str(urdf.parent), *dirs], root=root, dest_dir=cut_path.parent,
+                              comment=f"written by regrasp hand init (root {root}): the sub-tree below {root} of "
+                                      f"{urdf.resolve()}")
+        write_atomic(cut_path, text)
+        rep.add("ok", "root", f"the hand is the sub-tree below {root}, written to {cut_path} (the hand.yaml's urdf); "
+                              "the robot above it is left out")
+        urdf = cut_path
+        try:
+            model = pin.buildModelFromUrdf(str(urdf))
+        except (RuntimeError, ValueError) as err:
+            raise SpecError(str(urdf), "", f"pinocchio cannot load it: {library_message(err)}") from None
+    root_link = root
     bodies = [f for f in model.frames if f.type == pin.FrameType.BODY]
     root = next((f.name for f in bodies if f.parentJoint == 0), None)
     if root is None:
@@ -211,7 +287,8 @@ def init_hand(urdf, package_dirs=()) -> tuple[dict, HandReport]:
     for name, leaf, chain in named:
         tip = body_of.get(leaf, model.frames[-1].name)
         fingers[name] = {"joints": [model.names[j] for j in chain], "tip_frame": tip}
-    spec = {"schema_version": 1, "name": urdf.stem if urdf.stem != "model" else urdf.parent.name,
+    name = source.stem if source.stem != "model" else source.parent.name
+    spec = {"schema_version": 1, "name": name if root_link is None else f"{name}_{root_link}"[:MAX_NAME_CHARS],
             "urdf": str(urdf), "palm_frame": root, "fingers": fingers}
     if package_dirs:
         spec["package_dirs"] = [str(d) for d in package_dirs]
@@ -466,6 +543,16 @@ def check_hand(ref) -> HandReport:
         rep.add("warning", f"link {link}", f"inertia {moments.max():.3g} kg m^2 for {mass:.3g} kg (a solid box of its "
                                            f"collision size: {box.max():.3g}): a placeholder; the replay uses the box's "
                                            f"[{', '.join(f'{v:.3g}' for v in box)}] kg m^2")
+    # links without inertia
+    if hand.stated_inertia:
+        from planner.urdf_check import MIN_STATED_MASS_KG, STATED_DENSITY_KG_M3
+
+        given = ", ".join(f"{l} {m * 1000:.3g} g" for l, (m, _) in sorted(hand.stated_inertia.items()))
+        rep.add("warning", "inertia", f"{len(hand.stated_inertia)} link(s) without <inertial> (or of mass 0): {given}: "
+                                      f"every command gives each the mass of its collision shapes at "
+                                      f"{STATED_DENSITY_KG_M3:g} kg/m^3 (at least {MIN_STATED_MASS_KG * 1000:g} g) at "
+                                      "its origin, a solid box's inertia of its collision size (pybullet alone would "
+                                      "give each 1 kg); add an <inertial> to the URDF to say otherwise")
     # meshes
     meshes = sorted({g.link for g in hand.collision.geometries if type(g.shape).__name__.startswith("Convex")})
     if meshes:

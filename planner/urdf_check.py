@@ -187,9 +187,7 @@ class _Checker:
     def __init__(self, path: str, package_dirs):
         self.path = path
         self.folder = Path(path).parent
-        env = [d for d in os.environ.get("ROS_PACKAGE_PATH", "").split(os.pathsep) if d]
-        env += [os.path.join(d, "share") for d in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if d]
-        self.package_dirs = [str(d) for d in package_dirs] + env
+        self.package_dirs = package_search_dirs(package_dirs)
         self.mesh_bytes: dict[str, int] = {}
 
     def fail(self, el: _Element, what: str, message: str) -> SpecError:
@@ -358,22 +356,12 @@ class _Checker:
             raise self.fail(el, what, too_many_triangles(label, n))
 
     def mesh_file(self, el: _Element, what: str, label: str, filename: str, required: bool) -> Path | None:
-        """Where pinocchio and pybullet find a mesh: ``package://pkg/x`` under a package dir,
-        ``file://`` or an absolute path as is, a relative path in the URDF's folder, then in a
-        package dir. A missing visual mesh is None (pybullet and the pictures go without it;
-        published models name meshes of their authors' machines)."""
-        if filename.startswith("package://"):
-            rel = filename[len("package://"):].lstrip("/")
-            candidates = [Path(d) / rel for d in self.package_dirs]
-        elif filename.startswith("file://"):
-            candidates = [Path(filename[len("file://"):])]
-        elif os.path.isabs(filename):
-            candidates = [Path(filename)]
-        else:
-            candidates = [self.folder / filename] + [Path(d) / filename for d in self.package_dirs]
-        for cand in candidates:
-            if os.path.lexists(cand):
-                return cand
+        """Where pinocchio and pybullet find a mesh (`resolve_mesh`). A missing visual mesh is
+        None (pybullet and the pictures go without it; published models name meshes of their
+        authors' machines)."""
+        found = resolve_mesh(filename, self.folder, self.package_dirs)
+        if found is not None:
+            return found
         if not required:
             return None
         where = "in the package dirs" if filename.startswith("package://") else "beside the URDF or in the package dirs"
@@ -426,6 +414,246 @@ class _Checker:
             self.name(mimic, "mimic", "joint")
             self.optional(mimic, ("multiplier", "offset"), what)
         return ends[0], ends[1]
+
+
+def installed_share_dirs() -> list[str]:
+    """Directories that may hold ROS packages of installed wheels: cmeel wheels
+    (example-robot-data, under ``site-packages/cmeel.prefix/share``) and wheels installing
+    data files under the environment's ``share`` (icub-models: ``<prefix>/share/iCub``)."""
+    import glob
+    import site
+    import sys
+
+    roots = list(site.getsitepackages()) + [site.getusersitepackages(), sys.prefix, site.getuserbase()]
+    roots += [p for p in sys.path if p.endswith("site-packages")]
+    out = []
+    for root in roots:
+        for cand in (os.path.join(root, "cmeel.prefix", "share"), os.path.join(root, "share")):
+            if os.path.isdir(cand) and cand not in out and (
+                    os.path.isdir(os.path.join(cand, "example-robot-data")) or root in (sys.prefix, site.getuserbase())):
+                out.append(cand)
+    for cand in glob.glob(os.path.join(sys.prefix, "lib", "python3*", "site-packages", "cmeel.prefix", "share")):
+        if os.path.isdir(cand) and cand not in out:
+            out.append(cand)
+    return out
+
+
+def package_search_dirs(package_dirs=(), installed: bool = False) -> list[str]:
+    """The folders ``package://`` (and relative) mesh paths are looked up in, in order: the
+    given ones (a hand.yaml's ``package_dirs``, ``--package-dir``), then ``ROS_PACKAGE_PATH``
+    and ``AMENT_PREFIX_PATH``'s ``share`` folders (read now), then (``installed``) the
+    installed wheels' (`installed_share_dirs`). The one list every library is given."""
+    env = [d for d in os.environ.get("ROS_PACKAGE_PATH", "").split(os.pathsep) if d]
+    env += [os.path.join(d, "share") for d in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if d]
+    out: list[str] = []
+    for d in [str(d) for d in package_dirs] + env + (installed_share_dirs() if installed else []):
+        if d not in out:
+            out.append(d)
+    return out
+
+
+#: URDF (resolved path) -> the mesh folders the hand loaded from it was given (`register_mesh_dirs`):
+#: a pybullet scene built from the URDF's path alone (`planner.sim.scene.hand_body`) finds
+#: the meshes in the same folders as pinocchio and coal did.
+_MESH_DIRS: dict[str, tuple[str, ...]] = {}
+
+
+def register_mesh_dirs(urdf_path, dirs) -> None:
+    """Record the folders a hand's meshes were found in (`planner.hand.Hand` does, on loading)."""
+    _MESH_DIRS[str(Path(urdf_path).resolve())] = tuple(str(d) for d in dirs)
+
+
+def mesh_dirs_of(urdf_path) -> tuple[str, ...]:
+    """The folders `register_mesh_dirs` recorded for this URDF (none: ())."""
+    return _MESH_DIRS.get(str(Path(urdf_path).resolve()), ())
+
+
+def resolve_mesh(filename: str, folder, package_dirs) -> Path | None:
+    """The file a URDF mesh path names, or None: ``package://pkg/x`` under a package dir,
+    ``file://`` or an absolute path as is, a relative path in the URDF's ``folder``, then in
+    a package dir. The one resolution every command uses (pinocchio and coal are given the
+    same folders; pybullet and the viewer a copy of the URDF with these paths written in,
+    `rewritten_urdf`)."""
+    if filename.startswith("package://"):
+        rel = filename[len("package://"):].lstrip("/")
+        candidates = [Path(d) / rel for d in package_dirs]
+    elif filename.startswith("file://"):
+        candidates = [Path(filename[len("file://"):])]
+    elif os.path.isabs(filename):
+        candidates = [Path(filename)]
+    else:
+        candidates = [Path(folder) / filename] + [Path(d) / filename for d in package_dirs]
+    for cand in candidates:
+        if os.path.lexists(cand):
+            return cand
+    return None
+
+
+#: Density of the stated inertia of a link without ``<inertial>`` (`stated_inertias`), kg/m^3:
+#: a plastic or aluminium-shelled finger part is 1000-1500.
+STATED_DENSITY_KG_M3 = 1000.0
+#: Least mass a link without ``<inertial>`` is given (all of it when it has no collision
+#: geometry, e.g. a fingertip frame's link), kg. pybullet alone gives such a link 1 kg.
+MIN_STATED_MASS_KG = 1e-3
+#: Size of the box whose inertia a link without geometry gets, m.
+STATED_EMPTY_SIZE_M = 0.01
+
+
+def _rpy_matrix(rpy):
+    import numpy as np
+
+    r, pch, y = rpy
+    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(pch), math.sin(pch), math.cos(y), math.sin(y)
+    return np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+                     [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+                     [-sp, cp * sr, cp * cr]])
+
+
+def _numbers(el, attr, default):
+    return tuple(float(v) for v in el.get(attr).split()) if el is not None and el.get(attr) else default
+
+
+def stated_inertias(path: str | os.PathLike, package_dirs=()) -> dict[str, tuple[float, tuple[float, float, float]]]:
+    """The inertia every command gives a link that has none (no ``<inertial>``, or a mass of
+    0; the root link, fixed to the world, excepted): link -> (mass kg, principal moments kg m^2
+    about the link's own origin and axes). The mass is `STATED_DENSITY_KG_M3` times the volume
+    of its collision shapes (a mesh: its convex hull's), at least `MIN_STATED_MASS_KG`; the
+    moments a solid box's of that mass and the size of the box holding its collision shapes
+    (`STATED_EMPTY_SIZE_M` without geometry). pinocchio (`planner.hand.Hand`) and pybullet
+    (`planner.sim.scene.hand_body`) both take it from here; ``regrasp hand check`` lists them.
+    The URDF has passed `check_urdf`."""
+    import xml.etree.ElementTree as ET
+
+    import numpy as np
+
+    path = str(path)
+    dirs = package_search_dirs([*package_dirs, *mesh_dirs_of(path)], installed=True)
+    tree = ET.fromstring(read_limited(path, MAX_URDF_BYTES, "URDF"))
+    children = {j.find("child").get("link") for j in tree.findall("joint") if j.find("child") is not None}
+    out = {}
+    for link in tree.findall("link"):
+        name = link.get("name")
+        inertial = link.find("inertial")
+        if name not in children:
+            continue
+        if inertial is not None:
+            mass_el = inertial.find("mass")
+            if mass_el is None or float(mass_el.get("value", "0")) > 0:
+                continue
+        volume, points = 0.0, []
+        for col in link.findall("collision"):
+            geometry = col.find("geometry")
+            shape = next((g for g in geometry if g.tag in SHAPE_SIZES or g.tag == "mesh"), None) if geometry is not None else None
+            if shape is None:
+                continue
+            origin = col.find("origin")
+            R, t = _rpy_matrix(_numbers(origin, "rpy", (0.0, 0.0, 0.0))), np.array(_numbers(origin, "xyz", (0.0, 0.0, 0.0)))
+            if shape.tag == "mesh":
+                found = resolve_mesh(shape.get("filename", ""), Path(path).parent, dirs)
+                if found is None:
+                    continue
+                import coal  # coal: loaded only for a link without inertia
+
+                scale = np.array(_numbers(shape, "scale", (1.0, 1.0, 1.0)))
+                bvh = coal.MeshLoader().load(str(found), scale)
+                V = np.asarray(bvh.vertices(), float)
+                if len(V) < 4:
+                    continue
+                try:
+                    from scipy.spatial import ConvexHull
+
+                    volume += float(ConvexHull(V).volume)
+                except Exception:  # flat: no volume  # noqa: BLE001
+                    pass
+            else:
+                size = {a: _numbers(shape, a, (0.0,)) for a, _ in SHAPE_SIZES[shape.tag]}
+                if shape.tag == "box":
+                    h = np.array(size["size"]) / 2.0
+                    volume += float(np.prod(2.0 * h))
+                elif shape.tag == "sphere":
+                    r = size["radius"][0]
+                    h = np.array([r, r, r])
+                    volume += 4.0 / 3.0 * math.pi * r ** 3
+                else:
+                    r, length = size["radius"][0], size["length"][0]
+                    cap = r if shape.tag == "capsule" else 0.0
+                    h = np.array([r, r, length / 2.0 + cap])
+                    volume += math.pi * r * r * length + (4.0 / 3.0 * math.pi * r ** 3 if cap else 0.0)
+                V = np.array([[a, b, c] for a in (-h[0], h[0]) for b in (-h[1], h[1]) for c in (-h[2], h[2])])
+            points.append(V @ R.T + t)
+        if points:
+            P = np.vstack(points)
+            size = np.maximum(np.ptp(P, axis=0), 1e-3)
+        else:
+            size = np.full(3, STATED_EMPTY_SIZE_M)
+        mass = max(MIN_STATED_MASS_KG, STATED_DENSITY_KG_M3 * volume)
+        x, y, z = (float(v) for v in size)
+        out[name] = (float(mass), (mass / 12.0 * (y * y + z * z), mass / 12.0 * (x * x + z * z), mass / 12.0 * (x * x + y * y)))
+    return out
+
+
+#: Top-level URDF elements a cut sub-tree keeps besides its links and joints (a
+#: ``<transmission>`` or ``<gazebo>`` block may name what was cut away; the planner reads neither).
+_KEPT_TOP = ("material",)
+
+
+def rewritten_urdf(path: str | os.PathLike, package_dirs=(), *, root: str | None = None,
+                   dest_dir: str | os.PathLike | None = None, comment: str = "") -> str:
+    """The text of a URDF (checked by `check_urdf` first) rewritten for a reader that is
+    not in its folder:
+
+    * ``root``: only the sub-tree below that link (it becomes the root link; the joints
+      above it, their links and everything else of the robot are left out);
+    * mesh paths: with ``dest_dir``, a relative path is rewritten relative to ``dest_dir``
+      (where the new file is written) and ``package://`` paths are kept; without it, every
+      mesh path that resolves (`resolve_mesh`) is written as an absolute path (pybullet
+      knows no ``package://`` and one search path only).
+
+    Raises:
+        SpecError: the URDF fails `check_urdf`, or ``root`` is not one of its links.
+    """
+    import xml.etree.ElementTree as ET
+
+    from planner.errors import UnknownNameError
+
+    path = str(path)
+    dirs = package_search_dirs([*package_dirs, *mesh_dirs_of(path)], installed=True)
+    summary = check_urdf(path, dirs)  # our checks first: no DOCTYPE, bounded sizes, one tree
+    tree = ET.fromstring(read_limited(path, MAX_URDF_BYTES, "URDF"))
+    if root is not None:
+        if root not in summary.links:
+            raise SpecError(path, "root", str(UnknownNameError("link", root, summary.links)))
+        children: dict[str, list] = {}
+        for j in tree.findall("joint"):
+            children.setdefault(j.find("parent").get("link"), []).append(j)
+        keep_links, keep_joints, todo = {root}, set(), [root]
+        while todo:
+            for j in children.get(todo.pop(), []):
+                keep_joints.add(j.get("name"))
+                child = j.find("child").get("link")
+                keep_links.add(child)
+                todo.append(child)
+        for el in list(tree):
+            if ((el.tag == "link" and el.get("name") not in keep_links)
+                    or (el.tag == "joint" and el.get("name") not in keep_joints)
+                    or el.tag not in ("link", "joint", *_KEPT_TOP)):
+                tree.remove(el)
+        for j in tree.findall("joint"):  # a mimic of a joint cut away would refer to nothing
+            m = j.find("mimic")
+            if m is not None and m.get("joint") not in keep_joints:
+                j.remove(m)
+    folder = Path(path).parent
+    for mesh in tree.iter("mesh"):
+        name = mesh.get("filename", "")
+        found = resolve_mesh(name, folder, dirs)
+        if found is None:
+            continue
+        if dest_dir is None:
+            mesh.set("filename", str(Path(found).resolve()))
+        elif not name.startswith(("package://", "file://")) and not os.path.isabs(name):
+            mesh.set("filename", os.path.relpath(Path(found).resolve(), Path(dest_dir).resolve()))
+    head = f"<?xml version=\"1.0\"?>\n<!-- {comment.replace('--', '- -')} -->\n" if comment else "<?xml version=\"1.0\"?>\n"
+    return head + ET.tostring(tree, encoding="unicode") + "\n"
 
 
 def too_many_triangles(label: str, n: int, limit: int = MAX_MESH_TRIANGLES) -> str:

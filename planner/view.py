@@ -146,7 +146,7 @@ class _Scene:
         self.vis = meshcat.Visualizer(window=self.rec)
         try:
             vmodel = pin.buildGeomFromUrdf(hand.model, str(hand.urdf_path), pin.GeometryType.VISUAL,
-                                           package_dirs=list(hand.package_dirs))
+                                           package_dirs=list(getattr(hand, "mesh_dirs", hand.package_dirs)))  # the URDF's folder first
         except (RuntimeError, ValueError) as err:
             raise SpecError(str(hand.urdf_path), "visual",
                             f"cannot load the visual geometry: {library_message(err)}") from None

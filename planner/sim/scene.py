@@ -39,6 +39,29 @@ with quiet_native_output():  # pybullet prints its build banner on the C stdout 
     import pybullet as p
 
 
+@contextlib.contextmanager
+def resolved_urdf(urdf_path, package_dirs=()):
+    """A copy of a URDF with every mesh path resolved to an absolute path
+    (`planner.urdf_check.rewritten_urdf`: ``package://`` in ``package_dirs``, the folders the
+    hand was loaded with, ``ROS_PACKAGE_PATH`` and the installed wheels; a relative path in
+    the URDF's folder), in a temporary folder removed on exit: pybullet knows no
+    ``package://`` and keeps one search path only. The file pybullet is given to load."""
+    import tempfile
+
+    from planner.errors import SpecError
+    from planner.urdf_check import rewritten_urdf
+
+    try:
+        text = rewritten_urdf(urdf_path, package_dirs)
+    except SpecError as err:
+        raise SimulationError(f"pybullet cannot load the hand URDF: {err}") from None
+    with tempfile.TemporaryDirectory(prefix="regrasp-urdf-") as tmp:
+        path = os.path.join(tmp, os.path.basename(str(urdf_path)))
+        with open(path, "w", encoding="utf-8") as fh:
+            fh.write(text)
+        yield path
+
+
 def hand_body(client: int, urdf_path, *, base_pos=(0.0, 0.0, 0.0), base_quat_xyzw=(0.0, 0.0, 0.0, 1.0),
               package_dirs=(), inertia_from_file: bool = False, visual: bool = True) -> int:
     """The hand's URDF as a fixed-base body.
@@ -47,22 +70,33 @@ def hand_body(client: int, urdf_path, *, base_pos=(0.0, 0.0, 0.0), base_quat_xyz
         client: pybullet physics client id.
         urdf_path: the hand's URDF.
         base_pos, base_quat_xyzw: pose of the URDF's root in the world.
-        package_dirs: folders ``package://`` mesh paths are searched in.
+        package_dirs: folders ``package://`` mesh paths are searched in, before those the
+            hand loaded from this URDF was given (`resolved_urdf`).
         inertia_from_file: use the URDF's inertias (the replay's physics) rather than
             pybullet's from the collision shapes (enough for pictures).
         visual: load the visual shapes (False: collision only, faster).
     Raises:
         SimulationError: pybullet cannot load the URDF.
     """
-    for d in package_dirs or ():
-        p.setAdditionalSearchPath(str(d), physicsClientId=client)
     flags = (p.URDF_USE_INERTIA_FROM_FILE if inertia_from_file else 0) | (0 if visual else p.URDF_IGNORE_VISUAL_SHAPES)
-    try:
-        with quiet_native_output():
-            return p.loadURDF(str(urdf_path), list(base_pos), list(base_quat_xyzw), useFixedBase=True, flags=flags,
-                              physicsClientId=client)
-    except p.error as err:
-        raise SimulationError(f"pybullet cannot load the hand URDF {urdf_path}: {err}") from err
+    with resolved_urdf(urdf_path, package_dirs or ()) as path:
+        try:
+            with quiet_native_output():
+                body = p.loadURDF(path, list(base_pos), list(base_quat_xyzw), useFixedBase=True, flags=flags,
+                                  physicsClientId=client)
+        except p.error as err:
+            raise SimulationError(f"pybullet cannot load the hand URDF {urdf_path}: {err}") from err
+    # links without inertia: the stated one (pybullet alone gives each 1 kg), as pinocchio has it
+    from planner.urdf_check import stated_inertias
+
+    stated = stated_inertias(urdf_path, package_dirs or ())
+    if stated:
+        for i in range(p.getNumJoints(body, physicsClientId=client)):
+            link = p.getJointInfo(body, i, physicsClientId=client)[12].decode()
+            if link in stated:
+                mass, moments = stated[link]
+                p.changeDynamics(body, i, mass=mass, localInertiaDiagonal=list(moments), physicsClientId=client)
+    return body
 
 
 def object_body(client: int, shape: str, size, mesh_path, position, quat_xyzw, mass_kg: float, rgba) -> int:
@@ -101,12 +135,11 @@ def urdf_problem(urdf_path: str, joint_names) -> str | None:
     """Why pybullet cannot simulate a hand URDF with these joints (one line), or None."""
     cid = p.connect(p.DIRECT)
     try:
-        with quiet_native_output():  # missing inertials and meshes are warned of on the C stdout
-            body = p.loadURDF(urdf_path, useFixedBase=True, flags=p.URDF_IGNORE_VISUAL_SHAPES, physicsClientId=cid)
+        body = hand_body(cid, urdf_path, visual=False)
         names = {p.getJointInfo(body, i, physicsClientId=cid)[1].decode() for i in range(p.getNumJoints(body, physicsClientId=cid))}
         missing = [j for j in joint_names if j not in names]
         return f"joints {missing[:4]} are not in the URDF pybullet loads" if missing else None
-    except p.error as err:
+    except (p.error, SimulationError) as err:
         return f"cannot load {urdf_path}: {err}"
     finally:
         p.disconnect(physicsClientId=cid)
