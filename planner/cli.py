@@ -384,8 +384,10 @@ def main(argv: list[str] | None = None) -> int:
         _DEPTH -= 1
 
 
-#: Longest line a message prints: a name or value from a file (up to 1 MB) is cut in the middle.
-MAX_LINE_CHARS = 1000
+#: Longest line a message prints, a backstop: values from files are shortened where they are
+#: quoted (`planner.fileio.repr_short`, `describe`, `shown`); a refusal's explanation in words
+#: runs to about 2 000 characters and is never cut.
+MAX_LINE_CHARS = 20_000
 
 
 def _say(line: str) -> None:

@@ -193,6 +193,13 @@ def read_yaml(path: str | os.PathLike, max_bytes: int = MAX_GRASP_BYTES, what: s
 # --------------------------------------------------------------------------- key paths
 
 
+def repr_short(value, limit: int = 80) -> str:
+    """``repr(value)`` for a message, at most ``limit`` characters (a name in a file may be a
+    megabyte long)."""
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
 def describe(value) -> str:
     """A value for a message, with its type: ``nothing (null)``, ``str 'high'``, at most 40
     characters of its repr (the grasp file's messages)."""
