@@ -54,7 +54,7 @@ def _spin(stop) -> None:
         sum(i * i for i in range(10_000))
 
 
-def exp8_sample(folder: Path, k: int, objects: int, seed: int = 0) -> list[tuple[str, Path, Path, tuple]]:
+def exp8_sample(folder: Path, k: int, objects: int, seed: int = 0, only: str | None = None) -> list[tuple[str, Path, Path, tuple]]:
     """``k`` random pairs for each of the first ``objects`` objects of exp8's sweep per hand
     (two grasps per finger set), written as grasp files."""
     sys.path.insert(0, str(ROOT))
@@ -63,7 +63,7 @@ def exp8_sample(folder: Path, k: int, objects: int, seed: int = 0) -> list[tuple
     pairs, per_hand = [], {}
     for task in object_tasks(quick=False, seed=seed):
         per_hand[task["hand"]] = per_hand.get(task["hand"], 0) + 1
-        if per_hand[task["hand"]] > objects:
+        if per_hand[task["hand"]] > objects or (only and only.removeprefix("exp8 ").split()[0] not in task["hand"]):
             continue
         out = synth_task({**task, "per_set": 2})
         for n, (i, j) in enumerate(draw_pairs(out["grasps"], k, seed)):
@@ -76,8 +76,9 @@ def exp8_sample(folder: Path, k: int, objects: int, seed: int = 0) -> list[tuple
     return pairs
 
 
-def plan_once(a: Path, b: Path, extra: tuple, out: Path) -> tuple[float, int, str]:
-    """(wall s, exit code, what to compare: the plan's sha256 or the message without times)."""
+def plan_once(a: Path, b: Path, extra: tuple, out: Path) -> tuple[float, int, str, str]:
+    """(wall s, exit code, what to compare: the plan's sha256 or the message without times, the
+    message)."""
     out.unlink(missing_ok=True)
     env = {**os.environ, "OPENBLAS_NUM_THREADS": "1"}
     t0 = time.perf_counter()
@@ -85,9 +86,9 @@ def plan_once(a: Path, b: Path, extra: tuple, out: Path) -> tuple[float, int, st
                           capture_output=True, text=True, env=env, cwd=ROOT)
     wall = time.perf_counter() - t0
     if done.returncode == 0:
-        return wall, 0, hashlib.sha256(out.read_bytes()).hexdigest()[:16]
+        return wall, 0, hashlib.sha256(out.read_bytes()).hexdigest()[:16], ""
     text = re.sub(r"\d+(\.\d+)? s\b", "_ s", done.stderr + done.stdout)
-    return wall, done.returncode, hashlib.sha256(text.encode()).hexdigest()[:16]
+    return wall, done.returncode, hashlib.sha256(text.encode()).hexdigest()[:16], text
 
 
 def main(argv=None) -> int:
@@ -100,7 +101,7 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory(prefix="bench-load-") as tmp:
         tmp = Path(tmp)
         pairs = [(label, G / f"{a}.yaml", G / f"{b}.yaml", extra) for label, a, b, extra in BUNDLED]
-        pairs += exp8_sample(tmp, args.exp8_pairs, args.exp8_objects) if args.exp8_pairs > 0 else []
+        pairs += exp8_sample(tmp, args.exp8_pairs, args.exp8_objects, only=args.only) if args.exp8_pairs > 0 else []
         runs = [(f"{label} {mode}", a, b, (*extra, *(("--execution",) if mode == "execution" else ())))
                 for label, a, b, extra in pairs for mode in ("default", "execution")
                 if not args.only or args.only in label]
@@ -117,13 +118,19 @@ def main(argv=None) -> int:
                 s.join()
     same = 0
     print(f"{'pair':<44} {'exit':>4} {'idle s':>7} {'loaded s':>8} {'ratio':>6}  same")
-    for (label, *_), (ti, ci, hi), (tl, cl, hl) in zip(runs, idle, loaded):
+    differ = []
+    for (label, *_), (ti, ci, hi, mi), (tl, cl, hl, ml) in zip(runs, idle, loaded):
         ok = (ci, hi) == (cl, hl)
         same += ok
         print(f"{label:<44} {ci:>4} {ti:>7.1f} {tl:>8.1f} {tl / ti:>6.2f}  {'yes' if ok else 'NO (' + str(cl) + ')'}")
-    ratios = [tl / ti for (ti, _, _), (tl, _, _) in zip(idle, loaded)]
+        if not ok:
+            differ.append((label, mi, ml))
+    for label, mi, ml in differ:  # where the two refusals part
+        k = next((i for i, (x, y) in enumerate(zip(mi, ml)) if x != y), min(len(mi), len(ml)))
+        print(f"{label}: idle ...{mi[max(0, k - 120):k + 200]!r}\n{' ' * len(label)}  loaded ...{ml[max(0, k - 120):k + 200]!r}")
+    ratios = [r[0] / i[0] for i, r in zip(idle, loaded)]
     print(f"identical idle vs {args.busy} busy processes: {same}/{len(runs)}; median wall idle "
-          f"{statistics.median(t for t, _, _ in idle):.1f} s, loaded {statistics.median(t for t, _, _ in loaded):.1f} s, "
+          f"{statistics.median(r[0] for r in idle):.1f} s, loaded {statistics.median(r[0] for r in loaded):.1f} s, "
           f"median ratio {statistics.median(ratios):.2f}x")
     return 0 if same == len(runs) else 1
 
