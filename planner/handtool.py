@@ -217,10 +217,16 @@ def init_hand(urdf, package_dirs=(), root: str | None = None, cut_path=None) -> 
         raise SpecError(str(urdf), "", f"pinocchio cannot load it: {library_message(err)}") from None
     cands = hand_candidates(model)
     if root is None:
-        robot = len(cands) > 1 or (len(cands) == 1 and cands[0][2] > MAX_WRIST_JOINTS)
+        depth = [0] * model.njoints  # moving joints from the root to each joint, itself included
+        for j in range(1, model.njoints):
+            depth[j] = depth[model.parents[j]] + 1
+        robot = len(cands) > 1 or (len(cands) == 1 and cands[0][2] > MAX_WRIST_JOINTS) or (
+            not cands and max(depth) > FINGER_JOINTS[1] + MAX_WRIST_JOINTS)  # an arm and more: no finger
         if robot:
+            found = _candidates_text(cands) or (f"none (no link with 2 fingers of {FINGER_JOINTS[0]}-{FINGER_JOINTS[1]} "
+                                                "moving joints; give a gripper's base link)")
             raise SpecError(str(urdf), "", f"a robot's URDF, not a hand's ({model.njoints - 1} moving joints): "
-                                           f"give the hand's link with --root LINK; hands found: {_candidates_text(cands)}")
+                                           f"give the hand's link with --root LINK; hands found: {found}")
     else:
         if cut_path is None:
             raise ValueError("init_hand: root needs cut_path (where the hand's URDF is written)")

@@ -53,6 +53,13 @@ def test_a_robots_urdf_is_refused_with_its_hands_listed(tmp_path, capsys):
     assert not out.exists()
 
 
+def test_a_robot_without_fingered_hands_is_refused_too(tmp_path, capsys):
+    # example-robot-data's iCub: legs, arms and head, no fingers
+    assert main(["hand", "init", str(_robots() / "icub_description/robots/icub.urdf"), "-o",
+                 str(tmp_path / "h.yaml")]) == 2
+    assert "hands found: none" in capsys.readouterr().err
+
+
 def _massless_icub(tmp_path) -> Path:
     """The bundled iCub hand with the index's distal phalanx and tip links stripped of their
     <inertial> (a published hand's fingertip anchors have none)."""
