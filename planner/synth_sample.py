@@ -340,6 +340,27 @@ def _push_out(hand, q_free, placed: GraspObject, fingers, palm_clearance_m: floa
     return placed
 
 
+_BACK_OFF: dict = {}
+#: Answers `cannot_back_off` remembers (per process; the oldest half dropped beyond this).
+BACK_OFF_CACHE = 4096
+
+
+def cannot_back_off(hand, obj: GraspObject, q_finger, finger: str) -> bool:
+    """`planner.retreat.retreat_blocked` (a finger held against the object by its own joint
+    limits), remembered for the same hand, object pose and finger joints: the fixed-pose
+    sampler asks it of the closed draw it picks, and `planner.synthesis` again of the same
+    closed finger once the candidate is realized (the same closing procedure, the same q)."""
+    key = (id(hand), finger, np.asarray(q_finger, dtype=float).tobytes(), obj.shape, tuple(obj.size),
+           tuple(obj.position), tuple(obj.quat_xyzw))
+    hit = _BACK_OFF.get(key)
+    if hit is None:
+        if len(_BACK_OFF) >= BACK_OFF_CACHE:
+            for k in list(_BACK_OFF)[: BACK_OFF_CACHE // 2]:
+                del _BACK_OFF[k]
+        hit = _BACK_OFF[key] = bool(retreat_blocked(hand, obj, q_finger, finger))
+    return hit
+
+
 def _finger_draw(hand, finger, q, rng) -> None:
     """One random pre-shape of ``finger`` written into q: the joints that do not close uniform
     in their range, the closing joints `_PRESHAPE_CLOSE` of the way from open to their limit."""
@@ -426,7 +447,7 @@ def _fixed_candidate(hand, fingers, obj: GraspObject, rng, obj_radius, alphas, p
     for i, f in enumerate(fingers):
         # a finger held against the object by its own joint limits can never let go
         # (`planner.synthesis` rejects it): its next-best draw, checked the same way
-        while retreat_blocked(hand, obj, C[i][pick[i]], f.name):
+        while cannot_back_off(hand, obj, C[i][pick[i]], f.name):
             blocked[i].add(pick[i])
             if len(blocked[i]) == len(C[i]):
                 return obj, None, "a finger cannot back off its contact"

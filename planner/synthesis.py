@@ -58,8 +58,7 @@ from planner.grip import HOLD_FACTOR, grasp_hold
 from planner.model import Friction
 from planner.objects import GraspObject, read_object
 from planner.realization import PENETRATION_TOL_M, execution_verdict, realize
-from planner.retreat import retreat_blocked
-from planner.synth_sample import (PALM_CLEARANCE_M, closes_onto, inner_radius, object_of,
+from planner.synth_sample import (PALM_CLEARANCE_M, cannot_back_off, closes_onto, inner_radius, object_of,
                                   sample_candidate)
 
 #: Two grasps are near-duplicates when every chosen finger's mean contact point (palm frame)
@@ -323,15 +322,18 @@ class _Context:
         self.hand = load_hand(self.hand_ref)
 
 
-#: Attempts a worker process runs per job (`_outcomes`): enough to amortize the hand-off,
-#: few enough that little work is thrown away when the n-th grasp is found.
-ATTEMPTS_PER_JOB = 4
-_WORKER_CTX: _Context | None = None
+#: Attempts a worker process runs per job (`_outcomes`): one, so that at most
+#: ``2 x workers`` attempts are computed past the one that completes the n grasps.
+ATTEMPTS_PER_JOB = 1
+_WORKER_CTX: _Context | None = None  # the context of the running synthesis, in its workers
+_IN_WORKER = False
 
 
-def _worker_init(ctx: _Context) -> None:
-    global _WORKER_CTX
-    _WORKER_CTX = ctx
+def _worker_init(ctx: _Context | None) -> None:
+    global _WORKER_CTX, _IN_WORKER
+    _IN_WORKER = True
+    if ctx is not None:  # spawned: the context came pickled (the hand re-loaded); forked: inherited
+        _WORKER_CTX = ctx
 
 
 def _worker_job(first: int, count: int) -> list:
@@ -340,10 +342,12 @@ def _worker_job(first: int, count: int) -> list:
 
 def _outcomes(ctx: _Context, max_attempts: int, workers: int):
     """(attempt, `_attempt` outcome) for attempts 1..max_attempts, in order; with ``workers``
-    > 1 computed ahead by that many processes. Each attempt draws from its own generator
-    (seeded by (seed, attempt)), so the outcomes, and the grasps kept from them in order, do
-    not depend on the number of workers or on which worker ran what."""
-    if workers == 1 or max_attempts <= ATTEMPTS_PER_JOB:
+    > 1 computed ahead by that many processes (forked where the platform can: they inherit
+    the loaded hand). Each attempt draws from its own generator (seeded by (seed, attempt)),
+    so the outcomes, and the grasps kept from them in order, do not depend on the number of
+    workers or on which worker ran what."""
+    global _WORKER_CTX
+    if workers == 1 or max_attempts <= 1:
         for k in range(1, max_attempts + 1):
             yield k, _attempt(ctx, k)
         return
@@ -351,9 +355,10 @@ def _outcomes(ctx: _Context, max_attempts: int, workers: int):
     from collections import deque
     from concurrent.futures import ProcessPoolExecutor
 
-    method = "fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn"
-    pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context(method), initializer=_worker_init,
-                               initargs=(ctx,))
+    fork = "fork" in multiprocessing.get_all_start_methods()
+    _WORKER_CTX = ctx
+    pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork" if fork else "spawn"),
+                               initializer=_worker_init, initargs=(None if fork else ctx,))
     pending = deque()
     nxt = 1
     try:
@@ -366,7 +371,8 @@ def _outcomes(ctx: _Context, max_attempts: int, workers: int):
             for i, out in enumerate(fut.result()):
                 yield first + i, out
     finally:
-        pool.shutdown(wait=False, cancel_futures=True)
+        pool.shutdown(wait=True, cancel_futures=True)
+        _WORKER_CTX = None
 
 
 def _attempt(ctx: _Context, attempt: int):
@@ -413,22 +419,16 @@ def _attempt(ctx: _Context, attempt: int):
         if not all(h.capacity.factor >= ctx.hold_factor for h in holds):
             return "weight beyond the hand's limits", None
         grip = max(min_grip_force(patches, grip_fr, np.r_[g.obj.mass_kg * (R.T @ gv), np.zeros(3)]) for gv in dirs)
-    if any(retreat_blocked(hand, g.obj, np.asarray(g.q)[list(f.q_index)], f.name) for f in chosen):
+    if any(cannot_back_off(hand, g.obj, np.asarray(g.q)[list(f.q_index)], f.name) for f in chosen):
         # a finger held against the object by its own joint limits can never let go:
         # no regrasp (nor release) can start from this grasp or reach it
         return "a finger cannot back off its contact", None
     # the ranking: does execution mode accept it as an end grasp (its own test, in the
     # directions it plans for: the one gravity given, else execution mode's set)
     verdict = execution_verdict(g, dirs[0] if dirs is not None and len(dirs) == 1 else None)
-    in_process = multiprocessing_parent()
-    cand = SynthGrasp(data=data, grasp=g if in_process else None, grip_force_n=grip, attempt=attempt,
+    cand = SynthGrasp(data=data, grasp=None if _IN_WORKER else g, grip_force_n=grip, attempt=attempt,
                       metric=g.metric, execution=verdict.reason, base_dir=ctx.base_dir)
     return "", (_features(g, chosen), cand)
-
-
-def multiprocessing_parent() -> bool:
-    """True in the process that called `synthesize` (not a worker of `_outcomes`)."""
-    return _WORKER_CTX is None
 
 
 def _check_reason(g) -> str:
