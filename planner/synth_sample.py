@@ -200,7 +200,7 @@ def _opposition(normals) -> float:
 
 
 def sample_candidate(hand, fingers, obj: GraspObject, fixed, rng, obj_radius,
-                     palm_clearance_m: float = PALM_CLEARANCE_M, palm: bool = False):
+                     palm_clearance_m: float = PALM_CLEARANCE_M, palm: bool = False, mu: float = 1.0):
     """(the object at its pose, {finger: pre-shape}, "") of one attempt, or (object, None, why).
 
     Pre-shape: the joints that do not close (abduction, opposition) uniform in their range,
@@ -242,7 +242,7 @@ def sample_candidate(hand, fingers, obj: GraspObject, fixed, rng, obj_radius,
         face = _palm_face(hand, shapes, height + PALM_TOUCH_GAP_M)
         face_level = float(face[0] @ n_palm)
     if fixed:
-        return _fixed_candidate(hand, fingers, obj, rng, obj_radius, alphas, palm)
+        return _fixed_candidate(hand, fingers, obj, rng, obj_radius, alphas, palm, mu)
     best = None
     for _ in range(PRESHAPES_PER_ATTEMPT):  # keep the best scored
         q = np.array(hand.q_open, dtype=float)
@@ -372,7 +372,7 @@ def _finger_draw(hand, finger, q, rng) -> None:
     q[idx] = np.where(closing, start + frac * (hi - start), rng.uniform(lo, hi))
 
 
-def _fixed_candidate(hand, fingers, obj: GraspObject, rng, obj_radius, alphas, palm: bool):
+def _fixed_candidate(hand, fingers, obj: GraspObject, rng, obj_radius, alphas, palm: bool, mu: float = 1.0):
     """`sample_candidate` with the object pose fixed: each finger's pre-shape is drawn, and
     closed onto the object, on its own, then one closed draw per finger is chosen.
 
@@ -385,12 +385,15 @@ def _fixed_candidate(hand, fingers, obj: GraspObject, rng, obj_radius, alphas, p
     centre curve (`_sweep`) passes within `SWEEP_REACH` inner radii of the object centre are
     closed (the first `FIXED_CLOSED_PER_FINGER` of them, as `closes_onto` does: from open
     closing joints when the pre-shape starts inside), and a draw is kept when the finger then
-    touches (`contact_patches`): its closed joints and its patch's mean unit normal. Choice: the
-    mean of the chosen fingers' normals (and the palm's push with ``palm``) as short as
-    possible (`_opposition`: forces that cancel can squeeze the object), by coordinate descent
-    from each finger's first touching draw, `FIXED_DESCENT_ROUNDS` rounds; then a finger whose
+    touches (`contact_patches`): its closed joints and its patch's mean unit normal. Choice: a
+    random touching draw per finger, then, while the mean of the chosen fingers' normals (and
+    the palm's push with ``palm``) is longer than ``mu`` (equal pushes cannot balance with
+    friction ``mu`` then), coordinate descent toward the shortest mean (`_opposition`: forces
+    that cancel can squeeze the object), at most `FIXED_DESCENT_ROUNDS` rounds; a finger that
+    cannot back off its contact (`cannot_back_off`) takes its next-best draw; a finger whose
     closed links collide with another chosen finger or the palm takes its next-best draw that
-    does not (`_untangle`)."""
+    does not (`_untangle`). When they cannot be untangled, the same from the random draws
+    without the limit: the best balance."""
     centre = np.asarray(obj.position, dtype=float)
     base = np.array(hand.q_open, dtype=float)
     N, Q, C = [], [], []  # per finger: patch normals (k, 3), pre-shapes, closed joints of its touching draws
@@ -431,30 +434,38 @@ def _fixed_candidate(hand, fingers, obj: GraspObject, rng, obj_radius, alphas, p
         C.append(cs)
     extra = np.asarray(hand.palm_normal, dtype=float) if palm else np.zeros(3)
     m = len(fingers) + int(palm)
-    pick = [0] * len(fingers)
-
+    F = len(fingers)
+    pick = [int(rng.integers(len(c))) for c in C]  # a random touching draw per finger
     blocked = [set() for _ in fingers]  # draws whose finger could not back off its contact
 
     def scores(i):
-        rest = extra + sum((N[j][pick[j]] for j in range(len(fingers)) if j != i), np.zeros(3))
+        rest = extra + sum((N[j][pick[j]] for j in range(F) if j != i), np.zeros(3))
         out = np.linalg.norm((rest + N[i]) / m, axis=1) if m > 1 else np.zeros(len(N[i]))
         out[list(blocked[i])] = np.inf
         return out
 
-    for _ in range(FIXED_DESCENT_ROUNDS if m > 1 else 0):
-        for i in range(len(fingers)):
-            pick[i] = int(np.argmin(scores(i)))
-    for i, f in enumerate(fingers):
-        # a finger held against the object by its own joint limits can never let go
-        # (`planner.synthesis` rejects it): its next-best draw, checked the same way
-        while cannot_back_off(hand, obj, C[i][pick[i]], f.name):
-            blocked[i].add(pick[i])
-            if len(blocked[i]) == len(C[i]):
-                return obj, None, "a finger cannot back off its contact"
-            pick[i] = int(np.argmin(scores(i)))
-    if len(fingers) > 1 and not _untangle(hand, fingers, pick, C, scores):
-        return obj, None, "fingers overlap each other or the palm"
-    return obj, {f.name: Q[i][k].copy() for i, (f, k) in enumerate(zip(fingers, pick))}, ""
+    # With equal normal forces, equilibrium needs the friction to cancel the normals'
+    # resultant: |sum n| <= mu m (each tangential force at most mu times its normal one).
+    # First the random draws, descending only while they cannot balance (diversity: the best
+    # balance alone gives the same grasp attempt after attempt); when their fingers cannot be
+    # untangled, the best balance (spread fingers collide less).
+    for limit in (mu * m, 0.0):
+        for _ in range(FIXED_DESCENT_ROUNDS if m > 1 else 0):
+            for i in rng.permutation(F):
+                if np.linalg.norm(extra + sum(N[j][pick[j]] for j in range(F))) <= limit:
+                    break
+                pick[i] = int(np.argmin(scores(i)))
+        for i, f in enumerate(fingers):
+            # a finger held against the object by its own joint limits can never let go
+            # (`planner.synthesis` rejects it): its next-best draw, checked the same way
+            while cannot_back_off(hand, obj, C[i][pick[i]], f.name):
+                blocked[i].add(pick[i])
+                if len(blocked[i]) == len(C[i]):
+                    return obj, None, "a finger cannot back off its contact"
+                pick[i] = int(np.argmin(scores(i)))
+        if F < 2 or _untangle(hand, fingers, pick, C, scores):
+            return obj, {f.name: Q[i][k].copy() for i, (f, k) in enumerate(zip(fingers, pick))}, ""
+    return obj, None, "fingers overlap each other or the palm"
 
 
 def _untangle(hand, fingers, pick, C, scores) -> bool:

@@ -383,7 +383,7 @@ def _attempt(ctx: _Context, attempt: int):
     friction = ctx.friction
     fr = Friction(friction["mu"], friction["gamma"], friction.get("edges", 5))
     placed, preshape, why = sample_candidate(hand, chosen, obj, ctx.fixed, rng, inner_radius(obj),
-                                             ctx.palm_clearance_m, palm=ctx.palm)
+                                             ctx.palm_clearance_m, palm=ctx.palm, mu=fr.mu * ctx.friction_margin)
     if preshape is None:
         return why, None
     patches, why = closes_onto(hand, chosen, placed, preshape, palm=ctx.palm)
