@@ -150,7 +150,9 @@ def build_parser() -> argparse.ArgumentParser:
     synth.add_argument("--palm", action="store_true",
                        help="whole-hand grasps: the object against the palm, which holds too (files say palm: hold); "
                             "with every finger by default (power grasps); a fixed position must touch the palm")
-    synth.add_argument("-q", "--quiet", action="store_true", help="no progress lines on stderr")
+    synth.add_argument("--workers", type=int, default=1, metavar="K",
+                       help="processes running attempts (default 1); the files do not depend on it")
+    synth.add_argument("-q", "--quiet", action="store_true", help="no progress line on stderr")
     synth.set_defaults(func=commands.cmd_synth)
     replay = sub.add_parser("replay", help="execute a plan in pybullet with gravity on and check the object stays put")
     replay.add_argument("plan", help="plan file (.yaml/.yml or .json)")

@@ -162,7 +162,8 @@ def cmd_synth(args: argparse.Namespace) -> int:
             print(f"synth: {_gravity_line(args.gravity, gravity, hand.name)}", file=sys.stderr, flush=True)
     return run_synth(args.hand, args.object, args.fingers, args.n, args.output, gravity=gravity, seed=args.seed,
                      max_finger_force_n=args.max_finger_force, mu=args.mu, gamma=args.gamma,
-                     max_attempts=args.max_attempts, quiet=args.quiet, palm=args.palm)
+                     max_attempts=args.max_attempts, quiet=args.quiet, palm=args.palm,
+                     workers=getattr(args, "workers", 1))
 
 
 
