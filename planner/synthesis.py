@@ -494,6 +494,8 @@ def _refuse_overwrite(paths, inputs) -> None:
 #: bounds on the work and memory a command line can ask for.
 MAX_GRASPS = 10_000
 MAX_ATTEMPTS = 10_000_000
+#: Most worker processes `run_synth` starts (``--workers``).
+MAX_WORKERS = 256
 
 
 def _check_out_dir(out_dir) -> None:
@@ -536,6 +538,8 @@ def run_synth(hand: str, object_path, fingers: str, n: int, out_dir, *, gravity=
         raise PlannerError(f"synth: -n must be in 1..{MAX_GRASPS}, got {n}")
     if max_attempts is not None and not 1 <= max_attempts <= MAX_ATTEMPTS:
         raise PlannerError(f"synth: --max-attempts must be in 1..{MAX_ATTEMPTS}, got {max_attempts}")
+    if not 1 <= workers <= MAX_WORKERS:
+        raise PlannerError(f"synth: --workers must be in 1..{MAX_WORKERS}, got {workers}")
     _check_out_dir(out_dir)
     try:
         hand_ref = resolve_hand_ref(hand, Path.cwd())

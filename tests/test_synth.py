@@ -129,6 +129,7 @@ def test_synth_keeps_a_given_object_pose_and_reads_a_grasp_file(tmp_path):
     (["icub_right", "OBJ", "--fingers", "thumb,pinky", "-n", 1, "-o", "OUT"], ["pinky", "thumb"]),
     (["icub_right", "BAD", "--fingers", "thumb", "-n", 1, "-o", "OUT"], ["expected an object block"]),
     (["icub_right", "OBJ", "--fingers", "thumb", "-n", 0, "-o", "OUT"], ["-n must be in 1.."]),
+    (["icub_right", "OBJ", "--fingers", "thumb", "-n", 1, "-o", "OUT", "--workers", 0], ["--workers", "out of range"]),
 ])
 def test_synth_bad_input_is_one_line_exit_2(tmp_path, capsys, args, words):
     obj = _object_file(tmp_path, BALL)

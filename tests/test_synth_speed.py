@@ -35,6 +35,17 @@ def test_synth_at_the_pose_of_its_own_four_finger_grasp_finds_four_finger_grasps
         assert sg.grasp.ok and set(sg.grasp.patches) == set(FOUR)
 
 
+def test_synth_at_the_pose_where_the_whole_hand_draw_missed():
+    """The pose of a four-finger grasp the synthesis before issue 36 item 3 made itself (22 mm
+    ball, Allegro, seed 0): there it found 0 of 6 four-finger grasps in 60 attempts, 50 of
+    them "sweeps miss the object"."""
+    block = {"shape": "sphere", "size": [0.022], "mass_kg": 0.03,
+             "position": [0.05658609637907282, 0.01087451709606073, -0.012267258132646487],
+             "quat_xyzw": [0.0, 0.0, 0.0, 1.0]}
+    r = synthesize("allegro_right", block, FOUR, 3, fixed=True, seed=1, max_attempts=60)
+    assert len(r.grasps) == 3 and "sweeps miss the object" not in r.rejected, r.rejected
+
+
 def test_synth_gives_the_same_grasps_for_one_and_two_workers(own_pose):
     """Attempt k draws from its own generator (seed, k): the outcome does not depend on which
     process ran it, nor on how many there are."""
