@@ -57,7 +57,7 @@ class UnreachableError(KinematicsError):
 
 
 def ik_solve(hand, finger, target_palm, q0, link: str | None = None, p_link=None, normal_palm=None,
-             restarts: int = 8, max_iter: int = 150, seed: int = 0) -> IKResult:
+             restarts: int = 8, max_iter: int = 150, seed: int = 0, n_link=None) -> IKResult:
     """Place a point of a finger link on a target; only that finger's joints move.
 
     Damped least squares with joint clamping, restarted from q0, the open posture, mid-range
@@ -76,6 +76,8 @@ def ik_solve(hand, finger, target_palm, q0, link: str | None = None, p_link=None
             link, else the link origin).
         normal_palm: (3,) optional contact normal INTO the object in the palm frame: the link's
             outward pad normal is turned toward it.
+        n_link: (3,) the link-frame direction turned toward ``normal_palm`` (default: the
+            finger's pad normal; `planner.realization` leans it to pick the end of a capsule).
     Returns:
         `IKResult`: q (nq,) with the point within 0.5 mm (`IK_TOL_M`) of the target, the
         position and normal errors, whether the normal task was dropped.
@@ -93,7 +95,13 @@ def ik_solve(hand, finger, target_palm, q0, link: str | None = None, p_link=None
     if link == f.pad_link and p_link is None:
         p_link = np.array(f.pad_p_link)
     p_link = np.zeros(3) if p_link is None else np.asarray(p_link, dtype=float)
-    n_link = np.array(f.pad_n_link) if f.pad_n_link is not None else None
+    if n_link is not None:
+        n_link = np.asarray(n_link, dtype=float)
+        n_link = n_link / np.linalg.norm(n_link)
+    elif f.pad_n_link is not None:
+        n_link = np.array(f.pad_n_link)
+    else:
+        n_link = None
     n_des = None
     if normal_palm is not None:
         n_des = np.asarray(normal_palm, dtype=float)

@@ -24,7 +24,7 @@ from planner.errors import KinematicsError, PlannerError, UnknownNameError
 from planner.grasp import GraspSpec, input_record, load_grasp, load_hand
 from planner.gravity import gravity_directions
 from planner.grip import grasp_hold
-from planner.ik import UnreachableError
+from planner.ik import UnreachableError, ik_solve
 from planner.model import PALM, Patch
 
 #: Contact fingers are placed this far out along the surface normal, then closed onto it.
@@ -409,25 +409,329 @@ def realize_contact(hand, obj, finger, p_obj, q_seed, link=None):
     return q, patch
 
 
-def place_contact(hand, obj, finger, p_obj, q_seed, link=None):
+def place_contact(hand, obj, finger, p_obj, q_seed, link=None, suggest: bool = True):
     """`realize_contact` with its notes: ``(q, patch, notes)``.
 
-    ``notes`` are one-line strings about how the placement went: the pad-normal task
-    dropped (position-only IK), the pad facing far from the contact normal. An
-    unreachable point raises `planner.ik.UnreachableError` whose message gives, in the
-    object frame, the closest point the finger reached, the nearest surface point to it and
-    the direction to move the target.
+    The point is projected onto the surface (outward normal n). For each pad core of the
+    link (`_pad_cores`: the centre of curvature of its pad, a sphere's centre or an end of a
+    capsule's axis, with the pad normal leaned so that end is the lowest), IK over position
+    AND orientation puts the core `APPROACH_M` off the surface at point + (radius + APPROACH_M)
+    n with the pad facing -n, then closes along the normal until the link touches
+    (`_touch_along_normal`). The result is measured (`_verify`): the asked link touches
+    within `CONTACT_TOL_M` of the point, its pad within `PAD_FACING_RAD` of the contact
+    normal, nothing of the finger deeper than `PENETRATION_TOL_M` in the object, the palm or
+    another finger. The first core that passes is the placement, unless the closing
+    procedure's placement (`_place_by_closing`: IK of the pad, then closing) lands within
+    `CONTACT_WARN_M` with more of the finger's links touching.
+
+    When none passes, the finger is placed as before (`_place_by_closing`) and ``notes``
+    says which constraint failed (reach, orientation, collision with which link, landing)
+    and a surface point this same function does realize (`_realized_point_near`, checked
+    through this function), or that none nearby is. ``notes`` also says when the pad faces
+    more than 45 deg away. Placements are cached (same hand, object, point, seed, link).
+
+    Raises:
+        planner.ik.UnreachableError: no placement reaches the point; its message gives, in
+            the object frame, the closest point the finger reached, the direction to move the
+            target and a surface point it does realize (checked) or the advice to move the object.
     """
     f = _finger_of(hand, finger)
+    key = _cache_key(hand, obj, f, p_obj, q_seed, link, suggest)
+    hit = _PLACEMENTS.get(key) if key is not None else None
+    if hit is None:
+        hit = _place_contact(hand, obj, f, p_obj, q_seed, link, suggest)
+        if key is not None:
+            if len(_PLACEMENTS) >= 512:
+                _PLACEMENTS.pop(next(iter(_PLACEMENTS)))
+            _PLACEMENTS[key] = hit
+    if isinstance(hit, Exception):
+        raise hit
+    q, patch, notes = hit
+    return np.array(q, dtype=float), patch, list(notes)
+
+
+#: Placements already made: (hand, object, finger, point, seed, link) -> (q, patch, notes) or the error.
+_PLACEMENTS: dict = {}
+
+
+def _cache_key(hand, obj, f, p_obj, q_seed, link, suggest):
+    try:
+        return (str(getattr(hand, "spec_path", id(hand))), id(hand), hash(obj), repr(obj.to_data()), f.name,
+                tuple(np.round(np.asarray(p_obj, float).reshape(3), 12)), np.asarray(q_seed, float).tobytes(),
+                link, suggest)
+    except (TypeError, AttributeError, ValueError):
+        return None
+
+
+def _surface(obj, p_obj):
+    """(point, outward normal) on the surface nearest p_obj, object and palm frames."""
     p_surf, n_out, _ = obj.closest_surface(np.asarray(p_obj, dtype=float).reshape(3))
     T = np.asarray(obj.T_palm_obj)
     R = T[:3, :3]
-    n_out_palm = R @ np.asarray(n_out, dtype=float)
-    p_palm = R @ np.asarray(p_surf, dtype=float) + T[:3, 3]
+    return np.asarray(p_surf, float), np.asarray(n_out, float), R @ np.asarray(p_surf, float) + T[:3, 3], \
+        R @ np.asarray(n_out, dtype=float)
+
+
+def _place_contact(hand, obj, f, p_obj, q_seed, link, suggest):
     q_seed = np.asarray(q_seed, dtype=float)
+    p_surf, n_out, p_palm, n_out_palm = _surface(obj, p_obj)
+    placed = _place_verified(hand, obj, f, p_surf, q_seed, link)
+    want = link or f.pad_link
+    try:
+        q, patch, notes = _place_by_closing(hand, obj, f, p_surf, n_out_palm, p_palm, q_seed, link)
+    except UnreachableError as err:
+        if placed.why is None:
+            return placed.q, placed.patch, placed.notes
+        hint = _realized_point_near(hand, obj, f, p_surf, n_out, q_seed, link, err) if suggest else None
+        return _unreachable_in_object_frame(err, obj, p_surf, hint, placed.why)
+    if placed.why is None:
+        # the closing procedure's placement when it lands within `CONTACT_WARN_M` (where `check`
+        # takes the point as written) with more of the finger on the object (e.g. a thumb lying
+        # on a face with two phalanges): stiffer, and the files written for it hold as they did
+        links = lambda qq: len(touching_links(hand, qq, obj, fingers=[f.name]).get(f.name, ()))  # noqa: E731
+        if (_verify(hand, obj, f, want, q, p_surf, n_out_palm, CONTACT_WARN_M).why is None
+                and links(q) > links(placed.q)):
+            return q, patch, [n for n in notes if "position-only" not in n]
+        return placed.q, placed.patch, placed.notes
+    check = _verify(hand, obj, f, want, q, p_surf, n_out_palm)
+    if check.why is None:
+        return q, patch, notes
+    why = placed.why or check.why
+    if why.startswith("out of reach"):  # the pad reaches the point, but not facing the surface
+        why = f"orientation: {want} reaches the point only with its pad facing away ({why})"
+    if suggest:
+        hint = _realized_point_near(hand, obj, f, p_surf, n_out, q_seed, link, None)
+        tail = ("no surface point within 20 mm is realized either: move the object or use another finger" if hint is None
+                else f"a surface point it does reach (checked): {_f3(hint)} (object frame), realized there as asked, "
+                     f"{np.linalg.norm(hint - p_surf) * 1e3:.1f} mm from the requested one")
+    else:
+        tail = ""
+    notes = [n for n in notes if "position-only" not in n]
+    notes.append(f"{f.name}: not realized as asked ({want} within {CONTACT_TOL_M * 1e3:g} mm, its pad within "
+                 f"{math.degrees(PAD_FACING_RAD):.0f} deg of the contact normal): {why}" + (f"; {tail}" if tail else ""))
+    return q, patch, notes
+
+
+def _f3(v) -> str:
+    return "[" + ", ".join(f"{x:.4f}" for x in v) + "]"
+
+
+#: A contact point is realized when the asked link touches within this of it: twice the
+#: touch tolerance (a link counts as touching up to `TOUCH_TOL_M` away, so its witness point
+#: may sit that far along a curved surface from where the pad was aimed).
+CONTACT_TOL_M = 2.0 * TOUCH_TOL_M
+#: The pad faces the surface when its normal is within this of the contact normal.
+PAD_FACING_RAD = math.radians(45.0)
+
+
+#: IK from the seed, then from this many - 1 seeded random postures of the finger, when the
+#: placement collides or faces away.
+PLACE_ATTEMPTS = 3
+
+
+@dataclass(frozen=True)
+class _Placement:
+    """One placement attempt: q (None: out of reach), patch, notes, why it is not as asked
+    (None: it is), the reach error when out of reach."""
+
+    q: Any
+    patch: Any = None
+    notes: tuple = ()
+    why: str | None = None
+    err: Any = None
+
+
+def _place_verified(hand, obj, f, p_surf, q_seed, link, attempts: int = 0, cores: int = 0) -> _Placement:
+    """IK of each pad core over position and orientation, closing along the normal, measured
+    (`_verify`): the first placement that passes, else the most telling failure (a collision
+    or an orientation before a landing error before out of reach)."""
+    _, _, p_palm, n_out_palm = _surface(obj, p_surf)
+    want = link or f.pad_link
+    fails = []
+    idx = list(f.q_index)
+    for attempt in range(attempts or PLACE_ATTEMPTS):
+        seed = np.array(q_seed, dtype=float)
+        if attempt:  # IK from other postures of the finger: another branch may not collide
+            seed[idx] = np.random.default_rng(attempt).uniform(hand.lower[idx], hand.upper[idx])
+        for core in _pad_cores(hand, f, want)[:cores or None]:
+            try:
+                q = _touch_along_normal(hand, obj, f, want, core, p_palm, n_out_palm, seed)
+            except UnreachableError as err:
+                fails.append((3, _Placement(None, why=f"out of reach of {want} with its pad facing the surface "
+                                                      f"(closest approach {err.distance_m * 1e3:.1f} mm)", err=err)))
+                continue
+            check = _verify(hand, obj, f, want, q, p_surf, n_out_palm)
+            patch = contact_patches(hand, q, obj, fingers=[f.name]).get(f.name)
+            if check.why is None:
+                return _Placement(q, patch, ())
+            fails.append((check.rank, _Placement(q, patch, (), check.why)))
+        if all(r == 3 for r, _ in fails):
+            break  # out of reach from the seed's IK starts (8 of them): other seeds do not help
+    if not fails:
+        return _Placement(None, why=f"{want} has no pad to place")
+    return min(fails, key=lambda t: t[0])[1]
+
+
+@dataclass(frozen=True)
+class _Check:
+    why: str | None
+    rank: int = 0
+    landing_m: float = math.inf
+    normal_rad: float = math.inf
+
+
+def _verify(hand, obj, f, link, q, p_surf, n_out_palm, tol_m: float = 0.0) -> _Check:
+    """Whether a placement realizes the point as asked: no link of the finger deeper than
+    `PENETRATION_TOL_M` in the object, the palm or another finger (rank 0), the pad facing
+    the contact normal within `PAD_FACING_RAD` (rank 1), ``link`` touching within
+    ``tol_m`` (default `CONTACT_TOL_M`) of the point (rank 2)."""
+    tol_m = tol_m or CONTACT_TOL_M
+    state = hand.state(q)
+    deep = [(a, b, d) for a, b, d in collisions(hand, state, obj, fingers=[f.name], touch_tol_m=PENETRATION_TOL_M)
+            if d > PENETRATION_TOL_M]
+    mine = [c for c in link_contacts(hand, state, obj, fingers=[f.name]) if c.link == link]
+    land = min((float(np.linalg.norm(c.point - p_surf)) for c in mine), default=math.inf)
+    n_pad = _pad_normal_palm(hand, f, link, state)
+    nerr = math.inf if n_pad is None else math.acos(float(np.clip(n_pad @ -n_out_palm, -1.0, 1.0)))
+    if deep:
+        a, b, d = max(deep, key=lambda c: c[2])
+        other = b if a in f.links else a
+        mine_l = a if a in f.links else b
+        return _Check(f"collision: {mine_l} is {d * 1e3:.1f} mm inside {'the object' if _is_object_name(other) else other}",
+                      0, land, nerr)
+    if n_pad is not None and nerr > PAD_FACING_RAD:
+        return _Check(f"orientation: the pad of {link} faces {math.degrees(nerr):.0f} deg from the contact normal "
+                      f"(at most {math.degrees(PAD_FACING_RAD):.0f})", 1, land, nerr)
+    if not mine:
+        gap = state.link_object(obj, [link]).get(link)
+        return _Check(f"landing: {link} does not touch the object" + ("" if gap is None else
+                      f" (misses it by {gap.distance_m * 1e3:.1f} mm)"), 2, land, nerr)
+    if land > tol_m:
+        return _Check(f"landing: {link} touches {land * 1e3:.1f} mm from the point", 2, land, nerr)
+    return _Check(None, 0, land, nerr)
+
+
+def _link_frame(hand, link):
+    """(frame id, pinocchio Frame) of a link."""
+    fid = hand.model.getFrameId(link)
+    return fid, hand.model.frames[fid]
+
+
+def _pad_normal_link(hand, f, link):
+    """The outward pad normal of ``link`` in its own frame: the finger's pad normal, carried
+    to another link of the finger by their relative rotation at the open posture."""
+    if f.pad_n_link is None:
+        return None
+    n = np.asarray(f.pad_n_link, dtype=float)
+    if link == f.pad_link:
+        return n
+    kin = hand.kinematics(hand.q_open)
+    km = hand.collision.kinematic_model
+    R_pad = kin.frame_pose(km.frame_id(f.pad_link))[:3, :3]
+    R_link = kin.frame_pose(km.frame_id(link))[:3, :3]
+    return R_link.T @ R_pad @ n
+
+
+def _pad_normal_palm(hand, f, link, state):
+    n = _pad_normal_link(hand, f, link)
+    if n is None:
+        return None
+    km = hand.collision.kinematic_model
+    return state.kinematics.frame_pose(km.frame_id(link))[:3, :3] @ n if hasattr(state, "kinematics") else \
+        hand.kinematics(state.q).frame_pose(km.frame_id(link))[:3, :3] @ n
+
+
+def _pad_cores(hand, f, link):
+    """Where IK puts ``link``: [(core point (3,) link frame, radius m, direction (3,) link
+    frame turned to face the surface)].
+
+    A pad's core is its centre of curvature: a sphere's centre, a point of a capsule's axis.
+    The core placed at point + radius * n (outward normal) makes the link touch the tangent
+    plane exactly at the point, whatever the orientation (a sphere) or for every orientation
+    that keeps that end of the capsule the lowest: the capsule's pad normal is leaned along
+    its axis by asin(2 `TOUCH_TOL_M` / axis length), so that the other end stands clear of the
+    touch tolerance and the contact is a point, not a line. A flat link (box, mesh) has its
+    pad point (or the support point of its shape toward the pad normal) with radius 0."""
+    n_p = _pad_normal_link(hand, f, link)
+    fid, frame = _link_frame(hand, link)
+    T_jl = frame.placement
+    geoms = [g for g in hand.collision.geometries if g.link == link]
+    pad = np.asarray(f.pad_p_link, float) if link == f.pad_link else None
+    if not geoms or n_p is None:
+        return [(np.zeros(3) if pad is None else pad, 0.0, n_p)]
+    to_link = lambda g, x: np.asarray(T_jl.actInv(g.placement.act(np.asarray(x, float))), float)  # noqa: E731
+
+    def score(g):  # the geometry holding the pad point, or the one farthest along the pad normal
+        c = to_link(g, np.zeros(3))
+        return np.linalg.norm(c - pad) if pad is not None else -(c @ n_p)
+    g = min(geoms, key=score)
+    shape = g.shape
+    name = type(shape).__name__
+    if name == "Sphere":
+        r = float(shape.radius)
+        return [(to_link(g, np.zeros(3)), r, n_p)]
+    if name == "Capsule":
+        r, h = float(shape.radius), float(shape.halfLength)
+        e = [to_link(g, [0.0, 0.0, s * h]) for s in (-1.0, 1.0)]
+        length = float(np.linalg.norm(e[1] - e[0]))
+        ref = pad - r * n_p if pad is not None else 0.5 * (e[0] + e[1])
+        order = sorted(range(2), key=lambda i: np.linalg.norm(e[i] - ref))
+        out = []
+        lean = math.asin(min(1.0, 2.0 * TOUCH_TOL_M / max(length, 1e-9))) if length > 1e-6 else 0.0
+        for i in order:
+            u = (e[1 - i] - e[i]) / length if length > 1e-6 else np.zeros(3)
+            u = u - (u @ n_p) * n_p
+            v = math.cos(lean) * n_p - math.sin(lean) * u
+            out.append((e[i], r, v / np.linalg.norm(v)))
+        out.append((0.5 * (e[0] + e[1]), r, n_p))
+        return out
+    if pad is not None:
+        return [(pad, 0.0, n_p)]
+    return [(to_link(g, np.zeros(3)), 0.0, n_p)]
+
+
+def _touch_along_normal(hand, obj, f, link, core, p_palm, n_out_palm, q_seed, iters: int = 6):
+    """IK of the core `APPROACH_M` off the surface, pad facing it (position and
+    orientation), then along the normal until ``link`` touches (0 to 0.5 `TOUCH_TOL_M` away,
+    measured). Raises `UnreachableError` when no stand-off is reached."""
+    c_link, r, v_link = core
+    n_in = -n_out_palm
+    res, err = None, None
+    for offset in (APPROACH_M, 0.25 * TOUCH_TOL_M):
+        try:
+            res = ik_solve(hand, f, p_palm + (r + offset) * n_out_palm, q_seed, link=link, p_link=c_link,
+                           normal_palm=n_in, n_link=v_link)
+            break
+        except UnreachableError as e:
+            err = err or e
+    if res is None:
+        raise err
+    q = res.q
+    s = 0.25 * TOUCH_TOL_M
+    best = None
+    for _ in range(iters):
+        try:
+            q = ik_solve(hand, f, p_palm + (r + s) * n_out_palm, q, link=link, p_link=c_link, normal_palm=n_in,
+                         n_link=v_link, restarts=3).q
+        except UnreachableError:
+            break
+        d = hand.state(q).link_object(obj, [link])[link].distance_m
+        if 0.0 <= d <= 0.5 * TOUCH_TOL_M:
+            return q
+        if d >= 0.0 or best is None:
+            best = q
+        s -= d - 0.25 * TOUCH_TOL_M
+    if best is None:
+        raise err or UnreachableError(f"finger {f.name!r}: {link} cannot be placed on the point", target_palm=p_palm,
+                                      closest_palm=p_palm, direction_palm=np.zeros(3), distance_m=0.0)
+    return best
+
+
+def _place_by_closing(hand, obj, f, p_surf, n_out_palm, p_palm, q_seed, link):
+    """The placement before the pad cores: IK of the pad point `APPROACH_M` off the surface
+    (position-only when the normal task keeps it off), then the closing procedure, or the
+    approach along the normal when that lands farther than `LANDING_TOL_M`."""
     ik, err = None, None
-    # a pad that cannot stand off by APPROACH_M (e.g. under a face it only reaches when
-    # almost extended) is tried closer to the surface
     for offset in (APPROACH_M, 0.5 * APPROACH_M, 0.25 * APPROACH_M):
         try:
             ik = hand.ik_solve(f, p_palm + offset * n_out_palm, q_seed, link=link, normal_palm=-n_out_palm)
@@ -435,7 +739,7 @@ def place_contact(hand, obj, finger, p_obj, q_seed, link=None):
         except UnreachableError as e:
             err = err or e
     if ik is None:
-        raise _unreachable_in_object_frame(err, obj, p_surf, _reachable_point(hand, obj, f, err, q_seed, link))
+        raise err
     notes = []
     if ik.normal_dropped:
         notes.append(f"{f.name}: the pad cannot face the contact normal there; placed position-only "
@@ -455,52 +759,81 @@ def place_contact(hand, obj, finger, p_obj, q_seed, link=None):
     return q, patch, notes
 
 
-#: Surface points `_reachable_point` tries, following the IK's closest reach each time.
-REACH_HINT_STEPS = 8
+#: Surface points `_realized_point_near` tries at most.
+REACH_HINT_TRIES = 33
+#: Distances (m) from the requested point at which `_realized_point_near` tries surface points.
+HINT_RADII_M = (0.003, 0.006, 0.012, 0.02)
 
 
-def _reachable_point(hand, obj, f, err, q_seed, link):
-    """A surface point the finger's pad does reach (the IK succeeds there, as `place_contact`
-    places it): from where the failed IK got, projected onto the surface, again from where
-    that one got, at most `REACH_HINT_STEPS` times. None when none of them is reachable."""
+def _realized_point_near(hand, obj, f, p_surf, n_out, q_seed, link, err=None):
+    """A surface point near ``p_surf`` that `_place_verified` realizes as asked (so that
+    `place_contact` does too: it tries the same placement first, from the same seed), or
+    None. Tried in order: where the failed IK got (projected onto the surface, when out of
+    reach), then rings of surface points at `HINT_RADII_M` around the point."""
     T = np.asarray(obj.T_palm_obj)
     R, t = T[:3, :3], T[:3, 3]
-    closest = R.T @ (err.closest_palm - t)
+    cands = []
+    if err is not None:
+        cands.append(obj.closest_surface(R.T @ (err.closest_palm - t))[0])
+    a = np.array([1.0, 0.0, 0.0]) if abs(n_out[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    u = np.cross(n_out, a)
+    u /= np.linalg.norm(u)
+    v = np.cross(n_out, u)
+    for rho in HINT_RADII_M:
+        for k in range(4):
+            th = 0.5 * math.pi * k + (0.25 * math.pi if rho in HINT_RADII_M[1::2] else 0.0)
+            cands.append(obj.closest_surface(p_surf + rho * (math.cos(th) * u + math.sin(th) * v))[0])
+    if err is not None:  # around where the finger got, too
+        c0 = np.asarray(cands[0], float)
+        n0 = obj.closest_surface(c0)[1]
+        a0 = np.array([1.0, 0.0, 0.0]) if abs(n0[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+        u0 = np.cross(n0, a0)
+        u0 /= np.linalg.norm(u0)
+        v0 = np.cross(n0, u0)
+        for rho in HINT_RADII_M[:2]:
+            for k in range(4):
+                th = 0.5 * math.pi * k
+                cands.append(obj.closest_surface(c0 + rho * (math.cos(th) * u0 + math.sin(th) * v0))[0])
+    # and seeded surface points, nearest first (other faces of a box, the far side of an edge)
+    pts, _ = obj.sample_surface(64, np.random.default_rng(0))
+    pts = np.asarray(pts, float)
+    cands.extend(pts[np.argsort(np.linalg.norm(pts - p_surf, axis=1))][:8])
     tried = []
-    for _ in range(REACH_HINT_STEPS):
-        s, n_out, _ = obj.closest_surface(closest)
-        if any(np.linalg.norm(s - o) < 1e-4 for o in tried):
-            return None
-        tried.append(np.asarray(s, float))
-        n_palm = R @ np.asarray(n_out, float)
-        p_palm = R @ np.asarray(s, float) + t
-        for offset in (APPROACH_M, 0.5 * APPROACH_M, 0.25 * APPROACH_M):
-            try:
-                hand.ik_solve(f, p_palm + offset * n_palm, q_seed, link=link, normal_palm=-n_palm)
-                return np.asarray(s, float)
-            except UnreachableError as e:
-                last = e
-        closest = R.T @ (last.closest_palm - t)
+    for c in cands[:REACH_HINT_TRIES]:
+        c = np.asarray(c, float)
+        if any(np.linalg.norm(c - o) < 1e-4 for o in tried) or np.linalg.norm(c - p_surf) < 1e-4:
+            continue
+        tried.append(c)
+        # one attempt (IK from the seed) of the first core, then `place_contact` itself (which may
+        # prefer the closing procedure's placement): its result must realize the point as asked
+        if _place_verified(hand, obj, f, c, q_seed, link, attempts=1, cores=1).why is None:
+            q, _, _ = place_contact(hand, obj, f, c, q_seed, link=link, suggest=False)
+            _, _, _, n_palm = _surface(obj, c)
+            if _verify(hand, obj, f, link or f.pad_link, q, c, n_palm).why is None:
+                return c
     return None
 
 
-def _unreachable_in_object_frame(err, obj, p_surf, reachable=None):
-    """The IK's `UnreachableError` re-worded in the object frame, with a surface point the
-    finger does reach (`_reachable_point`), or the advice to move the object."""
+def _unreachable_in_object_frame(err, obj, p_surf, reachable=None, why=None):
+    """The IK's `UnreachableError` re-worded in the object frame, with the failing
+    constraint, a surface point the finger does realize (`_realized_point_near`), or the
+    advice to move the object."""
     T = np.asarray(obj.T_palm_obj)
     R, t = T[:3, :3], T[:3, 3]
     closest = R.T @ (err.closest_palm - t)
     direction = R.T @ err.direction_palm
-    f3 = lambda v: "[" + ", ".join(f"{x:.4f}" for x in v) + "]"  # noqa: E731
     if reachable is not None:
         move = float(np.linalg.norm(reachable - np.asarray(p_surf)))
-        tail = (f"a surface point it does reach (checked): {f3(reachable)} (object frame), {move * 1e3:.1f} mm from "
-                "the requested one")
+        tail = (f"a surface point it does reach (checked): {_f3(reachable)} (object frame), realized there as asked, "
+                f"{move * 1e3:.1f} mm from the requested one")
     else:
-        tail = ("no surface point near where it gets is in reach: move the object toward the finger (object."
-                f"position, palm frame: along {f3(R @ direction)}) or use another finger")
-    msg = (f"{str(err).split(';')[0]}; the finger gets within {err.distance_m * 1e3:.1f} mm, at {f3(closest)} "
-           f"(object frame): move the point along {f3(direction)} (object frame); {tail}")
+        tail = ("no surface point near it is realized: move the object toward the finger (object."
+                f"position, palm frame: along {_f3(R @ direction)}) or use another finger")
+    head = str(err).split(";")[0]
+    if why and not why.startswith("out of reach"):
+        head += f" (and with its pad facing the surface: {why})"
+    msg = (f"reach: {head}; the finger gets within {err.distance_m * 1e3:.1f} mm, at {_f3(closest)} "
+           f"(object frame): move the point along {_f3(direction)} (object frame); {tail}")
     return UnreachableError(msg, target_palm=err.target_palm, closest_palm=err.closest_palm,
                             direction_palm=err.direction_palm, distance_m=err.distance_m)
 

@@ -375,8 +375,7 @@ def test_check_fails_an_object_in_the_palm(tmp_path, capsys):
 
 def test_check_lists_realized_contacts_in_text_and_json(capsys):
     """Every touching link is listed with an on-surface point and a unit inward normal; a mesh
-    reports its extents, not its scale; the thumb placed on the mesh's back edge by the
-    intermediate phalanx is a warning, not a failure."""
+    reports its extents, not its scale; the thumb's contact point is realized by its pad."""
     mesh = ROOT / "grasps/icub/mesh_rounded_box_parallel_extension.yaml"
     assert main(["check", str(mesh), "--json"]) == 0
     rep = json.loads(capsys.readouterr().out)
@@ -390,10 +389,15 @@ def test_check_lists_realized_contacts_in_text_and_json(capsys):
         _, n_out, dist = g.obj.closest_surface(np.array(c["point"]))
         assert abs(dist) < 1e-6 and np.allclose(-n_out, c["normal"], atol=1e-6)
         assert np.allclose(-np.array(c["point"]) / 0.025, c["normal"], atol=1e-6)  # a ball's inward normal
-    assert any("fingers.thumb.contact: realized" in w and "thumb_intermediate" in w for w in rep["warnings"])
+    # the thumb's contact point is realized where the file puts it, by its pad (issue 36 item 1;
+    # it used to land 13 mm away on the intermediate phalanx, with a warning)
+    assert not any(w.startswith("fingers.thumb.contact") for w in rep["warnings"])
+    thumb = [c for c in rep["contacts"] if c["finger"] == "thumb" and c["link"] == "thumb_distal"]
+    point = load_grasp(mesh).finger("thumb").point_obj
+    assert thumb and min(np.linalg.norm(np.array(c["point"]) - point) for c in thumb) <= 2e-3
     assert main(["check", str(mesh)]) == 0
     out = capsys.readouterr().out
-    assert "35.0 x 80.0 x 30.0 mm" in out and "realized contacts" in out and "warning: fingers.thumb.contact" in out
+    assert "35.0 x 80.0 x 30.0 mm" in out and "realized contacts" in out
 
 
 def test_plan_refuses_a_placed_finger_that_does_not_touch(tmp_path, capsys):
@@ -468,9 +472,13 @@ def test_out_of_reach_names_every_finger_and_its_suggestion_is_reachable(tmp_pat
         realize(load_grasp(path))
     msg = str(info.value)
     assert "fingers.index.contact.point" in msg and "fingers.middle.contact.point" in msg and "\n" not in msg
-    m = re.search(r"fingers\.index\.contact\.point:.*?a surface point it does reach \(checked\): \[([^\]]+)\]", msg)
-    assert m, msg
     assert "move the object toward the finger" in msg
+    # the index realizes (pad within 45 deg, no collision) 1 in 120 points of this cube, none
+    # near its own: it is told to move the object; a suggestion, when there is one, is realized
+    m = re.search(r"fingers\.index\.contact\.point:.*?a surface point it does reach \(checked\): \[([^\]]+)\]", msg)
+    if m is None:
+        assert re.search(r"fingers\.index\.contact\.point: reach:.*?no surface point near it is realized", msg), msg
+        return
     data["fingers"]["index"] = {"contact": {"point": [float(v) for v in m.group(1).split(",")]}}
     data["fingers"]["middle"] = "free"
     path.write_text(yaml.safe_dump(data))

@@ -179,7 +179,7 @@ object: {shape: cylinder, size: [0.005, 0.14], position: [0.025, -0.012, 0.022],
          quat_xyzw: [0.270598, 0.653281, -0.270598, 0.653281], mass_kg: 0.01}
 friction: {mu: 0.9, gamma: 0.004, edges: 5}
 fingers:
-  thumb: {contact: {point: [-0.0029, -0.0041, 0.0259]}}
+  thumb: {contact: {point: [-0.0029, -0.0041, 0.0296]}}
   index: {contact: {point: [0.0024, 0.0044, 0.0406]}}
 """
 
