@@ -192,6 +192,9 @@ def build_parser() -> argparse.ArgumentParser:
     hinit.add_argument("-o", "--output", required=True, metavar="FILE", help="the hand.yaml to write")
     hinit.add_argument("--package-dir", action="append", metavar="DIR",
                        help="a folder holding the ROS packages of package:// mesh paths (repeatable)")
+    hinit.add_argument("--root", metavar="LINK",
+                       help="the hand is the sub-tree below this link of a robot's URDF (written beside the "
+                            "hand.yaml as its URDF); a robot's URDF without it is refused with its hands listed")
     hcheck = hsub.add_parser("check", help="report what a planner or simulator cannot use in a hand, one line each")
     hcheck.add_argument("hand", help="a bundled hand's name or a hand.yaml")
     hand.set_defaults(func=commands.cmd_hand)

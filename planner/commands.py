@@ -183,9 +183,11 @@ def cmd_hand(args: argparse.Namespace) -> int:
     """``hand init URDF -o hand.yaml``: a hand.yaml with every guess explained; ``hand check
     HAND``: what a planner or simulator cannot use in it (exit 1 on an error)."""
     if args.hand_command == "init":
-        spec, rep = handtool.init_hand(args.urdf, args.package_dir or ())
         out = os.path.abspath(args.output)
-        urdf = os.path.abspath(args.urdf)
+        # --root: the hand's own URDF (the sub-tree) is written beside the hand.yaml, same stem
+        cut = os.path.splitext(out)[0] + ".urdf" if args.root else None
+        spec, rep = handtool.init_hand(args.urdf, args.package_dir or (), root=args.root, cut_path=cut)
+        urdf = os.path.abspath(spec["urdf"])
         spec["urdf"] = os.path.relpath(urdf, os.path.dirname(out))  # a hand.yaml moves with its URDF
         if spec.get("package_dirs"):
             spec["package_dirs"] = [os.path.relpath(os.path.abspath(d), os.path.dirname(out)) for d in spec["package_dirs"]]

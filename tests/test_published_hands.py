@@ -60,6 +60,35 @@ def test_a_robot_without_fingered_hands_is_refused_too(tmp_path, capsys):
     assert "hands found: none" in capsys.readouterr().err
 
 
+def test_root_cuts_the_hand_out_of_a_humanoid(tmp_path, capsys):
+    out = tmp_path / "g1r" / "hand.yaml"
+    out.parent.mkdir()
+    assert main(["hand", "init", str(_robots() / G1), "-o", str(out), "--root", "right_wrist_yaw_link"]) == 0
+    data = yaml.safe_load(out.read_text())
+    assert data["urdf"] == "hand.urdf" and data["palm_frame"] == "right_wrist_yaw_link"
+    hand = Hand.load(out)
+    assert len(hand.joint_names) == 7 and all(j.startswith("right_hand_") for j in hand.joint_names)
+    assert list(hand.fingers) == ["thumb", "index", "middle"]
+    assert all(g.link.startswith("right_hand_") or g.link == "right_wrist_yaw_link" for g in hand.collision.geometries)
+    # pybullet loads the sub-tree only (package:// meshes resolved), every body of it
+    names = _pybullet_joints(hand.urdf_path)
+    assert set(hand.joint_names) <= set(names)
+    assert all(n.startswith("right_hand_") for n in names), names
+    capsys.readouterr()
+    assert main(["hand", "check", str(out)]) == 0
+    assert re.search(r"0 error\(s\)", capsys.readouterr().out)
+    ball = tmp_path / "ball.yaml"
+    ball.write_text("shape: sphere\nsize: [0.03]\nmass_kg: 0.05\n")
+    assert main(["synth", str(out), str(ball), "--fingers", "thumb,index,middle", "-n", "1", "-o",
+                 str(tmp_path / "g"), "--quiet"]) == 0
+    assert main(["check", str(next((tmp_path / "g").glob("*.yaml")))]) == 0
+
+
+def test_root_must_be_a_link(tmp_path, capsys):
+    assert main(["hand", "init", str(_robots() / G1), "-o", str(tmp_path / "h.yaml"), "--root", "no_such_link"]) == 2
+    assert "no_such_link" in capsys.readouterr().err
+
+
 def _massless_icub(tmp_path) -> Path:
     """The bundled iCub hand with the index's distal phalanx and tip links stripped of their
     <inertial> (a published hand's fingertip anchors have none)."""
