@@ -570,14 +570,12 @@ def run_synth(hand: str, object_path, fingers: str, n: int, out_dir, *, gravity=
         friction["gamma"] = gamma
     # refuse before any work when the first names are taken
     _refuse_overwrite(output_names(out_dir, h.name, obj.shape, n), [object_path])
-    progress = None if quiet else _TerminalProgress.on_stderr()
+    progress = None if quiet else _Progress()
     if palm and fixed:  # before any work: the fixed pose must touch the palm
         check_palm_pose(h, obj)
     result = synthesize(hand_ref, obj, names, n, fixed=fixed, friction=friction, seed=seed, gravity=gravity,
                         max_finger_force_n=max_finger_force_n, max_attempts=max_attempts, base_dir=out_dir,
                         progress=progress, palm=palm, workers=workers)
-    if progress is not None:
-        progress.close()
     paths = write_grasps(result, out_dir, h.name, seed=seed, fingers=names, inputs=[object_path])
     for path, g in zip(paths, result.grasps):
         grip = f"  grip {g.grip_force_n:.3f} N" if g.grip_force_n is not None else ""
@@ -594,36 +592,24 @@ def run_synth(hand: str, object_path, fingers: str, n: int, out_dir, *, gravity=
     return 0 if len(paths) >= n else 1
 
 
-class _TerminalProgress:
-    """`synthesize`'s progress as ONE line rewritten in place on a terminal's stderr (at most
-    `PROGRESS_PERIOD_S` apart), ended by a newline on `close`; `on_stderr` gives None when
-    stderr is not a terminal (a pipe or a file gets no progress, like ``plan``'s)."""
+class _Progress:
+    """`synthesize`'s progress as INFO records of the ``planner.synth`` logger, at most one per
+    `PERIOD_S`: the command line shows the ``planner`` logger's records as lines on the
+    terminal only when stderr is one and without -q (`planner.cli._progress`, as ``plan``'s
+    rounds), and the records cost nothing otherwise."""
 
-    PROGRESS_PERIOD_S = 0.2
+    PERIOD_S = 1.0
 
-    def __init__(self, stream):
-        self.stream, self.last, self.width = stream, -math.inf, 0
+    def __init__(self, log=None):
+        import logging
 
-    @classmethod
-    def on_stderr(cls):
-        try:
-            return cls(sys.stderr) if sys.stderr.isatty() else None
-        except (AttributeError, ValueError):
-            return None
+        self.log, self.last = log or logging.getLogger("planner.synth"), -math.inf
 
     def __call__(self, line: str) -> None:
         now = time.monotonic()
-        if now - self.last < self.PROGRESS_PERIOD_S:
-            return
-        self.last = now
-        self.stream.write("\r" + line.ljust(self.width))
-        self.stream.flush()
-        self.width = len(line)
-
-    def close(self) -> None:
-        if self.width:
-            self.stream.write("\n")
-            self.stream.flush()
+        if now - self.last >= self.PERIOD_S:
+            self.last = now
+            self.log.info("%s", line.removeprefix("synth: "))
 
 
 def rejection_table(result: SynthResult) -> str:

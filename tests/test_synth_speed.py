@@ -4,12 +4,10 @@ progress line only on a terminal. Seeded; the rate itself is benchmarks/bench_sy
 
 from __future__ import annotations
 
-import io
-
 import pytest
 
 from planner.realization import execution_verdict
-from planner.synthesis import SynthGrasp, _TerminalProgress, synthesize
+from planner.synthesis import SynthGrasp, _Progress, synthesize
 
 BALL = {"shape": "sphere", "size": [0.03], "mass_kg": 0.05}
 FOUR = ["thumb", "index", "middle", "ring"]
@@ -73,18 +71,26 @@ def test_synth_ranks_execution_accepted_grasps_first():
     assert sorted([refused, ok], key=SynthGrasp.rank_key) == [ok, refused]
 
 
-def test_progress_is_one_line_rewritten_in_place_and_only_on_a_terminal(monkeypatch):
-    """`_TerminalProgress` rewrites one line with a carriage return and ends it on close; not a
-    terminal (a pipe, a file, pytest's capture): no progress object at all."""
-    out = io.StringIO()
-    p = _TerminalProgress(out)
-    p("synth: 0/5 grasps after 10 attempts")
-    p("synth: 1/5 grasps after 11 attempts")  # within the period: not written
-    p.last = -1e9
-    p("synth: 2/5")
-    p.close()
-    text = out.getvalue()
-    assert text.count("\r") == 2 and text.endswith("\n") and "\n" not in text[:-1]
-    assert "1/5" not in text and "2/5" in text
-    monkeypatch.setattr("sys.stderr", io.StringIO())
-    assert _TerminalProgress.on_stderr() is None
+def test_progress_goes_to_the_planner_logger_at_most_once_a_period(tmp_path, caplog):
+    """Progress records go to the ``planner.synth`` logger (the command line shows them on a
+    terminal only, without -q, like plan's), at most one per period; -q: none."""
+    import logging
+
+    from planner.cli import main
+
+    p = _Progress()
+    with caplog.at_level(logging.INFO, logger="planner"):
+        p("synth: 0/5 grasps after 10 attempts")
+        p("synth: 1/5 grasps after 11 attempts")  # within the period: dropped
+        p.last = -1e9
+        p("synth: 2/5")
+    assert [r.getMessage() for r in caplog.records] == ["0/5 grasps after 10 attempts", "2/5"]
+    caplog.clear()
+    obj = tmp_path / "ball.yaml"
+    obj.write_text("shape: sphere\nsize: [0.03]\n")
+    with caplog.at_level(logging.INFO, logger="planner"):
+        assert main(["synth", "allegro_right", str(obj), "-n", "1", "-o", str(tmp_path / "a")]) == 0
+        assert any(r.name == "planner.synth" and "grasps" in r.getMessage() for r in caplog.records)
+        caplog.clear()
+        assert main(["synth", "allegro_right", str(obj), "-n", "1", "-o", str(tmp_path / "b"), "-q"]) == 0
+        assert not [r for r in caplog.records if r.name == "planner.synth"]
