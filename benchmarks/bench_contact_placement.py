@@ -115,7 +115,8 @@ def sample_case(hand, rng, tries: int = 200):
 
 
 def measure(hand, f, obj, point):
-    """(landing error m, pad normal error rad (inf: unreachable), seconds, first note or error line)."""
+    """(landing error m, pad normal error rad (inf: unreachable), seconds, the note saying why it is
+    not realized as asked (else the first note) or the error line)."""
     t0 = time.perf_counter()
     try:
         q, _, notes = place_contact(hand, obj, f, point, hand.q_open)
@@ -129,7 +130,8 @@ def measure(hand, f, obj, point):
     _, n_out, _ = obj.closest_surface(point)
     _, n_pad = _pad(hand, f, q)
     nerr = math.acos(np.clip(n_pad @ (-(R @ n_out)), -1.0, 1.0))
-    return land, nerr, dt, (notes[0] if notes else "")
+    why = [n for n in notes if "not realized as asked" in n]
+    return land, nerr, dt, (why or notes or [""])[0]
 
 
 def stats(values):
