@@ -65,7 +65,9 @@ def cmd_plan(args: argparse.Namespace) -> int:
     for i, step in enumerate(plan.steps):
         st = plan.states[step.to_state]
         grip = f"{st.grip_force_n:>6.3f}  " if gripped else ""
-        print(f"{i:>4}  {step.finger:<8} {step.action:<5} {step.to_state:>5}  {st.metric:>10.4g}  {grip}{','.join(st.removable) or '-'}")
+        # a lifted or free finger is trivially removable: the column lists the touching ones
+        removable = [f for f in st.removable if f in st.patches]
+        print(f"{i:>4}  {step.finger:<8} {step.action:<5} {step.to_state:>5}  {st.metric:>10.4g}  {grip}{','.join(removable) or '-'}")
     s = plan.summary
     for rank, alt in enumerate(result.alternatives, start=2):
         grip = f", grip {alt.bottleneck_grip:.3f} N" if alt.bottleneck_grip is not None else ""

@@ -622,3 +622,23 @@ def test_a_contact_no_finger_path_can_leave_ends_the_search_at_once():
     assert retreat_blocked(hand, gi.obj, q[list(hand.fingers["index"].q_index)], "index") is None
     with pytest.raises(NoSequenceError, match="finger thumb must leave its initial contact, and no finger path can"):
         plan_regrasp(gi, gf, PlanOptions())
+
+
+def test_the_step_table_lists_only_touching_fingers_as_removable(tmp_path, capsys):
+    """A lifted or free finger is trivially removable; the table's removable column names the
+    touching fingers whose contact can go, as the plan's states say."""
+    from planner.cli import main
+    from planner.plan import read_plan
+    from planner.resources import bundled_grasp
+
+    out = tmp_path / "p.json"
+    assert main(["plan", str(bundled_grasp("icub/box_parallel_extension.yaml")),
+                 str(bundled_grasp("icub/box_ir2m.yaml")), "--no-motion", "-o", str(out)]) == 0
+    rows = [line.split() for line in capsys.readouterr().out.splitlines() if line[:4].strip().isdigit()]
+    plan = read_plan(out)
+    assert len(rows) == len(plan.steps)
+    for row, step in zip(rows, plan.steps):
+        st = plan.states[step.to_state]
+        listed = set() if row[-1] == "-" else set(row[-1].split(","))
+        assert listed == {f for f in st.removable if f in st.patches}, (row, st.removable)
+        assert step.finger not in listed or step.action == "land"  # a lifted finger is not listed
