@@ -6,14 +6,15 @@ the JSON form); this module words it for a person.
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
 
 from planner.grip import FRICTION_MARGIN
 from planner.objects import DEFAULT_DENSITY_KG_M3
-from planner.realization import (AT_LIMIT_RAD, CONTACT_WARN_M, PENETRATION_TOL_M, ExecutionVerdict, RealizedGrasp,
-                                  execution_verdict)
+from planner.realization import (AT_LIMIT_RAD, CONTACT_TOL_M, CONTACT_WARN_M, PAD_FACING_RAD, PENETRATION_TOL_M,
+                                  ExecutionVerdict, RealizedGrasp, execution_verdict)
 
 
 def object_text(obj) -> str:
@@ -89,7 +90,8 @@ def check_text(grasp: RealizedGrasp, verdict: ExecutionVerdict | None = None, st
     why += [f"execution mode refuses it: {verdict.brief()}"] if strict and not verdict.ok else []
     out.append(f"{'FAIL' if why else 'PASS'}{': ' + ', '.join(why) if why else ''} (tolerances: penetration "
                f"{PENETRATION_TOL_M * 1e3:.1f} mm, contact warning {CONTACT_WARN_M * 1e3:.0f} mm, "
-               f"joint at a limit within {AT_LIMIT_RAD:g} rad)")
+               f"contact: points realized within {CONTACT_TOL_M * 1e3:.0f} mm by the asked link with the pad within "
+               f"{math.degrees(PAD_FACING_RAD):.0f} deg, joint at a limit within {AT_LIMIT_RAD:g} rad)")
     return "\n".join(out)
 
 
