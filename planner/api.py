@@ -49,7 +49,7 @@ def plan(initial, final, *, execution: bool = False, output: PathLike | None = N
     """
     from planner.errors import UnknownNameError
     from planner.fileio import check_outputs
-    from planner.grasp import GraspSpec, input_record, load_grasp, load_hand
+    from planner.grasp import GraspSpec, grasp_files, input_record, load_grasp, load_hand
     from planner.options import PlanOptions
     from planner.plan_data import plan_format, write_plan
     from planner.realization import RealizedGrasp, realize
@@ -66,8 +66,8 @@ def plan(initial, final, *, execution: bool = False, output: PathLike | None = N
              for g in grasps]
     check_same_setup(*specs)
     hand = grasps[0].hand if isinstance(grasps[0], RealizedGrasp) else load_hand(specs[0].hand_ref)
-    files = [g for g in grasps if isinstance(g, (str, os.PathLike))] + list(getattr(hand, "files", ()))
-    check_outputs([(output, "-o")], files + [specs[0].object.mesh_path])
+    paths = [g for g in grasps if isinstance(g, (str, os.PathLike))]  # the same hand and object in both
+    check_outputs([(output, "-o")], paths + grasp_files(specs[0], hand))
     if isinstance(options.get("gravity"), str):  # a named orientation (planner.gravity.named_gravity)
         from planner.gravity import named_gravity
 

@@ -101,13 +101,13 @@ def cmd_check(args: argparse.Namespace) -> int:
     (`planner.realization.execution_verdict`: the execution contact model, the hold factor in
     the six directions it plans for); with ``--gravity`` (3 numbers, "gravity"; or a name) the
     same under that gravity alone, as ``plan --execution --gravity``."""
-    from planner.grasp import load_grasp, load_hand  # deferred: objects, the hand: pinocchio, coal (~0.1 s)
+    from planner.grasp import grasp_files, load_grasp  # deferred: objects, the hand: pinocchio, coal (~0.1 s)
     from planner.grasp_report import check_text, contact_markers  # deferred: scipy (~0.2 s)
     from planner.realization import execution_verdict, realize  # deferred: closure, contacts: scipy (~0.05 s more)
 
     spec = load_grasp(args.grasp)
     # the picture may not be a file the check reads (the grasp, its hand's files, the mesh)
-    check_outputs([(args.png, "--png")], [args.grasp, *load_hand(spec.hand_ref).files, spec.object.mesh_path])
+    check_outputs([(args.png, "--png")], grasp_files(spec, path=args.grasp))
     grasp = realize(spec)
     gline = gdata = None
     if args.gravity is not None:

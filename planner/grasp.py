@@ -303,6 +303,14 @@ def _parse_finger(r: Reader, hand, finger, obj) -> FingerSpec:
     return FingerSpec(finger.name, "contact", point_obj=point, link=link)
 
 
+def grasp_files(spec, hand=None, path=None) -> list[str]:
+    """Every file reading this grasp reads, which no output may be: the grasp file (``path``,
+    when it was given as one), its hand's files (hand.yaml, URDF, meshes: ``Hand.files``) and
+    the object's mesh. ``hand``: the loaded hand (default `load_hand` of the spec's)."""
+    hand = load_hand(spec.hand_ref) if hand is None else hand
+    return [str(p) for p in (path, *getattr(hand, "files", ()), spec.object.mesh_path) if p is not None]
+
+
 def input_record(path) -> dict:
     """How a plan records an input grasp file: its path and sha256 (read in chunks,
     `planner.fileio.sha256_file`). SpecError when it is not a readable regular file."""

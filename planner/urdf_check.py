@@ -559,11 +559,11 @@ def stated_inertias(path: str | os.PathLike, package_dirs=()) -> dict[str, tuple
                 V = np.asarray(bvh.vertices(), float)
                 if len(V) < 4:
                     continue
-                try:
-                    from scipy.spatial import ConvexHull
+                from scipy.spatial import ConvexHull, QhullError
 
+                try:
                     volume += float(ConvexHull(V).volume)
-                except Exception:  # flat: no volume  # noqa: BLE001
+                except QhullError:  # flat (coplanar vertices): no volume
                     pass
             else:
                 size = {a: _numbers(shape, a, (0.0,)) for a, _ in SHAPE_SIZES[shape.tag]}

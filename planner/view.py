@@ -36,7 +36,7 @@ from planner.audit import require_sound
 from planner.errors import InputError, SpecError
 from planner.fileio import MAX_PLAN_BYTES, check_outputs, load_json, load_yaml, read_limited, write_atomic
 from planner.frames import hand_of_plan, object_of_plan, plain_plan, pose_matrix, resample
-from planner.grasp import load_grasp
+from planner.grasp import grasp_files, load_grasp
 from planner.objects import load_mesh
 from planner.plan import plan_files, read_plan
 from planner.realization import realize
@@ -520,7 +520,7 @@ def read_source(source) -> tuple[tuple[str, Any], list[str]]:
         require_sound(plan, hand)  # a resealed, physically wrong plan is refused before any drawing
         return ("plan", plain_plan(plan)), plan_files(plan, hand)
     g = realize(load_grasp(source))
-    return ("grasp", g), [str(source), *g.hand.files, g.obj.mesh_path]
+    return ("grasp", g), grasp_files(g.spec, g.hand, source)
 
 
 def write_view(source, output, report=None, loaded=None) -> dict:
