@@ -413,8 +413,9 @@ def _close(a, b) -> bool:
     return abs(a - b) <= CLAIM_ATOL + CLAIM_RTOL * max(abs(a), abs(b))
 
 
-def _directions(plan, hand, rep: AuditReport) -> list[tuple[str, np.ndarray]]:
-    """(name, gravity in the object frame) of every direction the plan was made for."""
+def _directions(plan, hand, rep: AuditReport) -> list[tuple[str, np.ndarray, np.ndarray]]:
+    """(name, gravity in the object frame, the weight's wrench there) of every direction the plan
+    was made for (the loads `planner.slots.build_problem` gives the planner)."""
     rows = (plan.parameters or {}).get("gravity_directions") or []
     out = []
     R = np.asarray(plan.object.T_palm_obj, dtype=float)[:3, :3]
@@ -427,7 +428,8 @@ def _directions(plan, hand, rep: AuditReport) -> list[tuple[str, np.ndarray]]:
         if not np.all(np.isfinite(g)):
             rep.add(f"parameters.gravity_directions[{k}]: the gravity is not finite")
             continue
-        out.append((name, R.T @ g))
+        g_obj = R.T @ g
+        out.append((name, g_obj, np.r_[float(plan.object.mass_kg) * g_obj, np.zeros(3)]))
     return out
 
 
@@ -459,7 +461,6 @@ def _check_claims(plan, hand, poses, rep: AuditReport) -> None:
     sides = int(params.get("grip_cone_sides") or GRIP_CONE_SIDES)
     cap = params.get("max_finger_force_n")
     directions = _directions(plan, hand, rep)
-    mass = float(plan.object.mass_kg)
     metrics: list[float] = []
     grips: list[float] = []
     previous = None
@@ -483,8 +484,7 @@ def _check_claims(plan, hand, poses, rep: AuditReport) -> None:
             if st.grip_force_n is not None or st.hold_factor_by_gravity:
                 rep.add(f"states[{i}]: grip forces or hold factors recorded for a plan made without gravity")
             continue
-        forces = {n: min_grip_force(st.patches, grip_friction, np.r_[mass * g, np.zeros(3)], cone_sides=sides)
-                  for n, g in directions}
+        forces = {n: min_grip_force(st.patches, grip_friction, load, cone_sides=sides) for n, _, load in directions}
         recorded = dict(st.grip_force_by_gravity_n or {})
         if set(recorded) != set(forces):
             rep.add(f"states[{i}].grip_force_by_gravity_n: directions {sorted(recorded)}, the plan's parameters "
@@ -503,8 +503,8 @@ def _check_claims(plan, hand, poses, rep: AuditReport) -> None:
                        for f, p in st.patches.items() if f in hand.fingers}
             program = grip_program(st.patches, statics, friction, margin=margin, cone_sides=sides)
             held = dict(st.hold_factor_by_gravity)
-            for n, g in directions:
-                mine = hold_capacity(st.patches, statics, friction, np.r_[mass * g, np.zeros(3)], g,
+            for n, g, load in directions:
+                mine = hold_capacity(st.patches, statics, friction, load, g,
                                      force_cap_n=cap, program=program, witness=False).factor
                 if n not in held:
                     rep.add(f"states[{i}].hold_factor_by_gravity: no factor for the planned direction {n}")
@@ -522,7 +522,7 @@ def _check_claims(plan, hand, poses, rep: AuditReport) -> None:
     if "bottleneck_grip_force_n" in s and not _close(s["bottleneck_grip_force_n"], max(grips) if grips else None):
         rep.add(f"summary.bottleneck_grip_force_n: the file says {s['bottleneck_grip_force_n']}, its states give "
                 f"{max(grips) if grips else None}")
-    _check_verification(plan, [n for n, _ in directions], rep)
+    _check_verification(plan, [n for n, _, _ in directions], rep)
 
 
 def _check_verification(plan, planned: list[str], rep: AuditReport) -> None:
