@@ -467,11 +467,10 @@ def test_armature_floor_keeps_the_stiffest_spring_stable_with_margin():
     Bullet's semi-implicit Euler step of a critically damped spring has spectral radius < 1
     there and still for 2.5x the stiffness (contacts add some), and the floor is no larger
     than that (every joint's spring sits at that omega dt when a free finger squeezes alone)."""
-    import pybullet as p
-
     from planner.sim import controller as C
     from planner.sim import inputs as inp
     from planner.sim import replay as R
+    from planner.sim.engine_pybullet import PybulletEngine
 
     def radius(w):  # state (x, v dt): v+ = v - w^2 x - 2 w v, x+ = x + v+
         return max(abs(np.linalg.eigvals(np.array([[1 - w * w, 1 - 2 * w], [-w * w, 1 - 2 * w]]))))
@@ -483,20 +482,21 @@ def test_armature_floor_keeps_the_stiffest_spring_stable_with_margin():
     rd = inp.typed_plan(_library_plan("box"))
     params = dict(dt=1 / 240, contact_model="mean", gravity=[0, 0, 9.81], finger_force_n=None,
                   solver_iterations=150, filter_k=12)
-    cid = p.connect(p.DIRECT)
+    info = inp.load_hand_info(rd, list(rd.joints))
+    mass, radius_m = inp.object_mass(rd.object, 500)
+    engine = PybulletEngine(inp.replay_world(info, rd.object, mass, rd.friction, 1 / 240, 150))
     try:
-        sim = R._Sim(cid, rd, inp.load_hand_info(rd, list(rd.joints)), list(rd.joints), rd.object,
-                     rd.friction, params, 500, [], visual=False)
+        sim = R._Sim(engine, rd, info, list(rd.joints), rd.object, rd.friction, params, mass, radius_m)
         ctl = sim.ctl
         ctl.command(dict(zip(rd.joints, rd.states[0].q)), (), moving=None)  # every finger free
         F1 = C.squeeze_force_n(ctl.mass, ctl.g_max, 1, ctl.friction.mu, ctl.floor_n)
         scale = max(C.FREE_SHARE, C.POSTURE_SHARE) / C.FREE_SHARE * F1 / ctl.force_n
-        fingers = [ctl.hand_pos[ctl.jidx[j]] for f in ctl.hand.fingers.values() for j in f.joints]
+        fingers = [ctl.hand_pos[j] for f in ctl.hand.fingers.values() for j in f.joints]
         w = np.sqrt(scale * ctl.kp[fingers] / ctl.armature[fingers]) * sim.dt
         assert np.all(w <= C.ARMATURE_OMEGA_DT * (1 + 1e-9))
         assert np.max(w) == pytest.approx(C.ARMATURE_OMEGA_DT, rel=0.02)
     finally:
-        p.disconnect(cid)
+        engine.close()
 
 
 def test_pose_drift_matches_the_rotation_matrix_angle():

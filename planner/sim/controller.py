@@ -6,7 +6,7 @@ object is thrown when those pushes do not balance. This controller instead decid
 force every contact must apply and commands it:
 
 1. **Contacts from the simulator.** Every hand link within ``CONTACT_GAP_M`` of the object
-   (``getClosestPoints``: a contact that opens for one step keeps its force) gives one
+   (the engine's closest points: a contact that opens for one step keeps its force) gives one
    contact per face it touches, at the mean of that face's points, normal INTO the object;
    links of the fingers the plan holds the object with are *commanded*, the palm's are
    *passive* (they push back but cannot be commanded). A holding finger that does not
@@ -14,7 +14,7 @@ force every contact must apply and commands it:
 2. **Forces that balance the load** (grasp force optimization, `balance_forces`): the
    object's weight ``m g`` must be balanced by the contact forces inside the friction
    cones, shrunk by a safety factor (half the cone first, then 3/4, then the whole cone;
-   point forces first, then with the soft-finger torsion the simulator's spinning friction
+   point forces first, then with the soft-finger torsion the simulator's torsional friction
    provides), each commanded force as close as possible (L1) to a squeeze ``F n_i`` along its
    inward normal, and every finger's joint torques ``|g(q) + J^T f|`` within the hand's
    effort limits: the planner's grip model (`planner.grip.balance_forces`, the cones, margin
@@ -33,9 +33,10 @@ force every contact must apply and commands it:
    drifting object back; they cannot throw it. The sum is clipped at the joints' effort
    limits, as a real motor saturates. A free or moving finger gets
    ``FREE_SHARE * F``, so a lifting finger cannot drag the object and a landing one touches
-   down softly. An armature floor on the finger links (`_add_armature`, the reflected
-   inertia a geared finger motor has) keeps the explicit springs stable at the time step,
-   and no heavier: a heavier finger lags an object that moves and lets go of it.
+   down softly. An armature floor on the finger links (`Controller.armature_floor`, the
+   reflected inertia a geared finger motor has; the replay gives it to the engine) keeps the
+   explicit springs stable at the time step, and no heavier: a heavier finger lags an object
+   that moves and lets go of it.
 
 The squeeze ``F`` comes from the load: ``F = SAFETY * m |g_max| / (n mu)`` for ``n`` holding
 fingers (each contact's friction alone would hold the weight twice over), but never less
@@ -47,6 +48,10 @@ held and gravity off, then gravity ramps up while the forces follow it (the solu
 no load and for the full load are blended). Before a
 finger lifts, its load is handed over (its forces fade to zero while the other fingers'
 forces fade to the solution without it); after a finger lands the reverse.
+
+The controller is engine-free: it reads joint states, the object's pose and closest points
+through `planner.sim.engine.Sensor` (a physics engine, or synthetic readings in a test), and
+`Controller.step` returns the joint torques; the replay applies them.
 """
 
 from __future__ import annotations
@@ -58,7 +63,7 @@ import numpy as np
 
 from planner.model import Contact, Friction
 from planner.grip import balance_forces, torque_rows
-from planner.sim.scene import p  # pybullet, imported with its build banner silenced
+from planner.sim.engine import HandTopology, JointStates, Sensor
 
 #: Physics steps between two force solutions (at 240 Hz: 60 Hz).
 UPDATE_EVERY = 4
@@ -82,7 +87,8 @@ TRAVEL_PER_RADIUS = 0.1
 MAX_TRAVEL_M = 0.001
 #: Smallest lever of a posture spring (joints whose axis passes near the pad), m.
 MIN_LEVER_M = 0.005
-#: The armature floor puts the stiffest posture spring at this omega * dt. Bullet integrates
+#: The armature floor puts the stiffest posture spring at this omega * dt. Bullet (pybullet)
+#: integrates
 #: an explicit, critically damped spring stably up to omega dt ~ 0.83 (spectral radius of
 #: the semi-implicit Euler step: 0.83 at 0.3, 0.72 at 0.6, 0.68 at its optimum 0.73, > 1
 #: past 0.83); 0.5 leaves room for 2.7x the stiffness (contacts add some). Every bit of
@@ -92,8 +98,8 @@ MIN_LEVER_M = 0.005
 #: half the time step (which also quarters the floor). At 0.75 (near the limit) thin pens
 #: started to fail.
 ARMATURE_OMEGA_DT = 0.5
-#: A point farther than this outside the object is not a contact (pybullet reports
-#: speculative manifold points with positive distance).
+#: A point farther than this outside the object is not a contact (an engine may report
+#: speculative manifold points with positive distance: pybullet does).
 TOUCH_TOL_M = 0.0005
 #: A link this close to the object counts as a contact for the force solution, m.
 CONTACT_GAP_M = 0.001
@@ -115,15 +121,14 @@ def squeeze_force_n(mass_kg: float, g_max_mps2: float, n_fingers: int, mu: float
 
 
 class Controller:
-    """Torque-level grasp controller on a pybullet hand holding one object (module docstring).
+    """Torque-level grasp controller of a hand holding one object (module docstring).
 
     Args:
-        cid: pybullet client id.
-        body, obj: hand and object body ids.
+        sensor: what it reads the simulation through (a `planner.sim.engine.PhysicsEngine`).
         hand: `planner.hand.Hand` (pinocchio) of the same URDF; the palm frame is the world.
-        jidx: joint name -> pybullet joint index.
-        link_finger: pybullet link index -> finger name or "palm".
-        link_name: pybullet link index -> URDF link name.
+        topology: the hand as the engine built it (joint order of the torques, link order).
+        link_finger: URDF link name -> finger name or "palm".
+        link_mass_kg: URDF link name -> mass, as simulated.
         mass_kg: object mass; friction: the plan's friction.
         g_max_mps2: largest gravity magnitude of the replay (sets the squeeze).
         force_n: squeeze per holding finger, N; None derives it (`squeeze_force_n`).
@@ -131,20 +136,20 @@ class Controller:
         object_radius_m: the object's smallest half-extent (sets the posture springs' travel).
     """
 
-    def __init__(self, cid: int, body: int, obj: int, hand, jidx: Mapping[str, int],
-                 link_finger: Mapping[int, str], link_name: Mapping[int, str], mass_kg: float,
-                 friction: Friction, g_max_mps2: float, force_n: float | None = None,
-                 dt_s: float = 1.0 / 240.0, object_radius_m: float = math.inf):
-        self.cid, self.body, self.obj, self.hand = cid, body, obj, hand
-        self.jidx = dict(jidx)
+    def __init__(self, sensor: Sensor, hand, topology: HandTopology, link_finger: Mapping[str, str],
+                 link_mass_kg: Mapping[str, float], mass_kg: float, friction: Friction, g_max_mps2: float,
+                 force_n: float | None = None, dt_s: float = 1.0 / 240.0, object_radius_m: float = math.inf):
+        self.sensor, self.hand = sensor, hand
         self.col = {j: i for i, j in enumerate(hand.joint_names)}
-        self.link_finger, self.link_name = dict(link_finger), dict(link_name)
+        self.link_order = {name: k for k, name in enumerate(topology.links)}
+        self.link_finger = {link: link_finger.get(link, "palm") for link in topology.links}
         self.finger_links = {f: [i for i, g in self.link_finger.items() if g == f] for f in hand.fingers}
         self.mass, self.friction, self.g_max = float(mass_kg), friction, float(g_max_mps2)
-        n_all = p.getNumJoints(body, physicsClientId=cid)
-        self.movable = [i for i in range(n_all) if p.getJointInfo(body, i, physicsClientId=cid)[2] != p.JOINT_FIXED]
-        self.hand_pos = {i: k for k, i in enumerate(self.movable)}
-        self.floor_n = self._heaviest_finger_weight_n(g_max_mps2)
+        # torques are in the engine's joint order; the hand's own order reads them
+        self.movable = list(topology.joints)
+        self.hand_pos = {j: k for k, j in enumerate(self.movable)}
+        self._hand_order = [self.hand_pos[j] for j in hand.joint_names]
+        self.floor_n = self._heaviest_finger_weight_n(link_mass_kg, g_max_mps2)
         self.travel_m = min(MAX_TRAVEL_M, TRAVEL_PER_RADIUS * float(object_radius_m))
         self.force_override = force_n
         self.gravity = np.zeros(3)
@@ -155,53 +160,52 @@ class Controller:
         self.moving: str | None = None
         self.force_n = self.floor_n
         self.tau = np.zeros(len(self.movable))
-        self.forces: dict[int, np.ndarray] = {}  # link -> commanded force (palm frame)
+        self.forces: dict[str, np.ndarray] = {}  # link -> commanded force (palm frame)
         self.balanced = True
         self._tick = 0
         self._cache: dict = {}
         self._near: dict = {}  # (F, load, links) -> (points, normals, centre, solution) last solved
         self._motors_stale = True
-        for i in self.movable:  # pybullet's default velocity motors off: torques act alone
-            p.setJointMotorControl2(body, i, p.VELOCITY_CONTROL, force=0.0, physicsClientId=cid)
-        self.q_target = np.array([p.getJointState(body, i, physicsClientId=cid)[0] for i in self.movable])
+        self.q_target = np.array(sensor.joint_states().position, dtype=float)
         self.kp = self.kd = self.cap = np.zeros(len(self.movable))
-        self.armature = self._add_armature(dt_s)
-        # the hand's joint torque limits (`planner.hand.Hand.effort`), hand order and pybullet order
+        self.armature, self.armature_floor = self._armature(dt_s)
+        # the hand's joint torque limits (`planner.hand.Hand.effort`), hand order and engine order
         self.effort = np.asarray(getattr(hand, "effort", np.full(len(hand.joint_names), np.inf)), dtype=float)
         self.tau_max = np.full(len(self.movable), np.inf)
-        for j, i in self.jidx.items():
-            if j in self.col and i in self.hand_pos:
-                self.tau_max[self.hand_pos[i]] = self.effort[self.col[j]]
+        for j in self.movable:
+            if j in self.col:
+                self.tau_max[self.hand_pos[j]] = self.effort[self.col[j]]
         # fingers every joint of which has a torque limit: the limits bound their forces
         self.limited = {f for f, fg in hand.fingers.items() if np.all(np.isfinite(self.effort[[self.col[j] for j in fg.joints]]))}
 
-    def _heaviest_finger_weight_n(self, g: float) -> float:
+    def _heaviest_finger_weight_n(self, link_mass_kg: Mapping[str, float], g: float) -> float:
         mass = {}
-        for link, f in self.link_finger.items():
-            if f in self.hand.fingers and link >= 0:
-                mass[f] = mass.get(f, 0.0) + p.getDynamicsInfo(self.body, link, physicsClientId=self.cid)[0]
+        for link, f in self.link_finger.items():  # the links in the engine's order
+            if f in self.hand.fingers:
+                mass[f] = mass.get(f, 0.0) + link_mass_kg[link]
         return max(mass.values(), default=0.0) * max(g, 9.81)
 
-    def _add_armature(self, dt_s: float) -> np.ndarray:
-        """Give every finger link at least the rotational inertia that keeps the explicit
+    def _armature(self, dt_s: float) -> tuple[np.ndarray, dict[str, float]]:
+        """The rotational inertia every finger link needs at least to keep the explicit
         posture springs stable (``omega dt <= ARMATURE_OMEGA_DT`` at the stiffest spring a
         free finger gets, one-finger squeeze), as the reflected rotor inertia of a geared
-        finger motor would; returns (n_movable,) the inertia floor per joint, kg m^2."""
+        finger motor would: (n_movable,) the floor per joint and link -> the floor of its
+        principal moments (kg m^2), which the replay gives the engine
+        (`planner.sim.engine.PhysicsEngine.raise_link_inertia`)."""
         F = max(self.force_override or 0.0, squeeze_force_n(self.mass, self.g_max, 1, self.friction.mu, self.floor_n))
         state = self.hand.state(np.array(self.hand.q_open))
         floor = np.zeros(len(self.movable))
+        links: dict[str, float] = {}
         for name, finger in self.hand.fingers.items():
             J = state.frame_jacobian(finger.pad_link, finger.pad_p_link)[:3]
             reach = max([float(np.linalg.norm(J[:, self.col[j]])) for j in finger.joints] + [MIN_LEVER_M])
             kp_max = max(FREE_SHARE, POSTURE_SHARE) * F / self.travel_m * reach ** 2
             inertia = kp_max * (dt_s / ARMATURE_OMEGA_DT) ** 2
             for link in self.finger_links.get(name, ()):
-                diag = p.getDynamicsInfo(self.body, link, physicsClientId=self.cid)[2]
-                p.changeDynamics(self.body, link, localInertiaDiagonal=[max(float(d), inertia) for d in diag],
-                                 physicsClientId=self.cid)
+                links[link] = inertia
             for j in finger.joints:
-                floor[self.hand_pos[self.jidx[j]]] = inertia
-        return floor
+                floor[self.hand_pos[j]] = inertia
+        return floor, links
 
     # -- commands -----------------------------------------------------------------
 
@@ -232,7 +236,7 @@ class Controller:
         for f in fingers:
             for j in self.hand.fingers[f].joints:
                 self.q_ref[j] = float(q[self.col[j]])
-                self.q_target[self.hand_pos[self.jidx[j]]] = self.q_ref[j]
+                self.q_target[self.hand_pos[j]] = self.q_ref[j]
 
     def fade(self, finger: str, share: float) -> None:
         """Hand over: the finger carries ``share`` (0..1) of its balanced load (applied at
@@ -240,54 +244,55 @@ class Controller:
         self.share[finger] = float(min(1.0, max(0.0, share)))
 
     def set_gravity(self, g) -> None:
-        """Set the simulator's gravity (palm frame); compensation and load follow it."""
+        """The gravity the simulator has now (palm frame; the replay sets the engine's):
+        compensation and load follow it."""
         self.gravity = np.asarray(g, dtype=float).copy()
-        p.setGravity(*self.gravity.tolist(), physicsClientId=self.cid)
 
     def set_moving_target(self, q_finger: Mapping[str, float]) -> None:
         """New path waypoint of the moving finger (posture targets only)."""
         self.q_ref.update(q_finger)
         for j, v in q_finger.items():
-            self.q_target[self.hand_pos[self.jidx[j]]] = v
+            self.q_target[self.hand_pos[j]] = v
 
-    def step(self) -> None:
-        """Apply the torques for one physics step (forces re-solved every ``UPDATE_EVERY``):
-        ``tau_ff + clip(Kp (q_ref - q), +-cap) - Kd qdot``."""
+    def step(self) -> np.ndarray:
+        """The joint torques for the next physics step, engine joint order (forces re-solved
+        every ``UPDATE_EVERY`` calls): ``tau_ff + clip(Kp (q_ref - q), +-cap) - Kd qdot``."""
         self._tick += 1
+        js = self.sensor.joint_states()
         if self._tick % UPDATE_EVERY == 0:
-            self._update()
-        st = p.getJointStates(self.body, self.movable, physicsClientId=self.cid)
-        q = np.array([s[0] for s in st])
-        qd = np.array([s[1] for s in st])
-        spring = np.clip(self.kp * (self.q_target - q), -self.cap, self.cap)
-        tau = np.clip(self.tau + spring - self.kd * qd, -self.tau_max, self.tau_max)  # the motors saturate
-        p.setJointMotorControlArray(self.body, self.movable, p.TORQUE_CONTROL, forces=tau.tolist(),
-                                    physicsClientId=self.cid)
+            self._update(js)
+        return self.torques(js)
+
+    def torques(self, js: JointStates) -> np.ndarray:
+        """``tau_ff + clip(Kp (q_ref - q), +-cap) - Kd qdot`` at these joint states, clipped at
+        the joints' limits as the motors saturate."""
+        spring = np.clip(self.kp * (self.q_target - js.position), -self.cap, self.cap)
+        return np.clip(self.tau + spring - self.kd * js.velocity, -self.tau_max, self.tau_max)
 
     # -- measurement ----------------------------------------------------------------
 
-    def q(self) -> np.ndarray:
-        """Current configuration in ``hand.joint_names`` order."""
-        states = p.getJointStates(self.body, [self.jidx[j] for j in self.hand.joint_names], physicsClientId=self.cid)
-        return np.array([s[0] for s in states])
+    def q(self, js: JointStates | None = None) -> np.ndarray:
+        """Configuration in ``hand.joint_names`` order (of ``js``, or read now)."""
+        js = self.sensor.joint_states() if js is None else js
+        return js.position[self._hand_order]
 
     def contacts(self) -> list[Contact]:
         """Touching links (per link and face: mean point and normal) and approach points of
         holding fingers that do not touch."""
-        per_link: dict[int, list] = {}
+        per_link: dict[str, list] = {}
         # closest points within a small gap rather than this step's contact points: a contact
         # that opens for a step (a bounce) keeps its balanced force instead of flipping to
         # the approach force and back
-        for cp in p.getClosestPoints(self.body, self.obj, CONTACT_GAP_M, physicsClientId=self.cid):
-            per_link.setdefault(cp[3], []).append(cp)
+        for cp in self.sensor.closest_points(CONTACT_GAP_M):
+            per_link.setdefault(cp.link, []).append(cp)
         out = []
-        for link in sorted(per_link):
+        for link in sorted(per_link, key=self.link_order.__getitem__):
             # one contact per face the link touches: a manifold on one face shares its normal,
             # while a link on an edge touches two faces, and the mean of their normals is the
             # normal of neither (forces along it would slip on both)
             groups: list[list] = []
             for c in per_link[link]:
-                n = -np.asarray(c[7], float)
+                n = np.asarray(c.normal, float)
                 for g in groups:
                     if float(n @ g[0]) >= FACE_COS:
                         g[1].append(c)
@@ -296,10 +301,10 @@ class Controller:
                     groups.append((n, [c]))
             for n0, cps in groups:
                 if len(cps) == 1:
-                    pt, n = np.asarray(cps[0][6], float), -np.asarray(cps[0][7], float)
+                    pt, n = np.asarray(cps[0].point_m, float), np.asarray(cps[0].normal, float)
                 else:
-                    pt = np.add.reduce([c[6] for c in cps]) / len(cps)
-                    n = -np.add.reduce([c[7] for c in cps])
+                    pt = np.add.reduce([c.point_m for c in cps]) / len(cps)
+                    n = np.add.reduce([c.normal for c in cps])
                 out.append(Contact(self._finger(link), link, pt, n / np.linalg.norm(n), frame="palm"))
         touching = {c.finger for c in out}
         for f in self.holding:
@@ -307,16 +312,16 @@ class Controller:
                 continue
             best = None
             for link in self.finger_links.get(f, ()):
-                for cp in p.getClosestPoints(self.body, self.obj, APPROACH_M, linkIndexA=link, physicsClientId=self.cid):
-                    if best is None or cp[8] < best[8]:
+                for cp in self.sensor.closest_points(APPROACH_M, link):
+                    if best is None or cp.distance_m < best.distance_m:
                         best = cp
             if best is not None:
-                n = -np.asarray(best[7], float)
+                n = np.asarray(best.normal, float)
                 if np.linalg.norm(n) > 0.5:
-                    out.append(Contact(f, best[3], best[6], n / np.linalg.norm(n), frame="palm", touching=False))
+                    out.append(Contact(f, best.link, best.point_m, n / np.linalg.norm(n), frame="palm", touching=False))
         return out
 
-    def _finger(self, link: int) -> str | None:
+    def _finger(self, link: str) -> str | None:
         f = self.link_finger.get(link, "palm")
         return None if f == "palm" else f
 
@@ -325,11 +330,11 @@ class Controller:
     def _finger_jacobians(self, state, contacts: Sequence[Contact]) -> list[np.ndarray]:
         """(3, n_finger_joints) linear Jacobian of each contact point (fixed to its link)
         over its finger's joints at the update's kinematic state, one pass for all."""
-        Js = state.point_jacobians([(self.link_name[c.link], c.point) for c in contacts])
+        Js = state.point_jacobians([(c.link, c.point) for c in contacts])
         return [J[:, [self.col[j] for j in self.hand.fingers[c.finger].joints]] for c, J in zip(contacts, Js)]
 
-    def _update(self) -> None:
-        q = self.q()
+    def _update(self, js: JointStates | None = None) -> None:
+        q = self.q(js)
         # one kinematic state per update: the gravity torques, the force solution's joint rows,
         # the contact Jacobians and the posture springs all read it (FK once)
         state = self.hand.state(q)
@@ -337,7 +342,7 @@ class Controller:
         if self.gravity.any():
             g_q = state.gravity_torques(self.gravity)
             for j, tj in zip(self.hand.joint_names, g_q):
-                tau[self.hand_pos[self.jidx[j]]] = tj
+                tau[self.hand_pos[j]] = tj
         F = self.force_n
         contacts = [c for c in self.contacts() if c.finger is None or c.finger in self.holding]
         forces = self._balanced(contacts, F, state)
@@ -347,7 +352,7 @@ class Controller:
             self.forces[c.link] = self.forces.get(c.link, 0.0) + f_c
             t = J.T @ f_c
             for j, tj in zip(self.hand.fingers[c.finger].joints, t):
-                tau[self.hand_pos[self.jidx[j]]] += tj
+                tau[self.hand_pos[j]] += tj
         self.tau = tau
         if self._tick % (16 * UPDATE_EVERY) == 0 or self._motors_stale:
             self._set_motors(state, F)
@@ -358,7 +363,7 @@ class Controller:
         the handover of fingers with a share below 1."""
         if not contacts:
             return []
-        centre = np.asarray(p.getBasePositionAndOrientation(self.obj, physicsClientId=self.cid)[0], float)
+        centre = np.asarray(self.sensor.object_pose().position_m, float)
         g_now = float(np.linalg.norm(self.gravity))
         full_load = np.zeros(6)
         if g_now > 0:
@@ -456,7 +461,7 @@ class Controller:
         # one kinematics pass for every commanded contact
         order = [i for idx in by_finger.values() for i in idx]
         J_all = dict(zip(order, state.point_jacobians(
-            [(self.link_name[contacts[i].link], contacts[i].point) for i in order], angular=True)))
+            [(contacts[i].link, contacts[i].point) for i in order], angular=True)))
         for f, idx in by_finger.items():
             cols = [self.col[j] for j in self.hand.fingers[f].joints]
             Js = [J_all[i] for i in idx]
@@ -477,10 +482,10 @@ class Controller:
             share = FREE_SHARE if (name == self.moving or name not in self.holding) else POSTURE_SHARE
             for j in finger.joints:
                 lever = max(float(np.linalg.norm(J[:, self.col[j]])), MIN_LEVER_M)
-                k = self.hand_pos[self.jidx[j]]
+                k = self.hand_pos[j]
                 kp[k] = share * F / self.travel_m * lever ** 2
                 cap[k] = share * F * lever
         self.kp, self.cap = kp, cap
         self.kd = 2.0 * np.sqrt(kp * self.armature)
         for j, v in self.q_ref.items():
-            self.q_target[self.hand_pos[self.jidx[j]]] = v
+            self.q_target[self.hand_pos[j]] = v

@@ -165,7 +165,7 @@ class ReplayRecorder:
                         for x in np.asarray(P, float).reshape(-1, 3)]).reshape(-1, 3)
         extent = float(np.ptp(pts, axis=0).max()) if len(pts) > 1 else 0.03
         self.normal_len_m = 0.2 * extent
-        self.scene = HandScene.adopt(hand, sim.hand, sim.obj, sim.cid, width=width, height=height)
+        self.scene = HandScene.adopt(hand, *sim.engine.render_bodies(), width=width, height=height)
         self.camera = contact_camera(hand, np.eye(4), pts if len(pts) else None, T[:3, 3],
                                      hand_reach_m(hand, q0, T[:3, 3], (extent,)))
         self.g = np.asarray(sim.params["gravity"], float)

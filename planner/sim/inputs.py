@@ -2,8 +2,8 @@
 
 `typed_plan` reads a plan (file, data or `planner.plan_data.Plan`) through `planner.plan`'s one
 parser; `plan_hand` and `load_hand_info` load the plan's hand and check every joint value of
-the plan against its limits; `create_object` builds the plan's object as a pybullet body
-(`planner.sim.scene.object_body`) with its mass. Files the plan names resolve relative to
+the plan against its limits; `object_mass` gives the mass and size the replay builds the
+plan's object with and `replay_world` the `planner.sim.engine.World` an engine builds. Files the plan names resolve relative to
 the plan file (`planner.plan_data.plan_file`; its hand: `planner.plan_data.plan_hand`).
 """
 
@@ -15,10 +15,10 @@ from typing import Any
 
 import numpy as np
 
+from planner.model import Friction
 from planner.objects import GraspObject
 from planner.plan import plan_from_data, read_plan
 from planner.plan_data import Plan, plan_hand  # noqa: F401 (plan_hand: re-exported for the replay)
-from planner.sim.scene import object_body
 
 #: A plan's joint values may exceed the hand's limits by this much (rad or m): rounding.
 JOINT_LIMIT_TOL = 1e-3
@@ -87,16 +87,22 @@ def load_hand_info(plan: Plan, joints: list[str], hand=None) -> HandInfo:
     return HandInfo(str(hand.urdf_path), fingers, T_palm_root(hand), hand, tuple(hand.palm_normal))
 
 
-#: The replay's object colour (its films).
-OBJECT_RGBA = (0.85, 0.45, 0.15, 1.0)
-
-
-def create_object(cid: int, obj: GraspObject, density_kg_m3: float) -> tuple[int, float, float]:
-    """The object's pybullet body (`planner.sim.scene.object_body`), its mass (kg: the
-    plan's, which records the planner's; volume x ``density_kg_m3`` for an object without
-    one) and its smallest half-extent (m)."""
+def object_mass(obj: GraspObject, density_kg_m3: float) -> tuple[float, float]:
+    """The object's mass (kg: the plan's, which records the planner's; volume x
+    ``density_kg_m3`` for an object without one) and its smallest half-extent (m)."""
     radius = float(np.min(obj.extents)) / 2
     mass = obj.mass_kg if obj.mass_given else density_kg_m3 * obj.volume_m3
-    body = object_body(cid, obj.shape, list(obj.size), obj.mesh_path, list(obj.position), list(obj.quat_xyzw),
-                       float(mass), OBJECT_RGBA)
-    return body, float(mass), radius
+    return float(mass), radius
+
+
+def replay_world(info: HandInfo, obj: GraspObject, mass_kg: float, friction: Friction, dt_s: float,
+                 solver_iterations: int, visual: bool = False):
+    """The `planner.sim.engine.World` of a replay: the plan's hand at its root pose with the
+    replay's inertias for placeholder ones (`planner.handtool.replay_inertia`: a solid box of
+    the link's mass and collision size), the plan's object of ``mass_kg`` and friction."""
+    from planner.handtool import replay_inertia
+    from planner.sim.engine import World
+
+    inertia = {link: tuple(box.tolist()) for link, (_, _, box) in replay_inertia(info.hand).items()}
+    return World(info.urdf_path, info.T_palm_base, inertia, obj, float(mass_kg), friction, float(dt_s),
+                 int(solver_iterations), visual)

@@ -1,4 +1,8 @@
-"""Execute a regrasp plan in pybullet with gravity on and check that the object stays put.
+"""Execute a regrasp plan in a physics engine with gravity on and check that the object stays put.
+
+The replay talks to the engine only through `planner.sim.engine.PhysicsEngine` (pybullet:
+`planner.sim.engine_pybullet`, which says how the plan's friction is set there); the grasp
+controller (`planner.sim.controller`) is engine-free.
 
 The palm is fixed and the world frame IS the palm frame, so every pose, point and the
 gravity vector of this module are palm-frame quantities. Default gravity is +z of the
@@ -19,7 +23,7 @@ Sequence (thesis section VII / IX):
      forces that balance the object without the landing finger, which switches from the
      free-motion torque to its squeeze torque within ``LANDING_ZONE_M`` of the object;
      at the end of the path every finger takes the new state's targets;
-  4. at every state, contacts from ``getContactPoints`` (one raw sample per simulation
+  4. at every state, the engine's contact points (one raw sample per simulation
      step) go through the temporal filter (`planner.sim.contact_filter`), are expressed
      in the object frame with normals INTO the object, grouped by finger, and the force
      closure and metric are recomputed with `planner.closure.grasp_closure`, under the
@@ -31,7 +35,7 @@ Squeeze (grasp force optimization). At every state the contact of each touching 
 is in equilibrium under gravity: ``min sum |f_i - F n_i|_1`` subject to the net wrench
 balancing ``m g``, every ``f_i`` inside half the friction cone (then 3/4, then the whole
 cone if needed; at each step point forces first, then with the soft-finger torsion that
-the simulator's spinning friction provides: `planner.grip.CONE_MARGINS`), no
+the simulator's torsional friction provides: `planner.grip.CONE_MARGINS`), no
 component above ``MAX_FORCE_RATIO * F`` and a normal force of at least ``MIN_NORMAL_RATIO * F``
 (``F = finger_force_n``; `planner.sim.controller.balance_forces`). Plain normal squeezing is kept only when no balanced forces exist
 at those contacts. The finger then presses with joint torques ``tau = J_f^T f_i``
@@ -40,10 +44,9 @@ target lies ``squeeze_m`` beyond the contact along ``tau`` and each joint's torq
 capped at ``|tau_j|`` (at least a small holding torque), so the motors saturate against
 the object and press with ``tau``.
 
-Friction. Bullet multiplies the two bodies' lateral friction and combines spinning friction
-as ``s_a * mu_b + s_b * mu_a``; with the hand links at lateral friction 1 and spinning 0 and
-the object at ``mu`` and ``gamma``, every finger-object contact gets exactly the plan's
-``mu`` (Coulomb) and ``gamma`` (torsional, metres) of the soft-finger model (thesis eq. 1).
+Friction. Every finger-object contact gets exactly the plan's ``mu`` (Coulomb) and ``gamma``
+(torsional, metres) of the soft-finger model (thesis eq. 1); how an engine combines the two
+bodies' friction to give it is the engine module's business (`planner.sim.engine.World`).
 
 This module is one concept, kept whole although slightly over 600 lines: the replay loop and
 its verdict share the per-state measurements, and split apart either half would only read the
@@ -63,13 +66,12 @@ from scipy.spatial.transform import Rotation
 
 from planner.closure import apply_contact_model, grasp_closure
 from planner.errors import InputError, SimulationError
-from planner.handtool import replay_inertia
 from planner.model import PALM
 from planner.sim.contact_filter import ContactFilter
 from planner.sim.controller import TOUCH_TOL_M, Controller
-from planner.sim.inputs import HandInfo, create_object, load_hand_info, typed_plan
+from planner.sim.engine import PhysicsEngine, engine_for
+from planner.sim.inputs import HandInfo, load_hand_info, object_mass, replay_world, typed_plan
 from planner.sim.report import ReplayReport, StateReport
-from planner.sim.scene import hand_body, p  # p: pybullet, its build banner silenced
 
 #: A finger (or the palm) carries the object when it presses with a mean normal force of at
 #: least this share of the larger of the object's weight and the controller's squeeze: every
@@ -142,8 +144,9 @@ def replay_plan(
     width: int = 640,
     height: int = 480,
     strict: bool = False,
+    engine: str = "pybullet",
 ) -> ReplayReport:
-    """Replay a plan in pybullet with gravity on; re-measure contacts, closure and drift.
+    """Replay a plan in a physics engine with gravity on; re-measure contacts, closure and drift.
 
     Args:
         plan: plan data (the schema of docs/INTERFACES.md) or a plan file (.yaml/.json)
@@ -180,6 +183,7 @@ def replay_plan(
         width, height: frame size in pixels.
         strict: a plan file whose recorded inputs changed or are gone is refused
             (`planner.plan.read_plan`'s ``strict``) instead of a warning.
+        engine: the physics engine (`planner.sim.engine.engine_for`): "pybullet".
 
     Returns:
         ReplayReport with a pass/fail verdict (drift and closure agreement), per-state
@@ -187,7 +191,8 @@ def replay_plan(
 
     Raises:
         SpecError: the plan lacks a key or has a bad value (names the file and key).
-        SimulationError: pybullet could not set up the scene, or ffmpeg is missing for mp4.
+        InputError: a parameter is out of range, or no engine of that name.
+        SimulationError: the engine could not set up the scene, or ffmpeg is missing for mp4.
     """
     rd = typed_plan(plan, strict)
     joints, states, steps, obj, friction = list(rd.joints), rd.states, rd.steps, rd.object, rd.friction
@@ -217,18 +222,14 @@ def replay_plan(
                   mu=friction.mu, gamma=friction.gamma, edges=friction.edges, touch_tol_m=TOUCH_TOL_M)
 
     own = client is None
-    if own:
-        cid = p.connect(p.GUI if gui else p.DIRECT)
-        if cid < 0:
-            raise SimulationError("could not connect to pybullet" + (" GUI (is there a display?)" if gui else ""))
-    else:
-        cid = int(client)
-    bodies: list[int] = []
+    mass_kg, radius_m = object_mass(obj, density_kg_m3)
+    # the hand's visual meshes only matter to a picture or a window (half the URDF load)
+    visual = gui or not own or gif is not None or mp4 is not None
+    world = replay_world(info, obj, mass_kg, friction, dt, solver_iterations, visual)
     t0 = time.perf_counter()
+    eng = engine_for(engine, world, client=client, gui=gui)
     try:
-        # the hand's visual meshes only matter to a picture or a window (half the URDF load)
-        visual = gui or not own or gif is not None or mp4 is not None
-        sim = _Sim(cid, rd, info, joints, obj, friction, params, density_kg_m3, bodies, visual=visual)
+        sim = _Sim(eng, rd, info, joints, obj, friction, params, mass_kg, radius_m)
         params["object_mass_kg"] = sim.mass
         recorder = None
         if gif is not None or mp4 is not None:
@@ -239,11 +240,7 @@ def replay_plan(
         trajectory = sim.trajectory
         params["squeeze_force_n"] = sim.ctl.force_n if finger_force_n is None else float(finger_force_n)
     finally:
-        if own:
-            p.disconnect(physicsClientId=cid)
-        else:
-            for b in bodies:
-                p.removeBody(b, physicsClientId=cid)
+        eng.close()
     wall = time.perf_counter() - t0
 
     gif_frames = 0
@@ -308,77 +305,39 @@ def replay_plan(
         sim_time_s=n_steps * dt, wall_time_s=wall, sim_steps=n_steps,
         gif=str(gif) if gif is not None else None, gif_frames=gif_frames,
         mp4=str(mp4) if mp4 is not None else None, parameters=params, reasons=tuple(reasons),
-        failed_step=failed_step, failed_at_state=at_state, trajectory=trajectory,
+        failed_step=failed_step, failed_at_state=at_state, trajectory=trajectory, engine=eng.name,
     )
 class _Sim:
-    """The pybullet scene of one replay (hand, object, controller, measurements)."""
+    """One replay in a built engine (hand, object, controller, measurements).
 
-    def __init__(self, cid, rd, info: HandInfo, joints, obj, friction, params, density_kg_m3, bodies,
-                 visual: bool = True):
-        self.cid, self.rd, self.params, self.friction = cid, rd, params, friction
+    Args:
+        engine: the built world (`planner.sim.engine.PhysicsEngine`).
+        rd: the typed plan; info: its hand; joints: the plan's joints; obj: its object.
+        friction: the plan's friction; params: the replay's parameters (`replay_plan`).
+        mass_kg, radius_m: the object's mass and smallest half-extent (`planner.sim.inputs.object_mass`).
+    """
+
+    def __init__(self, engine: PhysicsEngine, rd, info: HandInfo, joints, obj, friction, params, mass_kg: float,
+                 radius_m: float):
+        self.engine, self.rd, self.params, self.friction = engine, rd, params, friction
         self.dt = params["dt"]
-        p.setPhysicsEngineParameter(fixedTimeStep=self.dt, numSolverIterations=params["solver_iterations"],
-                                    numSubSteps=0, deterministicOverlappingPairs=1, physicsClientId=cid)
-        p.setGravity(0, 0, 0, physicsClientId=cid)
-        base_pos = info.T_palm_base[:3, 3].tolist()
-        base_quat = Rotation.from_matrix(info.T_palm_base[:3, :3]).as_quat().tolist()
-        self.hand = hand_body(cid, info.urdf_path, base_pos=base_pos, base_quat_xyzw=base_quat,
-                              inertia_from_file=True, visual=visual)
-        bodies.append(self.hand)
-        self.obj, self.mass, radius_m = create_object(cid, obj, density_kg_m3)
-        bodies.append(self.obj)
+        self.mass = float(mass_kg)
         self.T_ref = _T(obj.position, obj.quat_xyzw)
         self._p_ref = tuple(float(v) for v in self.T_ref[:3, 3])
         self._quat_ref = tuple(float(v) for v in Rotation.from_matrix(self.T_ref[:3, :3]).as_quat())
-
-        # joint and link maps
-        n = p.getNumJoints(self.hand, physicsClientId=cid)
-        self.jidx: dict[str, int] = {}
-        parent, jname, link_name = {}, {}, {}
-        for i in range(n):
-            ji = p.getJointInfo(self.hand, i, physicsClientId=cid)
-            jname[i] = ji[1].decode()
-            link_name[i] = ji[12].decode()
-            parent[i] = ji[16]
-            if ji[2] in (p.JOINT_REVOLUTE, p.JOINT_PRISMATIC):
-                self.jidx[jname[i]] = i
-        unknown = [j for j in joints if j not in self.jidx]
+        topo = engine.topology
+        unknown = [j for j in joints if j not in topo.joints]
         if unknown:
             raise rd.error("joints", f"joints {unknown} are not movable joints of {info.urdf_path}")
         self.joints = joints
         self.fingers = info.fingers
-        finger_of_joint = {j: f for f, js in info.fingers.items() for j in js}
-        self.link_finger: dict[int, str] = {-1: "palm"}
-        for i in range(n):
-            k, f = i, None
-            while k >= 0 and f is None:
-                f = finger_of_joint.get(jname[k])
-                k = parent[k]
-            self.link_finger[i] = f or "palm"
-
-        # friction: see the module docstring for Bullet's combination rules. Joint damping
-        # off: Bullet applies a URDF's <dynamics damping> explicitly, and the Allegro's 3-10
-        # N m s/rad on links of ~1e-5 kg m^2 diverges within a few steps under torque
-        # control (the controller damps the joints itself, critically for their inertia).
-        for link in range(-1, n):
-            p.changeDynamics(self.hand, link, lateralFriction=1.0, spinningFriction=0.0, rollingFriction=0.0,
-                             restitution=0.0, linearDamping=0.0, angularDamping=0.0, physicsClientId=cid)
-            if link >= 0:
-                p.changeDynamics(self.hand, link, jointDamping=0.0, physicsClientId=cid)
-        # a URDF's placeholder inertias (e.g. 0.01 kg m^2 on a 14 g phalanx) make fingers
-        # flywheels that cannot follow the object: a solid box of the link's mass and
-        # collision size instead (`planner.handtool.replay_inertia`; `regrasp hand check` says so)
-        by_name = {v: k for k, v in link_name.items()}
-        for link, (_, _, box) in replay_inertia(info.hand).items():
-            if link in by_name:
-                p.changeDynamics(self.hand, by_name[link], localInertiaDiagonal=box.tolist(), physicsClientId=cid)
-        p.changeDynamics(self.obj, -1, lateralFriction=friction.mu, spinningFriction=friction.gamma,
-                         rollingFriction=0.0, restitution=0.0, linearDamping=0.0, angularDamping=0.0,
-                         physicsClientId=cid)
+        # URDF link -> the finger it moves with, or the palm
+        self.link_finger = topo.link_owner({j: f for f, js in info.fingers.items() for j in js}, "palm")
         g_max = float(np.linalg.norm(params["gravity"]))
-        self.ctl = Controller(cid, self.hand, self.obj, info.hand, self.jidx, self.link_finger, link_name,
-                              self.mass, friction, g_max, force_n=params["finger_force_n"], dt_s=self.dt,
-                              object_radius_m=radius_m)
+        self.ctl = Controller(engine, info.hand, topo, self.link_finger, engine.link_masses(), self.mass, friction,
+                              g_max, force_n=params["finger_force_n"], dt_s=self.dt, object_radius_m=radius_m)
+        for link, floor in self.ctl.armature_floor.items():
+            engine.raise_link_inertia(link, floor)
         self.filter = ContactFilter(params["filter_k"])
         self.steps_done = 0
         self.max_mm = self.max_deg = 0.0
@@ -399,25 +358,23 @@ class _Sim:
         """Joint name -> value of a plan state."""
         return dict(zip(self.joints, state.q))
 
-    def _reset_q(self, q: Mapping[str, float]):
-        for j, v in q.items():
-            p.resetJointState(self.hand, self.jidx[j], v, 0.0, physicsClientId=self.cid)
+    def set_gravity(self, g) -> None:
+        """Gravity (palm frame, m/s^2) in the engine and for the controller."""
+        self.ctl.set_gravity(g)
+        self.engine.set_gravity(self.ctl.gravity)
 
     def obj_pose(self, pose=None) -> np.ndarray:
-        """The object's pose (4, 4); ``pose``: its (position, quaternion) when already read."""
-        pos, quat = pose or p.getBasePositionAndOrientation(self.obj, physicsClientId=self.cid)
-        T = np.eye(4)
-        T[:3, :3] = np.reshape(p.getMatrixFromQuaternion(quat, physicsClientId=self.cid), (3, 3))
-        T[:3, 3] = pos
-        return T
+        """The object's pose (4, 4); ``pose``: its `planner.sim.engine.ObjectPose` when already read."""
+        return (pose or self.engine.object_pose()).T
 
     def _tick(self):
-        self.ctl.step()
-        p.stepSimulation(physicsClientId=self.cid)
+        self.engine.set_joint_torques(self.ctl.step())
+        self.engine.step()
         self.steps_done += 1
-        pos, quat = p.getBasePositionAndOrientation(self.obj, physicsClientId=self.cid)
+        pose = self.engine.object_pose()
+        pos, quat = pose.position_m, pose.quat_xyzw
         if self.sampling:  # the temporal filter only needs the samples before a measurement
-            self.filter.update(self.contact_sample(self.obj_pose((pos, quat)), carry=True))
+            self.filter.update(self.contact_sample(pose.T, carry=True))
         mm, deg = pose_drift(self._p_ref, self._quat_ref, pos, quat)
         if self.steps_done % self.traj_every == 0 or mm > self.params["drop_mm"]:
             tr = self.trajectory
@@ -428,7 +385,7 @@ class _Sim:
         if self.released:
             self.max_mm, self.max_deg = max(self.max_mm, mm), max(self.max_deg, deg)
             if self.failure is None and not (mm <= self.params["drift_mm_max"] and deg <= self.params["drift_deg_max"]):
-                self.failure = self._explain(self.obj_pose((pos, quat)), mm, deg)
+                self.failure = self._explain(pose.T, mm, deg)
                 self.fail_step = self.step_k
         self.last = (mm, deg)
         if self.recorder is not None and self.steps_done % self.every == 0:
@@ -445,15 +402,15 @@ class _Sim:
         sample = []
         if carry:
             self.samples += 1
-        for cp in p.getContactPoints(self.hand, self.obj, physicsClientId=self.cid):
-            if cp[8] > TOUCH_TOL_M:
+        for cp in self.engine.contacts():
+            if cp.distance_m > TOUCH_TOL_M:
                 continue
             if carry:
-                who = self.link_finger.get(cp[3], "palm")
-                self.carried[who] = self.carried.get(who, 0.0) + float(cp[9])
-            p_obj = R_t @ (np.asarray(cp[6]) - T[:3, 3])  # point on the object (B)
-            n_obj = R_t @ (-np.asarray(cp[7]))  # into the object
-            sample.append((cp[3], p_obj[None, :], n_obj[None, :]))
+                who = self.link_finger.get(cp.link, "palm")
+                self.carried[who] = self.carried.get(who, 0.0) + float(cp.normal_force_n)
+            p_obj = R_t @ (np.asarray(cp.point_m) - T[:3, 3])  # point on the object
+            n_obj = R_t @ np.asarray(cp.normal)  # into the object
+            sample.append((cp.link, p_obj[None, :], n_obj[None, :]))
         return sample
 
     def _dwell_and_measure(self, seconds: float, index: int, state) -> StateReport | None:
@@ -478,8 +435,8 @@ class _Sim:
         """Where and why the object first left the limits: the phase, lost contacts, slip
         and the rotation axis (palm frame)."""
         what = []
-        touching = {self.link_finger.get(cp[3], "palm") for cp in
-                    p.getContactPoints(self.hand, self.obj, physicsClientId=self.cid) if cp[8] <= TOUCH_TOL_M}
+        touching = {self.link_finger.get(cp.link, "palm") for cp in self.engine.contacts()
+                    if cp.distance_m <= TOUCH_TOL_M}
         lost = [f for f in self.ctl.holding if f not in touching]
         if lost:
             what.append(f"contact lost: {', '.join(lost)}")
@@ -543,23 +500,21 @@ class _Sim:
         self.palm_holds = bool(states) and states[0].palm_holds  # the plan's palm contact (one object pose)
         ctl, prm = self.ctl, self.params
         g_full = np.asarray(prm["gravity"], float)
-        self._reset_q(self._q(states[0]))
+        eng = self.engine
+        eng.reset_joints(self._q(states[0]))
         pos, quat = list(self._p_ref), list(self._quat_ref)
-        p.resetBasePositionAndOrientation(self.obj, pos, quat, physicsClientId=self.cid)
-        p.resetBaseVelocity(self.obj, [0, 0, 0], [0, 0, 0], physicsClientId=self.cid)
+        eng.set_object_pose(pos, quat)
         # 1. acquire the planned contacts with gravity off, the object held where the plan has it
-        hold = p.createConstraint(self.obj, -1, -1, -1, p.JOINT_FIXED, [0, 0, 0], [0, 0, 0], pos,
-                                  childFrameOrientation=quat, physicsClientId=self.cid)
-        p.changeConstraint(hold, maxForce=1000.0, physicsClientId=self.cid)
-        ctl.set_gravity(np.zeros(3))
+        eng.hold_object(pos, quat)
+        self.set_gravity(np.zeros(3))
         ctl.command(self._q(states[0]), states[0].touching)
         self._run_for(prm["acquire_s"])
         ctl.latch(states[0].touching)
-        p.removeConstraint(hold, physicsClientId=self.cid)
+        eng.release_object()
         self.released = True
         # 2. gravity comes in gradually; the forces follow the load
         self.phase = "gravity ramp at state 0"
-        ok = self._run_for(prm["ramp_s"], lambda s: ctl.set_gravity(s * g_full))
+        ok = self._run_for(prm["ramp_s"], lambda s: self.set_gravity(s * g_full))
         self.phase = "settling at state 0"
         reports: dict[int, StateReport] = {}
         if ok:

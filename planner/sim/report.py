@@ -114,6 +114,8 @@ class ReplayReport:
         trajectory: what the simulator did, sampled every ``TRAJECTORY_DT_S`` of simulated
             time (`view --report` plays it): ``joints`` (names), ``t`` (s), ``q`` (rad, one row
             per sample), ``object_position`` (m) and ``object_quat_xyzw`` (palm frame).
+        engine: the physics engine that replayed it (`planner.sim.engine`); a report written
+            before engines were named has none and was pybullet's.
     """
 
     passed: bool
@@ -138,6 +140,7 @@ class ReplayReport:
     failed_step: int | None = None
     failed_at_state: bool = False
     trajectory: Mapping[str, Any] | None = None
+    engine: str = "pybullet"
 
     def to_dict(self) -> dict:
         """Plain data for JSON (``json.dumps(report.to_dict())``)."""
