@@ -44,14 +44,6 @@ def hand(request):
     return Hand.load(request.param)
 
 
-def _palm_geom(scene):
-    """The palm's collision geom: (centre in the palm frame, half sizes)."""
-    m = scene.model
-    g = next(g for g, link in scene._geom_link.items() if link == scene.hand.palm_frame)
-    assert m.geom_type[g] == mujoco.mjtGeom.mjGEOM_BOX
-    return scene.link_pose(scene.hand.palm_frame)[:3, :3] @ m.geom_pos[g] + scene.link_pose(scene.hand.palm_frame)[:3, 3], m.geom_size[g]
-
-
 def _on_palm(scene, xy):
     """Put the object on the iCub palm's grasping face (+z) at (x, y), just touching."""
     scene.set_object_pose([xy[0], xy[1], 0.2], [0, 0, 0, 1])
@@ -266,7 +258,7 @@ def test_object_falls_with_g_and_the_weld_holds_it(icub):
     assert scene.holding
     scene.step(240)
     tc, _ = mm.contact_solref(DT)
-    dmin, dmax = mm.CONTACT_SOLIMP[:2]
+    dmin, dmax = mm.HOLD_SOLIMP[:2]
     sag = (1 - dmin) * dmax ** 2 * tc ** 2 * G / dmin ** 2
     pos, quat = scene.object_pose()
     assert np.linalg.norm(pos - [1.0, 1.0, 1.0 - sag]) < 0.1 * sag
@@ -408,3 +400,14 @@ def test_bad_arguments_are_one_line_errors(icub):
         scene.link_pose("nope")
     with pytest.raises(InputError, match="gravity"):
         scene.set_gravity([0, 0])
+
+
+def test_visual_geoms_are_kept_on_request_and_never_collide(icub):
+    bare = mm.build(icub, _far_sphere(), FRICTION, dt_s=DT)
+    seen = mm.build(icub, _far_sphere(), FRICTION, dt_s=DT, visual=True)
+    m = seen.model
+    extra = m.ngeom - bare.model.ngeom
+    assert extra > 0
+    visual = [g for g in range(m.ngeom) if not (m.geom_contype[g] or m.geom_conaffinity[g])]
+    assert len(visual) == extra and not set(visual) & set(seen._geom_link)
+    assert sorted(seen._geom_link.values()) == sorted(bare._geom_link.values())

@@ -22,8 +22,8 @@ How the scene is made, and why (docs/ENGINES.md compares it with the pybullet re
 * **Masses.** The URDF's inertias, except where the pybullet replay replaces them, with the
   same project functions: a link without inertia gets `planner.urdf_check.stated_inertias`
   (about the link's origin and axes), a placeholder inertia the solid box of
-  `planner.handtool.replay_inertia` (kept at the URDF's centre of mass, box axes = link
-  axes). MuJoCo refuses an inertia whose principal moments break the triangle inequality
+  `planner.handtool.replay_inertia` (on the URDF's ``<inertial>`` frame, as pybullet's
+  ``localInertiaDiagonal`` puts it). MuJoCo refuses an inertia whose principal moments break the triangle inequality
   A + B >= C, which pinocchio and Bullet accept (the example-robot-data Allegro's link_3.0
   is one): ``balanceinertia`` raises the smallest moments just enough
   (`MujocoScene.balanced_links` names those links).
@@ -33,7 +33,7 @@ How the scene is made, and why (docs/ENGINES.md compares it with the pybullet re
   Actuators rather than ``qfrc_applied``: MuJoCo clips the torque to the joint's limit
   itself, and ``data.actuator_force`` records what was applied.
 * **Object.** A free body of the object's mass (the plan's; volume x density without
-  one, as `planner.sim.inputs.create_object`) with its centre of mass at the object's
+  one: `planner.sim.inputs.object_mass`, as the pybullet replay) with its centre of mass at the object's
   origin (as pybullet and the planner's weight wrench have it) and Bullet's inertia for
   the same shape (`object_inertia`): exact for box, cylinder and sphere, the bounding
   box's (grown by Bullet's margin) for a mesh. Its geom is the primitive, or the mesh,
@@ -57,7 +57,8 @@ How the scene is made, and why (docs/ENGINES.md compares it with the pybullet re
   carrying a squeezing finger sinks sub-millimetre; ``impratio`` (`IMPRATIO`) makes
   friction as stiff as the normal direction so a held object does not creep.
 * **Hold.** A weld between the object and a mocap body, toggled with ``eq_active``:
-  `MujocoScene.hold_object` welds the object where it is, `release_object` frees it.
+  `MujocoScene.hold_object` welds the object where it is, `release_object` frees it
+  (`HOLD_SOLIMP`: stiffer than a contact).
 
 Quaternions: the project is ``quat_xyzw`` everywhere; MuJoCo stores ``wxyz``. Every
 accessor here takes and returns ``xyzw``.
@@ -74,6 +75,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from planner.errors import InputError, SimulationError, UnknownNameError
+from planner.sim.inputs import T_palm_root as T_palm_base
+from planner.sim.inputs import object_mass
 
 import mujoco  # noqa: E402 (the one back end of this module)
 
@@ -85,15 +88,21 @@ OBJECT_GEOM = "object_geom"
 ANCHOR_BODY = "object_anchor"
 HOLD_WELD = "object_hold"
 
-#: Contact impedance (dmin, dmax, width m, midpoint, power). MuJoCo's steady state under a
-#: load has ``(1 - d) a0 = d k r``: the penetration r that carries an unconstrained
-#: acceleration a0 is ``(1 - d) / d x a0 tau^2`` (k = 1 / tau^2 at damping ratio 1). A
-#: squeezing finger of 10 g pressing 5 N has a0 ~ 500 m/s^2; at tau = 2 / 240 s,
-#: ``d = 0.99`` gives r ~ 0.35 mm, MuJoCo's default 0.95 five times that (the fingers would
-#: sink into the object by the size of the planner's touch tolerance). The impedance rises
-#: from 0.95 to 0.99 over the first 1 mm of penetration (softer at first touch, which keeps
-#: making and breaking a contact smooth).
+#: Contact impedance (dmin, dmax, width m, midpoint, power). At rest MuJoCo's soft
+#: constraint satisfies ``(1 - d) a0 = d k r`` with ``k = d / (dmax^2 tau^2)`` (damping
+#: ratio 1): the penetration that carries an unconstrained acceleration a0 is
+#: ``r = (1 - d) dmax^2 tau^2 a0 / d^2``. An object resting on a link (a0 = g, tau = 2/240 s)
+#: sinks 37 um at d = 0.95 (measured: the tests' weld sag and resting sphere); a 10 g
+#: phalanx pressing 5 N (a0 ~ 500 m/s^2) sinks 0.35 mm at d = 0.99, five times that at
+#: MuJoCo's default dmax 0.95 (the size of the planner's touch tolerance). The impedance
+#: rises from 0.95 to 0.99 over the first 1 mm of penetration (softer at first touch, which
+#: keeps making and breaking a contact smooth).
 CONTACT_SOLIMP = (0.95, 0.99, 0.001, 0.5, 2.0)
+#: Impedance of the hold weld (`MujocoScene.hold_object`): the pybullet replay holds the
+#: object with a fixed constraint of up to 1000 N while the fingers squeeze it (a few N on a
+#: few tens of grams: a0 ~ 100 m/s^2); by the formula above the contacts' impedance would
+#: let it sag 0.35 mm, this one (d = 0.99 at once) 70 um, and 7 um under its own weight.
+HOLD_SOLIMP = (0.99, 0.999, 0.001, 0.5, 2.0)
 #: Contact damping ratio: critical (penetration decays without a bounce; pybullet's contacts
 #: have no restitution either).
 CONTACT_DAMPRATIO = 1.0
@@ -179,12 +188,6 @@ def _pose(pos, quat_wxyz) -> np.ndarray:
     return T
 
 
-def default_object_mass_kg(obj, density_kg_m3: float) -> float:
-    """The object's mass as the pybullet replay takes it (`planner.sim.inputs.create_object`):
-    the plan's ``mass_kg``, else volume x ``density_kg_m3``."""
-    return float(obj.mass_kg if obj.mass_given else density_kg_m3 * obj.volume_m3)
-
-
 def object_inertia(obj, mass_kg: float) -> np.ndarray:
     """Principal moments (3,) about the object's origin and axes, kg m^2, as Bullet gives the
     same shape: solid box, solid cylinder (axis z), solid sphere exactly; a mesh the solid box
@@ -249,8 +252,8 @@ def _set_inertias(spec, hand) -> tuple[str, ...]:
         b = bodies.get(link)
         if b is None:
             continue
-        # the URDF's centre of mass, box axes = link axes (the box is the link's collision box)
-        b.iquat = [1.0, 0.0, 0.0, 0.0]
+        # the URDF's centre of mass and inertial frame, on whose axes pybullet puts the box's
+        # moments too (`localInertiaDiagonal`; a placeholder's tensor is diagonal there)
         b.fullinertia = [math.nan, 0.0, 0.0, 0.0, 0.0, 0.0]
         b.inertia = [float(v) for v in box]
     return tuple(b.name for b in spec.bodies if b.explicitinertial and _unbalanced(b.fullinertia))
@@ -305,7 +308,7 @@ def build(hand, obj, friction, *, dt_s: float, gravity=(0.0, 0.0, 0.0), density_
     if isinstance(solver_iterations, bool) or not isinstance(solver_iterations, int) or solver_iterations < 1:
         raise InputError(f"solver_iterations must be a positive integer, got {solver_iterations!r}")
     g = _gravity(gravity)
-    mass = default_object_mass_kg(obj, density_kg_m3) if object_mass_kg is None else object_mass_kg
+    mass = object_mass(obj, density_kg_m3)[0] if object_mass_kg is None else object_mass_kg
     if isinstance(mass, bool) or not (isinstance(mass, (int, float)) and math.isfinite(mass) and mass > 0):
         raise InputError(f"object_mass_kg must be a positive number of kg, got {mass!r}")
 
@@ -324,7 +327,10 @@ def build(hand, obj, friction, *, dt_s: float, gravity=(0.0, 0.0, 0.0), density_
     if len(roots) != 1:
         raise SimulationError(f"{hand.urdf_path}: MuJoCo reads {len(roots)} root links; a hand has one")
     root = roots[0]
-    T_palm_root = np.asarray(hand.state(hand.q_open).link_pose(root.name), float)
+    if hand.model.frames[1].name != root.name:
+        raise SimulationError(f"{hand.urdf_path}: MuJoCo's root link {root.name!r} is not pinocchio's "
+                              f"{hand.model.frames[1].name!r}")
+    T_palm_root = T_palm_base(hand)
     root.pos = T_palm_root[:3, 3].tolist()
     root.quat = _wxyz(Rotation.from_matrix(T_palm_root[:3, :3]).as_quat()).tolist()
     if root.joints:  # (a URDF root never has one; a floating base would)
@@ -427,7 +433,7 @@ def _add_object(spec, obj, friction, solref, solimp, condim, mass_kg) -> None:
     spec.worldbody.add_body(name=ANCHOR_BODY, pos=pos, quat=quat, mocap=True)
     weld = spec.add_equality(name=HOLD_WELD, type=mujoco.mjtEq.mjEQ_WELD, objtype=mujoco.mjtObj.mjOBJ_BODY,
                              name1=OBJECT_BODY, name2=ANCHOR_BODY, active=0, solref=list(solref),
-                             solimp=list(solimp))
+                             solimp=list(HOLD_SOLIMP))
     data = np.array(weld.data, dtype=float)
     data[:11] = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
     weld.data = data.tolist()
@@ -723,6 +729,5 @@ class MujocoScene:
         return out
 
 
-__all__ = ["ANCHOR_BODY", "BULLET_HULL_MARGIN_M", "CONTACT_SOLIMP", "ContactPoint", "HOLD_WELD", "IMPRATIO",
-           "MujocoScene", "OBJECT_BODY", "SolverSettings", "build", "contact_solref", "object_inertia",
-           "default_object_mass_kg"]
+__all__ = ["ANCHOR_BODY", "BULLET_HULL_MARGIN_M", "CONTACT_SOLIMP", "ContactPoint", "HOLD_SOLIMP", "HOLD_WELD", "IMPRATIO",
+           "MujocoScene", "OBJECT_BODY", "SolverSettings", "build", "contact_solref", "object_inertia"]
