@@ -6,7 +6,10 @@ The integrity record of a plan (`planner.plan.read_plan`) proves that a file is 
 recorded inputs, with the planner's own models:
 
 - **hand**: every step's finger is a finger of the hand and its joints are that finger's;
-  every joint value within the URDF limits;
+  every joint value within the URDF limits (a coupled hand's: `planner.hand.Hand.lower`);
+  every state and path waypoint keeps the hand's couplings (``q_f = m q_d + o``) within
+  `planner.hand.Hand.coupling_tolerances` (the follower angle that moves its links by the
+  IK's accepted 0.5 mm);
 - **contacts**: every state's patch points lie on the object's surface (within
   ``SURFACE_TOL_M``) with an inward normal of the surface there (within ``NORMAL_TOL_DEG``
   of its normal cone: on an edge, any normal between the faces'; a mean contact, of the
@@ -218,11 +221,16 @@ def _check_hand(plan, hand, rep: AuditReport) -> bool:
         return False
     col = {j: plan.joints.index(j) for j in names}
     lo, hi = np.asarray(hand.lower, float), np.asarray(hand.upper, float)
+    coupling_tol = hand.coupling_tolerances() if hand.couplings else None
     for i, st in enumerate(plan.states):
         q = np.array([st.q[col[j]] for j in names])
         bad = [names[k] for k in np.flatnonzero((q < lo - LIMIT_TOL) | (q > hi + LIMIT_TOL))]
         if bad:
             rep.add(f"states[{i}].q: {', '.join(bad[:4])} outside the hand's joint limits")
+        if coupling_tol is not None:
+            broken = _coupling_break(hand, q, coupling_tol)
+            if broken:
+                rep.add(f"states[{i}].q: {broken}")
         rep.count("states")
     for k, s in enumerate(plan.steps):
         rep.count("steps")
@@ -233,6 +241,23 @@ def _check_hand(plan, hand, rep: AuditReport) -> bool:
         if tuple(s.joints) != want:
             rep.add(f"steps[{k}].joints: {list(s.joints)} are not finger {s.finger}'s joints {list(want)}")
     return True
+
+
+def _coupling_break(hand, q: np.ndarray, tol: np.ndarray) -> str:
+    """The worst coupling of ``q`` (nq,) broken by more than its tolerance
+    (`planner.hand.Hand.coupling_tolerances`), in words, or ""."""
+    err = hand.coupling_errors(q)
+    over = np.flatnonzero(err > tol)
+    if not len(over):
+        return ""
+    k = int(over[np.argmax(err[over] / tol[over])])
+    c = hand.couplings[k]
+    ix = hand.joint_names.index
+    want = c.multiplier * q[ix(c.follows)] + c.offset
+    return (f"{c.joint} = {q[ix(c.joint)]:.6f} breaks its coupling {c.joint} = {c.multiplier:g} {c.follows} "
+            f"{'+' if c.offset >= 0 else '-'} {abs(c.offset):g} ({c.source}; {c.follows} = {q[ix(c.follows)]:.6f} "
+            f"gives {want:.6f}) by {err[k]:.3g}, tolerance {tol[k]:.3g}"
+            + (f" ({len(over)} couplings broken)" if len(over) > 1 else ""))
 
 
 def _q(plan, hand, state_q) -> np.ndarray:
@@ -375,6 +400,15 @@ def _check_steps(plan, hand, obj, poses, rep: AuditReport) -> None:
         allowed = min(-PENETRATION_TOL_M, min(ends) - PENETRATION_TOL_M)
         path = np.asarray(s.path, float)
         cols = [hand.joint_names.index(j) for j in s.joints]
+        if hand.couplings and len(path):  # the waypoints (a line between two coupled ones is coupled)
+            tol = hand.coupling_tolerances()
+            q = np.asarray(poses[s.from_state].q, float).copy()
+            for w, row in enumerate(path):
+                q[cols] = row
+                broken = _coupling_break(hand, q, tol)
+                if broken:
+                    rep.add(f"steps[{k}] ({s.action} {s.finger}): path waypoint {w}: {broken}")
+                    break
         lo, hi = np.asarray(hand.lower, float)[cols], np.asarray(hand.upper, float)[cols]
         out = np.flatnonzero(np.any((path < lo - LIMIT_TOL) | (path > hi + LIMIT_TOL), axis=0))
         if len(out):

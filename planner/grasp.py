@@ -280,6 +280,10 @@ def _parse_finger(r: Reader, hand, finger, obj) -> FingerSpec:
         for i, (x, a, b) in enumerate(zip(q, lo, hi)):
             if x < a - LIMIT_TOL_RAD or x > b + LIMIT_TOL_RAD:
                 raise posture.fail(f"joint {joints[i]} = {x:.4g} rad is outside its limits [{a:.4g}, {b:.4g}]", i)
+        for fl, d, m, o in finger.coupled:  # a follower is set by its driver (planner.hand.Coupling)
+            if abs(q[fl] - (m * q[d] + o)) > LIMIT_TOL_RAD:
+                raise posture.fail(f"joint {joints[fl]} = {q[fl]:.4g} rad breaks its coupling {joints[fl]} = {m:g} "
+                                   f"{joints[d]} + {o:g}: give {m * q[d] + o:.6g}", fl)
         return FingerSpec(finger.name, "posture", posture=q)
     c = v.child("contact").mapping(string_keys=True)
     c.keys(("point", "link"), required=("point",))

@@ -37,6 +37,11 @@ Numbers, derived rather than tuned:
   links' curvature and the object's small motions; the controller tries the same fraction.
 * Joints without an effort limit (none in the URDF, none in hand.yaml) are unbounded: such a
   hand is limited only by friction and an optional per-finger force cap.
+* Coupled joints (`planner.hand.Coupling`, ``q_f = m q_d + o``): a follower has no actuator
+  of its own. The rows are the finger's actuated joints, its drivers: by virtual work
+  (``dq_f = m dq_d``) the driver's actuator delivers ``tau_d + m tau_f``, and that is bounded
+  by the driver's effort limit; the follower's own limit bounds nothing
+  (`planner.hand.Finger.reduce` on the Jacobians and gravity torques, `finger_statics`).
 
 This module is pure numpy/scipy over arrays; `finger_statics` is the one function that
 reads a hand (its Jacobians and gravity torques), so the graph search stays hand-agnostic.
@@ -77,7 +82,9 @@ class FingerStatics:
 
     Attributes:
         finger: finger name.
-        joints: the finger's joint names, in its joint order.
+        joints: the finger's actuated joint names, in its joint order: all its joints, or for a
+            coupled finger its free ones (`planner.hand.Finger.drivers`; each column then
+            carries its followers', times the multiplier).
         jacobians: (n_points, 6, n_joints): per contact point, rows 0-2 the point's linear
             velocity and rows 3-5 the link's angular velocity per joint rate, object frame
             (so ``J^T [f ; m]`` are the joint torques of a force ``f`` and moment ``m`` the
@@ -205,8 +212,13 @@ def finger_statics(hand, finger: str, q, points_obj, T_palm_obj, effort=None, li
     Js = state.point_jacobians(list(zip(on, pts_palm)), angular=True)
     jac = np.array([np.vstack([R.T @ J[:3, cols], R.T @ J[3:, cols]]) for J in Js]).reshape(-1, 6, len(cols))
     G = np.stack([state.gravity_torques(e)[cols] for e in np.eye(3)], axis=1)  # (nj, 3) per unit g_palm
+    # a coupled finger's actuators are its drivers (`planner.hand.Finger.reduce`): a follower
+    # has none; by virtual work its torque loads its driver's actuator, tau_d + m tau_f, which
+    # the driver's effort limit bounds (the follower's own limit bounds nothing)
+    jac, G = fg.reduce(jac), fg.reduce(G.T).T
+    free = list(fg.free)
     tau_max = np.asarray(hand.effort, dtype=float)[cols] if effort is None else np.asarray(effort, dtype=float)
-    return FingerStatics(finger, tuple(fg.joints), jac, G @ R, tau_max)
+    return FingerStatics(finger, fg.drivers, jac, G @ R, tau_max[free] if len(free) != len(tau_max) else tau_max)
 
 
 # --------------------------------------------------------------------------- the programs

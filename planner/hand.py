@@ -22,6 +22,14 @@ Hand spec (schema_version 1)::
     effort: 0.7                     # optional, N m: joint torque limits, one for all or
                                     # {joint: N m}; default the URDF's <limit effort>
     disabled_collisions: [[link_a, link_b], ...]  # optional, besides the automatic ones
+    couplings:                      # optional: coupled joints the URDF has no <mimic> for
+      - {joint: index_3, follows: index_2, multiplier: 1.0, offset: 0.0}   # q_3 = 1.0 q_2 + 0.0
+
+Coupled joints (a URDF ``<mimic>`` or a hand.yaml coupling, `Coupling`): the follower is set
+from its driver, ``q_follower = multiplier * q_driver + offset``, both of one finger. A plan
+commands the drivers; followers move by the coupling. `Hand.lower` and `Hand.upper` are the
+limits the planner keeps: a driver's URDF range narrowed to where its followers stay within
+theirs, a follower's the image of that range (`Hand.urdf_lower`, `Hand.urdf_upper`: the URDF's).
 """
 
 from __future__ import annotations
@@ -37,7 +45,7 @@ import pinocchio as pin
 from planner.collision import CollisionModel, Geometry, HandState
 from planner.errors import SpecError, UnknownNameError
 from planner.fileio import MAX_GRASP_BYTES, Reader, read_yaml, repr_short
-from planner.ik import IKResult, close_finger, ik_solve
+from planner.ik import IK_TOL_M, IKResult, close_finger, ik_solve
 from planner.kinematics import Kinematics, checked_q
 from planner.model import PALM
 from planner.resources import HAND_SPEC, bundled_hands, hand_dir, robots_dir
@@ -51,6 +59,26 @@ SCHEMA_VERSION = 1
 
 
 _share_dirs = installed_share_dirs  # (the name other modules import)
+
+
+@dataclass(frozen=True)
+class Coupling:
+    """A coupled joint: ``q[joint] = multiplier * q[follows] + offset`` (rad, or m for a
+    prismatic joint).
+
+    Attributes:
+        joint: the follower (it has no actuator of its own).
+        follows: its driver, a joint of the same finger that follows nothing.
+        multiplier: non-zero.
+        offset: rad (m).
+        source: where it is declared ("URDF line 12", "hand.yaml couplings[0]").
+    """
+
+    joint: str
+    follows: str
+    multiplier: float
+    offset: float
+    source: str
 
 
 @dataclass(frozen=True)
@@ -68,6 +96,10 @@ class Finger:
         links: every link of the finger that has collision geometry.
         pad_link, pad_p_link, pad_n_link: the fingertip pad (default IK point): a link, a point
             on its surface and the outward surface normal there, both in the link frame.
+        free: positions in ``joints`` of the finger's free coordinates (its joints that follow
+            no other: the drivers and the uncoupled joints), in joint order.
+        coupled: (follower position, driver position, multiplier, offset) per coupled joint
+            of the finger, positions in ``joints`` (`Coupling`).
     """
 
     name: str
@@ -81,6 +113,49 @@ class Finger:
     pad_link: str = ""
     pad_p_link: tuple[float, float, float] = (0.0, 0.0, 0.0)
     pad_n_link: tuple[float, float, float] | None = None
+    free: tuple[int, ...] = ()
+    coupled: tuple[tuple[int, int, float, float], ...] = ()
+
+    @property
+    def free_index(self) -> tuple[int, ...]:
+        """Positions in the hand's q vector of the finger's free coordinates (`free`)."""
+        return tuple(self.q_index[k] for k in self.free)
+
+    @property
+    def drivers(self) -> tuple[str, ...]:
+        """The finger's free joints (`free`): what a plan commands."""
+        return tuple(self.joints[k] for k in self.free)
+
+    def couple(self, q_finger) -> np.ndarray:
+        """A copy of ``q_finger`` (..., n_joints) with every follower set from its driver."""
+        q = np.array(q_finger, dtype=float)
+        for f, d, m, o in self.coupled:
+            q[..., f] = m * q[..., d] + o
+        return q
+
+    def step(self, q_finger, dz, lo, hi) -> np.ndarray:
+        """``q_finger`` (n_joints,) with its free coordinates moved by ``dz`` (n_free,), every
+        joint clipped into ``[lo, hi]`` (n_joints,) and the followers set by the coupling: a
+        solver's step over the free coordinates (`reduce` gives their Jacobian)."""
+        if not self.coupled:
+            return np.clip(np.asarray(q_finger, dtype=float) + dz, lo, hi)
+        q = np.array(q_finger, dtype=float)
+        q[list(self.free)] += dz
+        return self.couple(np.clip(q, lo, hi))
+
+    def reduce(self, J) -> np.ndarray:
+        """``J`` (..., n_joints), a map from the finger's joint rates (a Jacobian), as a map
+        from its free coordinates' rates (..., n_free): a follower's column is added to its
+        driver's times the multiplier (chain rule: dq_f = m dq_d). Applied to torques
+        ``tau`` (n_joints,) it gives each actuator's load, ``tau_d + m tau_f`` (virtual work)."""
+        J = np.asarray(J, dtype=float)
+        if not self.coupled:
+            return J[..., list(self.free)] if len(self.free) != J.shape[-1] else J
+        out = J[..., list(self.free)].copy()
+        col = {k: i for i, k in enumerate(self.free)}
+        for f, d, m, _ in self.coupled:
+            out[..., col[d]] += m * J[..., f]
+        return out
 
 
 def _link_shape(spec_path: str, urdf_path: str, link: str, go):
@@ -243,10 +318,13 @@ class Hand:
                 raise SpecError(sp, "urdf", f"joint {self.model.names[jid]!r} is not 1-dof; "
                                             "only revolute/prismatic joints are supported")
         self.joint_names = tuple(self.model.names[1:])
-        self.lower = np.array(self.model.lowerPositionLimit, dtype=float)
-        self.upper = np.array(self.model.upperPositionLimit, dtype=float)
-        self.lower.flags.writeable = False
-        self.upper.flags.writeable = False
+        self.urdf_lower = np.array(self.model.lowerPositionLimit, dtype=float)
+        self.urdf_upper = np.array(self.model.upperPositionLimit, dtype=float)
+        finger_of = {j: fname for fname, fs in fingers_spec.items() for j in fs["joints"]}
+        self.couplings = self._couplings(r, urdf, finger_of)
+        self.lower, self.upper = self._coupled_limits(sp)
+        for a in (self.urdf_lower, self.urdf_upper, self.lower, self.upper):
+            a.flags.writeable = False
         self.effort, self.effort_source = self._effort_limits(r.child("effort"))
         frame_names = [f.name for f in self.model.frames]
         body_names = sorted({f.name for f in self.model.frames if f.type == pin.FrameType.BODY})
@@ -277,6 +355,10 @@ class Hand:
             i = self.joint_names.index(j)
             q_open[i] = v.number(self.lower[i] - 1e-9, self.upper[i] + 1e-9, bools=True,
                                  expected=f"a number in [{self.lower[i]:.4g}, {self.upper[i]:.4g}]")
+            c = next((c for c in self.couplings if c.joint == j), None)
+            if c is not None:
+                raise open_r.fail(f"{j} follows {c.follows} ({c.source}): give {c.follows}'s angle", j)
+        q_open = self.couple(q_open)
         q_open.flags.writeable = False
         self.q_open = q_open
 
@@ -352,11 +434,15 @@ class Hand:
                     if np.linalg.norm(n) < 1e-9:
                         raise pad_r.fail("must be non-zero", "normal")
                     pad_n = tuple(float(x) for x in n / np.linalg.norm(n))
+            coupled = tuple((joints.index(c.joint), joints.index(c.follows), c.multiplier, c.offset)
+                            for c in self.couplings if c.joint in joints)
+            followers = {k for k, *_ in coupled}
             self.fingers[fname] = Finger(
                 name=fname, joints=joints, q_index=q_index, contact_links=tuple(contact),
                 tip_frame=tip, q_open=tuple(float(q_open[i]) for i in q_index),
                 close_joints=tuple(close), links=flinks, pad_link=pad_link,
-                pad_p_link=tuple(float(x) for x in pad_p), pad_n_link=pad_n)
+                pad_p_link=tuple(float(x) for x in pad_p), pad_n_link=pad_n,
+                free=tuple(k for k in range(len(joints)) if k not in followers), coupled=coupled)
 
         # collision pairs between links: skip adjacent bodies and pairs touching at q = 0 or
         # at the open posture (shapes that overlap by design, like MoveIt's "default" pairs)
@@ -377,7 +463,129 @@ class Hand:
                     allowed.add(frozenset((a, b)))
         self.collision = CollisionModel(
             self.model, self._T_palm_world, geoms, {n: f.q_index for n, f in self.fingers.items()}, allowed,
-            by_design_qs=(np.clip(np.zeros(self.model.nq), self.lower, self.upper), self.q_open))
+            by_design_qs=(self.couple(np.clip(np.zeros(self.model.nq), self.lower, self.upper)), self.q_open))
+
+    def _couplings(self, r: Reader, urdf, finger_of: dict) -> tuple[Coupling, ...]:
+        """The URDF's ``<mimic>`` joints (checked by `planner.urdf_check`) and the hand.yaml's
+        ``couplings:``, each follower and its driver of one finger; a follower follows one
+        driver, and a driver follows nothing."""
+        sp = str(self.spec_path)
+        out: list[Coupling] = []
+        for m in urdf.mimics:
+            where = f"line {m.line}: joint {name_shown(m.joint)}: <mimic>"
+            fj, fd = finger_of.get(m.joint), finger_of.get(m.follows)
+            if fj is None and (fd is None or m.joint_type == "fixed"):
+                continue  # a follower locked (outside every finger) or fixed: nothing to couple
+            if m.problem():
+                raise SpecError(sp, "urdf", f"{self.urdf_path}: {where}: {m.problem()}")
+            if fj != fd:
+                def of(joint, fname):
+                    return f"{joint} is {'in no finger (locked)' if fname is None else 'of finger ' + fname}"
+                raise SpecError(sp, "urdf", f"{self.urdf_path}: {where}: a coupling joins two joints of one finger; "
+                                            f"{of(m.joint, fj)}, {of(m.follows, fd)}")
+            out.append(Coupling(m.joint, m.follows, m.multiplier, m.offset, f"URDF line {m.line}"))
+        mimicked = {c.joint: c for c in out}
+        cr = r.child("couplings", [])
+        if cr.value is None:
+            cr = cr.at([])
+        cr.seq()
+        for i, item in cr.items():
+            item.mapping("a mapping {joint, follows, multiplier, offset}")
+            item.keys(("joint", "follows", "multiplier", "offset"), ("joint", "follows"))
+            names = {}
+            for key in ("joint", "follows"):
+                kr = item.child(key)
+                names[key] = kr.string()
+                if names[key] not in self.joint_names:
+                    raise kr.fail(str(UnknownNameError("joint", names[key], self.joint_names)))
+            joint, driver = names["joint"], names["follows"]
+            if joint == driver:
+                raise item.fail("a joint cannot follow itself", "follows")
+            if joint in mimicked:
+                raise item.fail(f"{joint} already follows {mimicked[joint].follows} by the URDF's <mimic> "
+                                f"({mimicked[joint].source}): remove one", "joint")
+            if finger_of[joint] != finger_of[driver]:
+                raise item.fail(f"a coupling joins two joints of one finger; {joint} is of finger {finger_of[joint]}, "
+                                f"{driver} of finger {finger_of[driver]}", "follows")
+            m = item.child("multiplier", 1.0).number(-1e3, 1e3, expected="a non-zero number in [-1000, 1000]")
+            if m == 0:
+                raise item.fail("multiplier 0 holds the joint at its offset: lock it instead (leave it out of the "
+                                "finger's joints)", "multiplier")
+            o = item.child("offset", 0.0).number(-1e3, 1e3, expected="a number in [-1000, 1000] (rad, or m)")
+            c = Coupling(joint, driver, m, o, f"hand.yaml couplings[{i}]")
+            mimicked[joint] = c
+            out.append(c)
+        for c in out:
+            if c.follows in mimicked:
+                d = mimicked[c.follows]
+                raise SpecError(sp, "couplings" if c.source.startswith("hand.yaml") else "urdf",
+                                f"{c.joint} follows {c.follows} ({c.source}), which follows {d.follows} itself "
+                                f"({d.source}): make both follow {d.follows}")
+        return tuple(out)
+
+    def _coupled_limits(self, sp: str) -> tuple[np.ndarray, np.ndarray]:
+        """The joint limits the planner keeps under the couplings: a driver's URDF range
+        narrowed to where every follower stays within its own URDF range, a follower's the
+        image of that range (so sampling the drivers within theirs keeps every joint within
+        its URDF limits)."""
+        lo, hi = self.urdf_lower.copy(), self.urdf_upper.copy()
+        ix = {j: i for i, j in enumerate(self.joint_names)}
+        for c in self.couplings:
+            f, d = ix[c.joint], ix[c.follows]
+            a, b = sorted(((lo_f - c.offset) / c.multiplier for lo_f in (self.urdf_lower[f], self.urdf_upper[f])))
+            lo[d], hi[d] = max(lo[d], a), min(hi[d], b)
+            if lo[d] > hi[d]:
+                raise SpecError(sp, "couplings" if c.source.startswith("hand.yaml") else "urdf",
+                                f"{c.joint} = {c.multiplier:g} {c.follows} + {c.offset:g} ({c.source}) leaves "
+                                f"{c.follows} no angle within both joints' limits")
+        for c in self.couplings:
+            f, d = ix[c.joint], ix[c.follows]
+            a, b = sorted((c.multiplier * lo[d] + c.offset, c.multiplier * hi[d] + c.offset))
+            lo[f], hi[f] = max(a, self.urdf_lower[f]), min(b, self.urdf_upper[f])
+        return lo, hi
+
+    # ------------------------------------------------------------- couplings
+    def couple(self, q) -> np.ndarray:
+        """A copy of ``q`` (..., nq) with every follower set from its driver (`Coupling`)."""
+        q = np.array(q, dtype=float)
+        for c, f, d in self._coupling_ix():
+            q[..., f] = c.multiplier * q[..., d] + c.offset
+        return q
+
+    def coupling_errors(self, q) -> np.ndarray:
+        """|q_follower - (multiplier q_driver + offset)| per coupling (`couplings` order), of
+        ``q`` (nq,); rad (m)."""
+        q = np.asarray(q, dtype=float)
+        return np.array([abs(q[f] - (c.multiplier * q[d] + c.offset)) for c, f, d in self._coupling_ix()])
+
+    def coupling_tolerances(self) -> np.ndarray:
+        """The coupling error a plan may show, per coupling (`couplings` order): the angle
+        (rad) of the follower that moves no point of the links it carries by more than the
+        IK's accepted error (`planner.ik.IK_TOL_M`), i.e. ``IK_TOL_M / reach`` with ``reach``
+        the farthest collision geometry point (bounding spheres at the open posture) from the
+        follower's axis origin; ``IK_TOL_M`` itself (m) for a prismatic follower. The planner
+        sets followers exactly (the plan files' 10 significant digits differ by ~1e-10)."""
+        kin = self.kinematics(self.q_open)
+        out = []
+        for c, f, _ in self._coupling_ix():
+            jid = self.model.getJointId(c.joint)
+            if "Prismatic" in self.model.joints[jid].shortname() or self.model.joints[jid].shortname()[-2:] in (
+                    "PX", "PY", "PZ"):
+                out.append(IK_TOL_M)
+                continue
+            below = {jid}
+            for j in range(jid + 1, self.model.njoints):  # pinocchio orders a joint's subtree after it
+                if self.model.parents[j] in below:
+                    below.add(j)
+            origin = kin.joint_placement(jid).translation
+            reach = max((float(np.linalg.norm(kin.joint_placement(g.joint_id).act(g.center) - origin)) + g.radius_m
+                         for g in self.collision.geometries if g.joint_id in below), default=0.0)
+            out.append(IK_TOL_M / reach if reach > IK_TOL_M else 1.0)
+        return np.array(out)
+
+    def _coupling_ix(self):
+        ix = {j: i for i, j in enumerate(self.joint_names)}
+        return [(c, ix[c.joint], ix[c.follows]) for c in self.couplings]
 
     def _effort_limits(self, r: Reader) -> tuple[np.ndarray, tuple[str, ...]]:
         """Joint torque limits (N m, inf: none) and where each comes from ("urdf",

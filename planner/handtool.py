@@ -15,12 +15,15 @@ check HAND`` says what in a hand a planner or a simulator cannot use, one line e
 - **closing joints**: the joints whose motion toward their upper limit carries the fingertip
   toward the palm normal (the closing procedure moves joints toward their upper limits);
 - **open posture**: every joint at the end of its range away from the palm;
-- **effort**: the URDF's, unless it is a placeholder (see `check_hand`).
+- **effort**: the URDF's, unless it is a placeholder (see `check_hand`);
+- **couplings**: the URDF's ``<mimic>`` joints are read by the hand itself (`planner.hand`),
+  listed; a follower opens with its driver (no ``open:`` angle of its own).
 
 `check_hand` loads the hand in pinocchio, coal and pybullet and reports inertias a simulator
 cannot use (and what the replay uses instead, `replay_inertia`), missing or placeholder
-effort and limits, mesh collision links (and how they are handled), a pad that does not face
-the palm, and fingers that collide at rest.
+effort and limits, coupled joints (with the drivers' narrowed ranges), mesh collision links
+(and how they are handled), a pad that does not face the palm, and fingers that collide at
+rest.
 """
 
 from __future__ import annotations
@@ -300,6 +303,11 @@ def init_hand(urdf, package_dirs=(), root: str | None = None, cut_path=None) -> 
         spec["package_dirs"] = [str(d) for d in package_dirs]
     hand = _provisional(spec, urdf)
     lo, hi = np.asarray(hand.lower), np.asarray(hand.upper)
+    followers = {c.joint for c in hand.couplings}
+    if hand.couplings:
+        rep.add("guess", "couplings", "the URDF's <mimic>: " + "; ".join(
+            f"{c.joint} = {c.multiplier:g} {c.follows} {'+' if c.offset >= 0 else '-'} {abs(c.offset):g}"
+            for c in hand.couplings) + ": a plan commands the drivers; followers move by the coupling")
     q_mid = np.clip(np.zeros(len(lo)), lo, hi)
     boxes = link_boxes(hand)
     # palm normal: where the joints start carrying the tips from the zero posture (a URDF's
@@ -358,7 +366,7 @@ def init_hand(urdf, package_dirs=(), root: str | None = None, cut_path=None) -> 
                 "centre in front of the palm)" + (f"; {'; '.join(notes)}" if notes else ""))
         for j in close:  # open: the closing joints at the end of their range away from closing
             i = hand.joint_names.index(j)
-            if lo[i] != 0.0:
+            if lo[i] != 0.0 and j not in followers:  # a follower opens with its driver
                 open_q[j] = float(lo[i])
     if open_q:
         spec["open"] = open_q
@@ -524,6 +532,28 @@ def _suggested_effort(hand, boxes) -> float:
 # --------------------------------------------------------------------------- check
 
 
+def _check_couplings(hand, rep: HandReport) -> None:
+    """The coupled joints (`planner.hand.Coupling`): each with its source, the drivers whose
+    range the coupling narrows, the followers whose own effort limit is not used."""
+    if not hand.couplings:
+        return
+    ix = hand.joint_names.index
+    rep.add("ok", "couplings", f"{len(hand.couplings)} coupled joint(s): "
+            + "; ".join(f"{c.joint} = {c.multiplier:g} {c.follows} {'+' if c.offset >= 0 else '-'} {abs(c.offset):g} "
+                        f"({c.source})" for c in hand.couplings)
+            + ": a plan commands the drivers; followers move by the coupling")
+    for c in hand.couplings:
+        d = ix(c.follows)
+        if hand.lower[d] > hand.urdf_lower[d] + 1e-12 or hand.upper[d] < hand.urdf_upper[d] - 1e-12:
+            rep.add("ok", f"joint {c.follows}", f"range [{hand.lower[d]:.4g}, {hand.upper[d]:.4g}] (URDF "
+                    f"[{hand.urdf_lower[d]:.4g}, {hand.urdf_upper[d]:.4g}]): where {c.joint} stays within its limits")
+    unused = [c.joint for c in hand.couplings if hand.effort_source[ix(c.joint)] != "none"]
+    if unused:
+        rep.add("ok", "effort", f"{', '.join(unused)}: effort limit not used (a follower has no actuator): a "
+                                "follower's torque loads its driver's actuator, tau_driver + multiplier x tau_follower "
+                                "within the driver's limit")
+
+
 def check_hand(ref) -> HandReport:
     """What a planner or a simulator cannot use in a hand (see the module's docstring)."""
     from planner.hand import Hand  # pinocchio and coal: loaded only when a hand is built (`regrasp --help` imports this module)
@@ -533,12 +563,13 @@ def check_hand(ref) -> HandReport:
     rep.add("ok", "pinocchio", f"{hand.urdf_path}: {len(hand.joint_names)} joints, fingers {', '.join(hand.fingers)}")
     boxes = link_boxes(hand)
     # limits and efforts
-    for j, lo, hi, src in zip(hand.joint_names, hand.lower, hand.upper, hand.effort_source):
+    for j, lo, hi, src in zip(hand.joint_names, hand.urdf_lower, hand.urdf_upper, hand.effort_source):
         if not (np.isfinite(lo) and np.isfinite(hi)) or hi - lo <= 1e-9:
             rep.add("error", f"joint {j}", f"limits [{lo:g}, {hi:g}]: give the URDF joint a <limit lower upper>")
         if src == "none":
             rep.add("warning", f"joint {j}", "no effort limit (URDF <limit effort> 0 or absent): the grip model "
                                              "cannot bound its torque; add `effort:` to the hand.yaml")
+    _check_couplings(hand, rep)
     eff = _placeholder_effort(hand, boxes)
     if eff is not None and any(s == "urdf" for s in hand.effort_source):
         rep.add("warning", "effort", f"the URDF's efforts (up to {float(np.nanmax(np.where(np.isfinite(hand.effort), hand.effort, np.nan))):g} "

@@ -110,16 +110,18 @@ def ik_solve(hand, finger, target_palm, q0, link: str | None = None, p_link=None
         n_des = n_des / np.linalg.norm(n_des)
         if n_link is None:
             n_des = None
-    idx = np.array(f.q_index)
+    # the finger's free coordinates (its drivers and uncoupled joints): the solver moves
+    # them, the followers are set from them (`planner.hand.Finger.couple`)
+    idx = np.array(f.free_index)
     lo, hi = hand.lower[idx], hand.upper[idx]
     rng = np.random.default_rng(seed)
-    starts = [q0[idx], np.array(f.q_open), 0.5 * (lo + hi)]
+    starts = [q0[idx], np.array(f.q_open)[list(f.free)], 0.5 * (lo + hi)]
     starts += [rng.uniform(lo, hi) for _ in range(max(0, restarts - len(starts)))]
     kin = hand.kinematics(q0)  # the one kinematic state every iteration updates
-    best = _ik_starts(kin, starts, q0, idx, lo, hi, fid, p_link, target, n_link, n_des, max_iter)
+    best = _ik_starts(kin, starts, q0, f, lo, hi, fid, p_link, target, n_link, n_des, max_iter)
     dropped = False
     if best[0] >= IK_TOL_M and n_des is not None:
-        pos_only = _ik_starts(kin, starts, q0, idx, lo, hi, fid, p_link, target, None, None, max_iter)
+        pos_only = _ik_starts(kin, starts, q0, f, lo, hi, fid, p_link, target, None, None, max_iter)
         dropped = pos_only[0] < IK_TOL_M
         if dropped or pos_only[0] < best[0]:
             best = pos_only
@@ -156,19 +158,22 @@ def close_finger(hand, finger, q, obj, steps: int = 20, backoff: float = 1e-3) -
         finger: finger name or Finger.
         q: (nq,) start posture (the finger free of the object).
         obj: a planner.objects.GraspObject (pose T_palm_obj).
+    A coupled finger closes its drivers (those of its closing joints, or of the followers among
+    them); the followers move by the coupling (`planner.hand.Finger.couple`).
+
     Returns:
-        q: (nq,) with only the finger's closing joints changed.
+        q: (nq,) with only the finger's closing joints (and their followers) changed.
     """
     f = hand.finger(finger)
-    q = checked_q(hand.model.nq, q).copy()
-    cidx = np.array([hand.joint_names.index(j) for j in f.close_joints])
+    q = couple_finger(f, checked_q(hand.model.nq, q).copy())
+    cidx = np.array(closing_drivers(hand, f))
     start = q[cidx].copy()
     span = np.maximum(hand.upper[cidx] - start, 0.0)
 
     def at(alpha):
         qa = q.copy()
         qa[cidx] = start + alpha * span
-        return qa
+        return couple_finger(f, qa)
 
     kin = hand.kinematics(q)  # the one kinematic state every step updates
 
@@ -186,6 +191,7 @@ def close_finger(hand, finger, q, obj, steps: int = 20, backoff: float = 1e-3) -
             if gap(qb) >= 0.0:
                 return qb
             qb[cidx] = np.maximum(qb[cidx] - step, hand.lower[cidx])
+            qb = couple_finger(f, qb)
         return qb
     alpha = 0.0
     for n in range(1, steps + 1):
@@ -196,16 +202,37 @@ def close_finger(hand, finger, q, obj, steps: int = 20, backoff: float = 1e-3) -
     qc = at(alpha)
     while gap(qc) < 0.0 and np.any(qc[cidx] > start):
         qc[cidx] = np.maximum(qc[cidx] - step, start)
+        qc = couple_finger(f, qc)
     return qc
 
 
-def _ik_starts(kin: Kinematics, starts, q0, idx, lo, hi, fid, p_link, target, n_link, n_des, max_iter):
-    """Best (position error, normal error, q, point reached) over DLS runs from the starts."""
+def couple_finger(f, q: np.ndarray) -> np.ndarray:
+    """``q`` (nq,) with finger ``f``'s followers set from their drivers, in place (returned);
+    nothing is done for a finger without couplings."""
+    if f.coupled:
+        idx = list(f.q_index)
+        q[idx] = f.couple(q[idx])
+    return q
+
+
+def closing_drivers(hand, f) -> list[int]:
+    """Positions in q of the joints the closing procedure moves for finger ``f``: its closing
+    joints, a follower replaced by its driver (in joint order, each once)."""
+    driver = {f.joints[fl]: f.joints[d] for fl, d, _, _ in f.coupled}
+    moved = {driver.get(j, j) for j in f.close_joints}
+    return [hand.joint_names.index(j) for j in f.joints if j in moved]
+
+
+def _ik_starts(kin: Kinematics, starts, q0, f, lo, hi, fid, p_link, target, n_link, n_des, max_iter):
+    """Best (position error, normal error, q, point reached) over DLS runs from the starts
+    (each a value of the finger's free coordinates)."""
     best = None
+    idx = np.array(f.free_index)
     for s in starts:
         q = q0.copy()
         q[idx] = np.clip(s, lo, hi)
-        q, err, nerr, p = _dls(kin, q, idx, lo, hi, fid, p_link, target, n_link, n_des, max_iter)
+        q = couple_finger(f, q)
+        q, err, nerr, p = _dls(kin, q, f, lo, hi, fid, p_link, target, n_link, n_des, max_iter)
         cand = (err, nerr, q, p)
         if err < IK_TOL_M and (best is None or best[0] >= IK_TOL_M or nerr < best[1] - 1e-6):
             best = cand
@@ -216,9 +243,12 @@ def _ik_starts(kin: Kinematics, starts, q0, idx, lo, hi, fid, p_link, target, n_
     return best
 
 
-def _dls(kin: Kinematics, q, idx, lo, hi, fid, p_link, target, n_link, n_des, max_iter):
-    """Damped least squares from q: (q, position error, normal error, point reached); every
-    iteration updates ``kin`` to its q."""
+def _dls(kin: Kinematics, q, f, lo, hi, fid, p_link, target, n_link, n_des, max_iter):
+    """Damped least squares over finger ``f``'s free coordinates from q (coupled): (q, position
+    error, normal error, point reached); every iteration updates ``kin`` to its q. The
+    Jacobian of a driver is ``J_d + m J_f`` summed over its followers (`Finger.reduce`)."""
+    idx = np.array(f.free_index)
+    cols = list(f.q_index) if f.coupled else None
     lam2 = 1e-6        # damping^2 (m^2)
     k_n = 0.5          # gain of the normal-alignment task (per iteration)
     err = np.inf
@@ -231,11 +261,14 @@ def _dls(kin: Kinematics, q, idx, lo, hi, fid, p_link, target, n_link, n_des, ma
         e_n = np.cross(R @ n_link, n_des) if n_des is not None else None
         if err < _IK_GOAL_M and (e_n is None or np.linalg.norm(e_n) < 1e-4):
             break
-        Jp = J[:3, idx]
+        # an uncoupled finger's rows as they always were (a copy laid out otherwise takes
+        # another BLAS path and changes the last digits of every plan)
+        Jf = f.reduce(J[:, cols]) if f.coupled else None
+        Jp = Jf[:3] if f.coupled else J[:3, idx]
         A = Jp @ Jp.T + lam2 * np.eye(3)
         dq = Jp.T @ np.linalg.solve(A, e)
         if e_n is not None:
-            Jn = J[3:, idx]
+            Jn = Jf[3:] if f.coupled else J[3:, idx]
             Jp_pinv = Jp.T @ np.linalg.inv(A)
             N = np.eye(len(idx)) - Jp_pinv @ Jp
             JnN = Jn @ N
@@ -245,7 +278,7 @@ def _dls(kin: Kinematics, q, idx, lo, hi, fid, p_link, target, n_link, n_des, ma
             dq *= 0.3 / step
         q_new = q.copy()
         q_new[idx] = np.clip(q[idx] + dq, lo, hi)
-        q = q_new
+        q = couple_finger(f, q_new)
         if err > prev - 1e-7:
             stall += 1
             if stall > 15:

@@ -12,6 +12,11 @@ of ``hand.fingers[finger].joints``; consecutive waypoints differ by at most
 ``resolution_rad`` in every joint, the first row is the start and the last the goal.
 The other fingers do not move.
 
+A coupled finger (`planner.hand.Coupling`) is planned in its free coordinates (its drivers
+and uncoupled joints): the OMPL space is theirs, the lift and land step them
+(`planner.hand.Finger.step`), and every waypoint has its followers set by the coupling (a
+straight line between coupled ends is coupled: the coupling is affine).
+
 Here: the OMPL glue, the move (:func:`plan_finger_move`) and the gait step
 (:func:`plan_gait_step`). The lift and land are `planner.retreat`; the finger's view of the
 collision layer and the path helpers are `planner.finger_scene`.
@@ -222,12 +227,33 @@ def _plan_move(
     lower = np.asarray(scene.hand.lower, dtype=float)[scene.idx]
     upper = np.asarray(scene.hand.upper, dtype=float)[scene.idx]
     t0 = time.perf_counter()
-    waypoints = _solve_ompl(
-        lambda q: scene.is_valid(q, clearance_m),
-        a, b, lower, upper,
-        planner=planner, max_checks=max_checks, seed=seed,
-        resolution_rad=resolution_rad, verbose=verbose,
-    )
+    f = scene.finger
+    if not f.coupled:
+        waypoints = _solve_ompl(
+            lambda q: scene.is_valid(q, clearance_m),
+            a, b, lower, upper,
+            planner=planner, max_checks=max_checks, seed=seed,
+            resolution_rad=resolution_rad, verbose=verbose,
+        )
+    else:
+        # a coupled finger is planned over its free coordinates (its drivers and uncoupled
+        # joints); a follower moves |m| times its driver, so the checks are |m| times finer
+        free = list(f.free)
+        full = np.array(a, dtype=float)
+
+        def expand(z):
+            full[free] = z
+            return f.couple(full)
+
+        fine = max([1.0] + [abs(m) for _, _, m, _ in f.coupled])
+        waypoints = _solve_ompl(
+            lambda z: scene.is_valid(expand(z), clearance_m),
+            a[free], b[free], lower[free], upper[free],
+            planner=planner, max_checks=max_checks, seed=seed,
+            resolution_rad=resolution_rad / fine, verbose=verbose,
+        )
+        if waypoints is not None:
+            waypoints = np.array([expand(z) for z in waypoints])
     if waypoints is None:
         raise MotionError(
             f"finger {name}: {planner} found no collision-free path in {max_checks} collision checks "

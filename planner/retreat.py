@@ -82,12 +82,13 @@ def _retreat_dls(
         target = p0 - s * n_in
         for _ in range(3):
             J = np.asarray(hand.state(scene.full_q(q)).frame_jacobian(link, p_link), dtype=float)[:rows][:, scene.idx]
+            J = scene.finger.reduce(J)  # over the finger's free coordinates (coupled joints)
             err = np.zeros(rows)
             err[:3] = target - point(q)  # orientation target: no rotation (zero rows)
             Jw = W * J
             ew = W[:, 0] * err
-            dq = np.linalg.solve(Jw.T @ Jw + damping**2 * np.eye(len(q)), Jw.T @ ew)
-            q = np.clip(q + dq, lo, hi)
+            dq = np.linalg.solve(Jw.T @ Jw + damping**2 * np.eye(J.shape[1]), Jw.T @ ew)
+            q = scene.finger.step(q, dq, lo, hi)
         if float(np.dot(p0 - point(q), n_in)) < s - _LIFT_LAG_M or not scene.is_valid(q, touch_margin):
             return None
         path.append(q.copy())
@@ -128,11 +129,12 @@ def _retreat_repel(
                 continue
             n_out = -_inward_normal(scene, p_object_palm)
             p_link = scene.point_on_link(q, link, p_link_palm)
-            J = np.asarray(hand.state(scene.full_q(q)).frame_jacobian(link, p_link), dtype=float)[:3][:, scene.idx]
+            J = scene.finger.reduce(np.asarray(hand.state(scene.full_q(q)).frame_jacobian(link, p_link),
+                                               dtype=float)[:3][:, scene.idx])
             rows.append(n_out @ J)
         A = np.array(rows)
         dq = A.T @ np.linalg.solve(A @ A.T + damping**2 * np.eye(len(A)), np.full(len(A), step_m))
-        q = np.clip(q + dq, lo, hi)
+        q = scene.finger.step(q, dq, lo, hi)
         if not scene.is_valid(q, touch_margin):
             return None
         path.append(q.copy())
@@ -203,7 +205,7 @@ def retreat(
     hi = np.asarray(hand.upper, dtype=float)[scene.idx]
     q_open = np.clip(np.asarray(hand.q_open, dtype=float)[scene.idx], lo, hi)
     closing = np.isin(np.asarray(scene.finger.joints), np.asarray(scene.finger.close_joints or scene.finger.joints))
-    for target in (np.where(closing, q_open, a), q_open):
+    for target in (scene.finger.couple(np.where(closing, q_open, a)), q_open):
         line = densify(np.array([a, target]), resolution_rad)
         for k, q in enumerate(line[1:], start=1):
             if not scene.is_valid(q, touch_margin):

@@ -64,7 +64,7 @@ def _object_key(obj) -> tuple:
 
 
 def _pool_postures(hand, obj, finger: str) -> tuple[np.ndarray, np.ndarray]:
-    """The finger's in-limit postures whose pad faces the surface from just outside it:
+    """The finger's in-limit (and coupled) postures whose pad faces the surface from just outside it:
     (postures (m, n_joints), the surface points they face (m, 3), object frame), from
     ``POOL_POSTURES`` seeded random postures (forward kinematics only; distances from a
     ``POOL_SURFACE_SAMPLES`` surface sample). Cached per hand, object (with pose) and finger."""
@@ -75,7 +75,12 @@ def _pool_postures(hand, obj, finger: str) -> tuple[np.ndarray, np.ndarray]:
     idx = list(f.q_index)
     lo, hi = np.asarray(hand.lower, float)[idx], np.asarray(hand.upper, float)[idx]
     rng = np.random.default_rng([POOL_SEED, list(hand.fingers).index(finger)])
-    postures = rng.uniform(lo, hi, size=(POOL_POSTURES, len(idx)))
+    # the finger's free coordinates drawn (its drivers and uncoupled joints), the followers set
+    # by the coupling (`planner.hand.Finger.couple`): the hand's limits keep them in range
+    free = list(f.free)
+    postures = np.zeros((POOL_POSTURES, len(idx)))
+    postures[:, free] = rng.uniform(lo[free], hi[free], size=(POOL_POSTURES, len(free)))
+    postures = f.couple(postures)
     T = np.asarray(obj.T_palm_obj, float)
     p_link = np.append(np.asarray(f.pad_p_link, float), 1.0)
     n_link = np.asarray(f.pad_n_link, float)

@@ -14,6 +14,7 @@ import coal
 import numpy as np
 
 from planner.contacts import TOUCH_TOL_M, collisions, contact_patches
+from planner.ik import closing_drivers, couple_finger
 from planner.model import PALM
 from planner.objects import GraspObject
 from planner.retreat import retreat_blocked
@@ -85,7 +86,7 @@ def _sweep(hand, finger, q, alphas, radius: float = 0.0) -> tuple[np.ndarray, np
     palm-frame points ``radius`` in front of the pad (along its outward normal: the centre a
     ball of that radius touching the pad there would have; the pad itself for 0) and the
     pad's unit outward normals."""
-    cidx = np.array([hand.joint_names.index(j) for j in finger.close_joints])
+    cidx = np.array(closing_drivers(hand, finger))  # a follower moves by its coupling
     start = q[cidx]
     p_link = np.asarray(finger.pad_p_link, dtype=float)
     n_link = np.asarray(finger.pad_n_link if finger.pad_n_link is not None else (0.0, 0.0, 0.0), dtype=float)
@@ -95,7 +96,7 @@ def _sweep(hand, finger, q, alphas, radius: float = 0.0) -> tuple[np.ndarray, np
     for a in alphas:
         qa = q.copy()
         qa[cidx] = start + a * (hand.upper[cidx] - start)
-        T = kin.update(qa).frame_pose(pad)
+        T = kin.update(couple_finger(finger, qa)).frame_pose(pad)
         n = T[:3, :3] @ n_link
         pts.append(T[:3, :3] @ p_link + T[:3, 3] + radius * n)
         nrm.append(n)
@@ -253,6 +254,7 @@ def sample_candidate(hand, fingers, obj: GraspObject, fixed, rng, obj_radius,
             start = np.clip(q[idx], lo, hi)
             frac = rng.uniform(*_PRESHAPE_CLOSE, size=len(idx))
             q[idx] = np.where(closing, start + frac * (hi - start), rng.uniform(lo, hi))
+            couple_finger(f, q)  # the drivers drawn, the followers by the coupling
         swept = [_sweep(hand, f, q, alphas, CENTRE_OFFSET * obj_radius) for f in fingers]
         if palm:  # the fingers' meeting point, with the palm's face as one more curve, on the face
             centre = _meeting_point([c for c, _ in swept] + [face])
@@ -265,9 +267,10 @@ def sample_candidate(hand, fingers, obj: GraspObject, fixed, rng, obj_radius,
         # the fingers where they would touch: a pre-shape whose fingers collide there ranks last
         q_touch = q.copy()
         for f, (c, _) in zip(fingers, swept):
-            cidx = np.array([hand.joint_names.index(j) for j in f.close_joints])
+            cidx = np.array(closing_drivers(hand, f))
             a = alphas[int(np.argmin(np.linalg.norm(c - centre, axis=1)))]
             q_touch[cidx] = q[cidx] + a * (hand.upper[cidx] - q[cidx])
+            couple_finger(f, q_touch)
         collide = len(fingers) > 1 and bool(collisions(hand, q_touch, None, fingers=names))
         if best is None or (collide, score) < (best[0], best[1]):
             best = (collide, score, q, swept, centre)
@@ -280,6 +283,7 @@ def sample_candidate(hand, fingers, obj: GraspObject, fixed, rng, obj_radius,
         for f in fingers:
             cidx = [hand.joint_names.index(j) for j in f.close_joints]
             q_free[cidx] = np.clip(np.asarray(hand.q_open)[cidx], hand.lower[cidx], hand.upper[cidx])
+            couple_finger(f, q_free)
         mid = centre
         if palm:
             state = hand.state(q_free)
@@ -370,6 +374,7 @@ def _finger_draw(hand, finger, q, rng) -> None:
     start = np.clip(np.asarray(hand.q_open, dtype=float)[idx], lo, hi)
     frac = rng.uniform(*_PRESHAPE_CLOSE, size=len(idx))
     q[idx] = np.where(closing, start + frac * (hi - start), rng.uniform(lo, hi))
+    couple_finger(finger, q)  # the drivers drawn, the followers by the coupling
 
 
 def _fixed_candidate(hand, fingers, obj: GraspObject, rng, obj_radius, alphas, palm: bool, mu: float = 1.0):
@@ -414,6 +419,7 @@ def _fixed_candidate(hand, fingers, obj: GraspObject, rng, obj_radius, alphas, p
                 break
             if hand.state(q).finger_object_distance(obj, f.name) < 0.0:
                 q[cidx] = np.clip(base[cidx], hand.lower[cidx], hand.upper[cidx])
+                couple_finger(f, q)
                 if hand.state(q).finger_object_distance(obj, f.name) < 0.0:
                     continue
             pre = q[idx].copy()
@@ -591,6 +597,7 @@ def closes_onto(hand, fingers, obj, preshape, palm: bool = False) -> dict | None
             # the closing procedure starts from a finger free of the object: open its closing joints
             cidx = [hand.joint_names.index(j) for j in f.close_joints]
             q[cidx] = np.clip(np.asarray(hand.q_open)[cidx], hand.lower[cidx], hand.upper[cidx])
+            couple_finger(f, q)
             if hand.state(q).finger_object_distance(obj, f.name) < 0.0:
                 return None, "a finger starts inside the object"
             preshape[f.name] = q[list(f.q_index)].copy()

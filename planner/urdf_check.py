@@ -99,9 +99,46 @@ _NUMBER = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?\Z")
 
 
 @dataclass(frozen=True)
+class Mimic:
+    """A URDF ``<mimic>``: joint ``joint`` follows ``follows``,
+    ``q_joint = multiplier * q_follows + offset`` (rad, or m for a prismatic joint), declared
+    on line ``line`` of the URDF."""
+
+    joint: str
+    follows: str
+    multiplier: float
+    offset: float
+    line: int
+    joint_type: str = "revolute"
+    follows_type: str | None = "revolute"   # None: no joint of that name
+    follows_follows: str = ""               # the joint the followed joint mimics, if any
+
+    def problem(self) -> str:
+        """Why this coupling cannot be used by a hand ("" when it can): the joint followed is
+        itself, missing, not moving or a follower itself (no chains); a multiplier of 0."""
+        moving = ("revolute", "continuous", "prismatic")
+        if self.follows == self.joint:
+            return "a joint cannot follow itself"
+        if self.follows_type is None:
+            return f"follows {name_shown(self.follows)}, which is not a joint of the URDF"
+        if self.follows_follows:
+            return (f"follows {name_shown(self.follows)}, which follows {name_shown(self.follows_follows)} itself: "
+                    "make both follow the same driver")
+        for joint, kind, label in ((self.joint, self.joint_type, "the follower"),
+                                   (self.follows, self.follows_type, "the joint it follows")):
+            if kind not in moving:
+                return (f"{label} {name_shown(joint)} is a {kind} joint; a coupling joins revolute, continuous or "
+                        "prismatic joints")
+        if self.multiplier == 0:
+            return "multiplier 0 holds the joint at its offset: make it a fixed joint"
+        return ""
+
+
+@dataclass(frozen=True)
 class UrdfSummary:
     """What `check_urdf` read: the robot's name, its root link, its links and joints (file
-    order) and the mesh files it names (resolved)."""
+    order), the mesh files it names (resolved) and its ``<mimic>`` couplings (`Mimic`, file
+    order; each checked: the joint it follows exists, moves, is no follower itself)."""
 
     path: str
     robot: str
@@ -109,6 +146,7 @@ class UrdfSummary:
     links: tuple[str, ...]
     joints: tuple[str, ...]
     meshes: tuple[str, ...]
+    mimics: tuple[Mimic, ...] = ()
 
 
 class _Element:
@@ -409,11 +447,25 @@ class _Checker:
         self.optional(el.find("safety_controller"), ("soft_lower_limit", "soft_upper_limit", "k_position",
                                                      "k_velocity"), what)
         self.optional(el.find("calibration"), ("rising", "falling", "reference_position"), what)
-        mimic = el.find("mimic")
-        if mimic is not None:
-            self.name(mimic, "mimic", "joint")
-            self.optional(mimic, ("multiplier", "offset"), what)
         return ends[0], ends[1]
+
+    def mimic(self, el: _Element, name: str, joints: dict) -> Mimic | None:
+        """The joint's ``<mimic joint multiplier offset>`` (URDF defaults 1 and 0): its numbers
+        finite, the joint it follows named. What makes a coupling usable (the joint followed
+        exists, moves, is no follower itself) is checked where a hand uses it (`Mimic.problem`):
+        published robots carry mimics on fixed or unused joints that pinocchio reads."""
+        el_m = el.find("mimic")
+        if el_m is None:
+            return None
+        what = f"joint {name_shown(name)}: <mimic>"
+        if not el_m.attrib.get("joint", "").strip():
+            raise self.fail(el_m, what, "has no joint=\"...\" (the joint it follows)")
+        driver = self.name(el_m, "mimic", "joint")
+        values = self.optional(el_m, ("multiplier", "offset"), what)
+        d = joints.get(driver)
+        return Mimic(name, driver, float(values.get("multiplier", 1.0)), float(values.get("offset", 0.0)), el_m.line,
+                     el.attrib.get("type", ""), None if d is None else d.attrib.get("type", ""),
+                     "" if d is None or d.find("mimic") is None else d.find("mimic").attrib.get("joint", ""))
 
 
 def installed_share_dirs() -> list[str]:
@@ -746,6 +798,7 @@ def check_urdf(path: str | os.PathLike, package_dirs=()) -> UrdfSummary:
                                                            f"child of joint {name_shown(parent_of[child][1])} too")
         parent_of[child] = (parent, name)
         children[parent].append(child)
+    mimics = tuple(m for m in (ck.mimic(el, name, joints) for name, el in joints.items()) if m is not None)
     roots = [n for n in links if n not in parent_of]
     if len(roots) > 1:
         raise ck.fail(robot, "<robot>", f"{len(roots)} root links ({', '.join(name_shown(r) for r in roots[:4])}"
@@ -762,7 +815,7 @@ def check_urdf(path: str | os.PathLike, package_dirs=()) -> UrdfSummary:
     if lost:
         raise ck.fail(links[lost[0]], f"link {name_shown(lost[0])}", f"not connected to the root link "
                                                                      f"{name_shown(roots[0])}: the joints form a cycle")
-    return UrdfSummary(path, robot_name, roots[0], tuple(links), tuple(joints), tuple(ck.mesh_bytes))
+    return UrdfSummary(path, robot_name, roots[0], tuple(links), tuple(joints), tuple(ck.mesh_bytes), mimics)
 
 
 def library_message(err: BaseException) -> str:

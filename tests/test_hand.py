@@ -204,7 +204,7 @@ def test_ik_falls_back_to_position_only_when_the_normal_task_fails(name):
         # position-only runs only after the combined task failed; then the normal is far off
         combined = _ik_starts(hand.kinematics(hand.q_open),
                               [hand.q_open[idx], np.array(f.q_open), 0.5 * (hand.lower[idx] + hand.upper[idx])],
-                              hand.q_open, np.array(idx), hand.lower[idx], hand.upper[idx],
+                              hand.q_open, f, hand.lower[idx], hand.upper[idx],
                               hand._fid(f.pad_link), np.array(f.pad_p_link), target, np.array(f.pad_n_link),
                               n_away, 150)
         if r.normal_dropped:
