@@ -411,3 +411,24 @@ def test_visual_geoms_are_kept_on_request_and_never_collide(icub):
     visual = [g for g in range(m.ngeom) if not (m.geom_contype[g] or m.geom_conaffinity[g])]
     assert len(visual) == extra and not set(visual) & set(seen._geom_link)
     assert sorted(seen._geom_link.values()) == sorted(bare._geom_link.values())
+
+
+def test_a_urdf_mimic_couples_its_joints_unless_dropped(tmp_path):
+    """index_3 follows index_2 x 0.5 (a URDF <mimic>): MuJoCo keeps it as a stiff joint
+    equality; ``couplings=False`` frees it, as pybullet (whose URDF loader ignores <mimic>)."""
+    def edit(urdf):
+        return re.sub(r'(<joint name="index_3" type="revolute">.*?)(</joint>)',
+                      r'\1<mimic joint="index_2" multiplier="0.5" offset="0.0"/>\2', urdf, count=1, flags=re.S)
+
+    hand = _edited_icub(tmp_path, edit)
+    moved = {}
+    for couplings in (True, False):
+        scene = mm.build(hand, _far_sphere(), FRICTION, dt_s=DT, couplings=couplings)
+        for link in hand.fingers["index"].links:
+            scene.raise_link_inertia(link, 1e-5)
+        scene.apply_joint_torques({"index_2": 0.002})
+        scene.step(60)
+        moved[couplings] = scene.joint_positions(["index_2", "index_3"])
+    assert moved[True]["index_2"] > 0.1
+    assert moved[True]["index_3"] == pytest.approx(0.5 * moved[True]["index_2"], rel=0.01)
+    assert abs(moved[False]["index_3"]) < 0.25 * moved[False]["index_2"]

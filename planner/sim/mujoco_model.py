@@ -273,7 +273,7 @@ def _check_meshes(spec, urdf_path) -> None:
 def build(hand, obj, friction, *, dt_s: float, gravity=(0.0, 0.0, 0.0), density_kg_m3: float = 500.0,
           object_mass_kg: float | None = None,
           cone: str = "elliptic", impratio: float = IMPRATIO, solver_iterations: int = 100,
-          hold: bool = False, visual: bool = False) -> "MujocoScene":
+          hold: bool = False, visual: bool = False, couplings: bool = True) -> "MujocoScene":
     """The hand and the object as one MuJoCo model (see the module docstring for every choice).
 
     Args:
@@ -290,6 +290,9 @@ def build(hand, obj, friction, *, dt_s: float, gravity=(0.0, 0.0, 0.0), density_
         solver_iterations: MuJoCo's Newton solver iterations per step.
         hold: start with the object welded at its pose (`MujocoScene.hold_object`).
         visual: keep the URDF's visual geoms (for pictures; they never collide).
+        couplings: keep a URDF ``<mimic>`` as MuJoCo's parser makes it, a joint equality
+            (the coupled joint follows; pybullet's URDF loader ignores ``<mimic>``); False
+            drops them (every joint free, as in pybullet).
 
     Returns:
         A `MujocoScene` with the hand at its open posture and the object at rest at its pose.
@@ -359,6 +362,11 @@ def build(hand, obj, friction, *, dt_s: float, gravity=(0.0, 0.0, 0.0), density_
             act.ctrllimited = mujoco.mjtLimited.mjLIMITED_FALSE
 
     balanced = _set_inertias(spec, hand)
+    for eq in list(spec.equalities):  # the URDF's <mimic> couplings (the parser's joint equalities)
+        if not couplings or eq.name1 not in names or (eq.name2 and eq.name2 not in names):
+            spec.delete(eq)  # (a coupling to a locked joint: the joint is gone)
+        else:  # as stiff as the hold weld: the coupling is a gear train, not a spring
+            eq.solref, eq.solimp = list(contact_solref(dt_s)), list(HOLD_SOLIMP)
 
     solref, solimp = contact_solref(dt_s), CONTACT_SOLIMP
     mu, gamma = float(friction.mu), float(friction.gamma)
