@@ -432,3 +432,22 @@ def test_a_urdf_mimic_couples_its_joints_unless_dropped(tmp_path):
     assert moved[True]["index_2"] > 0.1
     assert moved[True]["index_3"] == pytest.approx(0.5 * moved[True]["index_2"], rel=0.01)
     assert abs(moved[False]["index_3"]) < 0.25 * moved[False]["index_2"]
+
+
+def test_a_root_above_the_palm_is_placed_so_that_the_world_is_the_palm_frame(tmp_path):
+    """A URDF whose root is a base link carrying the palm on a fixed, rotated joint: the
+    base sits at T_palm_root and every link where pinocchio puts it in the palm frame."""
+    def edit(urdf):
+        extra = ('<link name="base"/><joint name="base_palm" type="fixed"><parent link="base"/>'
+                 '<child link="palm"/><origin xyz="0.1 0.02 -0.03" rpy="0.3 -0.2 0.5"/></joint>')
+        return urdf.replace("</robot>", extra + "</robot>")
+
+    hand = _edited_icub(tmp_path, edit)
+    assert hand.model.frames[1].name == "base"
+    scene = mm.build(hand, _far_sphere(), FRICTION, dt_s=DT)
+    assert np.allclose(scene.link_pose("palm"), np.eye(4), atol=1e-9)
+    q = np.random.default_rng(11).uniform(hand.lower, hand.upper)
+    scene.set_joint_positions(dict(zip(hand.joint_names, q)))
+    state = hand.state(q)
+    for link in ("base", "index_distal", "thumb_distal"):
+        assert np.abs(state.link_pose(link) - scene.link_pose(link)).max() < 1e-6, link

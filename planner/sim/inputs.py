@@ -50,7 +50,7 @@ class HandInfo:
 def T_palm_root(hand) -> np.ndarray:
     """Pose of the URDF root link in the palm frame (identity when the root is the palm)."""
     root = getattr(getattr(hand, "model", None), "frames", None)
-    if root is None or len(root) < 2 or not hasattr(hand, "link_pose"):
+    if root is None or len(root) < 2 or not hasattr(hand, "state"):
         return np.eye(4)
     root_name = root[1].name  # frame 0 is "universe", frame 1 the root link
     if root_name == getattr(hand, "palm_frame", root_name):

@@ -94,7 +94,8 @@ HOLD_WELD = "object_hold"
 #: ``r = (1 - d) dmax^2 tau^2 a0 / d^2``. An object resting on a link (a0 = g, tau = 2/240 s)
 #: sinks 37 um at d = 0.95 (measured: the tests' weld sag and resting sphere); a 10 g
 #: phalanx pressing 5 N (a0 ~ 500 m/s^2) sinks 0.35 mm at d = 0.99, five times that at
-#: MuJoCo's default dmax 0.95 (the size of the planner's touch tolerance). The impedance
+#: MuJoCo's default dmax 0.95 (more than the replay's touch tolerance, 0.5 mm,
+#: `planner.sim.controller.TOUCH_TOL_M`). The impedance
 #: rises from 0.95 to 0.99 over the first 1 mm of penetration (softer at first touch, which
 #: keeps making and breaking a contact smooth).
 CONTACT_SOLIMP = (0.95, 0.99, 0.001, 0.5, 2.0)
