@@ -48,9 +48,8 @@ Friction. Every finger-object contact gets exactly the plan's ``mu`` (Coulomb) a
 (torsional, metres) of the soft-finger model (thesis eq. 1); how an engine combines the two
 bodies' friction to give it is the engine module's business (`planner.sim.engine.World`).
 
-This module is one concept, kept whole although slightly over 600 lines: the replay loop and
-its verdict share the per-state measurements, and split apart either half would only read the
-other's state.
+This module is one concept, kept whole: the replay loop and its verdict share the per-state
+measurements, and split apart either half would only read the other's state.
 """
 
 from __future__ import annotations
@@ -151,9 +150,9 @@ def replay_plan(
     Args:
         plan: plan data (the schema of docs/INTERFACES.md) or a plan file (.yaml/.json)
             (or a plan this module has already read).
-        client: an existing pybullet client id; the replay adds its bodies there and removes
+        client: (pybullet) an existing client id; the replay adds its bodies there and removes
             them at the end. None: a private DIRECT (or GUI) client, disconnected at the end.
-        gui: open a pybullet GUI window (needs a display) and run in real time.
+        gui: open the engine's window (needs a display) and run in real time.
         hand: a `planner.hand.Hand` to use instead of loading the plan's ``hand``.
         dt: physics time step, s.
         gravity: gravity vector in the palm (= world) frame, m/s^2. None: palm down, 9.81
@@ -169,7 +168,7 @@ def replay_plan(
         joint_speed_rad_s: largest joint speed along a step's path, rad/s.
         finger_force_n: the squeeze force per holding finger, N; None derives it from the
             object's weight and friction (`planner.sim.controller.squeeze_force_n`).
-        solver_iterations: pybullet numSolverIterations.
+        solver_iterations: contact solver iterations per step (pybullet's numSolverIterations).
         drift_mm_max, drift_deg_max: pass thresholds on the object's drift.
         drop_mm: displacement beyond which the object counts as dropped; the replay stops.
         filter_k: contact filter: a contact is removed after this many missing samples.
@@ -307,6 +306,8 @@ def replay_plan(
         mp4=str(mp4) if mp4 is not None else None, parameters=params, reasons=tuple(reasons),
         failed_step=failed_step, failed_at_state=at_state, trajectory=trajectory, engine=eng.name,
     )
+
+
 class _Sim:
     """One replay in a built engine (hand, object, controller, measurements).
 

@@ -1,8 +1,8 @@
 """The pybullet scene: the one place the hand and object bodies are built.
 
-The replay (`planner.sim.replay`) and the pictures (`planner.sim.render`) both build their
-scenes here, so a hand or an object looks and collides the same in a film as in the
-physics. Every call names its client: nothing relies on a global connection. Importing
+The replay's pybullet engine (`planner.sim.engine_pybullet`) and the pictures
+(`planner.sim.render`) both build their scenes here, so a hand or an object looks and
+collides the same in a film as in the physics. Every call names its client: nothing relies on a global connection. Importing
 this module imports pybullet (its build banner silenced). `urdf_problem` says whether
 pybullet can simulate a hand's URDF at all (``regrasp hand check``).
 """
