@@ -69,6 +69,14 @@ def test_every_bundled_hand_builds_with_its_joints_limits_and_efforts(hand):
 
     bodies = {f.name for f in hand.model.frames if f.type == pin.FrameType.BODY}
     assert bodies <= set(scene.link_names)
+    # the tree by URDF names: the root first, every other link hangs from its URDF joint
+    parents = scene.link_parents()
+    assert scene.link_names[0] == hand.model.frames[1].name and scene.link_names[0] not in parents
+    assert set(parents) == set(scene.link_names[1:])
+    for jid in range(1, hand.model.njoints):
+        child = next(f.name for f in hand.model.frames if f.type == pin.FrameType.BODY and f.parentJoint == jid
+                     and f.parentFrame == hand.model.getFrameId(hand.model.names[jid]))
+        assert parents[child][0] == hand.model.names[jid]
     # the hand starts at its open posture
     assert np.allclose(scene.q(), hand.q_open)
     # no joint damping, friction loss or armature (the pybullet replay has none)

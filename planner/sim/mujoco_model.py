@@ -321,8 +321,9 @@ def build(hand, obj, friction, *, dt_s: float, gravity=(0.0, 0.0, 0.0), density_
     if isinstance(mass, bool) or not (isinstance(mass, (int, float)) and math.isfinite(mass) and mass > 0):
         raise InputError(f"object_mass_kg must be a positive number of kg, got {mass!r}")
 
+    text = _urdf_text(hand, visual)
     try:
-        spec = mujoco.MjSpec.from_string(_urdf_text(hand, visual))
+        spec = mujoco.MjSpec.from_string(text)
     except ValueError as err:
         raise SimulationError(f"MuJoCo cannot read the hand URDF {hand.urdf_path}: {_one_line(err)}") from None
     _check_meshes(spec, hand.urdf_path)
@@ -400,7 +401,7 @@ def build(hand, obj, friction, *, dt_s: float, gravity=(0.0, 0.0, 0.0), density_
     except ValueError as err:
         raise SimulationError(f"MuJoCo cannot compile the scene of {hand.name!r}: {_one_line(err)}") from None
     settings = SolverSettings(float(dt_s), cone, float(impratio), int(solver_iterations), solref, solimp, condim)
-    scene = MujocoScene(model, hand, friction, settings, balanced, spec)
+    scene = MujocoScene(model, hand, friction, settings, balanced, spec, _urdf_parents(text))
     scene.set_joint_positions(dict(zip(hand.joint_names, (float(v) for v in hand.q_open))))
     if hold:
         scene.hold_object()
@@ -453,6 +454,19 @@ def _add_object(spec, obj, friction, solref, solimp, condim, mass_kg) -> None:
     weld.data = data.tolist()
 
 
+def _urdf_parents(text: str) -> dict[str, tuple[str, str]]:
+    """Child link -> (its URDF joint, parent link), every joint of the URDF (fixed ones too:
+    MuJoCo keeps no name for a joint it does not simulate)."""
+    import xml.etree.ElementTree as ET
+
+    out = {}
+    for j in ET.fromstring(text).findall("joint"):
+        child, parent = j.find("child"), j.find("parent")
+        if child is not None and parent is not None:
+            out[child.get("link")] = (j.get("name"), parent.get("link"))
+    return out
+
+
 def _gravity(gravity) -> np.ndarray:
     g = np.asarray(gravity, dtype=float)
     if g.shape != (3,) or not np.all(np.isfinite(g)):
@@ -477,13 +491,13 @@ class MujocoScene:
         friction: the grasp's friction.
         settings: the solver and contact settings (`SolverSettings`).
         joint_names: the hand's movable joints (the hand's order).
-        link_names: every hand link (URDF names) MuJoCo has a body for.
+        link_names: every hand link (URDF names) MuJoCo has a body for, the root first.
         object_mass_kg: the object's mass.
         balanced_links: links whose URDF inertia MuJoCo balanced (``balanceinertia``).
         spec: the ``MjSpec`` it was compiled from (``spec.to_xml()`` shows the model).
     """
 
-    def __init__(self, model, hand, friction, settings: SolverSettings, balanced_links, spec):
+    def __init__(self, model, hand, friction, settings: SolverSettings, balanced_links, spec, urdf_parents=None):
         self.model, self.data = model, mujoco.MjData(model)
         self.hand, self.friction, self.settings, self.spec = hand, friction, settings, spec
         self.balanced_links = tuple(balanced_links)
@@ -497,7 +511,8 @@ class MujocoScene:
         skip = {"world", OBJECT_BODY, ANCHOR_BODY}
         self._body = {name(mujoco.mjtObj.mjOBJ_BODY, b): b for b in range(m.nbody)
                       if name(mujoco.mjtObj.mjOBJ_BODY, b) not in skip}
-        self.link_names = tuple(self._body)
+        self.link_names = tuple(self._body)  # (MuJoCo's depth-first body order: the root first)
+        self._parents = {l: jp for l, jp in (urdf_parents or {}).items() if l in self._body and jp[1] in self._body}
         self._obj_body = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, OBJECT_BODY)
         self._obj_geom = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, OBJECT_GEOM)
         self.object_mass_kg = float(m.body_mass[self._obj_body])
@@ -666,6 +681,11 @@ class MujocoScene:
     def link_poses(self) -> dict[str, np.ndarray]:
         """Every hand link -> T_palm_link (4, 4)."""
         return {l: _pose(self.data.xpos[b], self.data.xquat[b]) for l, b in self._body.items()}
+
+    def link_parents(self) -> dict[str, tuple[str, str]]:
+        """Link -> (the URDF joint it hangs from, its parent link), every link but the root
+        (`planner.sim.engine.HandTopology.parent`); fixed and locked joints included."""
+        return dict(self._parents)
 
     def link_masses(self) -> dict[str, float]:
         """Every hand link -> its mass in the model, kg."""
