@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 from planner.audit import audit_plan
 from planner.cli import main
@@ -335,3 +336,30 @@ def test_bundled_hands_have_no_couplings_and_plan_as_before():
         for f in hand.fingers.values():
             J = np.arange(6.0 * len(f.joints)).reshape(6, -1)
             assert f.reduce(J) is J and f.drivers == f.joints
+
+
+def test_hand_init_lists_the_urdf_couplings_and_a_follower_opens_with_its_driver(tmp_path, capsys):
+    urdf = tmp_path / "coupled_hand.urdf"
+    # a follower whose range does not start at 0: init writes no open: angle for it
+    urdf.write_text(URDF.replace('<limit lower="0" upper="1.5708" effort="0.5" velocity="1"/>' + MIMIC_LINE,
+                                 '<limit lower="-0.2" upper="1.5708" effort="0.5" velocity="1"/>' + MIMIC_LINE))
+    assert main(["hand", "init", str(urdf), "-o", str(tmp_path / "hand.yaml")]) == 0
+    out = capsys.readouterr().out
+    assert "guess: couplings: the URDF's <mimic>: left_2 = 1 left_1 + 0: a plan commands the drivers" in out, out
+    hand = Hand.load(tmp_path / "hand.yaml")
+    assert [c.joint for c in hand.couplings] == ["left_2"]
+    assert "left_2" not in (yaml.safe_load((tmp_path / "hand.yaml").read_text()).get("open") or {})
+    assert np.all(hand.coupling_errors(hand.q_open) == 0.0)
+
+
+def test_a_grasp_posture_must_keep_the_coupling(coupled_plan, tmp_path, capsys):
+    hand, _ = coupled_plan
+    text = (ROOT / "grasps/icub/box_ir2m.yaml").read_text().replace("hand: icub_right", f"hand: {hand.spec_path}")
+    bad = tmp_path / "g.yaml"
+    bad.write_text(text.replace("index:  {posture: [0.0, 0.0, 0.0, 0.0]}", "index:  {posture: [0.0, 0.1, 0.2, 0.3]}"))
+    assert main(["check", str(bad)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "fingers.index.posture[3]: joint index_3 = 0.3 rad breaks its coupling index_3 = 1 " \
+        "index_2 + 0: give 0.2" in err[0], err
+    bad.write_text(text.replace("index:  {posture: [0.0, 0.0, 0.0, 0.0]}", "index:  {posture: [0.0, 0.1, 0.2, 0.2]}"))
+    assert main(["check", str(bad)]) in (0, 1)
