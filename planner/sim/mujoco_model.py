@@ -23,19 +23,21 @@ How the scene is made, and why (docs/ENGINES.md compares it with the pybullet re
   same project functions: a link without inertia gets `planner.urdf_check.stated_inertias`
   (about the link's origin and axes), a placeholder inertia the solid box of
   `planner.handtool.replay_inertia` (on the URDF's ``<inertial>`` frame, as pybullet's
-  ``localInertiaDiagonal`` puts it). MuJoCo refuses an inertia whose principal moments break the triangle inequality
-  A + B >= C, which pinocchio and Bullet accept (the example-robot-data Allegro's link_3.0
-  is one): ``balanceinertia`` raises the smallest moments just enough
-  (`MujocoScene.balanced_links` names those links).
+  ``localInertiaDiagonal`` puts it). MuJoCo refuses an inertia whose principal moments
+  break the triangle inequality A + B >= C, which pinocchio and Bullet accept (the
+  example-robot-data Allegro's link_3.0 is one): ``balanceinertia`` raises the smallest
+  moments just enough (`MujocoScene.balanced_links` names those links). A URDF ``<mimic>``
+  stays the stiff joint equality MuJoCo's parser makes of it (``couplings=False``: dropped,
+  as pybullet ignores it).
 * **Torques.** One ``motor`` actuator (gear 1) per movable joint, named after the joint,
   ``ctrlrange`` +/- the hand's effort limit (`planner.hand.Hand.effort`: the URDF's
   ``<limit effort>`` or the hand.yaml's override; unlimited when neither gives one).
   Actuators rather than ``qfrc_applied``: MuJoCo clips the torque to the joint's limit
   itself, and ``data.actuator_force`` records what was applied.
-* **Object.** A free body of the object's mass (the plan's; volume x density without
-  one: `planner.sim.inputs.object_mass`, as the pybullet replay) with its centre of mass at the object's
-  origin (as pybullet and the planner's weight wrench have it) and Bullet's inertia for
-  the same shape (`object_inertia`): exact for box, cylinder and sphere, the bounding
+* **Object.** A free body of the object's mass (the plan's; volume x density without one:
+  `planner.sim.inputs.object_mass`, as the pybullet replay) with its centre of mass at the
+  object's origin (as pybullet and the planner's weight wrench have it) and Bullet's
+  inertia for the same shape (`object_inertia`): exact for box, cylinder and sphere, the bounding
   box's (grown by Bullet's margin) for a mesh. Its geom is the primitive, or the mesh,
   which collides as its convex hull.
 * **Friction.** MuJoCo's contact friction is (sliding, torsional, rolling); a pair of geoms
@@ -55,7 +57,7 @@ How the scene is made, and why (docs/ENGINES.md compares it with the pybullet re
 * **Soft contacts.** See `contact_solref` and `CONTACT_SOLIMP`: the stiffest stable
   reference (time constant 2 dt, critically damped) and an impedance near 1, so a contact
   carrying a squeezing finger sinks sub-millimetre; ``impratio`` (`IMPRATIO`) makes
-  friction as stiff as the normal direction so a held object does not creep.
+  friction ten times as stiff as the normal direction so a held object does not creep.
 * **Hold.** A weld between the object and a mocap body, toggled with ``eq_active``:
   `MujocoScene.hold_object` welds the object where it is, `release_object` frees it
   (`HOLD_SOLIMP`: stiffer than a contact).
@@ -633,7 +635,8 @@ class MujocoScene:
     def object_velocity(self) -> tuple[np.ndarray, np.ndarray]:
         """The object's (linear velocity m/s, angular velocity rad/s), world frame."""
         v = self.data.qvel[self._obj_v:self._obj_v + 6]
-        return v[:3].copy(), v[3:].copy()  # (a free joint's linear part is world, angular world too)
+        # a free joint's velocity: linear in the world frame, angular in the body's own frame
+        return v[:3].copy(), self.data.xmat[self._obj_body].reshape(3, 3) @ v[3:]
 
     def set_object_pose(self, position, quat_xyzw) -> None:
         """Put the object at a pose (world = palm frame), at rest; a held object is held there."""
@@ -785,5 +788,6 @@ class MujocoScene:
         return grad / max(float(np.linalg.norm(grad)), 1e-300)
 
 
-__all__ = ["ANCHOR_BODY", "BULLET_HULL_MARGIN_M", "CONTACT_SOLIMP", "ContactPoint", "HOLD_SOLIMP", "HOLD_WELD", "IMPRATIO",
-           "MujocoScene", "OBJECT_BODY", "SolverSettings", "build", "contact_solref", "object_inertia"]
+__all__ = ["ANCHOR_BODY", "BULLET_HULL_MARGIN_M", "CONTACT_SOLIMP", "DIRECTION_MIN_M", "ContactPoint", "HOLD_SOLIMP",
+           "HOLD_WELD", "IMPRATIO", "MujocoScene", "OBJECT_BODY", "SolverSettings", "build", "contact_solref",
+           "object_inertia"]
