@@ -471,13 +471,18 @@ class Hand:
         driver, and a driver follows nothing."""
         sp = str(self.spec_path)
         out: list[Coupling] = []
+        declared = r.get("couplings") or []
+        declared = {c.get("joint") for c in declared if isinstance(c, dict)} if isinstance(declared, list) else set()
         for m in urdf.mimics:
             where = f"line {m.line}: joint {name_shown(m.joint)}: <mimic>"
             fj, fd = finger_of.get(m.joint), finger_of.get(m.follows)
             if fj is None and (fd is None or m.joint_type == "fixed"):
                 continue  # a follower locked (outside every finger) or fixed: nothing to couple
+            if m.follows_type is None and m.joint in declared:
+                continue  # a <mimic> naming no joint (a published file's typo): the hand.yaml's coupling says it
             if m.problem():
-                raise SpecError(sp, "urdf", f"{self.urdf_path}: {where}: {m.problem()}")
+                fix = ": state the coupling in the hand.yaml's couplings:" if m.follows_type is None else ""
+                raise SpecError(sp, "urdf", f"{self.urdf_path}: {where}: {m.problem()}{fix}")
             if fj != fd:
                 def of(joint, fname):
                     return f"{joint} is {'in no finger (locked)' if fname is None else 'of finger ' + fname}"

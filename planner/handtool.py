@@ -213,7 +213,7 @@ def init_hand(urdf, package_dirs=(), root: str | None = None, cut_path=None) -> 
     rep = HandReport()
     dirs = [*map(str, package_dirs), *_share_dirs()]
     # our checks before pinocchio's: it hangs on a FIFO, pybullet crashes on a link with two parents
-    check_urdf(urdf, [str(urdf.parent), *dirs])
+    mimics = check_urdf(urdf, [str(urdf.parent), *dirs]).mimics
     try:
         model = pin.buildModelFromUrdf(str(urdf))
     except (RuntimeError, ValueError) as err:
@@ -301,13 +301,17 @@ def init_hand(urdf, package_dirs=(), root: str | None = None, cut_path=None) -> 
             "urdf": str(urdf), "palm_frame": root, "fingers": fingers}
     if package_dirs:
         spec["package_dirs"] = [str(d) for d in package_dirs]
+    couplings = _dangling_mimics(mimics, fingers, rep)
+    if couplings:
+        spec["couplings"] = couplings
     hand = _provisional(spec, urdf)
     lo, hi = np.asarray(hand.lower), np.asarray(hand.upper)
     followers = {c.joint for c in hand.couplings}
-    if hand.couplings:
+    mimicked = [c for c in hand.couplings if c.source.startswith("URDF")]
+    if mimicked:
         rep.add("guess", "couplings", "the URDF's <mimic>: " + "; ".join(
             f"{c.joint} = {c.multiplier:g} {c.follows} {'+' if c.offset >= 0 else '-'} {abs(c.offset):g}"
-            for c in hand.couplings) + ": a plan commands the drivers; followers move by the coupling")
+            for c in mimicked) + ": a plan commands the drivers; followers move by the coupling")
     q_mid = np.clip(np.zeros(len(lo)), lo, hi)
     boxes = link_boxes(hand)
     # palm normal: where the joints start carrying the tips from the zero posture (a URDF's
@@ -425,6 +429,27 @@ def _name_by_geometry(model, named, rep: HandReport):
             "off the line of the others' (the knuckles), then index, middle, ring, little along that line from the "
             "end nearer the thumb")
     return [(names.get(leaf, name), leaf, chain) for name, leaf, chain in named]
+
+
+def _dangling_mimics(mimics, fingers: dict, rep: HandReport) -> list[dict]:
+    """hand.yaml couplings for the URDF's ``<mimic>`` elements that name no joint of it (a
+    published robot's ``joint="index_q1"`` for its ``Right_index_q1``): the follower's finger's
+    one other joint whose name ends with that name, else the mimic is ignored with a warning."""
+    finger_of = {j: name for name, f in fingers.items() for j in f["joints"]}
+    out = []
+    for m in mimics:
+        if m.follows_type is not None or m.joint not in finger_of:
+            continue
+        same = [j for j in fingers[finger_of[m.joint]]["joints"] if j != m.joint and j.endswith(m.follows)]
+        if len(same) != 1:
+            rep.add("warning", "couplings", f"the URDF's <mimic> of {m.joint} (line {m.line}) follows "
+                    f"{name_shown(m.follows)}, no joint of the URDF: ignored; state it in the hand.yaml's couplings:")
+            continue
+        out.append({"joint": m.joint, "follows": same[0], "multiplier": m.multiplier, "offset": m.offset})
+        rep.add("guess", "couplings", f"{m.joint} = {m.multiplier:g} {same[0]} {'+' if m.offset >= 0 else '-'} "
+                f"{abs(m.offset):g}: the URDF's <mimic> (line {m.line}) names {name_shown(m.follows)}, no joint of it; "
+                f"{same[0]} is the finger's joint whose name ends so")
+    return out
 
 
 def _provisional(spec: dict, urdf: Path):

@@ -363,3 +363,56 @@ def test_a_grasp_posture_must_keep_the_coupling(coupled_plan, tmp_path, capsys):
         "index_2 + 0: give 0.2" in err[0], err
     bad.write_text(text.replace("index:  {posture: [0.0, 0.0, 0.0, 0.0]}", "index:  {posture: [0.0, 0.1, 0.2, 0.2]}"))
     assert main(["check", str(bad)]) in (0, 1)
+
+
+def test_a_mimic_naming_no_joint_is_refused_or_adopted_by_hand_init(tmp_path, capsys):
+    """A published robot's <mimic joint="index_q1"> for its joint Right_index_q1: loading the
+    hand refuses it (say the coupling in the hand.yaml); hand init adopts the finger's one joint
+    whose name ends so, as a hand.yaml coupling, and says so."""
+    text = URDF.replace(MIMIC_LINE, '<mimic joint="ft_1" multiplier="1.0" offset="0.0"/>')
+    line = _urdf_error(tmp_path, text)
+    assert "follows 'ft_1', which is not a joint of the URDF: state the coupling in the hand.yaml's couplings:" in line
+    urdf = tmp_path / "typo.urdf"
+    urdf.write_text(text)
+    assert main(["hand", "init", str(urdf), "-o", str(tmp_path / "hand.yaml")]) == 0
+    out = capsys.readouterr().out
+    assert "guess: couplings: left_2 = 1 left_1 + 0: the URDF's <mimic> (line " in out and "names 'ft_1'" in out, out
+    hand = Hand.load(tmp_path / "hand.yaml")
+    assert [(c.joint, c.follows, c.source) for c in hand.couplings] == [("left_2", "left_1", "hand.yaml couplings[0]")]
+
+
+ALEX = "alex_description/urdf/alex_psyonic_hands.urdf"
+
+
+def test_a_published_prosthetic_hand_plans_with_its_couplings(tmp_path, capsys):
+    """example-robot-data's Alex with Psyonic hands (issue 37): its <mimic>s name joints
+    without the side prefix; hand init --root adopts them, synth and plan keep q2 = 1.0585 q1 +
+    0.7235 (the issue's plan had q1 0.355, q2 0.088 where the hand can only take q2 = 1.10)."""
+    from planner.urdf_check import installed_share_dirs
+
+    found = [Path(d) / "example-robot-data/robots" / ALEX for d in installed_share_dirs()]
+    found = [p for p in found if p.is_file()]
+    if not found:
+        pytest.skip("example-robot-data is not installed")
+    out = tmp_path / "hand.yaml"
+    assert main(["hand", "init", str(found[0]), "-o", str(out), "--root", "RightGripperYawLink"]) == 0
+    hand = Hand.load(out)
+    assert [(c.joint, c.follows) for c in hand.couplings] == [
+        (f"Right_{f}_q2", f"Right_{f}_q1") for f in ("index", "middle", "ring", "pinky")]
+    assert all(c.multiplier == pytest.approx(1.05851325) and c.offset == pytest.approx(0.72349796)
+               for c in hand.couplings)
+    ball = tmp_path / "ball.yaml"
+    ball.write_text("shape: sphere\nsize: [0.03]\nmass_kg: 0.05\n")
+    assert main(["synth", str(out), str(ball), "--fingers", "thumb,index,middle,ring", "-n", "1", "-o",
+                 str(tmp_path / "g"), "--quiet"]) == 0
+    grasp = next((tmp_path / "g").glob("*.yaml"))
+    plan = tmp_path / "hold.json"
+    assert main(["plan", str(grasp), str(grasp), "--execution", "--no-verify", "-o", str(plan)]) == 0
+    capsys.readouterr()
+    data = json.loads(plan.read_text())
+    for st in data["states"]:
+        q = np.array([st["q"][j] for j in hand.joint_names])
+        assert np.max(hand.coupling_errors(q)) <= 1e-9
+        i1, i2 = hand.joint_names.index("Right_index_q1"), hand.joint_names.index("Right_index_q2")
+        assert q[i2] == pytest.approx(1.05851325 * q[i1] + 0.72349796, abs=1e-9)
+    assert main(["verify", str(plan)]) == 0
