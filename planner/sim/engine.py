@@ -12,7 +12,8 @@ quaternions (x, y, z, w), joint values in rad (m for prismatic joints), torques 
 forces in N, inertias in kg m^2. A contact's normal is the unit surface normal of the object
 pointing INTO the object (the direction the hand link pushes), as everywhere in the planner.
 
-`planner.sim.engine_pybullet.PybulletEngine` implements it.
+`planner.sim.engine_pybullet.PybulletEngine` and `planner.sim.engine_mujoco.MujocoEngine`
+implement it (`engine_for`; `default_engine`: pybullet when installed, else MuJoCo).
 """
 
 from __future__ import annotations
@@ -45,6 +46,8 @@ class World:
         dt_s: physics time step, s.
         solver_iterations: contact solver iterations per step.
         visual: also load the hand's visual shapes (only a picture needs them).
+        hand: the `planner.hand.Hand` of ``urdf_path`` (MuJoCo's scene takes its effort
+            limits, mesh folders and inertia rules from it; pybullet reads the URDF alone).
     """
 
     urdf_path: str
@@ -56,6 +59,7 @@ class World:
     dt_s: float
     solver_iterations: int
     visual: bool = False
+    hand: Any = field(default=None, compare=False, repr=False)
 
 
 @dataclass(frozen=True)
@@ -205,17 +209,64 @@ class PhysicsEngine(Sensor, Protocol):
         """Free what the engine built (and its connection, when it owns one)."""
 
 
+#: The physics engines a replay can run in (`engine_for`), the preferred default first, and
+#: the Python package each needs.
+ENGINES = {"pybullet": "pybullet", "mujoco": "mujoco"}
+
+
+def engine_installed(name: str) -> bool:
+    """Whether the package of engine ``name`` can be imported here (without importing it)."""
+    import importlib.util
+
+    return name in ENGINES and importlib.util.find_spec(ENGINES[name]) is not None
+
+
+def require_engine(name: str) -> str:
+    """``name`` when it is a known, installed engine.
+
+    Raises:
+        InputError: no engine of that name.
+        SimulationError: its package is not installed (one line naming the package).
+    """
+    from planner.errors import InputError, SimulationError
+
+    if name not in ENGINES:
+        raise InputError(f"unknown physics engine {name!r}; choose from: {', '.join(ENGINES)}")
+    if not engine_installed(name):
+        have = [e for e in ENGINES if engine_installed(e)]
+        raise SimulationError(f"physics engine {name!r} is not installed: pip install {ENGINES[name]}"
+                              + (f" (installed: {', '.join(have)})" if have else " (no engine is installed)"))
+    return name
+
+
+def default_engine() -> str:
+    """The engine a replay uses when none is asked for: pybullet when it is installed (it has
+    wheels only up to Python 3.11), else MuJoCo.
+
+    Raises:
+        SimulationError: neither is installed.
+    """
+    for name in ENGINES:
+        if engine_installed(name):
+            return name
+    from planner.errors import SimulationError
+
+    raise SimulationError("no physics engine is installed: pip install mujoco (or pybullet, Python <= 3.11)")
+
+
 def engine_for(name: str, world: World, **options: Any) -> PhysicsEngine:
     """Build ``world`` in the engine named ``name`` (``options``: the engine's own, e.g.
     pybullet's ``client``/``gui``).
 
     Raises:
         InputError: no engine of that name.
+        SimulationError: its package is not installed.
     """
-    from planner.errors import InputError
-
+    require_engine(name)
     if name == "pybullet":
         from planner.sim.engine_pybullet import PybulletEngine  # pybullet: loaded only here
 
         return PybulletEngine(world, **options)
-    raise InputError(f"unknown physics engine {name!r}; choose from: pybullet")
+    from planner.sim.engine_mujoco import MujocoEngine  # mujoco: loaded only there
+
+    return MujocoEngine(world, **options)

@@ -105,4 +105,4 @@ def replay_world(info: HandInfo, obj: GraspObject, mass_kg: float, friction: Fri
 
     inertia = {link: tuple(box.tolist()) for link, (_, _, box) in replay_inertia(info.hand).items()}
     return World(info.urdf_path, info.T_palm_base, inertia, obj, float(mass_kg), friction, float(dt_s),
-                 int(solver_iterations), visual)
+                 int(solver_iterations), visual, info.hand)
