@@ -541,6 +541,10 @@ class MujocoScene:
         #: hand collision geom id -> its link
         self._geom_link = {g: body_link[int(m.geom_bodyid[g])] for g in range(m.ngeom)
                            if int(m.geom_bodyid[g]) in body_link and (m.geom_contype[g] or m.geom_conaffinity[g])}
+        self._hand_geoms = np.array(sorted(self._geom_link), dtype=int)
+        self._geom_links = np.array([self._geom_link[g] for g in self._hand_geoms], dtype=object)
+        self._is_hand = np.zeros(m.ngeom, dtype=bool)
+        self._is_hand[self._hand_geoms] = True
         mujoco.mj_forward(m, self.data)
 
     # ----------------------------------------------------------------- names
@@ -734,22 +738,26 @@ class MujocoScene:
     def contacts(self) -> list[ContactPoint]:
         """The hand-object contacts of the last step (or `mujoco.mj_forward`): link, point,
         normal INTO the object, normal force and signed distance, one per MuJoCo contact."""
+        n = int(self.data.ncon)
+        if n == 0:
+            return []
+        con = self.data.contact  # (MuJoCo's contact arrays, one row per contact)
+        g1, g2 = con.geom1, con.geom2
+        hand1 = (g2 == self._obj_geom) & self._is_hand[g1]  # the frame's normal: geom1 -> geom2
+        hand2 = (g1 == self._obj_geom) & self._is_hand[g2]
+        rows = np.flatnonzero(hand1 | hand2)
+        if not len(rows):
+            return []
+        pos, normal, dist, efc = con.pos, con.frame[:, :3], con.dist, con.efc_address
         out = []
         f6 = np.zeros(6)
-        for i in range(self.data.ncon):
-            c = self.data.contact[i]
-            g1, g2 = int(c.geom1), int(c.geom2)
-            if g2 == self._obj_geom and g1 in self._geom_link:
-                link, sign = self._geom_link[g1], 1.0  # the frame's normal: geom1 -> geom2
-            elif g1 == self._obj_geom and g2 in self._geom_link:
-                link, sign = self._geom_link[g2], -1.0
-            else:
-                continue
+        for i in rows:
+            link, sign = (self._geom_link[int(g1[i])], 1.0) if hand1[i] else (self._geom_link[int(g2[i])], -1.0)
             force = 0.0
-            if c.efc_address >= 0:
-                mujoco.mj_contactForce(self.model, self.data, i, f6)
+            if efc[i] >= 0:
+                mujoco.mj_contactForce(self.model, self.data, int(i), f6)
                 force = float(f6[0])
-            out.append(ContactPoint(link, c.pos.copy(), sign * c.frame[:3].copy(), float(c.dist), force))
+            out.append(ContactPoint(link, pos[i].copy(), sign * normal[i], float(dist[i]), force))
         return out
 
     def closest_points(self, gap_m: float, link: str | None = None) -> list[ContactPoint]:
@@ -762,24 +770,32 @@ class MujocoScene:
             raise InputError(f"gap_m must be a non-negative number of metres, got {gap_m!r}")
         if link is not None:
             self._link(link)
+        # only geoms whose bounding spheres come within the gap of the object's bounding box
+        # (MuJoCo's geom_aabb: centre and half sizes in the geom's frame)
+        m, data, o = self.model, self.data, self._obj_geom
+        ids = self._hand_geoms if link is None else self._hand_geoms[self._geom_links == link]
+        local = (data.geom_xpos[ids] - data.geom_xpos[o]) @ data.geom_xmat[o].reshape(3, 3) - m.geom_aabb[o, :3]
+        outside = np.maximum(np.abs(local) - m.geom_aabb[o, 3:], 0.0)
+        near = ids[np.sqrt(np.einsum("ij,ij->i", outside, outside)) - m.geom_rbound[ids] < gap_m]
         best: dict[str, tuple[float, np.ndarray, int]] = {}
         fromto = np.zeros(6)
-        for g, name in self._geom_link.items():
-            if link is not None and name != link:
-                continue
-            d = float(mujoco.mj_geomDistance(self.model, self.data, g, self._obj_geom, float(gap_m), fromto))
-            if d < gap_m and (name not in best or d < best[name][0]):
-                best[name] = (d, fromto.copy(), g)
+        gap, geom_link, distance = float(gap_m), self._geom_link, mujoco.mj_geomDistance
+        for g in near.tolist():
+            dist = distance(m, data, g, o, gap, fromto)
+            if dist < gap:
+                name = geom_link[g]
+                if name not in best or dist < best[name][0]:
+                    best[name] = (dist, fromto.copy(), g)
         out = []
         for name in (l for l in self.link_names if l in best):
-            d, ft, g = best[name]
+            dist, ft, g = best[name]
             v = ft[3:] - ft[:3]  # link's point -> object's point: into the object when apart
-            length = float(np.linalg.norm(v))
+            length = math.sqrt(float(v @ v))
             if length > DIRECTION_MIN_M:
-                n = v / length * (1.0 if d >= 0 else -1.0)
+                n = v * ((1.0 if dist >= 0 else -1.0) / length)
             else:
                 n = self._distance_gradient(g, gap_m)
-            out.append(ContactPoint(name, ft[3:].copy(), n, d, 0.0))
+            out.append(ContactPoint(name, ft[3:], n, dist, 0.0))
         return out
 
     def _distance_gradient(self, geom: int, gap_m: float) -> np.ndarray:
