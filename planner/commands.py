@@ -85,7 +85,9 @@ def cmd_plan(args: argparse.Namespace) -> int:
     if check is not None:
         shown = {"gravity": gname} if gname is not None else {}  # a named --gravity by its name
         names = ", ".join(shown.get(d, d) for d in check["directions"])
-        print(f"verified in pybullet: held in {len(check['directions'])} gravity directions ({names}), "
+        from planner.sim.engine import default_engine  # the engine plan's verification replayed in
+
+        print(f"verified in {check.get('engine') or default_engine()}: held in {len(check['directions'])} gravity directions ({names}), "
               f"{check['attempts']} sequence(s) replayed in {result.verify_s:.1f} s"
               + (f" ({len(check['rejected'])} rejected: " + "; ".join(f"{shown.get(r['direction'], r['direction'])} "
                                                                     f"at step {r['step']}"

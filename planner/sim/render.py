@@ -14,7 +14,13 @@ from PIL import Image, ImageDraw, ImageFont
 from scipy.spatial.transform import Rotation
 
 from planner.errors import SimulationError
-from planner.sim.scene import hand_body, object_body, p
+from planner.sim.engine import engine_installed
+
+if not engine_installed("pybullet"):  # every picture goes through this module: one line, no traceback
+    raise SimulationError("pictures (check --png, view --gif, replay --gif/--mp4) are drawn by pybullet, which is not "
+                          "installed (it has wheels up to Python 3.11): pip install pybullet, or use Python <= 3.11")
+
+from planner.sim.scene import hand_body, object_body, p  # noqa: E402 (after the check above)
 
 OBJECT_RGBA = (0.95, 0.55, 0.15, 1.0)
 HAND_RGBA = (0.72, 0.74, 0.78, 1.0)

@@ -68,7 +68,7 @@ from planner.errors import InputError, SimulationError
 from planner.model import PALM
 from planner.sim.contact_filter import ContactFilter
 from planner.sim.controller import TOUCH_TOL_M, Controller
-from planner.sim.engine import PhysicsEngine, engine_for
+from planner.sim.engine import PhysicsEngine, default_engine, engine_for
 from planner.sim.inputs import HandInfo, load_hand_info, object_mass, replay_world, typed_plan
 from planner.sim.report import ReplayReport, StateReport
 
@@ -143,7 +143,7 @@ def replay_plan(
     width: int = 640,
     height: int = 480,
     strict: bool = False,
-    engine: str = "pybullet",
+    engine: str | None = None,
 ) -> ReplayReport:
     """Replay a plan in a physics engine with gravity on; re-measure contacts, closure and drift.
 
@@ -182,7 +182,8 @@ def replay_plan(
         width, height: frame size in pixels.
         strict: a plan file whose recorded inputs changed or are gone is refused
             (`planner.plan.read_plan`'s ``strict``) instead of a warning.
-        engine: the physics engine (`planner.sim.engine.engine_for`): "pybullet".
+        engine: the physics engine (`planner.sim.engine.engine_for`): "pybullet" or "mujoco";
+            None: `planner.sim.engine.default_engine` (pybullet when installed, else MuJoCo).
 
     Returns:
         ReplayReport with a pass/fail verdict (drift and closure agreement), per-state
@@ -226,7 +227,7 @@ def replay_plan(
     visual = gui or not own or gif is not None or mp4 is not None
     world = replay_world(info, obj, mass_kg, friction, dt, solver_iterations, visual)
     t0 = time.perf_counter()
-    eng = engine_for(engine, world, client=client, gui=gui)
+    eng = engine_for(engine or default_engine(), world, client=client, gui=gui)
     try:
         sim = _Sim(eng, rd, info, joints, obj, friction, params, mass_kg, radius_m)
         params["object_mass_kg"] = sim.mass
@@ -538,8 +539,11 @@ class _Sim:
             # the moving finger tracks its path (capped near the squeeze at its pad)
             start = np.array([q_ref[j] for j in st.joints])
             path = lift_path(start, st.path) if st.action == "lift" else np.vstack([start[None, :], st.path])
+            # no faster than the finger's capped, damped motors follow (`Controller
+            # .tracking_speed_rad_s`): it would lag behind the path and land short of the object
+            speed = np.minimum(prm["joint_speed_rad_s"], ctl.tracking_speed_rad_s(st.joints))
             for a, b in zip(path[:-1], path[1:]):
-                n = max(1, int(math.ceil(float(np.max(np.abs(b - a))) / (prm["joint_speed_rad_s"] * self.dt))))
+                n = max(1, int(math.ceil(float(np.max(np.abs(b - a) / speed)) / self.dt)))
                 for i in range(1, n + 1):
                     ctl.set_moving_target({j: float(v) for j, v in zip(st.joints, a + (b - a) * i / n)})
                     if self._tick() > prm["drop_mm"]:
