@@ -637,12 +637,41 @@ def check_hand(ref) -> HandReport:
     for a, b, depth in hand.state(q_open).self_collisions():
         rep.add("warning", "open posture", f"links {a} and {b} overlap by {depth * 1000:.1f} mm: move the open "
                                            "posture or add the pair to disabled_collisions")
-    # pybullet
+    # the replay's engine (pybullet when installed, else MuJoCo) loads the URDF
+    from planner.sim.engine import default_engine
+
+    engine = default_engine()
+    problem = _pybullet_problem(hand) if engine == "pybullet" else _mujoco_problem(hand)
+    if problem:
+        rep.add("error", engine, problem)
+    else:
+        rep.add("ok", engine, "loads the URDF with every joint")
+    return rep
+
+
+def _pybullet_problem(hand) -> str | None:
+    """Why pybullet cannot simulate the hand (one line), or None."""
     from planner.sim.scene import urdf_problem  # pybullet: loaded only for this check
 
-    problem = urdf_problem(str(hand.urdf_path), hand.joint_names)
-    if problem:
-        rep.add("error", "pybullet", problem)
-    else:
-        rep.add("ok", "pybullet", "loads the URDF with every joint")
-    return rep
+    return urdf_problem(str(hand.urdf_path), hand.joint_names)
+
+
+def _mujoco_problem(hand) -> str | None:
+    """Why MuJoCo cannot simulate the hand (one line), or None: the replay's scene built
+    around a small sphere (any object: only the hand's compile and joints are checked)."""
+    from planner.errors import SimulationError
+    from planner.model import Friction
+    from planner.objects import make_object
+    from planner.sim.mujoco_model import build  # MuJoCo: loaded only for this check
+
+    try:
+        model = build(hand, make_object("sphere", (0.01,)), Friction(0.5, 0.0), dt_s=1e-3).model
+    except SimulationError as err:
+        return str(err)
+    missing = []
+    for j in hand.joint_names:
+        try:
+            model.joint(j)
+        except KeyError:
+            missing.append(j)
+    return f"joints {missing[:4]} are not in the URDF MuJoCo loads" if missing else None
