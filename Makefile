@@ -2,8 +2,9 @@
 #   make demo   install the package (no dev extra), then plan, verify and replay the bundled cylinder example
 #   make test   install, then run the test suite
 #   make wheel-check   build the wheel, install it in a fresh venv, run the CLI outside the repo
+# Another Python in its own venv: make test PYTHON=python3.13 VENV=.venv-3.13 (.ci/run does so)
 PYTHON ?= python3
-VENV := .venv
+VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
@@ -39,7 +40,7 @@ api-docs: $(STAMP)
 	OPENBLAS_NUM_THREADS=1 $(BIN)/python -m pdoc -o build/api planner $(MODULES)
 
 wheel-check: $(STAMP)
-	PYTHON=$(PYTHON) .ci/wheel_check
+	PYTHON=$(PYTHON) VENV=$(VENV) .ci/wheel_check
 
 bench: $(STAMP)
 	for f in benchmarks/bench_*.py; do $(BIN)/python $$f || exit 1; done
