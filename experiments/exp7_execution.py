@@ -19,6 +19,14 @@ The CSV has one row per pair and direction (a pair not planned has one
 row, direction empty): planned and plan time, passed (the replay's verdict), drift, closure
 agreement (states where the simulator's closure agrees / states reached) and time.
 
+``--engine pybullet|mujoco|both`` replays in that physics engine (`planner.sim.engine`;
+default: `planner.sim.engine.default_engine`); with ``both`` every plan is replayed in each
+engine, the CSV has an ``engine`` column, and the summary gives each engine's pass share
+and lists every (pair, direction) on which they disagree with both verdicts.
+``--replay-plans DIR`` plans nothing: it replays the plans a ``--save-plans`` run wrote
+(each file's pair and variant from its name) in the engine(s), the way to compare engines
+on the same plans.
+
 ``--turned`` adds held-out poses (`TURNS`), ``--heavy`` heavier objects (`HEAVY_FACTORS`).
 
 ``--contact-model link|mean`` sets execution mode's contact model (default: its own, "link":
@@ -27,7 +35,8 @@ the model before issue 34); the validity check of the input stays "mean" either 
 runs plan the same pairs. ``--save-plans DIR`` writes every plan.
 
     python experiments/exp7_execution.py [--quick] [--max-pairs N] [--directions 1|2|6|7] [--turned] [--heavy]
-        [--contact-model link|mean] [--save-plans DIR]
+        [--contact-model link|mean] [--save-plans DIR] [--engine pybullet|mujoco|both]
+    python experiments/exp7_execution.py --replay-plans DIR --engine both [--max-pairs N]
     python experiments/exp7_execution.py --from-csv experiments/results/exp7_execution.csv  # re-plot
 """
 
@@ -239,14 +248,21 @@ def plan_options(palm_normal, contact_model: str | None = None):
             "mean + gravity palm down", ["palm_down"])
 
 
-def replay_all(plan: dict, hand, n: int) -> list[tuple[str, object, float]]:
-    """(direction name, ReplayReport, wall s) per direction: `replay_gravity_set` when the
-    replay has it, else `replay_plan` per direction of `gravity_directions(palm_normal, n)`."""
+def engines_of(engine: str | None) -> tuple[str, ...]:
+    """The engines of ``--engine`` (None: the default engine; "both": pybullet then mujoco)."""
+    from planner.sim.verify import engines_of as verify_engines
+
+    return verify_engines(engine)
+
+
+def replay_all(plan: dict, hand, n: int, engine: str = "pybullet") -> list[tuple[str, object, float]]:
+    """(direction name, ReplayReport, wall s) per direction in one engine: `replay_gravity_set`
+    when the replay has it, else `replay_plan` per direction of `gravity_directions(palm_normal, n)`."""
     from planner.sim import replay as rp
     from planner.sim import verify as rv
 
     if hasattr(rv, "replay_gravity_set"):
-        rep = rv.replay_gravity_set(plan, n, hand=hand)
+        rep = rv.replay_gravity_set(plan, n, hand=hand, engine=engine)
         return [(name, r, r.wall_time_s) for name, _, r in rep.directions]
     from planner.gravity import gravity_directions
 
@@ -313,12 +329,25 @@ def task(t: dict) -> list[dict]:
         from planner.plan_data import write_plan
 
         row["plan_file"] = str(write_plan(res.plan, plan_path(t["save_plans"], t["pair"], row["variant"])))
+    return replay_rows(row, res.plan.to_dict(), hand, planned_for, t, t0)
+
+
+def replay_rows(row: dict, plan, hand, planned_for, t: dict, t0: float) -> list[dict]:
+    """One row per engine (``t["engines"]``) and direction of a planned pair (``row``)."""
+    rows = []
+    for engine in t.get("engines") or ("pybullet",):
+        rows += _engine_rows(dict(row, engine=engine), plan, hand, planned_for, t, engine)
+    for r in rows:
+        r["pair_time_s"] = time.perf_counter() - t0
+    return rows
+
+
+def _engine_rows(row: dict, plan, hand, planned_for, t: dict, engine: str) -> list[dict]:
     rows = []
     try:
-        reports = replay_all(res.plan.to_dict(), hand, t["directions"])
+        reports = replay_all(plan, hand, t["directions"], engine)
     except Exception as err:  # noqa: BLE001 - the replay itself failed: reported per pair
-        row.update(reason=f"replay: {type(err).__name__}: {err}".replace("\n", " ")[:200],
-                   pair_time_s=time.perf_counter() - t0)
+        row.update(reason=f"replay: {type(err).__name__}: {err}".replace("\n", " ")[:200])
         return [row]
     for name, rep, wall in reports:
         agree, reached = rep.closure_agreement
@@ -329,11 +358,69 @@ def task(t: dict) -> list[dict]:
                  closure_agree=agree, closure_reached=reached,
                  closure_all_agree=bool(reached == len(rep.states) and agree == reached),
                  passed_and_agree=bool(rep.passed and reached == len(rep.states) and agree == reached),
-                 sim_time_s=rep.sim_time_s, replay_time_s=wall, verdict=rep.verdict.replace("\n", " ")[:160])
+                 sim_time_s=rep.sim_time_s, replay_time_s=wall, verdict=rep.verdict.replace("\n", " ")[:300])
         rows.append(r)
-    for r in rows:
-        r["pair_time_s"] = time.perf_counter() - t0
     return rows
+
+
+def saved_plan_tasks(folder: Path) -> list[dict]:
+    """One task per plan file a ``--save-plans`` run wrote (`plan_path`'s names), sorted."""
+    tasks = []
+    for path in sorted(Path(folder).glob("*.json")):
+        hand_dir, rest = path.stem.split("_", 1)
+        parts = rest.split("_")
+        # <object>_<mode>_<scale>: the mode is one word, or "turn <axis>" (axis: palm, tilt_1, tilt_2)
+        k = next(i for i, w in enumerate(parts) if w in MODE_WORDS)
+        mode = f"turn {'_'.join(parts[k + 1:-1])}" if parts[k] == "turn" else parts[k]
+        tasks.append({"plan_file": str(path), "pair": f"{hand_dir}/{'_'.join(parts[:k])}",
+                      "variant": f"{mode} {parts[-1]}"})
+    return tasks
+
+
+#: The variant words of `plan_path`'s names (exp4's modes, "uniform", "turn", "mass").
+MODE_WORDS = ("uniform", "x", "y", "z", "radius", "length", "turn", "mass")
+
+
+def replay_task(t: dict) -> list[dict]:
+    """Replay a saved plan (`saved_plan_tasks`) in the engines: rows as `task`'s."""
+    from planner.plan import read_plan
+    from planner.sim.inputs import plan_hand
+
+    t0 = time.perf_counter()
+    plan = read_plan(t["plan_file"])
+    hand = plan_hand(plan)
+    obj = plan.object
+    row = {"pair": t["pair"], "hand": hand.name, "family": family(obj), "shape": obj.shape, "variant": t["variant"],
+           "size": " ".join(f"{v:.4f}" for v in obj.size), "mode": "saved plan", "valid_input": True, "planned": True,
+           "states": len(plan.states), "plan_file": t["plan_file"], "plan_time_s": float("nan")}
+    names = [d["name"] for d in (plan.parameters.get("gravity_directions") or [])]
+    row["planned_for"] = " ".join(names)
+    return replay_rows(row, plan, hand, names, t, t0)
+
+
+def engine_comparison(rows: list[dict]) -> dict:
+    """Each engine's share of plans passing every direction, and every (pair, variant,
+    direction) on which two engines' verdicts differ, with both verdicts."""
+    engines = list(dict.fromkeys(r["engine"] for r in rows if r.get("engine")))
+    out: dict = {}
+    verdicts: dict[tuple, dict] = {}
+    for r in rows:
+        if r.get("direction"):
+            verdicts.setdefault((r["pair"], r["variant"], r["direction"]), {})[r["engine"]] = r
+    plans = sorted({(p, v) for p, v, _ in verdicts})
+    for e in engines:
+        ok = sum(all(rs[e]["passed"] for (p, v, _), rs in verdicts.items() if (p, v) == key and e in rs)
+                 for key in plans)
+        out[f"engine {e}: pass every direction"] = f"{ok}/{len(plans)} ({100 * ok / max(1, len(plans)):.1f} %)"
+        out[f"engine {e}: replay wall s per direction (median)"] = (
+            f"{np.median([rs[e]['replay_time_s'] for rs in verdicts.values() if e in rs]):.2f}")
+    if len(engines) > 1:
+        differ = [(k, rs) for k, rs in sorted(verdicts.items()) if len({bool(rs[e]["passed"]) for e in engines if e in rs}) > 1]
+        out["disagreements (pair variant direction)"] = len(differ)
+        for (p, v, d), rs in differ:
+            out[f"  {p} {v} {d}"] = "; ".join(f"{e} {'PASS' if rs[e]['passed'] else rs[e]['verdict']}"
+                                              for e in engines if e in rs)
+    return out
 
 
 # ------------------------------------------------------------------ summary
@@ -452,23 +539,35 @@ def main(argv=None) -> dict:
                          "'link' = one contact per touching link, 'mean' = one per finger at its patch mean)")
     ap.add_argument("--save-plans", type=Path, default=None, metavar="DIR",
                     help="write each plan to DIR/<hand>_<object>_<variant>.json (replayable with regrasp replay)")
+    ap.add_argument("--engine", default=None, choices=("pybullet", "mujoco", "both"),
+                    help="physics engine of the replays (default: pybullet when installed, else mujoco); "
+                         "both: each plan in each, the disagreements listed")
+    ap.add_argument("--replay-plans", type=Path, default=None, metavar="DIR",
+                    help="plan nothing: replay the plans a --save-plans run wrote to DIR")
     ap.add_argument("--from-csv", type=Path, default=None,
                     help="no run: summary and plot of an existing exp7 CSV (PNG into --out/--name)")
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
     if args.from_csv is not None:
         return replot(args.from_csv, args.out / f"{args.name}.png", "exp7 execution", plot, summarize)
-    tasks = pair_tasks(args.quick, args.turned, args.heavy)[: args.max_pairs]
+    engines = engines_of(args.engine)
+    if args.replay_plans is not None:
+        tasks, fn = saved_plan_tasks(args.replay_plans)[: args.max_pairs], replay_task
+    else:
+        tasks, fn = pair_tasks(args.quick, args.turned, args.heavy)[: args.max_pairs], task
     if args.save_plans is not None:
         args.save_plans.mkdir(parents=True, exist_ok=True)
     for t in tasks:
-        t.update(directions=args.directions, contact_model=args.contact_model,
+        t.update(directions=args.directions, contact_model=args.contact_model, engines=engines,
                  save_plans=str(args.save_plans) if args.save_plans is not None else None)
-    per_pair = run_tasks(task, tasks, args, desc="exp7 execution")
+    per_pair = run_tasks(fn, tasks, args, desc="exp7 execution")
     rows = [r for rs in per_pair for r in rs]
     write_csv(args.out / f"{args.name}.csv", rows)
-    plot(rows, args.out / f"{args.name}.png")
-    summary = summarize(rows)
+    first = [r for r in rows if r.get("engine", engines[0]) == engines[0]]  # the plot and summary: one engine
+    plot(first, args.out / f"{args.name}.png")
+    summary = summarize(first)
+    if len(engines) > 1 or args.replay_plans is not None:
+        summary.update(engine_comparison(rows))
     summary["mesh pairs found"] = len(mesh_pairs())
     summary["wall_s"] = time.perf_counter() - t0
     print_summary("exp7 execution", summary)

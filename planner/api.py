@@ -30,7 +30,9 @@ def plan(initial, final, *, execution: bool = False, output: PathLike | None = N
     Args:
         initial, final: grasp files (paths), `planner.grasp.GraspSpec` or `RealizedGrasp`.
         execution: `PlanOptions.for_execution` (one contact per touching link, six gravity
-            directions, the grip model, verified in pybullet) instead of the thesis's defaults.
+            directions, the grip model, verified in a physics engine: ``engine="pybullet"``,
+            ``"mujoco"`` or ``"both"``; default pybullet when installed, else MuJoCo) instead
+            of the thesis's defaults.
         output: also write the plan there (``.yaml``/``.json``), atomically; it may not be a
             file the planner reads (the grasp files, their hand's files, the object's mesh).
         verbose: let OMPL log to the console.
@@ -90,8 +92,9 @@ def plan(initial, final, *, execution: bool = False, output: PathLike | None = N
     return result
 
 
-def replay(plan, *, gravity_set: int | None = None, report: PathLike | None = None, **kwargs: Any):
-    """Execute a plan in pybullet (``regrasp replay``), after the physics checks of `verify`.
+def replay(plan, *, gravity_set: int | None = None, report: PathLike | None = None, engine: str | None = None,
+           **kwargs: Any):
+    """Execute a plan in a physics engine (``regrasp replay``), after the physics checks of `verify`.
 
     Args:
         plan: a plan file, a `planner.plan_data.Plan` or plan data.
@@ -99,6 +102,8 @@ def replay(plan, *, gravity_set: int | None = None, report: PathLike | None = No
             parallel processes (``workers=N``); None: one replay, palm down unless
             ``gravity=(gx, gy, gz)`` or a name (``"palm_up"``) is given.
         report: also write the replay's report (JSON) there, atomically.
+        engine: "pybullet", "mujoco", "both" (each engine in turn; the films of each are
+            ``FILE_<engine>.gif``) or None (`planner.sim.engine.default_engine`).
         **kwargs: `planner.sim.replay.replay_plan` keywords (``gif``, ``mp4``,
             ``drift_mm_max``, ...; with ``gravity_set``, ``film``: the directions filmed).
 
@@ -108,7 +113,8 @@ def replay(plan, *, gravity_set: int | None = None, report: PathLike | None = No
     and no two may be the same.
 
     Returns:
-        `ReplayReport` (one replay) or `GravitySetReport` (``gravity_set``).
+        `ReplayReport` (one replay) or `GravitySetReport` (``gravity_set``); with ``engine="both"``
+        a `planner.sim.verify.EnginesReport` of one of those per engine.
     """
     import json
 
@@ -119,7 +125,7 @@ def replay(plan, *, gravity_set: int | None = None, report: PathLike | None = No
     from planner.plan_data import Plan
     from planner.sim.inputs import plan_hand
     from planner.sim.replay import replay_plan
-    from planner.sim.verify import film_paths, replay_gravity_set
+    from planner.sim.verify import engine_path, engines_of, film_paths, in_engines, replay_gravity_set
 
     if not isinstance(plan, Plan):
         plan = plan_from_data(dict(plan)) if hasattr(plan, "keys") else read_plan(plan, strict=kwargs.get("strict", False))
@@ -127,18 +133,26 @@ def replay(plan, *, gravity_set: int | None = None, report: PathLike | None = No
     require_sound(plan, hand)
     if isinstance(kwargs.get("gravity"), str):  # a named orientation (planner.gravity.named_gravity)
         kwargs["gravity"] = named_gravity(kwargs["gravity"], hand)
+    engines = engines_of(engine)  # (an engine not installed: one line, before any work)
+    films = {e: {key: (engine_path(kwargs[key], e) if len(engines) > 1 else kwargs[key])
+                 for key in ("gif", "mp4") if kwargs.get(key) is not None} for e in engines}
     outputs = [(report, "--report")]
-    for key in ("gif", "mp4"):
-        if gravity_set is None:
-            outputs.append((kwargs.get(key), "--" + key))
-        elif kwargs.get(key) is not None:
-            names = [n for n, _ in gravity_directions(hand.palm_normal, gravity_set)]
-            outputs += [(p, "--" + key) for p in film_paths(kwargs[key], names, kwargs.get("film"))]
+    for e in engines:
+        for key, path in films[e].items():
+            if gravity_set is None:
+                outputs.append((path, "--" + key))
+            else:
+                names = [n for n, _ in gravity_directions(hand.palm_normal, gravity_set)]
+                outputs += [(p, "--" + key) for p in film_paths(path, names, kwargs.get("film"))]
     check_outputs(outputs, plan_files(plan, hand))
-    if gravity_set is not None:
-        result = replay_gravity_set(plan, gravity_set, hand=hand, **kwargs)
-    else:
-        result = replay_plan(plan, hand=hand, **kwargs)
+    results = []
+    for e in engines:
+        kw = {**kwargs, **films[e], "engine": e}
+        if gravity_set is not None:
+            results.append((e, replay_gravity_set(plan, gravity_set, hand=hand, **kw)))
+        else:
+            results.append((e, replay_plan(plan, hand=hand, **kw)))
+    result = results[0][1] if len(results) == 1 else in_engines(results)
     if report is not None:
         write_atomic(report, json.dumps(result.to_dict(), indent=1) + "\n")
     return result

@@ -45,7 +45,7 @@ from planner.grasp import load_grasp
 from planner.plan import read_plan, recorded_input
 from planner.grip import HOLD_FACTOR, finger_statics, grip_program, hold_capacity
 from planner.model import PALM, Friction
-from planner.options import PLAN_OPTION_LIMITS, in_range, option_range
+from planner.options import PLAN_OPTION_LIMITS, VERIFY_ENGINES, in_range, option_range
 from planner.plan_data import Plan, hand_files_record, plan_hand
 from planner.realization import PENETRATION_TOL_M as _GRASP_PENETRATION_TOL_M
 from planner.realization import realize
@@ -580,6 +580,12 @@ def _check_verification(plan, planned: list[str], rep: AuditReport) -> None:
     failed = [n for n, v in directions.items() if not (isinstance(v, dict) and v.get("passed") is True)]
     if failed:
         rep.add(f"summary.verification: {', '.join(map(str, failed))} not held, yet the plan was returned")
+    # the engine(s) it was verified in (a record without one, written before MuJoCo, was pybullet's)
+    engine = record.get("engine", "pybullet")
+    if engine not in VERIFY_ENGINES:
+        rep.add(f"summary.verification.engine: {engine!r} is no physics engine; valid: {', '.join(VERIFY_ENGINES)}")
+    elif engine == "both" and sorted(record.get("engines") or ()) != ["mujoco", "pybullet"]:
+        rep.add("summary.verification.engines: verified in both engines, yet the record has not each engine's verdicts")
 
 
 def _check_chain(plan, hand, rep: AuditReport, grasps: dict) -> None:

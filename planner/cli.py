@@ -28,6 +28,9 @@ from planner.resources import bundled_grasp
 DEMO_INITIAL = "icub/cylinder_parallel_extension.yaml"  # bundled grasps (planner.resources)
 DEMO_FINAL = "icub/cylinder_ir2m.yaml"
 DEMO_OUT = "regrasp-demo"
+#: --engine of plan and replay (`planner.options.VERIFY_ENGINES`, written out: --help loads nothing).
+ENGINE_CHOICES = ("pybullet", "mujoco", "both")
+_ENGINE_DEFAULT = "pybullet when installed, else mujoco"
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
@@ -123,9 +126,12 @@ def build_parser() -> argparse.ArgumentParser:
                            "largest grip force they need (grip; needs --gravity or --gravity-set)")
     plan.add_argument("--execution", action="store_true",
                       help="plan for execution: --contact-model mean, --gravity-set 6 (unless --gravity or "
-                           "--gravity-set is given) and --rank grip, and verify the plan in pybullet")
+                           "--gravity-set is given) and --rank grip, and verify the plan in a physics engine (--engine)")
     plan.add_argument("--no-verify", action="store_true",
-                      help="with --execution: return the best sequence without replaying it in pybullet first")
+                      help="with --execution: return the best sequence without replaying it in a physics engine first")
+    plan.add_argument("--engine", default=None, choices=ENGINE_CHOICES,
+                      help="with --execution: the physics engine that verifies the plan (default: " + _ENGINE_DEFAULT
+                           + "); both: returned only if it holds in pybullet and in mujoco")
     plan.add_argument("--no-motion", action="store_true", help="skip OMPL finger paths (straight joint segments)")
     plan.add_argument("--motion-planner", default="rrtconnect", help="OMPL planner name (default rrtconnect)")
     plan.add_argument("--motion-checks", type=int, default=MOTION_CHECKS, metavar="N",
@@ -159,12 +165,16 @@ def build_parser() -> argparse.ArgumentParser:
                        help="processes running attempts (default 1); the files do not depend on it")
     synth.add_argument("-q", "--quiet", action="store_true", help="no progress line on stderr")
     synth.set_defaults(func=commands.cmd_synth)
-    replay = sub.add_parser("replay", help="execute a plan in pybullet with gravity on and check the object stays put")
+    replay = sub.add_parser("replay", help="execute a plan in a physics engine with gravity on and check the object "
+                                           "stays put")
     replay.add_argument("plan", help="plan file (.yaml/.yml or .json)")
+    replay.add_argument("--engine", default=None, choices=ENGINE_CHOICES,
+                        help="physics engine (default: " + _ENGINE_DEFAULT + "); both: replay in each, pass only if "
+                             "both pass (films: FILE_<engine>.gif)")
     replay.add_argument("--gif", metavar="FILE", help="write an animated GIF (headless TinyRenderer)")
     replay.add_argument("--gif-every", type=int, default=8, metavar="N", help="one GIF frame every N physics steps (default 8)")
     replay.add_argument("--mp4", metavar="FILE", help="write an MP4 (needs ffmpeg on PATH)")
-    replay.add_argument("--gui", action="store_true", help="open the pybullet GUI (needs a display)")
+    replay.add_argument("--gui", action="store_true", help="open the pybullet GUI (needs a display; --engine pybullet)")
     replay.add_argument("--report", metavar="FILE", help="write the replay report as JSON")
     replay.add_argument("--strict", action="store_true",
                         help="refuse a plan whose recorded input files changed or are gone (default: a warning)")

@@ -55,6 +55,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
         time_limit_s=args.time_limit,
         max_rounds=args.max_rounds,
         **({"verify": False} if args.no_verify else {}),
+        **({"engine": args.engine} if args.engine is not None else {}),
         **chosen,
     )
     plan = result.plan  # written by plan_api before anything is printed: a closed pipe (| head) cannot lose it
@@ -87,7 +88,8 @@ def cmd_plan(args: argparse.Namespace) -> int:
         names = ", ".join(shown.get(d, d) for d in check["directions"])
         from planner.sim.engine import default_engine  # the engine plan's verification replayed in
 
-        print(f"verified in {check.get('engine') or default_engine()}: held in {len(check['directions'])} gravity directions ({names}), "
+        engines = {"both": "pybullet and mujoco"}.get(check.get("engine"), check.get("engine") or default_engine())
+        print(f"verified in {engines}: held in {len(check['directions'])} gravity directions ({names}), "
               f"{check['attempts']} sequence(s) replayed in {result.verify_s:.1f} s"
               + (f" ({len(check['rejected'])} rejected: " + "; ".join(f"{shown.get(r['direction'], r['direction'])} "
                                                                     f"at step {r['step']}"
@@ -231,17 +233,24 @@ def _print_states(report) -> None:
               + (", ".join(f"{f} {d:.1f} mm" for f, d in sorted(s.contact_offset_mm.items()) if d >= 1.0) or "-"))
 
 
-def _compare_verification(plan, result) -> None:
-    """Say whether this replay gives what the planner's verification recorded: the verdicts
-    and the drifts (the replay is deterministic: a record this replay did not write differs)."""
+def _compare_verification(plan, result, engine: str = "pybullet") -> None:
+    """Say whether this replay (in ``engine``) gives what the planner's verification recorded
+    for that engine: the verdicts and the drifts (the replay is deterministic: a record this
+    replay did not write differs). A plan verified before engines were named was pybullet's."""
     recorded = (plan.summary or {}).get("verification")
     if not isinstance(recorded, dict) or not isinstance(recorded.get("directions"), dict):
         return
+    by_engine = recorded.get("engines") if isinstance(recorded.get("engines"), dict) else {}
+    verified_in = recorded.get("engine", "pybullet")
+    mine = by_engine.get(engine) if by_engine else (recorded["directions"] if verified_in == engine else None)
+    if not isinstance(mine, dict):
+        print(f"the plan's verification ran in {verified_in}; this replay in {engine}: not compared")
+        return
     now = {name: r for name, _, r in result.directions}
-    common = [n for n in recorded["directions"] if n in now]
+    common = [n for n in mine if n in now]
 
     def differs(name) -> bool:
-        rec = recorded["directions"][name]
+        rec = mine[name]
         rec = rec if isinstance(rec, dict) else {}
         r = now[name]
         if bool(rec.get("passed")) != r.passed:
@@ -251,16 +260,31 @@ def _compare_verification(plan, result) -> None:
 
     differ = [n for n in common if differs(n)]
     if differ:
-        print(f"warning: this replay differs from the plan's recorded verification in {', '.join(differ)} "
+        print(f"warning: this replay in {engine} differs from the plan's recorded verification in {', '.join(differ)} "
               f"(verdict or drift): the record was not written by a replay of this plan")
     elif common:
-        print(f"same verdicts and drifts as the plan's verification in {len(common)} direction(s)")
+        print(f"same verdicts and drifts in {engine} as the plan's verification in {len(common)} direction(s)")
+
+
+def _print_gravity_set(result) -> None:
+    print(f"{'gravity':<10} {'g (palm frame)':<22} {'verdict':<5} {'drift mm':>8} {'drift deg':>9} {'closure':>8}  why")
+    for name, g, r in result.directions:
+        agree, reached = r.closure_agreement
+        why = r.reasons[0] if r.reasons and not r.passed else ""
+        print(f"{name:<10} {'[' + ' '.join(f'{v:+.2f}' for v in g) + ']':<22} {'PASS' if r.passed else 'FAIL':<5} "
+              f"{r.max_drift_mm:>8.2f} {r.max_drift_deg:>9.2f} {f'{agree}/{reached}':>8}  {why}")
+
+
+def _engine_verdict(report) -> str:
+    """A single replay's verdict naming its engine: "PASS in mujoco: max drift ..."."""
+    head, sep, rest = report.verdict.partition(": ")
+    return f"{head} in {report.engine}{sep}{rest}"
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
-    """Replay a plan in pybullet (`planner.api.replay`, printed); exit 0 pass, 1 fail (dropped,
-    drifted or closure disagrees), 2 bad input."""
-    from planner.api import replay  # deferred: pybullet
+    """Replay a plan in a physics engine (`planner.api.replay`, printed; ``--engine both``: in
+    each); exit 0 pass, 1 fail (dropped, drifted or closure disagrees; in any engine), 2 bad input."""
+    from planner.api import replay  # deferred: the physics engine
 
     kw = dict(gui=args.gui, gif=args.gif, gif_every=args.gif_every, mp4=args.mp4,
               drift_mm_max=args.drift_mm, drift_deg_max=args.drift_deg, strict=args.strict)
@@ -273,28 +297,38 @@ def cmd_replay(args: argparse.Namespace) -> int:
     from planner.plan import read_plan  # deferred: scipy (~0.2 s)
 
     plan = read_plan(args.plan, strict=args.strict)  # read (and its inputs checked) once
+    engine = {"engine": args.engine} if args.engine is not None else {}
     if args.gravity_set is not None:
         film = [d.strip() for d in args.film.split(",") if d.strip()] if args.film else None
         result = replay(plan, gravity_set=args.gravity_set, report=args.report, film=film,
-                        workers=1 if args.gui else args.workers, **kw)
-        print(f"{'gravity':<10} {'g (palm frame)':<22} {'verdict':<5} {'drift mm':>8} {'drift deg':>9} {'closure':>8}  why")
-        for name, g, r in result.directions:
-            agree, reached = r.closure_agreement
-            why = r.reasons[0] if r.reasons and not r.passed else ""
-            print(f"{name:<10} {'[' + ' '.join(f'{v:+.2f}' for v in g) + ']':<22} {'PASS' if r.passed else 'FAIL':<5} "
-                  f"{r.max_drift_mm:>8.2f} {r.max_drift_deg:>9.2f} {f'{agree}/{reached}':>8}  {why}")
+                        workers=1 if args.gui else args.workers, **engine, **kw)
+        results = getattr(result, "engines", None) or ((result.directions[0][2].engine, result),)
+        for name, res in results:
+            if len(results) > 1:
+                print(f"{name}:")
+            _print_gravity_set(res)
+            _compare_verification(plan, res, name)
+            if len(results) > 1:
+                print(f"{name}: {res.verdict}")
         passed, verdict = result.passed, result.verdict
-        _compare_verification(plan, result)
     else:
         gravity = tuple(args.gravity) if args.gravity and not isinstance(args.gravity, str) else args.gravity
-        report = replay(plan, report=args.report, **kw, **({"gravity": gravity} if gravity is not None else {}))
-        if isinstance(args.gravity, str):
-            print(_gravity_line(args.gravity, report.parameters["gravity"], plan.hand["name"]))
-        _print_states(report)
-        agree, reached = report.closure_agreement
-        print(f"force closure agrees at {agree}/{reached} states; simulated {report.sim_time_s:.2f} s "
-              f"in {report.wall_time_s:.2f} s" + (f"; GIF {report.gif} ({report.gif_frames} frames)" if report.gif else ""))
-        passed, verdict = report.passed, report.verdict
+        result = replay(plan, report=args.report, **engine, **kw, **({"gravity": gravity} if gravity is not None else {}))
+        results = getattr(result, "engines", None) or ((result.engine, result),)
+        for name, report in results:
+            if len(results) > 1:
+                print(f"{name}:")
+            if isinstance(args.gravity, str):
+                print(_gravity_line(args.gravity, report.parameters["gravity"], plan.hand["name"]))
+            _print_states(report)
+            agree, reached = report.closure_agreement
+            print(f"force closure agrees at {agree}/{reached} states; simulated {report.sim_time_s:.2f} s "
+                  f"in {report.wall_time_s:.2f} s in {name}"
+                  + (f"; GIF {report.gif} ({report.gif_frames} frames)" if report.gif else ""))
+            if len(results) > 1:
+                print(_engine_verdict(report))
+        passed = result.passed
+        verdict = result.verdict if len(results) > 1 else _engine_verdict(result)
     print(verdict)
     return 0 if passed else 1
 

@@ -55,6 +55,9 @@ PLAN_OPTION_LIMITS = {
     "hold_factor": (0.0, 100.0, True),
     "gravity": (-1000.0, 1000.0, False),
 }
+#: The physics engines a plan can be verified in (`planner.sim.engine.ENGINES`, and "both":
+#: it must hold in each); written out so that the options load no engine.
+VERIFY_ENGINES = ("pybullet", "mujoco", "both")
 #: `regrasp plan` option of each `PLAN_OPTION_LIMITS` field named differently (``--time-limit``).
 PLAN_OPTION_FLAGS = {"time_limit_s": "time_limit", "max_finger_force_n": "max_finger_force"}
 
@@ -109,10 +112,14 @@ class PlanOptions:
             gravity, N (default None: the joints' torque limits alone bound the grip).
         hold_factor: the multiple of the weight every state must hold (default
             `planner.grip.HOLD_FACTOR`, the replay controller's squeeze safety factor).
-        verify: replay the best sequence in pybullet under every planned-for gravity
+        verify: replay the best sequence in a physics engine under every planned-for gravity
             direction before returning it (`planner.sim.verify`, directions in parallel
             processes); the transition that failed first is removed and the search goes on
             (execution mode's default; needs ``gravity`` or ``gravity_set``).
+        engine: the physics engine of the verification: "pybullet", "mujoco", "both" (the
+            plan is returned only if it holds in each) or None (`planner.sim.engine
+            .default_engine`: pybullet when installed, else MuJoCo). Recorded in the plan's
+            ``summary.verification.engine``.
         verify_attempts: sequences replayed at most before giving up (a bound on the work,
             not on the time, so the plan does not depend on the machine's load).
         workers: processes for the verification replays (None: the cores available). The
@@ -164,6 +171,7 @@ class PlanOptions:
     verify: bool = False
     verify_attempts: int = 6
     workers: int | None = None
+    engine: str | None = None
 
     @classmethod
     def for_execution(cls, **overrides) -> "PlanOptions":
@@ -202,6 +210,8 @@ class PlanOptions:
         if self.execution and (self.contact_model not in EXECUTION_CONTACT_MODELS or self.rank != "grip"):
             raise PlannerError(f"execution mode plans with the 'link' (or 'mean') contact model and grip ranking, got contact "
                                f"model {self.contact_model!r} and rank {self.rank!r}")
+        if self.engine is not None and self.engine not in VERIFY_ENGINES:
+            raise UnknownNameError("physics engine", str(self.engine), VERIFY_ENGINES)
         if self.strategy not in STRATEGIES:
             raise UnknownNameError("strategy", self.strategy, STRATEGIES)
         if self.contact_model not in CONTACT_MODELS:

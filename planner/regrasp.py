@@ -381,9 +381,10 @@ def plan_regrasp(
     verified, rejected, verify_s, workers, plan = None, [], 0.0, None, None
     rejected_moves: list[str] = []  # the plan step each rejected sequence failed at, in words
     if verifying:
-        from planner.sim.verify import default_workers, verify_suspects_first  # pybullet: only when verifying
+        from planner.sim.verify import default_workers, engines_of, verify_suspects_first  # an engine: only when verifying
 
         workers = options.workers or default_workers()
+        engine_names = " and ".join(engines_of(options.engine))  # an engine not installed: refused before the search
     if options.strategy == "greedy":  # thesis Algorithm 2: only visits the states it walks through
         G = seed_graph(problem)
         candidates = [replace(greedy(G), rank=options.rank)]
@@ -444,11 +445,12 @@ def plan_regrasp(
             annotate_removable(G, [v for s in candidates for v in s.nodes])
             plan = _make_plan(initial, final, options, inputs or {}, problem, G, candidates[0], candidates[1:], motions,
                               search_info)
-            log.info("verifying in pybullet: attempt %d, %d direction(s) in %d process(es)", len(rejected) + 1,
+            log.info("verifying in %s: attempt %d, %d direction(s) in %d process(es)", engine_names, len(rejected) + 1,
                      len(directions), min(workers, len(directions)))
             # the directions that rejected a sequence before are replayed first: a sequence
             # they reject again costs their replays only (a bound on the work, not the time)
-            check = verify_suspects_first(plan, hand, directions, {r["direction"] for r in rejected}, workers=workers)
+            check = verify_suspects_first(plan, hand, directions, {r["direction"] for r in rejected}, workers=workers,
+                                          engine=options.engine)
             verify_s += check.wall_time_s
             log.info("verification %s (%.1f s)", "passed" if check.passed else "failed: " + check.first_failure()[0],
                      check.wall_time_s)
@@ -553,6 +555,7 @@ def _make_plan(initial, final, options, inputs, problem, G, best, others, motion
     }
     parameters = asdict(options)
     del parameters["workers"]  # how many processes verified it changes nothing in the plan
+    del parameters["engine"]  # the engine(s) verified in: summary.verification.engine
     directions = gravity_directions_of(options, hand)
     parameters["gravity_directions"] = [{"name": n, "gravity": list(g)} for n, g in directions] or None
     parameters["grip_cone_sides"] = GRIP_CONE_SIDES if directions else None

@@ -2,7 +2,11 @@
 
 `plan_frames` draws a plan (``regrasp view --gif``); `ReplayRecorder` draws a running replay
 (``regrasp replay --gif/--mp4``) in the same way, reading the simulation only; both use the
-pictures of `planner.sim.render`. `write_gif` encodes frames with one palette for the whole
+pictures of `planner.sim.render` (pybullet's TinyRenderer, CPU only). A replay in pybullet is
+drawn from its own bodies; a replay in another engine (MuJoCo) from a mirror: the hand and the
+object loaded once in a private pybullet client and put, at every frame, where the engine has
+them (its joint positions and object pose), so both engines' films look alike and need no
+OpenGL context. `write_gif` encodes frames with one palette for the whole
 film (`gif_palette`), at a given clock (`gif_durations_ms`); `write_mp4` goes through ffmpeg.
 """
 
@@ -11,6 +15,7 @@ from __future__ import annotations
 import os
 import subprocess
 import tempfile
+import weakref
 from pathlib import Path
 
 import numpy as np
@@ -23,7 +28,9 @@ from planner.gravity import gravity_directions
 from planner.plan_data import Plan
 from planner.sim.inputs import HandInfo
 from planner.sim.render import (FINGER_RGB, HAND_RGBA, MOVING_RGBA, OBJECT_RGBA, HandScene, contact_camera,
-                                hand_reach_m, patch_markers, rgb255)
+                                hand_reach_m, patch_markers, rgb255, set_hand_configuration)
+from planner.sim.render import _pose as _pose_of
+from planner.sim.scene import p  # pybullet (render checked it is installed)
 
 
 def plan_frames(plan, hand, obj, *, frames_per_step: int = 8, width: int = 640, height: int = 480,
@@ -165,7 +172,12 @@ class ReplayRecorder:
                         for x in np.asarray(P, float).reshape(-1, 3)]).reshape(-1, 3)
         extent = float(np.ptp(pts, axis=0).max()) if len(pts) > 1 else 0.03
         self.normal_len_m = 0.2 * extent
-        self.scene = HandScene.adopt(hand, *sim.engine.render_bodies(), width=width, height=height)
+        if hasattr(sim.engine, "render_bodies"):  # pybullet: its own bodies
+            self.scene, self.mirror = HandScene.adopt(hand, *sim.engine.render_bodies(), width=width, height=height), None
+        else:  # another engine: a mirror scene the engine's state is copied into at every frame
+            self.scene = HandScene(hand, q0, sim.rd.object, width=width, height=height)
+            self.mirror = self.scene.bodies[1]  # (HandScene's bodies: the hand, the object)
+            weakref.finalize(self, self.scene.close)
         self.camera = contact_camera(hand, np.eye(4), pts if len(pts) else None, T[:3, 3],
                                      hand_reach_m(hand, q0, T[:3, 3], (extent,)))
         self.g = np.asarray(sim.params["gravity"], float)
@@ -223,8 +235,13 @@ class ReplayRecorder:
         caption = (f"{doing}\nstate {i}: plan metric {state.metric:.4g}, "
                    f"{'force closure' if state.is_force_closure else 'NO closure'}\n"
                    f"drift {mm:.2f} mm / {deg:.2f} deg{' OVER LIMIT' if over else ''}, gravity {self.g_name}, "
-                   f"t {t:.2f} s")
+                   f"t {t:.2f} s in {sim.engine.name}")
         T = sim.obj_pose()
+        if self.mirror is not None:  # the engine's state into the mirror (hand joints in the hand's order)
+            self.scene.q = np.asarray(sim.ctl.q(), float)
+            set_hand_configuration(self.scene.body, self.scene.hand, self.scene.q, self.scene.client)
+            pos, quat = _pose_of(self.scene.T_root_palm @ T)
+            p.resetBasePositionAndOrientation(self.mirror, pos, quat, physicsClientId=self.scene.client)
         patches: dict[str, tuple[list, list]] = {}
         for link, pt, n in sim.contact_sample(T):
             P, N = patches.setdefault(sim.link_finger.get(link, "palm"), ([], []))

@@ -10,6 +10,11 @@ reports are those of a serial run, in the directions' order.
 it will be written (numbers rounded as in the file) is replayed in every direction it was
 planned for; the first failure says which plan step failed (`ReplayReport.failed_step`), so
 the planner can remove that transition and search again.
+
+Engines. Every function here takes ``engine``: "pybullet", "mujoco" (`planner.sim.engine`),
+None (`planner.sim.engine.default_engine`) or, where a plan is verified or replayed as a
+whole, "both": the plan must hold in each (`engines_of`; pybullet first, and when it fails
+MuJoCo is not asked). Every verdict names its engine.
 """
 
 from __future__ import annotations
@@ -26,6 +31,7 @@ from pathlib import Path
 
 from planner.errors import InputError
 from planner.gravity import gravity_directions
+from planner.sim.engine import ENGINES, default_engine, require_engine
 from planner.plan import plan_from_data
 from planner.plan_data import Plan
 from planner.sim.inputs import plan_hand, typed_plan
@@ -34,6 +40,32 @@ from planner.sim.report import GravitySetReport, ReplayReport
 
 #: The job the forked workers run (set before the pool forks; read only in the workers).
 _JOB: dict = {}
+#: The ``engine`` value that asks for every engine.
+BOTH = "both"
+
+
+def engines_of(engine: str | None) -> tuple[str, ...]:
+    """The engines an ``engine`` option names, each installed: None the default engine,
+    "both" every engine of `planner.sim.engine.ENGINES` (pybullet first).
+
+    Raises:
+        InputError: an unknown name (the valid ones listed).
+        SimulationError: an engine it names is not installed.
+    """
+    if engine is None:
+        return (default_engine(),)
+    if engine == BOTH:
+        return tuple(require_engine(e) for e in ENGINES)
+    if engine not in ENGINES:
+        raise InputError(f"unknown physics engine {engine!r}; choose from: {', '.join(ENGINES)}, {BOTH}")
+    return (require_engine(engine),)
+
+
+def one_engine(engine: str | None) -> str:
+    """The one engine an ``engine`` option names (not "both"), installed."""
+    if engine == BOTH:
+        raise InputError(f"one replay runs in one engine: {', '.join(ENGINES)} (not {BOTH})")
+    return engines_of(engine)[0]
 
 
 def default_workers() -> int:
@@ -69,6 +101,7 @@ def replay_directions(plan: Plan, hand, directions: Sequence[tuple[str, Sequence
         the `ReplayReport` of each direction, in order (identical to a serial run).
     """
     directions = [(str(n), tuple(float(v) for v in g)) for n, g in directions]
+    kwargs["engine"] = one_engine(kwargs.get("engine"))
     n = len(directions)
     workers = default_workers() if workers is None else int(workers)
     _JOB.clear()
@@ -94,7 +127,8 @@ def replay_directions(plan: Plan, hand, directions: Sequence[tuple[str, Sequence
 
 def _log_done(name: str, report, k: int, n: int) -> None:
     """One progress record per replayed direction (`planner.regrasp.log`; the CLI shows it)."""
-    logging.getLogger("planner").info("replay %d/%d %s: %s", k, n, name, "PASS" if report.passed else "FAIL")
+    logging.getLogger("planner").info("replay %d/%d %s in %s: %s", k, n, name, report.engine,
+                                      "PASS" if report.passed else "FAIL")
 
 
 def film_paths(path, names: Sequence[str], film: Sequence[str] | None = None) -> list[Path | None]:
@@ -107,7 +141,7 @@ def film_paths(path, names: Sequence[str], film: Sequence[str] | None = None) ->
 
 def replay_gravity_set(plan: Mapping | str | os.PathLike, n: int = 6, *, hand=None, g_mps2: float = 9.81,
                        film: Sequence[str] | None = None, strict: bool = False, workers: int | None = None,
-                       **kwargs) -> GravitySetReport:
+                       engine: str | None = None, **kwargs) -> GravitySetReport:
     """Replay a plan under several gravity directions of the palm frame (`planner.gravity`).
 
     Args:
@@ -120,6 +154,7 @@ def replay_gravity_set(plan: Mapping | str | os.PathLike, n: int = 6, *, hand=No
         strict: refuse a plan file whose recorded inputs changed or are gone (`replay_plan`).
         workers: processes the directions are replayed in (`planner.sim.verify.replay_directions`;
             default: the cores available; the reports are those of a serial run).
+        engine: the physics engine (`one_engine`: "pybullet", "mujoco"; None: the default).
         **kwargs: passed to `replay_plan` (not ``gravity``; a ``gif`` path gets the direction
             name inserted before its suffix).
 
@@ -128,6 +163,7 @@ def replay_gravity_set(plan: Mapping | str | os.PathLike, n: int = 6, *, hand=No
     """
     if "gravity" in kwargs:
         raise InputError("replay_gravity_set takes no gravity: it replays the set's directions")
+    engine = one_engine(engine)
     rd = typed_plan(plan, strict)  # read and verified once for every direction
     if hand is None:
         hand = plan_hand(rd)
@@ -140,17 +176,58 @@ def replay_gravity_set(plan: Mapping | str | os.PathLike, n: int = 6, *, hand=No
     for key in ("gif", "mp4"):
         if kw.get(key) is not None:
             kw[key] = film_paths(kw[key], names, film)
-    reports = replay_directions(rd, hand, directions, workers=workers, **kw)
+    reports = replay_directions(rd, hand, directions, workers=workers, engine=engine, **kw)
     out = [(name, g, r) for (name, g), r in zip(directions, reports)]
     failed = [(name, r) for name, _, r in out if not r.passed]
     if not failed:
         worst_mm = max(r.max_drift_mm for _, _, r in out)
         worst_deg = max(r.max_drift_deg for _, _, r in out)
-        verdict = f"PASS in all {len(out)} gravity directions: max drift {worst_mm:.1f} mm / {worst_deg:.1f} deg"
+        verdict = (f"PASS in all {len(out)} gravity directions in {engine}: max drift {worst_mm:.1f} mm / "
+                   f"{worst_deg:.1f} deg")
     else:
-        verdict = (f"FAIL in {len(failed)}/{len(out)} gravity directions: "
+        verdict = (f"FAIL in {len(failed)}/{len(out)} gravity directions in {engine}: "
                    + "; ".join(f"{name}: {r.verdict.removeprefix('FAIL: ')}" for name, r in failed))
     return GravitySetReport(not failed, verdict, tuple(out))
+
+
+@dataclass(frozen=True)
+class EnginesReport:
+    """A replay (one direction or a gravity set) in several engines (``engine="both"``).
+
+    Attributes:
+        passed: it passed in every engine.
+        verdict: one line naming the engines it failed in, with the first one's verdict.
+        engines: (engine, its `ReplayReport` or `GravitySetReport`) per engine, pybullet first.
+    """
+
+    passed: bool
+    verdict: str
+    engines: tuple[tuple[str, ReplayReport | GravitySetReport], ...]
+
+    def to_dict(self) -> dict:
+        """Plain data for JSON."""
+        return {"passed": self.passed, "verdict": self.verdict,
+                "engines": [{"engine": e, "report": r.to_dict()} for e, r in self.engines]}
+
+
+def engine_path(path, engine: str) -> Path:
+    """A film of one engine among several: ``FILE_<engine>.ext`` beside ``path``."""
+    path = Path(path)
+    return path.with_name(f"{path.stem}_{engine}{path.suffix}")
+
+
+def in_engines(results: Sequence[tuple[str, ReplayReport | GravitySetReport]]) -> EnginesReport:
+    """The `EnginesReport` of one replay's results in several engines."""
+    failed = [(e, r) for e, r in results if not r.passed]
+    names = " and ".join(e for e, _ in results)
+    if not failed:
+        verdict = f"PASS in {names}"
+    else:
+        e, r = failed[0]
+        held = [x for x, rr in results if rr.passed]
+        verdict = (f"FAIL in {', '.join(x for x, _ in failed)}" + (f" (holds in {', '.join(held)})" if held else "")
+                   + f": {e}: {r.verdict}")
+    return EnginesReport(not failed, verdict, tuple(results))
 
 
 @dataclass(frozen=True)
@@ -158,16 +235,21 @@ class Verification:
     """The outcome of `verify_plan`.
 
     Attributes:
-        passed: every direction passed.
+        passed: every direction passed (in every engine).
         directions: (name, passed, verdict line, failed plan step or None, failed at the
             state it reaches (`ReplayReport.failed_at_state`), max drift mm, max drift deg)
-            per direction.
+            per direction; with several engines the worst of them (failed in any, the
+            earliest failing step, the largest drift), the verdict naming the engine.
         wall_time_s: wall-clock time of the replays.
+        engine: the engine option verified with ("pybullet", "mujoco" or "both").
+        by_engine: (engine, its rows as ``directions``) per engine replayed.
     """
 
     passed: bool
     directions: tuple[tuple[str, bool, str, int | None, bool, float, float], ...]
     wall_time_s: float
+    engine: str = "pybullet"
+    by_engine: tuple[tuple[str, tuple], ...] = ()
 
     def first_failure(self) -> tuple[str, int, str, bool] | None:
         """(direction, plan step (-1: state 0), verdict, failed at the state the step reaches)
@@ -183,9 +265,14 @@ class Verification:
         def num(x: float):
             return round(x, 3) if math.isfinite(x) else None
 
-        return {"passed": self.passed,
-                "directions": {name: {"passed": ok, "max_drift_mm": num(mm), "max_drift_deg": num(deg)}
-                               for name, ok, _, _, _, mm, deg in self.directions}}
+        def rows(directions) -> dict:
+            return {name: {"passed": ok, "max_drift_mm": num(mm), "max_drift_deg": num(deg)}
+                    for name, ok, _, _, _, mm, deg in directions}
+
+        out = {"passed": self.passed, "engine": self.engine, "directions": rows(self.directions)}
+        if len(self.by_engine) > 1:  # "both": each engine's own verdicts and drifts
+            out["engines"] = {e: rows(d) for e, d in self.by_engine}
+        return out
 
 
 def as_written(plan: Plan) -> Plan:
@@ -195,29 +282,59 @@ def as_written(plan: Plan) -> Plan:
 
 
 def verify_plan(plan: Plan, hand, directions: Sequence[tuple[str, Sequence[float]]], *,
-                workers: int | None = None) -> Verification:
-    """Replay a plan as it will be written under each direction (`replay_directions`)."""
+                workers: int | None = None, engine: str | None = None) -> Verification:
+    """Replay a plan as it will be written under each direction (`replay_directions`), in
+    the engine(s) of ``engine`` (`engines_of`; with "both" the next engine only when the
+    plan held in the previous one: a refusal needs one failing engine)."""
     t0 = time.perf_counter()
-    reports = replay_directions(as_written(plan), hand, directions, workers=workers)
-    rows = tuple((name, r.passed, r.verdict, r.failed_step, r.failed_at_state, float(r.max_drift_mm),
-                  float(r.max_drift_deg))
-                 for (name, _), r in zip(directions, reports))
-    return Verification(all(r[1] for r in rows), rows, time.perf_counter() - t0)
+    engines = engines_of(engine)
+    written = as_written(plan)
+    by_engine = []
+    for e in engines:
+        reports = replay_directions(written, hand, directions, workers=workers, engine=e)
+        rows = tuple((name, r.passed, f"{e}: {r.verdict}", r.failed_step, r.failed_at_state, float(r.max_drift_mm),
+                      float(r.max_drift_deg))
+                     for (name, _), r in zip(directions, reports))
+        by_engine.append((e, rows))
+        if not all(r[1] for r in rows):
+            break
+    merged = tuple(_worst([rows[i] for _, rows in by_engine]) for i in range(len(directions)))
+    return Verification(all(r[1] for r in merged), merged, time.perf_counter() - t0,
+                        engine if engine == BOTH else engines[0], tuple(by_engine))
+
+
+def _worst(rows):
+    """One direction's row over several engines: the first failing engine's verdict and step
+    (the earliest step), the largest drifts."""
+    failed = [r for r in rows if not r[1]]
+    if not failed:
+        first = rows[0]
+        return (first[0], True, first[2], None, False, max(r[5] for r in rows), max(r[6] for r in rows))
+    f = min(failed, key=lambda r: -1 if r[3] is None else r[3])
+    return (f[0], False, f[2], f[3], f[4], max(r[5] for r in rows), max(r[6] for r in rows))
 
 
 def verify_suspects_first(plan: Plan, hand, directions: Sequence[tuple[str, Sequence[float]]], suspects,
-                          *, workers: int | None = None) -> Verification:
+                          *, workers: int | None = None, engine: str | None = None) -> Verification:
     """`verify_plan`, the ``suspects`` (direction names that rejected an earlier sequence)
     replayed first: when one of them fails, the others are not replayed (the verdict is that
     of the suspects: deterministic, since which directions are suspects depends only on the
     earlier verdicts); when they all pass, the rest are, and the result covers every
     direction in ``directions`` order, as `verify_plan`'s."""
     first = [d for d in directions if d[0] in set(suspects)]
+    kw = {} if engine is None else {"engine": engine}  # (the default engine: verify_plan's call as before)
     if not first or len(first) == len(directions):
-        return verify_plan(plan, hand, directions, workers=workers)
-    a = verify_plan(plan, hand, first, workers=workers)
+        return verify_plan(plan, hand, directions, workers=workers, **kw)
+    a = verify_plan(plan, hand, first, workers=workers, **kw)
     if not a.passed:
         return a
-    b = verify_plan(plan, hand, [d for d in directions if d[0] not in set(suspects)], workers=workers)
-    rows = {r[0]: r for r in a.directions + b.directions}
-    return Verification(b.passed, tuple(rows[name] for name, _ in directions), a.wall_time_s + b.wall_time_s)
+    b = verify_plan(plan, hand, [d for d in directions if d[0] not in set(suspects)], workers=workers, **kw)
+
+    def ordered(rows):
+        by_name = {r[0]: r for r in rows}
+        return tuple(by_name[name] for name, _ in directions if name in by_name)
+
+    engines = dict(b.by_engine)
+    by_engine = tuple((e, ordered(rows + engines.get(e, ()))) for e, rows in a.by_engine)
+    return Verification(b.passed, ordered(a.directions + b.directions), a.wall_time_s + b.wall_time_s,
+                        getattr(b, "engine", "pybullet"), by_engine)
