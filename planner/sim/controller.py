@@ -143,6 +143,7 @@ class Controller:
         self.col = {j: i for i, j in enumerate(hand.joint_names)}
         self.link_order = {name: k for k, name in enumerate(topology.links)}
         self.link_finger = {link: link_finger.get(link, "palm") for link in topology.links}
+        self.link_parent = dict(topology.parent)  # link -> (the joint it hangs from, its parent link)
         self.finger_links = {f: [i for i, g in self.link_finger.items() if g == f] for f in hand.fingers}
         self.mass, self.friction, self.g_max = float(mass_kg), friction, float(g_max_mps2)
         # torques are in the engine's joint order; the hand's own order reads them
@@ -187,24 +188,37 @@ class Controller:
 
     def _armature(self, dt_s: float) -> tuple[np.ndarray, dict[str, float]]:
         """The rotational inertia every finger link needs at least to keep the explicit
-        posture springs stable (``omega dt <= ARMATURE_OMEGA_DT`` at the stiffest spring a
-        free finger gets, one-finger squeeze), as the reflected rotor inertia of a geared
-        finger motor would: (n_movable,) the floor per joint and link -> the floor of its
-        principal moments (kg m^2), which the replay gives the engine
-        (`planner.sim.engine.PhysicsEngine.raise_link_inertia`)."""
+        posture springs stable (``omega dt <= ARMATURE_OMEGA_DT`` at the stiffest spring each
+        joint gets, one-finger squeeze), as the reflected rotor inertia of a geared finger
+        motor would: (n_movable,) the floor per joint and link -> the floor of its principal
+        moments (kg m^2), which the replay gives the engine
+        (`planner.sim.engine.PhysicsEngine.raise_link_inertia`).
+
+        Each joint's floor comes from its own spring (``Kp_j`` grows with the square of its
+        lever to the pad) and goes on the links it turns first (the link hanging from it, and
+        links fixed to that one); a joint's inertia about its axis includes every link beyond
+        it, so each joint gets at least its own floor. One floor per finger, from its longest
+        lever, made a distal joint's inertia the base joint's: critically damped, a saturated
+        distal spring then moved its joint at a few tenths of a rad/s."""
         F = max(self.force_override or 0.0, squeeze_force_n(self.mass, self.g_max, 1, self.friction.mu, self.floor_n))
         state = self.hand.state(np.array(self.hand.q_open))
         floor = np.zeros(len(self.movable))
-        links: dict[str, float] = {}
+        per_joint: dict[str, float] = {}
         for name, finger in self.hand.fingers.items():
             J = state.frame_jacobian(finger.pad_link, finger.pad_p_link)[:3]
-            reach = max([float(np.linalg.norm(J[:, self.col[j]])) for j in finger.joints] + [MIN_LEVER_M])
-            kp_max = max(FREE_SHARE, POSTURE_SHARE) * F / self.travel_m * reach ** 2
-            inertia = kp_max * (dt_s / ARMATURE_OMEGA_DT) ** 2
-            for link in self.finger_links.get(name, ()):
-                links[link] = inertia
             for j in finger.joints:
-                floor[self.hand_pos[j]] = inertia
+                lever = max(float(np.linalg.norm(J[:, self.col[j]])), MIN_LEVER_M)
+                kp_max = max(FREE_SHARE, POSTURE_SHARE) * F / self.travel_m * lever ** 2
+                per_joint[j] = kp_max * (dt_s / ARMATURE_OMEGA_DT) ** 2
+                floor[self.hand_pos[j]] = per_joint[j]
+        links: dict[str, float] = {}
+        for name in self.hand.fingers:
+            for link in self.finger_links.get(name, ()):
+                k = link  # up to the finger joint that turns it
+                while k in self.link_parent and self.link_parent[k][0] not in per_joint:
+                    k = self.link_parent[k][1]
+                joint = self.link_parent.get(k, (None,))[0]
+                links[link] = per_joint.get(joint, max(per_joint[j] for j in self.hand.fingers[name].joints))
         return floor, links
 
     # -- commands -----------------------------------------------------------------
@@ -253,6 +267,17 @@ class Controller:
         self.q_ref.update(q_finger)
         for j, v in q_finger.items():
             self.q_target[self.hand_pos[j]] = v
+
+    def tracking_speed_rad_s(self, joints: Sequence[str]) -> np.ndarray:
+        """How fast each joint can follow a moving target, rad/s (the current motors): a
+        saturated posture spring pushes with ``cap`` against the damping ``Kd qdot``, so the
+        joint's terminal speed is ``cap / Kd``; half of it leaves the other half of the cap
+        to correct the tracking error and the model's errors (the lag then stays under
+        ``cap / (2 Kp)``). The replay times a moving finger's path by it: a path timed
+        faster is not followed, and a landing finger reached the end of its path millimetres
+        short of the object."""
+        ks = [self.hand_pos[j] for j in joints]
+        return 0.5 * self.cap[ks] / np.maximum(self.kd[ks], 1e-12)
 
     def step(self) -> np.ndarray:
         """The joint torques for the next physics step, engine joint order (forces re-solved
