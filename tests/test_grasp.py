@@ -305,6 +305,7 @@ def test_check_json_parses(capsys):
     assert len(report["joints"]) == 19
 
 
+@pytest.mark.needs_pybullet("pictures (check --png)")
 def test_check_png_renders_hand_and_object(tmp_path, capsys):
     """`--png` writes a picture in which both the object colour and the hand colour appear."""
     from PIL import Image
@@ -430,6 +431,7 @@ def test_unreachable_contact_says_where_to_move_it(tmp_path):
     np.testing.assert_allclose(err.target_palm + err.distance_m * err.direction_palm, err.closest_palm, atol=1e-9)
 
 
+@pytest.mark.needs_pybullet("pictures (render_png)")
 def test_check_png_draws_the_contacts(tmp_path, capsys):
     """The picture shows the realized contacts as green dots and normals (none without markers)."""
     from PIL import Image

@@ -44,6 +44,7 @@ def test_spec_loads_in_pinocchio(spec):
     assert hand.state(hand.q_open).collision_objects()
 
 
+@pytest.mark.needs_pybullet("pybullet's URDF loader")
 @pytest.mark.parametrize("spec", SPECS, ids=lambda p: p.parent.name)
 def test_spec_loads_in_pybullet(spec):
     """Every hand URDF loads in pybullet with one revolute joint per hand joint."""

@@ -467,6 +467,7 @@ def test_plan_is_written_even_when_the_reader_is_gone(tmp_path):
     assert len(read_plan(out).states) > 1
 
 
+@pytest.mark.needs_pybullet("pictures (planner.sim.film loads the pybullet renderer)")
 def test_gif_is_written_atomically(tmp_path, monkeypatch):
     """`film.write_gif` (`regrasp view --gif`, `regrasp replay --gif`): a save that fails
     half-way (disk full) leaves the old GIF and no temporary file."""

@@ -126,6 +126,7 @@ def test_view_film_may_not_be_the_plans_inputs(setup, capsys, tmp_path):
         link.unlink()
 
 
+@pytest.mark.needs_pybullet("what pybullet's URDF loader prints")
 def test_pybullet_never_prints_on_stdout(tmp_path):
     """A URDF without inertials makes pybullet's loader warn on the C stdout ("b3Warning ... No
     inertial data"): `hand check` (which loads it in pybullet) prints only its own lines."""

@@ -60,6 +60,7 @@ def test_a_robot_without_fingered_hands_is_refused_too(tmp_path, capsys):
     assert "hands found: none" in capsys.readouterr().err
 
 
+@pytest.mark.needs_pybullet("the cut-out hand loaded by pybullet's URDF loader")
 def test_root_cuts_the_hand_out_of_a_humanoid(tmp_path, capsys):
     out = tmp_path / "g1r" / "hand.yaml"
     out.parent.mkdir()
@@ -103,6 +104,7 @@ def _massless_icub(tmp_path) -> Path:
     return out / "hand.yaml"
 
 
+@pytest.mark.needs_pybullet("the masses pybullet's replay body gets")
 def test_links_without_inertia_get_the_stated_mass_everywhere(tmp_path, capsys):
     import math
 
@@ -171,6 +173,7 @@ def _pybullet_mesh_links(urdf_path) -> set:
         p.disconnect(physicsClientId=cid)
 
 
+@pytest.mark.needs_pybullet("pybullet's mesh loader")
 def test_relative_mesh_paths_resolve_against_the_urdf_folder_in_every_command(tmp_path, capsys):
     from tests.test_mesh_hand import mesh_hand
 
@@ -209,6 +212,7 @@ def _package_hand(tmp_path) -> tuple[Path, Path]:
     return urdf, pkgs
 
 
+@pytest.mark.needs_pybullet("pybullet's mesh loader")
 @pytest.mark.parametrize("how", ["package-dir", "ROS_PACKAGE_PATH"])
 def test_package_paths_resolve_for_pinocchio_pybullet_and_the_viewer(tmp_path, capsys, monkeypatch, how):
     urdf, pkgs = _package_hand(tmp_path)

@@ -207,6 +207,7 @@ def test_cli_view_writes_the_page(plan_path, tmp_path, capsys):
     assert f"{n_states} states, {n_steps} steps" in capsys.readouterr().out and out.stat().st_size > 100_000
 
 
+@pytest.mark.needs_pybullet("pictures (view --gif films)")
 def test_film_frames_are_readable(plan_path):
     """640x480 frames with a caption banner, contacts in the fingers' colours and the moving
     finger coloured only while a step runs; one fixed camera along the palm normal."""
@@ -233,6 +234,7 @@ def test_film_frames_are_readable(plan_path):
         assert count(first, finger_rgb(hand, finger), 30) > 10, finger
 
 
+@pytest.mark.needs_pybullet("pictures (render_png)")
 def test_check_png_markers_are_drawn(tmp_path):
     """`render_png` keeps its signature and draws markers and a caption; the default camera
     looks at the markers from the grasping side (it sees them: they are inside the image)."""
