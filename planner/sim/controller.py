@@ -49,6 +49,15 @@ no load and for the full load are blended). Before a
 finger lifts, its load is handed over (its forces fade to zero while the other fingers'
 forces fade to the solution without it); after a finger lands the reverse.
 
+Coupled joints (`planner.hand.Coupling`, ``q_f = m q_d + o``): the engine enforces each
+coupling (`planner.sim.engine.PhysicsEngine`: a gear constraint in pybullet, a joint
+equality in MuJoCo) and the controller commands the drivers only; a follower gets no motor
+torque. By virtual work the torque a follower's joint needs is its driver's actuator's load:
+``tau_d + m tau_f`` for gravity and contact forces (`_to_actuators`), the force solution's
+joint limits are the drivers' (`planner.hand.Finger.reduce` on the Jacobians and the
+gravity torques, ``effort[drivers]``), and a driver's posture spring acts on the finger's
+reduced coordinate (its lever: the pad Jacobian's driver column ``J_d + m J_f``).
+
 The controller is engine-free: it reads joint states, the object's pose and closest points
 through `planner.sim.engine.Sensor` (a physics engine, or synthetic readings in a test), and
 `Controller.step` returns the joint torques; the replay applies them.
@@ -117,6 +126,20 @@ def squeeze_force_n(mass_kg: float, g_max_mps2: float, n_fingers: int, mu: float
     return max(SAFETY * mass_kg * g_max_mps2 / (max(1, n_fingers) * mu), floor_n)
 
 
+# --------------------------------------------------------------------------- coupled joints
+
+
+def _free(finger) -> tuple[int, ...]:
+    """Positions in ``finger.joints`` of its actuated joints (`planner.hand.Finger.free`;
+    every joint of a finger without couplings)."""
+    return tuple(getattr(finger, "free", ())) or tuple(range(len(finger.joints)))
+
+
+def _reduce(finger, J) -> np.ndarray:
+    """``J`` (..., n_joints) over the finger's actuated joints (`planner.hand.Finger.reduce`)."""
+    return finger.reduce(J) if getattr(finger, "coupled", ()) else np.asarray(J, dtype=float)
+
+
 # --------------------------------------------------------------------------- controller
 
 
@@ -176,8 +199,14 @@ class Controller:
         for j in self.movable:
             if j in self.col:
                 self.tau_max[self.hand_pos[j]] = self.effort[self.col[j]]
-        # fingers every joint of which has a torque limit: the limits bound their forces
-        self.limited = {f for f, fg in hand.fingers.items() if np.all(np.isfinite(self.effort[[self.col[j] for j in fg.joints]]))}
+        # coupled joints: (follower, driver, multiplier), engine positions; a follower has no motor
+        self.coupled = [(self.hand_pos[c.joint], self.hand_pos[c.follows], float(c.multiplier))
+                        for c in getattr(hand, "couplings", ()) if c.joint in self.hand_pos and c.follows in self.hand_pos]
+        for f, _, _ in self.coupled:
+            self.tau_max[f] = 0.0
+        # fingers every actuated joint of which has a torque limit: the limits bound their forces
+        self.limited = {f for f, fg in hand.fingers.items()
+                        if np.all(np.isfinite(self.effort[[self.col[fg.joints[k]] for k in _free(fg)]]))}
 
     def _heaviest_finger_weight_n(self, link_mass_kg: Mapping[str, float], g: float) -> float:
         mass = {}
@@ -205,12 +234,13 @@ class Controller:
         floor = np.zeros(len(self.movable))
         per_joint: dict[str, float] = {}
         for name, finger in self.hand.fingers.items():
-            J = state.frame_jacobian(finger.pad_link, finger.pad_p_link)[:3]
-            for j in finger.joints:
-                lever = max(float(np.linalg.norm(J[:, self.col[j]])), MIN_LEVER_M)
+            for j, lever in self._levers(state, finger).items():
                 kp_max = max(FREE_SHARE, POSTURE_SHARE) * F / self.travel_m * lever ** 2
                 per_joint[j] = kp_max * (dt_s / ARMATURE_OMEGA_DT) ** 2
                 floor[self.hand_pos[j]] = per_joint[j]
+            for f, d, _, _ in getattr(finger, "coupled", ()):  # a follower's links: its driver's floor
+                per_joint[finger.joints[f]] = per_joint[finger.joints[d]]
+                floor[self.hand_pos[finger.joints[f]]] = per_joint[finger.joints[d]]
         links: dict[str, float] = {}
         for name in self.hand.fingers:
             for link in self.finger_links.get(name, ()):
@@ -276,8 +306,10 @@ class Controller:
         ``cap / (2 Kp)``). The replay times a moving finger's path by it: a path timed
         faster is not followed, and a landing finger reached the end of its path millimetres
         short of the object."""
-        ks = [self.hand_pos[j] for j in joints]
-        return 0.5 * self.cap[ks] / np.maximum(self.kd[ks], 1e-12)
+        speed = 0.5 * self.cap / np.maximum(self.kd, 1e-12)
+        for f, d, m in self.coupled:  # a follower moves with its driver
+            speed[f] = abs(m) * speed[d]
+        return speed[[self.hand_pos[j] for j in joints]]
 
     def step(self) -> np.ndarray:
         """The joint torques for the next physics step, engine joint order (forces re-solved
@@ -378,10 +410,26 @@ class Controller:
             t = J.T @ f_c
             for j, tj in zip(self.hand.fingers[c.finger].joints, t):
                 tau[self.hand_pos[j]] += tj
-        self.tau = tau
+        self.tau = self._to_actuators(tau)
         if self._tick % (16 * UPDATE_EVERY) == 0 or self._motors_stale:
             self._set_motors(state, F)
             self._motors_stale = False
+
+    def _to_actuators(self, tau: np.ndarray) -> np.ndarray:
+        """Joint torques (engine order) as actuator torques: a follower's torque loads its
+        driver's actuator times the multiplier (virtual work, `planner.hand.Finger.reduce`),
+        and the follower gets none."""
+        for f, d, m in self.coupled:
+            tau[d] += m * tau[f]
+            tau[f] = 0.0
+        return tau
+
+    def _levers(self, state, finger) -> dict[str, float]:
+        """Actuated joint -> its lever to the finger's pad (the pad Jacobian's column over the
+        finger's free coordinates, `planner.hand.Finger.reduce`), at least ``MIN_LEVER_M``."""
+        J = state.frame_jacobian(finger.pad_link, finger.pad_p_link)[:3]
+        J = _reduce(finger, J[:, [self.col[j] for j in finger.joints]])
+        return {finger.joints[k]: max(float(np.linalg.norm(J[:, i])), MIN_LEVER_M) for i, k in enumerate(_free(finger))}
 
     def _balanced(self, contacts: list[Contact], F: float, state) -> list[np.ndarray]:
         """Forces of the contacts (zero for passive ones): the balanced solution, blended for
@@ -488,10 +536,13 @@ class Controller:
         J_all = dict(zip(order, state.point_jacobians(
             [(contacts[i].link, contacts[i].point) for i in order], angular=True)))
         for f, idx in by_finger.items():
-            cols = [self.col[j] for j in self.hand.fingers[f].joints]
+            # over the finger's actuated joints: a follower's torque loads its driver's motor
+            fg = self.hand.fingers[f]
+            cols = [self.col[j] for j in fg.joints]
             Js = [J_all[i] for i in idx]
-            A, b = torque_rows([J[:3, cols] for J in Js], self.effort[cols], g_q[cols],
-                               torsion=[J[3:, cols].T @ contacts[i].normal for J, i in zip(Js, idx)])
+            A, b = torque_rows([_reduce(fg, J[:3, cols]) for J in Js], self.effort[[cols[k] for k in _free(fg)]],
+                               _reduce(fg, g_q[cols]),
+                               torsion=[_reduce(fg, J[3:, cols]).T @ contacts[i].normal for J, i in zip(Js, idx)])
             if len(A):
                 rows.append((idx, A, b))
         return rows
@@ -503,14 +554,16 @@ class Controller:
         damping critical for the joint's armature."""
         kp, cap = np.zeros(len(self.movable)), np.zeros(len(self.movable))
         for name, finger in self.hand.fingers.items():
-            J = state.frame_jacobian(finger.pad_link, finger.pad_p_link)[:3]
             share = FREE_SHARE if (name == self.moving or name not in self.holding) else POSTURE_SHARE
-            for j in finger.joints:
-                lever = max(float(np.linalg.norm(J[:, self.col[j]])), MIN_LEVER_M)
+            for j, lever in self._levers(state, finger).items():
                 k = self.hand_pos[j]
                 kp[k] = share * F / self.travel_m * lever ** 2
                 cap[k] = share * F * lever
-        self.kp, self.cap = kp, cap
-        self.kd = 2.0 * np.sqrt(kp * self.armature)
+        self.kp, self.cap = kp, cap  # (a follower: no spring, no motor)
+        # a driver moves its followers: its armature is theirs too, times the multiplier squared
+        inertia = self.armature.copy()
+        for f, d, m in self.coupled:
+            inertia[d] += m * m * self.armature[f]
+        self.kd = 2.0 * np.sqrt(kp * inertia)
         for j, v in self.q_ref.items():
             self.q_target[self.hand_pos[j]] = v

@@ -18,7 +18,17 @@ Settings (from the `planner.sim.engine.World`):
   control (the replay's controller damps the joints itself, critically for their inertia);
 - the default velocity motors off (zero force): the joints move under the torques of
   `set_joint_torques` alone;
-- the object is held (`hold_object`) by a fixed constraint of at most ``HOLD_FORCE_N``.
+- the object is held (`hold_object`) by a fixed constraint of at most ``HOLD_FORCE_N``;
+- coupled joints (the hand's `planner.hand.Coupling`, ``q_f = m q_d + o``: a URDF ``<mimic>``,
+  which pybullet's URDF loader ignores, or a hand.yaml coupling): one ``JOINT_GEAR``
+  constraint per coupling, from the follower's link (parent) to the driver's (child).
+  Bullet's gear row is ``qdot_parent + ratio qdot_child = 0`` with the position error
+  ``q_parent + ratio q_child - relativePositionTarget`` corrected at the constraint's ERP, so
+  ``gearRatio = -m`` and ``relativePositionTarget = o`` (measured on the test hand's
+  ``right_2 = 1.2 right_1 + 0.1``: the other sign or the links swapped turns the follower the
+  other way or at ``1/m``). ``GEAR_ERP`` corrects the whole error each step (at Bullet's default
+  0.2 a swinging finger left 0.026 rad; at 1, 0.007 rad), ``GEAR_MAX_TORQUE`` makes it a gear
+  train rather than a clutch.
 """
 
 from __future__ import annotations
@@ -37,6 +47,10 @@ OBJECT_RGBA = (0.85, 0.45, 0.15, 1.0)
 #: Largest force of the constraint that holds the object while the fingers acquire it, N:
 #: far above any squeeze of the bundled hands (a few N), so the object does not move.
 HOLD_FORCE_N = 1000.0
+#: A coupling's gear constraint: the share of its position error corrected per step, and its
+#: largest torque, N m (1000: three orders above any finger joint's effort limit, as the hold).
+GEAR_ERP = 1.0
+GEAR_MAX_TORQUE = 1000.0
 
 
 class PybulletEngine:
@@ -123,6 +137,12 @@ class PybulletEngine:
                          restitution=0.0, linearDamping=0.0, angularDamping=0.0, physicsClientId=cid)
         for i in self.movable:  # pybullet's default velocity motors off: torques act alone
             p.setJointMotorControl2(self.hand, i, p.VELOCITY_CONTROL, force=0.0, physicsClientId=cid)
+        for c in getattr(world.hand, "couplings", ()):  # coupled joints: gear constraints (module docstring)
+            if c.joint in self.jidx and c.follows in self.jidx:
+                gear = p.createConstraint(self.hand, self.jidx[c.joint], self.hand, self.jidx[c.follows], p.JOINT_GEAR,
+                                          [0, 0, 1], [0, 0, 0], [0, 0, 0], physicsClientId=cid)
+                p.changeConstraint(gear, gearRatio=-float(c.multiplier), relativePositionTarget=float(c.offset),
+                                   erp=GEAR_ERP, maxForce=GEAR_MAX_TORQUE, physicsClientId=cid)
 
     # -- the seam ---------------------------------------------------------------------
 

@@ -27,9 +27,10 @@ How the scene is made, and why (docs/ENGINES.md compares it with the pybullet re
   break the triangle inequality A + B >= C, which pinocchio and Bullet accept (the
   example-robot-data Allegro's link_3.0 is one): the two smaller moments are raised just
   enough, the largest and the principal axes kept (`_balanced`; `MujocoScene.balanced_links`
-  names those links). A URDF ``<mimic>``
-  stays the stiff joint equality MuJoCo's parser makes of it (``couplings=False``: dropped,
-  as pybullet ignores it).
+  names those links). Every coupling of the hand (`planner.hand.Hand.couplings`: a URDF
+  ``<mimic>`` or a hand.yaml coupling, ``q_f = m q_d + o``) is a stiff joint equality,
+  ``polycoef = (o, m, 0, 0, 0)`` (``couplings=False``: none, every joint free). The
+  controller commands the drivers only (a follower's motor gets zero).
 * **Torques.** One ``motor`` actuator (gear 1) per movable joint, named after the joint,
   ``ctrlrange`` +/- the hand's effort limit (`planner.hand.Hand.effort`: the URDF's
   ``<limit effort>`` or the hand.yaml's override; unlimited when neither gives one).
@@ -313,9 +314,9 @@ def build(hand, obj, friction, *, dt_s: float, gravity=(0.0, 0.0, 0.0), density_
         solver_iterations: MuJoCo's Newton solver iterations per step.
         hold: start with the object welded at its pose (`MujocoScene.hold_object`).
         visual: keep the URDF's visual geoms (for pictures; they never collide).
-        couplings: keep a URDF ``<mimic>`` as MuJoCo's parser makes it, a joint equality
-            (the coupled joint follows; pybullet's URDF loader ignores ``<mimic>``); False
-            drops them (every joint free, as in pybullet).
+        couplings: every coupling of the hand (a URDF ``<mimic>`` or a hand.yaml coupling)
+            as a joint equality (the follower follows its driver); False: none (every
+            joint free).
 
     Returns:
         A `MujocoScene` with the hand at its open posture and the object at rest at its pose.
@@ -386,11 +387,19 @@ def build(hand, obj, friction, *, dt_s: float, gravity=(0.0, 0.0, 0.0), density_
             act.ctrllimited = mujoco.mjtLimited.mjLIMITED_FALSE
 
     balanced = _set_inertias(spec, hand)
-    for eq in list(spec.equalities):  # the URDF's <mimic> couplings (the parser's joint equalities)
-        if not couplings or eq.name1 not in names or (eq.name2 and eq.name2 not in names):
-            spec.delete(eq)  # (a coupling to a locked joint: the joint is gone)
-        else:  # as stiff as the hold weld: the coupling is a gear train, not a spring
-            eq.solref, eq.solimp = list(contact_solref(dt_s)), list(HOLD_SOLIMP)
+    # coupled joints: the hand's (`planner.hand.Coupling`: a URDF <mimic>, or a hand.yaml coupling
+    # the URDF has none for, or one whose <mimic> names no joint), each a joint equality
+    # q_f = o + m q_d (polycoef "o m 0 0 0"); the parser's own equalities from <mimic> give way
+    for eq in list(spec.equalities):
+        spec.delete(eq)
+    for c in getattr(hand, "couplings", ()) if couplings else ():
+        if c.joint in names and c.follows in names:  # (a coupling to a locked joint: the joint is gone)
+            data = np.zeros(12)
+            data[:2] = float(c.offset), float(c.multiplier)
+            # as stiff as the hold weld: the coupling is a gear train, not a spring
+            spec.add_equality(type=mujoco.mjtEq.mjEQ_JOINT, objtype=mujoco.mjtObj.mjOBJ_JOINT, name1=c.joint,
+                              name2=c.follows, data=data.tolist(), solref=list(contact_solref(dt_s)),
+                              solimp=list(HOLD_SOLIMP))
 
     solref, solimp = contact_solref(dt_s), CONTACT_SOLIMP
     mu, gamma = float(friction.mu), float(friction.gamma)

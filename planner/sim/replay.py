@@ -70,7 +70,7 @@ from planner.sim.contact_filter import ContactFilter
 from planner.sim.controller import TOUCH_TOL_M, Controller
 from planner.sim.engine import PhysicsEngine, default_engine, engine_for
 from planner.sim.inputs import HandInfo, load_hand_info, object_mass, replay_world, typed_plan
-from planner.sim.report import ReplayReport, StateReport
+from planner.sim.report import CouplingError, ReplayReport, StateReport
 
 #: A finger (or the palm) carries the object when it presses with a mean normal force of at
 #: least this share of the larger of the object's weight and the controller's squeeze: every
@@ -238,6 +238,7 @@ def replay_plan(
             recorder = ReplayRecorder(sim, rd, info, width, height, keep_rgb=mp4 is not None)
         result = sim.run(states, steps, recorder=recorder, every=int(gif_every), realtime=gui and own)
         trajectory = sim.trajectory
+        couplings = sim.coupling_errors()
         params["squeeze_force_n"] = sim.ctl.force_n if finger_force_n is None else float(finger_force_n)
     finally:
         eng.close()
@@ -258,7 +259,8 @@ def replay_plan(
     disagree = [r for r in reached if r.sim_force_closure != r.planned_force_closure]
     other = [r for r in reached if not r.holds_as_planned]
     within = math.isfinite(max_mm) and math.isfinite(max_deg) and max_mm <= drift_mm_max and max_deg <= drift_deg_max
-    passed = (not dropped) and within and not disagree and not other and len(reached) == len(reports)
+    broken = [c for c in couplings if not c.within]  # the engine let a coupled joint go
+    passed = (not dropped) and within and not disagree and not other and len(reached) == len(reports) and not broken
     limits = f"limits {drift_mm_max:g} mm / {drift_deg_max:g} deg"
     if dropped:
         verdict = f"FAIL: object dropped (moved more than {drop_mm:g} mm)"
@@ -270,11 +272,18 @@ def replay_plan(
     elif other:
         verdict = (f"FAIL: the simulator holds the object with other links than the plan's at {len(other)}/"
                    f"{len(reached)} states (max drift {max_mm:.1f} mm / {max_deg:.1f} deg)")
+    elif broken:
+        verdict = (f"FAIL: the simulated hand breaks {len(broken)}/{len(couplings)} coupled joints beyond their "
+                   f"tolerance (max drift {max_mm:.1f} mm / {max_deg:.1f} deg)")
     else:
         verdict = f"PASS: max drift {max_mm:.1f} mm / {max_deg:.1f} deg ({limits}); closure agrees at {agree}/{len(reached)} states"
     reasons = []
     if failure is not None:
         reasons.append(failure)
+    for c in broken:
+        at = "state 0" if c.step < 0 else f"step {c.step}"
+        reasons.append(f"coupling {c.joint} = f({c.follows}) broken by {c.max_error:.4g} (tolerance {c.tolerance:.4g}) "
+                       f"during {at} at t = {c.time_s:.3f} s")
     for r in disagree:
         plan_fc = "force closure" if r.planned_force_closure else "not force closure"
         sim_fc = "force closure" if r.sim_force_closure else "not force closure"
@@ -293,6 +302,7 @@ def replay_plan(
         bad_states = [r.index for r in disagree + other] + [r.index for r in reports if not r.reached]
         first_bad = min(bad_states) if bad_states else None
         candidates = [k for k in (fail_step, None if first_bad is None else first_bad - 1) if k is not None]
+        candidates += [c.step for c in broken]
         failed_step = min(candidates) if candidates else -1
         at_state = fail_step is None or (first_bad is not None and first_bad - 1 < fail_step)
     if reasons and not passed:
@@ -306,6 +316,7 @@ def replay_plan(
         gif=str(gif) if gif is not None else None, gif_frames=gif_frames,
         mp4=str(mp4) if mp4 is not None else None, parameters=params, reasons=tuple(reasons),
         failed_step=failed_step, failed_at_state=at_state, trajectory=trajectory, engine=eng.name,
+        coupling_errors=tuple(couplings),
     )
 
 
@@ -340,6 +351,12 @@ class _Sim:
                               g_max, force_n=params["finger_force_n"], dt_s=self.dt, object_radius_m=radius_m)
         for link, floor in self.ctl.armature_floor.items():
             engine.raise_link_inertia(link, floor)
+        # coupled joints (engine order: follower, driver) and their largest error so far, with when
+        ix = {j: k for k, j in enumerate(topo.joints)}
+        self.couplings = [(c, ix[c.joint], ix[c.follows]) for c in getattr(info.hand, "couplings", ())
+                          if c.joint in ix and c.follows in ix]
+        self.coupling_max = [0.0] * len(self.couplings)
+        self.coupling_at = [(-1, 0.0)] * len(self.couplings)
         self.filter = ContactFilter(params["filter_k"])
         self.steps_done = 0
         self.max_mm = self.max_deg = 0.0
@@ -373,6 +390,8 @@ class _Sim:
         self.engine.set_joint_torques(self.ctl.step())
         self.engine.step()
         self.steps_done += 1
+        if self.couplings:
+            self._measure_couplings()
         pose = self.engine.object_pose()
         pos, quat = pose.position_m, pose.quat_xyzw
         if self.sampling:  # the temporal filter only needs the samples before a measurement
@@ -395,6 +414,24 @@ class _Sim:
         if self.realtime:
             time.sleep(self.dt)
         return mm
+
+    def _measure_couplings(self) -> None:
+        """Keep every coupling's largest ``|q_f - (m q_d + o)|`` and the plan step and time of it."""
+        q = self.engine.joint_states().position
+        for i, (c, f, d) in enumerate(self.couplings):
+            e = abs(float(q[f]) - (c.multiplier * float(q[d]) + c.offset))
+            if e > self.coupling_max[i]:
+                self.coupling_max[i] = e
+                self.coupling_at[i] = (self.step_k, self.steps_done * self.dt)
+
+    def coupling_errors(self) -> list[CouplingError]:
+        """Each coupling's largest error over the replay, with its tolerance
+        (`planner.hand.Hand.coupling_tolerances`)."""
+        if not self.couplings:
+            return []
+        tol = dict(zip((c.joint for c in self.ctl.hand.couplings), self.ctl.hand.coupling_tolerances()))
+        return [CouplingError(c.joint, c.follows, round(e, 9), float(tol[c.joint]), k, round(t, 6))
+                for (c, _, _), e, (k, t) in zip(self.couplings, self.coupling_max, self.coupling_at)]
 
     def contact_sample(self, T: np.ndarray, carry: bool = False) -> list:
         """This step's contacts as (link, p_obj (1, 3), n_obj (1, 3)), normals INTO the object;

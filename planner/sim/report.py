@@ -86,6 +86,34 @@ class StateReport:
 
 
 @dataclass(frozen=True)
+class CouplingError:
+    """How far the simulated hand broke one coupled joint (`planner.hand.Coupling`,
+    ``q_f = m q_d + o``) over a replay.
+
+    Attributes:
+        joint, follows: the follower and its driver.
+        max_error: the largest ``|q_f - (m q_d + o)|`` over every physics step, rad (m).
+        tolerance: what a plan may show (`planner.hand.Hand.coupling_tolerances`: the follower
+            angle that moves no point of its links by more than the IK's accepted error).
+        step: the plan step during which the largest error happened (-1: at state 0, i.e.
+            acquiring, the gravity ramp or settling).
+        time_s: the simulated time of it, s.
+    """
+
+    joint: str
+    follows: str
+    max_error: float
+    tolerance: float
+    step: int
+    time_s: float
+
+    @property
+    def within(self) -> bool:
+        """The coupling held within its tolerance throughout."""
+        return self.max_error <= self.tolerance
+
+
+@dataclass(frozen=True)
 class ReplayReport:
     """Outcome of `replay_plan`.
 
@@ -116,6 +144,10 @@ class ReplayReport:
             per sample), ``object_position`` (m) and ``object_quat_xyzw`` (palm frame).
         engine: the physics engine that replayed it (`planner.sim.engine`); a report written
             before engines were named has none and was pybullet's.
+        coupling_errors: one `CouplingError` per coupled joint of the hand (`planner.hand
+            .Hand.couplings` order; none for a hand without couplings, and in a report written
+            before the replay measured them). A replay whose coupling error exceeds its
+            tolerance does not pass.
     """
 
     passed: bool
@@ -141,6 +173,7 @@ class ReplayReport:
     failed_at_state: bool = False
     trajectory: Mapping[str, Any] | None = None
     engine: str = "pybullet"
+    coupling_errors: tuple[CouplingError, ...] = ()
 
     def to_dict(self) -> dict:
         """Plain data for JSON (``json.dumps(report.to_dict())``)."""

@@ -1,0 +1,177 @@
+"""Coupled joints in the replay (issue 37 item 2): the engine enforces every coupling
+``q_f = m q_d + o`` (pybullet: a gear constraint; MuJoCo: a joint equality), the controller
+commands the drivers only, and the replay reports each coupling's largest error against
+`planner.hand.Hand.coupling_tolerances` (a replay that breaks one does not pass).
+
+The test hand (tests/data/coupled_hand/yaml_hand.yaml): two fingers, ``left_2 = left_1`` and
+``right_2 = 1.2 right_1 + 0.1`` (a multiplier and an offset: a wrong sign or a missing offset
+shows), holding a 30 mm ball between its distal links."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from planner.cli import main
+from planner.hand import Hand
+from planner.model import Friction
+from planner.sim.controller import Controller
+from planner.sim.engine import ContactPoint, HandTopology, JointStates, ObjectPose
+from planner.sim.report import ReplayReport
+
+ROOT = Path(__file__).resolve().parents[1]
+HAND = ROOT / "tests/data/coupled_hand/yaml_hand.yaml"
+BALL_Z = 0.05
+
+GRASP = f"""schema_version: 1
+name: coupled_pinch
+hand: {HAND}
+object:
+  shape: sphere
+  size: [0.015]
+  position: [0.0, 0.0, {BALL_Z}]
+  quat_xyzw: [0.0, 0.0, 0.0, 1.0]
+  mass_kg: 0.02
+friction: {{mu: 0.9, gamma: 0.004, edges: 5}}
+fingers:
+  left: {{posture: %s}}
+  right: {{posture: %s}}
+"""
+
+
+@pytest.fixture(scope="module")
+def hand():
+    return Hand.load(HAND)
+
+
+@pytest.fixture(scope="module")
+def plan_path(tmp_path_factory, hand):
+    """A one-state execution plan: both fingers closed on the ball (the closing procedure
+    over the drivers: every posture coupled)."""
+    from planner.objects import GraspObject
+
+    ball = GraspObject.from_data({"shape": "sphere", "size": [0.015], "position": [0.0, 0.0, BALL_Z],
+                                  "quat_xyzw": [0.0, 0.0, 0.0, 1.0]})
+    q = hand.q_open.copy()
+    for f in ("left", "right"):
+        q = hand.close_finger(f, q, ball)
+    assert np.max(hand.coupling_errors(q)) == 0.0
+    postures = [[round(float(q[i]), 9) for i in hand.fingers[f].q_index] for f in ("left", "right")]
+    folder = tmp_path_factory.mktemp("coupled_replay")
+    grasp = folder / "grasp.yaml"
+    grasp.write_text(GRASP % tuple(postures))
+    out = folder / "plan.json"
+    assert main(["plan", str(grasp), str(grasp), "--execution", "--no-verify", "-o", str(out)]) == 0
+    return out
+
+
+def _replay(plan_path, engine, **kw) -> ReplayReport:
+    from planner.sim.replay import replay_plan
+
+    return replay_plan(plan_path, engine=engine, acquire_s=0.2, ramp_s=0.3, settle_s=0.15, **kw)
+
+
+@pytest.mark.parametrize("engine", ["pybullet", "mujoco"])
+def test_a_plan_replays_with_every_coupling_within_its_tolerance(plan_path, hand, engine):
+    pytest.importorskip(engine)
+    rep = _replay(plan_path, engine)
+    assert rep.passed, rep.verdict
+    errs = {c.joint: c for c in rep.coupling_errors}
+    assert sorted(errs) == ["left_2", "right_2"]
+    tol = dict(zip((c.joint for c in hand.couplings), hand.coupling_tolerances()))
+    for j, c in errs.items():
+        assert c.tolerance == pytest.approx(tol[j])
+        # a gear train, not a loose spring: a hundredth of what a plan may show
+        assert c.max_error < 0.01 * c.tolerance, (engine, j, c.max_error)
+        assert c.step == -1 and 0.0 < c.time_s <= rep.sim_time_s
+    # the report's plain data carries them; a report without them (written before) reads too
+    data = rep.to_dict()
+    assert {d["joint"] for d in data["coupling_errors"]} == {"left_2", "right_2"}
+    assert ReplayReport(**{k: v for k, v in vars(rep).items() if k != "coupling_errors"}).coupling_errors == ()
+
+
+def test_a_coupling_the_engine_breaks_fails_the_replay_and_names_it(plan_path, monkeypatch):
+    """The gear constraint without torque: the followers hang free, the error is measured
+    and the verdict says which coupling, by how much, and when."""
+    pytest.importorskip("pybullet")
+    import planner.sim.engine_pybullet as eb
+
+    monkeypatch.setattr(eb, "GEAR_MAX_TORQUE", 0.0)
+    rep = _replay(plan_path, "pybullet")
+    assert not rep.passed
+    broken = [c for c in rep.coupling_errors if not c.within]
+    assert broken and all(c.max_error > c.tolerance for c in broken)
+    assert any(f"coupling {c.joint} = f({c.follows}) broken by" in r for c in broken for r in rep.reasons)
+    assert rep.failed_step == -1
+
+
+# ------------------------------------------------------------------ controller maths
+
+
+class _Sensor:
+    """Synthetic readings: the hand at ``q`` (engine order = the hand's), at rest; the ball
+    touched by each finger's distal link on its inner side."""
+
+    def __init__(self, hand, q):
+        self.q = np.asarray(q, dtype=float)
+        self.hand = hand
+
+    def joint_states(self):
+        return JointStates(self.q.copy(), np.zeros_like(self.q))
+
+    def object_pose(self):
+        return ObjectPose((0.0, 0.0, BALL_Z), (0.0, 0.0, 0.0, 1.0), np.eye(3))
+
+    def closest_points(self, gap_m, link=None):
+        pts = [ContactPoint("left_distal", (-0.015, 0.0, BALL_Z), (1.0, 0.0, 0.0), 0.0, 0.0),
+               ContactPoint("right_distal", (0.015, 0.0, BALL_Z), (-1.0, 0.0, 0.0), 0.0, 0.0)]
+        return [c for c in pts if link is None or c.link == link]
+
+
+def test_the_controller_commands_drivers_only_with_the_followers_load_by_virtual_work(hand):
+    """Drivers-only torques: a follower gets none and its driver ``tau_d + m tau_f`` of the
+    uncoupled torques ``g(q) + J^T f`` (the same forces: one solution, both views); the
+    driver's posture spring's lever is the reduced pad Jacobian's column ``J_d + m J_f``."""
+    q = hand.q_open.copy()
+    names = list(hand.joint_names)
+    for f, vals in (("left", (0.06, 0.06, 0.06)), ("right", (0.06, 0.048, 1.2 * 0.048 + 0.1))):
+        for j, v in zip(hand.fingers[f].joints, vals):
+            q[names.index(j)] = v
+    assert np.max(hand.coupling_errors(q)) < 1e-12
+    sensor = _Sensor(hand, q)
+    topo = HandTopology(tuple(names), ("palm", "left_proximal", "left_middle", "left_distal", "right_proximal",
+                                       "right_middle", "right_distal"))
+    owner = {link: ("left" if link.startswith("left") else "right" if link.startswith("right") else "palm")
+             for link in topo.links}
+    ctl = Controller(sensor, hand, topo, owner, {link: 0.01 for link in topo.links}, 0.02, Friction(0.9, 0.004, 5),
+                     9.81)
+    g = np.array([0.0, 0.0, -9.81])
+    ctl.set_gravity(g)
+    ctl.command({j: float(v) for j, v in zip(names, q)}, ("left", "right"))
+    tau = ctl.step()  # at the targets, at rest: the feed-forward only
+    state = hand.state(q)
+    full = np.array(state.gravity_torques(g), dtype=float)
+    for link, f in ctl.forces.items():
+        p = next(c.point_m for c in sensor.closest_points(1.0) if c.link == link)
+        (J,) = state.point_jacobians([(link, np.asarray(p))])
+        full += J[:3].T @ f
+    for c in hand.couplings:
+        d, fo = names.index(c.follows), names.index(c.joint)
+        assert tau[fo] == 0.0
+        assert tau[d] == pytest.approx(full[d] + c.multiplier * full[fo], rel=1e-9, abs=1e-12)
+    for j in ("left_0", "right_0"):
+        assert tau[names.index(j)] == pytest.approx(full[names.index(j)], rel=1e-9, abs=1e-12)
+    # the followers have no motor at all: no spring, no cap, a zero torque limit
+    fol = [names.index(c.joint) for c in hand.couplings]
+    assert np.all(ctl.kp[fol] == 0.0) and np.all(ctl.cap[fol] == 0.0) and np.all(ctl.tau_max[fol] == 0.0)
+    # a driver's spring acts on the reduced coordinate: its lever is |J_d + m J_f| at the pad
+    fg = hand.fingers["right"]
+    Jp = state.frame_jacobian(fg.pad_link, fg.pad_p_link)[:3][:, list(fg.q_index)]
+    lever = float(np.linalg.norm(Jp[:, 1] + 1.2 * Jp[:, 2]))
+    d = names.index("right_1")
+    assert ctl.cap[d] == pytest.approx(0.3 * ctl.force_n * lever, rel=1e-9)
+    # a follower moves with its driver, |m| times as fast
+    v = ctl.tracking_speed_rad_s(["right_1", "right_2"])
+    assert v[1] == pytest.approx(1.2 * v[0]) and v[0] > 0
