@@ -15,6 +15,8 @@ Hand spec (schema_version 1)::
       index:
         joints: [index_0, index_1, index_2, index_3]
         close_joints: [index_1, ...]       # optional, default: all joints (closing, eqs. 8-9)
+        close_toward: {index_1: lower}     # optional: a closing joint's closing end, lower or
+                                           # upper (default upper); it opens toward the other
         contact_links: [index_distal, ...] # optional, default: the finger's links with geometry
         tip_frame: index_tip
         pad: {link: index_distal, point: [x, y, z], normal: [x, y, z]}  # optional, link frame
@@ -93,6 +95,8 @@ class Finger:
         tip_frame: frame at the fingertip.
         q_open: open posture of the finger's joints (rad), same order as ``joints``.
         close_joints: joints moved by the closing procedure (thesis eqs. 8-9).
+        close_lower: those of ``close_joints`` that close toward their lower limit (hand.yaml
+            ``close_toward: {joint: lower}``); the others close toward their upper limit.
         links: every link of the finger that has collision geometry.
         pad_link, pad_p_link, pad_n_link: the fingertip pad (default IK point): a link, a point
             on its surface and the outward surface normal there, both in the link frame.
@@ -109,6 +113,7 @@ class Finger:
     tip_frame: str
     q_open: tuple[float, ...]
     close_joints: tuple[str, ...] = ()
+    close_lower: tuple[str, ...] = ()
     links: tuple[str, ...] = ()
     pad_link: str = ""
     pad_p_link: tuple[float, float, float] = (0.0, 0.0, 0.0)
@@ -120,6 +125,30 @@ class Finger:
     def free_index(self) -> tuple[int, ...]:
         """Positions in the hand's q vector of the finger's free coordinates (`free`)."""
         return tuple(self.q_index[k] for k in self.free)
+
+    def closes_toward(self, joint: str) -> str:
+        """The limit ("upper" or "lower") a closing joint closes toward (`close_lower`)."""
+        return "lower" if joint in self.close_lower else "upper"
+
+    def driver_closing(self) -> dict[str, float]:
+        """The joints the closing procedure moves, each with its closing sign (+1.0 toward its
+        upper limit, -1.0 toward its lower), in joint order: the closing joints, a follower
+        replaced by its driver (closing the follower toward its end moves the driver toward
+        its end when the multiplier is positive, toward the other end when negative).
+
+        Raises:
+            ValueError: two closing joints ask a driver to move both ways.
+        """
+        driver = {self.joints[fl]: (self.joints[d], m) for fl, d, m, _ in self.coupled}
+        sign: dict[str, float] = {}
+        for j in self.close_joints:
+            s = -1.0 if j in self.close_lower else 1.0
+            d, m = driver.get(j, (j, 1.0))
+            s = s if m > 0 else -s
+            if sign.setdefault(d, s) != s:
+                raise ValueError(f"closing {j} toward its {self.closes_toward(j)} limit moves {d} the other way than "
+                                 f"its other closing joints: give them one direction")
+        return {j: sign[j] for j in self.joints if j in sign}
 
     @property
     def drivers(self) -> tuple[str, ...]:
@@ -182,6 +211,25 @@ def _link_shape(spec_path: str, urdf_path: str, link: str, go):
     except RuntimeError as err:  # coal: a hull vertex with more than 255 neighbours ("Too many neighbors")
         raise SpecError(spec_path, "urdf", f"{label}: coal cannot take its convex hull ({library_message(err)}): "
                                            "simplify the mesh") from None
+
+
+#: The values of a finger's ``close_toward:`` (the limit a closing joint closes toward).
+CLOSE_ENDS = ("upper", "lower")
+
+
+def _close_lower(r: Reader, close) -> tuple[str, ...]:
+    """The closing joints a finger's ``close_toward: {joint: lower|upper}`` closes toward
+    their lower limit (absent: none; every closing joint closes toward its upper limit)."""
+    if r.value is None:
+        return ()
+    r.mapping("a mapping closing joint -> lower or upper", string_keys=True)
+    out = []
+    for j, v in r.items():
+        if j not in close:
+            raise r.fail(str(UnknownNameError("closing joint", j, close)), j)
+        if v.choice(CLOSE_ENDS, "closing end", show=repr) == "lower":
+            out.append(j)
+    return tuple(j for j in close if j in out)
 
 
 def _merge_capsules(entries):
@@ -412,6 +460,7 @@ class Hand:
             for j in close:
                 if j not in joints:
                     raise close_r.fail(str(UnknownNameError("joint", j, joints)))
+            close_lower = _close_lower(fr.child("close_toward", {}), close)
             tip = fs["tip_frame"]
             tip_id = frame_id(f"{key}.tip_frame", tip)
             pad = fs.get("pad")
@@ -440,9 +489,13 @@ class Hand:
             self.fingers[fname] = Finger(
                 name=fname, joints=joints, q_index=q_index, contact_links=tuple(contact),
                 tip_frame=tip, q_open=tuple(float(q_open[i]) for i in q_index),
-                close_joints=tuple(close), links=flinks, pad_link=pad_link,
+                close_joints=tuple(close), close_lower=close_lower, links=flinks, pad_link=pad_link,
                 pad_p_link=tuple(float(x) for x in pad_p), pad_n_link=pad_n,
                 free=tuple(k for k in range(len(joints)) if k not in followers), coupled=coupled)
+            try:
+                self.fingers[fname].driver_closing()
+            except ValueError as err:
+                raise fr.fail(str(err), "close_toward") from None
 
         # collision pairs between links: skip adjacent bodies and pairs touching at q = 0 or
         # at the open posture (shapes that overlap by design, like MoveIt's "default" pairs)

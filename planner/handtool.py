@@ -12,9 +12,12 @@ check HAND`` says what in a hand a planner or a simulator cannot use, one line e
 - **palm normal**: the direction in which the fingers' joints, moved from their lower to
   their upper limits, carry the fingertips (summed over the fingers other than the thumb),
   snapped to a palm-frame axis within 30 deg;
-- **closing joints**: the joints whose motion toward their upper limit carries the fingertip
-  toward the palm normal (the closing procedure moves joints toward their upper limits);
-- **open posture**: every joint at the end of its range away from the palm;
+- **closing joints**: the joints whose motion carries the fingertip toward the palm normal
+  (the thumb's: toward the grasp's centre in front of the palm), each with its direction:
+  toward its upper limit, or toward its lower one (``close_toward: {joint: lower}``) when
+  moving it up carries the tip away; joints that move the tip sideways do not close;
+- **open posture**: every closing joint at the end of its range away from its closing end
+  (its lower limit, the upper one for a joint closing toward its lower);
 - **effort**: the URDF's, unless it is a placeholder (see `check_hand`);
 - **couplings**: the URDF's ``<mimic>`` joints are read by the hand itself (`planner.hand`),
   listed; a follower opens with its driver (no ``open:`` angle of its own).
@@ -347,9 +350,10 @@ def init_hand(urdf, package_dirs=(), root: str | None = None, cut_path=None) -> 
     centre = np.mean(list(tips.values()), axis=0) + 0.5 * float(np.mean(list(lengths.values()))) * n
     open_q = {}
     for name, ms in moves.items():
-        close, notes = [], []
+        close, lower, notes = [], [], []
         # a finger closes toward the palm's side, the thumb toward the grasp's centre (where
-        # it opposes the fingers)
+        # it opposes the fingers); a joint whose motion toward its upper limit carries the tip
+        # away from there closes toward its lower limit (hand.yaml close_toward)
         to_c = centre - tips[name] if name == "thumb" else n.copy()
         to_c /= max(np.linalg.norm(to_c), 1e-12)
         for j, v in ms:
@@ -358,20 +362,25 @@ def init_hand(urdf, package_dirs=(), root: str | None = None, cut_path=None) -> 
             if along > 0.5:
                 close.append(j)
             elif along < -0.5:
-                notes.append(f"{j} closes toward its lower limit (not a closing joint: the closing procedure "
-                             "moves joints toward their upper limits)")
+                close.append(j)
+                lower.append(j)
             else:
                 notes.append(f"{j} moves the tip sideways (abduction or opposition)")
         if not close:
             close = [j for j, _ in ms]
             notes.append("no joint carries the tip toward the grasp's centre: every joint closes")
+        close, lower = _one_way_per_driver(hand.fingers[name], close, lower, notes)
         fingers[name]["close_joints"] = close
+        if lower:
+            fingers[name]["close_toward"] = {j: "lower" for j in lower}
+        down = f"; {', '.join(lower)} close toward their lower limit (close_toward)" if lower else ""
         rep.add("guess", f"fingers.{name}", f"joints {fingers[name]['joints']}, closing {close} (toward the grasp's "
-                "centre in front of the palm)" + (f"; {'; '.join(notes)}" if notes else ""))
+                "centre in front of the palm)" + down + (f"; {'; '.join(notes)}" if notes else ""))
         for j in close:  # open: the closing joints at the end of their range away from closing
             i = hand.joint_names.index(j)
-            if lo[i] != 0.0 and j not in followers:  # a follower opens with its driver
-                open_q[j] = float(lo[i])
+            end = float(hi[i]) if j in lower else float(lo[i])
+            if end != 0.0 and j not in followers:  # a follower opens with its driver
+                open_q[j] = end
     if open_q:
         spec["open"] = open_q
     # contact links and pads
@@ -394,6 +403,22 @@ def init_hand(urdf, package_dirs=(), root: str | None = None, cut_path=None) -> 
         rep.add("guess", "effort", f"{effort} N m for every joint: the URDF's efforts are placeholders "
                                    f"(up to {float(np.max(hand.effort)):g} N m); replace with your motors' stall torque")
     return spec, rep
+
+
+def _one_way_per_driver(finger, close: list, lower: list, notes: list) -> tuple[list, list]:
+    """The closing joints without a follower whose own closing direction would move its
+    driver the other way than the driver's (`planner.hand.Finger.driver_closing`: the
+    procedure moves drivers; the driver's direction wins), with a note for each dropped."""
+    driver = {finger.joints[fl]: (finger.joints[d], m) for fl, d, m, _ in finger.coupled}
+    sign = {j: (-1.0 if j in lower else 1.0) for j in close}
+    kept = []
+    for j in close:
+        d, m = driver.get(j, (j, 1.0))
+        if d != j and d in sign and sign[d] != (sign[j] if m > 0 else -sign[j]):
+            notes.append(f"{j} follows {d} (x {m:g}), which closes the other way: not a closing joint")
+            continue
+        kept.append(j)
+    return kept, [j for j in lower if j in kept]
 
 
 def _name_by_geometry(model, named, rep: HandReport):

@@ -145,10 +145,12 @@ def ik_solve(hand, finger, target_palm, q0, link: str | None = None, p_link=None
 def close_finger(hand, finger, q, obj, steps: int = 20, backoff: float = 1e-3) -> np.ndarray:
     """Close a finger onto the object, thesis eqs. (8)-(9).
 
-    Every closing joint moves from its value in ``q`` toward its upper limit by the same
-    fraction alpha of its remaining range: alpha_n = alpha_{n-1} +/- (1/2)^n, n = 1..steps
-    (+ while the finger is free, - while it penetrates the object), then the closing joints are
-    opened by ``backoff`` (0.1 %) of their range until the finger is free of penetration. The
+    Every closing joint moves from its value in ``q`` toward its closing limit (the upper one,
+    or the lower one for a joint the hand.yaml's ``close_toward`` says so of:
+    `planner.hand.Finger.closes_toward`) by the same fraction alpha of its remaining range:
+    alpha_n = alpha_{n-1} +/- (1/2)^n, n = 1..steps (+ while the finger is free, - while it
+    penetrates the object), then the closing joints are opened (toward their other limit) by
+    ``backoff`` (0.1 %) of their range until the finger is free of penetration. The
     finger then touches the object within about 0.1 % of its range, or is fully closed if it
     never met it. A finger that already penetrates at ``q`` (e.g. placed by IK) is only opened
     by 0.1 % steps until free.
@@ -167,8 +169,12 @@ def close_finger(hand, finger, q, obj, steps: int = 20, backoff: float = 1e-3) -
     f = hand.finger(finger)
     q = couple_finger(f, checked_q(hand.model.nq, q).copy())
     cidx = np.array(closing_drivers(hand, f))
+    down = closing_signs(hand, f) < 0  # closing toward the lower limit
+    lo, hi = hand.lower[cidx], hand.upper[cidx]
     start = q[cidx].copy()
-    span = np.maximum(hand.upper[cidx] - start, 0.0)
+    # (for a joint closing upward exactly the expressions of the upper-only procedure: the
+    # bundled hands' plans are unchanged to the last digit)
+    span = np.where(down, np.minimum(lo - start, 0.0), np.maximum(hi - start, 0.0))
 
     def at(alpha):
         qa = q.copy()
@@ -190,7 +196,7 @@ def close_finger(hand, finger, q, obj, steps: int = 20, backoff: float = 1e-3) -
         for _ in range(int(np.ceil(1.0 / backoff))):
             if gap(qb) >= 0.0:
                 return qb
-            qb[cidx] = np.maximum(qb[cidx] - step, hand.lower[cidx])
+            qb[cidx] = np.where(down, np.minimum(qb[cidx] + step, hi), np.maximum(qb[cidx] - step, lo))
             qb = couple_finger(f, qb)
         return qb
     alpha = 0.0
@@ -200,8 +206,8 @@ def close_finger(hand, finger, q, obj, steps: int = 20, backoff: float = 1e-3) -
         else:
             alpha = min(alpha + 0.5 ** n, 1.0)
     qc = at(alpha)
-    while gap(qc) < 0.0 and np.any(qc[cidx] > start):
-        qc[cidx] = np.maximum(qc[cidx] - step, start)
+    while gap(qc) < 0.0 and np.any(np.where(down, qc[cidx] < start, qc[cidx] > start)):
+        qc[cidx] = np.where(down, np.minimum(qc[cidx] + step, start), np.maximum(qc[cidx] - step, start))
         qc = couple_finger(f, qc)
     return qc
 
@@ -217,10 +223,22 @@ def couple_finger(f, q: np.ndarray) -> np.ndarray:
 
 def closing_drivers(hand, f) -> list[int]:
     """Positions in q of the joints the closing procedure moves for finger ``f``: its closing
-    joints, a follower replaced by its driver (in joint order, each once)."""
-    driver = {f.joints[fl]: f.joints[d] for fl, d, _, _ in f.coupled}
-    moved = {driver.get(j, j) for j in f.close_joints}
-    return [hand.joint_names.index(j) for j in f.joints if j in moved]
+    joints, a follower replaced by its driver (in joint order, each once;
+    `planner.hand.Finger.driver_closing`)."""
+    return [hand.joint_names.index(j) for j in f.driver_closing()]
+
+
+def closing_signs(hand, f) -> np.ndarray:
+    """The closing direction of each joint `closing_drivers` gives (same order): +1.0 toward
+    its upper limit, -1.0 toward its lower one (`planner.hand.Finger.driver_closing`)."""
+    return np.array(list(f.driver_closing().values()), dtype=float)
+
+
+def closing_ends(hand, f) -> tuple[np.ndarray, np.ndarray]:
+    """(`closing_drivers` as an array, the limit each closes toward): where the closing
+    procedure's alpha = 1 puts them."""
+    cidx = np.array(closing_drivers(hand, f))
+    return cidx, np.where(closing_signs(hand, f) < 0, hand.lower[cidx], hand.upper[cidx])
 
 
 def _ik_starts(kin: Kinematics, starts, q0, f, lo, hi, fid, p_link, target, n_link, n_des, max_iter):

@@ -958,7 +958,7 @@ def grasp_findings(spec: GraspSpec, hand, obj, state, contacts, missing, colls) 
 
     Problems (``check`` exits 1): a placed finger that does not touch; a link deeper than
     `PENETRATION_TOL_M` in the object, the palm or another finger; a closing joint of a
-    placed finger at its closing (upper) limit that a posture did not ask for (the finger
+    placed finger at its closing limit (`planner.hand.Finger.closes_toward`) that a posture did not ask for (the finger
     closed to the end of its range without being stopped by the object: curled past it or
     into the palm, and it cannot press harder). Warnings: a contact point realized more than
     `CONTACT_WARN_M` from where the file put it, or by another link than the one asked for
@@ -983,7 +983,7 @@ def grasp_findings(spec: GraspSpec, hand, obj, state, contacts, missing, colls) 
                 if fs.kind == "posture" and abs(fs.posture[k] - limit) <= AT_LIMIT_RAD:
                     continue  # asked for by the file
                 text = f"fingers.{fs.name}: joint {joint} = {q[i]:.4f} rad is at its {side} limit"
-                if side == "upper" and joint in f.close_joints:
+                if joint in f.close_joints and side == f.closes_toward(joint):
                     problems.append(text + " (closed to the end of its range: the object does not stop it)")
                 else:
                     warnings.append(text)

@@ -14,7 +14,7 @@ import coal
 import numpy as np
 
 from planner.contacts import TOUCH_TOL_M, collisions, contact_patches
-from planner.ik import closing_drivers, couple_finger
+from planner.ik import closing_ends, couple_finger
 from planner.model import PALM
 from planner.objects import GraspObject
 from planner.retreat import retreat_blocked
@@ -74,6 +74,23 @@ PUSH_OUT_GAP_M = 0.0005
 _PRESHAPE_CLOSE = (0.0, 0.3)
 
 
+class Rejection(str):
+    """Why a candidate was dropped: the text `planner.synthesis.SynthResult.rejected` counts
+    (equal to it as a str), with the fingers it is about (``fingers``: those whose sweep
+    missed, that missed or started inside the object, that cannot back off; empty when the
+    reason is the whole grasp's), so that ``synth`` can say which finger fails."""
+
+    fingers: tuple[str, ...]
+
+    def __new__(cls, text: str, fingers=()):
+        self = super().__new__(cls, text)
+        self.fingers = tuple(fingers)
+        return self
+
+    def __reduce__(self):  # (worker processes send it back pickled)
+        return (Rejection, (str(self), self.fingers))
+
+
 def _random_quat(rng) -> list[float]:
     q = rng.normal(size=4)
     q /= np.linalg.norm(q)
@@ -82,11 +99,12 @@ def _random_quat(rng) -> list[float]:
 
 def _sweep(hand, finger, q, alphas, radius: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """Where the finger's pad goes along its closing motion from q (closing joints at
-    ``start + alpha (upper - start)``, as `Hand.close_finger` moves them): (len(alphas), 3)
+    ``start + alpha (end - start)``, ``end`` the limit each closes toward, as
+    `Hand.close_finger` moves them): (len(alphas), 3)
     palm-frame points ``radius`` in front of the pad (along its outward normal: the centre a
     ball of that radius touching the pad there would have; the pad itself for 0) and the
     pad's unit outward normals."""
-    cidx = np.array(closing_drivers(hand, finger))  # a follower moves by its coupling
+    cidx, end = closing_ends(hand, finger)  # a follower moves by its coupling
     start = q[cidx]
     p_link = np.asarray(finger.pad_p_link, dtype=float)
     n_link = np.asarray(finger.pad_n_link if finger.pad_n_link is not None else (0.0, 0.0, 0.0), dtype=float)
@@ -95,7 +113,7 @@ def _sweep(hand, finger, q, alphas, radius: float = 0.0) -> tuple[np.ndarray, np
     pad = kin.kinematic_model.frame_id(finger.pad_link)
     for a in alphas:
         qa = q.copy()
-        qa[cidx] = start + a * (hand.upper[cidx] - start)
+        qa[cidx] = start + a * (end - start)
         T = kin.update(couple_finger(finger, qa)).frame_pose(pad)
         n = T[:3, :3] @ n_link
         pts.append(T[:3, :3] @ p_link + T[:3, 3] + radius * n)
@@ -253,7 +271,7 @@ def sample_candidate(hand, fingers, obj: GraspObject, fixed, rng, obj_radius,
             closing = np.array([j in f.close_joints for j in f.joints])
             start = np.clip(q[idx], lo, hi)
             frac = rng.uniform(*_PRESHAPE_CLOSE, size=len(idx))
-            q[idx] = np.where(closing, start + frac * (hi - start), rng.uniform(lo, hi))
+            q[idx] = np.where(closing, start + frac * (_closing_end(hand, f) - start), rng.uniform(lo, hi))
             couple_finger(f, q)  # the drivers drawn, the followers by the coupling
         swept = [_sweep(hand, f, q, alphas, CENTRE_OFFSET * obj_radius) for f in fingers]
         if palm:  # the fingers' meeting point, with the palm's face as one more curve, on the face
@@ -267,9 +285,9 @@ def sample_candidate(hand, fingers, obj: GraspObject, fixed, rng, obj_radius,
         # the fingers where they would touch: a pre-shape whose fingers collide there ranks last
         q_touch = q.copy()
         for f, (c, _) in zip(fingers, swept):
-            cidx = np.array(closing_drivers(hand, f))
+            cidx, end = closing_ends(hand, f)
             a = alphas[int(np.argmin(np.linalg.norm(c - centre, axis=1)))]
-            q_touch[cidx] = q[cidx] + a * (hand.upper[cidx] - q[cidx])
+            q_touch[cidx] = q[cidx] + a * (end - q[cidx])
             couple_finger(f, q_touch)
         collide = len(fingers) > 1 and bool(collisions(hand, q_touch, None, fingers=names))
         if best is None or (collide, score) < (best[0], best[1]):
@@ -314,8 +332,10 @@ def sample_candidate(hand, fingers, obj: GraspObject, fixed, rng, obj_radius,
                 if all(hand.state(q_free).finger_object_distance(placed, f.name) >= 0.0 for f in fingers):
                     break
             centre = np.asarray(placed.position, dtype=float)
-    if max(float(np.min(np.linalg.norm(c - centre, axis=1))) for c, _ in swept) > SWEEP_REACH * obj_radius:
-        return placed, None, "sweeps miss the object" + (" on the palm" if palm else "")
+    far = [f.name for f, (c, _) in zip(fingers, swept)
+           if float(np.min(np.linalg.norm(c - centre, axis=1))) > SWEEP_REACH * obj_radius]
+    if far:
+        return placed, None, Rejection("sweeps miss the object" + (" on the palm" if palm else ""), far)
     return placed, {f.name: q[list(f.q_index)].copy() for f in fingers}, ""
 
 
@@ -365,6 +385,15 @@ def cannot_back_off(hand, obj: GraspObject, q_finger, finger: str) -> bool:
     return hit
 
 
+def _closing_end(hand, finger) -> np.ndarray:
+    """(n_joints,) the limit each of the finger's joints closes toward: its upper one, the
+    lower one for a joint closing downward (`planner.hand.Finger.closes_toward`); a pre-shape
+    draws its closing joints part of the way from open toward it."""
+    idx = list(finger.q_index)
+    down = np.array([j in finger.close_lower for j in finger.joints])
+    return np.where(down, hand.lower[idx], hand.upper[idx])
+
+
 def _finger_draw(hand, finger, q, rng) -> None:
     """One random pre-shape of ``finger`` written into q: the joints that do not close uniform
     in their range, the closing joints `_PRESHAPE_CLOSE` of the way from open to their limit."""
@@ -373,7 +402,7 @@ def _finger_draw(hand, finger, q, rng) -> None:
     closing = np.array([j in finger.close_joints for j in finger.joints])
     start = np.clip(np.asarray(hand.q_open, dtype=float)[idx], lo, hi)
     frac = rng.uniform(*_PRESHAPE_CLOSE, size=len(idx))
-    q[idx] = np.where(closing, start + frac * (hi - start), rng.uniform(lo, hi))
+    q[idx] = np.where(closing, start + frac * (_closing_end(hand, finger) - start), rng.uniform(lo, hi))
     couple_finger(finger, q)  # the drivers drawn, the followers by the coupling
 
 
@@ -402,7 +431,6 @@ def _fixed_candidate(hand, fingers, obj: GraspObject, rng, obj_radius, alphas, p
     centre = np.asarray(obj.position, dtype=float)
     base = np.array(hand.q_open, dtype=float)
     N, Q, C = [], [], []  # per finger: patch normals (k, 3), pre-shapes, closed joints of its touching draws
-    reached = True
     for f in fingers:
         idx = list(f.q_index)
         cidx = [hand.joint_names.index(j) for j in f.close_joints]
@@ -431,10 +459,9 @@ def _fixed_candidate(hand, fingers, obj: GraspObject, rng, obj_radius, alphas, p
             nn.append(m / max(float(np.linalg.norm(m)), 1e-12))
             qs.append(pre)
             cs.append(q[idx].copy())
-        reached = reached and near > 0
         if not nn:
-            return obj, None, ("a finger misses the object" if reached else "sweeps miss the object") + (
-                " on the palm" if palm else "")
+            return obj, None, Rejection(("a finger misses the object" if near else "sweeps miss the object") + (
+                " on the palm" if palm else ""), [f.name])
         N.append(np.array(nn))
         Q.append(qs)
         C.append(cs)
@@ -467,7 +494,7 @@ def _fixed_candidate(hand, fingers, obj: GraspObject, rng, obj_radius, alphas, p
             while cannot_back_off(hand, obj, C[i][pick[i]], f.name):
                 blocked[i].add(pick[i])
                 if len(blocked[i]) == len(C[i]):
-                    return obj, None, "a finger cannot back off its contact"
+                    return obj, None, Rejection("a finger cannot back off its contact", [f.name])
                 pick[i] = int(np.argmin(scores(i)))
         if F < 2 or _untangle(hand, fingers, pick, C, scores):
             return obj, {f.name: Q[i][k].copy() for i, (f, k) in enumerate(zip(fingers, pick))}, ""
@@ -599,12 +626,13 @@ def closes_onto(hand, fingers, obj, preshape, palm: bool = False) -> dict | None
             q[cidx] = np.clip(np.asarray(hand.q_open)[cidx], hand.lower[cidx], hand.upper[cidx])
             couple_finger(f, q)
             if hand.state(q).finger_object_distance(obj, f.name) < 0.0:
-                return None, "a finger starts inside the object"
+                return None, Rejection("a finger starts inside the object", [f.name])
             preshape[f.name] = q[list(f.q_index)].copy()
         q = np.asarray(hand.close_finger(f, q, obj), dtype=float)
     patches = contact_patches(hand, q, obj, fingers=[f.name for f in fingers], palm=palm)
-    if len([k for k in patches if k != PALM]) < len(fingers):
-        return None, "a finger misses the object"
+    missing = [f.name for f in fingers if f.name not in patches]
+    if missing:
+        return None, Rejection("a finger misses the object", missing)
     if palm and PALM not in patches:
         return None, "object not against the palm"
     return patches, ""

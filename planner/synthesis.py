@@ -58,8 +58,8 @@ from planner.grip import HOLD_FACTOR, grasp_hold
 from planner.model import Friction
 from planner.objects import GraspObject, read_object
 from planner.realization import PENETRATION_TOL_M, execution_verdict, realize
-from planner.synth_sample import (PALM_CLEARANCE_M, cannot_back_off, closes_onto, inner_radius, object_of,
-                                  sample_candidate)
+from planner.synth_sample import (PALM_CLEARANCE_M, Rejection, cannot_back_off, closes_onto, inner_radius,
+                                  object_of, sample_candidate)
 
 #: Two grasps are near-duplicates when every chosen finger's mean contact point (palm frame)
 #: and the object centre differ by less than this, and the contact normals by less than
@@ -109,6 +109,7 @@ class SynthResult:
     seconds: float
     rejected: dict = None   # reason -> attempts dropped for it
     palm: bool = False      # whole-hand grasps (the object against the palm)
+    by_finger: dict = None  # finger -> {reason: attempts dropped for it that were about that finger}
 
 
 def load_object_file(path) -> tuple[GraspObject, dict | None, bool]:
@@ -267,11 +268,14 @@ def synthesize(hand_ref: str, obj: GraspObject | Mapping, fingers, n: int, *, fi
     kept: list[tuple[np.ndarray, SynthGrasp]] = []
     passed = dups = 0
     rejected = Counter()
+    by_finger: dict[str, Counter] = {f.name: Counter() for f in chosen}
     attempt = 0
     for attempt, (why, out) in _outcomes(ctx, max_attempts, workers):
         if out is None:
             if why:
                 rejected[why] += 1
+                for f in getattr(why, "fingers", ()):
+                    by_finger[f][str(why)] += 1
         else:
             passed += 1
             feat, cand = out
@@ -291,7 +295,8 @@ def synthesize(hand_ref: str, obj: GraspObject | Mapping, fingers, n: int, *, fi
             break
     ranked = sorted((c for _, c in kept), key=SynthGrasp.rank_key)
     return SynthResult(grasps=tuple(ranked), attempts=attempt, candidates_passed=passed, duplicates=dups,
-                       seconds=time.perf_counter() - t0, rejected=dict(rejected), palm=palm)
+                       seconds=time.perf_counter() - t0, rejected=dict(rejected), palm=palm,
+                       by_finger={f: dict(c) for f, c in by_finger.items()})
 
 
 @dataclass
@@ -398,11 +403,12 @@ def _attempt(ctx: _Context, attempt: int):
         return "", None
     g = realize(spec, hand)
     if not g.ok:
-        return _check_reason(g), None
-    if any(depth > LINK_EPS_M for _, _, depth in g.finger_collisions):
+        return _check_reason(g, hand), None
+    deep = [(a, b) for a, b, depth in g.finger_collisions if depth > LINK_EPS_M]
+    if deep:
         # `check` tolerates half a millimetre between hand parts; the planner's states and
         # finger paths do not (an overlapping finger can never lift off)
-        return "fingers overlap each other or the palm", None
+        return Rejection("fingers overlap each other or the palm", _fingers_of(hand, [l for ab in deep for l in ab])), None
     patches = dict(g.patches)  # with palm: hold, the palm's patch among them (rigid in the grip model)
     if ctx.contact_model != "patch":
         if not g.closure_under(ctx.contact_model).is_force_closure:
@@ -419,10 +425,12 @@ def _attempt(ctx: _Context, attempt: int):
         if not all(h.capacity.factor >= ctx.hold_factor for h in holds):
             return "weight beyond the hand's limits", None
         grip = max(min_grip_force(patches, grip_fr, np.r_[g.obj.mass_kg * (R.T @ gv), np.zeros(3)]) for gv in dirs)
-    if any(cannot_back_off(hand, g.obj, np.asarray(g.q)[list(f.q_index)], f.name) for f in chosen):
+    stuck = next((f.name for f in chosen if cannot_back_off(hand, g.obj, np.asarray(g.q)[list(f.q_index)], f.name)),
+                 None)
+    if stuck is not None:
         # a finger held against the object by its own joint limits can never let go:
         # no regrasp (nor release) can start from this grasp or reach it
-        return "a finger cannot back off its contact", None
+        return Rejection("a finger cannot back off its contact", [stuck]), None
     # the ranking: does execution mode accept it as an end grasp (its own test, in the
     # directions it plans for: the one gravity given, else execution mode's set)
     verdict = execution_verdict(g, dirs[0] if dirs is not None and len(dirs) == 1 else None)
@@ -431,15 +439,30 @@ def _attempt(ctx: _Context, attempt: int):
     return "", (_features(g, chosen), cand)
 
 
-def _check_reason(g) -> str:
+def _check_reason(g, hand=None) -> str:
     """The rejection reason of a candidate `realize` did not pass: "check: " and the first
-    problem's first word (the palm's own: "check: the palm does not touch the object")."""
+    problem's first word (the palm's own: "check: the palm does not touch the object"), a
+    `Rejection` naming the fingers of the problem (``fingers.X: ...``, or the links of a
+    ``collision a - b``) when ``hand`` is given."""
     if not g.problems:
         return "check: not force closure"
     first = g.problems[0]
     if first.startswith("palm:"):
         return "check: the palm does not touch the object" if "does not touch" in first else "check: palm"
-    return "check: " + first.split(":")[0].split(" ")[0]
+    text = "check: " + first.split(":")[0].split(" ")[0]
+    if hand is None:
+        return text
+    head = first.split(":")[0]
+    if head.startswith("fingers."):
+        return Rejection(text, [head.removeprefix("fingers.").split(".")[0]])
+    if head.startswith("collision "):
+        return Rejection(text, _fingers_of(hand, head.removeprefix("collision ").split(" - ")))
+    return text
+
+
+def _fingers_of(hand, links) -> list[str]:
+    """The fingers (hand.yaml order, each once) that carry any of these links (a palm link: none)."""
+    return [name for name, f in hand.fingers.items() if any(l in f.links for l in links)]
 
 
 def output_names(out_dir, hand_name: str, shape: str, n: int) -> list[Path]:
@@ -589,7 +612,24 @@ def run_synth(hand: str, object_path, fingers: str, n: int, out_dir, *, gravity=
           f"seed {seed}")
     if len(paths) < n:
         print(rejection_table(result))
+        if any(result.by_finger.values()):
+            print(finger_table(result))
     return 0 if len(paths) >= n else 1
+
+
+def finger_table(result: SynthResult) -> str:
+    """Which finger fails (what `run_synth` prints with `rejection_table` when it found fewer
+    grasps than asked): per chosen finger, how many candidates were dropped for a reason about
+    it (its sweep or closing missed the object, it started inside it, it collides, it cannot
+    back off), by reason, most frequent first; a reason about the whole grasp (force closure,
+    the weight) names no finger and is not counted here."""
+    rows = [(f, sum(c.values()), sorted(c.items(), key=lambda kv: (-kv[1], kv[0])))
+            for f, c in (result.by_finger or {}).items()]
+    width = max((len(f) for f, _, _ in rows), default=6)
+    lines = [f"  {'finger':<{width}}  dropped  (candidates, by reason)"]
+    for f, total, reasons in rows:
+        lines.append(f"  {f:<{width}}  {total:>7}  " + (", ".join(f"{k} {r}" for r, k in reasons) if reasons else "-"))
+    return "\n".join(lines)
 
 
 class _Progress:

@@ -27,6 +27,7 @@ def test_init_reproduces_the_hand_written_spec(name):
     for f, fs in spec["fingers"].items():
         assert fs["joints"] == list(ref.fingers[f].joints)
         assert fs["close_joints"] == list(ref.fingers[f].close_joints)
+        assert "close_toward" not in fs  # every joint closes toward its upper limit: nothing written
         assert fs["pad"]["link"] == ref.fingers[f].links[-1]
     # every guess comes with its reason, one line each
     assert all(f.level in ("guess", "warning", "ok") and "\n" not in f.line() for f in rep.findings)
@@ -114,3 +115,124 @@ def test_box_inertia_is_the_solid_box_formula():
     m, a, b, c = 0.3, 0.1, 0.2, 0.4
     assert box_inertia(m, (a, b, c)) == pytest.approx([m * (b * b + c * c) / 12, m * (a * a + c * c) / 12,
                                                       m * (a * a + b * b) / 12])
+
+
+# ----------------------------------------------------------------- closing directions (issue 37 item 4)
+
+
+def _flipped_icub(tmp_path, joints=("thumb_1", "thumb_2", "thumb_3")) -> Path:
+    """The bundled iCub's URDF with these joints mirrored: axis negated, limits [-upper, -lower].
+    The same hand: at q' = -q every link is where it was, so those joints now close toward
+    their lower limits (a published thumb's convention)."""
+    src = Path(Hand.load("icub_right").urdf_path)
+    text = src.read_text()
+    for j in joints:
+        m = re.search(rf'<joint name="{j}".*?</joint>', text, flags=re.S)
+        block = m.group(0)
+        ax = [float(v) for v in re.search(r'<axis xyz="([^"]+)"', block).group(1).split()]
+        lo, hi = (float(re.search(rf'{k}="([^"]+)"', block).group(1)) for k in ("lower", "upper"))
+        new = re.sub(r'<axis xyz="[^"]+"', '<axis xyz="' + " ".join(f"{-v:g}" for v in ax) + '"', block)
+        new = re.sub(r'lower="[^"]+"', f'lower="{-hi:g}"', new)
+        new = re.sub(r'upper="[^"]+"', f'upper="{-lo:g}"', new)
+        text = text.replace(block, new)
+    out = tmp_path / "icub_flipped.urdf"
+    out.write_text(text)
+    return out
+
+
+def test_init_finds_joints_that_close_toward_their_lower_limit(tmp_path, capsys):
+    flipped = ("thumb_1", "thumb_2", "thumb_3")
+    urdf = _flipped_icub(tmp_path, flipped)
+    out = tmp_path / "hand.yaml"
+    assert main(["hand", "init", str(urdf), "-o", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert re.search(r"guess: fingers\.thumb: .*thumb_1, thumb_2, thumb_3 close toward their lower limit", text)
+    data = yaml.safe_load(out.read_text())
+    ref = Hand.load("icub_right")
+    # the same closing joints as the hand-written spec, the mirrored ones closing downward
+    assert data["fingers"]["thumb"]["close_joints"] == list(ref.fingers["thumb"].close_joints)
+    assert data["fingers"]["thumb"]["close_toward"] == {j: "lower" for j in flipped}
+    assert all("close_toward" not in fs for f, fs in data["fingers"].items() if f != "thumb")
+    hand = Hand.load(out)
+    # the open posture is at each closing joint's opening end: a mirrored joint at its upper limit
+    for j in flipped:
+        i = hand.joint_names.index(j)
+        assert hand.q_open[i] == pytest.approx(hand.upper[i]) and hand.fingers["thumb"].closes_toward(j) == "lower"
+    # and it is the open posture init writes for the unmirrored hand, mirrored
+    spec0, _ = init_hand(ref.urdf_path)
+    (tmp_path / "h0").mkdir()
+    (tmp_path / "h0" / "hand.yaml").write_text(yaml.safe_dump(spec0))
+    plain = Hand.load(tmp_path / "h0" / "hand.yaml")
+    for j in ref.joint_names:
+        s = -1.0 if j in flipped else 1.0
+        assert hand.q_open[hand.joint_names.index(j)] == pytest.approx(s * plain.q_open[plain.joint_names.index(j)]), j
+
+
+def test_closing_a_mirrored_finger_gives_the_mirrored_posture(tmp_path):
+    """The closing procedure (eqs. 8-9) on the mirrored thumb, closing toward its lower limits,
+    stops where the original's stops, with the mirrored joints' values negated: the same
+    fingertip position on the same ball."""
+    from planner.objects import GraspObject
+
+    flipped = ("thumb_1", "thumb_2", "thumb_3")
+    ref = Hand.load("icub_right")
+    spec = yaml.safe_load((Path(ref.spec_path)).read_text())
+    spec["urdf"] = str(_flipped_icub(tmp_path, flipped))
+    spec["fingers"]["thumb"]["close_toward"] = {j: "lower" for j in flipped}
+    path = tmp_path / "hand.yaml"
+    path.write_text(yaml.safe_dump(spec))
+    hand = Hand.load(path)
+    mirror = np.array([-1.0 if j in flipped else 1.0 for j in ref.joint_names])
+    assert [hand.joint_names.index(j) for j in ref.joint_names] == list(range(len(ref.joint_names)))
+    tip = ref.state(ref.q_open).link_pose("thumb_tip")[:3, 3]
+    for r in (0.02, 0.03):  # a ball the closing thumb meets, in front of its open tip
+        obj = GraspObject.from_data({"shape": "sphere", "size": [r], "position": list(tip + [0.01, 0.0, r + 0.02]),
+                                     "quat_xyzw": [0, 0, 0, 1]})
+        q_ref = ref.close_finger("thumb", ref.q_open, obj)
+        q = hand.close_finger("thumb", mirror * ref.q_open, obj)
+        assert np.any(np.abs(q_ref - ref.q_open) > 0.1), "the thumb closed"
+        np.testing.assert_allclose(q, mirror * q_ref, atol=2e-3 * np.pi)  # within the 0.1 % back-off steps
+        tip_ref = ref.state(q_ref).link_pose("thumb_tip")[:3, 3]
+        np.testing.assert_allclose(hand.state(q).link_pose("thumb_tip")[:3, 3], tip_ref, atol=1e-4)
+        assert ref.state(q_ref).finger_object_distance(obj, "thumb") >= 0.0
+        assert hand.state(q).finger_object_distance(obj, "thumb") >= 0.0
+
+
+@pytest.mark.parametrize("value, message", [
+    ({"thumb_0": "lower"}, "closing joint"),             # thumb_0 is not one of the thumb's closing joints
+    ({"thumb_1": "down"}, "closing ends are upper, lower"),  # the valid ends are named
+    (["thumb_1"], "a mapping closing joint -> lower or upper"),
+])
+def test_close_toward_is_validated_with_one_line(tmp_path, value, message):
+    from planner.errors import SpecError
+
+    ref = Hand.load("icub_right")
+    spec = yaml.safe_load((Path(ref.spec_path)).read_text())
+    spec["urdf"] = str(ref.urdf_path)
+    spec["fingers"]["thumb"]["close_toward"] = value
+    path = tmp_path / "hand.yaml"
+    path.write_text(yaml.safe_dump(spec))
+    with pytest.raises(SpecError) as err:
+        Hand.load(path)
+    assert "fingers.thumb.close_toward" in str(err.value) and message in str(err.value)
+    assert "\n" not in str(err.value)
+
+
+def test_a_follower_closing_against_its_driver_is_refused(tmp_path):
+    from planner.errors import SpecError
+
+    ref = Hand.load("icub_right")
+    spec = yaml.safe_load((Path(ref.spec_path)).read_text())
+    spec["urdf"] = str(ref.urdf_path)
+    spec["couplings"] = [{"joint": "index_3", "follows": "index_2", "multiplier": 1.0}]
+    spec["fingers"]["index"]["close_toward"] = {"index_3": "lower"}  # index_2 itself closes upward
+    path = tmp_path / "hand.yaml"
+    path.write_text(yaml.safe_dump(spec))
+    with pytest.raises(SpecError, match=r"fingers\.index\.close_toward.*index_3.*index_2"):
+        Hand.load(path)
+    # with a negative multiplier the follower closing downward drives index_2 upward: accepted
+    spec["couplings"][0]["multiplier"] = -1.0
+    spec["couplings"][0]["offset"] = 1.5708
+    path.write_text(yaml.safe_dump(spec))
+    hand = Hand.load(path)
+    assert hand.fingers["index"].driver_closing() == {"index_1": 1.0, "index_2": 1.0}
