@@ -63,6 +63,9 @@ the checkout, or a ``PYTHONPATH`` that shadows it. Plans and logs go to ``--work
 ``experiments/results/exp9_<label>.csv``.
 
     python experiments/exp9_whole_hand.py --generate [--seed 0]
+    # the v2 pairs: both grasps pass `check --execution` (no invalid inputs in the sweep)
+    python experiments/exp9_whole_hand.py --generate --valid execution --seed 1 --pairs-dir experiments/results/exp9_pairs_v2
+    python experiments/exp9_whole_hand.py --run --label v2_after --pairs-dir experiments/results/exp9_pairs_v2
     python experiments/exp9_whole_hand.py --run --label after
     python experiments/exp9_whole_hand.py --summary experiments/results/exp9_baseline.csv
     # the frozen baseline checkout, its planner shadowing the editable install:
@@ -397,10 +400,18 @@ def _thumb_far(g) -> bool:
                for w in g.warnings)
 
 
-def _valid(g, thumb_on_point: bool = False) -> bool:
+def _valid(g, thumb_on_point: bool = False, validity: str = "check") -> bool:
     """check exits 0, or its only finding is "not force closure" (no problem at all); with
-    ``thumb_on_point`` also the thumb touching within check's 3 mm of the file's point."""
-    return not g.problems and THUMB in g.patches and not (thumb_on_point and _thumb_far(g))
+    ``thumb_on_point`` also the thumb touching within check's 3 mm of the file's point; with
+    ``validity="execution"`` the grasp must also be one ``plan --execution`` accepts as an end
+    grasp (`planner.realization.execution_verdict`: what ``check --execution`` exits 0 on)."""
+    if g.problems or THUMB not in g.patches or (thumb_on_point and _thumb_far(g)):
+        return False
+    if validity == "execution":
+        from planner.realization import execution_verdict
+
+        return execution_verdict(g).ok
+    return True
 
 
 def realize_thumb(hand, block, mass, fingers, p, path, thumb_on_point: bool = False):
@@ -430,7 +441,7 @@ def realize_thumb(hand, block, mass, fingers, p, path, thumb_on_point: bool = Fa
 
 
 def generate_cell(hand, family, mass_index, seed, out_dir: Path, mesh_path: Path, log=print,
-                  thumb_on_point: bool = False):
+                  thumb_on_point: bool = False, validity: str = "check"):
     """One pair of a cell: (manifest row, initial doc, final doc) or None after MAX_ATTEMPTS."""
     np = _np()
     hi = HANDS.index(hand.name)
@@ -467,7 +478,7 @@ def generate_cell(hand, family, mass_index, seed, out_dir: Path, mesh_path: Path
             if res is None:
                 continue
             p, g = res
-            if not _valid(g, thumb_on_point):
+            if not _valid(g, thumb_on_point, validity):
                 continue
             tp, tn = _thumb_contact(g)
             new = (p, g, tp, tn)
@@ -560,9 +571,11 @@ def run_sub(cmd, cwd, timeout_s, cpu):
         return None, out, err, time.perf_counter() - t0
 
 
-def cli_check(path: Path, cwd: Path, cpu):
-    """(exit code, summary dict or None) of ``python -m planner check FILE --json``."""
-    code, out, err, _ = run_sub(planner_cmd("check", str(path), "--json"), cwd, 300, cpu)
+def cli_check(path: Path, cwd: Path, cpu, execution: bool = False):
+    """(exit code, summary dict or None) of ``python -m planner check FILE --json`` (with
+    ``--execution`` when ``execution``)."""
+    extra = ("--execution",) if execution else ()
+    code, out, err, _ = run_sub(planner_cmd("check", str(path), "--json", *extra), cwd, 300, cpu)
     try:
         data = json.loads(out)
     except (json.JSONDecodeError, TypeError):
@@ -609,7 +622,7 @@ def generate(args) -> dict:
                     continue
                 tc = time.perf_counter()
                 res = generate_cell(hand, family, mi, args.seed, out, out / "meshes" / MESH_NAME, log=log,
-                                    thumb_on_point=args.thumb_on_point)
+                                    thumb_on_point=args.thumb_on_point, validity=args.valid)
                 if res is None:
                     print(f"{hand_name} {family} {mass:g} kg: no valid pair in {MAX_ATTEMPTS} attempts")
                     continue
@@ -618,7 +631,7 @@ def generate(args) -> dict:
                     write_yaml(out / row[role], docs[role])
                 # confirm with the command line: `regrasp check FILE`
                 for role in ("initial", "final"):
-                    code, data, err = cli_check(out / row[role], out, cpu)
+                    code, data, err = cli_check(out / row[role], out, cpu, args.valid == "execution")
                     row[f"{role}_check_exit"] = code
                     row[f"{role}_check"] = ("ok" if code == 0 else
                                             "not force closure (needs the palm)" if code == 1 and data
@@ -855,6 +868,9 @@ def main(argv=None) -> dict:
     ap.add_argument("--families", type=lambda s: s.split(","), default=list(FAMILIES))
     ap.add_argument("--masses", type=lambda s: [float(x) for x in s.split(",")], default=list(MASSES_KG))
     ap.add_argument("--quiet", action="store_true", help="--generate: no per-attempt log on stderr")
+    ap.add_argument("--valid", choices=("check", "execution"), default="check",
+                    help="--generate: a grasp is kept when check finds no problem (check, the committed v1 "
+                         "pairs) or when check --execution passes (execution: the v2 pairs)")
     ap.add_argument("--thumb-on-point", action="store_true",
                     help="--generate: the thumb must touch within 3 mm of its file point (off for the committed "
                          "pairs; about 10x slower to generate)")
