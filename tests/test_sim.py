@@ -180,6 +180,7 @@ def test_replay_is_deterministic(hand, grasp, index_lifted):
     assert (a.max_drift_mm, a.max_drift_deg, a.sim_steps) == (b.max_drift_mm, b.max_drift_deg, b.sim_steps)
 
 
+@pytest.mark.needs_pybullet("pictures (replay --gif)")
 def test_gif_and_report_written_by_cli(hand, grasp, tmp_path):
     """`regrasp replay --gif --report` writes a multi-frame GIF and a JSON report, exit 0."""
     from PIL import Image
@@ -196,6 +197,7 @@ def test_gif_and_report_written_by_cli(hand, grasp, tmp_path):
     assert data["passed"] is True and len(data["states"]) == 2 and data["gif_frames"] >= 5
 
 
+@pytest.mark.needs_pybullet("pictures (replay --gif)")
 def test_replay_gif_reads_like_the_plan_film(hand, grasp, index_lifted, tmp_path):
     """The replay's GIF is drawn like `regrasp view --gif`: 640x480, a caption band, the
     simulator's contacts in the fingers' colours, the lifting finger in magenta while it
@@ -237,6 +239,7 @@ def test_replay_gif_reads_like_the_plan_film(hand, grasp, index_lifted, tmp_path
     assert moving[-1] < 20  # dwell at state 1: nothing moves
 
 
+@pytest.mark.needs_pybullet("pictures (replay films)")
 def test_gif_frames_keep_the_simulated_clock():
     """Frame delays are whole centiseconds adding up to the simulated time (no drift): 30 fps
     of simulation gives 30/40 ms delays; the last frame is held before the loop restarts."""
@@ -431,6 +434,7 @@ def test_gravity_set_replays_every_direction_with_its_own_verdict(hand, grasp, t
     assert len(rows) == 2 and "FAIL" in rows[0]
 
 
+@pytest.mark.needs_pybullet("pictures (replay --gif --film)")
 def test_gravity_set_films_only_the_directions_asked_for(hand, grasp, tmp_path):
     """--film palm_down with --gravity-set 2 and --gif writes the palm-down film only; a
     direction outside the set, or --film without --gravity-set, is refused naming the choices."""
@@ -462,6 +466,7 @@ def test_gravity_sets_have_n_named_directions_of_one_magnitude(n):
                 assert abs(np.dot(g, normal)) < 1e-12
 
 
+@pytest.mark.needs_pybullet("pybullet's engine (PybulletEngine)")
 def test_armature_floor_keeps_the_stiffest_spring_stable_with_margin():
     """The armature floor puts the stiffest posture spring at omega dt = ARMATURE_OMEGA_DT:
     Bullet's semi-implicit Euler step of a critically damped spring has spectral radius < 1
