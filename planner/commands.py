@@ -275,6 +275,25 @@ def _print_gravity_set(result) -> None:
               f"{r.max_drift_mm:>8.2f} {r.max_drift_deg:>9.2f} {f'{agree}/{reached}':>8}  {why}")
 
 
+def _print_couplings(runs) -> None:
+    """One line on the coupled joints of the replays ``runs`` ((name, ReplayReport) pairs):
+    each coupling's largest ``|q_f - (m q_d + o)|`` over them against its tolerance
+    (`planner.sim.report.CouplingError`); nothing for a hand without couplings."""
+    worst: dict = {}
+    for name, r in runs:
+        for c in getattr(r, "coupling_errors", ()):
+            if c.joint not in worst or c.max_error > worst[c.joint][1].max_error:
+                worst[c.joint] = (name, c)
+    if not worst:
+        return
+    parts = [f"{j} {c.max_error:.2g} ({c.max_error / c.tolerance:.0%} of {c.tolerance:.3g}"
+             + (f", {name}" if name else "") + (", state 0)" if c.step < 0 else f", step {c.step})")
+             for j, (name, c) in worst.items()]
+    broken = sum(not c.within for _, c in worst.values())
+    print(f"coupled joints, largest error (rad or m; of the tolerance): {'; '.join(parts)}"
+          + (f": {broken} broken" if broken else ": all within"))
+
+
 def _engine_verdict(report) -> str:
     """A single replay's verdict naming its engine: "PASS in mujoco: max drift ..."."""
     head, sep, rest = report.verdict.partition(": ")
@@ -307,6 +326,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
             if len(results) > 1:
                 print(f"{name}:")
             _print_gravity_set(res)
+            _print_couplings([(d, r) for d, _, r in res.directions])
             _compare_verification(plan, res, name)
             if len(results) > 1:
                 print(f"{name}: {res.verdict}")
@@ -321,6 +341,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
             if isinstance(args.gravity, str):
                 print(_gravity_line(args.gravity, report.parameters["gravity"], plan.hand["name"]))
             _print_states(report)
+            _print_couplings([("", report)])
             agree, reached = report.closure_agreement
             print(f"force closure agrees at {agree}/{reached} states; simulated {report.sim_time_s:.2f} s "
                   f"in {report.wall_time_s:.2f} s in {name}"

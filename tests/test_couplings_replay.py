@@ -175,3 +175,10 @@ def test_the_controller_commands_drivers_only_with_the_followers_load_by_virtual
     # a follower moves with its driver, |m| times as fast
     v = ctl.tracking_speed_rad_s(["right_1", "right_2"])
     assert v[1] == pytest.approx(1.2 * v[0]) and v[0] > 0
+
+
+def test_replay_prints_each_couplings_largest_error_against_its_tolerance(plan_path, capsys):
+    pytest.importorskip("pybullet")
+    assert main(["replay", str(plan_path), "--gravity-set", "1", "--workers", "1"]) == 0
+    line = next(ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("coupled joints"))
+    assert "left_2 " in line and "right_2 " in line and line.endswith(": all within")
