@@ -182,3 +182,29 @@ def test_replay_prints_each_couplings_largest_error_against_its_tolerance(plan_p
     assert main(["replay", str(plan_path), "--gravity-set", "1", "--workers", "1"]) == 0
     line = next(ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("coupled joints"))
     assert "left_2 " in line and "right_2 " in line and line.endswith(": all within")
+
+
+def test_synth_keeps_its_palm_clearance_where_the_nearest_palm_link_faces_the_object_obliquely(tmp_path):
+    """example-robot-data's Alex/Psyonic hand: one push along the palm normal left a sampled 30 mm
+    ball 1.09 mm from the thumb base (the synth keeps 2 mm), and palm up the replay's palm
+    carried it; the push is repeated until the gap is there."""
+    from planner.synth_sample import PALM_CLEARANCE_M, PALM_GAP_TOL_M
+    from planner.urdf_check import installed_share_dirs
+
+    found = [Path(d) / "example-robot-data/robots/alex_description/urdf/alex_psyonic_hands.urdf"
+             for d in installed_share_dirs()]
+    found = [p for p in found if p.is_file()]
+    if not found:
+        pytest.skip("example-robot-data is not installed")
+    spec = tmp_path / "hand.yaml"
+    assert main(["hand", "init", str(found[0]), "-o", str(spec), "--root", "RightGripperYawLink"]) == 0
+    ball = tmp_path / "ball.yaml"
+    ball.write_text("shape: sphere\nsize: [0.03]\nmass_kg: 0.05\n")
+    assert main(["synth", str(spec), str(ball), "--fingers", "thumb,index,middle,ring", "-n", "1", "-o",
+                 str(tmp_path / "g"), "--quiet"]) == 0
+    from planner.grasp import load_grasp
+
+    grasp = load_grasp(next((tmp_path / "g").glob("*.yaml")))
+    hand = Hand.load(spec)
+    gap = hand.state(hand.q_open).palm_object_distance(grasp.object)  # (the palm's links do not move)
+    assert gap >= PALM_CLEARANCE_M - PALM_GAP_TOL_M, gap
