@@ -44,7 +44,7 @@ from planner.resources import is_hand_path
 MAX_GRASP_BYTES = 1_000_000
 #: Largest plan file read, bytes (a plan with finger paths is ~0.1-1 MB).
 MAX_PLAN_BYTES = 20_000_000
-#: Deepest YAML nesting accepted (grasp and plan files need 5).
+#: Deepest YAML or JSON nesting accepted (grasp and plan files need 5).
 MAX_YAML_DEPTH = 32
 #: Most YAML aliases accepted (the planner writes none; an alias bomb needs many).
 MAX_YAML_ALIASES = 100
@@ -179,10 +179,19 @@ def load_json(text: str, path: str | os.PathLike):
     complaint, never the content) for bad syntax, out-of-range numbers or deep nesting."""
 
     try:
-        return json.loads(text)
+        data = json.loads(text)
     except (ValueError, RecursionError) as err:  # JSONDecodeError is a ValueError
         first = str(err).splitlines()[0] if isinstance(err, json.JSONDecodeError) else "numbers or nesting out of range"
         raise SpecError(str(path), "", f"not valid JSON: {first[:120]}") from None
+    # Python 3.12+ parses thousands of levels (its C recursion limit is not sys's), which the
+    # code reading the value would not survive: the YAML files' depth bound, checked here
+    level, depth = [data] if isinstance(data, (dict, list)) else [], 0
+    while level:  # one nesting level at a time: its containers' contained containers
+        depth += 1
+        if depth > MAX_YAML_DEPTH:
+            raise SpecError(str(path), "", f"not valid JSON: nesting deeper than {MAX_YAML_DEPTH} levels")
+        level = [v for c in level for v in (c.values() if isinstance(c, dict) else c) if isinstance(v, (dict, list))]
+    return data
 
 
 def read_yaml(path: str | os.PathLike, max_bytes: int = MAX_GRASP_BYTES, what: str = "YAML file"):
