@@ -208,3 +208,51 @@ def test_synth_keeps_its_palm_clearance_where_the_nearest_palm_link_faces_the_ob
     hand = Hand.load(spec)
     gap = hand.state(hand.q_open).palm_object_distance(grasp.object)  # (the palm's links do not move)
     assert gap >= PALM_CLEARANCE_M - PALM_GAP_TOL_M, gap
+
+
+def _four_bar_distal(L0, P1, L1, q_prox):
+    """The mk3 finger linkage (gazebo-yarp-plugins' HandMk3CouplingHandler geometry, m): the
+    motor angle q_prox + q_dist reached at proximal angle ``q_prox`` (rad), minus q_prox."""
+    L0, P1, L1 = (np.asarray(v, dtype=float) for v in (L0, P1, L1))
+    l2, k2 = np.sum((P1 - L1) ** 2), np.sum((L1 - L0) ** 2)
+    off = np.arctan2(L1[1] - P1[1], L1[0] - P1[0])
+    c, s = np.cos(q_prox), np.sin(q_prox)
+    px, py = c * P1[0] - s * P1[1], s * P1[0] + c * P1[1]
+    h2 = (px - L0[0]) ** 2 + (py - L0[1]) ** 2
+    motor = np.arctan2(L0[1] - py, L0[0] - px) + np.arccos((h2 + l2 - k2) / (2 * np.sqrt(h2 * l2))) - off
+    motor = np.mod(motor + 0.5 * np.pi, 2 * np.pi) - 0.5 * np.pi  # in [-90, 270) deg: the thumb's starts a hair below 0
+    return motor - q_prox
+
+
+MK3_COUPLINGS = """couplings:
+  - {joint: l_hand_thumb_distal_joint, follows: l_hand_thumb_proximal_joint, multiplier: 0.6435, offset: 0.0396}
+  - {joint: l_hand_index_distal_joint, follows: l_hand_index_proximal_joint, multiplier: 1.088, offset: 0.0419}
+  - {joint: l_hand_medium_distal_joint, follows: l_hand_medium_proximal_joint, multiplier: 1.088, offset: 0.0419}
+  - {joint: l_hand_pinky_distal_joint, follows: l_hand_pinky_proximal_joint, multiplier: 1.088, offset: 0.0419}
+"""
+
+
+def test_the_icub_mk3_hand_takes_its_four_bar_couplings_as_documented(tmp_path):
+    """icub-models' mk3 hand (docs/HANDS.md): the hand.yaml lines are within 2.4 deg of the
+    linkage over the URDF's proximal ranges, and the hand loads with its drivers' ranges
+    narrowed to where the distal joints stay within their limits."""
+    icub = pytest.importorskip("icub_models")
+    import sys
+
+    urdf = Path(sys.prefix) / "share/iCub/robots/left_hand_mk3/model.urdf"
+    if not urdf.is_file():
+        urdf = Path(icub.get_model_file("left_hand_mk3"))
+    for geometry, q_max, m, o in (
+            (((-0.00555, 0.00285), (0.020, 0.0015), (0.0115, 0.0014)), 1.4835, 0.6435, 0.0396),  # thumb
+            (((-0.0050, 0.0040), (0.0300, 0.0015), (0.0240, 0.0008)), 1.6581, 1.088, 0.0419)):  # fingers
+        q = np.linspace(0.0, q_max, 400)
+        assert np.max(np.abs(_four_bar_distal(*geometry, q) - (m * q + o))) < np.radians(2.45)  # 2.4 deg, rounded
+    spec = tmp_path / "hand.yaml"
+    assert main(["hand", "init", str(urdf), "-o", str(spec)]) == 0
+    spec.write_text(spec.read_text() + MK3_COUPLINGS)
+    hand = Hand.load(spec)
+    assert len(hand.couplings) == 4 and not any(c.source.startswith("URDF") for c in hand.couplings)
+    i = hand.joint_names.index
+    assert hand.upper[i("l_hand_thumb_proximal_joint")] == pytest.approx((0.9599310885968813 - 0.0396) / 0.6435)
+    assert hand.upper[i("l_hand_index_proximal_joint")] == pytest.approx((1.837831702350029 - 0.0419) / 1.088)
+    assert hand.lower[i("l_hand_index_distal_joint")] == pytest.approx(0.0419)
