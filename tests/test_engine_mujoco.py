@@ -112,6 +112,7 @@ def test_both_refuses_when_only_the_second_engine_fails(monkeypatch):
     assert rec["engines"]["pybullet"]["palm_down"]["max_drift_mm"] == 0.5
 
 
+@pytest.mark.needs_pybullet("MuJoCo hidden, the engine left is pybullet")
 def test_an_engine_not_installed_is_one_line(monkeypatch, capsys):
     """Asking for an engine whose package is missing is a one-line SimulationError naming the
     package to install (the CLI: exit 2, no traceback); an unknown name lists the valid ones."""
