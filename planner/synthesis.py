@@ -629,6 +629,13 @@ def finger_table(result: SynthResult) -> str:
     lines = [f"  {'finger':<{width}}  dropped  (candidates, by reason)"]
     for f, total, reasons in rows:
         lines.append(f"  {f:<{width}}  {total:>7}  " + (", ".join(f"{k} {r}" for r, k in reasons) if reasons else "-"))
+    # one finger whose closing motion misses in most of the drops: its closing joints or their
+    # directions are the first suspects (a thumb closing toward its lower limits, set up upward)
+    total = sum(t for _, t, _ in rows)
+    worst = max(rows, key=lambda r: r[1], default=None)
+    if worst and 2 * worst[1] > total and any("miss" in r for r, _ in worst[2]):
+        lines.append(f"  try: fingers.{worst[0]}: its closing motion misses the object; check its close_joints and "
+                     "close_toward in the hand.yaml (the limit each joint closes toward; hand init writes them)")
     return "\n".join(lines)
 
 

@@ -1,0 +1,117 @@
+"""docs/YOUR_HAND.md, run: two published hands from their registry package (example-robot-data,
+a dependency) as shipped, through the page's first four steps with its own commands: ``hand
+init --root``, ``hand check``, ``synth`` (seeded, 2 grasps), ``plan --execution`` (without the
+simulator's verification, which the page runs, as ``replay --gravity-set 6``).
+
+- the Unitree G1's right hand (a whole-robot URDF; a thumb closing toward its lower limits);
+- Alex's right Psyonic hand (a whole-robot URDF with 4 ``<mimic>`` joints naming no joint).
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+import yaml
+
+from planner.cli import main
+from planner.hand import Hand
+from tests.test_published_hands import G1, _robots
+
+ALEX = "alex_description/urdf/alex_psyonic_hands.urdf"
+
+#: The page's object files (docs/YOUR_HAND.md): a pose against each hand's palm.
+G1_BALL = "shape: sphere\nsize: [0.03]\nposition: [0.1092, 0.046, 0.0086]\nmass_kg: 0.05\n"
+ALEX_BOX = ("shape: box\nsize: [0.04, 0.04, 0.04]\nposition: [-0.003, 0.0251, -0.1349]\n"
+            "quat_xyzw: [-0.6199, 0.0, 0.7847, 0.0]\nmass_kg: 0.05\n")
+
+
+def _walk(tmp_path, capsys, urdf: str, root: str, obj_text: str, fingers: list[str]) -> tuple[Path, dict]:
+    """hand init, hand check, synth and plan --execution --no-verify as the page gives them:
+    (the hand.yaml, the plan)."""
+    hand_yaml = tmp_path / "hand.yaml"
+    assert main(["hand", "init", str(_robots() / urdf), "--root", root, "-o", str(hand_yaml), "-q"]) == 0
+    capsys.readouterr()
+    assert main(["hand", "check", str(hand_yaml)]) == 0
+    assert re.search(r": 0 error\(s\)", capsys.readouterr().out)
+    obj = tmp_path / "object.yaml"
+    obj.write_text(obj_text)
+    grasps = tmp_path / "grasps"
+    cmd = ["synth", str(hand_yaml), str(obj), "--palm", "-n", "2", "--seed", "0", "-o", str(grasps), "-q"]
+    if fingers:
+        cmd += ["--fingers", ",".join(fingers)]
+    assert main(cmd) == 0
+    out = capsys.readouterr().out
+    assert out.count("execution-ready") == 2, out
+    first, second = sorted(grasps.glob("*.yaml"))
+    plan = tmp_path / "plan.yaml"
+    assert main(["plan", str(first), str(second), "--execution", "--no-verify", "-o", str(plan), "-q"]) == 0
+    data = yaml.safe_load(plan.read_text())
+    assert data["steps"] and data["summary"]["gait_steps"] >= 1
+    return hand_yaml, data
+
+
+def test_unitree_g1_hand_from_its_robot_urdf_to_a_regrasp_plan(tmp_path, capsys):
+    hand_yaml, plan = _walk(tmp_path, capsys, G1, "right_wrist_yaw_link", G1_BALL, ["thumb", "index", "middle"])
+    # the thumb closes toward its lower limits (item 4): hand init wrote it, and its open
+    # posture is at the other end (thumb_1 at its upper limit 0.61 rad; thumb_2's is 0)
+    spec = yaml.safe_load(hand_yaml.read_text())
+    thumb = spec["fingers"]["thumb"]
+    assert thumb["close_joints"] == ["right_hand_thumb_1_joint", "right_hand_thumb_2_joint"]
+    assert thumb["close_toward"] == {"right_hand_thumb_1_joint": "lower", "right_hand_thumb_2_joint": "lower"}
+    hand = Hand.load(hand_yaml)
+    i1 = hand.joint_names.index("right_hand_thumb_1_joint")
+    assert hand.q_open[i1] == pytest.approx(hand.upper[i1]) == pytest.approx(0.61086523)
+    # the plan moves the thumb (a palm-supported regrasp) and every state is in the limits
+    assert any(s.startswith("thumb:") for s in plan["summary"]["order"])
+    for s in plan["states"]:
+        for j, v in s["q"].items():
+            i = hand.joint_names.index(j)
+            assert hand.lower[i] - 1e-9 <= v <= hand.upper[i] + 1e-9, (j, v)
+
+
+def test_alex_psyonic_hand_with_its_mimic_joints_to_a_regrasp_plan(tmp_path, capsys):
+    hand_yaml, plan = _walk(tmp_path, capsys, ALEX, "RightGripperYawLink", ALEX_BOX, [])
+    hand = Hand.load(hand_yaml)
+    assert len(hand.couplings) == 4  # adopted from the URDF's <mimic> naming no joint
+    assert set(plan["states"][0]["fingers"]) == set(hand.fingers)  # --palm: every finger by default
+    # every state keeps each follower on its driver: q2 = 1.0585 q1 + 0.7235
+    for s in plan["states"]:
+        q = s["q"]
+        for c in hand.couplings:
+            assert q[c.joint] == pytest.approx(c.multiplier * q[c.follows] + c.offset, abs=1e-8)
+
+
+def test_synth_names_the_finger_that_fails(tmp_path, capsys):
+    """The G1 hand set up as before closing directions (every thumb joint closing toward its
+    upper limit, the thumb open fully flexed): synth's drops are the thumb's, and it says so;
+    with hand init's closing directions the thumb drops none of them."""
+    from planner.synthesis import finger_table, load_object_file, synthesize
+
+    new = tmp_path / "g1" / "hand.yaml"
+    new.parent.mkdir()
+    assert main(["hand", "init", str(_robots() / G1), "--root", "right_wrist_yaw_link", "-o", str(new), "-q"]) == 0
+    spec = yaml.safe_load(new.read_text())
+    thumb = spec["fingers"]["thumb"]
+    del thumb["close_toward"]
+    thumb["close_joints"] = list(thumb["joints"])
+    hand = Hand.load(new)
+    spec["open"] = {j: float(hand.lower[hand.joint_names.index(j)]) for j in thumb["joints"]}
+    old = tmp_path / "g1" / "upward.yaml"
+    old.write_text(yaml.safe_dump(spec, sort_keys=False))
+    ball = tmp_path / "ball.yaml"
+    ball.write_text("shape: sphere\nsize: [0.03]\nposition: [0.14, 0.062, 0.011]\nmass_kg: 0.05\n")
+    obj, _, fixed = load_object_file(ball)
+    results = {}
+    for name, path in (("upward", old), ("init", new)):
+        results[name] = synthesize(str(path), obj, ["thumb", "index", "middle"], 10, fixed=fixed, seed=0,
+                                   max_attempts=8, base_dir=tmp_path)
+    up = results["upward"]
+    # every candidate dropped was dropped for the thumb (the reasons counted overall, by finger)
+    assert sum(up.by_finger["thumb"].values()) == sum(up.rejected.values()) >= 2
+    assert not up.by_finger["index"] and not up.by_finger["middle"]
+    table = finger_table(up)
+    assert re.search(r"thumb\s+\d+\s+\d+ a finger misses the object", table)
+    assert "try: fingers.thumb: its closing motion misses the object" in table
+    assert not any(results["init"].by_finger.values()) and len(results["init"].grasps) > len(up.grasps)
