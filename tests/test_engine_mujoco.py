@@ -130,3 +130,16 @@ def test_an_engine_not_installed_is_one_line(monkeypatch, capsys):
     assert code == 2 and len(err) == 1 and "pip install mujoco" in err[0]
     with pytest.raises(InputError, match="choose from: pybullet, mujoco, both"):
         engines_of("ode")
+
+
+def test_friction_is_as_stiff_as_mujocos_stiffest_constraint():
+    """The engine's impratio scales the contacts' friction regularizer, (1 - d)/(d impratio),
+    down to that of a constraint at MuJoCo's largest impedance (mjMAXIMP)."""
+    import mujoco
+
+    from planner.sim.engine_mujoco import friction_impratio
+    from planner.sim.mujoco_model import CONTACT_SOLIMP
+
+    d, top = CONTACT_SOLIMP[1], mujoco.mjMAXIMP
+    ir = friction_impratio()
+    assert abs((1 - d) / (d * ir) - (1 - top) / top) < 1e-12 and 100 < ir < 102
