@@ -319,19 +319,7 @@ def init_hand(urdf, package_dirs=(), root: str | None = None, cut_path=None) -> 
     boxes = link_boxes(hand)
     # palm normal: where the joints start carrying the tips from the zero posture (a URDF's
     # zero is the extended hand): flexion moves an extended fingertip toward the palm side
-    step = 0.05
-    tips, moves = {}, {}
-    for name, fg in hand.fingers.items():
-        tip_link = fg.links[-1] if fg.links else fingers[name]["tip_frame"]
-        p_tip = _far_point(hand, tip_link, boxes)
-        tips[name] = _tip_point(hand, q_mid, tip_link, p_tip)
-        for j in fg.joints:
-            i = hand.joint_names.index(j)
-            qb = q_mid.copy()
-            sign = 1.0 if q_mid[i] + step <= hi[i] else -1.0
-            qb[i] = q_mid[i] + sign * step
-            v = sign * (_tip_point(hand, qb, tip_link, p_tip) - tips[name]) / step  # toward the upper limit
-            moves.setdefault(name, []).append((j, v))
+    tips, moves = _tip_moves(hand, q_mid, boxes)
     sweep = sum((v for name, ms in moves.items() if name != "thumb" for _, v in ms), np.zeros(3))
     if np.linalg.norm(sweep) < 1e-9:
         sweep = sum((v for ms in moves.values() for _, v in ms), np.zeros(3))
@@ -346,30 +334,8 @@ def init_hand(urdf, package_dirs=(), root: str | None = None, cut_path=None) -> 
     rep.add("guess", "palm_normal", f"{spec['palm_normal']}: the direction in which the fingers' joints start "
                                     f"moving the fingertips from the zero posture toward their upper limits ({why})")
     # closing joints: those moving the tip toward the grasp's centre, in front of the palm
-    lengths = _finger_lengths(hand, boxes)
-    centre = np.mean(list(tips.values()), axis=0) + 0.5 * float(np.mean(list(lengths.values()))) * n
     open_q = {}
-    for name, ms in moves.items():
-        close, lower, notes = [], [], []
-        # a finger closes toward the palm's side, the thumb toward the grasp's centre (where
-        # it opposes the fingers); a joint whose motion toward its upper limit carries the tip
-        # away from there closes toward its lower limit (hand.yaml close_toward)
-        to_c = centre - tips[name] if name == "thumb" else n.copy()
-        to_c /= max(np.linalg.norm(to_c), 1e-12)
-        for j, v in ms:
-            size = float(np.linalg.norm(v))
-            along = float(v @ to_c) / size if size > 1e-9 else 0.0
-            if along > 0.5:
-                close.append(j)
-            elif along < -0.5:
-                close.append(j)
-                lower.append(j)
-            else:
-                notes.append(f"{j} moves the tip sideways (abduction or opposition)")
-        if not close:
-            close = [j for j, _ in ms]
-            notes.append("no joint carries the tip toward the grasp's centre: every joint closes")
-        close, lower = _one_way_per_driver(hand.fingers[name], close, lower, notes)
+    for name, (close, lower, notes) in _closing_guess(hand, tips, moves, n, boxes).items():
         fingers[name]["close_joints"] = close
         if lower:
             fingers[name]["close_toward"] = {j: "lower" for j in lower}
@@ -403,6 +369,62 @@ def init_hand(urdf, package_dirs=(), root: str | None = None, cut_path=None) -> 
         rep.add("guess", "effort", f"{effort} N m for every joint: the URDF's efforts are placeholders "
                                    f"(up to {float(np.max(hand.effort)):g} N m); replace with your motors' stall torque")
     return spec, rep
+
+
+#: Joint step (rad, or m) over which `_tip_moves` measures how a joint moves its fingertip.
+TIP_STEP = 0.05
+
+
+def _tip_moves(hand, q_mid, boxes) -> tuple[dict, dict]:
+    """Each finger's tip point at ``q_mid`` (palm frame: the far end of its last link's
+    collision box) and, per joint, the tip's velocity as the joint moves toward its upper
+    limit (finite difference over `TIP_STEP`, taken downward at the upper limit):
+    ({finger: (3,)}, {finger: [(joint, (3,)), ...]})."""
+    lo, hi = np.asarray(hand.lower), np.asarray(hand.upper)
+    tips, moves = {}, {}
+    for name, fg in hand.fingers.items():
+        tip_link = fg.links[-1] if fg.links else fg.tip_frame
+        p_tip = _far_point(hand, tip_link, boxes)
+        tips[name] = _tip_point(hand, q_mid, tip_link, p_tip)
+        for j in fg.joints:
+            i = hand.joint_names.index(j)
+            qb = q_mid.copy()
+            sign = 1.0 if q_mid[i] + TIP_STEP <= hi[i] else -1.0
+            qb[i] = q_mid[i] + sign * TIP_STEP
+            v = sign * (_tip_point(hand, qb, tip_link, p_tip) - tips[name]) / TIP_STEP  # toward the upper limit
+            moves.setdefault(name, []).append((j, v))
+    return tips, moves
+
+
+def _closing_guess(hand, tips, moves, n, boxes) -> dict[str, tuple[list, list, list]]:
+    """Per finger (closing joints, those of them closing toward their lower limit, notes):
+    a joint closes when its motion carries the tip toward the palm's side ``n`` (the thumb:
+    toward the grasp's centre in front of the palm, where it opposes the fingers), cos > 0.5
+    with it, upward when moving it up does so, downward when moving it up carries the tip
+    away (cos < -0.5); else it moves the tip sideways (abduction, opposition) and does not."""
+    lengths = _finger_lengths(hand, boxes)
+    centre = np.mean(list(tips.values()), axis=0) + 0.5 * float(np.mean(list(lengths.values()))) * n
+    out = {}
+    for name, ms in moves.items():
+        close, lower, notes = [], [], []
+        to_c = centre - tips[name] if name == "thumb" else np.array(n, dtype=float)
+        to_c /= max(np.linalg.norm(to_c), 1e-12)
+        for j, v in ms:
+            size = float(np.linalg.norm(v))
+            along = float(v @ to_c) / size if size > 1e-9 else 0.0
+            if along > 0.5:
+                close.append(j)
+            elif along < -0.5:
+                close.append(j)
+                lower.append(j)
+            else:
+                notes.append(f"{j} moves the tip sideways (abduction or opposition)")
+        if not close:
+            close = [j for j, _ in ms]
+            notes.append("no joint carries the tip toward the grasp's centre: every joint closes")
+        close, lower = _one_way_per_driver(hand.fingers[name], close, lower, notes)
+        out[name] = (close, lower, notes)
+    return out
 
 
 def _one_way_per_driver(finger, close: list, lower: list, notes: list) -> tuple[list, list]:
@@ -604,6 +626,27 @@ def _check_couplings(hand, rep: HandReport) -> None:
                                 "within the driver's limit")
 
 
+def _check_closing(hand, boxes, rep: HandReport) -> None:
+    """A closing joint whose ``close_toward`` (default upper) is the other end than the one
+    `hand init` would guess from the geometry (`_closing_guess`, with the hand's palm normal):
+    one warning each, with the fix. A finger for which the geometry decides nothing (no joint
+    carries its tip toward the palm's side) is not judged."""
+    lo, hi = np.asarray(hand.lower), np.asarray(hand.upper)
+    tips, moves = _tip_moves(hand, np.clip(np.zeros(len(lo)), lo, hi), boxes)
+    for name, (close, lower, notes) in _closing_guess(hand, tips, moves, np.asarray(hand.palm_normal), boxes).items():
+        if any("every joint closes" in t for t in notes):
+            continue
+        fg = hand.fingers[name]
+        for j in fg.close_joints:
+            want = "lower" if j in lower else "upper"
+            if j in close and fg.closes_toward(j) != want:
+                where = "the grasp's centre" if name == "thumb" else "the palm's side"
+                rep.add("warning", f"fingers.{name}.close_toward",
+                        f"{j} closes toward its {fg.closes_toward(j)} limit, but moving it toward its {want} limit "
+                        f"carries the fingertip toward {where}: give close_toward: {{{j}: {want}}} and its open angle "
+                        f"at the {fg.closes_toward(j)} end (hand init writes both)")
+
+
 def check_hand(ref) -> HandReport:
     """What a planner or a simulator cannot use in a hand (see the module's docstring)."""
     from planner.hand import Hand  # pinocchio and coal: loaded only when a hand is built (`regrasp --help` imports this module)
@@ -645,6 +688,7 @@ def check_hand(ref) -> HandReport:
     if meshes:
         rep.add("ok", "collision", f"{len(meshes)} mesh link(s) ({', '.join(meshes[:6])}{'...' if len(meshes) > 6 else ''})"
                                    ": planned with their convex hulls (coal), simulated with pybullet's hulls")
+    _check_closing(hand, boxes, rep)
     # pads facing the palm normal's side at the open posture
     n = np.asarray(hand.palm_normal, float)
     q_open = np.asarray(hand.q_open, float)

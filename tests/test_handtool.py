@@ -236,3 +236,22 @@ def test_a_follower_closing_against_its_driver_is_refused(tmp_path):
     path.write_text(yaml.safe_dump(spec))
     hand = Hand.load(path)
     assert hand.fingers["index"].driver_closing() == {"index_1": 1.0, "index_2": 1.0}
+
+
+def test_check_warns_of_a_joint_set_to_close_the_wrong_way(tmp_path):
+    """The mirrored thumb with the bundled hand.yaml (every joint closing upward, now away from
+    the grasp): hand check says which joints and the fix; with close_toward it says nothing."""
+    flipped = ("thumb_1", "thumb_2", "thumb_3")
+    ref = Hand.load("icub_right")
+    spec = yaml.safe_load((Path(ref.spec_path)).read_text())
+    spec["urdf"] = str(_flipped_icub(tmp_path, flipped))
+    spec.pop("open", None)
+    path = tmp_path / "hand.yaml"
+    path.write_text(yaml.safe_dump(spec))
+    found = [f for f in check_hand(path).findings if f.what == "fingers.thumb.close_toward"]
+    assert [f.text.split(" ")[0] for f in found] == list(flipped) and all(f.level == "warning" for f in found)
+    assert "give close_toward: {thumb_1: lower}" in found[0].text
+    spec["fingers"]["thumb"]["close_toward"] = {j: "lower" for j in flipped}
+    path.write_text(yaml.safe_dump(spec))
+    assert not [f for f in check_hand(path).findings if "close_toward" in f.what]
+    assert not [f for f in check_hand("icub_right").findings if "close_toward" in f.what]
