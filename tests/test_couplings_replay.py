@@ -256,3 +256,18 @@ def test_the_icub_mk3_hand_takes_its_four_bar_couplings_as_documented(tmp_path):
     assert hand.upper[i("l_hand_thumb_proximal_joint")] == pytest.approx((0.9599310885968813 - 0.0396) / 0.6435)
     assert hand.upper[i("l_hand_index_proximal_joint")] == pytest.approx((1.837831702350029 - 0.0419) / 1.088)
     assert hand.lower[i("l_hand_index_distal_joint")] == pytest.approx(0.0419)
+
+
+def test_a_replay_in_a_callers_pybullet_client_leaves_no_gear_constraint_behind(plan_path):
+    p = pytest.importorskip("pybullet")
+    cid = p.connect(p.DIRECT)
+    try:
+        errors = []
+        for _ in range(2):
+            rep = _replay(plan_path, "pybullet", client=cid)
+            assert rep.passed, rep.verdict
+            assert p.getNumConstraints(physicsClientId=cid) == 0 and p.getNumBodies(physicsClientId=cid) == 0
+            errors.append([c.max_error for c in rep.coupling_errors])
+        assert errors[0] == errors[1]  # the same replay again: nothing left over changes it
+    finally:
+        p.disconnect(physicsClientId=cid)

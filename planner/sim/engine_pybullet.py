@@ -79,6 +79,7 @@ class PybulletEngine:
         self.cid, self.dt_s = cid, float(world.dt_s)
         self.bodies: list[int] = []
         self._hold: int | None = None
+        self._gears: list[int] = []  # the couplings' constraints (removed with the bodies by `close`)
         try:
             self._build(world)
         except BaseException:
@@ -143,6 +144,7 @@ class PybulletEngine:
                                           [0, 0, 1], [0, 0, 0], [0, 0, 0], physicsClientId=cid)
                 p.changeConstraint(gear, gearRatio=-float(c.multiplier), relativePositionTarget=float(c.offset),
                                    erp=GEAR_ERP, maxForce=GEAR_MAX_TORQUE, physicsClientId=cid)
+                self._gears.append(gear)
 
     # -- the seam ---------------------------------------------------------------------
 
@@ -218,7 +220,9 @@ class PybulletEngine:
             if self.cid is not None:
                 p.disconnect(physicsClientId=self.cid)
         else:
+            for c in self._gears + ([self._hold] if self._hold is not None else []):
+                p.removeConstraint(c, physicsClientId=self.cid)
             for b in self.bodies:
                 p.removeBody(b, physicsClientId=self.cid)
-        self.bodies = []
+        self.bodies, self._gears, self._hold = [], [], None
         self.cid = None if self.own else self.cid
