@@ -143,3 +143,30 @@ def test_friction_is_as_stiff_as_mujocos_stiffest_constraint():
     d, top = CONTACT_SOLIMP[1], mujoco.mjMAXIMP
     ir = friction_impratio()
     assert abs((1 - d) / (d * ir) - (1 - top) / top) < 1e-12 and 100 < ir < 102
+
+
+@pytest.mark.needs_pybullet("films are drawn by pybullet's TinyRenderer")
+def test_a_mujoco_replay_is_filmed_where_mujoco_has_the_object(tmp_path):
+    """A MuJoCo replay's GIF is drawn from a pybullet mirror of MuJoCo's state: as the object
+    drops under a crushing gravity, the object's pixels (its colour) move by pixels between
+    the first and the last frame (a mirror left at the planned pose would not move)."""
+    import numpy as np
+    from PIL import Image
+
+    from planner.sim.render import OBJECT_RGBA, rgb255
+    from planner.sim.replay import replay_plan
+
+    gif = tmp_path / "drop.gif"
+    r = replay_plan(str(PLAN), engine="mujoco", gravity=CRUSHING_G, gif=str(gif), gif_every=4, width=160, height=120)
+    assert r.dropped and r.gif_frames >= 2
+    im = Image.open(gif)
+    rows = []
+    for k in (0, im.n_frames - 1):
+        im.seek(k)
+        rgb = np.asarray(im.convert("RGB"), float)
+        shade = rgb / np.maximum(rgb.max(axis=2, keepdims=True), 1.0)  # the object's hue, any lighting
+        ref = np.array(rgb255(OBJECT_RGBA), float) / max(rgb255(OBJECT_RGBA))
+        mask = np.linalg.norm(shade - ref, axis=2) < 0.08
+        assert mask.sum() > 20, k
+        rows.append(np.nonzero(mask)[0].mean())
+    assert abs(rows[0] - rows[1]) > 2.0, rows  # pixels of a 120-pixel-high picture
