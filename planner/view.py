@@ -304,7 +304,16 @@ def _load_report(path, n_states: int) -> list[dict]:
     data = load_json(read_limited(path, MAX_PLAN_BYTES, "replay report"), path)
     if not isinstance(data, dict):
         raise SpecError(str(path), "", "expected a replay report (regrasp replay --report)")
-    if "directions" in data:
+    if isinstance(data.get("engines"), list):  # replay --engine both: each engine's run(s), named by engine
+        runs = []
+        for e in data["engines"]:
+            e = e if isinstance(e, dict) else {}
+            rep, engine = e.get("report"), str(e.get("engine", "engine"))
+            if isinstance(rep, dict) and isinstance(rep.get("directions"), list):
+                runs += [(f"{engine} {d.get('name', i)}", d.get("report")) for i, d in enumerate(rep["directions"])]
+            else:
+                runs.append((engine, rep))
+    elif "directions" in data:
         runs = [(d.get("name", f"direction {i}"), d.get("report")) for i, d in enumerate(data["directions"])]
     elif "states" in data:
         runs = [("replay", data)]
