@@ -70,6 +70,7 @@ def test_the_cli_names_the_engine_in_the_verdict(capsys):
     assert code == 1 and last.startswith("FAIL in mujoco: object dropped"), last
 
 
+@pytest.mark.needs_pybullet("--engine both replays in pybullet too")
 def test_both_engines_refuse_a_plan_that_drops_and_name_the_engine():
     """`verify_plan(engine="both")` (what ``plan --execution --engine both`` runs) refuses a
     plan that drops: the refusal's verdict names pybullet, which failed first, and MuJoCo is
@@ -89,6 +90,7 @@ def test_both_engines_refuse_a_plan_that_drops_and_name_the_engine():
     assert alone.record()["engine"] == "mujoco"
 
 
+@pytest.mark.needs_pybullet("--engine both replays in pybullet too")
 def test_both_refuses_when_only_the_second_engine_fails(monkeypatch):
     """With both engines a plan that holds in pybullet and drops in MuJoCo is refused: the
     merged verdict is MuJoCo's, its failed step the plan's, the drifts the larger; a plan that
