@@ -14,7 +14,7 @@ import numpy as np
 from planner.grip import FRICTION_MARGIN
 from planner.objects import DEFAULT_DENSITY_KG_M3
 from planner.realization import (AT_LIMIT_RAD, CONTACT_TOL_M, CONTACT_WARN_M, PAD_FACING_RAD, PENETRATION_TOL_M,
-                                  ExecutionVerdict, RealizedGrasp, execution_verdict)
+                                  ExecutionVerdict, RealizedGrasp, execution_verdict, wedged_fingers)
 
 
 def object_text(obj) -> str:
@@ -63,6 +63,9 @@ def check_text(grasp: RealizedGrasp, verdict: ExecutionVerdict | None = None, st
         out.append(f"collision: {a} - {b}, {depth * 1000:.2f} mm")
     for w in grasp.warnings:
         out.append(f"warning: {w}")
+    for name, why in wedged_fingers(grasp).items():
+        out.append(f"warning: fingers.{name}: a plan can neither lift it from this contact nor land it here ({why}): "
+                   f"a regrasp that moves {name} cannot start or end in this grasp")
     for p in grasp.problems:
         out.append(f"NOT AS WRITTEN: {p}")
     out.append(f"force closure: {'yes' if grasp.is_force_closure else 'no'}, metric {grasp.metric:.4g}, "

@@ -302,6 +302,23 @@ def execution_verdict(grasp: RealizedGrasp, gravity=None, name: str = "gravity")
     return ExecutionVerdict(directions, opts.contact_model, opts.hold_factor, reason, hold)
 
 
+def wedged_fingers(grasp: RealizedGrasp) -> dict[str, str]:
+    """Touching fingers that cannot back off their contact whatever the other fingers do
+    (`planner.retreat.retreat_blocked`: the planner's own lift, every other finger open):
+    finger -> why. A plan can neither lift such a finger from this grasp nor land it here,
+    so a regrasp that must move it is refused at once (``finger ... must leave its initial
+    contact, and no finger path can``); the grasp itself may still hold."""
+    from planner.retreat import retreat_blocked  # deferred: the lift's finger scene
+
+    out = {}
+    for name in grasp.hand.fingers:
+        if name in grasp.patches:
+            why = retreat_blocked(grasp.hand, grasp.obj, grasp.finger_q[name], name)
+            if why is not None:
+                out[name] = why
+    return out
+
+
 def unheld_weight(grasp: RealizedGrasp, contact_model: str = "link") -> list:
     """The grasp's `planner.grip.DirectionHold`s, among the six hand orientations of
     execution mode, in which it does not hold its own weight (1x, with the whole friction

@@ -161,3 +161,22 @@ def test_check_agrees_with_the_planner_on_a_seeded_subset():
     heavy = {r["grasp"]: r for r in rows if r["mass_kg"] == 2.0}
     assert heavy["icub/box_ir2m"]["failing"][0]["limit"]["joint"] == "thumb_1"
     assert heavy["icub/ball_palm_thumb_across"]["plan_accepted"]  # a power grasp: the palm and five fingers hold 2 kg
+
+
+def test_check_names_a_finger_wedged_at_its_contact_and_the_planner_refuses_to_move_it(tmp_path, capsys):
+    """A thumb held against the object by its own opening limits (exp9 v2's iCub cylinder 100 g:
+    its proximal phalanx touches at the open posture) gets check's warning that no plan can lift it
+    there, with the planner's own reason; the planner refuses the pair at once with the same
+    reason; a bundled grasp whose fingers can all back off gets no such warning."""
+    from planner.grasp_report import check_text
+    from planner.realization import wedged_fingers
+
+    pairs = ROOT / "experiments/results/exp9_pairs_v2"
+    grasp = realize(load_grasp(pairs / "icub_right_cylinder_m0.1_initial.yaml"))
+    wedged = wedged_fingers(grasp)
+    assert list(wedged) == ["thumb"] and "cannot back off this contact" in wedged["thumb"]
+    assert "warning: fingers.thumb: a plan can neither lift it from this contact" in check_text(grasp)
+    with pytest.raises(NoSequenceError, match="finger thumb must leave its initial contact, and no finger path can"):
+        planner.plan(pairs / "icub_right_cylinder_m0.1_initial.yaml", pairs / "icub_right_cylinder_m0.1_final.yaml",
+                     execution=True, verify=False, max_rounds=2)
+    assert wedged_fingers(realize(load_grasp(BOX_IR2M))) == {}
