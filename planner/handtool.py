@@ -9,8 +9,9 @@ check HAND`` says what in a hand a planner or a simulator cannot use, one line e
   else ``finger_<k>``;
 - **tip and pad**: the leaf link; the pad is the point of its collision geometry farthest
   along the phalanx, on its palmar side;
-- **palm normal**: the direction in which the fingers' joints, moved from their lower to
-  their upper limits, carry the fingertips (summed over the fingers other than the thumb),
+- **palm normal**: the direction in which the fingers' joints, moved from the zero posture
+  toward the larger part of their range (flexion: a mirrored hand's fingers flex toward
+  their lower limits), carry the fingertips (summed over the fingers other than the thumb),
   snapped to a palm-frame axis within 30 deg;
 - **closing joints**: the joints whose motion carries the fingertip toward the palm normal
   (the thumb's: toward the grasp's centre in front of the palm), each with its direction:
@@ -320,7 +321,13 @@ def init_hand(urdf, package_dirs=(), root: str | None = None, cut_path=None) -> 
     # palm normal: where the joints start carrying the tips from the zero posture (a URDF's
     # zero is the extended hand): flexion moves an extended fingertip toward the palm side
     tips, moves = _tip_moves(hand, q_mid, boxes)
-    sweep = sum((v for name, ms in moves.items() if name != "thumb" for _, v in ms), np.zeros(3))
+    # each joint toward its flexion: the side of zero with the larger part of its range (a
+    # finger flexes far and hardly hyper-extends; a mirrored hand's joints flex downward),
+    # none for a symmetric range (abduction)
+    flex = {j: float(np.sign((hi[i] - q_mid[i]) - (q_mid[i] - lo[i]))) for i, j in enumerate(hand.joint_names)}
+    sweep = sum((flex[j] * v for name, ms in moves.items() if name != "thumb" for j, v in ms), np.zeros(3))
+    if np.linalg.norm(sweep) < 1e-9:
+        sweep = sum((flex[j] * v for ms in moves.values() for j, v in ms), np.zeros(3))
     if np.linalg.norm(sweep) < 1e-9:
         sweep = sum((v for ms in moves.values() for _, v in ms), np.zeros(3))
     n = sweep / max(np.linalg.norm(sweep), 1e-12)
@@ -332,7 +339,8 @@ def init_hand(urdf, package_dirs=(), root: str | None = None, cut_path=None) -> 
         why = "not near a palm-frame axis: check it"
     spec["palm_normal"] = [float(round(v, 6)) for v in n]
     rep.add("guess", "palm_normal", f"{spec['palm_normal']}: the direction in which the fingers' joints start "
-                                    f"moving the fingertips from the zero posture toward their upper limits ({why})")
+                                    "moving the fingertips from the zero posture toward the larger part of their "
+                                    f"ranges (flexion) ({why})")
     # closing joints: those moving the tip toward the grasp's centre, in front of the palm
     open_q = {}
     for name, (close, lower, notes) in _closing_guess(hand, tips, moves, n, boxes).items():

@@ -115,3 +115,36 @@ def test_synth_names_the_finger_that_fails(tmp_path, capsys):
     assert re.search(r"thumb\s+\d+\s+\d+ a finger misses the object", table)
     assert "try: fingers.thumb: its closing motion misses the object" in table
     assert not any(results["init"].by_finger.values()) and len(results["init"].grasps) > len(up.grasps)
+
+
+def test_the_g1_left_hand_mirrored_flexes_toward_its_lower_limits(tmp_path, capsys):
+    """The G1's left hand is the right one mirrored: its fingers flex toward their lower limits
+    (index_0 in [-1.571, 0]) and its thumb toward its upper ones. hand init takes flexion as
+    the larger part of each range, so the palm normal is the right hand's negated and every
+    closing direction the right hand's reversed; synth then finds its grasps (1 of 10 in
+    600 attempts when every joint closed upward)."""
+    specs = {}
+    for side in ("left", "right"):
+        out = tmp_path / side / "hand.yaml"
+        out.parent.mkdir()
+        assert main(["hand", "init", str(_robots() / G1), "--root", f"{side}_wrist_yaw_link", "-o", str(out), "-q"]) == 0
+        specs[side] = yaml.safe_load(out.read_text())
+    left, right = specs["left"], specs["right"]
+    assert left["palm_normal"] == [-v + 0.0 for v in right["palm_normal"]] == [0.0, -1.0, 0.0]
+    for f in ("thumb", "index", "middle"):
+        mirror = [j.replace("right_", "left_") for j in right["fingers"][f]["close_joints"]]
+        assert left["fingers"][f]["close_joints"] == mirror
+        down_r = set(right["fingers"][f].get("close_toward", {}))
+        down_l = set(left["fingers"][f].get("close_toward", {}))
+        assert down_l == {j.replace("right_", "left_") for j in right["fingers"][f]["close_joints"]} - {
+            j.replace("right_", "left_") for j in down_r}, f
+    hand = Hand.load(tmp_path / "left" / "hand.yaml")
+    for j in hand.fingers["index"].close_joints:  # open at 0, the upper end, away from flexion
+        i = hand.joint_names.index(j)
+        assert hand.q_open[i] == hand.upper[i] == 0.0 and hand.lower[i] < -1.5
+    ball = tmp_path / "ball.yaml"
+    ball.write_text("shape: sphere\nsize: [0.03]\nmass_kg: 0.05\n")
+    capsys.readouterr()
+    assert main(["synth", str(tmp_path / "left" / "hand.yaml"), str(ball), "-n", "2", "--seed", "0", "-o",
+                 str(tmp_path / "g"), "-q"]) == 0
+    assert "2/2 grasps" in capsys.readouterr().out
