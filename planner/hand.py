@@ -95,8 +95,9 @@ class Finger:
         tip_frame: frame at the fingertip.
         q_open: open posture of the finger's joints (rad), same order as ``joints``.
         close_joints: joints moved by the closing procedure (thesis eqs. 8-9).
-        close_lower: those of ``close_joints`` that close toward their lower limit (hand.yaml
-            ``close_toward: {joint: lower}``); the others close toward their upper limit.
+        close_lower: the joints the closing procedure moves (closing joints, a coupled one's
+            driver) that close toward their lower limit (hand.yaml ``close_toward: {joint:
+            lower}``); the others close toward their upper limit.
         links: every link of the finger that has collision geometry.
         pad_link, pad_p_link, pad_n_link: the fingertip pad (default IK point): a link, a point
             on its surface and the outward surface normal there, both in the link frame.
@@ -132,23 +133,11 @@ class Finger:
 
     def driver_closing(self) -> dict[str, float]:
         """The joints the closing procedure moves, each with its closing sign (+1.0 toward its
-        upper limit, -1.0 toward its lower), in joint order: the closing joints, a follower
-        replaced by its driver (closing the follower toward its end moves the driver toward
-        its end when the multiplier is positive, toward the other end when negative).
-
-        Raises:
-            ValueError: two closing joints ask a driver to move both ways.
-        """
-        driver = {self.joints[fl]: (self.joints[d], m) for fl, d, m, _ in self.coupled}
-        sign: dict[str, float] = {}
-        for j in self.close_joints:
-            s = -1.0 if j in self.close_lower else 1.0
-            d, m = driver.get(j, (j, 1.0))
-            s = s if m > 0 else -s
-            if sign.setdefault(d, s) != s:
-                raise ValueError(f"closing {j} toward its {self.closes_toward(j)} limit moves {d} the other way than "
-                                 f"its other closing joints: give them one direction")
-        return {j: sign[j] for j in self.joints if j in sign}
+        upper limit, -1.0 toward its lower, `closes_toward`), in joint order: the closing
+        joints, a follower replaced by its driver (the followers move by the coupling)."""
+        driver = {self.joints[fl]: self.joints[d] for fl, d, _, _ in self.coupled}
+        moved = {driver.get(j, j) for j in self.close_joints}
+        return {j: (-1.0 if j in self.close_lower else 1.0) for j in self.joints if j in moved}
 
     @property
     def drivers(self) -> tuple[str, ...]:
@@ -217,19 +206,25 @@ def _link_shape(spec_path: str, urdf_path: str, link: str, go):
 CLOSE_ENDS = ("upper", "lower")
 
 
-def _close_lower(r: Reader, close) -> tuple[str, ...]:
-    """The closing joints a finger's ``close_toward: {joint: lower|upper}`` closes toward
-    their lower limit (absent: none; every closing joint closes toward its upper limit)."""
+def _close_lower(r: Reader, close, follows: dict) -> tuple[str, ...]:
+    """The joints a finger's ``close_toward: {joint: lower|upper}`` closes toward their lower
+    limit (absent: none; every closing joint closes toward its upper limit). A key is one of
+    the joints the closing procedure moves: a closing joint, a coupled one's driver (the
+    procedure moves drivers; ``follows``: follower -> driver); a follower is refused, naming
+    its driver, as in ``open:``."""
     if r.value is None:
         return ()
     r.mapping("a mapping closing joint -> lower or upper", string_keys=True)
+    moved = list(dict.fromkeys(follows.get(j, j) for j in close))
     out = []
     for j, v in r.items():
-        if j not in close:
-            raise r.fail(str(UnknownNameError("closing joint", j, close)), j)
+        if j in follows and follows[j] in moved:
+            raise r.fail(f"{j} follows {follows[j]} (a coupling): give {follows[j]}'s closing direction", j)
+        if j not in moved:
+            raise r.fail(str(UnknownNameError("closing joint", j, moved)), j)
         if v.choice(CLOSE_ENDS, "closing end", show=repr) == "lower":
             out.append(j)
-    return tuple(j for j in close if j in out)
+    return tuple(j for j in moved if j in out)
 
 
 def _merge_capsules(entries):
@@ -445,6 +440,7 @@ class Hand:
 
         # fingers
         self.fingers: dict[str, Finger] = {}
+        follows = {c.joint: c.follows for c in self.couplings}
         for fname, fr in fingers_r.items():
             fs, key = fr.value, fr.key
             joints = tuple(fs["joints"])
@@ -460,7 +456,7 @@ class Hand:
             for j in close:
                 if j not in joints:
                     raise close_r.fail(str(UnknownNameError("joint", j, joints)))
-            close_lower = _close_lower(fr.child("close_toward", {}), close)
+            close_lower = _close_lower(fr.child("close_toward", {}), close, follows)
             tip = fs["tip_frame"]
             tip_id = frame_id(f"{key}.tip_frame", tip)
             pad = fs.get("pad")
@@ -492,10 +488,6 @@ class Hand:
                 close_joints=tuple(close), close_lower=close_lower, links=flinks, pad_link=pad_link,
                 pad_p_link=tuple(float(x) for x in pad_p), pad_n_link=pad_n,
                 free=tuple(k for k in range(len(joints)) if k not in followers), coupled=coupled)
-            try:
-                self.fingers[fname].driver_closing()
-            except ValueError as err:
-                raise fr.fail(str(err), "close_toward") from None
 
         # collision pairs between links: skip adjacent bodies and pairs touching at q = 0 or
         # at the open posture (shapes that overlap by design, like MoveIt's "default" pairs)

@@ -436,19 +436,23 @@ def _closing_guess(hand, tips, moves, n, boxes) -> dict[str, tuple[list, list, l
 
 
 def _one_way_per_driver(finger, close: list, lower: list, notes: list) -> tuple[list, list]:
-    """The closing joints without a follower whose own closing direction would move its
-    driver the other way than the driver's (`planner.hand.Finger.driver_closing`: the
-    procedure moves drivers; the driver's direction wins), with a note for each dropped."""
+    """(closing joints, the joints the closing procedure moves toward their lower limit) for
+    ``close`` and its joints found to close downward (``lower``): the procedure moves drivers
+    (`planner.hand.Finger.driver_closing`), so a coupled follower's direction becomes its
+    driver's (reversed by a negative multiplier); a follower that would move its closing
+    driver the other way is dropped, with a note (the driver's direction wins)."""
     driver = {finger.joints[fl]: (finger.joints[d], m) for fl, d, m, _ in finger.coupled}
     sign = {j: (-1.0 if j in lower else 1.0) for j in close}
+    moved: dict[str, float] = {j: sign[j] for j in close if j not in driver}
     kept = []
     for j in close:
         d, m = driver.get(j, (j, 1.0))
-        if d != j and d in sign and sign[d] != (sign[j] if m > 0 else -sign[j]):
+        s = sign[j] if m > 0 else -sign[j]
+        if moved.setdefault(d, s) != s:
             notes.append(f"{j} follows {d} (x {m:g}), which closes the other way: not a closing joint")
             continue
         kept.append(j)
-    return kept, [j for j in lower if j in kept]
+    return kept, [j for j in finger.joints if moved.get(j, 1.0) < 0]
 
 
 def _name_by_geometry(model, named, rep: HandReport):

@@ -218,24 +218,31 @@ def test_close_toward_is_validated_with_one_line(tmp_path, value, message):
     assert "\n" not in str(err.value)
 
 
-def test_a_follower_closing_against_its_driver_is_refused(tmp_path):
+def test_close_toward_names_drivers_not_followers(tmp_path):
+    """The closing procedure moves a coupled finger's drivers: close_toward gives a driver's
+    direction (one line naming the driver when it names a follower), and a follower among the
+    closing joints moves its driver in the driver's direction."""
     from planner.errors import SpecError
+    from planner.ik import closing_drivers, closing_signs
 
     ref = Hand.load("icub_right")
     spec = yaml.safe_load((Path(ref.spec_path)).read_text())
     spec["urdf"] = str(ref.urdf_path)
     spec["couplings"] = [{"joint": "index_3", "follows": "index_2", "multiplier": 1.0}]
-    spec["fingers"]["index"]["close_toward"] = {"index_3": "lower"}  # index_2 itself closes upward
+    spec["fingers"]["index"]["close_toward"] = {"index_3": "lower"}
     path = tmp_path / "hand.yaml"
     path.write_text(yaml.safe_dump(spec))
-    with pytest.raises(SpecError, match=r"fingers\.index\.close_toward.*index_3.*index_2"):
+    with pytest.raises(SpecError, match=r"fingers\.index\.close_toward\.index_3: index_3 follows index_2 \(a coupling\): "
+                                        r"give index_2's closing direction"):
         Hand.load(path)
-    # with a negative multiplier the follower closing downward drives index_2 upward: accepted
-    spec["couplings"][0]["multiplier"] = -1.0
-    spec["couplings"][0]["offset"] = 1.5708
+    spec["fingers"]["index"]["close_joints"] = ["index_1", "index_3"]  # index_2 moves as index_3's driver
+    spec["fingers"]["index"]["close_toward"] = {"index_2": "lower"}
     path.write_text(yaml.safe_dump(spec))
     hand = Hand.load(path)
-    assert hand.fingers["index"].driver_closing() == {"index_1": 1.0, "index_2": 1.0}
+    f = hand.fingers["index"]
+    assert f.driver_closing() == {"index_1": 1.0, "index_2": -1.0}
+    assert [hand.joint_names[i] for i in closing_drivers(hand, f)] == ["index_1", "index_2"]
+    assert closing_signs(hand, f).tolist() == [1.0, -1.0]
 
 
 def test_check_warns_of_a_joint_set_to_close_the_wrong_way(tmp_path):
