@@ -127,6 +127,9 @@ def build_parser() -> argparse.ArgumentParser:
     plan.add_argument("--execution", action="store_true",
                       help="plan for execution: --contact-model mean, --gravity-set 6 (unless --gravity or "
                            "--gravity-set is given) and --rank grip, and verify the plan in a physics engine (--engine)")
+    plan.add_argument("--verify-attempts", type=int, default=None, metavar="N",
+                      help="with --execution: sequences replayed at most before the plan is refused (a bound on "
+                           "the work, default 6)")
     plan.add_argument("--no-verify", action="store_true",
                       help="with --execution: return the best sequence without replaying it in a physics engine first")
     plan.add_argument("--engine", default=None, choices=ENGINE_CHOICES,

@@ -245,3 +245,24 @@ def test_architecture_table_lists_every_module():
         assert (ROOT / "planner" / named).exists(), named
     for named in re.findall(r"\(`(\w+\.py)`\)", table):
         assert (ROOT / "planner/sim" / named).exists(), named
+
+
+def test_every_option_a_message_names_exists(capsys):
+    """A refusal or hint that tells the user to pass ``--option`` names an option of the command
+    line (the execution refusal named --verify-attempts before plan had it); an out-of-range
+    value of it is one line with the valid range and exit 2."""
+    import re
+
+    from planner.cli import build_parser, main
+
+    known = {s for p in _subparsers(build_parser()).values() for s in _options_of(p)}
+    named = set()
+    for path in sorted((ROOT / "planner").rglob("*.py")):
+        for text in re.findall(r'"[^"\n]*"', path.read_text()):
+            named.update(re.findall(r"\((--[a-z][a-z-]+)[ ;)]", text))
+    assert named and named <= known, sorted(named - known)
+    box = ROOT / "grasps/icub"
+    code = main(["plan", str(box / "box_parallel_extension.yaml"), str(box / "box_ir2m.yaml"), "--execution",
+                 "--verify-attempts", "0"])
+    err = capsys.readouterr().err
+    assert code == 2 and "--verify-attempts: 0 is out of range; valid: [1, 100]" in err and len(err.strip().splitlines()) == 1
