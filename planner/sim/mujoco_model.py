@@ -71,6 +71,7 @@ accessor here takes and returns ``xyzw``.
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -81,6 +82,11 @@ from scipy.spatial.transform import Rotation
 from planner.errors import InputError, SimulationError, UnknownNameError
 from planner.sim.inputs import T_palm_root as T_palm_base
 from planner.sim.inputs import object_mass
+
+# No MuJoCo GL context is ever opened here (pictures come from pybullet's CPU renderer), and
+# mujoco's import otherwise loads GLFW, which probes its version in a subprocess (refused under
+# pdoc, the API reference's builder): no OpenGL back end unless the user chose one.
+os.environ.setdefault("MUJOCO_GL", "disable")
 
 import mujoco  # noqa: E402 (the one back end of this module)
 
