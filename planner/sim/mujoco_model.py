@@ -752,7 +752,11 @@ class MujocoScene:
     # ----------------------------------------------------------------- contacts
     def contacts(self) -> list[ContactPoint]:
         """The hand-object contacts of the last step (or `mujoco.mj_forward`): link, point,
-        normal INTO the object, normal force and signed distance, one per MuJoCo contact."""
+        normal INTO the object, normal force and signed distance, one per MuJoCo contact.
+        A contact penetrating less than `DIRECTION_MIN_M` takes its normal from the distance's
+        gradient, as `closest_points` does: MuJoCo's collision frame is as unreliable there
+        (measured: an iCub phalanx 1e-8 m into a cylinder got a normal 45 deg off the
+        cylinder's, pointing out of it)."""
         n = int(self.data.ncon)
         if n == 0:
             return []
@@ -772,7 +776,10 @@ class MujocoScene:
             if efc[i] >= 0:
                 mujoco.mj_contactForce(self.model, self.data, int(i), f6)
                 force = float(f6[0])
-            out.append(ContactPoint(link, pos[i].copy(), sign * normal[i], float(dist[i]), force))
+            n = sign * normal[i]
+            if abs(float(dist[i])) < DIRECTION_MIN_M:
+                n = self._distance_gradient(int(g1[i]) if hand1[i] else int(g2[i]), DIRECTION_MIN_M)
+            out.append(ContactPoint(link, pos[i].copy(), n, float(dist[i]), force))
         return out
 
     def closest_points(self, gap_m: float, link: str | None = None) -> list[ContactPoint]:
