@@ -164,6 +164,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=5)
     args = parser.parse_args()
+    from planner.sim.engine import engine_installed
+
+    if not engine_installed("pybullet"):  # its baseline is pybullet alone (Python >= 3.12 has no wheel)
+        print("bench_replay: skipped, pybullet is not installed (benchmarks/bench_engines.py times the MuJoCo replay)")
+        return
     plan = held_box_plan()
     with tempfile.TemporaryDirectory() as tmp:
         rows = [
