@@ -126,20 +126,6 @@ def squeeze_force_n(mass_kg: float, g_max_mps2: float, n_fingers: int, mu: float
     return max(SAFETY * mass_kg * g_max_mps2 / (max(1, n_fingers) * mu), floor_n)
 
 
-# --------------------------------------------------------------------------- coupled joints
-
-
-def _free(finger) -> tuple[int, ...]:
-    """Positions in ``finger.joints`` of its actuated joints (`planner.hand.Finger.free`;
-    every joint of a finger without couplings)."""
-    return tuple(getattr(finger, "free", ())) or tuple(range(len(finger.joints)))
-
-
-def _reduce(finger, J) -> np.ndarray:
-    """``J`` (..., n_joints) over the finger's actuated joints (`planner.hand.Finger.reduce`)."""
-    return finger.reduce(J) if getattr(finger, "coupled", ()) else np.asarray(J, dtype=float)
-
-
 # --------------------------------------------------------------------------- controller
 
 
@@ -201,12 +187,12 @@ class Controller:
                 self.tau_max[self.hand_pos[j]] = self.effort[self.col[j]]
         # coupled joints: (follower, driver, multiplier), engine positions; a follower has no motor
         self.coupled = [(self.hand_pos[c.joint], self.hand_pos[c.follows], float(c.multiplier))
-                        for c in getattr(hand, "couplings", ()) if c.joint in self.hand_pos and c.follows in self.hand_pos]
+                        for c in hand.couplings if c.joint in self.hand_pos and c.follows in self.hand_pos]
         for f, _, _ in self.coupled:
             self.tau_max[f] = 0.0
         # fingers every actuated joint of which has a torque limit: the limits bound their forces
         self.limited = {f for f, fg in hand.fingers.items()
-                        if np.all(np.isfinite(self.effort[[self.col[fg.joints[k]] for k in _free(fg)]]))}
+                        if np.all(np.isfinite(self.effort[[self.col[fg.joints[k]] for k in fg.free]]))}
 
     def _heaviest_finger_weight_n(self, link_mass_kg: Mapping[str, float], g: float) -> float:
         mass = {}
@@ -238,7 +224,7 @@ class Controller:
                 kp_max = max(FREE_SHARE, POSTURE_SHARE) * F / self.travel_m * lever ** 2
                 per_joint[j] = kp_max * (dt_s / ARMATURE_OMEGA_DT) ** 2
                 floor[self.hand_pos[j]] = per_joint[j]
-            for f, d, _, _ in getattr(finger, "coupled", ()):  # a follower's links: its driver's floor
+            for f, d, _, _ in finger.coupled:  # a follower's links: its driver's floor
                 per_joint[finger.joints[f]] = per_joint[finger.joints[d]]
                 floor[self.hand_pos[finger.joints[f]]] = per_joint[finger.joints[d]]
         links: dict[str, float] = {}
@@ -428,8 +414,8 @@ class Controller:
         """Actuated joint -> its lever to the finger's pad (the pad Jacobian's column over the
         finger's free coordinates, `planner.hand.Finger.reduce`), at least ``MIN_LEVER_M``."""
         J = state.frame_jacobian(finger.pad_link, finger.pad_p_link)[:3]
-        J = _reduce(finger, J[:, [self.col[j] for j in finger.joints]])
-        return {finger.joints[k]: max(float(np.linalg.norm(J[:, i])), MIN_LEVER_M) for i, k in enumerate(_free(finger))}
+        J = finger.reduce(J[:, [self.col[j] for j in finger.joints]])
+        return {finger.joints[k]: max(float(np.linalg.norm(J[:, i])), MIN_LEVER_M) for i, k in enumerate(finger.free)}
 
     def _balanced(self, contacts: list[Contact], F: float, state) -> list[np.ndarray]:
         """Forces of the contacts (zero for passive ones): the balanced solution, blended for
@@ -540,9 +526,9 @@ class Controller:
             fg = self.hand.fingers[f]
             cols = [self.col[j] for j in fg.joints]
             Js = [J_all[i] for i in idx]
-            A, b = torque_rows([_reduce(fg, J[:3, cols]) for J in Js], self.effort[[cols[k] for k in _free(fg)]],
-                               _reduce(fg, g_q[cols]),
-                               torsion=[_reduce(fg, J[3:, cols]).T @ contacts[i].normal for J, i in zip(Js, idx)])
+            A, b = torque_rows([fg.reduce(J[:3, cols]) for J in Js], self.effort[[cols[k] for k in fg.free]],
+                               fg.reduce(g_q[cols]),
+                               torsion=[fg.reduce(J[3:, cols]).T @ contacts[i].normal for J, i in zip(Js, idx)])
             if len(A):
                 rows.append((idx, A, b))
         return rows

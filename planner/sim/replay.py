@@ -353,7 +353,7 @@ class _Sim:
             engine.raise_link_inertia(link, floor)
         # coupled joints (engine order: follower, driver) and their largest error so far, with when
         ix = {j: k for k, j in enumerate(topo.joints)}
-        self.couplings = [(c, ix[c.joint], ix[c.follows]) for c in getattr(info.hand, "couplings", ())
+        self.couplings = [(c, ix[c.joint], ix[c.follows]) for c in info.hand.couplings
                           if c.joint in ix and c.follows in ix]
         self.coupling_max = [0.0] * len(self.couplings)
         self.coupling_at = [(-1, 0.0)] * len(self.couplings)
