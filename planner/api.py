@@ -66,7 +66,7 @@ def plan(initial, final, *, execution: bool = False, output: PathLike | None = N
     grasps = [initial, final]
     specs = [g.spec if isinstance(g, RealizedGrasp) else g if isinstance(g, GraspSpec) else load_grasp(g)
              for g in grasps]
-    check_same_setup(*specs)
+    check_same_setup(*specs, pose=options.get("repose") is False)
     hand = grasps[0].hand if isinstance(grasps[0], RealizedGrasp) else load_hand(specs[0].hand_ref)
     paths = [g for g in grasps if isinstance(g, (str, os.PathLike))]  # the same hand and object in both
     check_outputs([(output, "-o")], paths + grasp_files(specs[0], hand))

@@ -135,6 +135,9 @@ def build_parser() -> argparse.ArgumentParser:
     plan.add_argument("--engine", default=None, choices=ENGINE_CHOICES,
                       help="with --execution: the physics engine that verifies the plan (default: " + _ENGINE_DEFAULT
                            + "); both: returned only if it holds in pybullet and in mujoco")
+    plan.add_argument("--no-repose", action="store_true",
+                      help="never move the object (no reposing moves): the grasps must share the object's pose and "
+                           "only finger gaits are planned")
     plan.add_argument("--no-motion", action="store_true", help="skip OMPL finger paths (straight joint segments)")
     plan.add_argument("--motion-planner", default="rrtconnect", help="OMPL planner name (default rrtconnect)")
     plan.add_argument("--motion-checks", type=int, default=MOTION_CHECKS, metavar="N",

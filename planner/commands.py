@@ -55,6 +55,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
         time_limit_s=args.time_limit,
         max_rounds=args.max_rounds,
         **({"verify": False} if args.no_verify else {}),
+        **({"repose": False} if args.no_repose else {}),
         **({"verify_attempts": args.verify_attempts} if args.verify_attempts is not None else {}),
         **({"engine": args.engine} if args.engine is not None else {}),
         **chosen,

@@ -342,6 +342,9 @@ class Hand:
                 raise fr.fail(f"a finger name must be a word (e.g. index), got {fname!r}")
             if fname == PALM:  # the palm's contacts are keyed by it (planner.model.PALM)
                 raise fr.fail(f"{PALM!r} names the hand's base links, not a finger; call the finger something else")
+            if fname == "object":  # a plan's reposing steps move it (planner.plan_data.OBJECT)
+                raise fr.fail("'object' names what the hand holds (a plan's repose steps), not a finger; call the "
+                              "finger something else")
             fr.mapping(with_value=False)
             fr.require("joints", "tip_frame", message="missing required key")
             joints_r = fr.child("joints")

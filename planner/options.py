@@ -142,6 +142,10 @@ class PlanOptions:
             rounds are deterministic and bounded by this count (and each search by its
             expanded states), not by the clock: the plan, or the explanation of a failure,
             is the same on a loaded machine. 0 disables the rounds.
+        repose: let the hand move the object (in-grasp reposing, `planner.pose_search`): grasps
+            whose object poses differ are joined by reposing moves, and when finger gaits
+            alone find nothing the object may be rested on the palm first. False: the grasps
+            must share the object's pose and only gaits are planned.
         time_limit_s: an optional cap on the search time (graph strategy), s; None (the
             default): no cap, the work bounds (``max_rounds``, expanded states) end the search,
             so the plan or the refusal is the same on a loaded machine; 0: no rounds. Reaching a
@@ -172,6 +176,7 @@ class PlanOptions:
     verify_attempts: int = 6
     workers: int | None = None
     engine: str | None = None
+    repose: bool = True
 
     @classmethod
     def for_execution(cls, **overrides) -> "PlanOptions":

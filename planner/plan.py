@@ -28,12 +28,12 @@ from planner.errors import IntegrityError, PlannerError, PlannerWarning, SpecErr
 from planner.fileio import MAX_GRASP_BYTES, MAX_PLAN_BYTES, Reader, load_json, load_yaml, read_limited, sha256_file, shown
 from planner.model import PALM, Friction, Patch
 from planner.objects import MeshFileError, check_object_block
-from planner.plan_data import (ACTIONS, PLAN_KIND, SCHEMA_VERSION, Alternative, Plan, PlanState, PlanStep,
+from planner.plan_data import (ACTIONS, OBJECT, PLAN_KIND, SCHEMA_VERSION, Alternative, Plan, PlanState, PlanStep,
                                canonical_sha256, plan_file, plan_format)
 from planner.resources import bundled_grasp
 
 #: Versions `read_plan` reads (1: no integrity record, read with a warning).
-READABLE_VERSIONS = (1, 2, 3)
+READABLE_VERSIONS = (1, 2, 3, 4)
 
 #: Ranges a plan file must respect (README "Hardening / plan integrity").
 MAX_STATES = 10_000          # states (and steps) per plan
@@ -44,6 +44,9 @@ MAX_JOINT_VALUE = 100.0      # |joint value|, rad or m (the hand's limits are ch
 MAX_COORD_M = 10.0           # |contact point|, m (the object's ranges: planner.objects)
 #: A path's ends must equal its states' joint values within this (rad or m).
 PATH_END_TOL = 1e-6
+#: A reposing step's object poses must equal its states' poses within this (m, and quaternion
+#: components).
+POSE_END_TOL = 1e-6
 #: Recorded closure metrics are re-computed within this (relative, absolute).
 METRIC_RTOL, METRIC_ATOL = 1e-6, 1e-9
 
@@ -311,8 +314,30 @@ def _check_state(s: Reader, i: int, joints: tuple[str, ...]) -> PlanState:
     hold = s.get("hold_factor_by_gravity")
     if hold is not None:
         hold = {str(k): v.number(0, 1e6) for k, v in s.child("hold_factor_by_gravity").mapping().items()}
+    pose = None
+    if s.get("object_pose") is not None:  # schema 4: a reposing step moved the object here
+        pose = _pose_of(s.child("object_pose").mapping())
     return PlanState(fingers, patches, fc, metric, removable, qv,
-                     None if grip is None else float(grip), by_g, hold)
+                     None if grip is None else float(grip), by_g, hold, pose)
+
+
+def _pose_of(r: Reader) -> tuple[float, ...]:
+    """{position, quat_xyzw} as (x, y, z, qx, qy, qz, qw), the quaternion a unit one."""
+    r.require("position", "quat_xyzw", message="missing key")
+    p = r.child("position").numbers(3, -MAX_COORD_M, MAX_COORD_M)
+    q = r.child("quat_xyzw").numbers(4, -1.0 - 1e-6, 1.0 + 1e-6)
+    if abs(float(np.linalg.norm(q)) - 1.0) > 1e-6:
+        raise r.fail(f"expected a unit quaternion (norm {float(np.linalg.norm(q)):.6g})", "quat_xyzw")
+    return tuple(float(v) for v in (*p, *q))
+
+
+def _same_pose(a, b) -> bool:
+    """Two optional state poses equal (None: the plan's object pose); q and -q are one rotation."""
+    if a is None or b is None:
+        return a is None and b is None
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    return bool(np.max(np.abs(a[:3] - b[:3])) <= POSE_END_TOL
+                and min(np.max(np.abs(a[3:] - b[3:])), np.max(np.abs(a[3:] + b[3:]))) <= POSE_END_TOL)
 
 
 def _check_step(s: Reader, i: int, joints: tuple[str, ...], states: tuple[PlanState, ...]) -> PlanStep:
@@ -343,6 +368,12 @@ def _check_step(s: Reader, i: int, joints: tuple[str, ...], states: tuple[PlanSt
     others[idx] = False
     if np.any(np.abs(qa[others] - qb[others]) > PATH_END_TOL):
         raise s.fail(f"states {frm} and {to} differ in joints outside the step's joints")
+    if action == "repose":
+        return _check_repose(s, i, joints, states, sj, path)
+    if s.get("object_path") is not None:
+        raise s.fail(f"only a repose step moves the object; this is a {action}", "object_path")
+    if not _same_pose(a.object_pose, b.object_pose):
+        raise s.fail(f"the object's pose differs between states {frm} and {to}, but only a repose step moves it")
     on_a, on_b = finger in a.patches, finger in b.patches
     expect = {"lift": (True, False), "land": (False, True), "move": (False, False)}[action]
     if (on_a, on_b) != expect:
@@ -352,6 +383,32 @@ def _check_step(s: Reader, i: int, joints: tuple[str, ...], states: tuple[PlanSt
     if set(a.patches) - {finger} != set(b.patches) - {finger}:
         raise s.fail(f"fingers other than {finger} (or the palm) change contact between states {frm} and {to}")
     return PlanStep(finger, action, frm, to, sj, tuple(tuple(float(v) for v in wp) for wp in path))
+
+
+def _check_repose(s: Reader, i: int, joints, states, sj, path) -> PlanStep:
+    """A reposing step: ``finger: object``, one object pose per waypoint from the from-state's
+    pose to the to-state's, the same fingers touching before and after (the palm may join or
+    leave: the object rests on it or is lifted off it)."""
+    if s.get("finger") != OBJECT:
+        raise s.fail(f"a repose step moves the object: expected finger {OBJECT!r}, got {shown(s.get('finger'))}", "finger")
+    if s.get("object_path") is None:
+        raise s.fail("a repose step needs object_path (one pose per waypoint)", "object_path")
+    poses = s.child("object_path").rows(MAX_WAYPOINTS, 7, MAX_COORD_M)
+    if len(poses) != len(path):
+        raise s.fail(f"{len(poses)} object poses for {len(path)} waypoints: expected one per waypoint", "object_path")
+    if np.any(np.abs(np.linalg.norm(poses[:, 3:], axis=1) - 1.0) > 1e-6):
+        raise s.fail("expected unit quaternions [x, y, z, qx, qy, qz, qw]", "object_path")
+    frm, to = i, i + 1
+    a, b = states[frm], states[to]
+    ref = states[0].object_pose
+    for end, st, k in ((poses[0], a, frm), (poses[-1], b, to)):
+        if st.object_pose is not None and not _same_pose(tuple(end), st.object_pose) or \
+                st.object_pose is None and k != 0 and ref is not None:
+            raise s.fail(f"does not start at state {frm}'s object pose and end at state {to}'s", "object_path")
+    if set(a.patches) - {PALM} != set(b.patches) - {PALM}:
+        raise s.fail(f"the touching fingers change between states {frm} and {to}; a repose step keeps them on the object")
+    return PlanStep(OBJECT, "repose", frm, to, sj, tuple(tuple(float(v) for v in wp) for wp in path),
+                    tuple(tuple(float(v) for v in p) for p in poses))
 
 
 # ``planner.plan`` is this module and, called, the one-call planner: the package root's

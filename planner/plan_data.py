@@ -24,6 +24,13 @@ byte-identical.
 
 Schema versions grow only by optional keys (e.g. ``states[i].grip_force_n``): files
 written before a key existed lack it and read as if it were null.
+
+Schema 4 (reposing): a state may carry ``object_pose`` ({position, quat_xyzw}, palm frame),
+the object's pose there when it differs from the plan's ``object`` pose (which is the pose
+of state 0); a step with ``action: repose`` (``finger: object``) moves the object along
+``object_path`` (one pose per waypoint, [x, y, z, qx, qy, qz, qw]) while every touching
+finger follows by its joints (``joints``/``path``: those fingers' joints) with its contacts
+fixed on the object.
 """
 
 from __future__ import annotations
@@ -44,10 +51,12 @@ from planner.model import PALM, Friction, holders
 from planner.objects import GraspObject
 from planner.resources import bundled_grasp_name, bundled_hand_name, is_hand_path
 
-SCHEMA_VERSION = 3
+SCHEMA_VERSION = 4
 PLAN_KIND = "regrasp-plan"
 FLOAT_DIGITS = 10
-ACTIONS = ("lift", "move", "land")
+ACTIONS = ("lift", "move", "land", "repose")
+#: The ``finger`` of a reposing step (schema 4): the object moves, held by every touching finger.
+OBJECT = "object"
 FORMATS = {".yaml": "yaml", ".yml": "yaml", ".json": "json"}
 
 
@@ -61,6 +70,33 @@ def _num(x: float) -> float:
 
 def _vecs(a: np.ndarray) -> list[list[float]]:
     return [[_num(v) for v in row] for row in np.asarray(a, dtype=float).reshape(len(a), -1)]
+
+
+def pose_vector(T) -> tuple[float, ...]:
+    """A pose (4, 4) as (x, y, z, qx, qy, qz, qw), the quaternion with qw >= 0."""
+    from scipy.spatial.transform import Rotation
+
+    T = np.asarray(T, dtype=float)
+    quat = Rotation.from_matrix(T[:3, :3]).as_quat()
+    if quat[3] < 0:
+        quat = -quat
+    return tuple(float(v) for v in (*T[:3, 3], *quat))
+
+
+def pose_matrix(pose) -> np.ndarray:
+    """(x, y, z, qx, qy, qz, qw) as a pose (4, 4)."""
+    from scipy.spatial.transform import Rotation
+
+    pose = np.asarray(pose, dtype=float)
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_quat(pose[3:7]).as_matrix()
+    T[:3, 3] = pose[:3]
+    return T
+
+
+def pose_dict(pose) -> dict:
+    """A state's ``object_pose`` in the file: {position, quat_xyzw}."""
+    return {"position": [_num(v) for v in pose[:3]], "quat_xyzw": [_num(v) for v in pose[3:7]]}
 
 
 def _patch_dict(patch) -> dict:
@@ -92,6 +128,9 @@ class PlanState:
         hold_factor_by_gravity: gravity direction name -> the largest multiple of the
             object's weight the hand's joints hold there (`planner.grip.hold_capacity`, at
             most `planner.grip.FACTOR_MAX`); None without gravity.
+        object_pose: the object's pose in this state, (x, y, z, qx, qy, qz, qw) in the palm
+            frame, when a reposing step moved it from the plan's ``object`` pose; None: that
+            pose (`Plan.object_at`).
     """
 
     fingers: Mapping[str, str]
@@ -103,6 +142,7 @@ class PlanState:
     grip_force_n: float | None = None
     grip_force_by_gravity_n: Mapping[str, float] | None = None
     hold_factor_by_gravity: Mapping[str, float] | None = None
+    object_pose: tuple[float, ...] | None = None
 
     @property
     def touching(self) -> tuple[str, ...]:
@@ -126,19 +166,23 @@ class PlanState:
                {"hold_factor_by_gravity": {str(k): _num(v) for k, v in self.hold_factor_by_gravity.items()}}),
             "removable": sorted(self.removable),
             "q": {j: _num(v) for j, v in zip(joints, self.q)},
+            **({} if self.object_pose is None else {"object_pose": pose_dict(self.object_pose)}),
         }
 
 
 @dataclass(frozen=True)
 class PlanStep:
-    """One finger motion between two states.
+    """One finger motion between two states, or a reposing move of the object.
 
     Attributes:
-        finger: the moving finger.
-        action: "lift", "move" or "land".
+        finger: the moving finger (`OBJECT` for a reposing move).
+        action: "lift", "move", "land" or "repose".
         from_state, to_state: indices into the plan's states.
-        joints: the finger's joint names, the columns of ``path``.
+        joints: the finger's joint names (a reposing move: the joints of every touching
+            finger), the columns of ``path``.
         path: joint waypoints (m, len(joints)), radians; first = from_state, last = to_state.
+        object_path: a reposing move's object poses, one per waypoint of ``path``:
+            (x, y, z, qx, qy, qz, qw) in the palm frame; None for a finger's move.
     """
 
     finger: str
@@ -147,6 +191,7 @@ class PlanStep:
     to_state: int
     joints: tuple[str, ...]
     path: tuple[tuple[float, ...], ...]
+    object_path: tuple[tuple[float, ...], ...] | None = None
 
     def to_dict(self) -> dict:
         return {
@@ -156,6 +201,7 @@ class PlanStep:
             "to_state": int(self.to_state),
             "joints": list(self.joints),
             "path": [[_num(v) for v in wp] for wp in self.path],
+            **({} if self.object_path is None else {"object_path": [[_num(v) for v in p] for p in self.object_path]}),
         }
 
 
@@ -225,6 +271,17 @@ class Plan:
         """Joint name -> value of a state (rad or m)."""
         return dict(zip(self.joints, self.states[state].q))
 
+    def object_at(self, state: int) -> GraspObject:
+        """The object at its pose in a state (the plan's ``object`` unless a reposing step
+        moved it: `PlanState.object_pose`)."""
+        pose = self.states[state].object_pose
+        return self.object if pose is None else self.object.with_pose(pose_matrix(pose))
+
+    @property
+    def reposes(self) -> bool:
+        """The plan moves the object (has a reposing step)."""
+        return any(s.action == "repose" for s in self.steps)
+
     def to_dict(self, relative_to: str | os.PathLike | None = None) -> dict:
         """The plan as plain data in schema order (the file's content), sealed with its
         ``integrity`` record.
@@ -246,7 +303,8 @@ class Plan:
         if relative_to is not None and isinstance(obj.get("mesh"), str):
             obj["mesh"] = _relative(obj["mesh"], relative_to, self.source)
         return {
-            "schema_version": SCHEMA_VERSION,
+            # the lowest schema that holds the plan: one without reposing stays readable by schema-3 tools
+            "schema_version": SCHEMA_VERSION if self.reposes else 3,
             "kind": PLAN_KIND,
             "hand": hand,
             "object": obj,

@@ -918,6 +918,15 @@ def realize(spec: GraspSpec, hand=None) -> RealizedGrasp:
         raise UnreachableError(f"{spec.path}: fingers.{name}.contact.point: {err}{others}", target_palm=err.target_palm,
                                closest_palm=err.closest_palm, direction_palm=err.direction_palm,
                                distance_m=err.distance_m)
+    return measure(spec, hand, q, notes)
+
+
+def measure(spec: GraspSpec, hand, q, notes=()) -> RealizedGrasp:
+    """The grasp ``spec`` with the hand at ``q``: contacts, closure, removable fingers,
+    collisions and findings measured at the spec's object pose (what `realize` does once it
+    has placed the fingers; a reposing move measures every waypoint so, with the object at
+    the waypoint's pose, `planner.repose`)."""
+    obj = spec.object
     # one state, queried once: link-object distances are computed once for all four queries
     state = hand.state(q)
     q = state.q
@@ -964,7 +973,7 @@ def realize(spec: GraspSpec, hand=None) -> RealizedGrasp:
         missing=missing,
         contacts=contacts,
         problems=tuple(problems),
-        warnings=tuple(notes + warnings),
+        warnings=tuple(list(notes) + warnings),
     )
 
 

@@ -57,8 +57,10 @@ class PlanResult:
 log = logging.getLogger("planner")
 
 
-def check_same_setup(initial, final) -> None:
-    """Refuse two grasps that do not share hand, object, object pose and friction.
+def check_same_setup(initial, final, pose: bool = False) -> None:
+    """Refuse two grasps that do not share hand, object and friction (and, with ``pose``, the
+    object's pose: the gait search alone; the planner joins different poses by reposing
+    moves, `planner.pose_search`).
 
     Args:
         initial, final: `planner.grasp.GraspSpec` of the two grasps.
@@ -69,15 +71,16 @@ def check_same_setup(initial, final) -> None:
         ("object.shape", a.object.shape, b.object.shape),
         ("object.size", a.object.size, b.object.size),
         ("object.mesh", a.object.mesh_path, b.object.mesh_path),
-        ("object.position", a.object.position, b.object.position),
-        ("object.quat_xyzw", a.object.quat_xyzw, b.object.quat_xyzw),
+        *((("object.position", a.object.position, b.object.position),
+           ("object.quat_xyzw", a.object.quat_xyzw, b.object.quat_xyzw)) if pose else ()),
         ("object.mass_kg", a.object.to_data()["mass_kg"], b.object.to_data()["mass_kg"]),  # None (volume x density) differs from a number
         ("friction", (a.friction.mu, a.friction.gamma, a.friction.edges), (b.friction.mu, b.friction.gamma, b.friction.edges)),
     ]
     for key, va, vb in checks:
         same = va == vb if isinstance(va, str) or va is None else np.allclose(np.asarray(va, float), np.asarray(vb, float), atol=1e-9)
         if not same:
-            raise SpecError(b.path, key, f"differs from the initial grasp ({a.path}): {va} vs {vb}; both grasps must share hand, object, object pose and friction")
+            raise SpecError(b.path, key, f"differs from the initial grasp ({a.path}): {va} vs {vb}; both grasps must share "
+                                         f"hand, object{', object pose' if pose else ''} and friction")
 
 
 # ------------------------------------------------------------------ motion
@@ -342,7 +345,61 @@ def anytime_search(problem: GaitProblem, initial, options: PlanOptions, t0: floa
 def plan_regrasp(
     initial, final, options: PlanOptions = PlanOptions(), inputs: Mapping[str, Any] | None = None, verbose: bool = False
 ) -> PlanResult:
-    """Plan a finger-gaiting sequence from one realized grasp to another.
+    """Plan a regrasp from one realized grasp to another: finger gaits, and reposing moves of
+    the object where the grasps' object poses differ or gaits alone find nothing
+    (``options.repose``; `planner.pose_search`).
+
+    Args:
+        initial, final: `planner.realization.RealizedGrasp` (same hand, object, friction), or
+            grasp files (paths) or `GraspSpec`s, realized here.
+        options, inputs, verbose: as `plan_gaits`.
+
+    Returns:
+        `PlanResult`; a plan with reposing moves has ``sequence`` None and an empty graph.
+
+    Raises:
+        NoSequenceError: no plan; the message says why (the gaits' refusal and, when
+            reposing was tried, why each candidate pose failed).
+    """
+    if not isinstance(initial, RealizedGrasp) or not isinstance(final, RealizedGrasp):
+        (initial, rec_i), (final, rec_f) = realized_grasp(initial), realized_grasp(final)
+        if inputs is None:
+            inputs = {k: v for k, v in (("initial", rec_i), ("final", rec_f)) if v is not None}
+    check_same_setup(initial.spec, final.spec, pose=not options.repose)
+    from planner.pose_search import candidate_poses, plan_with_reposing
+    from planner.repose import pose_distance
+
+    t0 = time.perf_counter()
+    mm, deg = pose_distance(initial.obj.T_palm_obj, final.obj.T_palm_obj)
+    moved = mm > 0.05 or deg > 0.05
+    first_err = None
+    if not moved:
+        try:
+            return plan_gaits(initial, final, options, inputs, verbose)
+        except NoSequenceError as err:
+            if not options.repose or options.strategy != "graph" or not candidate_poses(initial, final):
+                raise
+            first_err = err
+    log.info("object poses differ by %.1f mm / %.1f deg: reposing moves" if moved else
+             "no gait sequence at this pose: trying reposing moves (%.1f mm / %.1f deg)", mm, deg)
+    try:
+        plan, verify_s, _ = plan_with_reposing(initial, final, options, inputs, verbose,
+                                               lambda a, b, o: plan_gaits(a, b, o, inputs, verbose))
+    except NoSequenceError as err:
+        if first_err is None:
+            raise
+        # the reposing outcome before the gait refusal's closing advice ("to go on: ...")
+        words = str(first_err)
+        cut = words.rfind("; to go on: ")
+        cut = len(words) if cut < 0 else cut
+        raise NoSequenceError(f"{words[:cut]}; with the object moved: {err}{words[cut:]}", first_err.report) from None
+    return PlanResult(plan, nx.DiGraph(), None, (), time.perf_counter() - t0, (), verify_s)
+
+
+def plan_gaits(
+    initial, final, options: PlanOptions = PlanOptions(), inputs: Mapping[str, Any] | None = None, verbose: bool = False
+) -> PlanResult:
+    """Plan a finger-gaiting sequence from one realized grasp to another, the object fixed.
 
     Args:
         initial, final: `planner.realization.RealizedGrasp` (same hand, object, pose, friction), or
@@ -363,7 +420,7 @@ def plan_regrasp(
         (initial, rec_i), (final, rec_f) = realized_grasp(initial), realized_grasp(final)
         if inputs is None:
             inputs = {k: v for k, v in (("initial", rec_i), ("final", rec_f)) if v is not None}
-    check_same_setup(initial.spec, final.spec)
+    check_same_setup(initial.spec, final.spec, pose=True)
     gait_fn = _motion_gait(options, verbose) if options.motion else _straight_gait
     t0 = time.perf_counter()
     hand, obj = initial.hand, initial.obj

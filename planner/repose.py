@@ -1,0 +1,233 @@
+"""Reposing: the hand moves the object with every holding contact fixed on it.
+
+A reposing move keeps each touching link's contact point where it is on the object
+(sticking) while the object follows a short straight path in SE(3) (position along the line,
+orientation along the shortest rotation). Waypoints are spaced at most ``STEP_M`` and
+``STEP_RAD`` apart; at each one every holding finger follows by damped least squares over
+its free coordinates (coupled joints included, `planner.hand.Finger.step`), each contact
+link's contact point (fixed in the link) reaching the object point it holds. Then the
+waypoint is measured like a grasp (`planner.realization.measure`, the object at the
+waypoint's pose) and judged by the planner's own state test (`state_reason`: fingers
+not colliding, force closure under the plan's contact model and, with gravity, the load
+held in every planned direction within the joints' torque limits). Contacts are points
+fixed in their links: rolling over a curved pad is not modelled, so a move that needs it
+is refused rather than planned wrong.
+
+The palm cannot move: it holds only at a waypoint where the object does not move relative
+to it, i.e. at the ends. Leaving the palm is a move whose first waypoint takes the object
+off it; resting on the palm is one whose last waypoint puts it there (`settle_pose`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
+
+from planner.errors import MotionError
+from planner.model import PALM
+from planner.realization import PENETRATION_TOL_M, RealizedGrasp, measure
+
+#: Largest translation of the object between two waypoints, m.
+STEP_M = 0.001
+#: Largest rotation of the object between two waypoints, rad.
+STEP_RAD = math.radians(2.0)
+#: A finger follows its contacts when every contact point is within this of its target, m.
+FOLLOW_TOL_M = 0.0002
+#: Damped least-squares iterations per waypoint.
+IK_ITERS = 30
+#: Damping of the least-squares steps, m.
+DAMPING = 1e-3
+
+
+@dataclass(frozen=True)
+class Reposing:
+    """A reposing move: whole-hand joint values and object poses per waypoint.
+
+    Attributes:
+        q_path: (m, nq) joint values, first the start grasp's.
+        poses: (m, 4, 4) object poses in the palm frame.
+        fingers: the fingers that hold (and move) during it.
+        start, end: the grasp measured at the first and the last waypoint.
+    """
+
+    q_path: np.ndarray
+    poses: np.ndarray
+    fingers: tuple[str, ...]
+    start: RealizedGrasp
+    end: RealizedGrasp
+
+    @property
+    def distance_mm(self) -> float:
+        return 1000.0 * float(np.linalg.norm(self.poses[-1][:3, 3] - self.poses[0][:3, 3]))
+
+    @property
+    def angle_deg(self) -> float:
+        return pose_distance(self.poses[0], self.poses[-1])[1]
+
+    def reversed(self) -> "Reposing":
+        return Reposing(self.q_path[::-1].copy(), self.poses[::-1].copy(), self.fingers, self.end, self.start)
+
+
+def pose_distance(Ta, Tb) -> tuple[float, float]:
+    """(mm, deg) between two poses (4, 4)."""
+    Ta, Tb = np.asarray(Ta, float), np.asarray(Tb, float)
+    mm = 1000.0 * float(np.linalg.norm(Tb[:3, 3] - Ta[:3, 3]))
+    deg = math.degrees(float(np.linalg.norm(Rotation.from_matrix(Tb[:3, :3] @ Ta[:3, :3].T).as_rotvec())))
+    return mm, deg
+
+
+def object_path(Ta, Tb) -> np.ndarray:
+    """Poses (m, 4, 4) from ``Ta`` to ``Tb``, at most `STEP_M` and `STEP_RAD` apart (m >= 2)."""
+    Ta, Tb = np.asarray(Ta, float), np.asarray(Tb, float)
+    mm, deg = pose_distance(Ta, Tb)
+    n = max(1, int(math.ceil(max(mm / 1000.0 / STEP_M, math.radians(deg) / STEP_RAD) - 1e-9)))
+    rots = Slerp([0.0, 1.0], Rotation.from_matrix(np.stack([Ta[:3, :3], Tb[:3, :3]])))(np.linspace(0.0, 1.0, n + 1))
+    out = np.repeat(np.eye(4)[None], n + 1, axis=0)
+    out[:, :3, :3] = rots.as_matrix()
+    for k, s in enumerate(np.linspace(0.0, 1.0, n + 1)):
+        out[k, :3, 3] = (1.0 - s) * Ta[:3, 3] + s * Tb[:3, 3]
+    out[0], out[-1] = Ta, Tb
+    return out
+
+
+def at_pose(grasp: RealizedGrasp, T, q=None, palm: str | None = None) -> RealizedGrasp:
+    """``grasp`` re-measured with the object at ``T`` (and the hand at ``q``, default its own):
+    the spec's object moved, its palm mode ``palm`` (default the spec's)."""
+    spec = replace(grasp.spec, object=grasp.obj.with_pose(np.asarray(T, float)), palm=palm or grasp.spec.palm)
+    return measure(spec, grasp.hand, grasp.q if q is None else q)
+
+
+def state_reason(grasp: RealizedGrasp, options) -> str | None:
+    """Why ``grasp`` is not a valid state of a plan made with ``options`` (the search's own
+    test, `planner.graph.Evaluator.blocked_reason`, on a problem of this grasp alone), or None."""
+    from planner.graph import Evaluator  # deferred: networkx
+    from planner.slots import build_problem
+
+    problem = build_problem(grasp, grasp, replace(options, intermediate=0))
+    ev = Evaluator(problem)
+    ev.evaluate([problem.start])
+    return ev.blocked_reason(problem.start)
+
+
+def _holds(grasp: RealizedGrasp) -> dict[str, list[tuple[str, np.ndarray, np.ndarray]]]:
+    """finger -> [(link, p_link (link frame), p_obj (object frame))] of its touching links."""
+    state = grasp.hand.state(grasp.q)
+    T = np.asarray(grasp.obj.T_palm_obj, float)
+    out: dict[str, list] = {}
+    for c in grasp.contacts:
+        if c.finger is None:
+            continue
+        p_palm = T[:3, :3] @ np.asarray(c.point, float) + T[:3, 3]
+        T_link = state.link_pose(c.link)
+        p_link = T_link[:3, :3].T @ (p_palm - T_link[:3, 3])
+        out.setdefault(c.finger, []).append((c.link, p_link, np.asarray(c.point, float)))
+    return out
+
+
+def _follow(hand, finger, q, holds, T, lo, hi) -> tuple[np.ndarray, float]:
+    """Damped least squares: the finger's contact points onto their object points at pose
+    ``T``; returns (q, worst residual m)."""
+    f = hand.fingers[finger]
+    idx = list(f.q_index)
+    targets = [T[:3, :3] @ p_obj + T[:3, 3] for _, _, p_obj in holds]
+    qf = q[idx].copy()
+    worst = math.inf
+    for _ in range(IK_ITERS):
+        q[idx] = qf
+        state = hand.state(q)
+        err, rows = [], []
+        for (link, p_link, _), target in zip(holds, targets):
+            T_link = state.link_pose(link)
+            err.append(target - (T_link[:3, :3] @ p_link + T_link[:3, 3]))
+            rows.append(f.reduce(np.asarray(state.frame_jacobian(link, p_link), float)[:3][:, idx]))
+        e, J = np.concatenate(err), np.vstack(rows)
+        worst = float(max(np.linalg.norm(x) for x in err))
+        if worst <= FOLLOW_TOL_M:
+            break
+        dz = J.T @ np.linalg.solve(J @ J.T + DAMPING**2 * np.eye(len(e)), e)
+        qf = f.step(qf, dz, lo[idx], hi[idx])
+    q[idx] = qf
+    return q, worst
+
+
+def repose(grasp: RealizedGrasp, T_target, options, *, palm_at_end: bool = True) -> Reposing:
+    """Move the object of ``grasp`` to ``T_target`` with every holding contact fixed on it.
+
+    Args:
+        grasp: the grasp at the start (its touching fingers hold throughout).
+        T_target: the object's pose at the end (4, 4), palm frame.
+        options: the plan's `planner.options.PlanOptions` (contact model, gravity, hold factor).
+        palm_at_end: the palm may hold at the end pose (where the object touches it); the
+            spec's ``palm: free`` always keeps it out.
+
+    Returns:
+        The `Reposing`.
+
+    Raises:
+        MotionError: a finger cannot follow its contacts, a waypoint collides or is no valid
+            state; the message names the waypoint (mm, deg along the path) and why.
+    """
+    hand = grasp.hand
+    lo, hi = np.asarray(hand.lower, float), np.asarray(hand.upper, float)
+    holds = _holds(grasp)
+    if not holds:
+        raise MotionError("no finger touches the object: nothing can move it")
+    poses = object_path(grasp.obj.T_palm_obj, T_target)
+    q = np.array(grasp.q, dtype=float)
+    qs, start, end = [q.copy()], grasp, grasp
+    m = len(poses)
+    for k in range(1, m):
+        T = poses[k]
+        for finger, h in holds.items():
+            q, worst = _follow(hand, finger, q, h, T, lo, hi)
+            if worst > 2 * FOLLOW_TOL_M:
+                at = [j for j, i in zip(hand.fingers[finger].joints, hand.fingers[finger].q_index)
+                      if min(q[i] - lo[i], hi[i] - q[i]) < 1e-3]
+                raise MotionError(_where(poses, k) + f"{finger} cannot keep its contacts on the object (off by "
+                                  f"{worst * 1e3:.2f} mm" + (f"; at their limits: {', '.join(at)}" if at else "") + ")")
+        last = k == m - 1
+        # the palm holds only where the object rests on it: at the end, if it touches there
+        g = at_pose(grasp, T, q, palm=grasp.spec.palm if last and palm_at_end else "free")
+        lost = sorted(set(holds) - set(g.patches))
+        if lost:
+            raise MotionError(_where(poses, k) + f"{', '.join(lost)} loses the object")
+        deep = [(a, b, d) for a, b, d in g.collisions if d > PENETRATION_TOL_M]
+        if deep:
+            a, b, d = max(deep, key=lambda x: x[2])
+            raise MotionError(_where(poses, k) + f"collision {a} - {b} {d * 1e3:.2f} mm deep")
+        why = state_reason(g, options)
+        if why is not None:
+            raise MotionError(_where(poses, k) + why)
+        qs.append(q.copy())
+        end = g
+    return Reposing(np.array(qs), poses, tuple(holds), start, end)
+
+
+def _where(poses, k: int) -> str:
+    mm, deg = pose_distance(poses[0], poses[k])
+    return f"reposing, {mm:.1f} mm / {deg:.1f} deg along the object's path (waypoint {k}/{len(poses) - 1}): "
+
+
+def settle_pose(grasp: RealizedGrasp, touch_m: float) -> tuple[np.ndarray, float] | None:
+    """The object's pose moved straight toward the palm until it is ``touch_m`` from it (a
+    translation along the line between the nearest palm and object points), and the gap it
+    closes, m; None when the hand has no palm geometry or the object already rests on it."""
+    if PALM in grasp.patches:
+        return None
+    hand, obj = grasp.hand, grasp.obj
+    dist = hand.state(grasp.q).link_object(obj, hand.collision.finger_links(None))
+    if not dist:
+        return None
+    ld = min(dist.values(), key=lambda x: x.distance_m)
+    d = np.asarray(ld.p_obj_palm, float) - np.asarray(ld.p_link_palm, float)
+    gap = float(ld.distance_m)
+    if not np.linalg.norm(d) > 1e-9 or gap <= touch_m:
+        return None
+    T = np.array(obj.T_palm_obj, dtype=float)
+    T[:3, 3] -= (gap - touch_m) * d / np.linalg.norm(d)
+    return T, gap - touch_m
+
+
