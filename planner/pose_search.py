@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -24,7 +24,7 @@ from planner.errors import MotionError, NoSequenceError, PlannerError
 from planner.model import PALM
 from planner.options import PlanOptions, gravity_directions_of
 from planner.plan_data import OBJECT, Plan, PlanState, PlanStep, pose_vector
-from planner.repose import Reposing, pose_distance, repose, settle_pose
+from planner.repose import FollowError, Reposing, at_pose, pose_distance, repose, settle_pose, state_reason
 
 log = logging.getLogger("planner")
 
@@ -76,63 +76,155 @@ def candidate_poses(initial, final) -> list[tuple[str, np.ndarray]]:
     return out
 
 
-def _repose_step(r: Reposing, frm: int, joints: tuple[str, ...], hand) -> PlanStep:
-    idx = [k for f in r.fingers for k in hand.fingers[f].q_index]
-    names = tuple(joints[k] for k in idx)
-    return PlanStep(OBJECT, "repose", frm, frm + 1, names,
-                    tuple(tuple(float(v) for v in q[idx]) for q in r.q_path),
-                    tuple(pose_vector(T) for T in r.poses))
+@dataclass
+class Leg:
+    """A grasp taken to a candidate pose: fingers that cannot follow the object lifted first
+    (at the grasp's own pose, in order), then the reposing move of the others.
+
+    Attributes:
+        grasp: the grasp the leg starts from (its own pose).
+        lifts: (finger, paths, grasp after) per lifted finger: ``paths`` the gait paths
+            ("lift", and "move" when the motion planner gives one), the grasp measured without it.
+        move: the reposing move, None when the grasp is at the pose already.
+        end: the grasp at the candidate pose.
+    """
+
+    grasp: object
+    lifts: list
+    move: Reposing | None
+    end: object
 
 
-def compose(initial, final, options: PlanOptions, first: Reposing | None, gait: Plan | None, last: Reposing | None,
-            P: np.ndarray) -> Plan:
-    """One plan: the initial grasp reposed to ``P`` (``first``), the gait plan at ``P``, the
-    final grasp's move from ``P`` (``last``, already reversed); states whose object pose
-    differs from the initial grasp's carry it."""
+def leg(grasp, P, options: PlanOptions, gait_fn) -> Leg:
+    """Take ``grasp`` to the pose ``P``: repose it; a finger that cannot follow
+    (`planner.repose.FollowError`) is lifted first when the others hold the object without
+    it (the search's state test), and the move is tried again, until at most two fingers
+    are left.
+
+    Raises:
+        MotionError: the move fails otherwise (why, at which waypoint).
+    """
+    T = np.asarray(grasp.obj.T_palm_obj, float)
+    g, lifts = grasp, []
+    if _same(P, T):
+        return Leg(grasp, [], None, grasp)
+    while True:
+        try:
+            r = repose(g, P, options)
+            return Leg(grasp, lifts, r, r.end)
+        except FollowError as err:
+            f = err.finger
+            touching = [x for x in g.patches if x != PALM]
+            if len(touching) <= 2 or f not in touching:
+                raise
+            try:
+                paths = gait_fn(g.hand, g.obj, g.q, None, f)
+            except MotionError as lift_err:
+                raise MotionError(f"{err}; it cannot be lifted first: {lift_err}") from None
+            idx = list(g.hand.fingers[f].q_index)
+            q = np.array(g.q, dtype=float)
+            q[idx] = np.asarray(paths["move" if "move" in paths else "lift"], float)[-1]
+            g2 = at_pose(g, T, q)
+            why = state_reason(g2, options)
+            if why is not None or f in g2.patches:
+                raise MotionError(f"{err}; and without {f} the grasp is no valid state"
+                                  + (f" ({why})" if why else "")) from None
+            lifts.append((f, paths, g2))
+            g = g2
+
+
+class _Builder:
+    """Plan states and steps in order; a state's object pose is written when it differs
+    from the plan's (the initial grasp's)."""
+
+    def __init__(self, options: PlanOptions, hand, T0):
+        self.options, self.hand, self.T0 = options, hand, np.asarray(T0, float)
+        self.joints = tuple(hand.joint_names)
+        self.states: list[PlanState] = []
+        self.steps: list[PlanStep] = []
+
+    def pose(self, T):
+        return None if _same(T, self.T0) else pose_vector(T)
+
+    def state(self, st: PlanState, T) -> None:
+        self.states.append(replace(st, object_pose=self.pose(T)))
+
+    def grasp(self, g, label: str) -> None:
+        self.state(grasp_state(g, self.options, label), g.obj.T_palm_obj)
+
+    def step(self, finger: str, action: str, path, object_path=None, fingers=None) -> None:
+        frm = len(self.states) - 1
+        names = self.hand.fingers[finger].joints if finger != OBJECT else \
+            tuple(j for f in fingers for j in self.hand.fingers[f].joints)
+        self.steps.append(PlanStep(finger, action, frm, frm + 1, tuple(names),
+                                   tuple(tuple(float(v) for v in wp) for wp in path),
+                                   None if object_path is None else tuple(pose_vector(T) for T in object_path)))
+
+    def reposing(self, r: Reposing) -> None:
+        idx = [k for f in r.fingers for k in self.hand.fingers[f].q_index]
+        self.step(OBJECT, "repose", [q[idx] for q in r.q_path], r.poses, r.fingers)
+
+
+def compose(initial, final, options: PlanOptions, first: Leg, gait: Plan | None, last: Leg, P) -> Plan:
+    """One plan: ``first`` (the initial grasp's fingers lifted, reposed to ``P``), the gait
+    plan at ``P``, ``last`` reversed (reposed back to the final grasp's pose, its fingers
+    landed)."""
     hand = initial.hand
-    joints = tuple(hand.joint_names)
-    T0 = np.asarray(initial.obj.T_palm_obj, float)
-    pose_P = None if _same(P, T0) else pose_vector(P)
-    states: list[PlanState] = []
-    steps: list[PlanStep] = []
-    if first is not None:
-        states.append(grasp_state(initial, options, "initial"))
-        start = gait.states[0] if gait is not None else grasp_state(first.end, options, "initial")
-        states.append(replace(start, object_pose=pose_P))
-        steps.append(_repose_step(first, 0, joints, hand))
-        offset = 1
-    else:
-        offset = 0
+    b = _Builder(options, hand, initial.obj.T_palm_obj)
+    b.grasp(initial, "initial")
+    for f, paths, g in first.lifts:
+        b.step(f, "lift", paths["lift"])
+        b.grasp(_with_q(g, paths["lift"][-1], f) if "move" in paths else g, "initial")
+        if "move" in paths:
+            b.step(f, "move", paths["move"])
+            b.grasp(g, "initial")
+    if first.move is not None:
+        b.reposing(first.move)
+        if gait is not None:
+            b.state(gait.states[0], P)
+        else:
+            b.grasp(first.end, "initial")
+    elif gait is not None:
+        b.states[-1] = replace(gait.states[0], object_pose=b.pose(P))
     if gait is not None:
-        if first is None:
-            states.append(replace(gait.states[0], object_pose=pose_P))
-        states += [replace(s, object_pose=pose_P) for s in gait.states[1:]]
-        steps += [replace(s, from_state=s.from_state + offset, to_state=s.to_state + offset) for s in gait.steps]
-    if last is not None:
-        if not states:
-            states.append(replace(grasp_state(last.start, options, "initial"), object_pose=pose_P))
-        Tb = np.asarray(final.obj.T_palm_obj, float)
-        states.append(replace(grasp_state(final, options, "final"), object_pose=None if _same(Tb, T0) else pose_vector(Tb)))
-        steps.append(_repose_step(last, len(states) - 2, joints, hand))
-    base = gait if gait is not None else None
-    order = ([f"{OBJECT}:repose"] if first is not None else []) + (list(base.summary.get("order", [])) if base else []) \
-        + ([f"{OBJECT}:repose"] if last is not None else [])
+        k0 = len(b.states) - 1
+        for s in gait.states[1:]:
+            b.state(s, P)
+        b.steps += [replace(s, from_state=s.from_state + k0, to_state=s.to_state + k0) for s in gait.steps]
+    if last.move is not None:
+        back = last.move.reversed()
+        lifted_final = last.lifts[-1][2] if last.lifts else final
+        b.reposing(back)
+        b.grasp(lifted_final, "final")
+    for i in range(len(last.lifts) - 1, -1, -1):
+        f, paths, _ = last.lifts[i]
+        before = last.lifts[i - 1][2] if i > 0 else final
+        if "move" in paths:
+            b.step(f, "move", np.asarray(paths["move"], float)[::-1])
+            b.grasp(_with_q(last.lifts[i][2], paths["lift"][-1], f), "final")
+        b.step(f, "land", np.asarray(paths["lift"], float)[::-1])
+        b.grasp(before, "final")
+    moves = [x.move for x in (first, last) if x.move is not None]
+    base = gait
+    order = [f"{f}:lift" for f, _, _ in first.lifts] + ([f"{OBJECT}:repose"] if first.move is not None else []) \
+        + (list(base.summary.get("order", [])) if base else []) + ([f"{OBJECT}:repose"] if last.move is not None else []) \
+        + [f"{f}:land>final" for f, _, _ in reversed(last.lifts)]
     summary = dict(base.summary) if base else {"strategy": options.strategy, "gait_steps": 0}
     summary.pop("verification", None)
-    moves = [r for r in (first, last) if r is not None]
     summary.update(order=order, reposing={
         "moves": len(moves),
         "object_path_mm": round(sum(r.distance_mm for r in moves), 3),
         "object_path_deg": round(sum(r.angle_deg for r in moves), 3),
         "pose": list(pose_vector(P))})
-    metrics = [s.metric for s in states]
+    summary["gait_steps"] = int(summary.get("gait_steps", 0)) + len(first.lifts) + len(last.lifts)
+    metrics = [s.metric for s in b.states]
     summary["bottleneck_metric"] = float(min(metrics))
     summary["mean_metric"] = float(np.mean(metrics))
-    grips = [s.grip_force_n for s in states if s.grip_force_n is not None]
+    grips = [s.grip_force_n for s in b.states if s.grip_force_n is not None]
     summary["bottleneck_grip_force_n"] = max(grips) if grips else None
     if base is not None:
-        return replace(base, object=initial.spec.object.to_data(), summary=summary, states=tuple(states),
-                       steps=tuple(steps))
+        return replace(base, object=initial.spec.object.to_data(), summary=summary, states=tuple(b.states),
+                       steps=tuple(b.steps))
     from planner.plan_data import hand_files_record
 
     spec = initial.spec
@@ -140,8 +232,15 @@ def compose(initial, final, options: PlanOptions, first: Reposing | None, gait: 
     return Plan(hand={"name": hand.name, "spec": spec.hand_ref, "files": hand_files_record(hand)},
                 object=spec.object.to_data(),
                 friction={"mu": spec.friction.mu, "gamma": spec.friction.gamma, "edges": spec.friction.edges},
-                inputs={}, parameters=parameters, summary=summary, joints=joints, states=tuple(states),
-                steps=tuple(steps))
+                inputs={}, parameters=parameters, summary=summary, joints=b.joints, states=tuple(b.states),
+                steps=tuple(b.steps))
+
+
+def _with_q(g, q_finger, finger):
+    """``g`` re-measured with ``finger`` at ``q_finger`` (still off the object)."""
+    q = np.array(g.q, dtype=float)
+    q[list(g.hand.fingers[finger].q_index)] = q_finger
+    return at_pose(g, g.obj.T_palm_obj, q)
 
 
 def _first_clause(err) -> str:
@@ -149,11 +248,13 @@ def _first_clause(err) -> str:
     return str(err).split("; ", 1)[0]
 
 
-def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bool, gaits) -> tuple[Plan, float | None, str]:
+def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bool, gaits, gait_fn
+                       ) -> tuple[Plan, float | None, str]:
     """The first candidate pose (`candidate_poses`) joined by reposing moves and gaits.
 
     ``gaits(a, b, options)`` is the gait planner (`planner.regrasp.plan_gaits`), returning a
-    `planner.regrasp.PlanResult`. Returns (plan, seconds of verification replays or None, a
+    `planner.regrasp.PlanResult`; ``gait_fn(hand, obj, q_a, q_b, finger)`` the finger paths of
+    one gait (lifting a finger that cannot follow a reposing move). Returns (plan, seconds of verification replays or None, a
     sentence on what was tried); raises NoSequenceError with every candidate's reason.
     """
     hand = initial.hand
@@ -165,13 +266,12 @@ def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bo
     for name, P in candidate_poses(initial, final):
         log.info("reposing: trying the gaits at %s", name)
         try:
-            first = None if _same(P, Ta) else repose(initial, P, options)
-            back = None if _same(P, Tb) else repose(final, P, options)
+            first = leg(initial, P, options, gait_fn)
+            back = leg(final, P, options, gait_fn)
         except MotionError as err:
             tried.append(f"at {name}: {err}")
             continue
-        a = initial if first is None else first.end
-        b = final if back is None else back.end
+        a, b = first.end, back.end
         try:
             same = set(a.patches) == set(b.patches) and all(
                 np.allclose(a.finger_q[f], b.finger_q[f], atol=options.same_slot_tol_rad) for f in a.patches if f != PALM)
@@ -179,7 +279,7 @@ def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bo
         except (NoSequenceError, PlannerError) as err:
             tried.append(f"at {name}: {_first_clause(err)}")
             continue
-        plan = compose(initial, final, options, first, gait, None if back is None else back.reversed(), P)
+        plan = compose(initial, final, options, first, gait, back, P)
         plan = replace(plan, inputs=dict(inputs or {}))
         if verifying:
             from planner.sim.verify import default_workers, verify_suspects_first

@@ -383,8 +383,9 @@ def plan_regrasp(
     log.info("object poses differ by %.1f mm / %.1f deg: reposing moves" if moved else
              "no gait sequence at this pose: trying reposing moves (%.1f mm / %.1f deg)", mm, deg)
     try:
+        gait_fn = _motion_gait(options, verbose) if options.motion else _straight_gait
         plan, verify_s, _ = plan_with_reposing(initial, final, options, inputs, verbose,
-                                               lambda a, b, o: plan_gaits(a, b, o, inputs, verbose))
+                                               lambda a, b, o: plan_gaits(a, b, o, inputs, verbose), gait_fn)
     except NoSequenceError as err:
         if first_err is None:
             raise

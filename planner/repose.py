@@ -40,6 +40,18 @@ FOLLOW_TOL_M = 0.0002
 IK_ITERS = 30
 #: Damping of the least-squares steps, m.
 DAMPING = 1e-3
+#: Weight of a finger's inner contacts against its outermost one in `_follow`: they pull
+#: the joints toward keeping them too, without forbidding a solution that rolls them.
+INNER_WEIGHT = 0.3
+
+
+class FollowError(MotionError):
+    """A reposing move a finger cannot take part in (``finger``): it cannot keep its contact
+    on the moving object, or loses it. Without that finger (lifted first) the move may work."""
+
+    def __init__(self, message: str, finger: str):
+        self.finger = finger
+        super().__init__(message)
 
 
 @dataclass(frozen=True)
@@ -113,7 +125,13 @@ def state_reason(grasp: RealizedGrasp, options) -> str | None:
 
 
 def _holds(grasp: RealizedGrasp) -> dict[str, list[tuple[str, np.ndarray, np.ndarray]]]:
-    """finger -> [(link, p_link (link frame), p_obj (object frame))] of its touching links."""
+    """finger -> [(link, p_link (link frame), p_obj (object frame))] of its touching links, the
+    outermost first (the last of the finger's ``contact_links`` that touches: its tip side).
+    A finger holding with two phalanges has fewer joints than the six coordinates both
+    contact points would fix (the iCub's fingers: two or three, coupled), so only the
+    outermost contact must stick (`_follow`); the inner ones follow as well as the joints
+    allow (weighted by `INNER_WEIGHT`), may roll or come off, and every waypoint is judged
+    with the contacts it measures."""
     state = grasp.hand.state(grasp.q)
     T = np.asarray(grasp.obj.T_palm_obj, float)
     out: dict[str, list] = {}
@@ -124,6 +142,9 @@ def _holds(grasp: RealizedGrasp) -> dict[str, list[tuple[str, np.ndarray, np.nda
         T_link = state.link_pose(c.link)
         p_link = T_link[:3, :3].T @ (p_palm - T_link[:3, 3])
         out.setdefault(c.finger, []).append((c.link, p_link, np.asarray(c.point, float)))
+    for finger, items in out.items():  # the outermost first: the one that must stick
+        order = grasp.hand.fingers[finger].contact_links
+        out[finger] = sorted(items, key=lambda it: -(order.index(it[0]) if it[0] in order else -1))
     return out
 
 
@@ -139,12 +160,13 @@ def _follow(hand, finger, q, holds, T, lo, hi) -> tuple[np.ndarray, float]:
         q[idx] = qf
         state = hand.state(q)
         err, rows = [], []
-        for (link, p_link, _), target in zip(holds, targets):
+        for k, ((link, p_link, _), target) in enumerate(zip(holds, targets)):
+            w = 1.0 if k == 0 else INNER_WEIGHT
             T_link = state.link_pose(link)
-            err.append(target - (T_link[:3, :3] @ p_link + T_link[:3, 3]))
-            rows.append(f.reduce(np.asarray(state.frame_jacobian(link, p_link), float)[:3][:, idx]))
+            err.append(w * (target - (T_link[:3, :3] @ p_link + T_link[:3, 3])))
+            rows.append(w * f.reduce(np.asarray(state.frame_jacobian(link, p_link), float)[:3][:, idx]))
         e, J = np.concatenate(err), np.vstack(rows)
-        worst = float(max(np.linalg.norm(x) for x in err))
+        worst = float(np.linalg.norm(err[0]))  # the outermost contact must stick
         if worst <= FOLLOW_TOL_M:
             break
         dz = J.T @ np.linalg.solve(J @ J.T + DAMPING**2 * np.eye(len(e)), e)
@@ -186,14 +208,15 @@ def repose(grasp: RealizedGrasp, T_target, options, *, palm_at_end: bool = True)
             if worst > 2 * FOLLOW_TOL_M:
                 at = [j for j, i in zip(hand.fingers[finger].joints, hand.fingers[finger].q_index)
                       if min(q[i] - lo[i], hi[i] - q[i]) < 1e-3]
-                raise MotionError(_where(poses, k) + f"{finger} cannot keep its contacts on the object (off by "
-                                  f"{worst * 1e3:.2f} mm" + (f"; at their limits: {', '.join(at)}" if at else "") + ")")
+                raise FollowError(_where(poses, k) + f"{finger} cannot keep its contact on the object (off by "
+                                  f"{worst * 1e3:.2f} mm" + (f"; at their limits: {', '.join(at)}" if at else "") + ")",
+                                  finger)
         last = k == m - 1
         # the palm holds only where the object rests on it: at the end, if it touches there
         g = at_pose(grasp, T, q, palm=grasp.spec.palm if last and palm_at_end else "free")
         lost = sorted(set(holds) - set(g.patches))
         if lost:
-            raise MotionError(_where(poses, k) + f"{', '.join(lost)} loses the object")
+            raise FollowError(_where(poses, k) + f"{', '.join(lost)} loses the object", lost[0])
         deep = [(a, b, d) for a, b, d in g.collisions if d > PENETRATION_TOL_M]
         if deep:
             a, b, d = max(deep, key=lambda x: x[2])

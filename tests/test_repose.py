@@ -1,0 +1,149 @@
+"""Reposing moves (planner.repose) and plans that move the object (planner.pose_search):
+the object path's spacing, contacts that stay fixed on the object (re-checked by forward
+kinematics here, not by the planner's own follower), plans between grasps at different
+object poses and their schema-4 file form."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from planner.errors import MotionError, SpecError
+from planner.grasp import load_grasp
+from planner.options import PlanOptions
+from planner.plan import plan_from_data, read_plan
+from planner.plan_data import OBJECT, pose_matrix, pose_vector, write_plan
+from planner.realization import realize
+from planner.regrasp import plan_regrasp
+from planner.resources import bundled_grasp
+from planner.repose import FOLLOW_TOL_M, STEP_M, STEP_RAD, object_path, pose_distance, repose
+
+OPTS = PlanOptions.for_execution(motion=False, verify=False)
+
+
+@pytest.fixture(scope="module")
+def box():
+    return realize(load_grasp(bundled_grasp("allegro/box_four_finger.yaml")))
+
+
+def _moved(T, d=(0.0, 0.0, 0.0), axis=(0.0, 0.0, 1.0), deg=0.0):
+    T = np.array(T, dtype=float)
+    T[:3, 3] += np.asarray(d, float)
+    T[:3, :3] = Rotation.from_rotvec(math.radians(deg) * np.asarray(axis, float)).as_matrix() @ T[:3, :3]
+    return T
+
+
+def test_object_path_spacing_and_ends():
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        Ta = _moved(np.eye(4), rng.normal(size=3) * 0.01, rng.normal(size=3) / 1.0, rng.uniform(0, 60))
+        Tb = _moved(Ta, rng.normal(size=3) * 0.01, rng.normal(size=3), rng.uniform(0, 60))
+        P = object_path(Ta, Tb)
+        assert len(P) >= 2
+        assert np.allclose(P[0], Ta) and np.allclose(P[-1], Tb)
+        for a, b in zip(P[:-1], P[1:]):
+            mm, deg = pose_distance(a, b)
+            assert mm <= STEP_M * 1e3 + 1e-6 and math.radians(deg) <= STEP_RAD + 1e-9
+        # a pure translation moves the centre along the segment, uniformly
+        Tc = _moved(Ta, (0.0, 0.0, 0.0))
+        Tc[:3, 3] += np.array([0.004, 0.0, 0.0])
+        Q = object_path(Ta, Tc)
+        steps = np.diff(Q[:, :3, 3], axis=0)
+        assert np.allclose(steps, steps[0]) and np.allclose(Q[:, :3, :3], Ta[:3, :3])
+
+
+def test_pose_vector_round_trip():
+    rng = np.random.default_rng(4)
+    for _ in range(10):
+        T = _moved(np.eye(4), rng.normal(size=3), rng.normal(size=3), rng.uniform(0, 180))
+        v = pose_vector(T)
+        assert v[6] >= 0 and np.allclose(pose_matrix(v), T, atol=1e-12)
+
+
+def test_contacts_stay_on_the_object_along_the_move(box):
+    """Forward kinematics of every holding finger's outermost contact point, transported by
+    the object's path, stays where the object point is (within twice the follow tolerance),
+    joints stay within limits, and the same fingers hold at the end."""
+    hand = box.hand
+    T0 = np.asarray(box.obj.T_palm_obj, float)
+    r = repose(box, _moved(T0, (0.002, 0.0, 0.001), (0.0, 1.0, 0.0), 4.0), OPTS)
+    assert len(r.q_path) == len(r.poses) >= 3
+    lo, hi = np.asarray(hand.lower), np.asarray(hand.upper)
+    assert np.all(r.q_path >= lo - 1e-9) and np.all(r.q_path <= hi + 1e-9)
+    state0 = hand.state(box.q)
+    for c in box.contacts:
+        if c.finger is None:
+            continue
+        order = hand.fingers[c.finger].contact_links
+        outer = max((x for x in box.contacts if x.finger == c.finger), key=lambda x: order.index(x.link))
+        if c is not outer:
+            continue
+        p_palm = T0[:3, :3] @ c.point + T0[:3, 3]
+        T_link = state0.link_pose(c.link)
+        p_link = T_link[:3, :3].T @ (p_palm - T_link[:3, 3])
+        for q, T in zip(r.q_path, r.poses):
+            T_l = hand.state(q).link_pose(c.link)
+            here = T_l[:3, :3] @ p_link + T_l[:3, 3]
+            there = T[:3, :3] @ c.point + T[:3, 3]
+            assert np.linalg.norm(here - there) <= 2 * FOLLOW_TOL_M
+    assert set(r.end.patches) == set(box.patches)
+    assert r.end.closure_under("link").is_force_closure
+    back = r.reversed()
+    assert np.allclose(back.poses[0], r.poses[-1]) and np.allclose(back.q_path[-1], box.q)
+
+
+def test_a_move_out_of_reach_is_refused_naming_where(box):
+    T0 = np.asarray(box.obj.T_palm_obj, float)
+    with pytest.raises(MotionError, match=r"reposing, .* mm / .* deg along the object's path \(waypoint \d+/\d+\)"):
+        repose(box, _moved(T0, (0.0, 0.0, 0.04)), OPTS)
+
+
+def _moved_final(dz=0.001):
+    spec = load_grasp(bundled_grasp("allegro/box_tripod.yaml"))
+    T = _moved(spec.object.T_palm_obj, (0.001, 0.0, dz))
+    return realize(replace(spec, object=spec.object.with_pose(T))).require_placed()
+
+
+def test_grasps_at_different_poses_plan_with_a_repose_step(box, tmp_path):
+    final = _moved_final()
+    result = plan_regrasp(box, final, OPTS)
+    plan = result.plan
+    reposes = [s for s in plan.steps if s.action == "repose"]
+    assert len(reposes) == 1 and reposes[0].finger == OBJECT
+    st = reposes[0]
+    # the object path starts and ends at the poses of its states; the last state is the final grasp's pose
+    assert np.allclose(pose_matrix(st.object_path[0]), plan.object_at(st.from_state).T_palm_obj, atol=1e-9)
+    assert np.allclose(pose_matrix(st.object_path[-1]), plan.object_at(st.to_state).T_palm_obj, atol=1e-9)
+    assert np.allclose(plan.object_at(len(plan.states) - 1).T_palm_obj, final.obj.T_palm_obj, atol=1e-9)
+    assert np.allclose(plan.object_at(0).T_palm_obj, box.obj.T_palm_obj)
+    mm = plan.summary["reposing"]["object_path_mm"]
+    assert mm == pytest.approx(pose_distance(box.obj.T_palm_obj, final.obj.T_palm_obj)[0], abs=1e-3)
+    # schema 4 on file, read back equal
+    path = write_plan(plan, tmp_path / "p.yaml")
+    data = read_plan(path)
+    assert data["schema_version"] == 4
+    back = plan_from_data(data.to_dict())
+    assert [s.action for s in back.steps] == [s.action for s in plan.steps]
+    assert back.states[-1].object_pose is not None
+
+
+def test_without_reposing_the_poses_must_match(box):
+    with pytest.raises(SpecError, match="both grasps must share hand, object, object pose and friction"):
+        plan_regrasp(box, _moved_final(), replace(OPTS, repose=False))
+
+
+def test_plan_files_refuse_a_finger_move_that_moves_the_object(box):
+    data = plan_regrasp(box, _moved_final(), OPTS).plan.to_dict()
+    k = next(i for i, s in enumerate(data["steps"]) if s["action"] == "lift")
+    data["states"][k + 1]["object_pose"] = {"position": [0.2, 0.0, 0.0], "quat_xyzw": [0.0, 0.0, 0.0, 1.0]}
+    with pytest.raises(SpecError, match="only a repose step moves it"):
+        plan_from_data(data)
+    data = plan_regrasp(box, _moved_final(), OPTS).plan.to_dict()
+    k = next(i for i, s in enumerate(data["steps"]) if s["action"] == "repose")
+    data["steps"][k]["finger"] = "index"
+    with pytest.raises(SpecError, match="expected finger 'object'"):
+        plan_from_data(data)
