@@ -40,6 +40,11 @@ FOLLOW_TOL_M = 0.0002
 IK_ITERS = 30
 #: Damping of the least-squares steps, m.
 DAMPING = 1e-3
+#: A reposing move needs its contacts to determine the object's motion: contacts on one line
+#: (a pinch) leave the turn about that line free. A contact this far from the line through the
+#: others turns a contact error of `FOLLOW_TOL_M` into at most 5 deg (the replay's drift limit)
+#: of rotation about it: FOLLOW_TOL_M / radians(5).
+DRIVE_LEVER_M = 0.0002 / math.radians(5.0)
 #: Weight of a finger's inner contacts against its outermost one in `_follow`: they pull
 #: the joints toward keeping them too, without forbidding a solution that rolls them.
 INNER_WEIGHT = 0.3
@@ -47,7 +52,8 @@ INNER_WEIGHT = 0.3
 
 class FollowError(MotionError):
     """A reposing move a finger cannot take part in (``finger``): it cannot keep its contact
-    on the moving object, or loses it. Without that finger (lifted first) the move may work."""
+    on the moving object, loses it, or one of its links goes into the object. Without that
+    finger (lifted first) the move may work."""
 
     def __init__(self, message: str, finger: str):
         self.finger = finger
@@ -148,6 +154,20 @@ def _holds(grasp: RealizedGrasp) -> dict[str, list[tuple[str, np.ndarray, np.nda
     return out
 
 
+def _lever(grasp: RealizedGrasp) -> float:
+    """How far the holding fingers' contact points are from lying on one line: the largest
+    distance of a point from the line through the two farthest apart, m (0 for fewer than
+    three points)."""
+    pts = np.array([c.point for c in grasp.contacts if c.finger is not None], dtype=float)
+    if len(pts) < 3:
+        return 0.0
+    d = np.linalg.norm(pts[:, None, :] - pts[None, :, :], axis=2)
+    i, j = np.unravel_index(int(np.argmax(d)), d.shape)
+    u = (pts[j] - pts[i]) / max(d[i, j], 1e-12)
+    rel = pts - pts[i]
+    return float(np.max(np.linalg.norm(rel - np.outer(rel @ u, u), axis=1)))
+
+
 def _follow(hand, finger, q, holds, T, lo, hi) -> tuple[np.ndarray, float]:
     """Damped least squares: the finger's contact points onto their object points at pose
     ``T``; returns (q, worst residual m)."""
@@ -197,6 +217,11 @@ def repose(grasp: RealizedGrasp, T_target, options, *, palm_at_end: bool = True)
     holds = _holds(grasp)
     if not holds:
         raise MotionError("no finger touches the object: nothing can move it")
+    lever = _lever(grasp)
+    if lever < DRIVE_LEVER_M:
+        raise MotionError(f"the contacts ({', '.join(holds)}) lie on one line (the farthest {lever * 1e3:.1f} mm from "
+                          f"it, under {DRIVE_LEVER_M * 1e3:.1f} mm): they cannot turn the object about it, so they "
+                          f"cannot move it; a third finger off that line can")
     poses = object_path(grasp.obj.T_palm_obj, T_target)
     q = np.array(grasp.q, dtype=float)
     qs, start, end = [q.copy()], grasp, grasp
@@ -220,7 +245,11 @@ def repose(grasp: RealizedGrasp, T_target, options, *, palm_at_end: bool = True)
         deep = [(a, b, d) for a, b, d in g.collisions if d > PENETRATION_TOL_M]
         if deep:
             a, b, d = max(deep, key=lambda x: x[2])
-            raise MotionError(_where(poses, k) + f"collision {a} - {b} {d * 1e3:.2f} mm deep")
+            words = _where(poses, k) + f"collision {a} - {b} {d * 1e3:.2f} mm deep"
+            owner = next((f for f in holds for x in (a, b) if x in hand.fingers[f].contact_links), None)
+            if owner is not None:  # a holding finger in the object's way: without it the move may work
+                raise FollowError(words, owner)
+            raise MotionError(words)
         why = state_reason(g, options)
         if why is not None:
             raise MotionError(_where(poses, k) + why)
