@@ -26,7 +26,15 @@ recorded inputs, with the planner's own models:
 - **chain**: the steps go from the initial grasp to the final one: the first and the last
   state touch with the fingers of the recorded input grasps, at their realized contacts;
 - **inputs**: the object (shape, size, pose, mass) and the friction equal the recorded
-  input grasps' when those files are present and unchanged.
+  input grasps' when those files are present and unchanged;
+- **reposing** (schema 4): every state is checked with the object at its own pose
+  (`planner.plan_data.Plan.object_at`: contacts, forward kinematics, penetration, closure,
+  grip forces and hold factors with the load in that state's object frame; the final grasp
+  against the last state's pose), and every ``repose`` step waypoint by waypoint
+  (`_check_repose`: the object path continuous from its from-state's pose to its
+  to-state's, each holding finger's contact fixed on the moving object, joint limits and
+  couplings, no link in the object at the waypoint's pose, the same fingers touching);
+  ``summary.reposing`` is recomputed from the object paths.
 
 Each failed check is one line naming the state or step, the finger and the check.
 """
@@ -39,16 +47,20 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from planner.closure import GRIP_CONE_SIDES, apply_contact_model, grasp_closure, min_grip_force
-from planner.contacts import contact_patches
+from planner.contacts import contact_patches, link_contacts
 from planner.errors import AuditError, PlannerError
 from planner.grasp import load_grasp
 from planner.plan import read_plan, recorded_input
 from planner.grip import HOLD_FACTOR, finger_statics, grip_program, hold_capacity
 from planner.model import PALM, Friction
 from planner.options import PLAN_OPTION_LIMITS, VERIFY_ENGINES, in_range, option_range
-from planner.plan_data import Plan, hand_files_record, plan_hand
+from planner.plan_data import OBJECT, Plan, hand_files_record, plan_hand, pose_matrix
 from planner.realization import PENETRATION_TOL_M as _GRASP_PENETRATION_TOL_M
 from planner.realization import realize
+from planner.repose import FOLLOW_TOL_M as _REPOSE_FOLLOW_TOL_M
+from planner.repose import STEP_M as _REPOSE_STEP_M
+from planner.repose import STEP_RAD as _REPOSE_STEP_RAD
+from planner.repose import pose_distance
 
 #: A patch point farther than this from the object's surface is not on it, m.
 SURFACE_TOL_M = 1e-3
@@ -78,6 +90,19 @@ PATH_STEP_RAD = 0.02
 LIMIT_TOL = 1e-6
 #: Object pose and size equal to the inputs' within this, m (and rad of the quaternion).
 INPUT_TOL = 1e-6
+#: Consecutive object poses of a reposing step at most this far apart, m and rad: the
+#: planner's waypoints are at most `planner.repose.STEP_M` (1 mm) and `planner.repose.STEP_RAD`
+#: (2 deg) apart; the files' rounding (10 significant digits) adds far less than 1e-6.
+REPOSE_STEP_M = _REPOSE_STEP_M + 1e-6
+REPOSE_STEP_RAD = _REPOSE_STEP_RAD + 1e-6
+#: A held contact point (fixed in its link, `link_contacts` at one end of a reposing step)
+#: farther than this from its object point moved with the object, m: the planner accepts a
+#: finger that follows within twice `planner.repose.FOLLOW_TOL_M` (0.4 mm, its own refusal
+#: threshold); the end's contact recomputed from the file's rounded joints may sit a little
+#: elsewhere on a flat link, hence 0.1 mm more.
+REPOSE_FOLLOW_TOL_M = 2 * _REPOSE_FOLLOW_TOL_M + 1e-4
+#: summary.reposing's object path (mm, deg) is recomputed within this (it is rounded to 3 decimals).
+REPOSE_SUM_TOL = 2e-3
 #: Most problems listed (the first ones; the count says how many there were).
 MAX_LISTED = 40
 
@@ -179,9 +204,12 @@ def _input_grasps(plan) -> dict:
 
 def _check_inputs(plan, rep: AuditReport, grasps: dict) -> None:
     """The plan's object and friction against the recorded input grasps'."""
+    last = plan.steps[-1].to_state if plan.steps else 0
     for name, spec in grasps.items():
         rep.count("input grasps")
-        o, po = spec.object, plan.object
+        # a reposing plan (schema 4) ends at the final grasp's pose: its last state's
+        o = spec.object
+        po = plan.object_at(last) if name == "final" and last < len(plan.states) else plan.object
         if o.shape != po.shape:
             rep.add(f"object.shape: {po.shape!r}, the {name} grasp's object is a {o.shape!r}")
             continue
@@ -234,6 +262,14 @@ def _check_hand(plan, hand, rep: AuditReport) -> bool:
         rep.count("states")
     for k, s in enumerate(plan.steps):
         rep.count("steps")
+        if s.action == "repose" and s.finger == OBJECT:  # the joints of every touching finger
+            st = plan.states[s.from_state] if s.from_state < len(plan.states) else None
+            held = [f for f in (st.patches if st is not None else ()) if f in hand.fingers]
+            want = sorted(j for f in held for j in hand.fingers[f].joints)
+            if sorted(s.joints) != want:
+                rep.add(f"steps[{k}] (repose object): joints {list(s.joints)[:6]} are not the joints of the touching "
+                        f"fingers {', '.join(held) or '(none)'}")
+            continue
         if s.finger not in hand.fingers:
             rep.add(f"steps[{k}].finger: {s.finger!r} is not a finger of {hand.name} ({', '.join(hand.fingers)})")
             continue
@@ -265,8 +301,21 @@ def _q(plan, hand, state_q) -> np.ndarray:
     return np.array([state_q[col[j]] for j in hand.joint_names], float)
 
 
-def _check_states(plan, hand, obj, rep: AuditReport) -> list:
-    """Contacts on the surface, at the forward kinematics, no penetration, removable, closure.
+def _objects(plan) -> list:
+    """The object at every state's pose (`planner.plan_data.Plan.object_at`; one object per
+    distinct pose)."""
+    out, seen = [], {}
+    for i, st in enumerate(plan.states):
+        key = st.object_pose
+        if key not in seen:
+            seen[key] = plan.object_at(i)
+        out.append(seen[key])
+    return out
+
+
+def _check_states(plan, hand, objs, rep: AuditReport) -> list:
+    """Contacts on the surface, at the forward kinematics, no penetration, removable, closure;
+    each state with the object at its own pose (``objs``, `_objects`).
     Returns every state's `HandState`."""
 
     friction = plan.friction
@@ -277,24 +326,26 @@ def _check_states(plan, hand, obj, rep: AuditReport) -> list:
     # below the surface, and its normal is the mean of the patch's normals
     model = (plan.parameters or {}).get("contact_model", "patch")
     modelled = model in ("mean", "link")
-    palm_fk = None
+    palm_fks: dict = {}
     # plans written since whole-hand grasps (their patches name their links) count a touching
     # palm as a contact; older ones could not
     whole_hand = any(getattr(p, "links", None) is not None for st in plan.states for p in st.patches.values())
     palm_ignored: list[int] = []
     for i, st in enumerate(plan.states):
+        obj = objs[i]
         q = _q(plan, hand, st.q)
         hs = hand.state(q)
         poses.append(hs)
         fk = {}
-        for f, fg in hand.fingers.items():  # a finger's contact depends on its own joints only
-            key = (f, tuple(np.round(q[list(fg.q_index)], 12)))
+        for f, fg in hand.fingers.items():  # a finger's contact depends on its own joints (and the object's pose) only
+            key = (f, st.object_pose, tuple(np.round(q[list(fg.q_index)], 12)))
             if key not in fk_cache:
                 fk_cache[key] = contact_patches(hand, hs, obj, fingers=[f]).get(f)
             if fk_cache[key] is not None:
                 fk[f] = fk_cache[key]
-        if i == 0:  # the palm does not move: its contact is the same in every state
-            palm_fk = contact_patches(hand, hs, obj, fingers=[], palm=True).get(PALM)
+        if st.object_pose not in palm_fks:  # the palm does not move: its contact is the same at one object pose
+            palm_fks[st.object_pose] = contact_patches(hand, hs, obj, fingers=[], palm=True).get(PALM)
+        palm_fk = palm_fks[st.object_pose]
         if palm_fk is not None:
             fk[PALM] = palm_fk
         for f, patch in st.patches.items():
@@ -380,11 +431,16 @@ def _check_states(plan, hand, obj, rep: AuditReport) -> list:
     return poses
 
 
-def _check_steps(plan, hand, obj, poses, rep: AuditReport) -> None:
-    """Waypoints of every finger path: out of the object and of the other fingers and palm."""
+def _check_steps(plan, hand, objs, poses, rep: AuditReport) -> None:
+    """Waypoints of every finger path: out of the object and of the other fingers and palm;
+    every reposing move (`_check_repose`)."""
     for k, s in enumerate(plan.steps):
+        if s.action == "repose" and s.finger == OBJECT:
+            _check_repose(plan, hand, objs, poses, k, s, rep)
+            continue
         if s.finger not in hand.fingers or tuple(s.joints) != tuple(hand.fingers[s.finger].joints):
             continue
+        obj = objs[s.from_state]  # a finger's move never moves the object
         if s.action == "lift" and s.to_state < len(plan.states) and s.finger in plan.states[s.to_state].patches:
             rep.add(f"steps[{k}]: lift {s.finger}, but state {s.to_state} still has it on the object")
         if s.action == "land" and s.to_state < len(plan.states) and s.finger not in plan.states[s.to_state].patches:
@@ -436,6 +492,149 @@ def _check_steps(plan, hand, obj, poses, rep: AuditReport) -> None:
                     f"{overlap[0] * 1000:.1f} mm")
 
 
+def _check_repose(plan, hand, objs, poses, k: int, s, rep: AuditReport) -> None:
+    """A reposing step (schema 4): its object path starts and ends at its states' poses and
+    moves at most `REPOSE_STEP_M` / `REPOSE_STEP_RAD` between waypoints; at every waypoint
+    each holding finger's contact point (its outermost touching link's, fixed in the link,
+    where it touches at one end of the move: `link_contacts`) stays on the object point it
+    holds, carried by the object path, within `REPOSE_FOLLOW_TOL_M` (the planner makes that
+    contact stick; a finger's inner contacts follow as well as its joints allow and are
+    checked for penetration only); the joints stay within their limits and couplings; no link
+    is deeper in the object (at the waypoint's pose) than `PENETRATION_TOL_M`, no two links of
+    the hand overlap; the same fingers touch before and after (the palm may join or leave)."""
+    tag = f"steps[{k}] (repose object)"
+    n = len(plan.states)
+    if not (0 <= s.from_state < n and 0 <= s.to_state < n):
+        return
+    a, b = plan.states[s.from_state], plan.states[s.to_state]
+    held = [f for f in a.patches if f in hand.fingers]
+    fa, fb = set(a.patches) - {PALM}, set(b.patches) - {PALM}
+    if fa != fb:
+        rep.add(f"{tag}: the touching fingers change, {', '.join(sorted(fa)) or 'none'} at state {s.from_state}, "
+                f"{', '.join(sorted(fb)) or 'none'} at state {s.to_state}: a reposing move keeps them on the object")
+    path = np.asarray(s.path, float)
+    opath = np.asarray(s.object_path or (), float)
+    if not len(path) or len(opath) != len(path):
+        rep.add(f"{tag}: {len(opath)} object poses for {len(path)} waypoints: expected one per waypoint")
+        return
+    Ts = [pose_matrix(p) for p in opath]
+    rep.count("reposing waypoints", len(Ts))
+    # (a) the object path: from the from-state's pose to the to-state's, in small steps
+    for end, T, which in ((s.from_state, Ts[0], "starts"), (s.to_state, Ts[-1], "ends")):
+        mm, deg = pose_distance(objs[end].T_palm_obj, T)
+        if mm > INPUT_TOL * 1e3 * 10 or deg > math.degrees(INPUT_TOL * 10):
+            rep.add(f"{tag}: the object path {which} {mm:.3f} mm / {deg:.3f} deg from state {end}'s object pose")
+    jumps = []
+    for w in range(1, len(Ts)):
+        mm, deg = pose_distance(Ts[w - 1], Ts[w])
+        if mm > REPOSE_STEP_M * 1e3 or math.radians(deg) > REPOSE_STEP_RAD:
+            jumps.append((max(mm / (REPOSE_STEP_M * 1e3), math.radians(deg) / REPOSE_STEP_RAD), w, mm, deg))
+    if jumps:
+        _, w, mm, deg = max(jumps, key=lambda j: j[0])  # the largest (the first of equal ones)
+        rep.add(f"{tag}: object path waypoint {w}: the object jumps {mm:.2f} mm / {deg:.2f} deg from waypoint {w - 1} "
+                f"(at most {REPOSE_STEP_M * 1e3:.0f} mm / {math.degrees(REPOSE_STEP_RAD):.0f} deg)"
+                + (f" ({len(jumps)} jumps)" if len(jumps) > 1 else ""))
+    # (c) joints within their limits and couplings
+    try:
+        cols = [hand.joint_names.index(j) for j in s.joints]
+    except ValueError:
+        return  # named by _check_hand
+    lo, hi = np.asarray(hand.lower, float)[cols], np.asarray(hand.upper, float)[cols]
+    out = np.flatnonzero(np.any((path < lo - LIMIT_TOL) | (path > hi + LIMIT_TOL), axis=0))
+    if len(out):
+        w = int(np.flatnonzero(np.any((path[:, out] < lo[out] - LIMIT_TOL) | (path[:, out] > hi[out] + LIMIT_TOL),
+                                      axis=1))[0])
+        rep.add(f"{tag}: path waypoint {w}: {', '.join(s.joints[c] for c in out)} outside the hand's joint limits")
+    tol = hand.coupling_tolerances() if hand.couplings else None
+    base = np.asarray(poses[s.from_state].q, float)
+    states = []
+    coupled = True
+    for w, row in enumerate(path):
+        q = base.copy()
+        q[cols] = row
+        if tol is not None and coupled:
+            broken = _coupling_break(hand, q, tol)
+            if broken:
+                rep.add(f"{tag}: path waypoint {w}: {broken}")
+                coupled = False
+        states.append(hand.state(q))
+    # (b) every holding contact fixed on the object: anchored at either end (the planner moves
+    # from a grasp; a move back to the final grasp is one computed from it, reversed)
+    best = None
+    for end, wa in ((s.from_state, 0), (s.to_state, len(Ts) - 1)):
+        hs_end, T_end = poses[end], np.asarray(objs[end].T_palm_obj, float)
+        anchors, outer = [], {}
+        for c in link_contacts(hand, hs_end, objs[end], fingers=held):
+            order = hand.fingers[c.finger].contact_links
+            rank = order.index(c.link) if c.link in order else -1
+            if c.finger in outer and outer[c.finger] >= rank:
+                continue  # the finger's outermost touching link (its tip side) holds
+            outer[c.finger] = rank
+            p_palm = T_end[:3, :3] @ np.asarray(c.point, float) + T_end[:3, 3]
+            T_link = hs_end.link_pose(c.link)
+            anchors = [a for a in anchors if a[0] != c.finger]
+            anchors.append((c.finger, c.link, T_link[:3, :3].T @ (p_palm - T_link[:3, 3]), np.asarray(c.point, float)))
+        worst = (0.0, None, None, None)
+        for w, (hs, T) in enumerate(zip(states, Ts)):
+            for finger, link, p_link, p_obj in anchors:
+                T_link = hs.link_pose(link)
+                err = float(np.linalg.norm(T_link[:3, :3] @ p_link + T_link[:3, 3] - (T[:3, :3] @ p_obj + T[:3, 3])))
+                if err > worst[0]:
+                    worst = (err, w, finger, link)
+        missing = sorted(set(held) - {a[0] for a in anchors})
+        if best is None or (len(missing), worst[0]) < (len(best[1]), best[0][0]):
+            best = (worst, missing, end)
+    worst, missing, end = best
+    rep.count("reposing contacts", len(held))
+    if missing:
+        rep.add(f"{tag}: finger {', '.join(missing)} does not touch the object at state {end} (forward kinematics): it "
+                f"cannot hold it")
+    if worst[0] > REPOSE_FOLLOW_TOL_M:
+        err, w, finger, link = worst
+        rep.add(f"{tag}: path waypoint {w}: finger {finger}'s contact on link {link} is {err * 1e3:.2f} mm from the "
+                f"object point it holds (forward kinematics against the object path; tolerance "
+                f"{REPOSE_FOLLOW_TOL_M * 1e3:.1f} mm): it does not stay fixed on the object")
+    # (d) no link in the object at the waypoint's pose, no links overlapping
+    links = [l for f in hand.fingers for l in hand.fingers[f].links] + list(hand.collision.finger_links(None))
+    deepest, overlap = (0.0, None, None), (0.0, None, None)
+    for w, (hs, T) in enumerate(zip(states, Ts)):
+        obj = objs[s.from_state].with_pose(T)
+        for link, ld in hs.link_object(obj, links).items():
+            if ld.distance_m < -PENETRATION_TOL_M and -ld.distance_m > deepest[0]:
+                deepest = (-ld.distance_m, w, link)
+        for la, lb, depth in hs.self_collisions():
+            if depth > SELF_TOL_M and depth > overlap[0]:
+                overlap = (depth, w, f"{la} and {lb}")
+    if deepest[1] is not None:
+        rep.add(f"{tag}: path waypoint {deepest[1]}: link {deepest[2]} is {deepest[0] * 1e3:.1f} mm inside the object "
+                f"(tolerance {PENETRATION_TOL_M * 1e3:.1f} mm)")
+    if overlap[1] is not None:
+        rep.add(f"{tag}: path waypoint {overlap[1]}: links {overlap[2]} overlap by {overlap[0] * 1e3:.1f} mm")
+
+
+def _check_reposing_summary(plan, rep: AuditReport) -> None:
+    """summary.reposing (schema 4): the number of reposing moves and the object's path length
+    (sum over the moves of the distance and angle between their ends, mm and deg)."""
+    moves = [s for s in plan.steps if s.action == "repose" and s.object_path]
+    record = (plan.summary or {}).get("reposing")
+    if record is None:
+        if moves:
+            rep.add(f"summary.reposing: missing, but the plan has {len(moves)} reposing move(s)")
+        return
+    rep.count("claims")
+    if not isinstance(record, dict):
+        rep.add("summary.reposing: not a mapping")
+        return
+    mm = sum(pose_distance(pose_matrix(s.object_path[0]), pose_matrix(s.object_path[-1]))[0] for s in moves)
+    deg = sum(pose_distance(pose_matrix(s.object_path[0]), pose_matrix(s.object_path[-1]))[1] for s in moves)
+    if record.get("moves") != len(moves):
+        rep.add(f"summary.reposing.moves: the file says {record.get('moves')!r}, its steps have {len(moves)}")
+    for key, mine in (("object_path_mm", mm), ("object_path_deg", deg)):
+        v = record.get(key)
+        if not isinstance(v, (int, float)) or isinstance(v, bool) or abs(float(v) - mine) > REPOSE_SUM_TOL:
+            rep.add(f"summary.reposing.{key}: the file says {v!r}, its object paths give {mine:.3f}")
+
+
 def _close(a, b) -> bool:
     """Two recorded numbers agree (plans round floats to `planner.plan_data.FLOAT_DIGITS`
     digits; the linear programs agree far better than ``CLAIM_RTOL``)."""
@@ -447,12 +646,13 @@ def _close(a, b) -> bool:
     return abs(a - b) <= CLAIM_ATOL + CLAIM_RTOL * max(abs(a), abs(b))
 
 
-def _directions(plan, hand, rep: AuditReport) -> list[tuple[str, np.ndarray, np.ndarray]]:
+def _directions(plan, hand, rep: AuditReport, obj=None) -> list[tuple[str, np.ndarray, np.ndarray]]:
     """(name, gravity in the object frame, the weight's wrench there) of every direction the plan
-    was made for (the loads `planner.slots.build_problem` gives the planner)."""
+    was made for (the loads `planner.slots.build_problem` gives the planner), the object at
+    ``obj``'s pose (default the plan's; a reposed state's own: `planner.plan_data.Plan.object_at`)."""
     rows = (plan.parameters or {}).get("gravity_directions") or []
     out = []
-    R = np.asarray(plan.object.T_palm_obj, dtype=float)[:3, :3]
+    R = np.asarray((plan.object if obj is None else obj).T_palm_obj, dtype=float)[:3, :3]
     for k, row in enumerate(rows):
         try:
             name, g = str(row["name"]), np.asarray(row["gravity"], dtype=float).reshape(3)
@@ -467,7 +667,7 @@ def _directions(plan, hand, rep: AuditReport) -> list[tuple[str, np.ndarray, np.
     return out
 
 
-def _check_claims(plan, hand, poses, rep: AuditReport) -> None:
+def _check_claims(plan, hand, poses, rep: AuditReport, objs=None) -> None:
     """What the plan says of its states and of itself, recomputed from its contacts and the
     hand: every state's force closure and metric, its grip forces and hold factors (per
     planned gravity direction), the summary's bottleneck and mean metric and largest grip
@@ -495,7 +695,10 @@ def _check_claims(plan, hand, poses, rep: AuditReport) -> None:
     sides = int(params.get("grip_cone_sides") or GRIP_CONE_SIDES)
     cap = params.get("max_finger_force_n")
     directions = _directions(plan, hand, rep)
+    # a reposed state's loads in its own object frame (the same gravity in the palm frame)
+    by_pose = {None: directions}
     metrics: list[float] = []
+    every: list[float] = []  # every state's metric (a reposing plan's summary means these: `planner.pose_search.compose`)
     grips: list[float] = []
     previous = None
     for i, st in enumerate(plan.states):
@@ -510,10 +713,17 @@ def _check_claims(plan, hand, poses, rep: AuditReport) -> None:
                     f"give {bool(c.is_force_closure)}")
         if not _close(c.metric, st.metric):
             rep.add(f"states[{i}].closure.metric: the file says {st.metric:.6g}, its contacts give {c.metric:.6g}")
+        every.append(float(c.metric))
         key = tuple((f, np.asarray(p[0]).round(9).tobytes()) for f, p in sorted(st.patches.items()))
         if key != previous:  # a lift and the move after it end in the same graph state
             metrics.append(float(c.metric))
         previous = key
+        if objs is not None and st.object_pose is not None and directions:
+            if st.object_pose not in by_pose:
+                by_pose[st.object_pose] = _directions(plan, hand, AuditReport(""), objs[i])
+            directions = by_pose[st.object_pose]
+        else:
+            directions = by_pose[None]
         if not directions:
             if st.grip_force_n is not None or st.hold_factor_by_gravity:
                 rep.add(f"states[{i}]: grip forces or hold factors recorded for a plan made without gravity")
@@ -533,7 +743,8 @@ def _check_claims(plan, hand, poses, rep: AuditReport) -> None:
         grips.append(max(forces.values()))
         if st.hold_factor_by_gravity is not None:
             q = np.asarray(poses[i].q, dtype=float) if i < len(poses) else None
-            statics = {f: finger_statics(hand, f, q, p[0], plan.object.T_palm_obj, links=getattr(p, "links", None))
+            T_obj = (plan.object if objs is None else objs[i]).T_palm_obj
+            statics = {f: finger_statics(hand, f, q, p[0], T_obj, links=getattr(p, "links", None))
                        for f, p in st.patches.items() if f in hand.fingers}
             program = grip_program(st.patches, statics, friction, margin=margin, cone_sides=sides)
             held = dict(st.hold_factor_by_gravity)
@@ -551,12 +762,14 @@ def _check_claims(plan, hand, poses, rep: AuditReport) -> None:
     s = plan.summary or {}
     if metrics and "bottleneck_metric" in s and not _close(s["bottleneck_metric"], min(metrics)):
         rep.add(f"summary.bottleneck_metric: the file says {s['bottleneck_metric']}, its states give {min(metrics):.6g}")
-    if metrics and "mean_metric" in s and not _close(s["mean_metric"], float(np.mean(metrics))):
+    if metrics and "mean_metric" in s and not _close(s["mean_metric"], float(np.mean(metrics))) and not (
+            plan.reposes and _close(s["mean_metric"], float(np.mean(every)))):
         rep.add(f"summary.mean_metric: the file says {s['mean_metric']}, its states give {float(np.mean(metrics)):.6g}")
     if "bottleneck_grip_force_n" in s and not _close(s["bottleneck_grip_force_n"], max(grips) if grips else None):
         rep.add(f"summary.bottleneck_grip_force_n: the file says {s['bottleneck_grip_force_n']}, its states give "
                 f"{max(grips) if grips else None}")
-    _check_verification(plan, [n for n, _, _ in directions], rep)
+    _check_reposing_summary(plan, rep)
+    _check_verification(plan, [n for n, _, _ in by_pose[None]], rep)
 
 
 def _check_verification(plan, planned: list[str], rep: AuditReport) -> None:
@@ -636,15 +849,15 @@ def audit_plan(plan, hand=None, paths: bool = True) -> AuditReport:
     rep = AuditReport(str(src))
     if hand is None:
         hand = plan_hand(plan)
-    obj = plan.object
+    objs = _objects(plan)  # every state's object at its own pose (schema 4)
     grasps = _input_grasps(plan)
     _check_inputs(plan, rep, grasps)
     if not _check_hand(plan, hand, rep):
         return rep
-    poses = _check_states(plan, hand, obj, rep)
+    poses = _check_states(plan, hand, objs, rep)
     if paths:
-        _check_steps(plan, hand, obj, poses, rep)
-    _check_claims(plan, hand, poses, rep)
+        _check_steps(plan, hand, objs, poses, rep)
+    _check_claims(plan, hand, poses, rep, objs)
     _check_chain(plan, hand, rep, grasps)
     return rep
 
