@@ -369,8 +369,34 @@ def _sim_frames(scene, hand, traj, report_path) -> dict | None:
 # ---------------------------------------------------------------------- page data
 
 
+def _pose7_matrix(pose) -> np.ndarray:
+    """(x, y, z, qx, qy, qz, qw), or a file's {position, quat_xyzw}, as a pose (4, 4)."""
+    if isinstance(pose, Mapping):
+        pose = [*pose["position"], *pose["quat_xyzw"]]
+    pose = np.asarray(pose, float).reshape(7)
+    return pose_matrix(Rotation.from_quat(pose[3:] / np.linalg.norm(pose[3:])).as_matrix(), pose[:3])
+
+
+def _object_frames(object_path, path: np.ndarray, k: int) -> tuple[np.ndarray, list[np.ndarray]]:
+    """A reposing step's ``k`` frames: joints and object poses evenly spaced along its waypoints
+    (the object path's waypoints are evenly spaced; joints linear and the object's rotation
+    along the shortest arc between two)."""
+    Ts = [_pose7_matrix(p) for p in object_path]
+    m = len(Ts)
+    qs, poses = [], []
+    for u in np.linspace(0.0, m - 1, k):
+        a = min(int(math.floor(u)), m - 2) if m > 1 else 0
+        t = u - a if m > 1 else 0.0
+        b = min(a + 1, m - 1)
+        qs.append((1 - t) * path[a] + t * path[b])
+        rel = Rotation.from_matrix(Ts[b][:3, :3] @ Ts[a][:3, :3].T).as_rotvec()
+        R = Rotation.from_rotvec(t * rel).as_matrix() @ Ts[a][:3, :3]
+        poses.append(pose_matrix(R, (1 - t) * Ts[a][:3, 3] + t * Ts[b][:3, 3]))
+    return np.array(qs), poses
+
+
 def _state_entry(scene: _Scene, i: int, q, fingers: Mapping, patches: Mapping, closure: Mapping,
-                 removable, grip) -> tuple[dict, np.ndarray]:
+                 removable, grip, T_obj=None) -> tuple[dict, np.ndarray]:
     sets, pts = [], []
     for f, patch in patches.items():
         P = np.asarray(patch["points"], float).reshape(-1, 3)
@@ -378,7 +404,8 @@ def _state_entry(scene: _Scene, i: int, q, fingers: Mapping, patches: Mapping, c
         sets.append(scene.contact_set(P, N, scene.finger_color.get(f, 0x555555), cones=True))
         pts.append(P)
     P_obj = np.vstack(pts) if pts else np.zeros((0, 3))
-    P_palm = P_obj @ scene.T_palm_obj[:3, :3].T + scene.T_palm_obj[:3, 3]
+    T_obj = scene.T_palm_obj if T_obj is None else np.asarray(T_obj, float)  # the state's object pose
+    P_palm = P_obj @ T_obj[:3, :3].T + T_obj[:3, 3]
     entry = {
         "index": i,
         "fingers": {str(f): str(v) for f, v in fingers.items()},
@@ -390,6 +417,7 @@ def _state_entry(scene: _Scene, i: int, q, fingers: Mapping, patches: Mapping, c
         "grip_force_n": _num(grip),
         "sets": sets,
         "T": [_m4(T) for T in scene.transforms(q)],
+        "obj": _m4(T_obj),  # the object's pose (palm frame): a reposing step moves it (schema 4)
     }
     return entry, P_palm
 
@@ -416,8 +444,10 @@ def plan_page_data(plan: Mapping, plan_path, hand=None, report_path=None) -> tup
 
     states, all_pts = [], []
     for i, st in enumerate(plan["states"]):
+        pose = st.get("object_pose")
         entry, P = _state_entry(scene, i, q_of(st["q"]), st.get("fingers", {}), st["patches"], st["closure"],
-                                st.get("removable", []), st.get("grip_force_n"))
+                                st.get("removable", []), st.get("grip_force_n"),
+                                None if pose is None else _pose7_matrix(pose))
         states.append(entry)
         all_pts.append(P)
     steps = []
@@ -429,12 +459,18 @@ def plan_page_data(plan: Mapping, plan_path, hand=None, report_path=None) -> tup
         frames = []
         path = np.asarray(sp["path"], float).reshape(len(sp["path"]), len(cols)) if sp["path"] else \
             np.array([[q[c] for c in cols]])
-        for qf in resample(path, FRAMES_PER_STEP):
+        obj_frames = None
+        if sp.get("object_path"):  # a reposing step: the object moves with the holding fingers
+            qs, poses = _object_frames(sp["object_path"], path, FRAMES_PER_STEP)
+            obj_frames = [_m4(T) for T in poses]
+        else:
+            qs = resample(path, FRAMES_PER_STEP)
+        for qf in qs:
             q[cols] = qf
             Ts = [_m4(T) for T in scene.transforms(q)]
             frames.append({str(g): T for g, T in enumerate(Ts) if T != base[g]})
         steps.append({"index": k, "finger": sp["finger"], "action": sp["action"], "from": a, "to": b,
-                      "frames": frames})
+                      "frames": frames, **({} if obj_frames is None else {"obj": obj_frames})})
     runs = []
     if report_path is not None:
         for run in _load_report(report_path, len(states)):

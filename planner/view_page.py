@@ -184,6 +184,10 @@ function seek(g) {
   const base = DATA.states[w.step >= 0 ? DATA.steps[w.step].from : 0].T;
   const frame = w.step >= 0 ? DATA.steps[w.step].frames[w.frame] : {};
   for (let i = 0; i < base.length; i++) viewer.set_transform(geomPaths[i], frame[i] || base[i]);
+  // the object at the state's pose, or along a reposing step's object path (schema 4)
+  const sk = w.step >= 0 ? DATA.steps[w.step] : null;
+  const objT = sk && sk.obj ? sk.obj[w.frame] : DATA.states[sk ? sk.from : 0].obj;
+  if (objT) viewer.set_transform(objPath, objT);
   if (w.step !== cur.step) {
     const moving = w.step >= 0 ? DATA.steps[w.step].finger : null;
     DATA.geom_finger.forEach((f, i) => setColor(i, f !== null && f === moving ? hex(DATA.moving_color) : hex(DATA.hand_color)));
