@@ -212,6 +212,11 @@ class ReplayRecorder:
             return phase, 0, None
         st = self.rd.steps[int(k)]
         head = f"step {int(k) + 1}/{len(self.rd.steps)}: {st.finger} {st.action} (state {st.from_state} -> {st.to_state})"
+        if st.action == "repose":  # every touching finger moves the object; none lifts
+            if sim.reposing:
+                self._moved = True
+                return f"{head}: the fingers move the object", st.from_state, None
+            return f"{head}: dwell at state {st.to_state}", st.to_state, None
         if ctl.moving == st.finger:
             self._moved = True
             return f"{head}: moving", st.from_state, st.finger

@@ -22,8 +22,15 @@ Sequence (thesis section VII / IX):
      its posture (it is unloaded, then lifted); during a land, the other fingers keep the
      forces that balance the object without the landing finger, which switches from the
      free-motion torque to its squeeze torque within ``LANDING_ZONE_M`` of the object;
-     at the end of the path every finger takes the new state's targets;
-  4. at every state, the engine's contact points (one raw sample per simulation
+     at the end of the path every finger takes the new state's targets. A reposing step
+     (``action: repose``, plan schema 4) lifts nothing: every touching finger keeps holding
+     while all their joints follow ``step.path`` together (offset by the grip each is
+     latched at), and the force balance, solved at the simulator's contacts, follows the
+     object; at its end they latch where they touch;
+  4. drift is measured from the PLANNED pose: the current state's (`planner.plan_data
+     .PlanState.object_pose`, else the plan's ``object`` pose), and during a reposing step
+     the pose along its ``object_path`` at the fraction of the waypoint the joints are at;
+  5. at every state, the engine's contact points (one raw sample per simulation
      step) go through the temporal filter (`planner.sim.contact_filter`), are expressed
      in the object frame with normals INTO the object, grouped by finger, and the force
      closure and metric are recomputed with `planner.closure.grasp_closure`, under the
@@ -103,6 +110,23 @@ def lift_path(start: np.ndarray, path: np.ndarray) -> np.ndarray:
         return start[None, :]
     fade = np.linspace(1.0, 0.0, len(path))[:, None]
     return np.vstack([start[None, :], path + fade * (start - path[0])])
+
+
+def pose_between(a, b, s: float) -> np.ndarray:
+    """The pose a fraction ``s`` (0..1) of the way from pose ``a`` to pose ``b`` (each
+    (x, y, z, qx, qy, qz, qw)): the position along the line, the orientation along the
+    shortest rotation (slerp), as a reposing step's object moves between two waypoints."""
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    qa, qb = a[3:7] / np.linalg.norm(a[3:7]), b[3:7] / np.linalg.norm(b[3:7])
+    dot = float(qa @ qb)
+    if dot < 0.0:
+        qb, dot = -qb, -dot
+    if dot > 1.0 - 1e-9:
+        q = qa + s * (qb - qa)
+    else:
+        th = math.acos(min(1.0, dot))
+        q = (math.sin((1.0 - s) * th) * qa + math.sin(s * th) * qb) / math.sin(th)
+    return np.concatenate([a[:3] + s * (b[:3] - a[:3]), q / np.linalg.norm(q)])
 
 
 def pose_drift(pos_ref, quat_ref, pos, quat) -> tuple[float, float]:
@@ -335,9 +359,12 @@ class _Sim:
         self.engine, self.rd, self.params, self.friction = engine, rd, params, friction
         self.dt = params["dt"]
         self.mass = float(mass_kg)
+        # the planned pose drift is measured from: the current state's (`set_reference`); the
+        # plan's object pose (state 0's) until a reposing step moves it
         self.T_ref = _T(obj.position, obj.quat_xyzw)
         self._p_ref = tuple(float(v) for v in self.T_ref[:3, 3])
         self._quat_ref = tuple(float(v) for v in Rotation.from_matrix(self.T_ref[:3, :3]).as_quat())
+        self._ref0 = (self.T_ref, self._p_ref, self._quat_ref)
         topo = engine.topology
         unknown = [j for j in joints if j not in topo.joints]
         if unknown:
@@ -366,12 +393,26 @@ class _Sim:
         self.trajectory: dict = {"joints": list(info.hand.joint_names), "t": [], "q": [], "object_position": [],
                                  "object_quat_xyzw": []}
         self.failure: str | None = None
-        self.palm_holds = False  # the plan has the palm hold (set by `run`)
+        self.palm_holds = False  # the palm holds at the current state (set by `run`)
+        self.reposing = False  # a reposing step's fingers are moving the object
         self.fail_step: int | None = None  # plan step (-1: state 0) at which the drift first left the limits
         self.step_k = -1
         self.carried: dict[str, float] = {}  # finger or "palm" -> summed normal force over the sampling window
         self.samples = 0
         self.last_patches: Mapping[str, tuple[np.ndarray, np.ndarray]] = {}
+
+    def set_reference(self, pose=None) -> None:
+        """The planned object pose drift is measured from: ``pose`` (x, y, z, qx, qy, qz, qw,
+        palm frame: a state's `planner.plan_data.PlanState.object_pose`, or a reposing step's
+        pose between two waypoints), None: the plan's object pose (state 0's)."""
+        if pose is None:
+            self.T_ref, self._p_ref, self._quat_ref = self._ref0
+            return
+        pose = np.asarray(pose, dtype=float)
+        quat = pose[3:7] / np.linalg.norm(pose[3:7])
+        self._p_ref = tuple(float(v) for v in pose[:3])
+        self._quat_ref = tuple(float(v) for v in quat)
+        self.T_ref = _T(pose[:3], quat)
 
     def _q(self, state) -> dict[str, float]:
         """Joint name -> value of a plan state."""
@@ -533,10 +574,48 @@ class _Sim:
                            state.is_force_closure, state.metric, fc, metric, n_pts, mm, deg, patches,
                            {f: round(v, 6) for f, v in sorted(carried.items())}, carriers, offsets)
 
+    def _repose(self, st, frm, to) -> bool:
+        """A reposing step: every touching finger keeps holding (no handover) while the
+        posture targets of all their joints follow ``st.path`` together, offset by where each
+        joint is latched now (its squeeze: the targets keep the grip they hold with), and the
+        planned pose drift is measured from moves along ``st.object_path`` at the same
+        fraction of each segment; at the end the fingers latch where they touch and the
+        to-state's palm contact holds. False when the object dropped."""
+        ctl, prm = self.ctl, self.params
+        q_ref = dict(ctl.q_ref)
+        ctl.command(q_ref, frm.touching)
+        start = np.array([q_ref[j] for j in st.joints])
+        planned = np.asarray(st.path, dtype=float)
+        path = planned + (start - planned[0])
+        poses = np.asarray(st.object_path, dtype=float)
+        # the holding fingers' motors carry the object: no faster than they follow a target
+        # (`Controller.tracking_speed_rad_s`), or the fingers lag behind the path and the
+        # object with them
+        speed = np.minimum(prm["joint_speed_rad_s"], ctl.tracking_speed_rad_s(st.joints))
+        ok, self.reposing = True, True
+        for (a, b), (pa, pb) in zip(zip(path[:-1], path[1:]), zip(poses[:-1], poses[1:])):
+            n = max(1, int(math.ceil(float(np.max(np.abs(b - a) / speed)) / self.dt)))
+            for i in range(1, n + 1):
+                ctl.set_moving_target({j: float(v) for j, v in zip(st.joints, a + (b - a) * i / n)})
+                self.set_reference(pose_between(pa, pb, i / n))
+                if self._tick() > prm["drop_mm"]:
+                    ok = False
+                    break
+            if not ok:
+                break
+        self.reposing = False
+        self.set_reference(to.object_pose)
+        self.palm_holds = to.palm_holds
+        if ok:
+            ctl.command(dict(ctl.q_ref), to.touching)
+            ctl.latch(to.touching)
+        return ok
+
     def run(self, states, steps, recorder=None, every=8, realtime=False):
         self.recorder, self.every, self.realtime = recorder, every, realtime
         self.released = False
-        self.palm_holds = bool(states) and states[0].palm_holds  # the plan's palm contact (one object pose)
+        self.palm_holds = bool(states) and states[0].palm_holds  # the palm holds at the current state
+        self.set_reference(states[0].object_pose if states else None)
         ctl, prm = self.ctl, self.params
         g_full = np.asarray(prm["gravity"], float)
         eng = self.engine
@@ -565,6 +644,15 @@ class _Sim:
             frm, to = states[st.from_state], states[st.to_state]
             self.phase = f"step {k} ({st.action} {st.finger}, state {st.from_state} -> {st.to_state})"
             self.step_k = k
+            self.set_reference(frm.object_pose)
+            if st.action == "repose":
+                ok = self._repose(st, frm, to)
+                r = self._dwell_and_measure(prm["dwell_s"], st.to_state, to) if ok else None
+                if r is None:
+                    ok = False
+                    break
+                reports[st.to_state] = r
+                continue
             q_ref = dict(ctl.q_ref)
             if st.action != "land" and st.finger in ctl.holding:
                 # hand the finger's load over to the others while it still touches
@@ -601,6 +689,8 @@ class _Sim:
                 ctl.latch([st.finger])
             else:
                 ctl.command(q_to, to.touching)
+            self.set_reference(to.object_pose)
+            self.palm_holds = to.palm_holds
             r = self._dwell_and_measure(prm["dwell_s"], st.to_state, to) if ok else None
             if r is None:
                 ok = False
