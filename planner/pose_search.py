@@ -228,7 +228,12 @@ def compose(initial, final, options: PlanOptions, first: Leg, gait: Plan | None,
     from planner.plan_data import hand_files_record
 
     spec = initial.spec
+    from planner.closure import GRIP_CONE_SIDES
+
     parameters = {k: v for k, v in vars(options).items() if k not in ("workers", "engine")}
+    directions = gravity_directions_of(options, hand)  # as the gait plans record them (regrasp._make_plan)
+    parameters["gravity_directions"] = [{"name": n, "gravity": list(g)} for n, g in directions] or None
+    parameters["grip_cone_sides"] = GRIP_CONE_SIDES if directions else None
     return Plan(hand={"name": hand.name, "spec": spec.hand_ref, "files": hand_files_record(hand)},
                 object=spec.object.to_data(),
                 friction={"mu": spec.friction.mu, "gamma": spec.friction.gamma, "edges": spec.friction.edges},
@@ -241,6 +246,62 @@ def _with_q(g, q_finger, finger):
     q = np.array(g.q, dtype=float)
     q[list(g.hand.fingers[finger].q_index)] = q_finger
     return at_pose(g, g.obj.T_palm_obj, q)
+
+
+#: A finger whose contact is the same in both grasps at the candidate pose (its outermost
+#: contact points this close, m: the audit's follow tolerance) keeps one posture there:
+SNAP_M = 0.0005
+#: ... when its joints differ by at most this (rad): the two legs' IK ends near each other.
+SNAP_RAD = 0.05
+
+
+def _outer_point(g, finger: str):
+    links = g.hand.fingers[finger].contact_links
+    cs = [c for c in g.contacts if c.finger == finger]
+    if not cs:
+        return None
+    return np.asarray(max(cs, key=lambda c: links.index(c.link) if c.link in links else -1).point, float)
+
+
+def _snap(first: Leg, back: Leg, options: PlanOptions) -> tuple[Leg, Leg]:
+    """The two legs' grasps at the candidate pose with one posture per shared contact: a
+    finger touching the same object point in both (`SNAP_M`, `SNAP_RAD`) takes the other
+    leg's joints at the end of the leg that moves the object (a last waypoint with the
+    object still: the contact kept, the joints re-postured), so the gait search sees one
+    contact, not two it would have to lift between. Legs that do not move, or a result that
+    is no valid state, are left as they are."""
+    a, b = first.end, back.end
+    for leg_, other in ((back, a), (first, b)):
+        if leg_.move is None:
+            continue
+        g = leg_.end
+        q = np.array(g.q, dtype=float)
+        changed = []
+        for f in g.hand.fingers:
+            if f not in g.patches or f not in other.patches:
+                continue
+            pa, pb = _outer_point(g, f), _outer_point(other, f)
+            qa, qb = np.asarray(g.finger_q[f]), np.asarray(other.finger_q[f])
+            if pa is None or pb is None or np.linalg.norm(pa - pb) > SNAP_M or np.max(np.abs(qa - qb)) > SNAP_RAD:
+                continue
+            if np.max(np.abs(qa - qb)) <= options.same_slot_tol_rad:
+                continue
+            q[list(g.hand.fingers[f].q_index)] = qb
+            changed.append(f)
+        if not changed:
+            continue
+        g2 = at_pose(g, g.obj.T_palm_obj, q)
+        if set(g2.patches) != set(g.patches) or state_reason(g2, options) is not None:
+            continue
+        r = leg_.move
+        move = Reposing(np.vstack([r.q_path, q[None, :]]), np.concatenate([r.poses, r.poses[-1:]]), r.fingers, r.start, g2)
+        snapped = Leg(leg_.grasp, leg_.lifts, move, g2)
+        if leg_ is back:
+            back = snapped
+        else:
+            first = snapped
+        break  # one side re-postured is enough
+    return first, back
 
 
 def _first_clause(err) -> str:
@@ -271,6 +332,7 @@ def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bo
         except MotionError as err:
             tried.append(f"at {name}: {err}")
             continue
+        first, back = _snap(first, back, options)
         a, b = first.end, back.end
         try:
             same = set(a.patches) == set(b.patches) and all(

@@ -40,14 +40,18 @@ FOLLOW_TOL_M = 0.0002
 IK_ITERS = 30
 #: Damping of the least-squares steps, m.
 DAMPING = 1e-3
-#: A reposing move needs its contacts to determine the object's motion: contacts on one line
-#: (a pinch) leave the turn about that line free. A contact this far from the line through the
-#: others turns a contact error of `FOLLOW_TOL_M` into at most 5 deg (the replay's drift limit)
-#: of rotation about it: FOLLOW_TOL_M / radians(5).
-DRIVE_LEVER_M = 0.0002 / math.radians(5.0)
+#: The replay controller's posture springs (`planner.sim.controller.POSTURE_SHARE`, kept
+#: equal by a test) push a finger along its path with at most this fraction of the squeeze
+#: ``F``: what drives the object in a reposing move (`drive_refusal`).
+POSTURE_SHARE = 0.3
 #: Weight of a finger's inner contacts against its outermost one in `_follow`: they pull
 #: the joints toward keeping them too, without forbidding a solution that rolls them.
 INNER_WEIGHT = 0.3
+#: Weight of the outermost contact's twist (rad) against its position (m) in `_follow`: the
+#: soft contact's torsion arm, a twist of 1 rad slipping its patch by about this much. The
+#: twist is asked for, not required: the replay holds boxes turned 10 deg whose middle finger
+#: twisted 12 deg against the object (2.4 deg of drift): the other contacts overcome it.
+TWIST_WEIGHT_M = 0.004
 
 
 class FollowError(MotionError):
@@ -130,8 +134,9 @@ def state_reason(grasp: RealizedGrasp, options) -> str | None:
     return ev.blocked_reason(problem.start)
 
 
-def _holds(grasp: RealizedGrasp) -> dict[str, list[tuple[str, np.ndarray, np.ndarray]]]:
-    """finger -> [(link, p_link (link frame), p_obj (object frame))] of its touching links, the
+def _holds(grasp: RealizedGrasp) -> dict[str, list[tuple]]:
+    """finger -> [(link, p_link (link frame), p_obj (object frame), the link's orientation in
+    the object frame (3, 3), the inward contact normal (object frame))] of its touching links, the
     outermost first (the last of the finger's ``contact_links`` that touches: its tip side).
     A finger holding with two phalanges has fewer joints than the six coordinates both
     contact points would fix (the iCub's fingers: two or three, coupled), so only the
@@ -147,52 +152,85 @@ def _holds(grasp: RealizedGrasp) -> dict[str, list[tuple[str, np.ndarray, np.nda
         p_palm = T[:3, :3] @ np.asarray(c.point, float) + T[:3, 3]
         T_link = state.link_pose(c.link)
         p_link = T_link[:3, :3].T @ (p_palm - T_link[:3, 3])
-        out.setdefault(c.finger, []).append((c.link, p_link, np.asarray(c.point, float)))
+        R_rel = T[:3, :3].T @ T_link[:3, :3]  # the link's orientation in the object frame
+        out.setdefault(c.finger, []).append((c.link, p_link, np.asarray(c.point, float), R_rel,
+                                             np.asarray(c.normal, float)))
     for finger, items in out.items():  # the outermost first: the one that must stick
         order = grasp.hand.fingers[finger].contact_links
         out[finger] = sorted(items, key=lambda it: -(order.index(it[0]) if it[0] in order else -1))
     return out
 
 
-def _lever(grasp: RealizedGrasp) -> float:
-    """How far the holding fingers' contact points are from lying on one line: the largest
-    distance of a point from the line through the two farthest apart, m (0 for fewer than
-    three points)."""
-    pts = np.array([c.point for c in grasp.contacts if c.finger is not None], dtype=float)
-    if len(pts) < 3:
-        return 0.0
-    d = np.linalg.norm(pts[:, None, :] - pts[None, :, :], axis=2)
-    i, j = np.unravel_index(int(np.argmax(d)), d.shape)
-    u = (pts[j] - pts[i]) / max(d[i, j], 1e-12)
-    rel = pts - pts[i]
-    return float(np.max(np.linalg.norm(rel - np.outer(rel @ u, u), axis=1)))
+def drive_refusal(grasp: RealizedGrasp, T_target) -> str | None:
+    """Why the fingers cannot turn the object to ``T_target``, or None.
+
+    A turn by angle theta about the move's screw axis (unit ``w``) twists every soft contact
+    against its torsional friction: at most ``gamma F |n_i . w|`` each (``n_i`` its normal,
+    ``F`` the squeeze). The fingers drive it by pushing along their paths, each with at most
+    ``POSTURE_SHARE F`` at its distance ``d_i`` from the axis. The move is refused when
+    ``POSTURE_SHARE sum d_i < gamma sum |n_i . w|``: a pinch turning its object about the line
+    between its two pads (both twist, no lever) needs a third finger at least
+    ``2 gamma / POSTURE_SHARE`` (27 mm at gamma 4 mm) off that line. A translation is always
+    driven (every contact pushes along it)."""
+    gamma = float(grasp.friction.gamma)
+    Ta, Tb = np.asarray(grasp.obj.T_palm_obj, float), np.asarray(T_target, float)
+    dT = Tb @ np.linalg.inv(Ta)
+    rv = Rotation.from_matrix(dT[:3, :3]).as_rotvec()
+    theta = float(np.linalg.norm(rv))
+    if gamma <= 0.0 or theta < 1e-9:
+        return None
+    w = rv / theta
+    # a point of the screw axis: (I - R) c = t, least squares (c is defined up to the axis)
+    c = np.linalg.lstsq(np.eye(3) - dT[:3, :3], dT[:3, 3], rcond=None)[0]
+    cs = [x for x in grasp.contacts if x.finger is not None]
+    if not cs:
+        return None
+    p = np.array([Ta[:3, :3] @ x.point + Ta[:3, 3] for x in cs])
+    n = np.array([Ta[:3, :3] @ x.normal for x in cs])
+    drive = POSTURE_SHARE * float(np.sum(np.linalg.norm(np.cross(p - c, w), axis=1)))
+    resist = gamma * float(np.sum(np.abs(n @ w)))
+    if drive >= resist:
+        return None
+    return (f"turning the object {math.degrees(theta):.1f} deg about [{w[0]:+.2f} {w[1]:+.2f} {w[2]:+.2f}] twists its "
+            f"contacts against their torsional friction ({resist * 1e3:.1f} mm x F) more than the fingers' levers can "
+            f"drive ({drive * 1e3:.1f} mm x F, {POSTURE_SHARE:g} of the squeeze each): a finger farther from that "
+            f"axis can")
 
 
-def _follow(hand, finger, q, holds, T, lo, hi) -> tuple[np.ndarray, float]:
+def _follow(hand, finger, q, holds, T, lo, hi, twist: bool) -> tuple[np.ndarray, float, float]:
     """Damped least squares: the finger's contact points onto their object points at pose
-    ``T``; returns (q, worst residual m)."""
+    ``T`` (and, with ``twist``, the outermost contact link turning with the object about the
+    contact normal, weighted so that 1 rad costs `TWIST_WEIGHT_M`); returns (q, residual of the
+    outermost point m, its twist against the object about the normal rad)."""
     f = hand.fingers[finger]
     idx = list(f.q_index)
-    targets = [T[:3, :3] @ p_obj + T[:3, 3] for _, _, p_obj in holds]
+    targets = [T[:3, :3] @ h[2] + T[:3, 3] for h in holds]
     qf = q[idx].copy()
-    worst = math.inf
+    worst, turn = math.inf, 0.0
     for _ in range(IK_ITERS):
         q[idx] = qf
         state = hand.state(q)
         err, rows = [], []
-        for k, ((link, p_link, _), target) in enumerate(zip(holds, targets)):
+        for k, ((link, p_link, _, R_rel, n_obj), target) in enumerate(zip(holds, targets)):
             w = 1.0 if k == 0 else INNER_WEIGHT
             T_link = state.link_pose(link)
+            J = np.asarray(state.frame_jacobian(link, p_link), float)
             err.append(w * (target - (T_link[:3, :3] @ p_link + T_link[:3, 3])))
-            rows.append(w * f.reduce(np.asarray(state.frame_jacobian(link, p_link), float)[:3][:, idx]))
-        e, J = np.concatenate(err), np.vstack(rows)
+            rows.append(w * f.reduce(J[:3][:, idx]))
+            if k == 0:
+                n = T[:3, :3] @ n_obj
+                turn = float(n @ Rotation.from_matrix(T[:3, :3] @ R_rel @ T_link[:3, :3].T).as_rotvec())
+                if twist:
+                    err.append(np.array([TWIST_WEIGHT_M * turn]))
+                    rows.append(TWIST_WEIGHT_M * f.reduce(n @ J[3:][:, idx])[None, :])
         worst = float(np.linalg.norm(err[0]))  # the outermost contact must stick
         if worst <= FOLLOW_TOL_M:
             break
-        dz = J.T @ np.linalg.solve(J @ J.T + DAMPING**2 * np.eye(len(e)), e)
+        e, Jm = np.concatenate(err), np.vstack(rows)
+        dz = Jm.T @ np.linalg.solve(Jm @ Jm.T + DAMPING**2 * np.eye(len(e)), e)
         qf = f.step(qf, dz, lo[idx], hi[idx])
     q[idx] = qf
-    return q, worst
+    return q, worst, abs(turn)
 
 
 def repose(grasp: RealizedGrasp, T_target, options, *, palm_at_end: bool = True) -> Reposing:
@@ -217,19 +255,18 @@ def repose(grasp: RealizedGrasp, T_target, options, *, palm_at_end: bool = True)
     holds = _holds(grasp)
     if not holds:
         raise MotionError("no finger touches the object: nothing can move it")
-    lever = _lever(grasp)
-    if lever < DRIVE_LEVER_M:
-        raise MotionError(f"the contacts ({', '.join(holds)}) lie on one line (the farthest {lever * 1e3:.1f} mm from "
-                          f"it, under {DRIVE_LEVER_M * 1e3:.1f} mm): they cannot turn the object about it, so they "
-                          f"cannot move it; a third finger off that line can")
+    why = drive_refusal(grasp, T_target)
+    if why is not None:
+        raise MotionError(why)
     poses = object_path(grasp.obj.T_palm_obj, T_target)
+    twist = float(grasp.friction.gamma) > 0.0  # soft contacts: torsional friction
     q = np.array(grasp.q, dtype=float)
     qs, start, end = [q.copy()], grasp, grasp
     m = len(poses)
     for k in range(1, m):
         T = poses[k]
         for finger, h in holds.items():
-            q, worst = _follow(hand, finger, q, h, T, lo, hi)
+            q, worst, _ = _follow(hand, finger, q, h, T, lo, hi, twist)
             if worst > 2 * FOLLOW_TOL_M:
                 at = [j for j, i in zip(hand.fingers[finger].joints, hand.fingers[finger].q_index)
                       if min(q[i] - lo[i], hi[i] - q[i]) < 1e-3]

@@ -147,3 +147,26 @@ def test_plan_files_refuse_a_finger_move_that_moves_the_object(box):
     data["steps"][k]["finger"] = "index"
     with pytest.raises(SpecError, match="expected finger 'object'"):
         plan_from_data(data)
+
+
+def test_turns_need_levers_against_torsional_friction(box):
+    """drive_refusal: a translation is always driven; the box turned about an axis through
+    its centre is driven (four contacts ~20 mm off it); the same turn with only contacts on
+    the axis (a pinch turning about its own line) is refused; no torsion (gamma 0), no refusal."""
+    from planner import repose as rp
+    from planner.model import Friction
+    from planner.sim import controller
+
+    assert rp.POSTURE_SHARE == controller.POSTURE_SHARE
+    T0 = np.asarray(box.obj.T_palm_obj, float)
+    assert rp.drive_refusal(box, _moved(T0, (0.01, 0.0, 0.0))) is None
+    assert rp.drive_refusal(box, _moved(T0, axis=(0.0, 0.0, 1.0), deg=10.0)) is None
+    pinch = realize(load_grasp(bundled_grasp("icub/pen_palmar_pinch.yaml")))
+    Tp = np.asarray(pinch.obj.T_palm_obj, float)
+    pts = [Tp[:3, :3] @ c.point + Tp[:3, 3] for c in pinch.contacts]
+    axis = (pts[1] - pts[0]) / np.linalg.norm(pts[1] - pts[0])
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_rotvec(math.radians(10) * axis).as_matrix()
+    T[:3, 3] = pts[0] - T[:3, :3] @ pts[0]  # about the line through the pads
+    assert "torsional friction" in rp.drive_refusal(pinch, T @ Tp)
+    assert rp.drive_refusal(replace(pinch, friction=Friction(0.9, 0.0)), T @ Tp) is None
