@@ -126,6 +126,8 @@ def leg(grasp, P, options: PlanOptions, gait_fn) -> Leg:
             q[idx] = np.asarray(paths["move" if "move" in paths else "lift"], float)[-1]
             g2 = at_pose(g, T, q)
             why = state_reason(g2, options)
+            if why == "too many fingers lifted":
+                why = "--max-lifted allows no more fingers off the object"
             if why is not None or f in g2.patches:
                 raise MotionError(f"{err}; and without {f} the grasp is no valid state"
                                   + (f" ({why})" if why else "")) from None
@@ -309,13 +311,14 @@ def _first_clause(err) -> str:
     return str(err).split("; ", 1)[0]
 
 
-def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bool, gaits, gait_fn
-                       ) -> tuple[Plan, float | None, str]:
+def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bool, gaits, gait_fn,
+                       known: str | None = None) -> tuple[Plan, float | None, str]:
     """The first candidate pose (`candidate_poses`) joined by reposing moves and gaits.
 
     ``gaits(a, b, options)`` is the gait planner (`planner.regrasp.plan_gaits`), returning a
     `planner.regrasp.PlanResult`; ``gait_fn(hand, obj, q_a, q_b, finger)`` the finger paths of
-    one gait (lifting a finger that cannot follow a reposing move). Returns (plan, seconds of verification replays or None, a
+    one gait (lifting a finger that cannot follow a reposing move); ``known``: the first clause
+    of the gait refusal at the grasps' own pose (a candidate failing the same way says so). Returns (plan, seconds of verification replays or None, a
     sentence on what was tried); raises NoSequenceError with every candidate's reason.
     """
     hand = initial.hand
@@ -339,7 +342,8 @@ def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bo
                 np.allclose(a.finger_q[f], b.finger_q[f], atol=options.same_slot_tol_rad) for f in a.patches if f != PALM)
             gait = None if same else gaits(a, b, options).plan
         except (NoSequenceError, PlannerError) as err:
-            tried.append(f"at {name}: {_first_clause(err)}")
+            clause = _first_clause(err)
+            tried.append(f"at {name}: " + ("the gaits fail for the same reason" if clause == known else clause))
             continue
         plan = compose(initial, final, options, first, gait, back, P)
         plan = replace(plan, inputs=dict(inputs or {}))

@@ -367,7 +367,7 @@ def plan_regrasp(
             inputs = {k: v for k, v in (("initial", rec_i), ("final", rec_f)) if v is not None}
     check_same_setup(initial.spec, final.spec, pose=not options.repose)
     from planner.pose_search import candidate_poses, plan_with_reposing
-    from planner.repose import pose_distance
+    from planner.repose import pose_distance, state_reason
 
     t0 = time.perf_counter()
     mm, deg = pose_distance(initial.obj.T_palm_obj, final.obj.T_palm_obj)
@@ -377,15 +377,17 @@ def plan_regrasp(
         try:
             return plan_gaits(initial, final, options, inputs, verbose)
         except NoSequenceError as err:
-            if not options.repose or options.strategy != "graph" or not candidate_poses(initial, final):
-                raise
+            if not options.repose or options.strategy != "graph" or not candidate_poses(initial, final) \
+                    or state_reason(initial, options) is not None or state_reason(final, options) is not None:
+                raise  # (an end grasp that is no valid state cannot be moved either)
             first_err = err
     log.info("object poses differ by %.1f mm / %.1f deg: reposing moves" if moved else
              "no gait sequence at this pose: trying reposing moves (%.1f mm / %.1f deg)", mm, deg)
     try:
         gait_fn = _motion_gait(options, verbose) if options.motion else _straight_gait
         plan, verify_s, _ = plan_with_reposing(initial, final, options, inputs, verbose,
-                                               lambda a, b, o: plan_gaits(a, b, o, inputs, verbose), gait_fn)
+                                               lambda a, b, o: plan_gaits(a, b, o, inputs, verbose), gait_fn,
+                                               None if first_err is None else str(first_err).split("; ", 1)[0])
     except NoSequenceError as err:
         if first_err is None:
             raise
