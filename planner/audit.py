@@ -264,7 +264,10 @@ def _check_hand(plan, hand, rep: AuditReport) -> bool:
         rep.count("steps")
         if s.action == "repose" and s.finger == OBJECT:  # the joints of every touching finger
             st = plan.states[s.from_state] if s.from_state < len(plan.states) else None
-            held = [f for f in (st.patches if st is not None else ()) if f in hand.fingers]
+            to = plan.states[s.to_state] if s.to_state < len(plan.states) else None
+            # (a finger touching at one end only keeps still: `_check_repose`)
+            held = [f for f in (st.patches if st is not None else ()) if f in hand.fingers
+                    and (to is None or f in to.patches)]
             want = sorted(j for f in held for j in hand.fingers[f].joints)
             if sorted(s.joints) != want:
                 rep.add(f"steps[{k}] (repose object): joints {list(s.joints)[:6]} are not the joints of the touching "
@@ -501,17 +504,26 @@ def _check_repose(plan, hand, objs, poses, k: int, s, rep: AuditReport) -> None:
     contact stick; a finger's inner contacts follow as well as its joints allow and are
     checked for penetration only); the joints stay within their limits and couplings; no link
     is deeper in the object (at the waypoint's pose) than `PENETRATION_TOL_M`, no two links of
-    the hand overlap; the same fingers touch before and after (the palm may join or leave)."""
+    the hand overlap; a finger touching at one end only (released: the object carried away
+    from it, or carried onto it; the palm likewise) keeps still."""
     tag = f"steps[{k}] (repose object)"
     n = len(plan.states)
     if not (0 <= s.from_state < n and 0 <= s.to_state < n):
         return
     a, b = plan.states[s.from_state], plan.states[s.to_state]
-    held = [f for f in a.patches if f in hand.fingers]
     fa, fb = set(a.patches) - {PALM}, set(b.patches) - {PALM}
-    if fa != fb:
-        rep.add(f"{tag}: the touching fingers change, {', '.join(sorted(fa)) or 'none'} at state {s.from_state}, "
-                f"{', '.join(sorted(fb)) or 'none'} at state {s.to_state}: a reposing move keeps them on the object")
+    held = [f for f in a.patches if f in hand.fingers and f in fb]
+    # a finger touching at one end only: the object carried away from it (released) or onto it;
+    # it keeps still (its joints are not the step's and equal in both states)
+    for f in sorted(fa ^ fb):
+        if f not in hand.fingers:
+            continue
+        moved = [j for j in hand.fingers[f].joints if j in s.joints]
+        ia = [plan.joints.index(j) for j in hand.fingers[f].joints if j in plan.joints]
+        if moved or np.any(np.abs(np.asarray(a.q)[ia] - np.asarray(b.q)[ia]) > INPUT_TOL):
+            rep.add(f"{tag}: {f} touches at state {s.from_state if f in fa else s.to_state} only, yet its joints move: "
+                    f"a reposing move keeps its fingers on the object, or carries it away from (onto) a finger "
+                    f"that keeps still")
     path = np.asarray(s.path, float)
     opath = np.asarray(s.object_path or (), float)
     if not len(path) or len(opath) != len(path):

@@ -15,8 +15,10 @@ is replayed in the planned directions before it is returned.
 from __future__ import annotations
 
 import logging
+import math
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
+from types import MappingProxyType
 
 import numpy as np
 
@@ -68,12 +70,50 @@ def candidate_poses(initial, final) -> list[tuple[str, np.ndarray]]:
     out = []
     if not _same(Ta, Tb):
         out += [("the final grasp's pose", Tb), ("the initial grasp's pose", Ta)]
+    # a finger that cannot back off its contact (held against the object by its own joint
+    # limits) is released by carrying the object away from it, a lift's distance along its
+    # contact normal (`leg`); in the final grasp, the object is carried onto it
+    # (the clearance a lifted finger keeps from the object first, then a lift's retreat)
+    from planner.finger_scene import DEFAULT_CLEARANCE_M
+    from planner.realization import wedged_fingers
+    from planner.retreat import DEFAULT_LIFT_M
+
+    for which, g in (("initial", initial), ("final", final)):
+        T = np.asarray(g.obj.T_palm_obj, float)
+        for f in wedged_fingers(g):
+            n = _away_from(g, f, DEFAULT_CLEARANCE_M)
+            if n is None:
+                continue
+            for d in (DEFAULT_CLEARANCE_M, DEFAULT_LIFT_M):
+                P = T.copy()
+                P[:3, 3] += d * n / np.linalg.norm(n)
+                if not any(_same(P, X) for _, X in out):
+                    out.append((f"{d * 1e3:g} mm away from {f} in the {which} grasp (it cannot back off)", P))
     if "free" not in (initial.spec.palm, final.spec.palm):
         for which, g in (("initial", initial), ("final", final)):
             s = settle_pose(g, SETTLE_GAP_FRACTION * TOUCH_TOL_M)
             if s is not None and not any(_same(s[0], T) for _, T in out):
                 out.append((f"resting on the palm ({s[1] * 1e3:.1f} mm from the {which} grasp's pose)", s[0]))
     return out
+
+
+def _away_from(g, finger: str, d: float):
+    """The direction (palm frame, unit) to carry the object ``d`` along that takes it farthest
+    from ``finger`` (its links' distance to the object, measured with the object moved): the
+    finger's mean contact normal or one of the palm axes; None when none gains half of ``d``."""
+    T = np.asarray(g.obj.T_palm_obj, float)
+    state = g.hand.state(g.q)
+    n = np.mean([T[:3, :3] @ c.normal for c in g.contacts if c.finger == finger], axis=0)
+    cands = ([n / np.linalg.norm(n)] if np.linalg.norm(n) > 1e-9 else []) + list(np.eye(3)) + list(-np.eye(3))
+    best, gain = None, 0.5 * d
+    d0 = state.finger_object_distance(g.obj, finger)
+    for u in cands:
+        P = T.copy()
+        P[:3, 3] += d * u
+        dd = state.finger_object_distance(g.obj.with_pose(P), finger) - d0
+        if dd > gain + 1e-12:
+            best, gain = u, dd
+    return best
 
 
 @dataclass
@@ -86,53 +126,114 @@ class Leg:
         lifts: (finger, paths, grasp after) per lifted finger: ``paths`` the gait paths
             ("lift", and "move" when the motion planner gives one), the grasp measured without it.
         move: the reposing move, None when the grasp is at the pose already.
-        end: the grasp at the candidate pose.
+        end: the grasp at the candidate pose (a released finger at the open posture).
+        releases: (finger, path) per finger the move carried the object away from (it cannot
+            back off its contact, `planner.retreat.retreat_blocked`): its joints kept during
+            the move, then ``path`` (joint waypoints) to the open posture at the candidate pose.
     """
 
     grasp: object
     lifts: list
     move: Reposing | None
     end: object
+    releases: list = field(default_factory=list)
 
 
 def leg(grasp, P, options: PlanOptions, gait_fn) -> Leg:
     """Take ``grasp`` to the pose ``P``: repose it; a finger that cannot follow
     (`planner.repose.FollowError`) is lifted first when the others hold the object without
     it (the search's state test), and the move is tried again, until at most two fingers
-    are left.
+    are left. A finger that cannot be lifted (it cannot back off its contact: held against
+    the object by its own joint limits) is released instead: it keeps its joints while the
+    others carry the object away from it, then opens at ``P``.
 
     Raises:
         MotionError: the move fails otherwise (why, at which waypoint).
     """
     T = np.asarray(grasp.obj.T_palm_obj, float)
-    g, lifts = grasp, []
+    g, lifts, still = grasp, [], []
     if _same(P, T):
         return Leg(grasp, [], None, grasp)
     while True:
         try:
-            r = repose(g, P, options)
-            return Leg(grasp, lifts, r, r.end)
+            r = repose(g, P, options, still=tuple(still))
+            break
         except FollowError as err:
             f = err.finger
-            touching = [x for x in g.patches if x != PALM]
+            touching = [x for x in g.patches if x != PALM and x not in still]
             if len(touching) <= 2 or f not in touching:
                 raise
+            without = replace(g, patches=MappingProxyType({k: v for k, v in g.patches.items() if k != f}))
+            why = state_reason(without, options)
+            if why == "too many fingers lifted":
+                why = "--max-lifted allows no more fingers off the object"
+            if why is not None:
+                raise MotionError(f"{err}; and without {f} the grasp is no valid state ({why})") from None
             try:
                 paths = gait_fn(g.hand, g.obj, g.q, None, f)
-            except MotionError as lift_err:
-                raise MotionError(f"{err}; it cannot be lifted first: {lift_err}") from None
+            except MotionError:
+                still.append(f)  # it cannot back off: the others carry the object away from it
+                continue
             idx = list(g.hand.fingers[f].q_index)
             q = np.array(g.q, dtype=float)
             q[idx] = np.asarray(paths["move" if "move" in paths else "lift"], float)[-1]
             g2 = at_pose(g, T, q)
-            why = state_reason(g2, options)
-            if why == "too many fingers lifted":
-                why = "--max-lifted allows no more fingers off the object"
-            if why is not None or f in g2.patches:
-                raise MotionError(f"{err}; and without {f} the grasp is no valid state"
-                                  + (f" ({why})" if why else "")) from None
+            if f in g2.patches or state_reason(g2, options) is not None:
+                raise MotionError(f"{err}; and without {f} the grasp is no valid state") from None
             lifts.append((f, paths, g2))
             g = g2
+    end, releases = r.end, []
+    for f in still:
+        path = _open_path(end, f, options)
+        if path is None:
+            raise MotionError(f"{f} was released by moving the object away, and cannot open from there without "
+                              f"touching the object or another finger")
+        q = np.array(end.q, dtype=float)
+        q[list(end.hand.fingers[f].q_index)] = path[-1]
+        end = at_pose(end, P, q)
+        releases.append((f, path))
+    if any(f in end.patches for f in still) or state_reason(end, options) is not None:
+        raise MotionError(f"with {', '.join(still)} released the grasp at the candidate pose is no valid state")
+    return Leg(grasp, lifts, r, end, releases)
+
+
+def _open_path(g, finger: str, options: PlanOptions, step_rad: float = 0.01):
+    """A joint path of ``finger`` from its joints in ``g`` to the open posture, free of the
+    object and the other links: the straight line when it is, else (with finger paths,
+    ``options.motion``) the motion planner's, keeping from the object the clearance the finger
+    has at its start (at most a lift's, `planner.finger_scene.DEFAULT_CLEARANCE_M`); None when
+    there is none."""
+    from planner.contacts import collisions
+
+    hand = g.hand
+    idx = list(hand.fingers[finger].q_index)
+    a = np.asarray(g.q, float)[idx]
+    b = np.asarray(hand.q_open, float)[idx]
+    n = max(1, int(math.ceil(float(np.max(np.abs(b - a))) / step_rad)))
+    path = [a + (b - a) * k / n for k in range(n + 1)]
+    q = np.array(g.q, dtype=float)
+    for wp in path[1:]:
+        q[idx] = wp
+        if collisions(hand, q, g.obj, fingers=[finger]):
+            break
+    else:
+        return np.array(path)
+    if not options.motion:
+        return None
+    from planner.finger_scene import DEFAULT_CLEARANCE_M
+    from planner.motion import plan_finger_move  # OMPL: only when finger paths are planned
+
+    gap = hand.state(g.q).finger_object_distance(g.obj, finger)
+    if not gap > 0.0:
+        return None
+    goal = np.array(g.q, dtype=float)
+    goal[idx] = b
+    try:
+        return np.asarray(plan_finger_move(hand, g.obj, g.q, goal, finger, planner=options.motion_planner,
+                                           max_checks=options.motion_checks, seed=options.seed,
+                                           clearance_m=max(0.0, min(DEFAULT_CLEARANCE_M, 0.9 * gap))), float)
+    except MotionError:
+        return None
 
 
 class _Builder:
@@ -182,6 +283,11 @@ def compose(initial, final, options: PlanOptions, first: Leg, gait: Plan | None,
             b.grasp(g, "initial")
     if first.move is not None:
         b.reposing(first.move)
+        g = first.move.end
+        for f, path in first.releases:  # carried away from: it opens at P
+            b.grasp(g, "initial")
+            b.step(f, "move", path)
+            g = _with_q(g, path[-1], f)
         if gait is not None:
             b.state(gait.states[0], P)
         else:
@@ -196,6 +302,11 @@ def compose(initial, final, options: PlanOptions, first: Leg, gait: Plan | None,
     if last.move is not None:
         back = last.move.reversed()
         lifted_final = last.lifts[-1][2] if last.lifts else final
+        g = last.end
+        for f, path in reversed(last.releases):  # back where it holds, before the object is carried onto it
+            b.step(f, "move", np.asarray(path, float)[::-1])
+            g = _with_q(g, path[0], f)
+            b.grasp(g, "final")
         b.reposing(back)
         b.grasp(lifted_final, "final")
     for i in range(len(last.lifts) - 1, -1, -1):

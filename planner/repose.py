@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from types import MappingProxyType
 
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
@@ -233,7 +234,8 @@ def _follow(hand, finger, q, holds, T, lo, hi, twist: bool) -> tuple[np.ndarray,
     return q, worst, abs(turn)
 
 
-def repose(grasp: RealizedGrasp, T_target, options, *, palm_at_end: bool = True) -> Reposing:
+def repose(grasp: RealizedGrasp, T_target, options, *, palm_at_end: bool = True, still: tuple[str, ...] = ()
+           ) -> Reposing:
     """Move the object of ``grasp`` to ``T_target`` with every holding contact fixed on it.
 
     Args:
@@ -242,6 +244,9 @@ def repose(grasp: RealizedGrasp, T_target, options, *, palm_at_end: bool = True)
         options: the plan's `planner.options.PlanOptions` (contact model, gravity, hold factor).
         palm_at_end: the palm may hold at the end pose (where the object touches it); the
             spec's ``palm: free`` always keeps it out.
+        still: touching fingers that do not follow: they keep their joints while the others
+            carry the object away from them (a finger that cannot back off its contact is
+            released so; reversed, the object is carried onto it).
 
     Returns:
         The `Reposing`.
@@ -252,7 +257,7 @@ def repose(grasp: RealizedGrasp, T_target, options, *, palm_at_end: bool = True)
     """
     hand = grasp.hand
     lo, hi = np.asarray(hand.lower, float), np.asarray(hand.upper, float)
-    holds = _holds(grasp)
+    holds = {f: h for f, h in _holds(grasp).items() if f not in still}
     if not holds:
         raise MotionError("no finger touches the object: nothing can move it")
     why = drive_refusal(grasp, T_target)
@@ -276,6 +281,8 @@ def repose(grasp: RealizedGrasp, T_target, options, *, palm_at_end: bool = True)
         last = k == m - 1
         # the palm holds only where the object rests on it: at the end, if it touches there
         g = at_pose(grasp, T, q, palm=grasp.spec.palm if last and palm_at_end else "free")
+        if still:  # a finger the object is carried away from holds nothing (it may graze it at first)
+            g = replace(g, patches=MappingProxyType({f: v for f, v in g.patches.items() if f not in still}))
         lost = sorted(set(holds) - set(g.patches))
         if lost:
             raise FollowError(_where(poses, k) + f"{', '.join(lost)} loses the object", lost[0])

@@ -170,3 +170,70 @@ def test_turns_need_levers_against_torsional_friction(box):
     T[:3, 3] = pts[0] - T[:3, :3] @ pts[0]  # about the line through the pads
     assert "torsional friction" in rp.drive_refusal(pinch, T @ Tp)
     assert rp.drive_refusal(replace(pinch, friction=Friction(0.9, 0.0)), T @ Tp) is None
+
+
+def _release_plan(box):
+    """The box grasp with one finger released: the object carried 2 mm away from it by the
+    others (it keeps still), then it opens; as one plan (repose, move)."""
+    from planner.audit import audit_plan
+    from planner.pose_search import Leg, _away_from, _open_path, compose
+    from planner.repose import at_pose, state_reason
+
+    hand = box.hand
+    for f in ("ring", "index", "middle"):
+        without = replace(box, patches={k: v for k, v in box.patches.items() if k != f})
+        if state_reason(without, OPTS) is not None:
+            continue
+        u = _away_from(box, f, 0.002)
+        if u is None:
+            continue
+        P = np.array(box.obj.T_palm_obj, dtype=float)
+        P[:3, 3] += 0.002 * u
+        try:
+            r = repose(box, P, OPTS, still=(f,))
+        except MotionError:
+            continue
+        path = _open_path(r.end, f, OPTS)
+        if path is None:
+            continue
+        q = np.array(r.end.q, dtype=float)
+        q[list(hand.fingers[f].q_index)] = path[-1]
+        end = at_pose(r.end, P, q)
+        plan = compose(box, box, OPTS, Leg(box, [], r, end, [(f, path)]), None, Leg(end, [], None, end), P)
+        return f, r, plan, audit_plan
+    pytest.fail("no finger of the box grasp can be released")
+
+
+def test_a_finger_released_by_carrying_the_object_away_keeps_still(box, tmp_path):
+    f, r, plan, audit_plan = _release_plan(box)
+    idx = list(box.hand.fingers[f].q_index)
+    assert np.allclose(r.q_path[:, idx], box.q[idx])  # it keeps still while the others carry
+    assert f not in r.end.patches and f not in r.fingers
+    assert [s.action for s in plan.steps] == ["repose", "move"]
+    assert f in plan.states[0].patches and f not in plan.states[1].patches
+    path = write_plan(plan, tmp_path / "release.yaml")
+    read_plan(path)  # schema 4: a finger touching at one end of a repose step only
+    report = audit_plan(read_plan(path))
+    assert report.ok, report.problems
+    # the audit refuses a released finger whose joints move during the step
+    data = read_plan(path).to_dict()
+    step = data["steps"][0]
+    j = box.hand.fingers[f].joints[1]
+    data["steps"][0] = {**step, "joints": step["joints"] + [j],
+                        "path": [row + [data["states"][0]["q"][j]] for row in step["path"]]}
+    data["states"][1]["q"][j] = data["states"][1]["q"][j] + 0.05
+    data["steps"][0]["path"][-1][-1] = data["states"][1]["q"][j]
+    data["steps"][1]["path"][0][box.hand.fingers[f].joints.index(j)] = data["states"][1]["q"][j]
+    bad = audit_plan(plan_from_data(data))
+    assert any("touches at state 0 only, yet its joints move" in p for p in bad.problems), bad.problems
+
+
+def test_a_released_finger_plan_holds_in_the_simulator(box, tmp_path):
+    """The release plan replays (default engine, palm down): the released finger's load is
+    handed over before the others carry the object away from it."""
+    from planner.sim.replay import replay_plan
+
+    _, _, plan, _ = _release_plan(box)
+    report = replay_plan(write_plan(plan, tmp_path / "release.yaml"))
+    assert report.passed, report.verdict
+    assert report.max_drift_mm < 2.0 and report.max_drift_deg < 3.0

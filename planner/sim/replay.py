@@ -580,10 +580,22 @@ class _Sim:
         joint is latched now (its squeeze: the targets keep the grip they hold with), and the
         planned pose drift is measured from moves along ``st.object_path`` at the same
         fraction of each segment; at the end the fingers latch where they touch and the
-        to-state's palm contact holds. False when the object dropped."""
+        to-state's palm contact holds. A finger touching in the from-state only is released
+        (its load handed over before, then it keeps still while the object is carried away),
+        one touching in the to-state only is carried onto (it takes its load after). False
+        when the object dropped."""
         ctl, prm = self.ctl, self.params
         q_ref = dict(ctl.q_ref)
-        ctl.command(q_ref, frm.touching)
+        # a finger touching at one end only: released (the object carried away from it: its load
+        # handed over first) or carried onto (it takes its load at the end); it keeps still
+        released = [f for f in frm.touching if f not in to.touching]
+        onto = [f for f in to.touching if f not in frm.touching]
+        holding = [f for f in frm.touching if f in to.touching]
+        if released:
+            ctl.command(q_ref, frm.touching)
+            if not self._run_for(prm["handover_s"], lambda x: [ctl.fade(f, 1.0 - x) for f in released]):
+                return False
+        ctl.command(q_ref, holding)
         start = np.array([q_ref[j] for j in st.joints])
         planned = np.asarray(st.path, dtype=float)
         path = planned + (start - planned[0])
@@ -606,6 +618,9 @@ class _Sim:
         self.reposing = False
         self.set_reference(to.object_pose)
         self.palm_holds = to.palm_holds
+        if ok and onto:
+            ctl.command(dict(ctl.q_ref), to.touching, share={f: 0.0 for f in onto})
+            ok = self._run_for(prm["handover_s"], lambda x: [ctl.fade(f, x) for f in onto])
         if ok:
             ctl.command(dict(ctl.q_ref), to.touching)
             ctl.latch(to.touching)
