@@ -84,6 +84,11 @@ def cmd_plan(args: argparse.Namespace) -> int:
         f"({s['blocked_states']} blocked), {time.perf_counter() - t0:.2f} s"
         + (f", written to {args.output}" if args.output else "")
     )
+    moved = s.get("reposing")
+    if moved:
+        print(f"reposing: the hand moves the object in {moved['moves']} step(s), {moved['object_path_mm']:g} mm / "
+              f"{moved['object_path_deg']:g} deg along its path, the gaits at "
+              f"[{', '.join(f'{v:.4f}' for v in moved['pose'][:3])}] (palm frame)")
     check = s.get("verification")
     if check is not None:
         shown = {"gravity": gname} if gname is not None else {}  # a named --gravity by its name

@@ -322,7 +322,9 @@ def compose(initial, final, options: PlanOptions, first: Leg, gait: Plan | None,
     order = [f"{f}:lift" for f, _, _ in first.lifts] + ([f"{OBJECT}:repose"] if first.move is not None else []) \
         + (list(base.summary.get("order", [])) if base else []) + ([f"{OBJECT}:repose"] if last.move is not None else []) \
         + [f"{f}:land>final" for f, _, _ in reversed(last.lifts)]
-    summary = dict(base.summary) if base else {"strategy": options.strategy, "gait_steps": 0}
+    summary = dict(base.summary) if base else {
+        "strategy": options.strategy, "gait_steps": 0, "graph_edges_in_sequence": 0, "graph_nodes": 0,
+        "graph_edges": 0, "blocked_states": 0, "rank": options.rank, "search": {}}
     summary.pop("verification", None)
     summary.update(order=order, reposing={
         "moves": len(moves),
@@ -417,9 +419,15 @@ def _snap(first: Leg, back: Leg, options: PlanOptions) -> tuple[Leg, Leg]:
     return first, back
 
 
-def _first_clause(err) -> str:
-    """The first clause of a refusal (up to its first "; "): what failed, without the advice."""
-    return str(err).split("; ", 1)[0]
+def first_clause(err) -> str:
+    """The first clause of a refusal (up to its first "; " outside parentheses): what failed,
+    without the advice."""
+    text, depth = str(err), 0
+    for i, ch in enumerate(text):
+        depth += (ch == "(") - (ch == ")")
+        if depth == 0 and text.startswith("; ", i):
+            return text[:i]
+    return text
 
 
 def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bool, gaits, gait_fn,
@@ -453,7 +461,7 @@ def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bo
                 np.allclose(a.finger_q[f], b.finger_q[f], atol=options.same_slot_tol_rad) for f in a.patches if f != PALM)
             gait = None if same else gaits(a, b, options).plan
         except (NoSequenceError, PlannerError) as err:
-            clause = _first_clause(err)
+            clause = first_clause(err)
             tried.append(f"at {name}: " + ("the gaits fail for the same reason" if clause == known else clause))
             continue
         plan = compose(initial, final, options, first, gait, back, P)
@@ -466,7 +474,7 @@ def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bo
             verify_s += check.wall_time_s
             if not check.passed:
                 nm, step, verdict, _ = check.first_failure()
-                tried.append(f"at {name}: the plan failed in the simulator ({nm} at step {step}: {_first_clause(verdict)})")
+                tried.append(f"at {name}: the plan failed in the simulator ({nm} at step {step}: {first_clause(verdict)})")
                 continue
             plan = replace(plan, summary={**plan.summary, "verification": {**check.record(), "attempts": 1,
                                                                              "rejected": []}})

@@ -366,7 +366,7 @@ def plan_regrasp(
         if inputs is None:
             inputs = {k: v for k, v in (("initial", rec_i), ("final", rec_f)) if v is not None}
     check_same_setup(initial.spec, final.spec, pose=not options.repose)
-    from planner.pose_search import candidate_poses, plan_with_reposing
+    from planner.pose_search import first_clause, candidate_poses, plan_with_reposing
     from planner.repose import pose_distance, state_reason
 
     t0 = time.perf_counter()
@@ -387,7 +387,7 @@ def plan_regrasp(
         gait_fn = _motion_gait(options, verbose) if options.motion else _straight_gait
         plan, verify_s, _ = plan_with_reposing(initial, final, options, inputs, verbose,
                                                lambda a, b, o: plan_gaits(a, b, o, inputs, verbose), gait_fn,
-                                               None if first_err is None else str(first_err).split("; ", 1)[0])
+                                               None if first_err is None else first_clause(first_err))
     except NoSequenceError as err:
         if first_err is None:
             raise
