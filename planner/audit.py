@@ -33,7 +33,7 @@ recorded inputs, with the planner's own models:
   against the last state's pose), and every ``repose`` step waypoint by waypoint
   (`_check_repose`: the object path continuous from its from-state's pose to its
   to-state's, each holding finger's contact fixed on the moving object, joint limits and
-  couplings, no link in the object at the waypoint's pose, the same fingers touching);
+  couplings, no link in the object at the waypoint's pose, a finger touching at one end only keeping still);
   ``summary.reposing`` is recomputed from the object paths.
 
 Each failed check is one line naming the state or step, the finger and the check.

@@ -25,7 +25,8 @@ import numpy as np
 import planner
 from planner.closure import CONTACT_MODELS, grasp_closure
 from planner.errors import IntegrityError, PlannerError, PlannerWarning, SpecError, UnknownNameError
-from planner.fileio import MAX_GRASP_BYTES, MAX_PLAN_BYTES, Reader, load_json, load_yaml, read_limited, sha256_file, shown
+from planner.fileio import (MAX_GRASP_BYTES, MAX_PLAN_BYTES, Reader, load_json, load_yaml, read_limited, repr_short,
+                            sha256_file, shown)
 from planner.model import PALM, Friction, Patch
 from planner.objects import MeshFileError, check_object_block
 from planner.plan_data import (ACTIONS, OBJECT, PLAN_KIND, SCHEMA_VERSION, Alternative, Plan, PlanState, PlanStep,
@@ -229,7 +230,15 @@ def plan_from_data(data: Any, source: str | os.PathLike | None = None) -> Plan:
     if len(raw_steps) != len(states) - 1:
         raise r.fail(f"{len(raw_steps)} steps for {len(states)} states: a plan has one step less than "
                      f"states (truncated or edited)", "steps")
-    steps = tuple(_check_step(s, i, joints, states) for i, s in raw_steps)
+    base_pose = (*obj["position"], *obj["quat_xyzw"]) if obj.get("position") is not None else None
+    if states[0].object_pose is not None and (base_pose is None or not _same_pose(states[0].object_pose, base_pose)):
+        raise r.fail("the first state's object_pose differs from the object block's pose (a plan starts where its "
+                     "object is; only repose steps move it)", "states[0].object_pose")
+    if version < 4 and (states[0].object_pose is not None or any(st.object_pose is not None for st in states)):
+        raise r.fail(f"object_pose is a schema 4 key; this plan says schema {version}", "schema_version")
+    steps = tuple(_check_step(s, i, joints, states, base_pose) for i, s in raw_steps)
+    if version < 4 and any(st.action == "repose" for st in steps):
+        raise r.fail(f"repose steps are schema 4; this plan says schema {version}", "schema_version")
     alternatives = []
     for _, alt in r.at(data.get("alternatives") or [], "alternatives").seq(1000).items():
         alt.mapping()
@@ -340,7 +349,7 @@ def _same_pose(a, b) -> bool:
                 and min(np.max(np.abs(a[3:] - b[3:])), np.max(np.abs(a[3:] + b[3:]))) <= POSE_END_TOL)
 
 
-def _check_step(s: Reader, i: int, joints: tuple[str, ...], states: tuple[PlanState, ...]) -> PlanStep:
+def _check_step(s: Reader, i: int, joints: tuple[str, ...], states: tuple[PlanState, ...], base_pose=None) -> PlanStep:
     s.mapping()
     s.require(*STEP_KEYS, message="missing key")
     finger = s.child("finger").name()
@@ -369,7 +378,7 @@ def _check_step(s: Reader, i: int, joints: tuple[str, ...], states: tuple[PlanSt
     if np.any(np.abs(qa[others] - qb[others]) > PATH_END_TOL):
         raise s.fail(f"states {frm} and {to} differ in joints outside the step's joints")
     if action == "repose":
-        return _check_repose(s, i, joints, states, sj, path)
+        return _check_repose(s, i, joints, states, sj, path, base_pose)
     if s.get("object_path") is not None:
         raise s.fail(f"only a repose step moves the object; this is a {action}", "object_path")
     if not _same_pose(a.object_pose, b.object_pose):
@@ -385,12 +394,13 @@ def _check_step(s: Reader, i: int, joints: tuple[str, ...], states: tuple[PlanSt
     return PlanStep(finger, action, frm, to, sj, tuple(tuple(float(v) for v in wp) for wp in path))
 
 
-def _check_repose(s: Reader, i: int, joints, states, sj, path) -> PlanStep:
+def _check_repose(s: Reader, i: int, joints, states, sj, path, base_pose=None) -> PlanStep:
     """A reposing step: ``finger: object``, one object pose per waypoint from the from-state's
     pose to the to-state's; a finger touching in only one of its states (the palm, or a finger
     the object is carried away from or onto) keeps its joints (not the step's joints)."""
     if s.get("finger") != OBJECT:
-        raise s.fail(f"a repose step moves the object: expected finger {OBJECT!r}, got {shown(s.get('finger'))}", "finger")
+        raise s.fail(f"a repose step moves the object: expected finger {OBJECT!r}, got {repr_short(s.get('finger'))}",
+                     "finger")
     if s.get("object_path") is None:
         raise s.fail("a repose step needs object_path (one pose per waypoint)", "object_path")
     poses = s.child("object_path").rows(MAX_WAYPOINTS, 7, MAX_COORD_M)
@@ -400,10 +410,9 @@ def _check_repose(s: Reader, i: int, joints, states, sj, path) -> PlanStep:
         raise s.fail("expected unit quaternions [x, y, z, qx, qy, qz, qw]", "object_path")
     frm, to = i, i + 1
     a, b = states[frm], states[to]
-    ref = states[0].object_pose
-    for end, st, k in ((poses[0], a, frm), (poses[-1], b, to)):
-        if st.object_pose is not None and not _same_pose(tuple(end), st.object_pose) or \
-                st.object_pose is None and k != 0 and ref is not None:
+    for end, st in ((poses[0], a), (poses[-1], b)):
+        want = st.object_pose if st.object_pose is not None else base_pose  # none: the object block's
+        if want is None or not _same_pose(tuple(end), want):
             raise s.fail(f"does not start at state {frm}'s object pose and end at state {to}'s", "object_path")
     # the touching fingers may differ: a finger released (the object carried away from it) or
     # carried onto keeps still, its joints outside the step's (the audit checks it with the hand)

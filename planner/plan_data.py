@@ -94,6 +94,26 @@ def pose_matrix(pose) -> np.ndarray:
     return T
 
 
+def pose_between(a, b, s: float) -> np.ndarray:
+    """The pose a fraction ``s`` (0..1) of the way from pose ``a`` to pose ``b`` (each
+    (x, y, z, qx, qy, qz, qw)): the position along the line, the orientation along the
+    shortest rotation (slerp), as a reposing step's object moves between two waypoints (the
+    replay's reference, the viewer's frames)."""
+    import math
+
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    qa, qb = a[3:7] / np.linalg.norm(a[3:7]), b[3:7] / np.linalg.norm(b[3:7])
+    dot = float(qa @ qb)
+    if dot < 0.0:
+        qb, dot = -qb, -dot
+    if dot > 1.0 - 1e-9:
+        q = qa + s * (qb - qa)
+    else:
+        th = math.acos(min(1.0, dot))
+        q = (math.sin((1.0 - s) * th) * qa + math.sin(s * th) * qb) / math.sin(th)
+    return np.concatenate([a[:3] + s * (b[:3] - a[:3]), q / np.linalg.norm(q)])
+
+
 def pose_dict(pose) -> dict:
     """A state's ``object_pose`` in the file: {position, quat_xyzw}."""
     return {"position": [_num(v) for v in pose[:3]], "quat_xyzw": [_num(v) for v in pose[3:7]]}

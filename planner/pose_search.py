@@ -1,15 +1,17 @@
 """Plans that move the object: finger gaits at a pose, joined by reposing moves.
 
-The search's states are (object pose, contact assignment). Candidate poses ``P``, in order:
-the final grasp's pose and the initial grasp's (when they differ), then the poses that rest
-the object on the palm from either grasp (`planner.repose.settle_pose`: a thumb that cannot
-lift because nothing opposes it can lift once the palm does). For each, the initial grasp is
-reposed to ``P`` with its contacts fixed on the object, the final grasp likewise (its move
-reversed ends the plan), and the gait search (`planner.regrasp.plan_gaits`) joins the two at
-``P``. The first candidate that gives a plan is returned (poses tried in that order: the
-fewest and shortest object motions first); each is work-bounded, so the answer does not
-depend on the machine's load. With verification the whole plan (gaits and reposing moves)
-is replayed in the planned directions before it is returned.
+The search's states are (object pose, contact assignment). Candidate poses ``P``, in order
+(`candidate_poses`): the final grasp's pose and the initial grasp's (when they differ), the
+object carried a lifted finger's clearance and a lift's retreat away from a finger that
+cannot back off its contact, then the poses that rest the object on the palm from either
+grasp (`planner.repose.settle_pose`: a thumb that cannot lift because nothing opposes it can
+lift once the palm does). For each, the initial grasp is taken to ``P`` (a `Leg`: fingers
+that cannot follow lifted or released first, then the reposing move), the final grasp
+likewise (its leg reversed ends the plan), and the gait search (`planner.regrasp.plan_gaits`)
+joins the two at ``P``. The first candidate that gives a plan is returned (poses tried in that
+order: the fewest and shortest object motions first); each is work-bounded, so the answer
+does not depend on the machine's load. With verification the whole plan (gaits and reposing
+moves) is replayed in the planned directions before it is returned.
 """
 
 from __future__ import annotations
@@ -26,13 +28,10 @@ from planner.errors import MotionError, NoSequenceError, PlannerError
 from planner.model import PALM
 from planner.options import PlanOptions, gravity_directions_of
 from planner.plan_data import OBJECT, Plan, PlanState, PlanStep, pose_vector
-from planner.repose import FollowError, Reposing, at_pose, pose_distance, repose, settle_pose, state_reason
+from planner.repose import FOLLOW_TOL_M, FollowError, Reposing, at_pose, pose_distance, repose, settle_pose, state_reason
 
 log = logging.getLogger("planner")
 
-#: The object rests on the palm this far from it (half the touch tolerance of the contacts,
-#: `planner.contacts.TOUCH_TOL_M`, as ``synth --palm`` places it).
-SETTLE_GAP_FRACTION = 0.5
 #: A pose at most this close to another candidate (mm, deg) is the same candidate.
 SAME_POSE = (0.05, 0.05)
 
@@ -57,6 +56,11 @@ def grasp_state(grasp, options: PlanOptions, label: str) -> PlanState:
         hold_factor_by_gravity=G.graph["evaluator"].hold_factors(v))
 
 
+def identical(Ta, Tb) -> bool:
+    """Two poses equal to rounding (1e-9): no object motion between them."""
+    return bool(np.allclose(np.asarray(Ta, float), np.asarray(Tb, float), rtol=0.0, atol=1e-9))
+
+
 def _same(Ta, Tb) -> bool:
     mm, deg = pose_distance(Ta, Tb)
     return mm <= SAME_POSE[0] and deg <= SAME_POSE[1]
@@ -64,11 +68,11 @@ def _same(Ta, Tb) -> bool:
 
 def candidate_poses(initial, final) -> list[tuple[str, np.ndarray]]:
     """(name, pose) of the poses the gaits may happen at, in the order they are tried."""
-    from planner.contacts import TOUCH_TOL_M
+    from planner.synth_sample import PALM_TOUCH_GAP_M  # where ``synth --palm`` rests an object on the palm
 
     Ta, Tb = np.asarray(initial.obj.T_palm_obj, float), np.asarray(final.obj.T_palm_obj, float)
     out = []
-    if not _same(Ta, Tb):
+    if not identical(Ta, Tb):
         out += [("the final grasp's pose", Tb), ("the initial grasp's pose", Ta)]
     # a finger that cannot back off its contact (held against the object by its own joint
     # limits) is released by carrying the object away from it, a lift's distance along its
@@ -91,7 +95,7 @@ def candidate_poses(initial, final) -> list[tuple[str, np.ndarray]]:
                     out.append((f"{d * 1e3:g} mm away from {f} in the {which} grasp (it cannot back off)", P))
     if "free" not in (initial.spec.palm, final.spec.palm):
         for which, g in (("initial", initial), ("final", final)):
-            s = settle_pose(g, SETTLE_GAP_FRACTION * TOUCH_TOL_M)
+            s = settle_pose(g, PALM_TOUCH_GAP_M)
             if s is not None and not any(_same(s[0], T) for _, T in out):
                 out.append((f"resting on the palm ({s[1] * 1e3:.1f} mm from the {which} grasp's pose)", s[0]))
     return out
@@ -127,9 +131,10 @@ class Leg:
             ("lift", and "move" when the motion planner gives one), the grasp measured without it.
         move: the reposing move, None when the grasp is at the pose already.
         end: the grasp at the candidate pose (a released finger at the open posture).
-        releases: (finger, path) per finger the move carried the object away from (it cannot
-            back off its contact, `planner.retreat.retreat_blocked`): its joints kept during
-            the move, then ``path`` (joint waypoints) to the open posture at the candidate pose.
+        releases: (finger, path) per finger the move carried the object away from (its lift
+            could not be planned: typically a finger that cannot back off its contact,
+            `planner.retreat.retreat_blocked`): its joints kept during the move, then ``path``
+            (joint waypoints) to the open posture at the candidate pose.
     """
 
     grasp: object
@@ -152,7 +157,7 @@ def leg(grasp, P, options: PlanOptions, gait_fn) -> Leg:
     """
     T = np.asarray(grasp.obj.T_palm_obj, float)
     g, lifts, still = grasp, [], []
-    if _same(P, T):
+    if identical(P, T):
         return Leg(grasp, [], None, grasp)
     while True:
         try:
@@ -247,7 +252,7 @@ class _Builder:
         self.steps: list[PlanStep] = []
 
     def pose(self, T):
-        return None if _same(T, self.T0) else pose_vector(T)
+        return None if identical(T, self.T0) else pose_vector(T)
 
     def state(self, st: PlanState, T) -> None:
         self.states.append(replace(st, object_pose=self.pose(T)))
@@ -284,10 +289,11 @@ def compose(initial, final, options: PlanOptions, first: Leg, gait: Plan | None,
     if first.move is not None:
         b.reposing(first.move)
         g = first.move.end
-        for f, path in first.releases:  # carried away from: it opens at P
+        gone = [f for f, _ in first.releases]
+        for f, path in first.releases:  # carried away from: it opens at P (holding nothing)
             b.grasp(g, "initial")
             b.step(f, "move", path)
-            g = _with_q(g, path[-1], f)
+            g = _without(_with_q(g, path[-1], f), gone)
         if gait is not None:
             b.state(gait.states[0], P)
         else:
@@ -303,9 +309,10 @@ def compose(initial, final, options: PlanOptions, first: Leg, gait: Plan | None,
         back = last.move.reversed()
         lifted_final = last.lifts[-1][2] if last.lifts else final
         g = last.end
+        gone = [f for f, _ in last.releases]
         for f, path in reversed(last.releases):  # back where it holds, before the object is carried onto it
             b.step(f, "move", np.asarray(path, float)[::-1])
-            g = _with_q(g, path[0], f)
+            g = _without(_with_q(g, path[0], f), gone)
             b.grasp(g, "final")
         b.reposing(back)
         b.grasp(lifted_final, "final")
@@ -356,6 +363,12 @@ def compose(initial, final, options: PlanOptions, first: Leg, gait: Plan | None,
                 steps=tuple(b.steps))
 
 
+def _without(g, fingers):
+    """``g`` with the patches of ``fingers`` left out (fingers that hold nothing there: released
+    ones, which may still graze the object)."""
+    return replace(g, patches=MappingProxyType({k: v for k, v in g.patches.items() if k not in fingers}))
+
+
 def _with_q(g, q_finger, finger):
     """``g`` re-measured with ``finger`` at ``q_finger`` (still off the object)."""
     q = np.array(g.q, dtype=float)
@@ -364,8 +377,9 @@ def _with_q(g, q_finger, finger):
 
 
 #: A finger whose contact is the same in both grasps at the candidate pose (its outermost
-#: contact points this close, m: the audit's follow tolerance) keeps one posture there:
-SNAP_M = 0.0005
+#: contact points this close, m: twice the follower's tolerance, as the audit allows a contact
+#: to stay on its object point) keeps one posture there:
+SNAP_M = 2 * FOLLOW_TOL_M
 #: ... when its joints differ by at most this (rad): the two legs' IK ends near each other.
 SNAP_RAD = 0.05
 
@@ -387,7 +401,7 @@ def _snap(first: Leg, back: Leg, options: PlanOptions) -> tuple[Leg, Leg]:
     is no valid state, are left as they are."""
     a, b = first.end, back.end
     for leg_, other in ((back, a), (first, b)):
-        if leg_.move is None:
+        if leg_.move is None or leg_.releases:  # (a released finger opened after the move: no last waypoint)
             continue
         g = leg_.end
         q = np.array(g.q, dtype=float)
@@ -410,7 +424,7 @@ def _snap(first: Leg, back: Leg, options: PlanOptions) -> tuple[Leg, Leg]:
             continue
         r = leg_.move
         move = Reposing(np.vstack([r.q_path, q[None, :]]), np.concatenate([r.poses, r.poses[-1:]]), r.fingers, r.start, g2)
-        snapped = Leg(leg_.grasp, leg_.lifts, move, g2)
+        snapped = replace(leg_, move=move, end=g2)
         if leg_ is back:
             back = snapped
         else:
@@ -481,6 +495,6 @@ def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bo
         return plan, (verify_s if verifying else None), name
     mm, deg = pose_distance(Ta, Tb)
     head = (f"the grasps' object poses differ by {mm:.1f} mm / {deg:.1f} deg and no reposing move joins them"
-            if not _same(Ta, Tb) else "no reposing move helps")
+            if not identical(Ta, Tb) else "no reposing move helps")
     raise NoSequenceError(f"{head}: " + ("; ".join(tried) if tried else
                                          "no candidate pose (the palm is free in a grasp or has no geometry)"))

@@ -366,12 +366,12 @@ def plan_regrasp(
         if inputs is None:
             inputs = {k: v for k, v in (("initial", rec_i), ("final", rec_f)) if v is not None}
     check_same_setup(initial.spec, final.spec, pose=not options.repose)
-    from planner.pose_search import first_clause, candidate_poses, plan_with_reposing
+    from planner.pose_search import candidate_poses, first_clause, identical, plan_with_reposing
     from planner.repose import pose_distance, state_reason
 
     t0 = time.perf_counter()
     mm, deg = pose_distance(initial.obj.T_palm_obj, final.obj.T_palm_obj)
-    moved = mm > 0.05 or deg > 0.05
+    moved = not identical(initial.obj.T_palm_obj, final.obj.T_palm_obj)
     first_err = None
     if not moved:
         try:

@@ -39,6 +39,7 @@ from planner.frames import hand_of_plan, object_of_plan, plain_plan, pose_matrix
 from planner.grasp import grasp_files, load_grasp
 from planner.objects import load_mesh
 from planner.plan import plan_files, read_plan
+from planner.plan_data import pose_between, pose_matrix as plan_pose_matrix
 from planner.realization import realize
 from planner.urdf_check import library_message
 from planner.view_page import PAGE
@@ -373,25 +374,23 @@ def _pose7_matrix(pose) -> np.ndarray:
     """(x, y, z, qx, qy, qz, qw), or a file's {position, quat_xyzw}, as a pose (4, 4)."""
     if isinstance(pose, Mapping):
         pose = [*pose["position"], *pose["quat_xyzw"]]
-    pose = np.asarray(pose, float).reshape(7)
-    return pose_matrix(Rotation.from_quat(pose[3:] / np.linalg.norm(pose[3:])).as_matrix(), pose[:3])
+    return plan_pose_matrix(np.asarray(pose, float).reshape(7))
 
 
 def _object_frames(object_path, path: np.ndarray, k: int) -> tuple[np.ndarray, list[np.ndarray]]:
     """A reposing step's ``k`` frames: joints and object poses evenly spaced along its waypoints
-    (the object path's waypoints are evenly spaced; joints linear and the object's rotation
-    along the shortest arc between two)."""
-    Ts = [_pose7_matrix(p) for p in object_path]
-    m = len(Ts)
+    (the object path's waypoints are evenly spaced; joints linear and the object's pose
+    `planner.plan_data.pose_between` two waypoints)."""
+    seven = [np.asarray([*p["position"], *p["quat_xyzw"]] if isinstance(p, Mapping) else p, float).reshape(7)
+             for p in object_path]
+    m = len(seven)
     qs, poses = [], []
     for u in np.linspace(0.0, m - 1, k):
         a = min(int(math.floor(u)), m - 2) if m > 1 else 0
         t = u - a if m > 1 else 0.0
         b = min(a + 1, m - 1)
         qs.append((1 - t) * path[a] + t * path[b])
-        rel = Rotation.from_matrix(Ts[b][:3, :3] @ Ts[a][:3, :3].T).as_rotvec()
-        R = Rotation.from_rotvec(t * rel).as_matrix() @ Ts[a][:3, :3]
-        poses.append(pose_matrix(R, (1 - t) * Ts[a][:3, 3] + t * Ts[b][:3, 3]))
+        poses.append(plan_pose_matrix(pose_between(seven[a], seven[b], t)))
     return np.array(qs), poses
 
 

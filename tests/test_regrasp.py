@@ -609,7 +609,9 @@ def test_a_contact_no_finger_path_can_leave_ends_the_search_at_once():
     """An exp8 pair whose initial thumb, at full opposition, presses the ball with its
     proximal phalanx: no retreat of the thumb is free even with every other finger open
     (its opposition joint is at its limit), so the planner says so after the first failed
-    gait instead of re-planning around each state; the index, in the same grasp, can let go."""
+    gait instead of re-planning around each state (``repose=False``); the index, in the same
+    grasp, can let go. With reposing the hand carries the object off the thumb first, and the
+    thumb lifts after that move."""
     from planner.errors import NoSequenceError
     from planner.retreat import retreat_blocked
 
@@ -621,7 +623,16 @@ def test_a_contact_no_finger_path_can_leave_ends_the_search_at_once():
     assert why is not None and "thumb_proximal" in why and "thumb_0" in why
     assert retreat_blocked(hand, gi.obj, q[list(hand.fingers["index"].q_index)], "index") is None
     with pytest.raises(NoSequenceError, match="finger thumb must leave its initial contact, and no finger path can"):
-        plan_regrasp(gi, gf, PlanOptions())
+        plan_regrasp(gi, gf, PlanOptions(repose=False))
+    # the hand may move the object instead: carried 2 mm off the jammed thumb, the thumb can lift
+    from planner.audit import audit_plan
+
+    plan = plan_regrasp(gi, gf, PlanOptions()).plan
+    assert [s.action for s in plan.steps].count("repose") == 2
+    thumb = [s.action for s in plan.steps if s.finger == "thumb"]
+    assert thumb[0] == "lift" and plan.steps.index(next(s for s in plan.steps if s.finger == "thumb")) > \
+        plan.steps.index(next(s for s in plan.steps if s.action == "repose"))
+    assert audit_plan(plan).ok, audit_plan(plan).problems
 
 
 def test_the_step_table_lists_only_touching_fingers_as_removable(tmp_path, capsys):

@@ -9,7 +9,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from planner.sim.replay import pose_between, pose_drift
+from planner.plan_data import pose_between
+from planner.sim.replay import pose_drift
 
 GRASP = "allegro/box_four_finger.yaml"
 #: The planned move: 3 mm along the palm's z (the box between the fingers and the thumb).

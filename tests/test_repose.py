@@ -237,3 +237,28 @@ def test_a_released_finger_plan_holds_in_the_simulator(box, tmp_path):
     report = replay_plan(write_plan(plan, tmp_path / "release.yaml"))
     assert report.passed, report.verdict
     assert report.max_drift_mm < 2.0 and report.max_drift_deg < 3.0
+
+
+def test_plan_files_keep_the_object_where_the_plan_says(box):
+    """read_plan's pose rules: the first state is at the object block's pose; a repose step's
+    path ends at its states' poses (the object block's where a state has none); reposing is
+    schema 4; a wrong finger is quoted."""
+    plan = plan_regrasp(box, _moved_final(), OPTS).plan
+    data = plan.to_dict()
+    k = next(i for i, s in enumerate(data["steps"]) if s["action"] == "repose")
+    bad = {**data, "states": [dict(s) for s in data["states"]]}
+    bad["states"][0]["object_pose"] = {"position": [0.2, 0.0, 0.0], "quat_xyzw": [0.0, 0.0, 0.0, 1.0]}
+    with pytest.raises(SpecError, match="the first state's object_pose differs from the object block"):
+        plan_from_data(bad)
+    bad = {**data, "schema_version": 3}
+    with pytest.raises(SpecError, match="schema 4 key; this plan says schema 3|repose steps are schema 4"):
+        plan_from_data(bad)
+    bad = {**data, "steps": [dict(s) for s in data["steps"]]}
+    bad["steps"][k]["finger"] = "thumb"
+    with pytest.raises(SpecError, match="expected finger 'object', got 'thumb'"):
+        plan_from_data(bad)
+    if data["states"][k].get("object_pose") is None:  # the move starts at the object block's pose
+        bad = {**data, "steps": [dict(s) for s in data["steps"]]}
+        bad["steps"][k]["object_path"] = [[p[0] + 0.09, *p[1:]] for p in data["steps"][k]["object_path"]]
+        with pytest.raises(SpecError, match="does not start at state"):
+            plan_from_data(bad)

@@ -73,6 +73,7 @@ from scipy.spatial.transform import Rotation
 from planner.closure import apply_contact_model, grasp_closure
 from planner.errors import InputError, SimulationError
 from planner.model import PALM
+from planner.plan_data import pose_between
 from planner.sim.contact_filter import ContactFilter
 from planner.sim.controller import TOUCH_TOL_M, Controller
 from planner.sim.engine import PhysicsEngine, default_engine, engine_for
@@ -110,23 +111,6 @@ def lift_path(start: np.ndarray, path: np.ndarray) -> np.ndarray:
         return start[None, :]
     fade = np.linspace(1.0, 0.0, len(path))[:, None]
     return np.vstack([start[None, :], path + fade * (start - path[0])])
-
-
-def pose_between(a, b, s: float) -> np.ndarray:
-    """The pose a fraction ``s`` (0..1) of the way from pose ``a`` to pose ``b`` (each
-    (x, y, z, qx, qy, qz, qw)): the position along the line, the orientation along the
-    shortest rotation (slerp), as a reposing step's object moves between two waypoints."""
-    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
-    qa, qb = a[3:7] / np.linalg.norm(a[3:7]), b[3:7] / np.linalg.norm(b[3:7])
-    dot = float(qa @ qb)
-    if dot < 0.0:
-        qb, dot = -qb, -dot
-    if dot > 1.0 - 1e-9:
-        q = qa + s * (qb - qa)
-    else:
-        th = math.acos(min(1.0, dot))
-        q = (math.sin((1.0 - s) * th) * qa + math.sin(s * th) * qb) / math.sin(th)
-    return np.concatenate([a[:3] + s * (b[:3] - a[:3]), q / np.linalg.norm(q)])
 
 
 def pose_drift(pos_ref, quat_ref, pos, quat) -> tuple[float, float]:
