@@ -30,15 +30,9 @@ from planner.realization import realize
 from planner.regrasp import plan_regrasp
 from planner.resources import bundled_grasp
 
-SAME_POSE = {
-    "icub box": ("icub/box_parallel_extension.yaml", "icub/box_ir2m.yaml"),
-    "icub cylinder": ("icub/cylinder_parallel_extension.yaml", "icub/cylinder_ir2m.yaml"),
-    "icub sphere": ("icub/sphere_four_finger.yaml", "icub/sphere_ir2m.yaml"),
-    "icub pen": ("icub/pen_palmar_pinch.yaml", "icub/pen_writing_tripod.yaml"),
-    "allegro box": ("allegro/box_four_finger.yaml", "allegro/box_tripod.yaml"),
-    "allegro sphere": ("allegro/sphere_four_finger.yaml", "allegro/sphere_tripod.yaml"),
-    "allegro cylinder": ("allegro/cylinder_four_finger.yaml", "allegro/cylinder_tripod.yaml"),
-}
+from bench_whole_hand import BALL_PAIRS, PAIRS  # noqa: E402 - the bundled library pairs, one list
+
+SAME_POSE = {k: v for k, v in PAIRS.items() if k not in BALL_PAIRS}
 MOVED = {k: v for k, v in SAME_POSE.items() if k.startswith("allegro")}
 MOVE_M, TURN_DEG = 0.002, 3.0
 
