@@ -253,6 +253,10 @@ def _merge_capsules(entries):
     return out
 
 
+#: Closings `Hand.close_finger` remembers per hand (the oldest half dropped beyond this).
+CLOSE_MEMO = 256
+
+
 class Hand:
     """A hand model: pinocchio kinematics, coal geometry and the finger structure.
 
@@ -731,5 +735,22 @@ class Hand:
     # ----------------------------------------------------------------- closing
     def close_finger(self, finger, q, obj, steps: int = 20, backoff: float = 1e-3) -> np.ndarray:
         """Close a finger onto the object, thesis eqs. (8)-(9): `planner.ik.close_finger` on
-        this hand (see there). Returns q (nq,) with only the finger's closing joints changed."""
-        return close_finger(self, finger, q, obj, steps=steps, backoff=backoff)
+        this hand (see there). Returns q (nq,) with only the finger's closing joints changed.
+
+        Remembered (the last `CLOSE_MEMO` closings, per hand): the same finger, the same ``q``
+        to the bit and the object's geometry at the same pose give the same answer, a copy
+        (synthesis closes a candidate's fingers, then `planner.realization.realize` closes
+        them again from the file it wrote)."""
+        name = self.finger(finger).name
+        qa = np.asarray(q, dtype=float)
+        T = np.asarray(obj.T_palm_obj, dtype=float)
+        key = (name, qa.tobytes(), obj.shape, tuple(obj.size), obj.mesh_path, T.tobytes(), steps, backoff)
+        memo = self.__dict__.setdefault("_close_memo", {})
+        hit = memo.get(key)
+        if hit is None:
+            hit = np.asarray(close_finger(self, finger, q, obj, steps=steps, backoff=backoff), dtype=float)
+            if len(memo) >= CLOSE_MEMO:
+                for k in list(memo)[: CLOSE_MEMO // 2]:
+                    del memo[k]
+            memo[key] = hit
+        return hit.copy()

@@ -278,28 +278,44 @@ def execution_verdict(grasp: RealizedGrasp, gravity=None, name: str = "gravity")
     `planner.graph.Evaluator.blocked_reason`: fingers not colliding, force closure with the
     execution contact model, and ``hold_factor`` times the weight held in every planned
     direction within the joints' torque limits (`planner.graph.GaitProblem.load_refusal`)."""
-    from planner.errors import PlannerError as _Refused  # the planner's one-line refusal
-    from planner.graph import Evaluator  # deferred: networkx
+    opts, directions = _execution_options(grasp, gravity, name)
+    hold = tuple(grasp.hold(opts.contact_model, list(directions)))
+    return ExecutionVerdict(directions, opts.contact_model, opts.hold_factor,
+                            execution_refusal(grasp, gravity, name, _opts=opts), hold)
+
+
+def _execution_options(grasp: RealizedGrasp, gravity, name: str):
+    """Execution mode's options for `execution_verdict` and the directions it reports."""
     from planner.options import PlanOptions, gravity_directions_of
-    from planner.slots import build_problem
 
     opts = PlanOptions.for_execution(gravity=None if gravity is None else tuple(float(v) for v in gravity),
                                      motion=False, verify=False)
     directions = tuple(gravity_directions_of(opts, grasp.hand))
     if gravity is not None:  # the planner names its one direction "gravity"; the report, as the user did
         directions = ((name, directions[0][1]),)
-    hold = tuple(grasp.hold(opts.contact_model, list(directions)))
+    return opts, directions
+
+
+def execution_refusal(grasp: RealizedGrasp, gravity=None, name: str = "gravity", *, _opts=None) -> str | None:
+    """`execution_verdict`'s ``reason`` alone (None: ``plan --execution`` accepts the grasp),
+    without its load table (`RealizedGrasp.hold`, which explains a refusal but does not
+    decide it): what synthesis ranks its grasps by, computed by the same code."""
+    from planner.errors import PlannerError as _Refused  # the planner's one-line refusal
+    from planner.graph import Evaluator  # deferred: networkx
+    from planner.slots import build_problem
+
+    opts = _execution_options(grasp, gravity, name)[0] if _opts is None else _opts
     try:
         grasp.require_placed()
     except _Refused as err:
-        return ExecutionVerdict(directions, opts.contact_model, opts.hold_factor, str(err), hold)
+        return str(err)
     problem = build_problem(grasp, grasp, opts)
     ev = Evaluator(problem)
     ev.evaluate([problem.start])
     reason = ev.blocked_reason(problem.start)
     if reason is not None and gravity is not None and reason.startswith("gravity: "):
         reason = f"{name}: {reason[len('gravity: '):]}"
-    return ExecutionVerdict(directions, opts.contact_model, opts.hold_factor, reason, hold)
+    return reason
 
 
 def wedged_fingers(grasp: RealizedGrasp) -> dict[str, str]:

@@ -121,6 +121,36 @@ def _sweep(hand, finger, q, alphas, radius: float = 0.0) -> tuple[np.ndarray, np
     return np.array(pts), np.array(nrm)
 
 
+def _sweeps(hand, fingers, q, alphas, radius: float = 0.0) -> list[tuple[np.ndarray, np.ndarray]]:
+    """`_sweep` of every finger in ``fingers`` from q, with one forward kinematics per alpha
+    for all of them: each finger's pads move by its own joints only (its chain from the
+    palm), so a pose computed with the other fingers moved too is the same to the bit.
+    Fingers that share a joint: `_sweep` one by one."""
+    idx = [list(f.q_index) for f in fingers]
+    if len({i for ix in idx for i in ix}) < sum(len(ix) for ix in idx):
+        return [_sweep(hand, f, q, alphas, radius) for f in fingers]
+    ends = [closing_ends(hand, f) for f in fingers]  # a follower moves by its coupling
+    starts = [q[cidx] for cidx, _ in ends]
+    p_link = [np.asarray(f.pad_p_link, dtype=float) for f in fingers]
+    n_link = [np.asarray(f.pad_n_link if f.pad_n_link is not None else (0.0, 0.0, 0.0), dtype=float) for f in fingers]
+    kin = hand.kinematics(q)  # one pinocchio.Data, moved along the closing motions (FK only)
+    pads = [kin.kinematic_model.frame_id(f.pad_link) for f in fingers]
+    pts = [[] for _ in fingers]
+    nrm = [[] for _ in fingers]
+    for a in alphas:
+        qa = q.copy()
+        for f, (cidx, end), start in zip(fingers, ends, starts):
+            qa[cidx] = start + a * (end - start)
+            couple_finger(f, qa)
+        kin.update(qa)
+        for k, pad in enumerate(pads):
+            T = kin.frame_pose(pad)
+            n = T[:3, :3] @ n_link[k]
+            pts[k].append(T[:3, :3] @ p_link[k] + T[:3, 3] + radius * n)
+            nrm[k].append(n)
+    return [(np.array(p), np.array(n)) for p, n in zip(pts, nrm)]
+
+
 def object_of(block) -> GraspObject:
     """The object of a synthesis object block (the ``object:`` file form; no pose: the palm
     frame's origin), or the object itself."""
@@ -262,8 +292,8 @@ def sample_candidate(hand, fingers, obj: GraspObject, fixed, rng, obj_radius,
         face_level = float(face[0] @ n_palm)
     if fixed:
         return _fixed_candidate(hand, fingers, obj, rng, obj_radius, alphas, palm, mu)
-    best = None
-    for _ in range(PRESHAPES_PER_ATTEMPT):  # keep the best scored
+    draws = []
+    for _ in range(PRESHAPES_PER_ATTEMPT):
         q = np.array(hand.q_open, dtype=float)
         for f in fingers:
             idx = np.array(f.q_index)
@@ -273,26 +303,32 @@ def sample_candidate(hand, fingers, obj: GraspObject, fixed, rng, obj_radius,
             frac = rng.uniform(*_PRESHAPE_CLOSE, size=len(idx))
             q[idx] = np.where(closing, start + frac * (_closing_end(hand, f) - start), rng.uniform(lo, hi))
             couple_finger(f, q)  # the drivers drawn, the followers by the coupling
-        swept = [_sweep(hand, f, q, alphas, CENTRE_OFFSET * obj_radius) for f in fingers]
+        swept = _sweeps(hand, fingers, q, alphas, CENTRE_OFFSET * obj_radius)
         if palm:  # the fingers' meeting point, with the palm's face as one more curve, on the face
             centre = _meeting_point([c for c, _ in swept] + [face])
             centre = centre + (face_level - centre @ n_palm) * n_palm  # onto the face
         else:
             centre = _meeting_point([c for c, _ in swept])
-        score = _score(swept, centre, obj_radius, n_palm if palm else None)
-        if best is not None and (False, score) >= (best[0], best[1]):  # cannot beat the best
-            continue
-        # the fingers where they would touch: a pre-shape whose fingers collide there ranks last
-        q_touch = q.copy()
-        for f, (c, _) in zip(fingers, swept):
-            cidx, end = closing_ends(hand, f)
-            a = alphas[int(np.argmin(np.linalg.norm(c - centre, axis=1)))]
-            q_touch[cidx] = q[cidx] + a * (end - q[cidx])
-            couple_finger(f, q_touch)
-        collide = len(fingers) > 1 and bool(collisions(hand, q_touch, None, fingers=names))
-        if best is None or (collide, score) < (best[0], best[1]):
-            best = (collide, score, q, swept, centre)
-    _, _, q, swept, centre = best
+        draws.append((_score(swept, centre, obj_radius, n_palm if palm else None), q, swept, centre))
+    # the best scored draw whose fingers do not collide where they would touch, else the best
+    # scored (the least (collides, score), the first of equals): tried in score order, the
+    # collision test stops at the first free one
+    order = sorted(range(len(draws)), key=lambda k: draws[k][0])  # stable: the first of equals
+    pick = order[0]
+    if len(fingers) > 1:
+        for k in order:
+            _, q, swept, centre = draws[k]
+            # the fingers where they would touch
+            q_touch = q.copy()
+            for f, (c, _) in zip(fingers, swept):
+                cidx, end = closing_ends(hand, f)
+                a = alphas[int(np.argmin(np.linalg.norm(c - centre, axis=1)))]
+                q_touch[cidx] = q[cidx] + a * (end - q[cidx])
+                couple_finger(f, q_touch)
+            if not collisions(hand, q_touch, None, fingers=names):
+                pick = k
+                break
+    _, q, swept, centre = draws[pick]
     placed = obj
     if not fixed:
         # a few jittered centres and orientations: the first that no finger (closing joints
@@ -623,13 +659,20 @@ def inner_radius(obj: GraspObject) -> float:
     return 0.5 * float(np.min(obj.extents))
 
 
-def closes_onto(hand, fingers, obj, preshape, palm: bool = False) -> dict | None:
-    """Cheap pre-filter: close the fingers; (patches, "") when every one (and with ``palm`` the
-    palm: its patch is among them, key `PALM`) touches, else (None, why)."""
+def closes_onto(hand, fingers, obj, preshape, palm: bool = False):
+    """Cheap pre-filter: close the fingers; (q, "") when every one (and with ``palm`` the
+    palm) touches the object (a contact link within `TOUCH_TOL_M`: where
+    `planner.contacts.contact_patches` finds a patch), else (None, why).
+
+    The fingers close one by one in the hand's finger order from ``q_open``, each from its
+    pre-shape, as `planner.realization.realize` closes the posture fingers of the file made
+    from ``preshape``: the same q, so `Hand.close_finger` answers realize from memory. A
+    finger that starts inside the object starts from open closing joints (``preshape``
+    updated)."""
     q = np.array(hand.q_open, dtype=float)
-    for f in fingers:
+    base = q.copy()
+    for f in fingers:  # (each finger's start depends on its own joints only)
         q[list(f.q_index)] = preshape[f.name]
-    for f in fingers:
         if hand.state(q).finger_object_distance(obj, f.name) < 0.0:
             # the closing procedure starts from a finger free of the object: open its closing joints
             cidx = [hand.joint_names.index(j) for j in f.close_joints]
@@ -638,11 +681,18 @@ def closes_onto(hand, fingers, obj, preshape, palm: bool = False) -> dict | None
             if hand.state(q).finger_object_distance(obj, f.name) < 0.0:
                 return None, Rejection("a finger starts inside the object", [f.name])
             preshape[f.name] = q[list(f.q_index)].copy()
-        q = np.asarray(hand.close_finger(f, q, obj), dtype=float)
-    patches = contact_patches(hand, q, obj, fingers=[f.name for f in fingers], palm=palm)
-    missing = [f.name for f in fingers if f.name not in patches]
+    chosen = {f.name for f in fingers}
+    q = base
+    for name, f in hand.fingers.items():
+        if name in chosen:
+            q[list(f.q_index)] = preshape[name]
+            q = np.asarray(hand.close_finger(f, q, obj), dtype=float)
+    state = hand.state(q)
+    missing = [f.name for f in fingers
+               if not any(ld.distance_m <= TOUCH_TOL_M for ld in state.link_object(obj, f.contact_links).values())]
     if missing:
         return None, Rejection("a finger misses the object", missing)
-    if palm and PALM not in patches:
+    if palm and not any(ld.distance_m <= TOUCH_TOL_M
+                        for ld in state.link_object(obj, hand.collision.finger_links(None)).values()):
         return None, "object not against the palm"
-    return patches, ""
+    return q, ""

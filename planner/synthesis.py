@@ -54,10 +54,11 @@ from planner.contacts import TOUCH_TOL_M
 from planner.errors import OutputError, PlannerError, SpecError, UnknownNameError
 from planner.fileio import MAX_GRASP_BYTES, Reader, read_yaml, write_atomic
 from planner.grasp import load_hand, parse_friction, parse_grasp, resolve_hand_ref
-from planner.grip import HOLD_FACTOR, grasp_hold
+from planner.grip import HOLD_FACTOR, grasp_statics, grip_program, hold_capacity, holds_by_bound
 from planner.model import Friction
 from planner.objects import GraspObject, read_object
-from planner.realization import PENETRATION_TOL_M, execution_verdict, realize
+from planner.model import PALM
+from planner.realization import PENETRATION_TOL_M, execution_refusal, realize
 from planner.synth_sample import (PALM_CLEARANCE_M, Rejection, cannot_back_off, closes_onto, inner_radius,
                                   object_of, sample_candidate)
 
@@ -391,17 +392,20 @@ def _attempt(ctx: _Context, attempt: int):
                                              ctx.palm_clearance_m, palm=ctx.palm, mu=fr.mu * ctx.friction_margin)
     if preshape is None:
         return why, None
-    patches, why = closes_onto(hand, chosen, placed, preshape, palm=ctx.palm)
-    if patches is None:
+    q_closed, why = closes_onto(hand, chosen, placed, preshape, palm=ctx.palm)
+    if q_closed is None:
         return why, None
-    if not grasp_closure(patches, fr).is_force_closure:
-        return "not force closure", None
     data = _grasp_data(ctx.hand_ref, placed, friction, chosen, preshape, "candidate", "", palm=ctx.palm)
     try:
         spec = parse_grasp(data, Path(ctx.base_dir) / "candidate.yaml")
     except SpecError:
         return "", None
     g = realize(spec, hand)
+    # the pre-filter's force closure: the chosen fingers' patches (and the palm's with palm)
+    own = {k: v for k, v in g.patches.items() if k in ctx.fingers or (ctx.palm and k == PALM)}
+    pre = g.closure if (own.keys() == g.patches.keys() and g.friction == fr) else grasp_closure(own, fr)
+    if set(ctx.fingers) <= set(own) and not pre.is_force_closure:
+        return "not force closure", None
     if not g.ok:
         return _check_reason(g, hand), None
     deep = [(a, b) for a, b, depth in g.finger_collisions if depth > LINK_EPS_M]
@@ -417,26 +421,55 @@ def _attempt(ctx: _Context, attempt: int):
     grip = None
     dirs = None if ctx.gravity is None else np.asarray(ctx.gravity, dtype=float).reshape(-1, 3)
     if dirs is not None:
-        R = np.asarray(g.obj.T_palm_obj)[:3, :3]
-        grip_fr = Friction(fr.mu * ctx.friction_margin, fr.gamma * ctx.friction_margin, fr.edges)
-        holds = grasp_hold(hand, g.q, patches, g.obj.T_palm_obj, g.obj.mass_kg, fr,
-                           [(f"g{i}", gv) for i, gv in enumerate(dirs)], force_cap_n=ctx.max_finger_force_n,
-                           margin=ctx.friction_margin, demand=False)
-        if not all(h.capacity.factor >= ctx.hold_factor for h in holds):
+        grip = _hold_grip(ctx, hand, g, patches, fr, dirs)
+        if grip is None:
             return "weight beyond the hand's limits", None
-        grip = max(min_grip_force(patches, grip_fr, np.r_[g.obj.mass_kg * (R.T @ gv), np.zeros(3)]) for gv in dirs)
-    stuck = next((f.name for f in chosen if cannot_back_off(hand, g.obj, np.asarray(g.q)[list(f.q_index)], f.name)),
-                 None)
+    # a finger held against the object by its own joint limits can never let go: no regrasp
+    # (nor release) can start from this grasp or reach it. Last but the ranking: the dearest
+    # test (a lift planned per finger, ~10 ms each), and asked before the check it cost more
+    # than it saved (the candidates the check and the weight drop had it computed too)
+    stuck = _stuck_finger(hand, g.obj, chosen, g.q)
     if stuck is not None:
-        # a finger held against the object by its own joint limits can never let go:
-        # no regrasp (nor release) can start from this grasp or reach it
         return Rejection("a finger cannot back off its contact", [stuck]), None
     # the ranking: does execution mode accept it as an end grasp (its own test, in the
-    # directions it plans for: the one gravity given, else execution mode's set)
-    verdict = execution_verdict(g, dirs[0] if dirs is not None and len(dirs) == 1 else None)
+    # directions it plans for: the one gravity given, else execution mode's set; its load
+    # table, which only explains a refusal, is not computed)
+    reason = execution_refusal(g, dirs[0] if dirs is not None and len(dirs) == 1 else None)
     cand = SynthGrasp(data=data, grasp=None if _IN_WORKER else g, grip_force_n=grip, attempt=attempt,
-                      metric=g.metric, execution=verdict.reason, base_dir=ctx.base_dir)
+                      metric=g.metric, execution=reason, base_dir=ctx.base_dir)
     return "", (_features(g, chosen), cand)
+
+
+def _stuck_finger(hand, obj, chosen, q) -> str | None:
+    """The first chosen finger that cannot back off its contact at ``q`` (`cannot_back_off`), or None."""
+    q = np.asarray(q)
+    return next((f.name for f in chosen if cannot_back_off(hand, obj, q[list(f.q_index)], f.name)), None)
+
+
+def _hold_grip(ctx, hand, g, patches, fr: Friction, dirs) -> float | None:
+    """The grip force (N) of a realized grasp, the largest `min_grip_force` over the
+    gravity directions ``dirs``, when it holds ``ctx.hold_factor`` times the weight in every
+    one within the joints' torque limits (`planner.grip.hold_capacity`, the force cap), else
+    None. A direction the grip force proves held (`planner.grip.holds_by_bound`: a witness,
+    the planner's own shortcut) skips the capacity program: the same answer as
+    `planner.grip.grasp_hold` with less work."""
+    R = np.asarray(g.obj.T_palm_obj)[:3, :3]
+    grip_fr = Friction(fr.mu * ctx.friction_margin, fr.gamma * ctx.friction_margin, fr.edges)
+    statics = grasp_statics(hand, g.q, patches, g.obj.T_palm_obj)
+    grips, program = [], None
+    for gv in dirs:
+        g_obj = R.T @ np.asarray(gv, dtype=float)
+        load = np.r_[float(g.obj.mass_kg) * g_obj, np.zeros(3)]
+        f = min_grip_force(patches, grip_fr, load)
+        grips.append(f)
+        if holds_by_bound(statics, f, fr, g_obj, factor=ctx.hold_factor, margin=ctx.friction_margin,
+                          force_cap_n=ctx.max_finger_force_n):
+            continue
+        program = program or grip_program(patches, statics, fr, margin=ctx.friction_margin)
+        cap = hold_capacity(patches, statics, fr, load, g_obj, force_cap_n=ctx.max_finger_force_n, program=program)
+        if not cap.factor >= ctx.hold_factor:
+            return None
+    return max(grips)
 
 
 def _check_reason(g, hand=None) -> str:
