@@ -42,6 +42,20 @@ Numbers, derived rather than tuned:
   (``dq_f = m dq_d``) the driver's actuator delivers ``tau_d + m tau_f``, and that is bounded
   by the driver's effort limit; the follower's own limit bounds nothing
   (`planner.hand.Finger.reduce` on the Jacobians and gravity torques, `finger_statics`).
+* A finger with one actuated coordinate (one joint, or a driver and its followers: the
+  Psyonic's coupled fingers) moves each contact point along one direction ``v`` (its Jacobian
+  column); its motor sets one number, the generalized force ``J^T [f ; m]``, and the friction
+  along its slide ``t = v - (v.n) n`` is a reaction whose value the motor does not set. The
+  programs here let the friction take any value in the cone. Measured on Alex's Psyonic hand
+  (docs/YOUR_HAND.md, section 2): after the fingers close, the simulator's friction sits at
+  the cone's edge against the motor, and the normal force delivered is
+  ``tau / (v.n + mu |v_t|)`` (MuJoCo, the thumb lifted, gravity off: the index commanded
+  0.71 N and delivered 0.18 N; 0.28 N of 0.028 N m over 0.0988 m with the rows below, as
+  predicted). `one_actuator_rows` states that closing-slide friction as linear rows
+  (``grip_program(one_actuator=True)``, ``balance_forces(one_actuator=...)``). It is off:
+  with it the planner refuses the Psyonic box pair (the thumb's lift holds 0x palm down),
+  but also a Psyonic ball grasp the simulator holds in 6 directions: once loaded, static
+  friction turns with the load. Which friction a one-actuator finger may count on is open.
 
 This module is pure numpy/scipy over arrays; `finger_statics` is the one function that
 reads a hand (its Jacobians and gravity torques), so the graph search stays hand-agnostic.
@@ -53,7 +67,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -221,6 +235,40 @@ def finger_statics(hand, finger: str, q, points_obj, T_palm_obj, effort=None, li
     return FingerStatics(finger, fg.drivers, jac, G @ R, tau_max[free] if len(free) != len(tau_max) else tau_max)
 
 
+def one_actuator_rows(jacobians, normals, mu: float) -> np.ndarray:
+    """A one-actuator finger's contact rows (module docstring): per contact point, up to two
+    rows ``r`` (6,) over the force ``f`` and moment ``m`` it applies there, ``r . [f ; m] = 0``:
+    the friction along the finger's slide ``t = (v - (v.n) n) / |v - (v.n) n|`` pushes the
+    object the way the finger closes, at the cone's edge (``f.t = mu f.n``: the finger slides
+    closed until friction stops it, and that friction is what its motor works against), and the
+    torsion about ``n`` carries none of the motor's generalized force (``(a.n) m.n = 0``).
+
+    Args:
+        jacobians: (n, 6, 1) the finger's contact Jacobians over its one actuated
+            coordinate (`FingerStatics.jacobians`), rows 0-2 linear ``v``, 3-5 angular ``a``.
+        normals: (n, 3) the contacts' normals (into the object), same frame.
+        mu: the friction coefficient of the cone in use (its inscribed radius).
+
+    Returns:
+        (r, 7): the contact index, then the row; a point the finger moves along its normal
+        has no friction row, a finger with other than one actuated coordinate no rows.
+    """
+    J = np.asarray(jacobians, dtype=float)
+    if J.ndim != 3 or J.shape[2] != 1:
+        return np.zeros((0, 7))
+    N = np.asarray(normals, dtype=float).reshape(-1, 3)
+    N = N / np.linalg.norm(N, axis=1, keepdims=True)
+    out = []
+    for i, (v, a, n) in enumerate(zip(J[:, :3, 0], J[:, 3:, 0], N)):
+        lever = max(float(np.linalg.norm(v)), 1e-3)
+        t = v - float(v @ n) * n
+        if np.linalg.norm(t) > 1e-3 * lever:
+            out.append(np.r_[i, t / np.linalg.norm(t) - float(mu) * n, np.zeros(3)])
+        if abs(float(a @ n)) > 1e-9:
+            out.append(np.r_[i, np.zeros(3), float(a @ n) * n / lever])
+    return np.array(out).reshape(-1, 7)
+
+
 # --------------------------------------------------------------------------- the programs
 
 
@@ -239,6 +287,9 @@ class GripProgram:
     fingers: tuple         # finger per cap row
     per_point: int         # rim wrenches per contact point (point-major within a finger)
     points: Mapping[str, np.ndarray]  # finger -> (n, 3) its contact points
+    #: (e, k) per contact of a one-actuator finger, the generalized force its friction
+    #: carries per unit rim wrench, held at zero (`one_actuator_rows`)
+    one_actuator: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
 
     def tau_g(self, gravity_obj) -> np.ndarray:
         """(r,) the fingers' own gravity torques for a gravity vector (object frame)."""
@@ -257,14 +308,17 @@ class GripProgram:
 
 
 def grip_program(patches: Mapping[str, tuple], statics: Mapping[str, FingerStatics], friction: Friction, *,
-                 margin: float = FRICTION_MARGIN, cone_sides: int = GRIP_CONE_SIDES) -> GripProgram:
-    """The `GripProgram` of a grasp state (arguments as `hold_capacity`)."""
+                 margin: float = FRICTION_MARGIN, cone_sides: int = GRIP_CONE_SIDES,
+                 one_actuator: bool = False) -> GripProgram:
+    """The `GripProgram` of a grasp state (arguments as `hold_capacity`); ``one_actuator``
+    adds the closing-slide friction rows of one-actuator fingers (`one_actuator_rows`; an
+    experiment, off everywhere the planner builds programs: see the module docstring)."""
     if not isinstance(friction, Friction):
         raise InputError(f"friction must be a Friction, got {type(friction).__name__}")
     if not 0 < margin <= 1:
         raise InputError(f"friction margin must be in (0, 1], got {margin!r}")
     fr = Friction(friction.mu * margin, friction.gamma * margin, int(cone_sides))
-    blocks, torque, at, fingers = [], [], {}, []
+    blocks, torque, at, fingers, slides = [], [], {}, [], []
     per_point = 2 * fr.edges
     for finger, (points, normals) in patches.items():
         P = np.asarray(points, dtype=float).reshape(-1, 3)
@@ -286,6 +340,11 @@ def grip_program(patches: Mapping[str, tuple], statics: Mapping[str, FingerStati
         J = np.repeat(st.jacobians, per_point, axis=0)  # (rows, 6, nj)
         T = np.einsum("rij,ri->jr", J[:, :3], f) + np.einsum("rij,ri->jr", J[:, 3:], moment)  # (nj, rows)
         torque.append((T, st.gravity, st.effort, [(finger, j) for j in st.joints]))
+        start = sum(len(b) for b in blocks[:-1])
+        for row in () if not one_actuator else one_actuator_rows(st.jacobians, normals, fr.mu * math.cos(math.pi / fr.edges)):
+            p = int(row[0])
+            sl = slice(p * per_point, (p + 1) * per_point)
+            slides.append((start + p * per_point, f[sl] @ row[1:4] + moment[sl] @ row[4:], per_point))
     k = sum(len(b) for b in blocks)
     W = np.vstack(blocks) if blocks else np.zeros((0, 6))
     rows, offset = [], 0
@@ -306,7 +365,10 @@ def grip_program(patches: Mapping[str, tuple], statics: Mapping[str, FingerStati
         nm_all = tuple(n for r in rows for n in r[3])
     else:
         torque_m, tg_all, tm_all, nm_all = np.zeros((0, k)), np.zeros((0, 3)), np.zeros(0), ()
-    return GripProgram(W, torque_m, tg_all, tm_all, nm_all, cap, tuple(fingers), per_point, at)
+    one = np.zeros((len(slides), k))
+    for i, (start, coeff, n) in enumerate(slides):
+        one[i, start:start + n] = coeff
+    return GripProgram(W, torque_m, tg_all, tm_all, nm_all, cap, tuple(fingers), per_point, at, one)
 
 
 def _lever(W: np.ndarray) -> float:
@@ -388,7 +450,9 @@ def hold_capacity(patches: Mapping[str, tuple], statics: Mapping[str, FingerStat
     scale = max(float(np.abs(w).max()), 1e-12)
     A_eq = np.c_[prog.W.T, w / scale]
     A_eq[3:] /= L
-    b_eq = np.zeros(6)
+    if len(prog.one_actuator):
+        A_eq = np.r_[A_eq, np.c_[prog.one_actuator, np.zeros(len(prog.one_actuator))]]
+    b_eq = np.zeros(len(A_eq))
     A_ub = np.r_[np.c_[prog.torque, np.zeros(len(prog.torque))], np.c_[-prog.torque, np.zeros(len(prog.torque))]]
     b_ub = np.r_[prog.tau_max - tau_g, prog.tau_max + tau_g]
     A_cap, b_cap = _cap_rows(prog, force_cap_n, 1)
@@ -427,6 +491,9 @@ def torque_demand(patches: Mapping[str, tuple], statics: Mapping[str, FingerStat
     A_eq[3:] /= L
     b_eq = -w.copy()
     b_eq[3:] /= L
+    if len(prog.one_actuator):
+        A_eq = np.r_[A_eq, np.c_[prog.one_actuator, np.zeros(len(prog.one_actuator))]]
+        b_eq = np.r_[b_eq, np.zeros(len(prog.one_actuator))]
     tm = prog.tau_max
     A_ub = np.r_[np.c_[prog.torque, -tm], np.c_[-prog.torque, -tm]]
     b_ub = np.r_[-tau_g, tau_g]
@@ -503,7 +570,7 @@ def torque_rows(jacobians: Sequence[np.ndarray], effort: Sequence[float], tau_g,
 
 
 def balance_forces(points, normals, targets, load, centre, friction: Friction, fn_min,
-                   f_max: float, margins=CONE_MARGINS, joint_rows=None) -> np.ndarray | None:
+                   f_max: float, margins=CONE_MARGINS, joint_rows=None, one_actuator=None) -> np.ndarray | None:
     """Contact forces that balance a load on the object: grasp force optimization.
 
     Solves, for the margins ``(s, s_t)`` in turn, the linear program (HiGHS, through highspy as
@@ -515,6 +582,7 @@ def balance_forces(points, normals, targets, load, centre, friction: Friction, f
              |t_i| <= s_t gamma (f_i . n_i)                       (soft-finger torsion)
              f_i . n_i >= fn_min
              A_f f_f <= b_f          (every finger f: its joints' torque limits, `torque_rows`)
+             r_i . [f_i ; t_i n_i] = 0   (contacts of one-actuator fingers: `one_actuator_rows`)
 
     and returns the first solution whose components stay within ``f_max``. The torsion
     ``t_i`` is a reaction of the simulator's spinning friction, not commanded. This is the
@@ -534,6 +602,9 @@ def balance_forces(points, normals, targets, load, centre, friction: Friction, f
         joint_rows: optional [(contact indices of one finger, A, b)] with ``A`` (r, 3 m_f) over
             those contacts' stacked forces, or (r, 4 m_f) with their torsions after them
             (`torque_rows`): the joints' limits.
+        one_actuator: optional ``[(contact index, jacobian (6, 1))]``: the contacts of
+            one-actuator fingers, with their Jacobian over its coordinate; their rows
+            (`one_actuator_rows`, at each margin's ``mu``) hold.
 
     Returns:
         (k, 3) forces the fingers apply ON the object, or None when no balanced forces exist.
@@ -557,6 +628,9 @@ def balance_forces(points, normals, targets, load, centre, friction: Friction, f
     A_eq[3:, m:m + k] = N.T / lever
     b = -np.asarray(load, float).reshape(6).copy()
     b[3:] /= lever
+    one_idx = [i for i, _ in (one_actuator or ())]
+    one_J = np.array([np.asarray(J, float).reshape(6, 1) for _, J in (one_actuator or ())]).reshape(-1, 6, 1)
+    base_eq, base_b = A_eq, b
     f0 = np.asarray(targets, float).reshape(m)
     fn_min = np.broadcast_to(np.asarray(fn_min, float), (k,))
     angles = np.linspace(0.0, 2.0 * np.pi, 8, endpoint=False)
@@ -598,6 +672,15 @@ def balance_forces(points, normals, targets, load, centre, friction: Friction, f
         G[rim_rows[:, None], np.repeat(cols, 8, axis=0)] = (rims - mu * N[:, None, :]).reshape(8 * k, 3)
         # (the joint rows appended after row 11 k + 2 m do not depend on the margin)
         G[tor[:, None], cols] = G[tor[:, None] + 1, cols] = -gamma * N
+        A_eq, b = base_eq, base_b
+        if one_idx:  # at this margin's mu
+            rows1 = one_actuator_rows(one_J, N[one_idx], mu)
+            extra = np.zeros((len(rows1), 2 * m + k))
+            for r_i, row in enumerate(rows1):
+                i = one_idx[int(row[0])]
+                extra[r_i, 3 * i:3 * i + 3] = row[1:4]
+                extra[r_i, m + i] = row[4:] @ N[i]  # the torsion t_i acts about n_i
+            A_eq, b = np.r_[base_eq, extra], np.r_[base_b, np.zeros(len(rows1))]
         res = highs_lp(c, G, h, A_eq, b, bounds, "highs")
         if res.status == 0 and float(np.abs(res.x[:m]).max()) <= f_max:
             return res.x[:m].reshape(k, 3)
