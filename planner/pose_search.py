@@ -413,8 +413,8 @@ def _snap(first: Leg, back: Leg, options: PlanOptions) -> tuple[Leg, Leg]:
             qa, qb = np.asarray(g.finger_q[f]), np.asarray(other.finger_q[f])
             if pa is None or pb is None or np.linalg.norm(pa - pb) > SNAP_M or np.max(np.abs(qa - qb)) > SNAP_RAD:
                 continue
-            if np.max(np.abs(qa - qb)) <= options.same_slot_tol_rad:
-                continue
+            if np.array_equal(qa, qb):
+                continue  # (postures within the slot tolerance are re-postured too: a plan joins states exactly)
             q[list(g.hand.fingers[f].q_index)] = qb
             changed.append(f)
         if not changed:

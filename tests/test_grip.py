@@ -302,7 +302,7 @@ def test_when_every_sequence_fails_in_the_simulator_more_contacts_are_tried_then
     monkeypatch.setattr(verify, "verify_plan", never)
     monkeypatch.setattr(regrasp, "anytime_search", counted)
     with pytest.raises(NoSequenceError) as err:
-        plan_regrasp(a, b, PlanOptions.for_execution(motion=False, verify_attempts=100))
+        plan_regrasp(a, b, PlanOptions.for_execution(motion=False, verify_attempts=100, repose=False))
     text = str(err.value)
     assert "sequences that failed in the simulator" in text and "FAIL: made up" in text and "\n" not in text
     assert searches[0] is False and 1 <= sum(searches) <= RESUME_ROUNDS  # rounds resumed, a bounded number

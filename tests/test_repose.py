@@ -262,3 +262,23 @@ def test_plan_files_keep_the_object_where_the_plan_says(box):
         bad["steps"][k]["object_path"] = [[p[0] + 0.09, *p[1:]] for p in data["steps"][k]["object_path"]]
         with pytest.raises(SpecError, match="does not start at state"):
             plan_from_data(bad)
+
+
+def test_legs_ending_within_the_slot_tolerance_are_joined_exactly():
+    """A pen pinch turned 10 deg about the axis across its pinch into a tripod, the final
+    grasp's thumb and index written where the pinch's turn leaves them: at the initial pose
+    the final grasp's leg ends with a finger within the slot tolerance (0.001 rad) of the
+    initial grasp's posture but not on it. The plan joins the legs with a last waypoint (no
+    gait), and every plan returned reads back (each step starts and ends at its states within
+    1e-6 rad; before, such a plan was refused by its own verification as written)."""
+    a = realize(load_grasp(bundled_grasp("icub/pen_palmar_pinch.yaml")))
+    spec = load_grasp(bundled_grasp("icub/pen_writing_tripod.yaml"))
+    T = np.array(spec.object.T_palm_obj, dtype=float)
+    T[:3, :3] = (Rotation.from_matrix(T[:3, :3]) * Rotation.from_euler("y", -10, degrees=True)).as_matrix()
+    points = {"thumb": (-0.004876, -0.001043, 0.001342), "index": (0.005, -1.8e-05, -0.001254)}
+    fingers = tuple(replace(f, point_obj=points[f.name]) if f.name in points else f for f in spec.fingers)
+    b = realize(replace(spec, object=replace(spec.object, T_palm_obj=T), fingers=fingers))
+    plan = plan_regrasp(a, b, PlanOptions.for_execution(verify=False)).plan
+    back = plan_from_data(plan.to_dict())
+    assert len(back.states) == len(plan.states) and any(s.action == "repose" for s in back.steps)
+    assert np.allclose(back.states[-1].q, plan.states[-1].q, atol=1e-6)
