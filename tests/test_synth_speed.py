@@ -94,3 +94,44 @@ def test_progress_goes_to_the_planner_logger_at_most_once_a_period(tmp_path, cap
         caplog.clear()
         assert main(["synth", "allegro_right", str(obj), "-n", "1", "-o", str(tmp_path / "b"), "-q"]) == 0
         assert not [r for r in caplog.records if r.name == "planner.synth"]
+
+
+def test_the_shortcuts_give_what_the_long_way_gives():
+    """What the rate work skips or shares is the same to the bit: the sweeps of all fingers
+    from one forward kinematics per sample and each finger's own sweep; the pre-filter's
+    closed hand and the one realize makes from the file (its closings answered from
+    memory: a copy, equal to a fresh closing); the ranking's refusal and execution_verdict's."""
+    import numpy as np
+
+    from planner.grasp import load_hand, parse_grasp
+    from planner.ik import close_finger
+    from planner.realization import execution_refusal, realize
+    from planner.synth_sample import _sweep, _sweeps, closes_onto, object_of
+    from planner.synthesis import DEFAULT_FRICTION, _grasp_data
+
+    hand = load_hand("icub_right")
+    fingers = [hand.finger(f) for f in ("thumb", "index", "middle")]
+    rng = np.random.default_rng(4)
+    q = np.array(hand.q_open, dtype=float)
+    for f in fingers:
+        idx = list(f.q_index)
+        q[idx] = rng.uniform(hand.lower[idx], hand.upper[idx])
+    alphas = np.linspace(0.0, 1.0, 10)
+    for f, (c, n) in zip(fingers, _sweeps(hand, fingers, q, alphas, 0.03)):
+        c1, n1 = _sweep(hand, f, q, alphas, 0.03)
+        assert np.array_equal(c, c1) and np.array_equal(n, n1)
+    r = synthesize("icub_right", dict(BALL), ["thumb", "index", "middle"], 1, fixed=False, seed=0, max_attempts=60)
+    g0 = r.grasps[0]
+    obj = object_of(dict(BALL, position=g0.data["object"]["position"], quat_xyzw=g0.data["object"]["quat_xyzw"]))
+    pre = {f.name: np.asarray(g0.data["fingers"][f.name]["posture"], dtype=float) for f in fingers}
+    q_closed, why = closes_onto(hand, fingers, obj, pre)
+    assert why == ""
+    g = realize(parse_grasp(_grasp_data("icub_right", obj, DEFAULT_FRICTION, fingers, pre, "c", ""), "c.yaml"), hand)
+    assert np.array_equal(np.asarray(g.q), q_closed)
+    f = fingers[0]
+    q_pre = np.array(hand.q_open, dtype=float)
+    q_pre[list(f.q_index)] = pre[f.name]
+    once, again = hand.close_finger(f, q_pre, obj), hand.close_finger(f, q_pre, obj)
+    assert once is not again and np.array_equal(once, again)
+    assert np.array_equal(once, close_finger(hand, f, q_pre, obj))
+    assert execution_refusal(g) == execution_verdict(g).reason
