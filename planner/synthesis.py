@@ -276,7 +276,8 @@ def synthesize(hand_ref: str, obj: GraspObject | Mapping, fingers, n: int, *, fi
             if why:
                 rejected[why] += 1
                 for f in getattr(why, "fingers", ()):
-                    by_finger[f][str(why)] += 1
+                    if f in by_finger:  # (a collision may name a finger that does not grasp)
+                        by_finger[f][str(why)] += 1
         else:
             passed += 1
             feat, cand = out
