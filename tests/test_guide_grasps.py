@@ -28,8 +28,11 @@ def test_guide_has_files_for_every_family_and_links_them():
     names = {p.name for p in FILES}
     for family in ("ball", "box", "cylinder", "rod", "plate", "mesh"):
         assert any(n.startswith(f"icub_{family}_") for n in names), family
-    assert any(n.startswith("allegro_plate_") for n in names)
     section = _section()
+    for family in ("ball", "rod", "plate", "mesh"):
+        assert any(n.startswith(f"allegro_{family}_") for n in names), family
+    for bundled in ("grasps/allegro/box_tripod.yaml", "grasps/allegro/cylinder_tripod.yaml"):
+        assert bundled in section and (ROOT / bundled).is_file(), bundled  # the Allegro's box and cylinder
     for name in names:
         assert f"grasps/guide/{name}" in section, name
     assert set(NOT_EXECUTION) <= names
