@@ -67,32 +67,39 @@ def _retreat_dls(
     lo = np.asarray(hand.lower, dtype=float)[scene.idx]
     hi = np.asarray(hand.upper, dtype=float)[scene.idx]
 
-    def point(q):
-        T = scene.link_poses(q)[k_link]
+    def point(st):
+        T = st.finger_link_poses(scene.finger.name)[k_link]
         return T[:3, :3] @ p_link + T[:3, 3]
 
-    p0 = point(a)
+    # one hand state per configuration: its Jacobian, the point and the clearance read it
+    st = scene.state(a)
+    p0 = point(st)
     rows = 6 if rotation_weight_m > 0 else 3
     W = np.array([1.0, 1.0, 1.0] + [rotation_weight_m] * 3)[:rows, None]
     path = [a.copy()]
     q = a.copy()
     s = 0.0
+    damp = None
     while s < MAX_LIFT_M:
         s += step_m
         target = p0 - s * n_in
         for _ in range(3):
-            J = np.asarray(hand.state(scene.full_q(q)).frame_jacobian(link, p_link), dtype=float)[:rows][:, scene.idx]
+            J = np.asarray(st.frame_jacobian(link, p_link), dtype=float)[:rows][:, scene.idx]
             J = scene.finger.reduce(J)  # over the finger's free coordinates (coupled joints)
+            if damp is None:
+                damp = damping**2 * np.eye(J.shape[1])
             err = np.zeros(rows)
-            err[:3] = target - point(q)  # orientation target: no rotation (zero rows)
+            err[:3] = target - point(st)  # orientation target: no rotation (zero rows)
             Jw = W * J
             ew = W[:, 0] * err
-            dq = np.linalg.solve(Jw.T @ Jw + damping**2 * np.eye(J.shape[1]), Jw.T @ ew)
+            dq = np.linalg.solve(Jw.T @ Jw + damp, Jw.T @ ew)
             q = scene.finger.step(q, dq, lo, hi)
-        if float(np.dot(p0 - point(q), n_in)) < s - _LIFT_LAG_M or not scene.is_valid(q, touch_margin):
+            st = scene.state(q)
+        if float(np.dot(p0 - point(st), n_in)) < s - _LIFT_LAG_M or not st.clearance(scene.obj, scene.finger.name,
+                                                                                         touch_margin):
             return None
         path.append(q.copy())
-        if s >= lift_m - 1e-12 and scene.is_valid(q, clearance_m):
+        if s >= lift_m - 1e-12 and st.clearance(scene.obj, scene.finger.name, clearance_m):
             return path
     return None
 
@@ -121,25 +128,31 @@ def _retreat_repel(
     hi = np.asarray(hand.upper, dtype=float)[scene.idx]
     path = [a.copy()]
     q = a.copy()
+    name = scene.finger.name
+    st = scene.state(q)  # one hand state per configuration (distances, link poses, Jacobians)
+    near = st.object_distances(scene.obj, name)
     best, since_best = -math.inf, 0
     for _ in range(int(MAX_LIFT_M / step_m)):
         rows = []
-        for d, link, p_link_palm, p_object_palm in scene.object_distances(q):
+        poses = st.finger_link_poses(name)
+        for d, link, p_link_palm, p_object_palm in near:
             if d >= clearance_m + _REPEL_MARGIN_M and link != contact_link:
                 continue
             n_out = -_inward_normal(scene, p_object_palm)
-            p_link = scene.point_on_link(q, link, p_link_palm)
-            J = scene.finger.reduce(np.asarray(hand.state(scene.full_q(q)).frame_jacobian(link, p_link),
-                                               dtype=float)[:3][:, scene.idx])
+            T = poses[scene.moving_links.index(link)]
+            p_link = T[:3, :3].T @ (np.asarray(p_link_palm, dtype=float) - T[:3, 3])
+            J = scene.finger.reduce(np.asarray(st.frame_jacobian(link, p_link), dtype=float)[:3][:, scene.idx])
             rows.append(n_out @ J)
         A = np.array(rows)
         dq = A.T @ np.linalg.solve(A @ A.T + damping**2 * np.eye(len(A)), np.full(len(A), step_m))
         q = scene.finger.step(q, dq, lo, hi)
-        if not scene.is_valid(q, touch_margin):
+        st = scene.state(q)
+        if not st.clearance(scene.obj, name, touch_margin):
             return None
         path.append(q.copy())
+        near = st.object_distances(scene.obj, name)
         distances = {}
-        for d, link, _, _ in scene.object_distances(q):
+        for d, link, _, _ in near:
             distances[link] = min(d, distances.get(link, math.inf))
         if distances[contact_link] >= lift_m and min(distances.values()) >= clearance_m:
             return path
