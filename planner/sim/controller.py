@@ -116,6 +116,13 @@ CONTACT_GAP_M = 0.001
 FACE_COS = math.cos(math.radians(10.0))
 #: A holding finger that does not touch approaches the object when it is closer than this.
 APPROACH_M = 0.01
+#: The replay starts a holding finger this far outside the object where its planned posture
+#: overlaps the engine's geometry (`Controller.back_off`), m: the finger closes the gap
+#: under its commanded torques, as a finger closes on an object, inside ``TOUCH_TOL_M`` (a
+#: contact for the force solution from the first step).
+START_CLEARANCE_M = 0.0001
+#: Back-off iterations at most (each re-reads the engine's closest points).
+BACK_OFF_ITERATIONS = 8
 
 
 # --------------------------------------------------------------------------- force optimization
@@ -267,6 +274,60 @@ class Controller:
             for j in self.hand.fingers[f].joints:
                 self.q_ref[j] = float(q[self.col[j]])
                 self.q_target[self.hand_pos[j]] = self.q_ref[j]
+
+    def back_off(self, fingers: Sequence[str], clearance_m: float = START_CLEARANCE_M) -> dict[str, float] | None:
+        """One step of the start posture's clearance: the joints of ``fingers`` moved so that
+        every link of theirs that overlaps the object (the sensor's closest points, negative
+        distance) comes out along its contact normal to ``clearance_m`` outside it, or None
+        when none overlaps. Per finger, over its free coordinates ``z`` (a coupled finger's
+        drivers, `planner.hand.Finger.reduce`): rows ``g_k = n_k^T J_k`` (the normal speed of
+        overlapping point ``k``, ``J_k`` its Jacobian) and ``g_k dz = -(clearance - d_k)``,
+        solved by damped least squares and clipped at the joints' limits. A one-actuator
+        finger's point moves along its one direction ``v``: it backs off by ``(c - d) / (v.n)``
+        of its coordinate, sliding ``|v_t| / (v.n)`` times farther along the face.
+
+        Returns:
+            joint -> angle for the joints of the fingers that moved (followers by their
+            coupling), or None.
+        """
+        per_link: dict[str, list] = {}
+        for cp in self.sensor.closest_points(clearance_m):
+            if self.link_finger.get(cp.link) in fingers and cp.distance_m < 0.0:
+                per_link.setdefault(cp.link, []).append(cp)
+        if not per_link:
+            return None
+        q = self.q()
+        state = self.hand.state(q)
+        out: dict[str, float] = {}
+        for f in fingers:
+            cps = [cp for link in self.finger_links.get(f, ()) for cp in per_link.get(link, ())]
+            if not cps:
+                continue
+            fg = self.hand.fingers[f]
+            cols = [self.col[j] for j in fg.joints]
+            Js = state.point_jacobians([(cp.link, np.asarray(cp.point_m, float)) for cp in cps])
+            G = np.array([fg.reduce(J[:, cols]).T @ np.asarray(cp.normal, float) for J, cp in zip(Js, cps)])
+            b = np.array([-(clearance_m - cp.distance_m) for cp in cps])
+            lam = 1e-3 * max(float(np.abs(G).max()), 1e-9)  # damping: a point the finger barely moves along n
+            dz = G.T @ np.linalg.solve(G @ G.T + lam * lam * np.eye(len(G)), b)
+            q_f = fg.step(q[cols], dz, self.hand.lower[cols], self.hand.upper[cols])
+            out.update({j: float(v) for j, v in zip(fg.joints, q_f)})
+        return out or None
+
+    def palm_clearance(self, clearance_m: float = START_CLEARANCE_M) -> np.ndarray | None:
+        """The translation (3,) that takes the object out of the palm's links (the links of no
+        finger) to ``clearance_m`` outside them where it overlaps them in the sensor's geometry,
+        or None when it does not: ``n_k . d >= clearance - d_k`` for every overlapping point
+        ``k`` (normal ``n_k`` into the object, distance ``d_k < 0``), the least-norm ``d`` of
+        those rows taken as equalities (the palm cannot back off: the object is placed)."""
+        cps = [cp for cp in self.sensor.closest_points(clearance_m)
+               if self.link_finger.get(cp.link, "palm") == "palm" and cp.distance_m < 0.0]
+        if not cps:
+            return None
+        N = np.array([np.asarray(cp.normal, float) for cp in cps])
+        b = np.array([clearance_m - cp.distance_m for cp in cps])
+        d, *_ = np.linalg.lstsq(N, b, rcond=None)
+        return d
 
     def fade(self, finger: str, share: float) -> None:
         """Hand over: the finger carries ``share`` (0..1) of its balanced load (applied at

@@ -75,7 +75,7 @@ from planner.errors import InputError, SimulationError
 from planner.model import PALM
 from planner.plan_data import pose_between
 from planner.sim.contact_filter import ContactFilter
-from planner.sim.controller import TOUCH_TOL_M, Controller
+from planner.sim.controller import BACK_OFF_ITERATIONS, TOUCH_TOL_M, Controller
 from planner.sim.engine import PhysicsEngine, default_engine, engine_for
 from planner.sim.inputs import HandInfo, load_hand_info, object_mass, replay_world, typed_plan
 from planner.sim.report import CouplingError, ReplayReport, StateReport
@@ -398,6 +398,41 @@ class _Sim:
         self._quat_ref = tuple(float(v) for v in quat)
         self.T_ref = _T(pose[:3], quat)
 
+    def start_place(self, pos, quat) -> list:
+        """The object's start position: the planned one moved out of the palm's links where
+        they overlap it in the engine's geometry (`planner.sim.controller.Controller
+        .palm_clearance`, iterated; the palm cannot back off, and an overlap is a spring that
+        throws the object at its release). Drift is still measured from the planned pose."""
+        pos = [float(v) for v in pos]
+        for _ in range(BACK_OFF_ITERATIONS):
+            d = self.ctl.palm_clearance()
+            if d is None:
+                break
+            pos = [a + float(b) for a, b in zip(pos, d)]
+            self.engine.set_object_pose(pos, quat)
+        self.start_shift_m = float(np.linalg.norm(np.subtract(pos, self._p_ref)))
+        return pos
+
+    def start_clear(self, fingers) -> dict[str, float]:
+        """Back the holding fingers' links out of the object where the planned posture overlaps
+        it in the engine's geometry (`planner.sim.controller.Controller.back_off`, iterated
+        from the engine's closest points; pybullet's hulls overlap a planned contact by up to
+        1 mm), so the acquisition closes them under their commanded torques instead of
+        starting them inside the object: a finger whose contact point moves mostly along the
+        face (a one-actuator finger: ``v.n < mu |v_t|``) is friction-locked and cannot be pushed
+        out; the engine then presses it with its penetration's force, many times the command.
+        Returns joint -> how far it was backed off (rad), the joints moved."""
+        moved: dict[str, float] = {}
+        q0 = self.ctl.q()
+        start = {j: float(q0[self.ctl.col[j]]) for j in self.ctl.hand.joint_names}
+        for _ in range(BACK_OFF_ITERATIONS):
+            q_new = self.ctl.back_off(tuple(fingers))
+            if q_new is None:
+                break
+            self.engine.reset_joints(q_new)
+            moved.update(q_new)
+        return {j: v - start[j] for j, v in moved.items()}
+
     def _q(self, state) -> dict[str, float]:
         """Joint name -> value of a plan state."""
         return dict(zip(self.joints, state.q))
@@ -622,6 +657,10 @@ class _Sim:
         pos, quat = list(self._p_ref), list(self._quat_ref)
         eng.set_object_pose(pos, quat)
         # 1. acquire the planned contacts with gravity off, the object held where the plan has it
+        # (out of the palm's links) from a posture that does not overlap it in the engine's
+        # geometry (`start_clear`)
+        pos = self.start_place(pos, quat)
+        self.start_backoff = self.start_clear(states[0].touching)
         eng.hold_object(pos, quat)
         self.set_gravity(np.zeros(3))
         ctl.command(self._q(states[0]), states[0].touching)
