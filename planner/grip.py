@@ -56,6 +56,14 @@ Numbers, derived rather than tuned:
   with it the planner refuses the Psyonic box pair (the thumb's lift holds 0x palm down),
   but also a Psyonic ball grasp the simulator holds in 6 directions: once loaded, static
   friction turns with the load. Which friction a one-actuator finger may count on is open.
+  Two variants of the rows, also opt-in: ``one_actuator="none"`` (the friction along the slide
+  carries none of the motor's load, ``f.t = 0``) and ``"no_wedge"`` (it lies between none and
+  the closing edge, ``0 <= f.t``, as ``GripProgram.one_actuator_ub``; `slide_directions`): both
+  hold the Psyonic box state 7 at over 500x, which the simulator drops. What the closing leaves
+  is checked by `release_equilibrium`: at the release (no load yet) every one-actuator contact
+  has its friction at the closing edge; when no such forces balance, the fingers push the object
+  away (right on the 4 flat-faced box cases measured, 11 of 16 Psyonic grasps overall, wrong
+  where a curved object finds a new equilibrium nearby: docs/YOUR_HAND.md, section 2).
 
 This module is pure numpy/scipy over arrays; `finger_statics` is the one function that
 reads a hand (its Jacobians and gravity torques), so the graph search stays hand-agnostic.
@@ -269,6 +277,29 @@ def one_actuator_rows(jacobians, normals, mu: float) -> np.ndarray:
     return np.array(out).reshape(-1, 7)
 
 
+def slide_directions(jacobians, normals) -> list[tuple[int, np.ndarray]]:
+    """The slide of each contact point of a one-actuator finger: ``(i, t)`` with ``t`` the unit
+    direction of ``v - (v.n) n`` (``v`` the point's velocity per unit of the finger's one
+    coordinate, ``n`` its normal), for points the finger moves along the surface; none for a
+    finger with other than one actuated coordinate.
+
+    Args:
+        jacobians: (n, 6, n_free) the finger's contact Jacobians (`FingerStatics.jacobians`).
+        normals: (n, 3) the contacts' normals (into the object), same frame.
+    """
+    J = np.asarray(jacobians, dtype=float)
+    if J.ndim != 3 or J.shape[2] != 1:
+        return []
+    N = np.asarray(normals, dtype=float).reshape(-1, 3)
+    N = N / np.linalg.norm(N, axis=1, keepdims=True)
+    out = []
+    for i, (v, n) in enumerate(zip(J[:, :3, 0], N)):
+        t = v - float(v @ n) * n
+        if np.linalg.norm(t) > 1e-3 * max(float(np.linalg.norm(v)), 1e-3):
+            out.append((i, t / np.linalg.norm(t)))
+    return out
+
+
 # --------------------------------------------------------------------------- the programs
 
 
@@ -290,6 +321,9 @@ class GripProgram:
     #: (e, k) per contact of a one-actuator finger, the generalized force its friction
     #: carries per unit rim wrench, held at zero (`one_actuator_rows`)
     one_actuator: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    #: (e, k) rows ``<= 0`` per contact of a one-actuator finger (`slide_directions`,
+    #: ``one_actuator="no_wedge"``): minus the friction along its slide per unit rim wrench
+    one_actuator_ub: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
 
     def tau_g(self, gravity_obj) -> np.ndarray:
         """(r,) the fingers' own gravity torques for a gravity vector (object frame)."""
@@ -309,16 +343,18 @@ class GripProgram:
 
 def grip_program(patches: Mapping[str, tuple], statics: Mapping[str, FingerStatics], friction: Friction, *,
                  margin: float = FRICTION_MARGIN, cone_sides: int = GRIP_CONE_SIDES,
-                 one_actuator: bool = False) -> GripProgram:
+                 one_actuator: bool | str = False) -> GripProgram:
     """The `GripProgram` of a grasp state (arguments as `hold_capacity`); ``one_actuator``
-    adds the closing-slide friction rows of one-actuator fingers (`one_actuator_rows`; an
-    experiment, off everywhere the planner builds programs: see the module docstring)."""
+    adds rows for the friction along one-actuator fingers' slides (experiments, off everywhere
+    the planner builds programs: see the module docstring): True or "edge", the closing-slide
+    friction at the cone's edge (`one_actuator_rows`); "none", none along the slide; "no_wedge",
+    between none and the edge (inequality rows, `GripProgram.one_actuator_ub`)."""
     if not isinstance(friction, Friction):
         raise InputError(f"friction must be a Friction, got {type(friction).__name__}")
     if not 0 < margin <= 1:
         raise InputError(f"friction margin must be in (0, 1], got {margin!r}")
     fr = Friction(friction.mu * margin, friction.gamma * margin, int(cone_sides))
-    blocks, torque, at, fingers, slides = [], [], {}, [], []
+    blocks, torque, at, fingers, slides, wedges = [], [], {}, [], [], []
     per_point = 2 * fr.edges
     for finger, (points, normals) in patches.items():
         P = np.asarray(points, dtype=float).reshape(-1, 3)
@@ -341,10 +377,18 @@ def grip_program(patches: Mapping[str, tuple], statics: Mapping[str, FingerStati
         T = np.einsum("rij,ri->jr", J[:, :3], f) + np.einsum("rij,ri->jr", J[:, 3:], moment)  # (nj, rows)
         torque.append((T, st.gravity, st.effort, [(finger, j) for j in st.joints]))
         start = sum(len(b) for b in blocks[:-1])
-        for row in () if not one_actuator else one_actuator_rows(st.jacobians, normals, fr.mu * math.cos(math.pi / fr.edges)):
-            p = int(row[0])
-            sl = slice(p * per_point, (p + 1) * per_point)
-            slides.append((start + p * per_point, f[sl] @ row[1:4] + moment[sl] @ row[4:], per_point))
+        if one_actuator in (True, "edge"):
+            for row in one_actuator_rows(st.jacobians, normals, fr.mu * math.cos(math.pi / fr.edges)):
+                p = int(row[0])
+                sl = slice(p * per_point, (p + 1) * per_point)
+                slides.append((start + p * per_point, f[sl] @ row[1:4] + moment[sl] @ row[4:], per_point))
+        elif one_actuator in ("none", "no_wedge"):
+            for p, t in slide_directions(st.jacobians, normals):
+                sl = slice(p * per_point, (p + 1) * per_point)
+                if one_actuator == "none":
+                    slides.append((start + p * per_point, f[sl] @ t, per_point))
+                else:  # f.t >= 0: -f.t <= 0
+                    wedges.append((start + p * per_point, -(f[sl] @ t), per_point))
     k = sum(len(b) for b in blocks)
     W = np.vstack(blocks) if blocks else np.zeros((0, 6))
     rows, offset = [], 0
@@ -368,7 +412,10 @@ def grip_program(patches: Mapping[str, tuple], statics: Mapping[str, FingerStati
     one = np.zeros((len(slides), k))
     for i, (start, coeff, n) in enumerate(slides):
         one[i, start:start + n] = coeff
-    return GripProgram(W, torque_m, tg_all, tm_all, nm_all, cap, tuple(fingers), per_point, at, one)
+    wedge = np.zeros((len(wedges), k))
+    for i, (start, coeff, n) in enumerate(wedges):
+        wedge[i, start:start + n] = coeff
+    return GripProgram(W, torque_m, tg_all, tm_all, nm_all, cap, tuple(fingers), per_point, at, one, wedge)
 
 
 def _lever(W: np.ndarray) -> float:
@@ -455,6 +502,9 @@ def hold_capacity(patches: Mapping[str, tuple], statics: Mapping[str, FingerStat
     b_eq = np.zeros(len(A_eq))
     A_ub = np.r_[np.c_[prog.torque, np.zeros(len(prog.torque))], np.c_[-prog.torque, np.zeros(len(prog.torque))]]
     b_ub = np.r_[prog.tau_max - tau_g, prog.tau_max + tau_g]
+    if len(prog.one_actuator_ub):
+        A_ub = np.r_[A_ub, np.c_[prog.one_actuator_ub, np.zeros(len(prog.one_actuator_ub))]]
+        b_ub = np.r_[b_ub, np.zeros(len(prog.one_actuator_ub))]
     A_cap, b_cap = _cap_rows(prog, force_cap_n, 1)
     A_ub, b_ub = np.r_[A_ub, A_cap], np.r_[b_ub, b_cap]
     c = np.zeros(k + 1)
@@ -497,6 +547,9 @@ def torque_demand(patches: Mapping[str, tuple], statics: Mapping[str, FingerStat
     tm = prog.tau_max
     A_ub = np.r_[np.c_[prog.torque, -tm], np.c_[-prog.torque, -tm]]
     b_ub = np.r_[-tau_g, tau_g]
+    if len(prog.one_actuator_ub):
+        A_ub = np.r_[A_ub, np.c_[prog.one_actuator_ub, np.zeros(len(prog.one_actuator_ub))]]
+        b_ub = np.r_[b_ub, np.zeros(len(prog.one_actuator_ub))]
     A_cap, b_cap = _cap_rows(prog, force_cap_n, 1)
     A_ub, b_ub = np.r_[A_ub, A_cap], np.r_[b_ub, b_cap]
     c = np.zeros(k + 1)
@@ -685,6 +738,38 @@ def balance_forces(points, normals, targets, load, centre, friction: Friction, f
         if res.status == 0 and float(np.abs(res.x[:m]).max()) <= f_max:
             return res.x[:m].reshape(k, 3)
     return None
+
+
+def release_equilibrium(patches: Mapping[str, tuple], statics: Mapping[str, FingerStatics], friction: Friction, *,
+                        margin: float = 1.0, cone_sides: int = GRIP_CONE_SIDES, turns_freely: bool = False) -> bool:
+    """Whether the object is in equilibrium when the fingers have closed on it and no load
+    acts yet (the replay's release, gravity off): every one-actuator finger's contacts carry
+    the friction at the cone's edge along the finger's slide, against its motor
+    (`one_actuator_rows`: a finger that closes slides until friction stops it), every finger
+    presses (its normal force at least 1, the problem is homogeneous), the palm pushes back,
+    and the forces balance with no load: ``W^T lambda = 0``. When no such forces exist, the
+    closed fingers push the object away at its release, before any load comes (Psyonic box
+    state 7, docs/YOUR_HAND.md). Fingers with two or more actuated coordinates keep the
+    whole cone. ``margin`` defaults to the whole cone: the engine's friction, not the
+    planner's reserve."""
+    prog = grip_program(patches, statics, friction, margin=margin, cone_sides=cone_sides, one_actuator="edge")
+    k = len(prog.W)
+    if k == 0:
+        return False
+    L = _lever(prog.W)
+    A_eq = prog.W.T.copy()
+    A_eq[3:] /= L
+    if turns_freely:  # a ball turns about its centre (the origin) under any moment, its contacts unchanged
+        A_eq = A_eq[:3]
+    b_eq = np.zeros(len(A_eq))
+    if len(prog.one_actuator):
+        A_eq = np.r_[A_eq, prog.one_actuator]
+        b_eq = np.r_[b_eq, np.zeros(len(prog.one_actuator))]
+    pressing = prog.cap_rows[_capped(prog)]
+    A_ub = -pressing
+    b_ub = -np.ones(len(pressing))
+    res = solve_highs(np.zeros(k), A_ub, b_ub, A_eq, b_eq, [(0, None)] * k, "release equilibrium LP")
+    return res is not None
 
 
 # --------------------------------------------------------------------------- a whole grasp

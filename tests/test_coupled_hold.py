@@ -112,3 +112,62 @@ def test_the_controllers_forces_take_the_same_rows_at_each_margin():
     # a load along the fingers' slide: no balance at any margin
     assert balance_forces(P, N, 0.3 * N, [0, 0, 0.05 * 9.81, 0, 0, 0], np.zeros(3), fr, 0.1, math.inf,
                           joint_rows=rows, one_actuator=[(0, J[0]), (1, J[1])]) is None
+
+
+def test_slide_directions_are_the_unit_tangential_part_of_the_point_velocity():
+    """A one-actuator finger's slide at a contact is v - (v.n) n, normalized; none for a point
+    moved along its normal or a finger with two actuated coordinates."""
+    from planner.grip import slide_directions
+
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        v, n = rng.normal(size=3), rng.normal(size=3)
+        n /= np.linalg.norm(n)
+        [(i, t)] = slide_directions(_jac(v), [n])
+        assert i == 0 and np.linalg.norm(t) == pytest.approx(1.0)
+        assert t @ n == pytest.approx(0.0, abs=1e-12)
+        assert v @ t == pytest.approx(np.linalg.norm(v - (v @ n) * n))
+    assert slide_directions(_jac([0.0, 0.0, 0.03]), [[0.0, 0.0, 1.0]]) == []
+    assert slide_directions(np.zeros((1, 6, 2)), [[0.0, 0.0, 1.0]]) == []
+
+
+def test_no_wedge_rows_keep_the_slide_friction_between_none_and_the_closing_edge():
+    """With ``one_actuator="no_wedge"`` the friction along a one-actuator finger's slide may
+    resist its closing but not hold it open: the two-finger pinch holds a load that needs the
+    friction along the slide (+z: fingers close upward, a -z load) and not one that needs it
+    against the slide; "none" holds neither by friction."""
+    patches, statics = _pinch()
+    fr = Friction(MU, 0.0)
+    m_g = 0.05 * 9.81
+    down = [0, 0, -m_g, 0, 0, 0]
+    up = [0, 0, m_g, 0, 0, 0]
+    wedge = grip_program(patches, statics, fr, one_actuator="no_wedge")
+    assert wedge.one_actuator_ub.shape == (2, wedge.W.shape[0]) and len(wedge.one_actuator) == 0
+    # a -z load: the friction at the closing edge is the best there (the motors' limits bind),
+    # as under the "edge" rows
+    edge = grip_program(patches, statics, fr, one_actuator="edge")
+    expected = hold_capacity(patches, statics, fr, down, [0, 0, -9.81], program=edge).factor
+    assert expected > 1.0
+    assert hold_capacity(patches, statics, fr, down, [0, 0, -9.81], program=wedge).factor == pytest.approx(expected, rel=0.01)  # (the polygon cones differ)
+    assert hold_capacity(patches, statics, fr, up, [0, 0, 9.81], program=wedge).factor == 0.0
+    none = grip_program(patches, statics, fr, one_actuator="none")
+    assert hold_capacity(patches, statics, fr, down, [0, 0, -9.81], program=none).factor == 0.0
+    f = hold_capacity(patches, statics, fr, down, [0, 0, -9.81], program=wedge).forces["a"][0]
+    assert f[2] >= -1e-9 and f[2] <= FRICTION_MARGIN * MU * f[0] + 1e-9  # along the slide, inside the cone
+
+
+def test_release_equilibrium_needs_something_to_take_the_closing_slide_friction():
+    """Two one-actuator fingers closing upward on opposite faces push the object up with their
+    closing-slide friction: no equilibrium at release, unless a contact on the top face (the
+    palm) pushes back; a two-actuator finger's whole cone balances it too."""
+    from planner.grip import release_equilibrium
+    from planner.model import PALM
+
+    patches, statics = _pinch()
+    fr = Friction(MU, 0.0)
+    assert not release_equilibrium(patches, statics, fr)
+    top = {**patches, PALM: (np.array([[0.0, 0.0, 0.02]]), np.array([[0.0, 0.0, -1.0]]))}
+    assert release_equilibrium(top, statics, fr)
+    two = {f: FingerStatics(f, (f"{f}_1", f"{f}_2"), np.concatenate([s.jacobians, _jac([0, 0.02, 0])], axis=2),
+                            np.zeros((2, 3)), np.array([0.05, 0.05])) for f, s in statics.items()}
+    assert release_equilibrium(patches, two, fr)
