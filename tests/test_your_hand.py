@@ -148,3 +148,97 @@ def test_the_g1_left_hand_mirrored_flexes_toward_its_lower_limits(tmp_path, caps
     assert main(["synth", str(tmp_path / "left" / "hand.yaml"), str(ball), "-n", "2", "--seed", "0", "-o",
                  str(tmp_path / "g"), "-q"]) == 0
     assert "2/2 grasps" in capsys.readouterr().out
+
+
+#: A 30 mm ball at a pose against the Psyonic palm (docs/YOUR_HAND.md, section 2: the pair that passes).
+ALEX_BALL = "shape: sphere\nsize: [0.03]\nposition: [0.0004, 0.0313, -0.1284]\nmass_kg: 0.05\n"
+
+
+@pytest.fixture(scope="module")
+def psyonic_hold(tmp_path_factory):
+    """(hand.yaml, a one-state plan file) of a synthesized Psyonic power grasp of the ball."""
+    import contextlib
+    import io
+
+    d = tmp_path_factory.mktemp("psyonic")
+    hand_yaml = d / "hand.yaml"
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+        assert main(["hand", "init", str(_robots() / ALEX), "--root", "RightGripperYawLink", "-o", str(hand_yaml),
+                     "-q"]) == 0
+        (d / "ball.yaml").write_text(ALEX_BALL)
+        assert main(["synth", str(hand_yaml), str(d / "ball.yaml"), "--palm", "-n", "1", "--seed", "0", "-o",
+                     str(d / "g"), "-q"]) == 0
+        grasp = next((d / "g").glob("*.yaml"))
+        plan = d / "hold.yaml"
+        assert main(["plan", str(grasp), str(grasp), "--execution", "--no-verify", "-o", str(plan), "-q"]) == 0
+    return hand_yaml, plan
+
+
+def test_a_psyonic_grasp_without_its_thumb_has_no_release_equilibrium(psyonic_hold):
+    """The four one-actuator fingers close onto their slides, all pushing the ball the same
+    way: with the thumb the closed grasp balances at its release, without it nothing does
+    (`planner.grip.release_equilibrium`; the simulator drops such states, docs/YOUR_HAND.md)."""
+    import numpy as np
+    from scipy.spatial.transform import Rotation
+
+    from planner.closure import apply_contact_model
+    from planner.grip import grasp_statics, release_equilibrium
+    from planner.sim.inputs import typed_plan
+
+    hand_yaml, plan_path = psyonic_hold
+    rd = typed_plan(str(plan_path))
+    hand = Hand.load(hand_yaml)
+    st = rd.states[0]
+    q = np.zeros(len(hand.joint_names))
+    for j, v in zip(rd.joints, st.q):
+        q[hand.joint_names.index(j)] = v
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = Rotation.from_quat(rd.object.quat_xyzw).as_matrix(), rd.object.position
+    patches = apply_contact_model(st.patches, rd.parameters["contact_model"])
+    statics = grasp_statics(hand, q, patches, T)
+    assert release_equilibrium(patches, statics, rd.friction)
+    for drop in ("thumb", "index"):
+        p = {f: v for f, v in patches.items() if f != drop}
+        assert release_equilibrium(p, {f: v for f, v in statics.items() if f != drop}, rd.friction) == (drop != "thumb")
+
+
+def test_the_replay_starts_outside_the_object_and_holds_the_psyonic_ball(psyonic_hold, monkeypatch):
+    """The planned posture overlaps pybullet's geometry; the replay backs the holding fingers
+    out along their normals and moves the ball out of the palm before closing them under their
+    torques: no hand link overlaps the ball at the start, the couplings kept."""
+    pytest.importorskip("pybullet")
+    from planner.sim import replay as R
+
+    _, plan_path = psyonic_hold
+    seen = {}
+    place, clear = R._Sim.start_place, R._Sim.start_clear
+
+    def start_place(self, pos, quat):
+        seen["before"] = min(cp.distance_m for cp in self.engine.closest_points(0.002))
+        return place(self, pos, quat)
+
+    def start_clear(self, fingers):
+        moved = clear(self, fingers)
+        seen["after"] = min(cp.distance_m for cp in self.engine.closest_points(0.002))
+        seen["moved"] = moved
+        q = self.ctl.q()
+        seen["coupling"] = max(self.ctl.hand.coupling_errors(q))
+        return moved
+
+    monkeypatch.setattr(R._Sim, "start_place", start_place)
+    monkeypatch.setattr(R._Sim, "start_clear", start_clear)
+    import os
+
+    cwd = os.getcwd()
+    os.chdir(plan_path.parent)
+    try:
+        report = R.replay_plan(str(plan_path), engine="pybullet")
+    finally:
+        os.chdir(cwd)
+    assert seen["before"] < -2e-4  # the planned posture overlaps the engine's hulls
+    assert seen["after"] >= -1e-5
+    # the coupled fingers (closing toward their upper limits) opened, their followers with them
+    coupled = {j: v for j, v in seen["moved"].items() if not j.startswith("Right_thumb")}
+    assert len(coupled) == 8 and all(v < 0 for v in coupled.values())
+    assert seen["coupling"] <= 1e-9
+    assert report.passed, report.verdict
