@@ -203,9 +203,10 @@ def test_a_psyonic_grasp_without_its_thumb_has_no_release_equilibrium(psyonic_ho
 
 
 def test_the_replay_starts_outside_the_object_and_holds_the_psyonic_ball(psyonic_hold, monkeypatch):
-    """The planned posture overlaps pybullet's geometry; the replay backs the holding fingers
-    out along their normals and moves the ball out of the palm before closing them under their
-    torques: no hand link overlaps the ball at the start, the couplings kept."""
+    """The planned posture overlaps pybullet's geometry; the replay backs the holding coupled
+    (one-actuator) fingers out along their normals and moves the ball out of the palm before
+    closing them under their torques: none of their links overlaps the ball at the start, the
+    couplings kept."""
     pytest.importorskip("pybullet")
     from planner.sim import replay as R
 
@@ -219,7 +220,9 @@ def test_the_replay_starts_outside_the_object_and_holds_the_psyonic_ball(psyonic
 
     def start_clear(self, fingers):
         moved = clear(self, fingers)
-        seen["after"] = min(cp.distance_m for cp in self.engine.closest_points(0.002))
+        seen["cleared"] = set(fingers)  # the coupled fingers (`_Sim.friction_locked`), not the thumb
+        seen["after"] = min(cp.distance_m for cp in self.engine.closest_points(0.002)
+                            if self.ctl.link_finger.get(cp.link) in fingers)
         seen["moved"] = moved
         q = self.ctl.q()
         seen["coupling"] = max(self.ctl.hand.coupling_errors(q))
@@ -236,6 +239,7 @@ def test_the_replay_starts_outside_the_object_and_holds_the_psyonic_ball(psyonic
     finally:
         os.chdir(cwd)
     assert seen["before"] < -2e-4  # the planned posture overlaps the engine's hulls
+    assert seen["cleared"] and "thumb" not in seen["cleared"]  # two actuators: not friction-locked
     assert seen["after"] >= -1e-5
     # the coupled fingers (closing toward their upper limits) opened, their followers with them
     coupled = {j: v for j, v in seen["moved"].items() if not j.startswith("Right_thumb")}

@@ -433,6 +433,18 @@ class _Sim:
             moved.update(q_new)
         return {j: v - start[j] for j, v in moved.items()}
 
+    def friction_locked(self, fingers) -> list[str]:
+        """The fingers among ``fingers`` whose start overlap `start_clear` removes: those with
+        coupled joints (fewer actuators than joints). Such a finger's contact point moves along
+        one direction per actuator, mostly along the face (``v.n < mu |v_t|`` on the Psyonic),
+        so it cannot be pushed out of an overlap and presses with the overlap's force, many
+        times its command. A finger with a motor per joint is pushed out by the contact and
+        its force follows the controller: it starts from the planned posture, as every replay
+        of the bundled hands was measured (backing those off too lost the iCub mesh box's
+        palm-down plan at its little finger's lift, which holds from the planned posture)."""
+        hand = self.ctl.hand
+        return [f for f in fingers if f in hand.fingers and hand.fingers[f].coupled]
+
     def _q(self, state) -> dict[str, float]:
         """Joint name -> value of a plan state."""
         return dict(zip(self.joints, state.q))
@@ -660,7 +672,7 @@ class _Sim:
         # (out of the palm's links) from a posture that does not overlap it in the engine's
         # geometry (`start_clear`)
         pos = self.start_place(pos, quat)
-        self.start_backoff = self.start_clear(states[0].touching)
+        self.start_backoff = self.start_clear(self.friction_locked(states[0].touching))
         eng.hold_object(pos, quat)
         self.set_gravity(np.zeros(3))
         ctl.command(self._q(states[0]), states[0].touching)
