@@ -265,15 +265,14 @@ def one_actuator_rows(jacobians, normals, mu: float) -> np.ndarray:
     if J.ndim != 3 or J.shape[2] != 1:
         return np.zeros((0, 7))
     N = np.asarray(normals, dtype=float).reshape(-1, 3)
+    slides = dict(slide_directions(J, N))
     N = N / np.linalg.norm(N, axis=1, keepdims=True)
     out = []
     for i, (v, a, n) in enumerate(zip(J[:, :3, 0], J[:, 3:, 0], N)):
-        lever = max(float(np.linalg.norm(v)), 1e-3)
-        t = v - float(v @ n) * n
-        if np.linalg.norm(t) > 1e-3 * lever:
-            out.append(np.r_[i, t / np.linalg.norm(t) - float(mu) * n, np.zeros(3)])
+        if i in slides:
+            out.append(np.r_[i, slides[i] - float(mu) * n, np.zeros(3)])
         if abs(float(a @ n)) > 1e-9:
-            out.append(np.r_[i, np.zeros(3), float(a @ n) * n / lever])
+            out.append(np.r_[i, np.zeros(3), float(a @ n) * n / max(float(np.linalg.norm(v)), 1e-3)])
     return np.array(out).reshape(-1, 7)
 
 

@@ -55,9 +55,8 @@ from planner.errors import OutputError, PlannerError, SpecError, UnknownNameErro
 from planner.fileio import MAX_GRASP_BYTES, Reader, read_yaml, write_atomic
 from planner.grasp import load_hand, parse_friction, parse_grasp, resolve_hand_ref
 from planner.grip import HOLD_FACTOR, grasp_statics, grip_program, hold_capacity, holds_by_bound
-from planner.model import Friction
+from planner.model import PALM, Friction
 from planner.objects import GraspObject, read_object
-from planner.model import PALM
 from planner.realization import PENETRATION_TOL_M, execution_refusal, realize
 from planner.synth_sample import (PALM_CLEARANCE_M, Rejection, cannot_back_off, closes_onto, inner_radius,
                                   object_of, sample_candidate)

@@ -410,7 +410,6 @@ class _Sim:
                 break
             pos = [a + float(b) for a, b in zip(pos, d)]
             self.engine.set_object_pose(pos, quat)
-        self.start_shift_m = float(np.linalg.norm(np.subtract(pos, self._p_ref)))
         return pos
 
     def start_clear(self, fingers) -> dict[str, float]:
@@ -672,7 +671,7 @@ class _Sim:
         # (out of the palm's links) from a posture that does not overlap it in the engine's
         # geometry (`start_clear`)
         pos = self.start_place(pos, quat)
-        self.start_backoff = self.start_clear(self.friction_locked(states[0].touching))
+        self.start_clear(self.friction_locked(states[0].touching))
         eng.hold_object(pos, quat)
         self.set_gravity(np.zeros(3))
         ctl.command(self._q(states[0]), states[0].touching)
