@@ -435,6 +435,27 @@ def min_grip_force(patches: Mapping[str, tuple], friction: Friction, load, *,
         start += len(b)
     if not start:
         return math.inf
+    # the program is W, the spans and the load: the same program, the same answer (synthesis
+    # asks it of a grasp's loads, then execution mode's test of that grasp asks it again)
+    key = (W.shape, W.tobytes(), tuple(spans), w_ext.tobytes())
+    hit = _GRIP_MEMO.get(key)
+    if hit is not None:
+        return hit
+    t = _grip_lp(W, spans, w_ext)
+    if len(_GRIP_MEMO) >= GRIP_MEMO:
+        for stale in list(_GRIP_MEMO)[: GRIP_MEMO // 2]:
+            del _GRIP_MEMO[stale]
+    _GRIP_MEMO[key] = t
+    return t
+
+
+#: Grip forces `min_grip_force` remembers (per process; the oldest half dropped beyond this).
+GRIP_MEMO = 1024
+_GRIP_MEMO: dict = {}
+
+
+def _grip_lp(W: np.ndarray, spans: list, w_ext: np.ndarray) -> float:
+    """`min_grip_force`'s linear program for the wrenches W, finger spans and load."""
     k = len(W)
     A_ub = np.zeros((len(spans), k + 1))
     for i, (a, b) in enumerate(spans):

@@ -22,6 +22,7 @@ measurement, which the replay compares with the plan.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Iterable, Mapping
@@ -38,6 +39,10 @@ from planner.signed_distance import (bounding_sphere, object_transform, signed_d
 LINK_EPS_M = 1e-6
 """Penetration between two links below this is not a collision (also: shapes closer than
 this at q = 0 or the open posture overlap by design and their pair is allowed)."""
+
+CULL_M = 1e-4
+"""`HandState.finger_penetrates` skips a geometry whose bounding sphere is this far from the
+object's (m): far above the error of coal's distances, so the answer is the same."""
 
 _POINT = coal.Sphere(1e-7)  # a point, for point-to-link distances
 
@@ -83,6 +88,22 @@ class LinkDistance:
     geometries: tuple[int, ...]
 
 
+
+
+def object_sphere(obj) -> tuple[np.ndarray, float]:
+    """(palm-frame centre (3,), radius) of a sphere around the object (its local AABB's)."""
+    c, r = bounding_sphere(obj.geometry)
+    T = np.asarray(obj.T_palm_obj, dtype=float)
+    return T[:3, :3] @ c + T[:3, 3], r
+
+
+def _pair_arrays(geoms, pairs) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Geometry index pairs as two int arrays, and each pair's bounding radii summed."""
+    pairs = list(pairs)
+    I = np.array([i for i, _ in pairs], dtype=int)
+    J = np.array([j for _, j in pairs], dtype=int)
+    reach = np.array([geoms[i].radius_m + geoms[j].radius_m for i, j in pairs], dtype=float)
+    return I, J, reach
 
 
 class CollisionModel:
@@ -153,6 +174,13 @@ class CollisionModel:
                     continue
                 out.append((i, j))
         return tuple(out)
+
+    def pair_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """`pairs` as arrays: first and second geometry indices and their bounding radii's sum."""
+        arr = self.__dict__.get("_pair_arrays")
+        if arr is None or arr[0] is not self.pairs:
+            arr = self.__dict__["_pair_arrays"] = (self.pairs, _pair_arrays(self.geometries, self.pairs))
+        return arr[1]
 
     def is_checked(self, i: int, j: int) -> bool:
         """True when the geometry pair (i, j) is checked (not allowed to touch)."""
@@ -395,6 +423,28 @@ class HandState:
                                            req, coal.DistanceResult()))
         return float(best)
 
+    def finger_penetrates(self, obj, finger: str, obj_sphere=None) -> bool:
+        """``finger_object_distance(obj, finger) < 0.0`` with less work: the first geometry
+        that penetrates answers, and with ``obj_sphere`` (`object_sphere`) a geometry whose
+        bounding sphere is more than `CULL_M` from the object's is not queried (shapes that
+        far apart cannot penetrate: coal's distance between them is positive)."""
+        ids = self.model.finger_geometries(finger)
+        if not ids:
+            raise UnknownNameError("finger with collision geometry", str(finger),
+                                   [f for f in self.model.finger_joints if self.model.finger_geometries(f)])
+        tf_obj = None
+        req = coal.DistanceRequest()
+        geoms = self.model.geometries
+        for i in ids:
+            if obj_sphere is not None:
+                d = self.center(i) - obj_sphere[0]
+                if math.sqrt(float(d @ d)) - geoms[i].radius_m - obj_sphere[1] > CULL_M:
+                    continue
+            tf_obj = tf_obj or object_transform(obj)
+            if coal.distance(geoms[i].shape, self.transform(i), obj.geometry, tf_obj, req, coal.DistanceResult()) < 0.0:
+                return True
+        return False
+
     def palm_object_distance(self, obj) -> float | None:
         """Smallest signed distance between the palm's links and the object (m), from the
         cached link distances (`link_object`); None when the palm has no collision geometry."""
@@ -421,13 +471,28 @@ class HandState:
             [(link_a, link_b, distance_m)] in the order of ``pairs``.
         """
         geoms = self.model.geometries
+        I, J, reach = self.model.pair_arrays() if pairs is None else _pair_arrays(geoms, pairs)
+        if fingers is not None:
+            on = np.array([g.finger in fingers for g in geoms], dtype=bool)
+            sel = np.flatnonzero(on[I] | on[J])
+            I, J, reach = I[sel], J[sel], reach[sel]
+        # the bounding-sphere test of every pair at once; a pair whose centre distance is
+        # within rounding (1e-12 relative) of its bound, or not finite, takes the one-pair
+        # test: the pairs kept are the same to the bit
+        centers = np.zeros((len(geoms), 3))
+        for i in np.union1d(I, J).tolist():
+            centers[i] = self.center(i)
+        diff = centers[I] - centers[J]
+        bound = reach + margin_m
+        gap = np.sqrt(np.einsum("ij,ij->i", diff, diff)) - bound
+        tol = 1e-12 * (1.0 + np.abs(bound))
+        near = gap < -tol
         out = []
         req = coal.DistanceRequest()
-        for i, j in self.model.pairs if pairs is None else pairs:
+        for k in np.flatnonzero(~(gap > tol)).tolist():
+            i, j = int(I[k]), int(J[k])
             gi, gj = geoms[i], geoms[j]
-            if fingers is not None and gi.finger not in fingers and gj.finger not in fingers:
-                continue
-            if np.linalg.norm(self.center(i) - self.center(j)) > gi.radius_m + gj.radius_m + margin_m:
+            if not near[k] and np.linalg.norm(self.center(i) - self.center(j)) > gi.radius_m + gj.radius_m + margin_m:
                 continue
             res = coal.DistanceResult()
             d = coal.distance(gi.shape, self.transform(i), gj.shape, self.transform(j), req, res)

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from planner.collision import HandState
+from planner.collision import HandState, object_sphere
 from planner.errors import InputError, KinematicsError
 from planner.kinematics import Kinematics, checked_q
 
@@ -182,19 +182,20 @@ def close_finger(hand, finger, q, obj, steps: int = 20, backoff: float = 1e-3) -
         return couple_finger(f, qa)
 
     kin = hand.kinematics(q)  # the one kinematic state every step updates
+    sphere = object_sphere(obj)
 
-    def gap(qa):
-        return HandState.on(hand.collision, kin.update(qa)).finger_object_distance(obj, f.name)
+    def inside(qa):  # the finger penetrates the object (its signed distance is negative)
+        return HandState.on(hand.collision, kin.update(qa)).finger_penetrates(obj, f.name, sphere)
 
     def colliding(alpha):
-        return gap(at(alpha)) < 0.0
+        return inside(at(alpha))
 
     step = backoff * (hand.upper[cidx] - hand.lower[cidx])
     if colliding(0.0):
         # already penetrating (e.g. an IK placement): open by 0.1 % steps until free
         qb = q.copy()
         for _ in range(int(np.ceil(1.0 / backoff))):
-            if gap(qb) >= 0.0:
+            if not inside(qb):
                 return qb
             qb[cidx] = np.where(down, np.minimum(qb[cidx] + step, hi), np.maximum(qb[cidx] - step, lo))
             qb = couple_finger(f, qb)
@@ -206,7 +207,7 @@ def close_finger(hand, finger, q, obj, steps: int = 20, backoff: float = 1e-3) -
         else:
             alpha = min(alpha + 0.5 ** n, 1.0)
     qc = at(alpha)
-    while gap(qc) < 0.0 and np.any(np.where(down, qc[cidx] < start, qc[cidx] > start)):
+    while inside(qc) and np.any(np.where(down, qc[cidx] < start, qc[cidx] > start)):
         qc[cidx] = np.where(down, np.minimum(qc[cidx] + step, start), np.maximum(qc[cidx] - step, start))
         qc = couple_finger(f, qc)
     return qc
