@@ -136,7 +136,9 @@ def failure_analysis(G: nx.DiGraph) -> dict:
         if p.start[i] == p.goal[i]:
             continue
         touching = [v for v in reach if v[i] != LIFTED]
-        if touching and not any(G.has_edge(v, v[:i] + (LIFTED,) + v[i + 1:]) for v in touching):
+        # a lift taken out after it failed later (`LazyGraph.remove_edge`) was not refused here
+        lifted_later = any(u in reach and u[i] != LIFTED and v[i] == LIFTED for u, v in G.graph.get("removed_moves", ()))
+        if touching and not lifted_later and not any(G.has_edge(v, v[:i] + (LIFTED,) + v[i + 1:]) for v in touching):
             tried = [m for m in moves if m[1] == i and m[2] == "lift"]
             if tried:  # the refused lift nearest the end of the best partial sequence
                 u, _, _, w = max(tried, key=lambda m: (on_partial.get(m[0], -1), -dist[m[0]]))
@@ -190,7 +192,7 @@ def failure_analysis(G: nx.DiGraph) -> dict:
     if goal in ev.closure or goal in G.graph["blocked"]:
         goal_reason = G.graph["blocked"].get(goal) or ev.blocked_reason(goal)
     blockers = [f for f in sorted(p.fingers, key=lambda f: (-score[f], p.fingers.index(f))) if score[f] > 0]
-    return {"closest": closest, "partial": partial, "lift_blocked": lift_blocked, "unheld": unheld,
+    return {"reach": reach, "closest": closest, "partial": partial, "lift_blocked": lift_blocked, "unheld": unheld,
             "landing_blocked": landing_blocked,
             "stuck": stuck, "needs": list(dict.fromkeys(needs)),
             "blockers": blockers, "goal_reason": goal_reason, "distance": dist[closest], "palm_helps": palm_helps}
@@ -229,6 +231,9 @@ def explain_failure(G: nx.DiGraph, intermediate_tried: bool, tried: str | None =
     metric, or it would collide with a named finger), which landings on the final contacts
     are refused and why, the best partial sequence and where it ends, and what was tried
     (``tried``: a sentence from the caller, e.g. the rounds of intermediate contacts).
+    Moves the search found and that were taken out afterwards (the graph's ``removed_moves``:
+    no finger path, or the simulator rejected the sequence; the caller says why) are named
+    as such, not as moves the search did not reach.
     Fingers free in both grasps are never mentioned.
     """
     p: GaitProblem = G.graph["problem"]
@@ -248,6 +253,12 @@ def explain_failure(G: nx.DiGraph, intermediate_tried: bool, tried: str | None =
         landing.setdefault("; ".join(parts), []).append(f)
     for why, fingers in landing.items():
         lines.append(f"{_names(fingers)} cannot land on {'its' if len(fingers) == 1 else 'their'} final contact: {why}")
+    # moves of reached states taken out after they failed later (finger paths, the simulator)
+    later = list(dict.fromkeys(_move_words(p, u, v) + (" in the initial grasp" if u == p.start else "")
+                               for u, v in G.graph.get("removed_moves", ()) if u in a["reach"]))
+    if later:
+        lines.append("taken out after failing later: " + ", ".join(later[:3])
+                     + (f" and {len(later) - 3} more" if len(later) > 3 else ""))
     steps = [_move_words(p, u, v) for u, v in zip(a["partial"], a["partial"][1:])]
     lines.append(f"best partial sequence ({len(steps)} moves{': ' + ', '.join(steps) if steps else ''}) ends "
                  f"{a['distance']} finger(s) from the final grasp in: {_state_words(p, a['closest'])}")
@@ -261,7 +272,10 @@ def explain_failure(G: nx.DiGraph, intermediate_tried: bool, tried: str | None =
     if not (a["lift_blocked"] or a["landing_blocked"] or a["stuck"] or a["goal_reason"]):
         # nothing was refused: the search stopped before it tried the moves that remain
         left = [f for i, f in enumerate(p.fingers) if a["closest"][i] != G.graph["goal"][i]]
-        if left:
+        if left and later:
+            lines.append(f"{', '.join(left)} still {'has' if len(left) == 1 else 'have'} to move: the moves the "
+                         "search found for it were taken out when they failed later (below), and it found no other")
+        elif left:
             lines.append(f"{', '.join(left)} still {'has' if len(left) == 1 else 'have'} to move and no such move "
                          "was refused: the search stopped before it evaluated them (a longer --time-limit lets "
                          "it go on)")

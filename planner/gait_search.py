@@ -458,8 +458,12 @@ class LazyGraph:
         return found
 
     def remove_edge(self, u: Node, v: Node) -> None:
-        """Drop a move (e.g. a finger path that cannot be planned) for good."""
+        """Drop a move (e.g. a finger path that cannot be planned) for good (recorded in the
+        graph's ``removed_moves`` for the explanation of a failure)."""
         self.removed.add((u, v))
+        moves = self.G.graph.setdefault("removed_moves", [])
+        if (u, v) not in moves:
+            moves.append((u, v))
         if self.G.has_edge(u, v):
             self.G.remove_edge(u, v)
 

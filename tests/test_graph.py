@@ -444,3 +444,29 @@ def test_search_ranks_many_near_tied_orders_exactly():
             orders.append((-min(m), 5, 10, -float(np.mean(m))))
     assert len(orders) > 50 and found[0].rank_key <= min(orders)
     assert [s.rank_key for s in found] == sorted(s.rank_key for s in found)
+
+
+def test_moves_taken_out_later_are_named_not_called_unexplored():
+    """A finger whose only lifts were taken out after they failed later (a finger path, the
+    simulator: `LazyGraph.remove_edge`) is not said to be blocked by the closure test, nor
+    the search to have stopped before it: the explanation names the moves taken out."""
+    slots = {"A": [slot("A", "initial", "+x")], "B": [slot("B", "initial", "-x"), slot("B", "final", "-x", tilt_deg=20)],
+             "C": [slot("C", "initial", "+y")], "D": [slot("D", "initial", "-y")]}
+    prob = problem(slots, dict(A=0, B=0, C=0, D=0), dict(A=0, B=1, C=0, D=0))
+    lazy = LazyGraph(prob)
+    assert grasp_closure(prob.patches((0, LIFTED, 0, 0)), FRICTION).is_force_closure  # B may lift in the model
+    taken = []
+    for _ in range(10):
+        found = lazy.best(1)
+        if not found:
+            break
+        s = found[0]
+        i = [f for f, _ in s.actions].index("B")
+        lazy.remove_edge(s.nodes[i], s.nodes[i + 1])
+        taken.append((s.nodes[i], s.nodes[i + 1]))
+    assert taken and lazy.best(1) == []
+    assert lazy.G.graph["removed_moves"] == taken
+    text = str(explain_failure(lazy.G, intermediate_tried=True))
+    assert "taken out after failing later: lift B in the initial grasp" in text
+    assert "B cannot be lifted" not in text and "--time-limit" not in text
+    assert "B still has to move: the moves the search found for it were taken out" in text
