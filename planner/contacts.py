@@ -82,12 +82,22 @@ def _link_patch(state, obj, T_obj_palm, T_palm_obj, query, touch_tol_m):
         for k in range(RING_DIRECTIONS):
             th = 2.0 * np.pi * k / RING_DIRECTIONS
             ps, ns, _ = obj.closest_surface(p0 + rho * (np.cos(th) * u + np.sin(th) * v))
-            if min(np.linalg.norm(ps - p) for p in pts) < _MIN_SPACING_M:
+            if _too_close(ps, pts):
                 continue
             if state.point_distance(R @ ps + t, query.geometries) <= touch_tol_m:
                 pts.append(ps)
                 nrm.append(ns)
     return np.array(pts), -np.array(nrm)
+
+
+def _too_close(p: np.ndarray, pts: list) -> bool:
+    """``min(np.linalg.norm(p - x) for x in pts) < _MIN_SPACING_M``: the squared distances at
+    once, the one-point norms only when the nearest is within rounding (1e-9) of the spacing."""
+    d = np.asarray(pts) - p
+    m2 = float((d * d).sum(1).min())
+    if abs(m2 - _MIN_SPACING_M**2) > 1e-9 * _MIN_SPACING_M**2 and m2 == m2:
+        return m2 < _MIN_SPACING_M**2
+    return min(np.linalg.norm(p - x) for x in pts) < _MIN_SPACING_M
 
 
 def _owner_links(hand, owner: str) -> tuple[str, ...]:

@@ -22,6 +22,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from planner.closure import apply_contact_model, batch_grasp_closure
+from planner.collision import LINK_EPS_M
 from planner.contacts import collisions, contact_patches
 from planner.errors import PlannerError
 from planner.graph import LIFTED, GaitProblem, Slot
@@ -477,12 +478,22 @@ def pairwise_collision_check(hand, slots: Mapping[str, tuple[Slot, ...]]) -> Cal
                 q[list(hand.fingers[f].q_index)] = slots[f][s].q
         return q
 
+    model = hand.collision
+    between: dict[tuple[str, str], tuple] = {}
+
     def compatible(fa: str, sa: int, fb: str, sb: int) -> bool:
-        q = q_of({fa: sa, fb: sb})
-        for a, b, _ in collisions(hand, q, None, fingers=(fa, fb)):
-            if {link_finger.get(a), link_finger.get(b)} == {fa, fb}:
-                return False
-        return True
+        # the self-collisions of the hand at q (`planner.contacts.collisions` with fingers
+        # (fa, fb)) in which a contact link of fa meets one of fb: only those geometry pairs
+        # are measured, the same answer
+        pairs = between.get((fa, fb))
+        if pairs is None:
+            pairs = between[(fa, fb)] = tuple(
+                (i, j) for i, j in model.pairs
+                if (model.geometries[i].finger in (fa, fb) or model.geometries[j].finger in (fa, fb))
+                and {link_finger.get(model.geometries[i].link), link_finger.get(model.geometries[j].link)} == {fa, fb})
+        if not pairs:
+            return True
+        return not any(d < -LINK_EPS_M for _, _, d in hand.state(q_of({fa: sa, fb: sb})).link_pair_distances(pairs))
 
     return compatible
 
