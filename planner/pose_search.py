@@ -4,8 +4,8 @@ The search's states are (object pose, contact assignment). Candidate poses ``P``
 (`candidate_poses`): the final grasp's pose and the initial grasp's (when they differ), the
 object carried a lifted finger's clearance and a lift's retreat away from a finger that
 cannot back off its contact, then the poses that rest the object on the palm from either
-grasp (`planner.repose.settle_pose`: a thumb that cannot lift because nothing opposes it can
-lift once the palm does). For each, the initial grasp is taken to ``P`` (a `Leg`: fingers
+grasp (`planner.repose.settle_poses`, carried along a direction the fingers can follow: a
+thumb that cannot lift because nothing opposes it can lift once the palm does). For each, the initial grasp is taken to ``P`` (a `Leg`: fingers
 that cannot follow lifted or released first, then the reposing move), the final grasp
 likewise (its leg reversed ends the plan), and the gait search (`planner.regrasp.plan_gaits`)
 joins the two at ``P``. The first candidate that gives a plan is returned (poses tried in that
@@ -28,7 +28,7 @@ from planner.errors import MotionError, NoSequenceError, PlannerError
 from planner.model import PALM
 from planner.options import PlanOptions, gravity_directions_of
 from planner.plan_data import OBJECT, Plan, PlanState, PlanStep, pose_vector
-from planner.repose import FOLLOW_TOL_M, FollowError, Reposing, at_pose, pose_distance, repose, settle_pose, state_reason
+from planner.repose import FOLLOW_TOL_M, FollowError, Reposing, at_pose, pose_distance, repose, settle_poses, state_reason
 
 log = logging.getLogger("planner")
 
@@ -66,10 +66,10 @@ def _same(Ta, Tb) -> bool:
     return mm <= SAME_POSE[0] and deg <= SAME_POSE[1]
 
 
-def candidate_poses(initial, final) -> list[tuple[str, np.ndarray]]:
-    """(name, pose) of the poses the gaits may happen at, in the order they are tried."""
-    from planner.synth_sample import PALM_TOUCH_GAP_M  # where ``synth --palm`` rests an object on the palm
-
+def candidate_poses(initial, final, options: PlanOptions | None = None) -> list[tuple[str, np.ndarray]]:
+    """(name, pose) of the poses the gaits may happen at, in the order they are tried (with
+    ``options``, the palm's resting poses are ones the fingers can carry the object to:
+    `_settle`)."""
     Ta, Tb = np.asarray(initial.obj.T_palm_obj, float), np.asarray(final.obj.T_palm_obj, float)
     out = []
     if not identical(Ta, Tb):
@@ -95,10 +95,38 @@ def candidate_poses(initial, final) -> list[tuple[str, np.ndarray]]:
                     out.append((f"{d * 1e3:g} mm away from {f} in the {which} grasp (it cannot back off)", P))
     if "free" not in (initial.spec.palm, final.spec.palm):
         for which, g in (("initial", initial), ("final", final)):
-            s = settle_pose(g, PALM_TOUCH_GAP_M)
+            s = _settle(g, final if g is initial else initial, options)
             if s is not None and not any(_same(s[0], T) for _, T in out):
                 out.append((f"resting on the palm ({s[1] * 1e3:.1f} mm from the {which} grasp's pose)", s[0]))
     return out
+
+
+def _settle(g, other, options):
+    """The pose resting ``g``'s object on the palm (`planner.repose.settle_poses`, the straight
+    carry first): the first whose carry ``g``'s fingers can follow, preferring one the
+    ``other`` grasp's can follow too when both hold the object at the same pose (its leg
+    goes there as well); with no ``options`` (or none followed) the straight carry."""
+    from planner.synth_sample import PALM_TOUCH_GAP_M  # where ``synth --palm`` rests an object on the palm
+
+    poses = list(settle_poses(g, PALM_TOUCH_GAP_M))
+    if not poses or options is None:
+        return poses[0] if poses else None
+    both = identical(g.obj.T_palm_obj, other.obj.T_palm_obj)
+    first = None
+    for T, carry in poses:
+        try:
+            repose(g, T, options)
+        except MotionError:
+            continue
+        if not both:
+            return T, carry
+        first = first or (T, carry)
+        try:
+            repose(other, T, options)
+            return T, carry
+        except MotionError:
+            continue
+    return first or poses[0]
 
 
 def _away_from(g, finger: str, d: float):
@@ -380,8 +408,16 @@ def _with_q(g, q_finger, finger):
 #: contact points this close, m: twice the follower's tolerance, as the audit allows a contact
 #: to stay on its object point) keeps one posture there:
 SNAP_M = 2 * FOLLOW_TOL_M
-#: ... when its joints differ by at most this (rad): the two legs' IK ends near each other.
+#: ... when its joints differ by at most this (rad): the two legs' IK ends near each other,
+#: and one waypoint joins them.
 SNAP_RAD = 0.05
+#: Farther apart (another IK solution touching the same point: a redundant finger's
+#: self-motion, its pad rolling on the point), the postures are joined by a re-posturing
+#: path with the object still: waypoints at most `SNAP_RAD` apart, the outermost contact
+#: kept on its object point by the reposing follower at every one (its point on the link
+#: moving from the one posture's to the other's), each measured as a plan state. At most
+#: this far (rad, the largest joint change): a longer self-motion is no snap.
+REPOSTURE_MAX_RAD = 0.5
 
 
 def _outer_point(g, finger: str):
@@ -411,7 +447,7 @@ def _snap(first: Leg, back: Leg, options: PlanOptions) -> tuple[Leg, Leg]:
                 continue
             pa, pb = _outer_point(g, f), _outer_point(other, f)
             qa, qb = np.asarray(g.finger_q[f]), np.asarray(other.finger_q[f])
-            if pa is None or pb is None or np.linalg.norm(pa - pb) > SNAP_M or np.max(np.abs(qa - qb)) > SNAP_RAD:
+            if pa is None or pb is None or np.linalg.norm(pa - pb) > SNAP_M or np.max(np.abs(qa - qb)) > REPOSTURE_MAX_RAD:
                 continue
             if np.array_equal(qa, qb):
                 continue  # (postures within the slot tolerance are re-postured too: a plan joins states exactly)
@@ -419,11 +455,15 @@ def _snap(first: Leg, back: Leg, options: PlanOptions) -> tuple[Leg, Leg]:
             changed.append(f)
         if not changed:
             continue
+        path = _reposture(g, other, changed, options)
+        if path is None:
+            continue
         g2 = at_pose(g, g.obj.T_palm_obj, q)
         if set(g2.patches) != set(g.patches) or state_reason(g2, options) is not None:
             continue
         r = leg_.move
-        move = Reposing(np.vstack([r.q_path, q[None, :]]), np.concatenate([r.poses, r.poses[-1:]]), r.fingers, r.start, g2)
+        move = Reposing(np.vstack([r.q_path, path]), np.concatenate([r.poses] + [r.poses[-1:]] * len(path)),
+                        r.fingers, r.start, g2)
         snapped = replace(leg_, move=move, end=g2)
         if leg_ is back:
             back = snapped
@@ -431,6 +471,58 @@ def _snap(first: Leg, back: Leg, options: PlanOptions) -> tuple[Leg, Leg]:
             first = snapped
         break  # one side re-postured is enough
     return first, back
+
+
+def _outer_hold(g, finger: str):
+    """(link, point in the link frame, point in the object frame, the link's orientation in the
+    object frame, the inward normal) of ``finger``'s outermost contact (`planner.repose._holds`'s
+    first item)."""
+    from planner.repose import _holds
+
+    return _holds(g)[finger][0]
+
+
+def _reposture(g, other, fingers, options):
+    """Joint waypoints (k, nq) taking ``fingers`` of ``g`` to their postures in ``other`` (the
+    same object pose, each touching the same point with the same outermost link) with the
+    object still, the last one exactly ``other``'s postures; None when a finger cannot keep
+    its contact on the way or a waypoint is no valid state (`SNAP_RAD`, `REPOSTURE_MAX_RAD`).
+    Each waypoint moves the fingers' joints along the straight line between the postures and
+    the reposing follower (`planner.repose._follow`) puts the outermost contact back on its
+    object point, its point on the link interpolated between the two postures' (the pad rolls)."""
+    from planner.repose import _follow
+
+    hand = g.hand
+    T = np.asarray(g.obj.T_palm_obj, float)
+    lo, hi = np.asarray(hand.lower, float), np.asarray(hand.upper, float)
+    ends = {}
+    for f in fingers:
+        la, pla, poa, R_rel, n_obj = _outer_hold(g, f)
+        lb, plb, pob, _, _ = _outer_hold(other, f)
+        if la != lb:
+            return None
+        ends[f] = (la, pla, plb, poa, pob, np.asarray(g.finger_q[f], float), np.asarray(other.finger_q[f], float),
+                   R_rel, n_obj)
+    dq = max(float(np.max(np.abs(e[6] - e[5]))) for e in ends.values())
+    n = max(1, int(math.ceil(dq / SNAP_RAD)))
+    q = np.array(g.q, dtype=float)
+    out = []
+    for k in range(1, n + 1):
+        s = k / n
+        for f, (link, pla, plb, poa, pob, qa, qb, R_rel, n_obj) in ends.items():
+            idx = list(hand.fingers[f].q_index)
+            q[idx] = qa + s * (qb - qa)
+            if k < n:  # the contact kept: the link point rolling from the one posture's to the other's
+                hold = [(link, (1 - s) * pla + s * plb, (1 - s) * poa + s * pob, R_rel, n_obj)]
+                q, worst, _ = _follow(hand, f, q, hold, T, lo, hi, twist=False)
+                if worst > 2 * FOLLOW_TOL_M:
+                    return None
+        if k < n:
+            w = at_pose(g, T, q)
+            if not set(ends) <= set(w.patches) or state_reason(w, options) is not None:
+                return None
+        out.append(q.copy())
+    return np.array(out)
 
 
 def first_clause(err) -> str:
@@ -460,7 +552,7 @@ def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bo
     directions = gravity_directions_of(options, hand)
     verifying = options.verify and bool(directions)
     verify_s = 0.0
-    for name, P in candidate_poses(initial, final):
+    for name, P in candidate_poses(initial, final, options):
         log.info("reposing: trying the gaits at %s", name)
         try:
             first = leg(initial, P, options, gait_fn)

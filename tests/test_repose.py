@@ -282,3 +282,61 @@ def test_legs_ending_within_the_slot_tolerance_are_joined_exactly():
     back = plan_from_data(plan.to_dict())
     assert len(back.states) == len(plan.states) and any(s.action == "repose" for s in back.steps)
     assert np.allclose(back.states[-1].q, plan.states[-1].q, atol=1e-6)
+
+
+def test_settle_poses_rest_the_object_at_the_touch_gap_along_tilted_carries():
+    """The straight carry first (`settle_pose`'s), then carries tilted from it by each of
+    SETTLE_TILTS_DEG in SETTLE_AZIMUTHS directions: every pose is a pure translation of the
+    object that leaves it ``touch`` from the palm (re-measured), and each direction makes its
+    tilt's angle with the straight one."""
+    from planner.repose import SETTLE_AZIMUTHS, SETTLE_TILTS_DEG, settle_pose, settle_poses
+
+    g = realize(load_grasp(bundled_grasp("allegro/sphere_tripod.yaml")))
+    touch = 0.0005
+    poses = list(settle_poses(g, touch))
+    assert 1 < len(poses) <= 1 + (len(SETTLE_TILTS_DEG) - 1) * SETTLE_AZIMUTHS
+    first = settle_pose(g, touch)
+    assert first is not None and np.allclose(poses[0][0], first[0]) and poses[0][1] == first[1]
+    T0 = np.asarray(g.obj.T_palm_obj, float)
+    state = g.hand.state(g.q)
+    palm_links = g.hand.collision.finger_links(None)
+    u = (first[0][:3, 3] - T0[:3, 3]) / first[1]
+    tilts = []
+    for T, carry in poses:
+        assert np.allclose(T[:3, :3], T0[:3, :3]) and np.linalg.norm(T[:3, 3] - T0[:3, 3]) == pytest.approx(carry)
+        gap = min(x.distance_m for x in state.link_object(g.obj.with_pose(T), palm_links).values())
+        assert gap == pytest.approx(touch, abs=2e-6)
+        tilts.append(round(math.degrees(math.acos(min(1.0, float(u @ (T[:3, 3] - T0[:3, 3]) / carry)))), 3))
+    assert set(tilts) <= {round(t, 3) for t in SETTLE_TILTS_DEG} and tilts == sorted(tilts)
+
+
+def test_reposture_keeps_each_contact_on_its_point_and_ends_in_the_other_posture():
+    """Two grasps of the pen touching the same points with other postures (the bundled
+    writing pose's tripod carried back to the pinch's pose, against the pinch with the
+    middle finger landed): `_reposture` joins them with the object still; independently
+    re-measured, every waypoint keeps each moved finger's outermost link within the
+    follower's tolerance of its object point, and the last one is the other grasp's."""
+    from planner.pose_search import _outer_point, _reposture, leg
+    from planner.repose import FOLLOW_TOL_M, at_pose, state_reason
+
+    pinch = realize(load_grasp(bundled_grasp("icub/pen_palmar_pinch.yaml")))
+    pose = realize(load_grasp(bundled_grasp("icub/pen_writing_pose.yaml")))
+    T = np.asarray(pinch.obj.T_palm_obj, float)
+    back = leg(pose, T, OPTS, None).end
+    fingers = [f for f in ("thumb", "index")
+               if np.linalg.norm(_outer_point(back, f) - _outer_point(pinch, f)) < 2 * FOLLOW_TOL_M]
+    assert fingers and any(np.max(np.abs(np.asarray(back.finger_q[f]) - pinch.finger_q[f])) > 0.05 for f in fingers)
+    path = _reposture(back, pinch, fingers, OPTS)
+    assert path is not None and len(path) > 1
+    for f in fingers:
+        idx = list(back.hand.fingers[f].q_index)
+        assert np.allclose(path[-1][idx], pinch.finger_q[f])
+        others = [i for i in range(len(back.q)) if i not in {k for x in fingers for k in back.hand.fingers[x].q_index}]
+        assert np.allclose(path[:, others], np.asarray(back.q)[others])
+        link = [c.link for c in back.contacts if c.finger == f]
+        for q in path[:-1]:
+            g = at_pose(back, T, q)
+            assert f in g.patches and state_reason(g, OPTS) is None
+            d = g.hand.state(q).link_object(g.obj, [link[-1]])
+            assert abs(min(x.distance_m for x in d.values())) < 2 * FOLLOW_TOL_M
+            assert np.linalg.norm(_outer_point(g, f) - _outer_point(back, f)) < 2 * FOLLOW_TOL_M

@@ -541,3 +541,35 @@ def test_a_lift_retreats_from_where_the_finger_touches_and_ends_where_planned():
     share = (start - planned[0]) / (len(planned) - 1)
     assert np.allclose(np.diff(out[1:], axis=0), np.diff(planned, axis=0) - share)
     assert np.allclose(lift_path(planned[0], planned)[1:], planned)  # no offset: the plan itself
+
+
+def test_pen_pinch_to_writing_pose_turns_the_pen_in_a_tripod_and_holds():
+    """Issue 39 item 5, the thesis's motivating case: the pen picked with a palmar pinch ends
+    in a writing tripod with the pen turned 10 deg. Planned in execution mode, the plan lands
+    the middle finger at the pinch's pose and then carries the pen with the three contacts
+    fixed on it (a reposing move; thumb and index re-postured at the start, their pads rolling
+    on their points); it was verified in all six directions before it was returned, and an
+    independent replay palm down follows the planned object path."""
+    from planner.gravity import gravity_directions
+    from planner.grasp import load_grasp
+    from planner.options import PlanOptions
+    from planner.realization import realize
+    from planner.regrasp import plan_regrasp
+    from planner.repose import pose_distance
+
+    root = Path(__file__).resolve().parent.parent / "grasps" / "icub"
+    pinch, pose = (realize(load_grasp(root / f)) for f in ("pen_palmar_pinch.yaml", "pen_writing_pose.yaml"))
+    mm, deg = pose_distance(pinch.obj.T_palm_obj, pose.obj.T_palm_obj)
+    assert deg > 10.0
+    plan = plan_regrasp(pinch, pose, PlanOptions.for_execution()).plan
+    assert [(s.finger, s.action) for s in plan.steps][-2:] == [("middle", "land"), ("object", "repose")]
+    moved = plan.steps[-1]
+    assert set(moved.joints) >= set(pose.hand.fingers["middle"].joints) | set(pose.hand.fingers["thumb"].joints)
+    rep = plan.summary["reposing"]
+    assert rep["moves"] == 1 and rep["object_path_deg"] == pytest.approx(deg, abs=0.01)
+    ver = plan.summary["verification"]
+    assert ver["passed"] and len(ver["directions"]) == 6 and all(d["passed"] for d in ver["directions"].values())
+    hand = Hand.load("icub_right")
+    report = replay_plan(plan.to_dict(), gravity=dict(gravity_directions(hand.palm_normal, 7))["palm_down"], hand=hand)
+    assert report.passed, report.verdict
+    assert report.max_drift_mm < 5.0 and report.max_drift_deg < 5.0
