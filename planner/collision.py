@@ -514,9 +514,9 @@ class HandState:
                 worst[(a, b)] = max(worst.get((a, b), 0.0), -d)
         return [(a, b, depth) for (a, b), depth in worst.items()]
 
-    def object_distances(self, obj, finger: str) -> list[tuple[float, str, np.ndarray, np.ndarray]]:
-        """Signed distance of each of a finger's geometries to the object's signed-distance
-        geometry (`signed_distance_geometry`; negative: penetration).
+    def object_distances(self, obj, finger: str, links=None) -> list[tuple[float, str, np.ndarray, np.ndarray]]:
+        """Signed distance of each of a finger's geometries (those on ``links`` when given) to
+        the object's signed-distance geometry (`signed_distance_geometry`; negative: penetration).
 
         Returns:
             [(distance_m, link, p_link_palm (3,), p_object_palm (3,))] in geometry order.
@@ -527,6 +527,8 @@ class HandState:
         out = []
         request = coal.DistanceRequest()
         for k, i in enumerate(kin["geoms"]):
+            if links is not None and self.model.geometries[i].link not in links:
+                continue
             result = coal.DistanceResult()
             d = coal.distance(self.model.geometries[i].shape, transform(T[k]), sdf, tf_obj, request, result)
             out.append((float(d), self.model.geometries[i].link, np.array(result.getNearestPoint1(), dtype=float),
@@ -558,6 +560,30 @@ class HandState:
         return entry[1]
 
 
+def _finger_pairs(model: CollisionModel, finger: str, moving: tuple) -> tuple:
+    """What `_ClearanceScene` needs of the hand and one moving finger alone (built once per
+    hand and finger): the static geometries, every geometry's bounding sphere (its own
+    frame), the moving ones' centres and radii, the static radii, the checked moving-static
+    pairs as a mask, the checked pairs of the finger's own geometries (and as two arrays)."""
+    cache = model.__dict__.setdefault("_finger_pairs", {})
+    entry = cache.get((finger, moving))
+    if entry is None:
+        geoms = model.geometries
+        static = tuple(g.index for g in geoms if g.finger != finger)
+        spheres = [bounding_sphere(g.shape) for g in geoms]
+        static_mask = np.array([[model.is_checked(i, s) for s in static] for i in moving],
+                               dtype=bool).reshape(len(moving), len(static))
+        self_pairs = [(a, b) for a in range(len(moving)) for b in range(a + 1, len(moving))
+                      if model.is_checked(moving[a], moving[b])]
+        entry = cache[(finger, moving)] = (
+            static, spheres, np.array([spheres[i][0] for i in moving]), np.array([spheres[i][1] for i in moving]),
+            np.array([spheres[s][1] for s in static]), static_mask, self_pairs,
+            np.array([a for a, _ in self_pairs], dtype=int), np.array([b for _, b in self_pairs], dtype=int))
+        for arr in entry[2:6]:
+            arr.flags.writeable = False  # shared by every scene of this finger
+    return entry
+
+
 class _ClearanceScene:
     """One moving finger against the object and the rest of the hand, as posed in ``base``.
 
@@ -568,21 +594,14 @@ class _ClearanceScene:
 
     def __init__(self, base: HandState, obj, finger: str):
         model = base.model
-        geoms = model.geometries
         self.moving = base._finger_kinematics(finger)["geoms"]
-        self.static = tuple(g.index for g in geoms if g.finger != finger)
-        spheres = [bounding_sphere(g.shape) for g in geoms]
-        self.moving_centers = np.array([spheres[i][0] for i in self.moving])  # (k, 3) geometry frames
-        self.moving_radii = np.array([spheres[i][1] for i in self.moving])
+        # what depends on the hand and the finger only: once per hand
+        (self.static, spheres, self.moving_centers, self.moving_radii, self.static_radii, self.static_mask,
+         self.self_pairs, self.self_a, self.self_b) = _finger_pairs(model, finger, self.moving)
         self.static_tf = [base.transform(s) for s in self.static]
         T_static = [transform_matrix(tf) for tf in self.static_tf]
         self.static_centers = (np.array([T[:3, :3] @ spheres[s][0] + T[:3, 3] for s, T in zip(self.static, T_static)])
                                if self.static else np.zeros((0, 3)))
-        self.static_radii = np.array([spheres[s][1] for s in self.static])
-        self.static_mask = np.array([[model.is_checked(i, s) for s in self.static] for i in self.moving],
-                                    dtype=bool).reshape(len(self.moving), len(self.static))
-        self.self_pairs = [(a, b) for a in range(len(self.moving)) for b in range(a + 1, len(self.moving))
-                           if model.is_checked(self.moving[a], self.moving[b])]
         self.model = model
         self.obj = obj
         T_palm_obj = np.asarray(obj.T_palm_obj, dtype=float)
@@ -591,7 +610,7 @@ class _ClearanceScene:
         self.obj_center = T_palm_obj[:3, :3] @ o_center + T_palm_obj[:3, 3]
         self.obj_is_mesh = isinstance(obj.geometry, coal.BVHModelBase)
         self.obj_sdf = signed_distance_geometry(obj)
-        self.collide_obj = [coal.ComputeCollision(geoms[i].shape, obj.geometry) for i in self.moving]
+        self.collide_obj = [coal.ComputeCollision(model.geometries[i].shape, obj.geometry) for i in self.moving]
         self.touch_request = coal.CollisionRequest()
         self.touch_request.security_margin = -LINK_EPS_M
 
@@ -630,9 +649,17 @@ class _ClearanceScene:
                 if self.model.compute_collision(i, j)(tf(k), self.static_tf[s], self.touch_request,
                                                       coal.CollisionResult()):
                     return False
-        # own non-adjacent links
-        for a, b in self.self_pairs:
-            if ((centers[a] - centers[b]) ** 2).sum() < (radii[a] + radii[b]) ** 2:
+        # own non-adjacent links: the bounding-sphere test of every pair at once; a pair within
+        # rounding (1e-12 relative) of its bound takes the one-pair test (the same pairs to the bit)
+        if self.self_pairs:
+            A, B = self.self_a, self.self_b
+            dc = centers[A] - centers[B]
+            d2, r2 = (dc * dc).sum(1), (radii[A] + radii[B]) ** 2
+            tol = 1e-12 * (r2 + d2)
+            for k in np.flatnonzero(~(d2 - r2 > tol)).tolist():
+                a, b = self.self_pairs[k]
+                if not (r2[k] - d2[k] > tol[k]) and not ((centers[a] - centers[b]) ** 2).sum() < (radii[a] + radii[b]) ** 2:
+                    continue
                 if self.model.compute_collision(self.moving[a], self.moving[b])(
                         tf(a), tf(b), self.touch_request, coal.CollisionResult()):
                     return False

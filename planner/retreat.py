@@ -26,6 +26,8 @@ _ROTATION_WEIGHT_M = 0.03
 _LIFT_LAG_M = 0.002
 """A retreat step whose contact point trails its target by more than this is stuck (it slides)."""
 _REPEL_MARGIN_M = 0.003
+STEP_M = 0.0005
+"""Retreat of the contact point per damped least-squares step (`retreat`'s default)."""
 """`_retreat_repel` pushes away every link within the clearance plus this of the object."""
 
 
@@ -175,7 +177,7 @@ def retreat(
     clearance_m: float,
     resolution_rad: float,
     what: str,
-    step_m: float = 0.0005,
+    step_m: float = STEP_M,
 ) -> np.ndarray:
     """Path from the contact configuration ``a`` backing off along the outward normal.
 
@@ -189,16 +191,7 @@ def retreat(
     Every state may touch the object no deeper than the contact itself or
     ``touch_tol_m``. Returns (m, n_finger_joints), first row ``a``.
     """
-    hand = scene.hand
-    name = scene.finger.name
-    d0, link, p_palm, p_object_palm = scene.object_distance(a)
-    n_in = _inward_normal(scene, p_object_palm) if n_in_palm is None else np.asarray(n_in_palm, float)
-    norm = np.linalg.norm(n_in)
-    if n_in.shape != (3,) or not np.isfinite(norm) or norm < 1e-9:
-        raise InputError(f"contact normal of finger {name} must be a non-zero 3-vector; got {n_in_palm!r}")
-    n_in = n_in / norm
-    touch_margin = min(-scene.touch_tol_m, d0 - 1e-6)  # never deeper than the contact
-    p_link = scene.point_on_link(a, link, p_palm)
+    link, n_in, p_link, touch_margin = _lift_start(scene, a, n_in_palm)
     for rotation_weight_m in (_ROTATION_WEIGHT_M, 0.0):
         path = _retreat_dls(
             scene, a, n_in, link, p_link, rotation_weight_m=rotation_weight_m,
@@ -211,9 +204,35 @@ def retreat(
     )
     if path is not None:
         return densify(np.array(path), resolution_rad)
+    path = _open_finger(scene, a, link, touch_margin=touch_margin, lift_m=lift_m, clearance_m=clearance_m,
+                        resolution_rad=resolution_rad)
+    if path is not None:
+        return path
+    raise _stuck(scene, link, lift_m, what)
 
-    # Fallback: open the finger along a joint-space line, first only the closing
-    # (flexion) joints, keeping abduction/opposition, then toward the whole open posture.
+
+def _lift_start(scene: FingerScene, a: np.ndarray, n_in_palm) -> tuple:
+    """What every way of backing off starts from: the contact link (the finger's link nearest
+    to the object at ``a``), the unit inward normal (``n_in_palm``, or the object's at the
+    nearest point), the contact point on the link (link frame) and the touch margin (never
+    deeper than the contact)."""
+    name = scene.finger.name
+    d0, link, p_palm, p_object_palm = scene.object_distance(a)
+    n_in = _inward_normal(scene, p_object_palm) if n_in_palm is None else np.asarray(n_in_palm, float)
+    norm = np.linalg.norm(n_in)
+    if n_in.shape != (3,) or not np.isfinite(norm) or norm < 1e-9:
+        raise InputError(f"contact normal of finger {name} must be a non-zero 3-vector; got {n_in_palm!r}")
+    n_in = n_in / norm
+    touch_margin = min(-scene.touch_tol_m, d0 - 1e-6)  # never deeper than the contact
+    return link, n_in, scene.point_on_link(a, link, p_palm), touch_margin
+
+
+def _open_finger(scene: FingerScene, a: np.ndarray, link: str, *, touch_margin: float, lift_m: float,
+                 clearance_m: float, resolution_rad: float) -> np.ndarray | None:
+    """`retreat`'s fallback: open the finger along a joint-space line, first only the closing
+    (flexion) joints, keeping abduction/opposition, then toward the whole open posture; the
+    dense path up to the first configuration lifted and clear, or None."""
+    hand, name = scene.hand, scene.finger.name
     lo = np.asarray(hand.lower, dtype=float)[scene.idx]
     hi = np.asarray(hand.upper, dtype=float)[scene.idx]
     q_open = np.clip(np.asarray(hand.q_open, dtype=float)[scene.idx], lo, hi)
@@ -221,14 +240,20 @@ def retreat(
     for target in (scene.finger.couple(np.where(closing, q_open, a)), q_open):
         line = densify(np.array([a, target]), resolution_rad)
         for k, q in enumerate(line[1:], start=1):
-            if not scene.is_valid(q, touch_margin):
+            st = scene.state(q)  # one hand state per configuration: clearance and distances read it
+            if not st.clearance(scene.obj, name, touch_margin):
                 break
-            distances = scene.object_distances(q)
-            lifted = min(d for d, l, _, _ in distances if l == link) >= lift_m
-            if lifted and min(d for d, *_ in distances) >= clearance_m and scene.is_valid(q, clearance_m):
+            # lifted: the contact link's distance first, the whole finger's only then
+            if (min(d for d, *_ in st.object_distances(scene.obj, name, links=(link,))) >= lift_m
+                    and min(d for d, *_ in st.object_distances(scene.obj, name)) >= clearance_m
+                    and st.clearance(scene.obj, name, clearance_m)):
                 return line[: k + 1]
-    raise MotionError(
-        f"finger {name}: cannot {what} (contact on {link}): neither a {lift_m * 1000:.1f} mm "
+    return None
+
+
+def _stuck(scene: FingerScene, link: str, lift_m: float, what: str) -> MotionError:
+    return MotionError(
+        f"finger {scene.finger.name}: cannot {what} (contact on {link}): neither a {lift_m * 1000:.1f} mm "
         f"retreat along the contact normal nor opening the finger is free"
     )
 
@@ -257,13 +282,19 @@ def retreat_blocked(
     q_ref[list(f.q_index)] = q_finger
     scene = FingerScene(hand, obj, q_ref, finger, touch_tol_m)
     a = np.asarray(q_finger, dtype=float)
-    try:
-        retreat(scene, a, None, lift_m=lift_m, clearance_m=clearance_m, resolution_rad=resolution_rad,
-                 what="back off this contact")
-    except MotionError as err:
-        lo = np.asarray(hand.lower, dtype=float)[scene.idx]
-        hi = np.asarray(hand.upper, dtype=float)[scene.idx]
-        tol = max(resolution_rad, 0.05 * float(np.max(hi - lo)))
-        at = [f"{j} {a[k]:.2f} rad (limit {lo[k] if a[k] - lo[k] < hi[k] - a[k] else hi[k]:.2f})"
-              for k, j in enumerate(f.joints) if min(a[k] - lo[k], hi[k] - a[k]) <= tol]
-        return (f"{err}, even with every other finger open" + (f"; near their limits: {', '.join(at)}" if at else ""))
+    # whether `retreat` finds a path: any of its ways will do, the cheapest first (opening
+    # the finger is free for most contacts and costs the least; the retreats then in its order)
+    link, n_in, p_link, touch_margin = _lift_start(scene, a, None)
+    kw = dict(touch_margin=touch_margin, lift_m=lift_m, clearance_m=clearance_m)
+    if (_open_finger(scene, a, link, resolution_rad=resolution_rad, **kw) is not None
+            or any(_retreat_dls(scene, a, n_in, link, p_link, rotation_weight_m=w, step_m=STEP_M, **kw) is not None
+                   for w in (_ROTATION_WEIGHT_M, 0.0))
+            or _retreat_repel(scene, a, link, step_m=STEP_M, **kw) is not None):
+        return None
+    err = _stuck(scene, link, lift_m, "back off this contact")
+    lo = np.asarray(hand.lower, dtype=float)[scene.idx]
+    hi = np.asarray(hand.upper, dtype=float)[scene.idx]
+    tol = max(resolution_rad, 0.05 * float(np.max(hi - lo)))
+    at = [f"{j} {a[k]:.2f} rad (limit {lo[k] if a[k] - lo[k] < hi[k] - a[k] else hi[k]:.2f})"
+          for k, j in enumerate(f.joints) if min(a[k] - lo[k], hi[k] - a[k]) <= tol]
+    return (f"{err}, even with every other finger open" + (f"; near their limits: {', '.join(at)}" if at else ""))
