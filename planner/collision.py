@@ -425,7 +425,7 @@ class HandState:
 
     def finger_penetrates(self, obj, finger: str, obj_sphere=None) -> bool:
         """``finger_object_distance(obj, finger) < 0.0`` with less work: the first geometry
-        that penetrates answers, and with ``obj_sphere`` (`object_sphere`) a geometry whose
+        that penetrates answers (the finger's last geometries first), and with ``obj_sphere`` (`object_sphere`) a geometry whose
         bounding sphere is more than `CULL_M` from the object's is not queried (shapes that
         far apart cannot penetrate: coal's distance between them is positive)."""
         ids = self.model.finger_geometries(finger)
@@ -435,7 +435,7 @@ class HandState:
         tf_obj = None
         req = coal.DistanceRequest()
         geoms = self.model.geometries
-        for i in ids:
+        for i in reversed(ids):  # from the tip: a closing finger meets the object there first
             if obj_sphere is not None:
                 d = self.center(i) - obj_sphere[0]
                 if math.sqrt(float(d @ d)) - geoms[i].radius_m - obj_sphere[1] > CULL_M:
