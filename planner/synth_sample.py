@@ -13,6 +13,7 @@ from __future__ import annotations
 import coal
 import numpy as np
 
+from planner.collision import object_sphere
 from planner.contacts import TOUCH_TOL_M, collisions, contact_patches
 from planner.ik import closing_ends, couple_finger
 from planner.model import PALM
@@ -356,21 +357,22 @@ def sample_candidate(hand, fingers, obj: GraspObject, fixed, rng, obj_radius,
                 if cand is None:
                     continue
                 placed, centre = cand, np.asarray(cand.position, dtype=float)
-                if all(state.finger_object_distance(placed, f) >= 0.0 for f in hand.fingers):
+                if not any(state.finger_penetrates(placed, f, object_sphere(placed)) for f in hand.fingers):
                     break
             if placed is None:
                 return obj, None, "object not against the palm"
-            if any(state.finger_object_distance(placed, f) < 0.0 for f in hand.fingers if f not in names):
+            if any(state.finger_penetrates(placed, f, object_sphere(placed)) for f in hand.fingers if f not in names):
                 return placed, None, "an unused finger is inside the object on the palm"
         else:
+            at_q, free = hand.state(q), hand.state(q_free)  # one state each, read by every try
             for _ in range(POSE_TRIES):
                 centre = mid + rng.normal(scale=JITTER * obj_radius, size=3)
                 quat = [0.0, 0.0, 0.0, 1.0] if obj.shape == "sphere" else _random_quat(rng)
                 placed = obj.replaced(quat_xyzw=quat, position=[float(v) for v in centre])
                 # out of the palm: push the object along the palm normal until it clears the palm
-                placed = _clear_of_palm(hand.state(q), placed, palm_clearance_m, hand.palm_normal)
-                placed = _push_out(hand, q_free, placed, fingers, palm_clearance_m)
-                if all(hand.state(q_free).finger_object_distance(placed, f.name) >= 0.0 for f in fingers):
+                placed = _clear_of_palm(at_q, placed, palm_clearance_m, hand.palm_normal)
+                placed = _push_out(hand, free, placed, fingers, palm_clearance_m)
+                if not any(free.finger_penetrates(placed, f.name, object_sphere(placed)) for f in fingers):
                     break
             centre = np.asarray(placed.position, dtype=float)
     far = [f.name for f, (c, _) in zip(fingers, swept)
@@ -380,9 +382,9 @@ def sample_candidate(hand, fingers, obj: GraspObject, fixed, rng, obj_radius,
     return placed, {f.name: q[list(f.q_index)].copy() for f in fingers}, ""
 
 
-def _push_out(hand, q_free, placed: GraspObject, fingers, palm_clearance_m: float) -> GraspObject:
-    """The object moved out of the opened fingers (``q_free``: the closing joints open, where
-    the closing procedure starts): up to `PUSH_OUT_STEPS` times, the link that penetrates it
+def _push_out(hand, state, placed: GraspObject, fingers, palm_clearance_m: float) -> GraspObject:
+    """The object moved out of the opened fingers (``state``: the hand with the closing joints
+    open, where the closing procedure starts): up to `PUSH_OUT_STEPS` times, the link that penetrates it
     deepest pushes it away from the link's witness point by the depth plus `PUSH_OUT_GAP_M`
     (then out of the palm, as placed). A meeting point of the centre curves can lie where an
     open finger is (the iCub's thumb on a 30 mm ball: 21 of 29 attempts); the closing would
@@ -390,7 +392,6 @@ def _push_out(hand, q_free, placed: GraspObject, fingers, palm_clearance_m: floa
     links = [lk for f in fingers for lk in hand.fingers[f.name].links]
     n = np.asarray(hand.palm_normal, dtype=float)
     for _ in range(PUSH_OUT_STEPS):
-        state = hand.state(q_free)
         worst = min(state.link_object(placed, links).values(), key=lambda ld: ld.distance_m, default=None)
         if worst is None or worst.distance_m >= 0.0:
             return placed
@@ -499,10 +500,10 @@ def _fixed_candidate(hand, fingers, obj: GraspObject, rng, obj_radius, alphas, p
             near += 1
             if near > FIXED_CLOSED_PER_FINGER:
                 break
-            if hand.state(q).finger_object_distance(obj, f.name) < 0.0:
+            if hand.state(q).finger_penetrates(obj, f.name, object_sphere(obj)):
                 q[cidx] = np.clip(base[cidx], hand.lower[cidx], hand.upper[cidx])
                 couple_finger(f, q)
-                if hand.state(q).finger_object_distance(obj, f.name) < 0.0:
+                if hand.state(q).finger_penetrates(obj, f.name, object_sphere(obj)):
                     continue
             pre = q[idx].copy()
             q = np.asarray(hand.close_finger(f, q, obj), dtype=float)
@@ -681,12 +682,12 @@ def closes_onto(hand, fingers, obj, preshape, palm: bool = False):
     base = q.copy()
     for f in fingers:  # (each finger's start depends on its own joints only)
         q[list(f.q_index)] = preshape[f.name]
-        if hand.state(q).finger_object_distance(obj, f.name) < 0.0:
+        if hand.state(q).finger_penetrates(obj, f.name, object_sphere(obj)):
             # the closing procedure starts from a finger free of the object: open its closing joints
             cidx = [hand.joint_names.index(j) for j in f.close_joints]
             q[cidx] = np.clip(np.asarray(hand.q_open)[cidx], hand.lower[cidx], hand.upper[cidx])
             couple_finger(f, q)
-            if hand.state(q).finger_object_distance(obj, f.name) < 0.0:
+            if hand.state(q).finger_penetrates(obj, f.name, object_sphere(obj)):
                 return None, Rejection("a finger starts inside the object", [f.name])
             preshape[f.name] = q[list(f.q_index)].copy()
     chosen = {f.name for f in fingers}
