@@ -425,6 +425,9 @@ def min_grip_force(patches: Mapping[str, tuple], friction: Friction, load, *,
         if not isinstance(friction, Friction):
             raise InputError(f"friction must be a Friction, got {type(friction).__name__}")
         friction = Friction(friction.mu, friction.gamma, int(cone_sides))
+    given = _grip_input_key(patches, friction, w_ext)  # the same patches asked again: no wrenches built
+    if given in _GRIP_MEMO:
+        return _GRIP_MEMO[given]
     W, blocks = _finger_wrenches(patches, friction)
     if not w_ext.any():
         return 0.0
@@ -446,7 +449,24 @@ def min_grip_force(patches: Mapping[str, tuple], friction: Friction, load, *,
         for stale in list(_GRIP_MEMO)[: GRIP_MEMO // 2]:
             del _GRIP_MEMO[stale]
     _GRIP_MEMO[key] = t
+    if given is not None:
+        _GRIP_MEMO[given] = t
     return t
+
+
+def _grip_input_key(patches, friction, w_ext: np.ndarray):
+    """A key of `min_grip_force`'s inputs (the patches' arrays, the friction, the load), or
+    None when they are not plain (then the wrenches are built and checked first)."""
+    if not isinstance(friction, Friction):
+        return None
+    try:
+        items = tuple((f, a.dtype.str, a.shape, a.astype(float).tobytes(), b.dtype.str, b.shape, b.astype(float).tobytes())
+                      for f, a, b in ((f, np.asarray(p), np.asarray(n)) for f, p, n in _patch_items(patches)))
+        key = ("given", friction.mu, friction.gamma, friction.edges, w_ext.tobytes(), items)
+        hash(key)
+    except (InputError, TypeError, ValueError):
+        return None
+    return key
 
 
 #: Grip forces `min_grip_force` remembers (per process; the oldest half dropped beyond this).
