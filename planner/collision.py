@@ -22,7 +22,6 @@ measurement, which the replay compares with the plan.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Iterable, Mapping
@@ -90,11 +89,12 @@ class LinkDistance:
 
 
 
-def object_sphere(obj) -> tuple[np.ndarray, float]:
-    """(palm-frame centre (3,), radius) of a sphere around the object (its local AABB's)."""
+def object_sphere(obj) -> tuple[np.ndarray, float, coal.Transform3s]:
+    """(palm-frame centre (3,), radius) of a sphere around the object (its local AABB's), and
+    the object's pose as a coal transform (`object_transform`)."""
     c, r = bounding_sphere(obj.geometry)
     T = np.asarray(obj.T_palm_obj, dtype=float)
-    return T[:3, :3] @ c + T[:3, 3], r
+    return T[:3, :3] @ c + T[:3, 3], r, object_transform(obj)
 
 
 def _pair_arrays(geoms, pairs) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -432,15 +432,17 @@ class HandState:
         if not ids:
             raise UnknownNameError("finger with collision geometry", str(finger),
                                    [f for f in self.model.finger_joints if self.model.finger_geometries(f)])
-        tf_obj = None
+        oc, r_obj, tf_obj = (None, 0.0, None) if obj_sphere is None else obj_sphere
         req = coal.DistanceRequest()
         geoms = self.model.geometries
         for i in reversed(ids):  # from the tip: a closing finger meets the object there first
-            if obj_sphere is not None:
-                d = self.center(i) - obj_sphere[0]
-                if math.sqrt(float(d @ d)) - geoms[i].radius_m - obj_sphere[1] > CULL_M:
+            if oc is not None:
+                d = self.center(i) - oc
+                reach = geoms[i].radius_m + r_obj + CULL_M
+                if float(d @ d) > reach * reach:
                     continue
-            tf_obj = tf_obj or object_transform(obj)
+            if tf_obj is None:
+                tf_obj = object_transform(obj)
             if coal.distance(geoms[i].shape, self.transform(i), obj.geometry, tf_obj, req, coal.DistanceResult()) < 0.0:
                 return True
         return False
