@@ -472,6 +472,11 @@ class HandState:
         Returns:
             [(link_a, link_b, distance_m)] in the order of ``pairs``.
         """
+        return list(self._pair_distances(pairs, fingers, margin_m))
+
+    def _pair_distances(self, pairs=None, fingers=None, margin_m: float = 0.0, nearest_first: bool = False):
+        """`link_pair_distances` one pair at a time (in the order of ``pairs``, or with
+        ``nearest_first`` the most overlapping bounding spheres first)."""
         geoms = self.model.geometries
         I, J, reach = self.model.pair_arrays() if pairs is None else _pair_arrays(geoms, pairs)
         if fingers is not None:
@@ -489,17 +494,23 @@ class HandState:
         gap = np.sqrt(np.einsum("ij,ij->i", diff, diff)) - bound
         tol = 1e-12 * (1.0 + np.abs(bound))
         near = gap < -tol
-        out = []
         req = coal.DistanceRequest()
-        for k in np.flatnonzero(~(gap > tol)).tolist():
+        order = np.flatnonzero(~(gap > tol))
+        if nearest_first:
+            order = order[np.argsort(gap[order], kind="stable")]
+        for k in order.tolist():
             i, j = int(I[k]), int(J[k])
             gi, gj = geoms[i], geoms[j]
             if not near[k] and np.linalg.norm(self.center(i) - self.center(j)) > gi.radius_m + gj.radius_m + margin_m:
                 continue
             res = coal.DistanceResult()
             d = coal.distance(gi.shape, self.transform(i), gj.shape, self.transform(j), req, res)
-            out.append((gi.link, gj.link, float(d)))
-        return out
+            yield gi.link, gj.link, float(d)
+
+    def self_collides(self, fingers=None) -> bool:
+        """``bool(self_collisions(fingers))``, from the first pair found interpenetrating
+        (the most overlapping bounding spheres tried first)."""
+        return any(d < -LINK_EPS_M for _, _, d in self._pair_distances(fingers=fingers, nearest_first=True))
 
     def self_collisions(self, fingers=None) -> list[tuple[str, str, float]]:
         """Link pairs of the hand that interpenetrate (allowed pairs excluded).

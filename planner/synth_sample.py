@@ -334,7 +334,7 @@ def sample_candidate(hand, fingers, obj: GraspObject, fixed, rng, obj_radius,
                 a = alphas[int(np.argmin(np.linalg.norm(c - centre, axis=1)))]
                 q_touch[cidx] = q[cidx] + a * (end - q[cidx])
                 couple_finger(f, q_touch)
-            if not collisions(hand, q_touch, None, fingers=names):
+            if not hand.state(q_touch).self_collides(set(names)):  # (`collisions` without an object)
                 pick = k
                 break
     _, q, swept, centre = draws[pick]
