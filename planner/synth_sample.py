@@ -331,7 +331,7 @@ def sample_candidate(hand, fingers, obj: GraspObject, fixed, rng, obj_radius,
             q_touch = q.copy()
             for f, (c, _) in zip(fingers, swept):
                 cidx, end = closing_ends(hand, f)
-                a = alphas[int(np.argmin(np.linalg.norm(c - centre, axis=1)))]
+                a = alphas[int(np.argmin(_norm3(c - centre)))]
                 q_touch[cidx] = q[cidx] + a * (end - q[cidx])
                 couple_finger(f, q_touch)
             if not hand.state(q_touch).self_collides(set(names)):  # (`collisions` without an object)
@@ -376,7 +376,7 @@ def sample_candidate(hand, fingers, obj: GraspObject, fixed, rng, obj_radius,
                     break
             centre = np.asarray(placed.position, dtype=float)
     far = [f.name for f, (c, _) in zip(fingers, swept)
-           if float(np.min(np.linalg.norm(c - centre, axis=1))) > SWEEP_REACH * obj_radius]
+           if float(np.min(_norm3(c - centre))) > SWEEP_REACH * obj_radius]
     if far:
         return placed, None, Rejection("sweeps miss the object" + (" on the palm" if palm else ""), far)
     return placed, {f.name: q[list(f.q_index)].copy() for f in fingers}, ""
@@ -495,7 +495,7 @@ def _fixed_candidate(hand, fingers, obj: GraspObject, rng, obj_radius, alphas, p
             q = base.copy()
             _finger_draw(hand, f, q, rng)
             c, _ = _sweep(hand, f, q, alphas, CENTRE_OFFSET * obj_radius)
-            if float(np.min(np.linalg.norm(c - centre, axis=1))) > SWEEP_REACH * obj_radius:
+            if float(np.min(_norm3(c - centre))) > SWEEP_REACH * obj_radius:
                 continue
             near += 1
             if near > FIXED_CLOSED_PER_FINGER:
@@ -528,7 +528,7 @@ def _fixed_candidate(hand, fingers, obj: GraspObject, rng, obj_radius, alphas, p
 
     def scores(i):
         rest = extra + sum((N[j][pick[j]] for j in range(F) if j != i), np.zeros(3))
-        out = np.linalg.norm((rest + N[i]) / m, axis=1) if m > 1 else np.zeros(len(N[i]))
+        out = _norm3((rest + N[i]) / m) if m > 1 else np.zeros(len(N[i]))
         out[list(blocked[i])] = np.inf
         return out
 
@@ -654,7 +654,7 @@ def _score(swept, centre, obj_radius, palm_normal=None) -> float:
     the palm's push, along ``palm_normal``, when given)."""
     gaps, normals = [], []
     for c, n in swept:
-        d = np.linalg.norm(c - centre, axis=1)
+        d = _norm3(c - centre)
         k = int(np.argmin(d))
         gaps.append(float(d[k]))
         normals.append(n[k])
