@@ -573,3 +573,40 @@ def test_pen_pinch_to_writing_pose_turns_the_pen_in_a_tripod_and_holds():
     report = replay_plan(plan.to_dict(), gravity=dict(gravity_directions(hand.palm_normal, 7))["palm_down"], hand=hand)
     assert report.passed, report.verdict
     assert report.max_drift_mm < 5.0 and report.max_drift_deg < 5.0
+
+
+def test_allegro_pen_pinch_to_writing_pose_rolls_the_pen_and_lands_the_middle_finger():
+    """Issue 39 item 5 on the Allegro: the 10 mm pen picked with a tip-to-tip palmar pinch ends
+    in a writing tripod with the pen turned 13.9 deg (mostly rolled about its own axis).
+    Planned in execution mode, the pinch rolls the pen with both contacts fixed on it (a
+    reposing move of thumb and index), then the middle finger lands; the plan passes the
+    replay's physics check (every reposing contact stays on its object point), was verified
+    in all six directions before it was returned, and an independent replay palm down follows
+    the planned object path."""
+    from planner.audit import audit_plan
+    from planner.gravity import gravity_directions
+    from planner.grasp import load_grasp
+    from planner.options import PlanOptions
+    from planner.realization import realize
+    from planner.regrasp import plan_regrasp
+    from planner.repose import pose_distance
+
+    root = Path(__file__).resolve().parent.parent / "grasps" / "allegro"
+    pinch, pose = (realize(load_grasp(root / f)) for f in ("pen_palmar_pinch.yaml", "pen_writing_pose.yaml"))
+    mm, deg = pose_distance(pinch.obj.T_palm_obj, pose.obj.T_palm_obj)
+    assert deg > 10.0
+    plan = plan_regrasp(pinch, pose, PlanOptions.for_execution()).plan
+    assert [(s.finger, s.action) for s in plan.steps] == [("object", "repose"), ("middle", "move"), ("middle", "land")]
+    moved = plan.steps[0]
+    assert set(moved.joints) >= set(pose.hand.fingers["thumb"].joints) | set(pose.hand.fingers["index"].joints)
+    rep = plan.summary["reposing"]
+    assert rep["moves"] == 1 and rep["object_path_deg"] == pytest.approx(deg, abs=0.01)
+    assert set(plan.states[-1].patches) >= {"thumb", "index", "middle"}
+    audit = audit_plan(plan)
+    assert audit.ok, audit.problems
+    ver = plan.summary["verification"]
+    assert ver["passed"] and len(ver["directions"]) == 6 and all(d["passed"] for d in ver["directions"].values())
+    hand = Hand.load("allegro_right")
+    report = replay_plan(plan.to_dict(), gravity=dict(gravity_directions(hand.palm_normal, 7))["palm_down"], hand=hand)
+    assert report.passed, report.verdict
+    assert report.max_drift_mm < 5.0 and report.max_drift_deg < 5.0
