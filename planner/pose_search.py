@@ -4,8 +4,8 @@ The search's states are (object pose, contact assignment). Candidate poses ``P``
 (`candidate_poses`): the final grasp's pose and the initial grasp's (when they differ), the
 object carried a lifted finger's clearance and a lift's retreat away from a finger that
 cannot back off its contact, then the poses that rest the object on the palm from either
-grasp (`planner.repose.settle_poses`, carried along a direction the fingers can follow: a
-thumb that cannot lift because nothing opposes it can lift once the palm does). For each, the initial grasp is taken to ``P`` (a `Leg`: fingers
+grasp (`planner.repose.settle_pose`: a thumb that cannot lift because nothing opposes it can
+lift once the palm does). For each, the initial grasp is taken to ``P`` (a `Leg`: fingers
 that cannot follow lifted or released first, then the reposing move), the final grasp
 likewise (its leg reversed ends the plan), and the gait search (`planner.regrasp.plan_gaits`)
 joins the two at ``P``. The first candidate that gives a plan is returned (poses tried in that
@@ -28,7 +28,7 @@ from planner.errors import MotionError, NoSequenceError, PlannerError
 from planner.model import PALM
 from planner.options import PlanOptions, gravity_directions_of
 from planner.plan_data import OBJECT, Plan, PlanState, PlanStep, pose_vector
-from planner.repose import FOLLOW_TOL_M, FollowError, Reposing, at_pose, pose_distance, repose, settle_poses, state_reason
+from planner.repose import FOLLOW_TOL_M, FollowError, Reposing, at_pose, pose_distance, repose, settle_pose, state_reason
 
 log = logging.getLogger("planner")
 
@@ -66,10 +66,10 @@ def _same(Ta, Tb) -> bool:
     return mm <= SAME_POSE[0] and deg <= SAME_POSE[1]
 
 
-def candidate_poses(initial, final, options: PlanOptions | None = None) -> list[tuple[str, np.ndarray]]:
-    """(name, pose) of the poses the gaits may happen at, in the order they are tried (with
-    ``options``, the palm's resting poses are ones the fingers can carry the object to:
-    `_settle`)."""
+def candidate_poses(initial, final) -> list[tuple[str, np.ndarray]]:
+    """(name, pose) of the poses the gaits may happen at, in the order they are tried."""
+    from planner.synth_sample import PALM_TOUCH_GAP_M  # where ``synth --palm`` rests an object on the palm
+
     Ta, Tb = np.asarray(initial.obj.T_palm_obj, float), np.asarray(final.obj.T_palm_obj, float)
     out = []
     if not identical(Ta, Tb):
@@ -95,38 +95,10 @@ def candidate_poses(initial, final, options: PlanOptions | None = None) -> list[
                     out.append((f"{d * 1e3:g} mm away from {f} in the {which} grasp (it cannot back off)", P))
     if "free" not in (initial.spec.palm, final.spec.palm):
         for which, g in (("initial", initial), ("final", final)):
-            s = _settle(g, final if g is initial else initial, options)
+            s = settle_pose(g, PALM_TOUCH_GAP_M)
             if s is not None and not any(_same(s[0], T) for _, T in out):
                 out.append((f"resting on the palm ({s[1] * 1e3:.1f} mm from the {which} grasp's pose)", s[0]))
     return out
-
-
-def _settle(g, other, options):
-    """The pose resting ``g``'s object on the palm (`planner.repose.settle_poses`, the straight
-    carry first): the first whose carry ``g``'s fingers can follow, preferring one the
-    ``other`` grasp's can follow too when both hold the object at the same pose (its leg
-    goes there as well); with no ``options`` (or none followed) the straight carry."""
-    from planner.synth_sample import PALM_TOUCH_GAP_M  # where ``synth --palm`` rests an object on the palm
-
-    poses = list(settle_poses(g, PALM_TOUCH_GAP_M))
-    if not poses or options is None:
-        return poses[0] if poses else None
-    both = identical(g.obj.T_palm_obj, other.obj.T_palm_obj)
-    first = None
-    for T, carry in poses:
-        try:
-            repose(g, T, options)
-        except MotionError:
-            continue
-        if not both:
-            return T, carry
-        first = first or (T, carry)
-        try:
-            repose(other, T, options)
-            return T, carry
-        except MotionError:
-            continue
-    return first or poses[0]
 
 
 def _away_from(g, finger: str, d: float):
@@ -540,11 +512,16 @@ def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bo
                        known: str | None = None) -> tuple[Plan, float | None, str]:
     """The first candidate pose (`candidate_poses`) joined by reposing moves and gaits.
 
-    ``gaits(a, b, options)`` is the gait planner (`planner.regrasp.plan_gaits`), returning a
-    `planner.regrasp.PlanResult`; ``gait_fn(hand, obj, q_a, q_b, finger)`` the finger paths of
+    ``gaits(a, b, options, replays)`` is the gait planner (`planner.regrasp.plan_gaits`),
+    returning a `planner.regrasp.PlanResult` and appending to ``replays`` per sequence its
+    verification replayed; ``gait_fn(hand, obj, q_a, q_b, finger)`` the finger paths of
     one gait (lifting a finger that cannot follow a reposing move); ``known``: the first clause
-    of the gait refusal at the grasps' own pose (a candidate failing the same way says so). Returns (plan, seconds of verification replays or None, a
-    sentence on what was tried); raises NoSequenceError with every candidate's reason.
+    of the gait refusal at the grasps' own pose (a candidate failing the same way says so).
+    The candidates share one ``options.verify_attempts`` (sequences replayed, the gaits' and
+    the whole plans'): once it is spent the candidates left are not tried, so a refusal costs
+    about that many replays beyond the gaits' at the grasps' own pose. Returns (plan,
+    seconds of verification replays or None, a sentence on what was tried); raises
+    NoSequenceError with every candidate's reason.
     """
     hand = initial.hand
     Ta, Tb = np.asarray(initial.obj.T_palm_obj, float), np.asarray(final.obj.T_palm_obj, float)
@@ -552,7 +529,12 @@ def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bo
     directions = gravity_directions_of(options, hand)
     verifying = options.verify and bool(directions)
     verify_s = 0.0
-    for name, P in candidate_poses(initial, final, options):
+    replays: list = []  # sequences the verification replayed, every candidate's
+    for name, P in candidate_poses(initial, final):
+        if verifying and len(replays) >= options.verify_attempts:
+            tried.append(f"not tried at {name} and after: {len(replays)} sequences were replayed at the poses before "
+                         f"(--verify-attempts)")
+            break
         log.info("reposing: trying the gaits at %s", name)
         try:
             first = leg(initial, P, options, gait_fn)
@@ -565,7 +547,8 @@ def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bo
         try:
             same = set(a.patches) == set(b.patches) and all(
                 np.allclose(a.finger_q[f], b.finger_q[f], atol=options.same_slot_tol_rad) for f in a.patches if f != PALM)
-            gait = None if same else gaits(a, b, options).plan
+            left = replace(options, verify_attempts=options.verify_attempts - len(replays)) if verifying else options
+            gait = None if same else gaits(a, b, left, replays).plan
         except (NoSequenceError, PlannerError) as err:
             clause = first_clause(err)
             tried.append(f"at {name}: " + ("the gaits fail for the same reason" if clause == known else clause))
@@ -575,6 +558,7 @@ def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bo
         if verifying:
             from planner.sim.verify import default_workers, verify_suspects_first
 
+            replays.append(name)  # (counted; a plan whose gaits just held is replayed whole even past the budget)
             check = verify_suspects_first(plan, hand, directions, set(), workers=options.workers or default_workers(),
                                           engine=options.engine)
             verify_s += check.wall_time_s

@@ -386,7 +386,7 @@ def plan_regrasp(
     try:
         gait_fn = _motion_gait(options, verbose) if options.motion else _straight_gait
         plan, verify_s, _ = plan_with_reposing(initial, final, options, inputs, verbose,
-                                               lambda a, b, o: plan_gaits(a, b, o, inputs, verbose), gait_fn,
+                                               lambda a, b, o, r=None: plan_gaits(a, b, o, inputs, verbose, r), gait_fn,
                                                None if first_err is None else first_clause(first_err))
     except NoSequenceError as err:
         if first_err is None:
@@ -400,7 +400,8 @@ def plan_regrasp(
 
 
 def plan_gaits(
-    initial, final, options: PlanOptions = PlanOptions(), inputs: Mapping[str, Any] | None = None, verbose: bool = False
+    initial, final, options: PlanOptions = PlanOptions(), inputs: Mapping[str, Any] | None = None, verbose: bool = False,
+    replays: list | None = None,
 ) -> PlanResult:
     """Plan a finger-gaiting sequence from one realized grasp to another, the object fixed.
 
@@ -410,6 +411,8 @@ def plan_gaits(
         options: planner parameters.
         inputs: what to record under the plan's ``inputs`` (paths and sha256).
         verbose: let the motion planner print its log.
+        replays: a list one item is appended to per sequence replayed by the verification
+            (a caller sharing ``--verify-attempts`` among several searches counts them).
 
     Returns:
         `PlanResult` with the plan, the graph and the ranked sequences.
@@ -509,6 +512,8 @@ def plan_gaits(
                      len(directions), min(workers, len(directions)))
             # the directions that rejected a sequence before are replayed first: a sequence
             # they reject again costs their replays only (a bound on the work, not the time)
+            if replays is not None:
+                replays.append(" ".join(candidates[0].order(problem)))
             check = verify_suspects_first(plan, hand, directions, {r["direction"] for r in rejected}, workers=workers,
                                           engine=options.engine)
             verify_s += check.wall_time_s

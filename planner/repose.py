@@ -311,66 +311,19 @@ def settle_pose(grasp: RealizedGrasp, touch_m: float) -> tuple[np.ndarray, float
     """The object's pose moved straight toward the palm until it is ``touch_m`` from it (a
     translation along the line between the nearest palm and object points), and the gap it
     closes, m; None when the hand has no palm geometry or the object already rests on it."""
-    return next(settle_poses(grasp, touch_m, tilts_deg=(0.0,)), None)
-
-
-#: Tilts of the carries onto the palm that `settle_poses` tries after the straight one, deg:
-#: a finger at a joint limit cannot follow the straight carry, and a carry tilted from it
-#: still closes the gap (within 45 deg it is at most 1/cos 45 = 1.41 times as long).
-SETTLE_TILTS_DEG = (0.0, 22.5, 45.0)
-#: Directions about the straight carry per tilt (evenly spaced azimuths).
-SETTLE_AZIMUTHS = 8
-
-
-def settle_poses(grasp: RealizedGrasp, touch_m: float, tilts_deg=SETTLE_TILTS_DEG):
-    """Poses that rest the object on the palm: translations until it is ``touch_m`` from the
-    palm, first straight toward it (along the line between the nearest palm and object
-    points), then tilted from that line by each of ``tilts_deg`` in `SETTLE_AZIMUTHS`
-    directions; yields (pose, length of the carry m). Nothing when the hand has no palm
-    geometry or the object already rests on it. The length along a tilted direction is found
-    by bisection of the palm's distance to the moved object (to 1e-6 m)."""
     if PALM in grasp.patches:
-        return
+        return None
     hand, obj = grasp.hand, grasp.obj
-    state = hand.state(grasp.q)
-    palm_links = hand.collision.finger_links(None)
-    dist = state.link_object(obj, palm_links)
+    dist = hand.state(grasp.q).link_object(obj, hand.collision.finger_links(None))
     if not dist:
-        return
+        return None
     ld = min(dist.values(), key=lambda x: x.distance_m)
     d = np.asarray(ld.p_obj_palm, float) - np.asarray(ld.p_link_palm, float)
     gap = float(ld.distance_m)
     if not np.linalg.norm(d) > 1e-9 or gap <= touch_m:
-        return
-    u = -d / np.linalg.norm(d)  # the straight carry
-    T0 = np.array(obj.T_palm_obj, dtype=float)
-
-    def moved(s, v):
-        T = T0.copy()
-        T[:3, 3] += s * v
-        return T
-
-    def gap_at(T) -> float:
-        return min(x.distance_m for x in state.link_object(obj.with_pose(T), palm_links).values())
-
-    a = np.cross(u, np.eye(3)[int(np.argmin(np.abs(u)))])
-    a /= np.linalg.norm(a)
-    b = np.cross(u, a)
-    for tilt in tilts_deg:
-        t = math.radians(tilt)
-        for k in range(1 if tilt == 0.0 else SETTLE_AZIMUTHS):
-            if tilt == 0.0:
-                yield moved(gap - touch_m, u), gap - touch_m
-                continue
-            phi = 2.0 * math.pi * k / SETTLE_AZIMUTHS
-            v = math.cos(t) * u + math.sin(t) * (math.cos(phi) * a + math.sin(phi) * b)
-            hi = 2.0 * gap / math.cos(t)  # the palm is reached within this along v (or never)
-            if gap_at(moved(hi, v)) > touch_m:
-                continue
-            lo = 0.0
-            while hi - lo > 1e-6:
-                m = 0.5 * (lo + hi)
-                lo, hi = (m, hi) if gap_at(moved(m, v)) > touch_m else (lo, m)
-            yield moved(lo, v), lo
+        return None
+    T = np.array(obj.T_palm_obj, dtype=float)
+    T[:3, 3] -= (gap - touch_m) * d / np.linalg.norm(d)
+    return T, gap - touch_m
 
 

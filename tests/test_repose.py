@@ -284,32 +284,6 @@ def test_legs_ending_within_the_slot_tolerance_are_joined_exactly():
     assert np.allclose(back.states[-1].q, plan.states[-1].q, atol=1e-6)
 
 
-def test_settle_poses_rest_the_object_at_the_touch_gap_along_tilted_carries():
-    """The straight carry first (`settle_pose`'s), then carries tilted from it by each of
-    SETTLE_TILTS_DEG in SETTLE_AZIMUTHS directions: every pose is a pure translation of the
-    object that leaves it ``touch`` from the palm (re-measured), and each direction makes its
-    tilt's angle with the straight one."""
-    from planner.repose import SETTLE_AZIMUTHS, SETTLE_TILTS_DEG, settle_pose, settle_poses
-
-    g = realize(load_grasp(bundled_grasp("allegro/sphere_tripod.yaml")))
-    touch = 0.0005
-    poses = list(settle_poses(g, touch))
-    assert 1 < len(poses) <= 1 + (len(SETTLE_TILTS_DEG) - 1) * SETTLE_AZIMUTHS
-    first = settle_pose(g, touch)
-    assert first is not None and np.allclose(poses[0][0], first[0]) and poses[0][1] == first[1]
-    T0 = np.asarray(g.obj.T_palm_obj, float)
-    state = g.hand.state(g.q)
-    palm_links = g.hand.collision.finger_links(None)
-    u = (first[0][:3, 3] - T0[:3, 3]) / first[1]
-    tilts = []
-    for T, carry in poses:
-        assert np.allclose(T[:3, :3], T0[:3, :3]) and np.linalg.norm(T[:3, 3] - T0[:3, 3]) == pytest.approx(carry)
-        gap = min(x.distance_m for x in state.link_object(g.obj.with_pose(T), palm_links).values())
-        assert gap == pytest.approx(touch, abs=2e-6)
-        tilts.append(round(math.degrees(math.acos(min(1.0, float(u @ (T[:3, 3] - T0[:3, 3]) / carry)))), 3))
-    assert set(tilts) <= {round(t, 3) for t in SETTLE_TILTS_DEG} and tilts == sorted(tilts)
-
-
 def test_reposture_keeps_each_contact_on_its_point_and_ends_in_the_other_posture():
     """Two grasps of the pen touching the same points with other postures (the bundled
     writing pose's tripod carried back to the pinch's pose, against the pinch with the
@@ -340,3 +314,27 @@ def test_reposture_keeps_each_contact_on_its_point_and_ends_in_the_other_posture
             d = g.hand.state(q).link_object(g.obj, [link[-1]])
             assert abs(min(x.distance_m for x in d.values())) < 2 * FOLLOW_TOL_M
             assert np.linalg.norm(_outer_point(g, f) - _outer_point(back, f)) < 2 * FOLLOW_TOL_M
+
+
+def test_candidate_poses_share_one_verification_budget():
+    """The reposing candidates share ``--verify-attempts``: each gait search gets what the
+    ones before left, and once it is spent the candidates left are not tried (the refusal
+    says so), so a refusal replays a bounded number of sequences however many poses there are."""
+    from planner.errors import NoSequenceError
+    from planner.pose_search import candidate_poses, plan_with_reposing
+
+    pinch = realize(load_grasp(bundled_grasp("icub/pen_palmar_pinch.yaml")))
+    pose = realize(load_grasp(bundled_grasp("icub/pen_writing_pose.yaml")))
+    opts = PlanOptions.for_execution(motion=False, verify_attempts=6)
+    assert len(candidate_poses(pinch, pose)) > 2
+    calls = []
+
+    def gaits(a, b, o, replays):
+        calls.append(o.verify_attempts)
+        replays.extend(["sequence"] * 4)  # four sequences replayed and rejected
+        raise NoSequenceError("no sequence held in the simulator")
+
+    with pytest.raises(NoSequenceError) as err:
+        plan_with_reposing(pinch, pose, opts, {}, False, gaits, None)
+    assert calls == [6, 2]
+    assert "not tried at" in str(err.value) and "8 sequences were replayed" in str(err.value)
