@@ -132,6 +132,7 @@ def _sweeps(hand, fingers, q, alphas, radius: float = 0.0) -> list[tuple[np.ndar
         return [_sweep(hand, f, q, alphas, radius) for f in fingers]
     ends = [closing_ends(hand, f) for f in fingers]  # a follower moves by its coupling
     starts = [q[cidx] for cidx, _ in ends]
+    spans = [end - start for (_, end), start in zip(ends, starts)]
     p_link = [np.asarray(f.pad_p_link, dtype=float) for f in fingers]
     n_link = [np.asarray(f.pad_n_link if f.pad_n_link is not None else (0.0, 0.0, 0.0), dtype=float) for f in fingers]
     kin = hand.kinematics(q)  # one pinocchio.Data, moved along the closing motions (FK only)
@@ -140,8 +141,8 @@ def _sweeps(hand, fingers, q, alphas, radius: float = 0.0) -> list[tuple[np.ndar
     nrm = [[] for _ in fingers]
     for a in alphas:
         qa = q.copy()
-        for f, (cidx, end), start in zip(fingers, ends, starts):
-            qa[cidx] = start + a * (end - start)
+        for f, (cidx, _), start, span in zip(fingers, ends, starts, spans):
+            qa[cidx] = start + a * span
             couple_finger(f, qa)
         kin.update(qa)
         for k, pad in enumerate(pads):
@@ -225,13 +226,25 @@ def _meeting_point(sweeps, iterations: int = 8) -> np.ndarray:
         return _meeting_point_ragged(sweeps, iterations)
     S = np.asarray(sweeps)                                     # (fingers, samples, 3)
     c = S.reshape(-1, 3).copy()                                # (starts, 3)
-    rows = np.arange(len(S))[None, :]
+    Sx, Sy, Sz = S[None, :, :, 0], S[None, :, :, 1], S[None, :, :, 2]
     for _ in range(iterations):
-        d = _norm3(c[:, None, None, :] - S[None])               # (starts, fingers, samples)
-        nearest = S[rows, np.argmin(d, axis=2)]                 # (starts, fingers, 3)
-        c = nearest.mean(axis=1)
-    worst = np.max(np.min(_norm3(c[:, None, None, :] - S[None]), axis=2), axis=1)
+        k = np.argmin(_dists(c, Sx, Sy, Sz), axis=2)            # (starts, fingers): nearest samples
+        # their centroid: summed finger by finger and divided, as numpy's mean over that axis does
+        acc = S[0][k[:, 0]]
+        for f in range(1, len(S)):
+            acc = acc + S[f][k[:, f]]
+        c = acc / len(S)
+    worst = np.max(np.min(_dists(c, Sx, Sy, Sz), axis=2), axis=1)
     return c[int(np.argmin(worst))]
+
+
+def _dists(c: np.ndarray, Sx, Sy, Sz) -> np.ndarray:
+    """``_norm3(c[:, None, None, :] - S[None])`` one coordinate at a time (the same numbers,
+    without broadcasting over the short last axis): c (m, 3), S's coordinates (1, F, n)."""
+    dx = c[:, 0, None, None] - Sx
+    dy = c[:, 1, None, None] - Sy
+    dz = c[:, 2, None, None] - Sz
+    return np.sqrt(dx * dx + dy * dy + dz * dz)
 
 
 def _norm3(x: np.ndarray) -> np.ndarray:
