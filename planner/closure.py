@@ -58,7 +58,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 from planner.errors import InputError, UnknownNameError
-from planner.hull import Closure, Hull, wrench_closure
+from planner.hull import Closure, Hull, is_force_closure, wrench_closure
 from planner.lp import solve_highs
 from planner.model import PALM, Friction, Patch, cross, tangent_basis
 
@@ -349,7 +349,7 @@ def removable_fingers(patches: Mapping[str, tuple], friction: Friction) -> froze
         removable.
     """
     full, blocks = _finger_wrenches(patches, friction)
-    if not wrench_closure(full, decide_only=True)[0].is_force_closure:
+    if not is_force_closure(full):
         return frozenset()
     removable = set()
     for finger, block in blocks.items():
@@ -359,7 +359,7 @@ def removable_fingers(patches: Mapping[str, tuple], friction: Friction) -> froze
             removable.add(finger)
             continue
         rest = [b for g, b in blocks.items() if g != finger and len(b)]
-        if rest and wrench_closure(np.vstack(rest), decide_only=True)[0].is_force_closure:
+        if rest and is_force_closure(np.vstack(rest)):
             removable.add(finger)
     return frozenset(removable)
 

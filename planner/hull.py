@@ -372,6 +372,30 @@ def _min_norm_point(W: np.ndarray, tol: float) -> float:
     return float(math.sqrt(x @ x))
 
 
+def is_force_closure(W: np.ndarray) -> bool:
+    """``wrench_closure(W, decide_only=True)[0].is_force_closure``, the same steps without
+    what only the metric needs (the rank, and the distance from the origin to conv(W) of a
+    grasp that is not force closure: `_min_norm_point`)."""
+    if len(W) == 0:
+        return False
+    peak = float(np.abs(W).max())
+    if peak == 0.0:
+        return False
+    if not 2.0**-20 <= peak < 2.0**20:
+        return is_force_closure(np.ldexp(W, -(math.frexp(peak)[1] - 1)))
+    scale = float(np.sqrt(np.einsum("ij,ij->i", W, W).max()))
+    tol = METRIC_RTOL * max(scale, 1e-300)
+    simplex = _initial_simplex(W, RANK_RTOL * scale) if len(W) >= 7 and scale > 0 else None
+    if simplex is None:
+        return False  # (wrench_closure: the min-norm point, never force closure)
+    try:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            state = _expand(W, _simplex_hull(W, simplex), tol, True, False)[0]
+    except _Degenerate:
+        state = _qhull_fallback(W, tol)[0]
+    return state == 1
+
+
 def wrench_closure(W: np.ndarray, decide_only: bool = False, warm: Hull | None = None, keep: bool = False):
     """Closure of W (k, 6); ``warm``: an inner polytope of a subset of W to start from.
 
