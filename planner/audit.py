@@ -498,11 +498,14 @@ def _check_steps(plan, hand, objs, poses, rep: AuditReport) -> None:
 def _check_repose(plan, hand, objs, poses, k: int, s, rep: AuditReport) -> None:
     """A reposing step (schema 4): its object path starts and ends at its states' poses and
     moves at most `REPOSE_STEP_M` / `REPOSE_STEP_RAD` between waypoints; at every waypoint
-    each holding finger's contact point (its outermost touching link's, fixed in the link,
-    where it touches at one end of the move: `link_contacts`) stays on the object point it
-    holds, carried by the object path, within `REPOSE_FOLLOW_TOL_M` (the planner makes that
-    contact stick; a finger's inner contacts follow as well as its joints allow and are
-    checked for penetration only); the joints stay within their limits and couplings; no link
+    where the object moves each holding finger's contact point (its outermost touching
+    link's, fixed in the link, where it touches at one end of the move: `link_contacts`)
+    stays on the object point it holds, carried by the object path, within
+    `REPOSE_FOLLOW_TOL_M` (the planner makes that contact stick; a finger's inner contacts
+    follow as well as its joints allow and are checked for penetration only); at waypoints
+    before or after the move with the object still (the fingers re-posturing, their pads
+    rolling on their points) that link touches the object within `REPOSE_FOLLOW_TOL_M` of
+    where it touches it when the move starts (ends); the joints stay within their limits and couplings; no link
     is deeper in the object (at the waypoint's pose) than `PENETRATION_TOL_M`, no two links of
     the hand overlap; a finger touching at one end only (released: the object carried away
     from it, or carried onto it; the palm likewise) keeps still."""
@@ -570,13 +573,27 @@ def _check_repose(plan, hand, objs, poses, k: int, s, rep: AuditReport) -> None:
                 rep.add(f"{tag}: path waypoint {w}: {broken}")
                 coupled = False
         states.append(hand.state(q))
-    # (b) every holding contact fixed on the object: anchored at either end (the planner moves
-    # from a grasp; a move back to the final grasp is one computed from it, reversed)
+    # (b) every holding contact fixed on the object while it moves: anchored at either end of
+    # the move (the planner moves from a grasp; a move back to the final grasp is one computed
+    # from it, reversed). Waypoints before and after the object moves, with it still, re-posture
+    # the fingers (`planner.pose_search._reposture`: two postures touching the same points, the
+    # pads rolling on them): there each holding finger's outermost link must still touch the
+    # object point it holds while the object moves.
+    same = [bool(np.allclose(opath[w - 1], opath[w], rtol=0.0, atol=1e-12)) for w in range(1, len(Ts))]
+    m0 = 0
+    while m0 < len(same) and same[m0]:
+        m0 += 1
+    m1 = len(Ts) - 1
+    while m1 > m0 and same[m1 - 1]:
+        m1 -= 1
+    ends = [(poses[s.from_state], objs[s.from_state], s.from_state), (poses[s.to_state], objs[s.to_state], s.to_state)]
+    ends += [(states[w], objs[s.from_state].with_pose(Ts[w]), f"path waypoint {w}") for w in dict.fromkeys((m0, m1))
+             if 0 < w < len(Ts) - 1]
     best = None
-    for end, wa in ((s.from_state, 0), (s.to_state, len(Ts) - 1)):
-        hs_end, T_end = poses[end], np.asarray(objs[end].T_palm_obj, float)
+    for hs_end, obj_end, end in ends:
+        T_end = np.asarray(obj_end.T_palm_obj, float)
         anchors, outer = [], {}
-        for c in link_contacts(hand, hs_end, objs[end], fingers=held):
+        for c in link_contacts(hand, hs_end, obj_end, fingers=held):
             order = hand.fingers[c.finger].contact_links
             rank = order.index(c.link) if c.link in order else -1
             if c.finger in outer and outer[c.finger] >= rank:
@@ -587,7 +604,8 @@ def _check_repose(plan, hand, objs, poses, k: int, s, rep: AuditReport) -> None:
             anchors = [a for a in anchors if a[0] != c.finger]
             anchors.append((c.finger, c.link, T_link[:3, :3].T @ (p_palm - T_link[:3, 3]), np.asarray(c.point, float)))
         worst = (0.0, None, None, None)
-        for w, (hs, T) in enumerate(zip(states, Ts)):
+        for w in range(m0, m1 + 1):
+            hs, T = states[w], Ts[w]
             for finger, link, p_link, p_obj in anchors:
                 T_link = hs.link_pose(link)
                 err = float(np.linalg.norm(T_link[:3, :3] @ p_link + T_link[:3, 3] - (T[:3, :3] @ p_obj + T[:3, 3])))
@@ -595,17 +613,41 @@ def _check_repose(plan, hand, objs, poses, k: int, s, rep: AuditReport) -> None:
                     worst = (err, w, finger, link)
         missing = sorted(set(held) - {a[0] for a in anchors})
         if best is None or (len(missing), worst[0]) < (len(best[1]), best[0][0]):
-            best = (worst, missing, end)
-    worst, missing, end = best
+            best = (worst, missing, end, anchors)
+    worst, missing, end, anchors = best
     rep.count("reposing contacts", len(held))
     if missing:
-        rep.add(f"{tag}: finger {', '.join(missing)} does not touch the object at state {end} (forward kinematics): it "
+        where = f"state {end}" if isinstance(end, int) else end
+        rep.add(f"{tag}: finger {', '.join(missing)} does not touch the object at {where} (forward kinematics): it "
                 f"cannot hold it")
     if worst[0] > REPOSE_FOLLOW_TOL_M:
         err, w, finger, link = worst
         rep.add(f"{tag}: path waypoint {w}: finger {finger}'s contact on link {link} is {err * 1e3:.2f} mm from the "
                 f"object point it holds (forward kinematics against the object path; tolerance "
                 f"{REPOSE_FOLLOW_TOL_M * 1e3:.1f} mm): it does not stay fixed on the object")
+    def touching(w):  # (finger, link) -> where it touches the object at waypoint w (object frame)
+        obj_w = objs[s.from_state].with_pose(Ts[w])
+        return {(c.finger, c.link): np.asarray(c.point, float) for c in link_contacts(hand, states[w], obj_w, fingers=held)}
+
+    rolled = (0.0, None, None, None)
+    for ref, still in ((m0, range(0, m0)), (m1, range(m1 + 1, len(Ts)))):
+        if not len(still):
+            continue
+        at_ref = touching(ref)  # where the move starts (ends): the points the re-posturing keeps
+        for w in still:
+            at_w = touching(w)
+            for finger, link, _, _ in anchors:
+                if (finger, link) not in at_ref:
+                    continue  # (named above: the move's anchor does not touch there)
+                err = float(np.linalg.norm(at_w[finger, link] - at_ref[finger, link])) if (finger, link) in at_w \
+                    else math.inf
+                if err > rolled[0]:
+                    rolled = (err, w, finger, link)
+    if rolled[0] > REPOSE_FOLLOW_TOL_M:
+        err, w, finger, link = rolled
+        rep.add(f"{tag}: path waypoint {w} (the object still, the fingers re-posturing): finger {finger}'s link {link} "
+                + (f"touches the object {err * 1e3:.2f} mm from the point it holds (tolerance "
+                   f"{REPOSE_FOLLOW_TOL_M * 1e3:.1f} mm)" if math.isfinite(err) else "does not touch the object"))
     # (d) no link in the object at the waypoint's pose, no links overlapping
     links = [l for f in hand.fingers for l in hand.fingers[f].links] + list(hand.collision.finger_links(None))
     deepest, overlap = (0.0, None, None), (0.0, None, None)

@@ -10,8 +10,9 @@ that cannot follow lifted or released first, then the reposing move), the final 
 likewise (its leg reversed ends the plan), and the gait search (`planner.regrasp.plan_gaits`)
 joins the two at ``P``. The first candidate that gives a plan is returned (poses tried in that
 order: the fewest and shortest object motions first); each is work-bounded, so the answer
-does not depend on the machine's load. With verification the whole plan (gaits and reposing
-moves) is replayed in the planned directions before it is returned.
+does not depend on the machine's load. Each plan must pass the physics check `replay` and
+`verify` run (`planner.audit.audit_plan`); with verification the whole plan (gaits and
+reposing moves) is then replayed in the planned directions before it is returned.
 """
 
 from __future__ import annotations
@@ -555,6 +556,12 @@ def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bo
             continue
         plan = compose(initial, final, options, first, gait, back, P)
         plan = replace(plan, inputs=dict(inputs or {}))
+        from planner.audit import audit_plan  # the physics check `replay` and `verify` run on it
+
+        rep = audit_plan(plan, hand)
+        if not rep.ok:
+            tried.append(f"at {name}: the plan fails a physics check ({rep.problems[0]})")
+            continue
         if verifying:
             from planner.sim.verify import default_workers, verify_suspects_first
 

@@ -172,3 +172,26 @@ def test_the_view_moves_the_object_along_the_reposing_step(plan_data):
     assert abs((b[12] - a[12]) - SHIFT_M) < 1e-4
     xs = [T[12] for T in step["obj"]]
     assert all(x1 >= x0 - 1e-9 for x0, x1 in zip(xs, xs[1:]))  # monotonic along the straight path
+
+
+def test_waypoints_with_the_object_still_may_re_posture_but_keep_each_contact(plan_data, tmp_path):
+    """Waypoints after the object stopped (the planner's re-posturing of a finger that touches
+    the same point with another posture, `planner.pose_search._reposture`) are checked for
+    contact where they touch, not against the contact fixed in the link: copies of the last
+    waypoint pass; one with a holding finger's largest-moving joint opened 0.15 rad is refused
+    as a re-posturing waypoint whose link no longer touches its point."""
+    path, data = plan_data
+    d = copy.deepcopy(data)
+    k = _repose_index(d)
+    step = d["steps"][k]
+    last_q, last_T = step["path"][-1], step["object_path"][-1]
+    step["path"][-1:] = [list(last_q)] * 3
+    step["object_path"][-1:] = [list(last_T)] * 3
+    assert _problems(d, tmp_path, "still.json") == []
+    col = max(range(len(step["joints"])), key=lambda c: abs(step["path"][-1][c] - step["path"][0][c]))
+    step["path"][-2] = list(last_q)
+    step["path"][-2][col] -= 0.15
+    w = len(step["path"]) - 2
+    problems = _problems(d, tmp_path, "rolled.json")
+    assert any(p.startswith(f"steps[{k}] (repose object): path waypoint {w} (the object still, the fingers "
+                            f"re-posturing)") for p in problems), problems
