@@ -425,18 +425,25 @@ def min_grip_force(patches: Mapping[str, tuple], friction: Friction, load, *,
         if not isinstance(friction, Friction):
             raise InputError(f"friction must be a Friction, got {type(friction).__name__}")
         friction = Friction(friction.mu, friction.gamma, int(cone_sides))
-    given = _grip_input_key(patches, friction, w_ext)  # the same patches asked again: no wrenches built
+    contacts = _grip_input_key(patches, friction)  # the same patches asked again: no wrenches built
+    given = None if contacts is None else ("given", w_ext.tobytes(), contacts)
     if given in _GRIP_MEMO:
         return _GRIP_MEMO[given]
-    W, blocks = _finger_wrenches(patches, friction)
+    if contacts in _GRIP_MEMO:  # the same contacts under another load (another gravity direction)
+        W, spans = _GRIP_MEMO[contacts]
+    else:
+        W, blocks = _finger_wrenches(patches, friction)
+        spans, start = [], 0
+        for owner, b in blocks.items():
+            if len(b) and owner != PALM:  # the rigid palm presses as hard as the fingers make it
+                spans.append((start, start + len(b)))
+            start += len(b)
+        if contacts is not None and start:
+            W.setflags(write=False)
+            _GRIP_MEMO[contacts] = (W, spans)
     if not w_ext.any():
         return 0.0
-    spans, start = [], 0
-    for owner, b in blocks.items():
-        if len(b) and owner != PALM:  # the rigid palm presses as hard as the fingers make it
-            spans.append((start, start + len(b)))
-        start += len(b)
-    if not start:
+    if not len(W):
         return math.inf
     # the program is W, the spans and the load: the same program, the same answer (synthesis
     # asks it of a grasp's loads, then execution mode's test of that grasp asks it again)
@@ -454,23 +461,24 @@ def min_grip_force(patches: Mapping[str, tuple], friction: Friction, load, *,
     return t
 
 
-def _grip_input_key(patches, friction, w_ext: np.ndarray):
-    """A key of `min_grip_force`'s inputs (the patches' arrays, the friction, the load), or
-    None when they are not plain (then the wrenches are built and checked first)."""
+def _grip_input_key(patches, friction):
+    """A key of `min_grip_force`'s contacts (the patches' arrays, the friction), or None when
+    they are not plain (then the wrenches are built and checked every time)."""
     if not isinstance(friction, Friction):
         return None
     try:
         items = tuple((f, a.dtype.str, a.shape, a.astype(float).tobytes(), b.dtype.str, b.shape, b.astype(float).tobytes())
                       for f, a, b in ((f, np.asarray(p), np.asarray(n)) for f, p, n in _patch_items(patches)))
-        key = ("given", friction.mu, friction.gamma, friction.edges, w_ext.tobytes(), items)
+        key = ("contacts", friction.mu, friction.gamma, friction.edges, items)
         hash(key)
     except (InputError, TypeError, ValueError):
         return None
     return key
 
 
-#: Grip forces `min_grip_force` remembers (per process; the oldest half dropped beyond this).
-GRIP_MEMO = 1024
+#: Entries `min_grip_force` remembers: answers and the wrenches of contacts (per process; the
+#: oldest half dropped beyond this; a synthesis candidate makes about 13).
+GRIP_MEMO = 256
 _GRIP_MEMO: dict = {}
 
 
