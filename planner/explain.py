@@ -271,12 +271,18 @@ def explain_failure(G: nx.DiGraph, intermediate_tried: bool, tried: str | None =
         lines.append(f"there {_names(fingers)} cannot {move}: {why}")
     if not (a["lift_blocked"] or a["landing_blocked"] or a["stuck"] or a["goal_reason"]):
         # nothing was refused: the search stopped before it tried the moves that remain
-        left = [f for i, f in enumerate(p.fingers) if a["closest"][i] != G.graph["goal"][i]]
-        if left and later:
-            lines.append(f"{', '.join(left)} still {'has' if len(left) == 1 else 'have'} to move: the moves the "
-                         "search found for it were taken out when they failed later (below), and it found no other")
-        elif left:
-            lines.append(f"{', '.join(left)} still {'has' if len(left) == 1 else 'have'} to move and no such move "
+        left = [(i, f) for i, f in enumerate(p.fingers) if a["closest"][i] != G.graph["goal"][i]]
+        # a finger is said to have lost its moves only if a move taken out moved it
+        gone = [f for i, f in left if any(u[i] != v[i] for u, v in G.graph.get("removed_moves", ())
+                                          if u in a["reach"])]
+        rest = [f for _, f in left if f not in gone]
+        if gone:
+            one = len(gone) == 1
+            lines.append(f"{', '.join(gone)} still {'has' if one else 'have'} to move: the moves the search found "
+                         f"for {'it' if one else 'them'} were taken out when they failed later (below), and it "
+                         "found no other")
+        if rest:
+            lines.append(f"{', '.join(rest)} still {'has' if len(rest) == 1 else 'have'} to move and no such move "
                          "was refused: the search stopped before it evaluated them (a longer --time-limit lets "
                          "it go on)")
     if tried:

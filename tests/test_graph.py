@@ -470,3 +470,24 @@ def test_moves_taken_out_later_are_named_not_called_unexplored():
     assert "taken out after failing later: lift B in the initial grasp" in text
     assert "B cannot be lifted" not in text and "--time-limit" not in text
     assert "B still has to move: the moves the search found for it were taken out" in text
+
+
+def test_a_finger_whose_moves_were_not_taken_out_is_not_said_to_have_lost_them():
+    """Moves taken out later (`LazyGraph.remove_edge`) are attributed to the finger they move
+    only: with A's lift in the initial grasp taken out and the search stopped after the first
+    states (B's lift found, never taken out), A's moves are said to be taken out and B is
+    said to be unexplored (the search stopped), not the other way round."""
+    slots = {"A": [slot("A", "initial", "+x"), slot("A", "final", "+x", tilt_deg=20)],
+             "B": [slot("B", "initial", "-x"), slot("B", "final", "-x", tilt_deg=20)],
+             "C": [slot("C", "initial", "+y")], "D": [slot("D", "initial", "-y")]}
+    prob = problem(slots, dict(A=0, B=0, C=0, D=0), dict(A=1, B=1, C=0, D=0))
+    lazy = LazyGraph(prob)
+    assert lazy.best(1, max_expansions=2) == []  # stopped: the start expanded, its successors evaluated
+    lifts = {prob.fingers[[a != b for a, b in zip(prob.start, w)].index(True)]: w for w in lazy.G.successors(prob.start)}
+    assert {"A", "B"} <= set(lifts)
+    lazy.remove_edge(prob.start, lifts["A"])
+    text = str(explain_failure(lazy.G, intermediate_tried=True))
+    assert "taken out after failing later: lift A in the initial grasp" in text
+    assert "A still has to move: the moves the search found for it were taken out" in text
+    assert "B still has to move and no such move was refused: the search stopped" in text
+    assert "A, B still have to move" not in text
