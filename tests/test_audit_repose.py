@@ -195,3 +195,28 @@ def test_waypoints_with_the_object_still_may_re_posture_but_keep_each_contact(pl
     problems = _problems(d, tmp_path, "rolled.json")
     assert any(p.startswith(f"steps[{k}] (repose object): path waypoint {w} (the object still, the fingers "
                             f"re-posturing)") for p in problems), problems
+
+
+def test_waypoints_with_the_object_still_before_the_move_are_checked_where_they_touch(plan_data, tmp_path):
+    """The same check before the object starts moving (a move back to the final grasp,
+    reversed, re-postures first): copies of the first waypoint pass; one of them with a
+    holding finger's largest-moving joint opened 0.15 rad is refused as a re-posturing
+    waypoint, and still waypoints at both ends pass together."""
+    path, data = plan_data
+    d = copy.deepcopy(data)
+    k = _repose_index(d)
+    step = d["steps"][k]
+    first_q, first_T = step["path"][0], step["object_path"][0]
+    step["path"][:1] = [list(first_q)] * 3
+    step["object_path"][:1] = [list(first_T)] * 3
+    assert _problems(d, tmp_path, "still_first.json") == []
+    both = copy.deepcopy(d)
+    both["steps"][k]["path"][-1:] = [list(step["path"][-1])] * 3
+    both["steps"][k]["object_path"][-1:] = [list(step["object_path"][-1])] * 3
+    assert _problems(both, tmp_path, "still_both.json") == []
+    col = max(range(len(step["joints"])), key=lambda c: abs(step["path"][-1][c] - step["path"][0][c]))
+    step["path"][1] = list(first_q)
+    step["path"][1][col] -= 0.15
+    problems = _problems(d, tmp_path, "rolled_first.json")
+    assert any(p.startswith(f"steps[{k}] (repose object): path waypoint 1 (the object still, the fingers "
+                            f"re-posturing)") for p in problems), problems
