@@ -405,7 +405,8 @@ def _snap(first: Leg, back: Leg, options: PlanOptions) -> tuple[Leg, Leg]:
     """The two legs' grasps at the candidate pose with one posture per shared contact: a
     finger touching the same object point in both (`SNAP_M`, `SNAP_RAD`) takes the other
     leg's joints at the end of the leg that moves the object (a last waypoint with the
-    object still: the contact kept, the joints re-postured), so the gait search sees one
+    object still: the contact kept, the joints re-postured; `_reposture`, or when it fails
+    the fingers within `SNAP_RAD` alone in one waypoint), so the gait search sees one
     contact, not two it would have to lift between. Legs that do not move, or a result that
     is no valid state, are left as they are."""
     a, b = first.end, back.end
@@ -429,8 +430,15 @@ def _snap(first: Leg, back: Leg, options: PlanOptions) -> tuple[Leg, Leg]:
         if not changed:
             continue
         path = _reposture(g, other, changed, options)
-        if path is None:
-            continue
+        if path is None:  # a farther finger cannot re-posture: the ones within SNAP_RAD still join in one waypoint
+            near = [f for f in changed
+                    if np.max(np.abs(np.asarray(g.finger_q[f]) - np.asarray(other.finger_q[f]))) <= SNAP_RAD]
+            if not near:
+                continue
+            q = np.array(g.q, dtype=float)
+            for f in near:
+                q[list(g.hand.fingers[f].q_index)] = other.finger_q[f]
+            path = q[None, :]
         g2 = at_pose(g, g.obj.T_palm_obj, q)
         if set(g2.patches) != set(g.patches) or state_reason(g2, options) is not None:
             continue

@@ -264,6 +264,18 @@ def test_plan_files_keep_the_object_where_the_plan_says(box):
             plan_from_data(bad)
 
 
+def _pen_turned_10deg():
+    """The pen pinch and a tripod of the pen turned 10 deg about the axis across the pinch, its
+    thumb and index written where the pinch's turn leaves them (realized)."""
+    a = realize(load_grasp(bundled_grasp("icub/pen_palmar_pinch.yaml")))
+    spec = load_grasp(bundled_grasp("icub/pen_writing_tripod.yaml"))
+    T = np.array(spec.object.T_palm_obj, dtype=float)
+    T[:3, :3] = (Rotation.from_matrix(T[:3, :3]) * Rotation.from_euler("y", -10, degrees=True)).as_matrix()
+    points = {"thumb": (-0.004876, -0.001043, 0.001342), "index": (0.005, -1.8e-05, -0.001254)}
+    fingers = tuple(replace(f, point_obj=points[f.name]) if f.name in points else f for f in spec.fingers)
+    return a, realize(replace(spec, object=replace(spec.object, T_palm_obj=T), fingers=fingers))
+
+
 def test_legs_ending_within_the_slot_tolerance_are_joined_exactly():
     """A pen pinch turned 10 deg about the axis across its pinch into a tripod, the final
     grasp's thumb and index written where the pinch's turn leaves them: at the initial pose
@@ -271,13 +283,7 @@ def test_legs_ending_within_the_slot_tolerance_are_joined_exactly():
     initial grasp's posture but not on it. The plan joins the legs with a last waypoint (no
     gait), and every plan returned reads back (each step starts and ends at its states within
     1e-6 rad; before, such a plan was refused by its own verification as written)."""
-    a = realize(load_grasp(bundled_grasp("icub/pen_palmar_pinch.yaml")))
-    spec = load_grasp(bundled_grasp("icub/pen_writing_tripod.yaml"))
-    T = np.array(spec.object.T_palm_obj, dtype=float)
-    T[:3, :3] = (Rotation.from_matrix(T[:3, :3]) * Rotation.from_euler("y", -10, degrees=True)).as_matrix()
-    points = {"thumb": (-0.004876, -0.001043, 0.001342), "index": (0.005, -1.8e-05, -0.001254)}
-    fingers = tuple(replace(f, point_obj=points[f.name]) if f.name in points else f for f in spec.fingers)
-    b = realize(replace(spec, object=replace(spec.object, T_palm_obj=T), fingers=fingers))
+    a, b = _pen_turned_10deg()
     plan = plan_regrasp(a, b, PlanOptions.for_execution(verify=False)).plan
     back = plan_from_data(plan.to_dict())
     assert len(back.states) == len(plan.states) and any(s.action == "repose" for s in back.steps)
@@ -338,3 +344,28 @@ def test_candidate_poses_share_one_verification_budget():
         plan_with_reposing(pinch, pose, opts, {}, False, gaits, None)
     assert calls == [6, 2]
     assert "not tried at" in str(err.value) and "8 sequences were replayed" in str(err.value)
+
+
+def test_fingers_within_snap_rad_still_join_when_the_re_posturing_fails(monkeypatch):
+    """The final grasp's leg of the 10 deg pen turn (`test_legs_ending_within_the_slot_tolerance_are_joined_exactly`)
+    ends with thumb and index within `SNAP_RAD` of the pinch's postures. When the re-posturing
+    path cannot be made (a farther finger that cannot keep its contact: `_reposture` None),
+    those fingers still take the other grasp's joints in one waypoint with the object still,
+    as before there were re-posturing paths."""
+    from planner import pose_search
+    from planner.regrasp import _straight_gait
+
+    a, b = _pen_turned_10deg()
+    opts = PlanOptions.for_execution(verify=False)
+    P = np.asarray(a.obj.T_palm_obj, float)
+    first, back = pose_search.leg(a, P, opts, _straight_gait), pose_search.leg(b, P, opts, _straight_gait)
+    near = [f for f in ("thumb", "index")
+            if 0 < np.max(np.abs(np.asarray(back.end.finger_q[f]) - a.finger_q[f])) <= pose_search.SNAP_RAD]
+    assert first.move is None and back.move is not None and near
+    monkeypatch.setattr(pose_search, "_reposture", lambda *args: None)
+    _, snapped = pose_search._snap(first, back, opts)
+    assert snapped is not back and len(snapped.move.q_path) == len(back.move.q_path) + 1
+    assert np.array_equal(snapped.move.poses[-1], snapped.move.poses[-2])  # the object still
+    for f in near:
+        assert np.allclose(snapped.end.finger_q[f], a.finger_q[f])
+        assert np.allclose(snapped.move.q_path[-1][list(a.hand.fingers[f].q_index)], a.finger_q[f])
