@@ -369,3 +369,33 @@ def test_fingers_within_snap_rad_still_join_when_the_re_posturing_fails(monkeypa
     for f in near:
         assert np.allclose(snapped.end.finger_q[f], a.finger_q[f])
         assert np.allclose(snapped.move.q_path[-1][list(a.hand.fingers[f].q_index)], a.finger_q[f])
+
+
+def test_a_candidate_whose_plan_fails_the_physics_check_is_refused(monkeypatch):
+    """plan_with_reposing runs the physics check `replay` runs (`planner.audit.audit_plan`) on
+    every composed plan before it is verified or returned: a plan failing it is not returned,
+    its candidate is refused naming the check's first problem, and the next one is tried."""
+    from planner import audit
+    from planner.errors import NoSequenceError
+    from planner.pose_search import plan_with_reposing
+
+    pinch = realize(load_grasp(bundled_grasp("icub/pen_palmar_pinch.yaml")))
+    pose = realize(load_grasp(bundled_grasp("icub/pen_writing_pose.yaml")))
+    opts = PlanOptions.for_execution(motion=False, verify=False)
+    audited = []
+
+    def failing(plan, hand=None, paths=True):
+        audited.append(plan)
+        rep = audit.AuditReport("<plan>")
+        rep.add("steps[1] (repose object): a made-up problem")
+        return rep
+
+    class NoGaits:  # the gaits' result at the candidate pose: none needed
+        plan = None
+
+    monkeypatch.setattr(audit, "audit_plan", failing)
+    with pytest.raises(NoSequenceError) as err:
+        plan_with_reposing(pinch, pose, opts, {}, False, lambda a, b, o, r=None: NoGaits(), None)
+    words = str(err.value)
+    assert len(audited) >= 2 and words.count("the plan fails a physics check (steps[1] (repose object): a made-up problem)") \
+        == len(audited)
