@@ -346,8 +346,10 @@ def compose(initial, final, options: PlanOptions, first: Leg, gait: Plan | None,
     grips = [s.grip_force_n for s in b.states if s.grip_force_n is not None]
     summary["bottleneck_grip_force_n"] = max(grips) if grips else None
     if base is not None:
+        # (the gait search had a share of the reposing candidates' --verify-attempts: the option given is recorded)
         return replace(base, object=initial.spec.object.to_data(), summary=summary, states=tuple(b.states),
-                       steps=tuple(b.steps))
+                       steps=tuple(b.steps),
+                       parameters={**(base.parameters or {}), "verify_attempts": options.verify_attempts})
     from planner.plan_data import hand_files_record
 
     spec = initial.spec

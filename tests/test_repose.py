@@ -399,3 +399,21 @@ def test_a_candidate_whose_plan_fails_the_physics_check_is_refused(monkeypatch):
     words = str(err.value)
     assert len(audited) >= 2 and words.count("the plan fails a physics check (steps[1] (repose object): a made-up problem)") \
         == len(audited)
+
+
+def test_a_plan_with_reposing_records_the_verify_attempts_it_was_given():
+    """The gait search at a candidate pose gets what is left of the shared --verify-attempts
+    (`plan_with_reposing`); the composed plan's parameters still record the option given
+    (6), not the gait search's share (2)."""
+    from planner import pose_search
+    from planner.regrasp import _straight_gait, plan_gaits
+
+    pinch = realize(load_grasp(bundled_grasp("icub/pen_palmar_pinch.yaml")))
+    pose = realize(load_grasp(bundled_grasp("icub/pen_writing_pose.yaml")))
+    opts = PlanOptions.for_execution(motion=False, verify=False, verify_attempts=6)
+    P = np.asarray(pinch.obj.T_palm_obj, float)
+    first, back = pose_search._snap(pose_search.leg(pinch, P, opts, _straight_gait),
+                                    pose_search.leg(pose, P, opts, _straight_gait), opts)
+    gait = plan_gaits(first.end, back.end, replace(opts, verify_attempts=2)).plan
+    plan = pose_search.compose(pinch, pose, opts, first, gait, back, P)
+    assert gait.parameters["verify_attempts"] == 2 and plan.parameters["verify_attempts"] == 6
