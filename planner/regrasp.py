@@ -276,6 +276,7 @@ def anytime_search(problem: GaitProblem, initial, options: PlanOptions, t0: floa
     lazy, found, out_of_time = prior, [], False
     removed = set(prior.removed) if prior is not None else set()
     removed_states = set(prior.removed_states) if prior is not None else set()
+    removed_moves = list(prior.G.graph.get("removed_moves", ())) if prior is not None else []
     forbidden = set(prior.forbidden) if prior is not None else set()
     if prior is not None:
         evaluator = prior.ev
@@ -283,6 +284,7 @@ def anytime_search(problem: GaitProblem, initial, options: PlanOptions, t0: floa
         if lazy is None:
             lazy = LazyGraph(problem, options.rank, evaluator=evaluator, deadline=deadline)
             lazy.removed |= removed
+            lazy.G.graph["removed_moves"] = list(removed_moves)  # named by the explanation of a failure
             lazy.removed_states |= removed_states
             lazy.forbidden |= forbidden
             evaluator = lazy.ev

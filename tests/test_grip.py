@@ -350,3 +350,37 @@ def test_parallel_replays_equal_serial_ones(tmp_path):
             p.passed, p.verdict, p.max_drift_mm, p.max_drift_deg, p.sim_steps)
         assert [r.carried_n for r in s.states] == [r.carried_n for r in p.states]
     assert not math.isnan(serial[0].max_drift_mm)
+
+
+def test_moves_taken_out_before_a_resumed_round_are_still_known_to_the_explanation(monkeypatch):
+    """After every sequence failed in the simulator the search resumes with intermediate
+    contacts in a new graph that skips the moves taken out: the new graph still records them
+    (``removed_moves``, which the refusal's explanation names), every time the search returns."""
+    import planner.regrasp as regrasp
+    import planner.sim.verify as verify
+    from planner.errors import NoSequenceError
+    from planner.grasp import load_grasp
+    from planner.options import PlanOptions
+    from planner.realization import realize
+    from planner.resources import bundled_grasp
+
+    a, b = (realize(load_grasp(bundled_grasp(n))) for n in ("icub/box_parallel_extension.yaml", "icub/box_ir2m.yaml"))
+
+    def never(plan, hand, directions, workers=None):
+        return verify.Verification(False, tuple((n, False, "FAIL: made up", 1, False, 9.0, 9.0)
+                                                for n, _ in directions), 0.0)
+
+    search, seen = regrasp.anytime_search, []
+
+    def checked(*args, prior=None, **kw):
+        lazy, info = search(*args, prior=prior, **kw)
+        seen.append((prior is not None and lazy is not prior, set(lazy.removed),
+                     set(lazy.G.graph.get("removed_moves", ()))))
+        return lazy, info
+
+    monkeypatch.setattr(verify, "verify_plan", never)
+    monkeypatch.setattr(regrasp, "anytime_search", checked)
+    with pytest.raises(NoSequenceError):
+        regrasp.plan_regrasp(a, b, PlanOptions.for_execution(motion=False, verify_attempts=100, repose=False))
+    assert any(new and removed for new, removed, _ in seen)  # a resumed round in a new graph, after removals
+    assert all(recorded == removed for _, removed, recorded in seen)
