@@ -129,8 +129,8 @@ def build_parser() -> argparse.ArgumentParser:
                            "--gravity-set is given) and --rank grip, and verify the plan in a physics engine (--engine)")
     plan.add_argument("--verify-attempts", type=int, default=None, metavar="N",
                       help="with --execution: sequences replayed at most before the plan is refused (a bound on "
-                           "the work, default 6): at the grasps' pose, and as many again when the object is moved "
-                           "(all candidate poses together)")
+                           "the work, default 6): for the gaits at the grasps' shared pose, and as many again for "
+                           "the plans that move the object (all their candidate poses together)")
     plan.add_argument("--no-verify", action="store_true",
                       help="with --execution: return the best sequence without replaying it in a physics engine first")
     plan.add_argument("--engine", default=None, choices=ENGINE_CHOICES,

@@ -29,6 +29,7 @@ from planner.errors import MotionError, NoSequenceError, PlannerError
 from planner.model import PALM
 from planner.options import PlanOptions, gravity_directions_of
 from planner.plan_data import OBJECT, Plan, PlanState, PlanStep, pose_vector
+from planner.realization import PENETRATION_TOL_M
 from planner.repose import FOLLOW_TOL_M, FollowError, Reposing, at_pose, pose_distance, repose, settle_pose, state_reason
 
 log = logging.getLogger("planner")
@@ -419,7 +420,7 @@ def _snap(first: Leg, back: Leg, options: PlanOptions) -> tuple[Leg, Leg]:
         q = np.array(g.q, dtype=float)
         changed = []
         for f in g.hand.fingers:
-            if f not in g.patches or f not in other.patches:
+            if f not in g.patches or f not in other.patches or f not in leg_.move.fingers:  # (the move's joints only)
                 continue
             pa, pb = _outer_point(g, f), _outer_point(other, f)
             qa, qb = np.asarray(g.finger_q[f]), np.asarray(other.finger_q[f])
@@ -502,7 +503,8 @@ def _reposture(g, other, fingers, options):
                     return None
         if k < n:
             w = at_pose(g, T, q)
-            if not set(ends) <= set(w.patches) or state_reason(w, options) is not None:
+            if not set(ends) <= set(w.patches) or any(d > PENETRATION_TOL_M for _, _, d in w.collisions) \
+                    or state_reason(w, options) is not None:  # (as `planner.repose.repose` judges a waypoint)
                 return None
         out.append(q.copy())
     return np.array(out)
