@@ -7,12 +7,21 @@ import numpy as np
 import pytest
 import scipy.optimize
 
+import planner.closure as closure_module
 import planner.lp as lp_backend
 from planner.model import Friction
 from planner.closure import min_grip_force
 from planner.errors import PlannerError
 
 WEIGHT = [0.0, 0.0, -1.0, 0.0, 0.0, 0.0]
+
+
+@pytest.fixture(autouse=True)
+def _fresh_answers(monkeypatch):
+    """min_grip_force remembers its answers (and a grasp's wrenches) by their exact inputs: each
+    test starts without them, so a solver stood in by a test is asked, not an answer remembered
+    from another test's real solver."""
+    monkeypatch.setattr(closure_module, "_GRIP_MEMO", {})
 
 
 def _antipodal(r=0.02):
