@@ -460,10 +460,9 @@ class LazyGraph:
     def remove_edge(self, u: Node, v: Node) -> None:
         """Drop a move (e.g. a finger path that cannot be planned) for good (recorded in the
         graph's ``removed_moves`` for the explanation of a failure)."""
+        if (u, v) not in self.removed:
+            self.G.graph.setdefault("removed_moves", []).append((u, v))
         self.removed.add((u, v))
-        moves = self.G.graph.setdefault("removed_moves", [])
-        if (u, v) not in moves:
-            moves.append((u, v))
         if self.G.has_edge(u, v):
             self.G.remove_edge(u, v)
 

@@ -457,15 +457,6 @@ def _snap(first: Leg, back: Leg, options: PlanOptions) -> tuple[Leg, Leg]:
     return first, back
 
 
-def _outer_hold(g, finger: str):
-    """(link, point in the link frame, point in the object frame, the link's orientation in the
-    object frame, the inward normal) of ``finger``'s outermost contact (`planner.repose._holds`'s
-    first item)."""
-    from planner.repose import _holds
-
-    return _holds(g)[finger][0]
-
-
 def _reposture(g, other, fingers, options):
     """Joint waypoints (k, nq) taking ``fingers`` of ``g`` to their postures in ``other`` (the
     same object pose, each touching the same point with the same outermost link) with the
@@ -474,15 +465,16 @@ def _reposture(g, other, fingers, options):
     Each waypoint moves the fingers' joints along the straight line between the postures and
     the reposing follower (`planner.repose._follow`) puts the outermost contact back on its
     object point, its point on the link interpolated between the two postures' (the pad rolls)."""
-    from planner.repose import _follow
+    from planner.repose import _follow, _holds
 
     hand = g.hand
     T = np.asarray(g.obj.T_palm_obj, float)
     lo, hi = np.asarray(hand.lower, float), np.asarray(hand.upper, float)
+    holds_a, holds_b = _holds(g), _holds(other)  # each finger's outermost contact first
     ends = {}
     for f in fingers:
-        la, pla, poa, R_rel, n_obj = _outer_hold(g, f)
-        lb, plb, pob, _, _ = _outer_hold(other, f)
+        la, pla, poa, R_rel, n_obj = holds_a[f][0]
+        lb, plb, pob, _, _ = holds_b[f][0]
         if la != lb:
             return None
         ends[f] = (la, pla, plb, poa, pob, np.asarray(g.finger_q[f], float), np.asarray(other.finger_q[f], float),
