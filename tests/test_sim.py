@@ -543,15 +543,13 @@ def test_a_lift_retreats_from_where_the_finger_touches_and_ends_where_planned():
     assert np.allclose(lift_path(planned[0], planned)[1:], planned)  # no offset: the plan itself
 
 
-@pytest.mark.needs_pybullet("the iCub pen example is verified in pybullet; MuJoCo refuses its tripod turn (side_-y: "
-                            "5.1 deg of drift against the 5 deg limit)")
-def test_pen_pinch_to_writing_pose_turns_the_pen_in_a_tripod_and_holds():
-    """Issue 39 item 5, the thesis's motivating case: the pen picked with a palmar pinch ends
-    in a writing tripod with the pen turned 10 deg. Planned in execution mode, the plan lands
-    the middle finger at the pinch's pose and then carries the pen with the three contacts
-    fixed on it (a reposing move; thumb and index re-postured at the start, their pads rolling
-    on their points); it was verified in all six directions before it was returned, and an
-    independent replay palm down follows the planned object path."""
+def _pen_turn_plan_holds(hand_dir: str, hand_name: str, min_deg: float, moved_fingers: tuple[str, ...]):
+    """The bundled pen pair of ``grasps/<hand_dir>/`` (pinch -> writing pose, the object turned
+    more than ``min_deg``) planned in execution mode: the middle finger lands at the pinch's
+    pose, then a reposing move of at least ``moved_fingers``' joints turns the pen along the
+    whole angle; the plan passes the physics check `regrasp replay` runs first, was verified
+    in all six directions before it was returned, and an independent replay palm down follows
+    the planned object path."""
     from planner.audit import audit_plan
     from planner.gravity import gravity_directions
     from planner.grasp import load_grasp
@@ -560,57 +558,39 @@ def test_pen_pinch_to_writing_pose_turns_the_pen_in_a_tripod_and_holds():
     from planner.regrasp import plan_regrasp
     from planner.repose import pose_distance
 
-    root = Path(__file__).resolve().parent.parent / "grasps" / "icub"
+    root = Path(__file__).resolve().parent.parent / "grasps" / hand_dir
     pinch, pose = (realize(load_grasp(root / f)) for f in ("pen_palmar_pinch.yaml", "pen_writing_pose.yaml"))
     mm, deg = pose_distance(pinch.obj.T_palm_obj, pose.obj.T_palm_obj)
-    assert deg > 10.0
+    assert deg > min_deg
     plan = plan_regrasp(pinch, pose, PlanOptions.for_execution()).plan
     assert [(s.finger, s.action) for s in plan.steps][-2:] == [("middle", "land"), ("object", "repose")]
     moved = plan.steps[-1]
-    assert set(moved.joints) >= set(pose.hand.fingers["middle"].joints) | set(pose.hand.fingers["thumb"].joints)
+    assert set(moved.joints) >= {j for f in moved_fingers for j in pose.hand.fingers[f].joints}
     rep = plan.summary["reposing"]
     assert rep["moves"] == 1 and rep["object_path_deg"] == pytest.approx(deg, abs=0.01)
-    audit = audit_plan(plan)  # the physics check `regrasp replay` runs first
-    assert audit.ok, audit.problems
-    ver = plan.summary["verification"]
-    assert ver["passed"] and len(ver["directions"]) == 6 and all(d["passed"] for d in ver["directions"].values())
-    hand = Hand.load("icub_right")
-    report = replay_plan(plan.to_dict(), gravity=dict(gravity_directions(hand.palm_normal, 7))["palm_down"], hand=hand)
-    assert report.passed, report.verdict
-    assert report.max_drift_mm < 5.0 and report.max_drift_deg < 5.0
-
-
-def test_allegro_pen_pinch_to_writing_pose_turns_the_pen_in_a_tripod_and_holds():
-    """Issue 39 item 5 on the Allegro: the 10 mm pen picked with a tip-to-tip palmar pinch ends
-    in a writing tripod with the pen turned 21 deg (its axis tilted 9 deg). Planned in
-    execution mode, the middle finger lands at the pinch's pose, then the tripod turns the pen
-    with its three contacts fixed on it (thumb and index re-postured first); the plan passes
-    the replay's physics check, was verified in all six directions before it was returned,
-    and an independent replay palm down follows the planned object path."""
-    from planner.audit import audit_plan
-    from planner.gravity import gravity_directions
-    from planner.grasp import load_grasp
-    from planner.options import PlanOptions
-    from planner.realization import realize
-    from planner.regrasp import plan_regrasp
-    from planner.repose import pose_distance
-
-    root = Path(__file__).resolve().parent.parent / "grasps" / "allegro"
-    pinch, pose = (realize(load_grasp(root / f)) for f in ("pen_palmar_pinch.yaml", "pen_writing_pose.yaml"))
-    mm, deg = pose_distance(pinch.obj.T_palm_obj, pose.obj.T_palm_obj)
-    assert deg > 20.0
-    plan = plan_regrasp(pinch, pose, PlanOptions.for_execution()).plan
-    assert [(s.finger, s.action) for s in plan.steps][-2:] == [("middle", "land"), ("object", "repose")]
-    moved = plan.steps[-1]
-    assert set(moved.joints) >= {j for f in ("thumb", "index", "middle") for j in pose.hand.fingers[f].joints}
-    rep = plan.summary["reposing"]
-    assert rep["moves"] == 1 and rep["object_path_deg"] == pytest.approx(deg, abs=0.01)
-    assert set(plan.states[-1].patches) >= {"thumb", "index", "middle"}
     audit = audit_plan(plan)
     assert audit.ok, audit.problems
     ver = plan.summary["verification"]
     assert ver["passed"] and len(ver["directions"]) == 6 and all(d["passed"] for d in ver["directions"].values())
-    hand = Hand.load("allegro_right")
+    hand = Hand.load(hand_name)
     report = replay_plan(plan.to_dict(), gravity=dict(gravity_directions(hand.palm_normal, 7))["palm_down"], hand=hand)
     assert report.passed, report.verdict
     assert report.max_drift_mm < 5.0 and report.max_drift_deg < 5.0
+    return plan
+
+
+@pytest.mark.needs_pybullet("the iCub pen example is verified in pybullet; MuJoCo refuses its tripod turn (side_-y: "
+                            "5.1 deg of drift against the 5 deg limit)")
+def test_pen_pinch_to_writing_pose_turns_the_pen_in_a_tripod_and_holds():
+    """Issue 39 item 5, the thesis's motivating case: the pen picked with a palmar pinch ends
+    in a writing tripod with the pen turned 10 deg (`_pen_turn_plan_holds`; thumb and index
+    re-postured at the start of the turn, their pads rolling on their points)."""
+    _pen_turn_plan_holds("icub", "icub_right", 10.0, ("middle", "thumb"))
+
+
+def test_allegro_pen_pinch_to_writing_pose_turns_the_pen_in_a_tripod_and_holds():
+    """Issue 39 item 5 on the Allegro: the 10 mm pen picked with a tip-to-tip palmar pinch ends
+    in a writing tripod with the pen turned 21 deg, its axis tilted 9 deg
+    (`_pen_turn_plan_holds`); the last state holds with thumb, index and middle."""
+    plan = _pen_turn_plan_holds("allegro", "allegro_right", 20.0, ("thumb", "index", "middle"))
+    assert set(plan.states[-1].patches) >= {"thumb", "index", "middle"}
