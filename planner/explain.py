@@ -85,6 +85,16 @@ def _cannot_hold(reason: str) -> bool:
     return reason == "not force closure" or reason.startswith("need over") or "its weight" in reason
 
 
+def _taken_out(G: nx.DiGraph) -> dict[tuple[Node, Node], str]:
+    """The moves taken out after the search found them -> why: "failed later" (the graph's
+    ``removed_moves``: no finger path, or the simulator rejected the sequence at it) or
+    "rejected state" (``removed_with_state``: a move into a state the simulator rejected
+    reached by another move, taken out with it, `planner.gait_search.LazyGraph.remove_state`)."""
+    out = {m: "rejected state" for m in G.graph.get("removed_with_state", ())}
+    out.update((m, "failed later") for m in G.graph.get("removed_moves", ()))
+    return out
+
+
 def failure_analysis(G: nx.DiGraph) -> dict:
     """What stops the graph's start from reaching its goal (for `explain_failure` and for
     choosing the fingers that get intermediate contacts).
@@ -101,7 +111,11 @@ def failure_analysis(G: nx.DiGraph) -> dict:
     lift leaves a state that cannot hold the object (not force closure, or over the grip
     force budget), the finger in the way of a landing),
     ``goal_reason`` (why the final grasp itself is invalid, or None), ``palm_helps`` (fingers
-    that resting the object on the palm would let lift, `_palm_remedy`).
+    that resting the object on the palm would let lift, `_palm_remedy`), ``lift_taken``
+    (finger -> [(state, cause)] for a finger of ``lift_blocked`` whose lift from those reached
+    states was taken out afterwards, `_taken_out`: refused in some states, taken out in others).
+    A finger with a lift taken out adds no ``needs``, ``unheld`` nor blocker score for its
+    refused lifts (the search's choice of new contacts: its lift was possible somewhere).
     """
     p: GaitProblem = G.graph["problem"]
     ev: Evaluator = G.graph["evaluator"]
@@ -116,6 +130,8 @@ def failure_analysis(G: nx.DiGraph) -> dict:
     needs: list[tuple[str, Node]] = []
     unheld: list[str] = []
     palm_helps: list[str] = []  # fingers that resting the object on the palm would let lift
+    lift_taken: dict[str, list[tuple[Node, str]]] = {}
+    taken_out = _taken_out(G)
 
     def need_holders(w: Node, lifted: str) -> None:
         """Lifting ``lifted`` left ``w`` unable to hold the object: another finger could help by a
@@ -136,9 +152,10 @@ def failure_analysis(G: nx.DiGraph) -> dict:
         if p.start[i] == p.goal[i]:
             continue
         touching = [v for v in reach if v[i] != LIFTED]
-        # a lift taken out after it failed later (`LazyGraph.remove_edge`) was not refused here
-        lifted_later = any(u in reach and u[i] != LIFTED and v[i] == LIFTED for u, v in G.graph.get("removed_moves", ()))
-        if touching and not lifted_later and not any(G.has_edge(v, v[:i] + (LIFTED,) + v[i + 1:]) for v in touching):
+        # its lifts taken out after they were found (failed later, into a rejected state): not
+        # refused there, said apart from the refusals elsewhere
+        taken = [(u, cause) for (u, v), cause in taken_out.items() if u in reach and u[i] != LIFTED and v[i] == LIFTED]
+        if touching and not any(G.has_edge(v, v[:i] + (LIFTED,) + v[i + 1:]) for v in touching):
             tried = [m for m in moves if m[1] == i and m[2] == "lift"]
             if tried:  # the refused lift nearest the end of the best partial sequence
                 u, _, _, w = max(tried, key=lambda m: (on_partial.get(m[0], -1), -dist[m[0]]))
@@ -146,11 +163,14 @@ def failure_analysis(G: nx.DiGraph) -> dict:
                 lift_blocked[f] = (u, _reason_words(ev, f, "lift", w, G.graph["blocked"][w]) + remedy)
                 if helps:
                     palm_helps.append(f)
-                score[f] += 3
-                if _cannot_hold(G.graph["blocked"][w]):
-                    need_holders(w, f)
-                if any(_cannot_hold(G.graph["blocked"][m[3]]) for m in tried):
-                    unheld.append(f)
+                if taken:
+                    lift_taken[f] = taken
+                else:
+                    score[f] += 3
+                    if _cannot_hold(G.graph["blocked"][w]):
+                        need_holders(w, f)
+                    if any(_cannot_hold(G.graph["blocked"][m[3]]) for m in tried):
+                        unheld.append(f)
         if p.goal[i] != LIFTED:
             why: dict[str, int] = {}
             for u, j, action, w in moves:
@@ -195,7 +215,20 @@ def failure_analysis(G: nx.DiGraph) -> dict:
     return {"reach": reach, "closest": closest, "partial": partial, "lift_blocked": lift_blocked, "unheld": unheld,
             "landing_blocked": landing_blocked,
             "stuck": stuck, "needs": list(dict.fromkeys(needs)),
-            "blockers": blockers, "goal_reason": goal_reason, "distance": dist[closest], "palm_helps": palm_helps}
+            "blockers": blockers, "goal_reason": goal_reason, "distance": dist[closest], "palm_helps": palm_helps,
+            "lift_taken": lift_taken}
+
+
+def _states_words(problem: GaitProblem, states: list[Node]) -> str:
+    """'in the initial grasp', 'in the state (thumb initial, ...)', 'in 3 states (e.g. ...)',
+    'in the initial grasp and 2 other states (e.g. ...)'."""
+    others = [v for v in dict.fromkeys(states) if v != problem.start]
+    if not others:
+        return "in the initial grasp"
+    eg = _state_words(problem, others[0])
+    if len(others) < len(set(states)):
+        return f"in the initial grasp and {len(others)} other state{'s' if len(others) > 1 else ''} (e.g. {eg})"
+    return f"in the state ({eg})" if len(others) == 1 else f"in {len(others)} states (e.g. {eg})"
 
 
 def _names(fingers: list[str]) -> str:
@@ -231,9 +264,12 @@ def explain_failure(G: nx.DiGraph, intermediate_tried: bool, tried: str | None =
     metric, or it would collide with a named finger), which landings on the final contacts
     are refused and why, the best partial sequence and where it ends, and what was tried
     (``tried``: a sentence from the caller, e.g. the rounds of intermediate contacts).
-    Moves the search found and that were taken out afterwards (the graph's ``removed_moves``:
-    no finger path, or the simulator rejected the sequence; the caller says why) are named
-    as such, not as moves the search did not reach.
+    Moves the search found and that were taken out afterwards are named as such, not as moves
+    the search did not reach: as failed later those that failed themselves (the graph's
+    ``removed_moves``: no finger path, or the simulator rejected the sequence at them; the
+    caller says why), apart the other moves into a state the simulator rejected
+    (``removed_with_state``). A finger whose lift was refused in some states and taken out in
+    others is said to be both, each with its states (the refusal with its reason).
     Fingers free in both grasps are never mentioned.
     """
     p: GaitProblem = G.graph["problem"]
@@ -243,22 +279,35 @@ def explain_failure(G: nx.DiGraph, intermediate_tried: bool, tried: str | None =
         lines.append(f"the final grasp itself is not a valid state ({a['goal_reason']})")
     merged: dict[tuple[str, str], list[str]] = {}  # the same clause for several fingers is said once
     for f, (u, why) in a["lift_blocked"].items():
-        where = "the initial grasp" if u == p.start else f"any reached state (e.g. {_state_words(p, u)})"
+        other = "other " if f in a["lift_taken"] else ""  # (its lift in some states was taken out: said below)
+        where = "the initial grasp" if u == p.start else f"any {other}reached state (e.g. {_state_words(p, u)})"
         merged.setdefault((where, why), []).append(f)
     for (where, why), fingers in merged.items():
         lines.append(f"{_names(fingers)} cannot be lifted in {where}: {why}")
+    for f, taken in a["lift_taken"].items():
+        for cause in ("failed later", "rejected state"):
+            states = [u for u, c in taken if c == cause]
+            if states:
+                lines.append(f"{f}'s lift {_states_words(p, states)} was taken out "
+                             + ("after failing later" if cause == "failed later" else
+                                "with the state it leads to, which the simulator rejected (reached by another move)"))
     landing: dict[str, list[str]] = {}
     for f, why in a["landing_blocked"].items():
         parts = [text + (f" ({n} states)" if n > 1 else "") for text, n in why.items()]
         landing.setdefault("; ".join(parts), []).append(f)
     for why, fingers in landing.items():
         lines.append(f"{_names(fingers)} cannot land on {'its' if len(fingers) == 1 else 'their'} final contact: {why}")
-    # moves of reached states taken out after they failed later (finger paths, the simulator)
-    later = list(dict.fromkeys(_move_words(p, u, v) + (" in the initial grasp" if u == p.start else "")
-                               for u, v in G.graph.get("removed_moves", ()) if u in a["reach"]))
-    if later:
-        lines.append("taken out after failing later: " + ", ".join(later[:3])
-                     + (f" and {len(later) - 3} more" if len(later) > 3 else ""))
+    # moves of reached states taken out after they failed later (finger paths, the simulator),
+    # or with a state the simulator rejected; the lifts said with a finger's refusals above left out
+    taken_out = _taken_out(G)
+    for cause, head in (("failed later", "taken out after failing later"),
+                        ("rejected state", "taken out with a state the simulator rejected (reached by another move)")):
+        said = list(dict.fromkeys(
+            _move_words(p, u, v) + (" in the initial grasp" if u == p.start else "")
+            for (u, v), c in taken_out.items() if c == cause and u in a["reach"]
+            and not any(p.fingers[i] in a["lift_taken"] and v[i] == LIFTED != u[i] for i in range(len(u)))))
+        if said:
+            lines.append(f"{head}: " + ", ".join(said[:3]) + (f" and {len(said) - 3} more" if len(said) > 3 else ""))
     steps = [_move_words(p, u, v) for u, v in zip(a["partial"], a["partial"][1:])]
     lines.append(f"best partial sequence ({len(steps)} moves{': ' + ', '.join(steps) if steps else ''}) ends "
                  f"{a['distance']} finger(s) from the final grasp in: {_state_words(p, a['closest'])}")
@@ -273,8 +322,7 @@ def explain_failure(G: nx.DiGraph, intermediate_tried: bool, tried: str | None =
         # nothing was refused: the search stopped before it tried the moves that remain
         left = [(i, f) for i, f in enumerate(p.fingers) if a["closest"][i] != G.graph["goal"][i]]
         # a finger is said to have lost its moves only if a move taken out moved it
-        gone = [f for i, f in left if any(u[i] != v[i] for u, v in G.graph.get("removed_moves", ())
-                                          if u in a["reach"])]
+        gone = [f for i, f in left if any(u[i] != v[i] for u, v in taken_out if u in a["reach"])]
         rest = [f for _, f in left if f not in gone]
         if gone:
             one = len(gone) == 1

@@ -477,10 +477,15 @@ class LazyGraph:
 
     def remove_state(self, v: Node) -> None:
         """Drop every move into a state (e.g. one that failed in the simulator), for good:
-        the moves already in the graph and any found later."""
+        the moves already in the graph and any found later. The moves dropped from the graph
+        are recorded in its ``removed_with_state``, not in ``removed_moves``: they did not fail
+        themselves (the caller takes the move that failed out first, with `remove_edge`)."""
         self.removed_states.add(v)
         for u in list(self.G.predecessors(v)) if v in self.G else ():
-            self.remove_edge(u, v)
+            if (u, v) not in self.removed:
+                self.G.graph.setdefault("removed_with_state", []).append((u, v))
+            self.removed.add((u, v))
+            self.G.remove_edge(u, v)
 
 
 def greedy(G: nx.DiGraph) -> GaitSequence:

@@ -277,6 +277,7 @@ def anytime_search(problem: GaitProblem, initial, options: PlanOptions, t0: floa
     removed = set(prior.removed) if prior is not None else set()
     removed_states = set(prior.removed_states) if prior is not None else set()
     removed_moves = list(prior.G.graph.get("removed_moves", ())) if prior is not None else []
+    removed_with_state = list(prior.G.graph.get("removed_with_state", ())) if prior is not None else []
     forbidden = set(prior.forbidden) if prior is not None else set()
     if prior is not None:
         evaluator = prior.ev
@@ -285,6 +286,8 @@ def anytime_search(problem: GaitProblem, initial, options: PlanOptions, t0: floa
             lazy = LazyGraph(problem, options.rank, evaluator=evaluator, deadline=deadline)
             lazy.removed |= removed
             lazy.G.graph["removed_moves"] = list(removed_moves)  # named by the explanation of a failure
+            if removed_with_state:
+                lazy.G.graph["removed_with_state"] = list(removed_with_state)
             lazy.removed_states |= removed_states
             lazy.forbidden |= forbidden
             evaluator = lazy.ev
@@ -544,11 +547,11 @@ def plan_gaits(
             lazy.deadline, lazy.timed_out = None, False
             edge = _step_edges(seq, motions)[step]
             # the state reached failed in the simulator: every move into it goes (but the
-            # final grasp's: only this move into it, another landing may reach it)
+            # final grasp's: only this move into it, another landing may reach it); this
+            # move failed, the others go with the state
+            lazy.remove_edge(*edge)
             if at_state and edge[1] != problem.goal:
                 lazy.remove_state(edge[1])
-            else:
-                lazy.remove_edge(*edge)
             candidates = lazy.best(options.alternatives)
         else:
             counts = {m: failed.count(m) for m in dict.fromkeys(failed)}

@@ -447,9 +447,10 @@ def test_search_ranks_many_near_tied_orders_exactly():
 
 
 def test_moves_taken_out_later_are_named_not_called_unexplored():
-    """A finger whose only lifts were taken out after they failed later (a finger path, the
-    simulator: `LazyGraph.remove_edge`) is not said to be blocked by the closure test, nor
-    the search to have stopped before it: the explanation names the moves taken out."""
+    """A finger whose lifts were taken out after they failed later (a finger path, the
+    simulator: `LazyGraph.remove_edge`) in the initial grasp and with A lifted, and refused by
+    the closure test in the other states (C or D lifted), is said to be both (each where it
+    happened), not the search to have stopped before it."""
     slots = {"A": [slot("A", "initial", "+x")], "B": [slot("B", "initial", "-x"), slot("B", "final", "-x", tilt_deg=20)],
              "C": [slot("C", "initial", "+y")], "D": [slot("D", "initial", "-y")]}
     prob = problem(slots, dict(A=0, B=0, C=0, D=0), dict(A=0, B=1, C=0, D=0))
@@ -467,9 +468,12 @@ def test_moves_taken_out_later_are_named_not_called_unexplored():
     assert taken and lazy.best(1) == []
     assert lazy.G.graph["removed_moves"] == taken
     text = str(explain_failure(lazy.G, intermediate_tried=True))
-    assert "taken out after failing later: lift B in the initial grasp" in text
-    assert "B cannot be lifted" not in text and "--time-limit" not in text
-    assert "B still has to move: the moves the search found for it were taken out" in text
+    assert "B's lift in the initial grasp and 1 other state (e.g. A lifted, B initial, C initial, D initial) was " \
+           "taken out after failing later" in text
+    assert "B cannot be lifted in any other reached state (e.g. A initial, B initial, C lifted, D initial): without " \
+           "it the grasp (A, D) is not force closure" in text
+    assert not grasp_closure(prob.patches((0, LIFTED, LIFTED, 0)), FRICTION).is_force_closure
+    assert "--time-limit" not in text and "stopped" not in text
 
 
 def test_a_finger_whose_moves_were_not_taken_out_is_not_said_to_have_lost_them():

@@ -355,7 +355,8 @@ def test_parallel_replays_equal_serial_ones(tmp_path):
 def test_moves_taken_out_before_a_resumed_round_are_still_known_to_the_explanation(monkeypatch):
     """After every sequence failed in the simulator the search resumes with intermediate
     contacts in a new graph that skips the moves taken out: the new graph still records them
-    (``removed_moves``, which the refusal's explanation names), every time the search returns."""
+    (``removed_moves``, and ``removed_with_state`` for the moves into a state the simulator
+    rejected, which the refusal's explanation names), every time the search returns."""
     import planner.regrasp as regrasp
     import planner.sim.verify as verify
     from planner.errors import NoSequenceError
@@ -375,7 +376,7 @@ def test_moves_taken_out_before_a_resumed_round_are_still_known_to_the_explanati
     def checked(*args, prior=None, **kw):
         lazy, info = search(*args, prior=prior, **kw)
         seen.append((prior is not None and lazy is not prior, set(lazy.removed),
-                     set(lazy.G.graph.get("removed_moves", ()))))
+                     set(lazy.G.graph.get("removed_moves", ())) | set(lazy.G.graph.get("removed_with_state", ()))))
         return lazy, info
 
     monkeypatch.setattr(verify, "verify_plan", never)
