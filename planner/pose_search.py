@@ -30,7 +30,8 @@ from planner.model import PALM
 from planner.options import PlanOptions, gravity_directions_of
 from planner.plan_data import OBJECT, Plan, PlanState, PlanStep, pose_vector
 from planner.realization import PENETRATION_TOL_M
-from planner.repose import FOLLOW_TOL_M, FollowError, Reposing, at_pose, pose_distance, repose, settle_pose, state_reason
+from planner.repose import (FOLLOW_TOL_M, FollowError, Reposing, _holds, at_pose, pose_distance, repose, settle_pose,
+                            state_reason)
 
 log = logging.getLogger("planner")
 
@@ -396,14 +397,6 @@ SNAP_RAD = 0.05
 REPOSTURE_MAX_RAD = 0.5
 
 
-def _outer_point(g, finger: str):
-    links = g.hand.fingers[finger].contact_links
-    cs = [c for c in g.contacts if c.finger == finger]
-    if not cs:
-        return None
-    return np.asarray(max(cs, key=lambda c: links.index(c.link) if c.link in links else -1).point, float)
-
-
 def _snap(first: Leg, back: Leg, options: PlanOptions) -> tuple[Leg, Leg]:
     """The two legs' grasps at the candidate pose with one posture per shared contact: a
     finger touching the same object point in both (`SNAP_M`, `SNAP_RAD`) takes the other
@@ -419,10 +412,12 @@ def _snap(first: Leg, back: Leg, options: PlanOptions) -> tuple[Leg, Leg]:
         g = leg_.end
         q = np.array(g.q, dtype=float)
         changed = []
+        holds_g, holds_o = _holds(g), _holds(other)  # each finger's outermost contact first
         for f in g.hand.fingers:
             if f not in g.patches or f not in other.patches or f not in leg_.move.fingers:  # (the move's joints only)
                 continue
-            pa, pb = _outer_point(g, f), _outer_point(other, f)
+            pa = holds_g[f][0][2] if f in holds_g else None  # its outermost contact point (object frame)
+            pb = holds_o[f][0][2] if f in holds_o else None
             qa, qb = np.asarray(g.finger_q[f]), np.asarray(other.finger_q[f])
             if pa is None or pb is None or np.linalg.norm(pa - pb) > SNAP_M or np.max(np.abs(qa - qb)) > REPOSTURE_MAX_RAD:
                 continue
@@ -465,7 +460,7 @@ def _reposture(g, other, fingers, options):
     Each waypoint moves the fingers' joints along the straight line between the postures and
     the reposing follower (`planner.repose._follow`) puts the outermost contact back on its
     object point, its point on the link interpolated between the two postures' (the pad rolls)."""
-    from planner.repose import _follow, _holds
+    from planner.repose import _follow
 
     hand = g.hand
     T = np.asarray(g.obj.T_palm_obj, float)

@@ -296,15 +296,18 @@ def test_reposture_keeps_each_contact_on_its_point_and_ends_in_the_other_posture
     middle finger landed): `_reposture` joins them with the object still; independently
     re-measured, every waypoint keeps each moved finger's outermost link within the
     follower's tolerance of its object point, and the last one is the other grasp's."""
-    from planner.pose_search import _outer_point, _reposture, leg
-    from planner.repose import FOLLOW_TOL_M, at_pose, state_reason
+    from planner.pose_search import _reposture, leg
+    from planner.repose import FOLLOW_TOL_M, _holds, at_pose, state_reason
+
+    def outer(g, f):  # the finger's outermost contact point (object frame)
+        return _holds(g)[f][0][2]
 
     pinch = realize(load_grasp(bundled_grasp("icub/pen_palmar_pinch.yaml")))
     pose = realize(load_grasp(bundled_grasp("icub/pen_writing_pose.yaml")))
     T = np.asarray(pinch.obj.T_palm_obj, float)
     back = leg(pose, T, OPTS, None).end
     fingers = [f for f in ("thumb", "index")
-               if np.linalg.norm(_outer_point(back, f) - _outer_point(pinch, f)) < 2 * FOLLOW_TOL_M]
+               if np.linalg.norm(outer(back, f) - outer(pinch, f)) < 2 * FOLLOW_TOL_M]
     assert fingers and any(np.max(np.abs(np.asarray(back.finger_q[f]) - pinch.finger_q[f])) > 0.05 for f in fingers)
     path = _reposture(back, pinch, fingers, OPTS)
     assert path is not None and len(path) > 1
@@ -319,7 +322,7 @@ def test_reposture_keeps_each_contact_on_its_point_and_ends_in_the_other_posture
             assert f in g.patches and state_reason(g, OPTS) is None
             d = g.hand.state(q).link_object(g.obj, [link[-1]])
             assert abs(min(x.distance_m for x in d.values())) < 2 * FOLLOW_TOL_M
-            assert np.linalg.norm(_outer_point(g, f) - _outer_point(back, f)) < 2 * FOLLOW_TOL_M
+            assert np.linalg.norm(outer(g, f) - outer(back, f)) < 2 * FOLLOW_TOL_M
 
 
 def test_candidate_poses_share_one_verification_budget():
