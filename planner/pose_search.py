@@ -512,9 +512,9 @@ def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bo
                        known: str | None = None) -> tuple[Plan, float | None, str]:
     """The first candidate pose (`candidate_poses`) joined by reposing moves and gaits.
 
-    ``gaits(a, b, options, replays)`` is the gait planner (`planner.regrasp.plan_gaits`),
-    returning a `planner.regrasp.PlanResult` and appending to ``replays`` per sequence its
-    verification replayed; ``gait_fn(hand, obj, q_a, q_b, finger)`` the finger paths of
+    ``gaits(a, b, options, on_replay)`` is the gait planner (`planner.regrasp.plan_gaits`),
+    returning a `planner.regrasp.PlanResult` and calling ``on_replay()`` once per sequence its
+    verification replays; ``gait_fn(hand, obj, q_a, q_b, finger)`` the finger paths of
     one gait (lifting a finger that cannot follow a reposing move); ``known``: the first clause
     of the gait refusal at the grasps' own pose (a candidate failing the same way says so).
     The candidates share one ``options.verify_attempts`` (sequences replayed, the gaits' and
@@ -529,11 +529,18 @@ def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bo
     directions = gravity_directions_of(options, hand)
     verifying = options.verify and bool(directions)
     verify_s = 0.0
-    replays: list = []  # sequences the verification replayed, every candidate's
+    replays = 0  # sequences the verification replayed, every candidate's (gaits and whole plans)
+    stopped = False  # the budget ran out before every candidate was tried
+
+    def replayed() -> None:
+        nonlocal replays
+        replays += 1
+
     for name, P in candidate_poses(initial, final):
-        if verifying and len(replays) >= options.verify_attempts:
-            tried.append(f"not tried at {name} and after: {len(replays)} sequences were replayed at the poses before "
+        if verifying and replays >= options.verify_attempts:
+            tried.append(f"not tried at {name} and after: {replays} sequences were replayed at the poses before "
                          f"(--verify-attempts)")
+            stopped = True
             break
         log.info("reposing: trying the gaits at %s", name)
         try:
@@ -547,8 +554,8 @@ def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bo
         try:
             same = set(a.patches) == set(b.patches) and all(
                 np.allclose(a.finger_q[f], b.finger_q[f], atol=options.same_slot_tol_rad) for f in a.patches if f != PALM)
-            left = replace(options, verify_attempts=options.verify_attempts - len(replays)) if verifying else options
-            gait = None if same else gaits(a, b, left, replays).plan
+            left = replace(options, verify_attempts=options.verify_attempts - replays) if verifying else options
+            gait = None if same else gaits(a, b, left, replayed).plan
         except (NoSequenceError, PlannerError) as err:
             clause = first_clause(err)
             tried.append(f"at {name}: " + ("the gaits fail for the same reason" if clause == known else clause))
@@ -564,7 +571,7 @@ def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bo
         if verifying:
             from planner.sim.verify import default_workers, verify_suspects_first
 
-            replays.append(name)  # (counted; a plan whose gaits just held is replayed whole even past the budget)
+            replays += 1  # (a plan whose gaits just held is replayed whole even past the budget)
             check = verify_suspects_first(plan, hand, directions, set(), workers=options.workers or default_workers(),
                                           engine=options.engine)
             verify_s += check.wall_time_s
@@ -576,7 +583,11 @@ def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bo
                                                                              "rejected": []}})
         return plan, (verify_s if verifying else None), name
     mm, deg = pose_distance(Ta, Tb)
-    head = (f"the grasps' object poses differ by {mm:.1f} mm / {deg:.1f} deg and no reposing move joins them"
-            if not identical(Ta, Tb) else "no reposing move helps")
+    differ = None if identical(Ta, Tb) else f"the grasps' object poses differ by {mm:.1f} mm / {deg:.1f} deg"
+    if stopped:  # (whether a pose left would join them is not known)
+        head = (f"{differ + ' and the' if differ else 'the'} search for a reposing move stopped on the "
+                f"--verify-attempts budget ({replays} sequences replayed) before trying every candidate pose")
+    else:
+        head = f"{differ} and no reposing move joins them" if differ else "no reposing move helps"
     raise NoSequenceError(f"{head}: " + ("; ".join(tried) if tried else
                                          "no candidate pose (the palm is free in a grasp or has no geometry)"))

@@ -22,7 +22,7 @@ import logging
 import math
 import time
 from dataclasses import asdict, dataclass, replace
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 import networkx as nx
 import numpy as np
@@ -406,7 +406,7 @@ def plan_regrasp(
 
 def plan_gaits(
     initial, final, options: PlanOptions = PlanOptions(), inputs: Mapping[str, Any] | None = None, verbose: bool = False,
-    replays: list | None = None,
+    on_replay: Callable[[], Any] | None = None,
 ) -> PlanResult:
     """Plan a finger-gaiting sequence from one realized grasp to another, the object fixed.
 
@@ -416,8 +416,8 @@ def plan_gaits(
         options: planner parameters.
         inputs: what to record under the plan's ``inputs`` (paths and sha256).
         verbose: let the motion planner print its log.
-        replays: a list one item is appended to per sequence replayed by the verification
-            (a caller sharing ``--verify-attempts`` among several searches counts them).
+        on_replay: called once per sequence the verification replays (a caller sharing
+            ``--verify-attempts`` among several searches counts them).
 
     Returns:
         `PlanResult` with the plan, the graph and the ranked sequences.
@@ -517,8 +517,8 @@ def plan_gaits(
                      len(directions), min(workers, len(directions)))
             # the directions that rejected a sequence before are replayed first: a sequence
             # they reject again costs their replays only (a bound on the work, not the time)
-            if replays is not None:
-                replays.append(" ".join(candidates[0].order(problem)))
+            if on_replay is not None:
+                on_replay()
             check = verify_suspects_first(plan, hand, directions, {r["direction"] for r in rejected}, workers=workers,
                                           engine=options.engine)
             verify_s += check.wall_time_s

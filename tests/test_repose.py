@@ -327,26 +327,59 @@ def test_reposture_keeps_each_contact_on_its_point_and_ends_in_the_other_posture
 
 def test_candidate_poses_share_one_verification_budget():
     """The reposing candidates share ``--verify-attempts``: each gait search gets what the
-    ones before left, and once it is spent the candidates left are not tried (the refusal
-    says so), so a refusal replays a bounded number of sequences however many poses there are."""
+    ones before left, and once it is spent the candidates left are not tried, so a refusal
+    replays a bounded number of sequences however many poses there are. The refusal opens
+    with the stop on the budget (not with "no reposing move joins them": the poses left were
+    never tried) and names the first pose not tried. The stand-in gait search replays, as
+    `planner.regrasp.plan_gaits` does, at most the attempts it is given (four, or its share)."""
     from planner.errors import NoSequenceError
     from planner.pose_search import candidate_poses, plan_with_reposing
 
     pinch = realize(load_grasp(bundled_grasp("icub/pen_palmar_pinch.yaml")))
     pose = realize(load_grasp(bundled_grasp("icub/pen_writing_pose.yaml")))
     opts = PlanOptions.for_execution(motion=False, verify_attempts=6)
-    assert len(candidate_poses(pinch, pose)) > 2
+    names = [name for name, _ in candidate_poses(pinch, pose)]
+    assert len(names) > 2
     calls = []
 
-    def gaits(a, b, o, replays):
+    def gaits(a, b, o, on_replay):
         calls.append(o.verify_attempts)
-        replays.extend(["sequence"] * 4)  # four sequences replayed and rejected
+        for _ in range(min(4, o.verify_attempts)):  # sequences replayed and rejected, within its share
+            on_replay()
         raise NoSequenceError("no sequence held in the simulator")
 
     with pytest.raises(NoSequenceError) as err:
         plan_with_reposing(pinch, pose, opts, {}, False, gaits, None)
-    assert calls == [6, 2]
-    assert "not tried at" in str(err.value) and "8 sequences were replayed" in str(err.value)
+    text = str(err.value)
+    assert calls == [6, 2]  # 4 + 2 replayed: the budget of 6 spent by the first two candidates
+    assert text.startswith("the grasps' object poses differ by ")
+    assert text.split(": ")[0].endswith("search for a reposing move stopped on the --verify-attempts budget "
+                                        "(6 sequences replayed) before trying every candidate pose")
+    assert "no reposing move joins them" not in text
+    assert f"not tried at {names[2]} and after: 6 sequences were replayed" in text
+
+
+def test_the_gait_search_counts_each_replayed_sequence_within_the_attempts_it_is_given(monkeypatch):
+    """What the shared budget's stand-in above assumes of `planner.regrasp.plan_gaits`: it
+    calls ``on_replay`` once per sequence its verification replays (every direction rejecting
+    each: a stand-in simulator), and replays no more sequences than its ``verify_attempts``."""
+    import planner.sim.verify as verify
+    from planner.errors import NoSequenceError
+    from planner.regrasp import plan_gaits
+
+    a, b = (realize(load_grasp(bundled_grasp(n))) for n in ("icub/box_parallel_extension.yaml", "icub/box_ir2m.yaml"))
+    replayed, counted = [], []
+
+    def never(plan, hand, directions, workers=None):
+        replayed.append(plan.summary["order"])
+        return verify.Verification(False, tuple((n, False, "FAIL: made up", 1, False, 9.0, 9.0)
+                                                for n, _ in directions), 0.0)
+
+    monkeypatch.setattr(verify, "verify_plan", never)
+    with pytest.raises(NoSequenceError, match=r"in 3 attempt\(s\) \(--verify-attempts"):
+        plan_gaits(a, b, PlanOptions.for_execution(motion=False, verify_attempts=3, repose=False),
+                   on_replay=lambda: counted.append(1))
+    assert len(replayed) == len(counted) == 3 and len({tuple(o) for o in replayed}) == 3
 
 
 def test_fingers_within_snap_rad_still_join_when_the_re_posturing_fails(monkeypatch):
