@@ -42,6 +42,17 @@ CSV: ``experiments/results/exp10_<label>.csv``.
     python experiments/exp10_reposing.py --generate [--seed 0]
     python experiments/exp10_reposing.py --run --label L [--kinds pose,same] [--no-verify]
     python experiments/exp10_reposing.py --summary experiments/results/exp10_L.csv
+    python experiments/exp10_reposing.py --reach --label L [--only REGEX]
+
+Reach (``--reach``, in process, no simulator): for every pose pair, how far each end grasp's
+reposing move (`planner.repose.repose`, execution mode's options: the contacts fixed on the
+object) carries the object along the straight path toward the other grasp's pose, as the
+fraction of the path's waypoints it passes, and why it stops, grouped (`reach_cause`): a finger
+that cannot keep its contact with a joint at its limit, one that cannot keep it with its joints
+free (fewer free coordinates than its contact point needs: a coupled finger), a link going into
+the object (a contact that would have to roll), the grasp no valid state at a waypoint (closure
+or load), or another motion error. Pairs whose two fractions add up to 1 or more have a pose on
+the path both grasps reach. CSV: ``experiments/results/exp10_reach_<label>.csv``.
 """
 
 from __future__ import annotations
@@ -421,6 +432,78 @@ def planner_state(root: Path) -> str:
     return (out or "?").strip() + (f" + uncommitted {' '.join(files)}" if files else "")
 
 
+def reach_cause(words: str) -> str:
+    """The group of a reposing move's refusal (`reach`)."""
+    if "cannot keep its contact" in words:
+        return "finger at a joint limit" if "at their limits" in words else "finger cannot follow (joints free)"
+    if "collision" in words and "object" in words:
+        return "link into the object"
+    if "fingers collide" in words or "collision" in words:
+        return "hand self-collision"
+    if "force closure" in words or "holds" in words or "weight" in words:
+        return "no valid state (closure or load)"
+    if "loses the object" in words:
+        return "finger loses the object"
+    return "other: " + words[:60]
+
+
+def _reach_one(g, T):
+    """(fraction of the path's waypoints passed, cause or "", the refusal's words) of ``g`` reposed to ``T``."""
+    from planner.errors import MotionError
+    from planner.options import PlanOptions
+    from planner.repose import repose
+
+    try:
+        repose(g, T, PlanOptions.for_execution())
+        return 1.0, "", ""
+    except MotionError as err:
+        words = str(err)
+        m = re.search(r"waypoint (\d+)/(\d+)", words)
+        frac = (int(m.group(1)) - 1) / (int(m.group(2)) - 1) if m and int(m.group(2)) > 1 else 0.0
+        return frac, reach_cause(words), words
+
+
+def reach(args) -> dict:
+    from planner.grasp import load_grasp
+    from planner.realization import realize
+    from planner.repose import pose_distance
+
+    manifest = read_manifest(args.pairs_dir)
+    if args.only:
+        manifest = [r for r in manifest if re.search(args.only, r["pair"])]
+    rows = []
+    for m in manifest:
+        name = m["pair"]
+        ga = realize(load_grasp(args.pairs_dir / f"{name}_initial.yaml"))
+        gb = realize(load_grasp(args.pairs_dir / f"{name}_final.yaml"))
+        Ta, Tb = ga.obj.T_palm_obj, gb.obj.T_palm_obj
+        mm, deg = pose_distance(Ta, Tb)
+        t0 = time.perf_counter()
+        fa, ca, wa = _reach_one(ga, Tb)
+        fb, cb, wb = _reach_one(gb, Ta)
+        rows.append({"pair": name, "hand": m["hand"], "family": m["family"], "offset_class": m["offset_class"],
+                     "pose_mm": round(mm, 3), "pose_deg": round(deg, 3), "reach_a_to_b": round(fa, 3),
+                     "cause_a": ca, "reach_b_to_a": round(fb, 3), "cause_b": cb, "meet": fa + fb >= 1.0,
+                     "seconds": round(time.perf_counter() - t0, 2), "refusal_a": wa, "refusal_b": wb})
+        if not args.quiet:
+            print(f"{name:32s} {mm:5.1f} mm {deg:5.1f} deg  A->B {fa:4.2f} {ca or 'all the way'}; "
+                  f"B->A {fb:4.2f} {cb or 'all the way'}", flush=True)
+    out = args.out or RESULTS / f"exp10_reach_{args.label}.csv"
+    write_csv(out, rows)
+    s = {"pairs": len(rows), "a pose on the path both grasps reach": sum(r["meet"] for r in rows),
+         "median reach (both directions)": statistics.median([r[k] for r in rows for k in ("reach_a_to_b", "reach_b_to_a")])
+         if rows else None}
+    causes: dict[str, int] = {}
+    for r in rows:
+        for k in ("cause_a", "cause_b"):
+            if r[k]:
+                causes[r[k]] = causes.get(r[k], 0) + 1
+    for c, n in sorted(causes.items(), key=lambda kv: -kv[1]):
+        s[f"stops: {c}"] = f"{n}/{2 * len(rows)} moves"
+    print_summary(f"exp10 reach ({out.name})", s)
+    return s
+
+
 def summarize(rows: list[dict]) -> dict:
     s = {}
     for kind in ("pose", "same"):
@@ -467,6 +550,8 @@ def main(argv=None) -> dict:
     mode.add_argument("--generate", action="store_true", help="write the grasp pairs and manifest into --pairs-dir")
     mode.add_argument("--run", action="store_true", help="plan and replay every pair of --pairs-dir")
     mode.add_argument("--summary", type=Path, metavar="CSV", help="no run: the summary of an existing exp10 CSV")
+    mode.add_argument("--reach", action="store_true",
+                      help="how far each end grasp carries the object toward the other pose (no simulator)")
     ap.add_argument("--pairs-dir", type=Path, default=DEFAULT_PAIRS, help=f"default {DEFAULT_PAIRS}")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--hands", type=lambda s: s.split(","), default=list(HANDS))
@@ -499,7 +584,9 @@ def main(argv=None) -> dict:
     if args.generate:
         return generate(args)
     if not args.label:
-        ap.error("--run needs --label")
+        ap.error("--run and --reach need --label")
+    if args.reach:
+        return reach(args)
     return run(args)
 
 

@@ -254,3 +254,43 @@ def test_quick_runs_never_write_over_the_committed_results():
     assert parser("x").parse_args(["--quick"]).out == QUICK_RESULTS != RESULTS
     assert parser("x").parse_args([]).out == RESULTS
     assert parser("x").parse_args(["--quick", "--out", "elsewhere"]).out.name == "elsewhere"
+
+
+def test_exp10_reach_cause_groups_the_reposing_refusals():
+    from experiments.exp10_reposing import reach_cause
+
+    assert reach_cause("reposing, 0.9 mm / 0.9 deg along the object's path (waypoint 1/9): thumb cannot keep its "
+                       "contact on the object (off by 2.23 mm; at their limits: joint_12.0)") == "finger at a joint limit"
+    assert reach_cause("... (waypoint 1/9): middle cannot keep its contact on the object (off by 0.57 mm)") == \
+        "finger cannot follow (joints free)"
+    assert reach_cause("... (waypoint 5/21): collision link_15.0_tip - object 0.55 mm deep") == "link into the object"
+    assert reach_cause("... (waypoint 3/28): fingers collide (middle - ring)") == "hand self-collision"
+    assert reach_cause("... (waypoint 2/11): palm_up: holds 0x its weight (needs 2x)") == \
+        "no valid state (closure or load)"
+
+
+def test_exp10_reach_measures_how_far_each_grasp_carries_the_object(tmp_path, capsys):
+    """The Allegro small-sphere pair: its final grasp carries the object all the way back to the
+    initial grasp's pose, the initial grasp's thumb stops at once at its joint limits; the CSV
+    says so, and the full move re-done independently ends at the initial pose."""
+    import numpy as np
+
+    from experiments.exp10_reposing import DEFAULT_PAIRS, main
+    from planner.grasp import load_grasp
+    from planner.options import PlanOptions
+    from planner.realization import realize
+    from planner.repose import repose
+
+    out = tmp_path / "reach.csv"
+    s = main(["--reach", "--label", "t", "--only", "^allegro_right_sphere_small$", "--out", str(out), "--quiet"])
+    rows = list(csv.DictReader(out.open()))
+    assert len(rows) == 1 and s["pairs"] == 1
+    r = rows[0]
+    assert float(r["reach_b_to_a"]) == 1.0 and r["cause_b"] == ""
+    assert float(r["reach_a_to_b"]) < 1.0 and r["cause_a"] == "finger at a joint limit"
+    assert r["meet"] == "True" and s["a pose on the path both grasps reach"] == 1
+    ga = realize(load_grasp(DEFAULT_PAIRS / "allegro_right_sphere_small_initial.yaml"))
+    gb = realize(load_grasp(DEFAULT_PAIRS / "allegro_right_sphere_small_final.yaml"))
+    move = repose(gb, ga.obj.T_palm_obj, PlanOptions.for_execution())
+    assert np.allclose(move.end.obj.T_palm_obj, ga.obj.T_palm_obj, atol=1e-9)
+    assert set(move.fingers) == set(gb.patches) - {"palm"}
