@@ -52,7 +52,11 @@ that cannot keep its contact with a joint at its limit, one that cannot keep it 
 free (fewer free coordinates than its contact point needs: a coupled finger), a link going into
 the object (a contact that would have to roll), the grasp no valid state at a waypoint (closure
 or load), or another motion error. Pairs whose two fractions add up to 1 or more have a pose on
-the path both grasps reach. CSV: ``experiments/results/exp10_reach_<label>.csv``.
+the path both grasps reach. The same for the fingers' own path (`experiments.repose_drive`: the
+object's motion chosen among those the holding fingers can follow; its reach is 1 minus the
+distance left over the distance, in straight-path waypoints), and whether the two grasps, driven
+toward each other's pose in turn, meet (`experiments.repose_drive.meeting`). CSV:
+``experiments/results/exp10_reach_<label>.csv``.
 """
 
 from __future__ import annotations
@@ -463,6 +467,22 @@ def _reach_one(g, T):
         return frac, reach_cause(words), words
 
 
+def _drive_one(g, T):
+    """(fraction of the way the fingers' own path (`experiments.repose_drive.drive_toward`) carries
+    the object toward ``T``: 1 minus the distance left over the distance, both in waypoints of
+    the straight path (1 mm / 2 deg), and why it stopped, grouped, or "")."""
+    from planner.options import PlanOptions
+    from experiments.repose_drive import _goal_twist, drive_toward
+
+    T0 = g.obj.T_palm_obj
+    move, err = drive_toward(g, T, PlanOptions.for_execution())
+    if err is None:
+        return 1.0, ""
+    total = _goal_twist(T0, T)[1]
+    left = total if move is None else _goal_twist(move.poses[-1], T)[1]
+    return max(0.0, 1.0 - left / total), reach_cause(str(err))
+
+
 def reach(args) -> dict:
     from planner.grasp import load_grasp
     from planner.realization import realize
@@ -481,18 +501,32 @@ def reach(args) -> dict:
         t0 = time.perf_counter()
         fa, ca, wa = _reach_one(ga, Tb)
         fb, cb, wb = _reach_one(gb, Ta)
+        da, dca = _drive_one(ga, Tb)
+        db, dcb = _drive_one(gb, Ta)
+        from planner.options import PlanOptions
+        from experiments.repose_drive import meeting
+
+        met = meeting(ga, gb, PlanOptions.for_execution())
         rows.append({"pair": name, "hand": m["hand"], "family": m["family"], "offset_class": m["offset_class"],
                      "pose_mm": round(mm, 3), "pose_deg": round(deg, 3), "reach_a_to_b": round(fa, 3),
                      "cause_a": ca, "reach_b_to_a": round(fb, 3), "cause_b": cb, "meet": fa + fb >= 1.0,
+                     "drive_a_to_b": round(da, 3), "drive_cause_a": dca, "drive_b_to_a": round(db, 3),
+                     "drive_cause_b": dcb, "drives_meet": met is not None,
                      "seconds": round(time.perf_counter() - t0, 2), "refusal_a": wa, "refusal_b": wb})
         if not args.quiet:
-            print(f"{name:32s} {mm:5.1f} mm {deg:5.1f} deg  A->B {fa:4.2f} {ca or 'all the way'}; "
-                  f"B->A {fb:4.2f} {cb or 'all the way'}", flush=True)
+            print(f"{name:32s} {mm:5.1f} mm {deg:5.1f} deg  straight A->B {fa:4.2f} {ca or 'all the way'}; "
+                  f"B->A {fb:4.2f} {cb or 'all the way'} | fingers' path A->B {da:4.2f}, B->A {db:4.2f}"
+                  f"{'; they meet' if met is not None else ''}", flush=True)
     out = args.out or RESULTS / f"exp10_reach_{args.label}.csv"
     write_csv(out, rows)
     s = {"pairs": len(rows), "a pose on the path both grasps reach": sum(r["meet"] for r in rows),
          "median reach (both directions)": statistics.median([r[k] for r in rows for k in ("reach_a_to_b", "reach_b_to_a")])
          if rows else None}
+    s["fingers' path: median reach (both directions)"] = statistics.median(
+        [r[k] for r in rows for k in ("drive_a_to_b", "drive_b_to_a")]) if rows else None
+    s["fingers' path: moves reaching the other pose"] = sum(r[k] >= 1.0 for r in rows for k in ("drive_a_to_b", "drive_b_to_a"))
+    s["straight path: moves reaching the other pose"] = sum(r[k] >= 1.0 for r in rows for k in ("reach_a_to_b", "reach_b_to_a"))
+    s["pairs whose drives meet (each toward the other's pose)"] = sum(r["drives_meet"] for r in rows)
     causes: dict[str, int] = {}
     for r in rows:
         for k in ("cause_a", "cause_b"):

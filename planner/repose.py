@@ -278,28 +278,38 @@ def repose(grasp: RealizedGrasp, T_target, options, *, palm_at_end: bool = True,
                 raise FollowError(_where(poses, k) + f"{finger} cannot keep its contact on the object (off by "
                                   f"{worst * 1e3:.2f} mm" + (f"; at their limits: {', '.join(at)}" if at else "") + ")",
                                   finger)
-        last = k == m - 1
-        # the palm holds only where the object rests on it: at the end, if it touches there
-        g = at_pose(grasp, T, q, palm=grasp.spec.palm if last and palm_at_end else "free")
-        if still:  # a finger the object is carried away from holds nothing (it may graze it at first)
-            g = replace(g, patches=MappingProxyType({f: v for f, v in g.patches.items() if f not in still}))
-        lost = sorted(set(holds) - set(g.patches))
-        if lost:
-            raise FollowError(_where(poses, k) + f"{', '.join(lost)} loses the object", lost[0])
-        deep = [(a, b, d) for a, b, d in g.collisions if d > PENETRATION_TOL_M]
-        if deep:
-            a, b, d = max(deep, key=lambda x: x[2])
-            words = _where(poses, k) + f"collision {a} - {b} {d * 1e3:.2f} mm deep"
-            owner = next((f for f in holds for x in (a, b) if x in hand.fingers[f].contact_links), None)
-            if owner is not None:  # a holding finger in the object's way: without it the move may work
-                raise FollowError(words, owner)
-            raise MotionError(words)
-        why = state_reason(g, options)
-        if why is not None:
-            raise MotionError(_where(poses, k) + why)
+        end = waypoint(grasp, T, q, holds, still, options, _where(poses, k), last=k == m - 1, palm_at_end=palm_at_end)
         qs.append(q.copy())
-        end = g
     return Reposing(np.array(qs), poses, tuple(holds), start, end)
+
+
+def waypoint(grasp: RealizedGrasp, T, q, holds, still, options, where: str, *, last: bool,
+             palm_at_end: bool) -> RealizedGrasp:
+    """A reposing waypoint measured (the object at ``T``, the hand at ``q``) and judged: every
+    holding finger still touches, no link deeper than `PENETRATION_TOL_M` in the object or
+    another link, a valid state of the plan (`state_reason`). The grasp there, or FollowError
+    (naming a holding finger that lost the object or went into it) / MotionError, prefixed by
+    ``where``. The palm holds only where the object rests on it: at the end (``last``), if it
+    touches there and ``palm_at_end``."""
+    hand = grasp.hand
+    g = at_pose(grasp, T, q, palm=grasp.spec.palm if last and palm_at_end else "free")
+    if still:  # a finger the object is carried away from holds nothing (it may graze it at first)
+        g = replace(g, patches=MappingProxyType({f: v for f, v in g.patches.items() if f not in still}))
+    lost = sorted(set(holds) - set(g.patches))
+    if lost:
+        raise FollowError(where + f"{', '.join(lost)} loses the object", lost[0])
+    deep = [(a, b, d) for a, b, d in g.collisions if d > PENETRATION_TOL_M]
+    if deep:
+        a, b, d = max(deep, key=lambda x: x[2])
+        words = where + f"collision {a} - {b} {d * 1e3:.2f} mm deep"
+        owner = next((f for f in holds for x in (a, b) if x in hand.fingers[f].contact_links), None)
+        if owner is not None:  # a holding finger in the object's way: without it the move may work
+            raise FollowError(words, owner)
+        raise MotionError(words)
+    why = state_reason(g, options)
+    if why is not None:
+        raise MotionError(where + why)
+    return g
 
 
 def _where(poses, k: int) -> str:

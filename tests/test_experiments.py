@@ -289,6 +289,8 @@ def test_exp10_reach_measures_how_far_each_grasp_carries_the_object(tmp_path, ca
     assert float(r["reach_b_to_a"]) == 1.0 and r["cause_b"] == ""
     assert float(r["reach_a_to_b"]) < 1.0 and r["cause_a"] == "finger at a joint limit"
     assert r["meet"] == "True" and s["a pose on the path both grasps reach"] == 1
+    # the fingers' own path: the final grasp's drive reaches the initial pose too, and they meet
+    assert float(r["drive_b_to_a"]) == 1.0 and r["drive_cause_b"] == "" and r["drives_meet"] == "True"
     ga = realize(load_grasp(DEFAULT_PAIRS / "allegro_right_sphere_small_initial.yaml"))
     gb = realize(load_grasp(DEFAULT_PAIRS / "allegro_right_sphere_small_final.yaml"))
     move = repose(gb, ga.obj.T_palm_obj, PlanOptions.for_execution())
