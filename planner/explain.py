@@ -89,10 +89,22 @@ def _taken_out(G: nx.DiGraph) -> dict[tuple[Node, Node], str]:
     """The moves taken out after the search found them -> why: "failed later" (the graph's
     ``removed_moves``: no finger path, or the simulator rejected the sequence at it) or
     "rejected state" (``removed_with_state``: a move into a state the simulator rejected
-    reached by another move, taken out with it, `planner.gait_search.LazyGraph.remove_state`)."""
+    reached by another move, taken out with it, `planner.gait_search.LazyGraph.remove_state`)
+    or "stuck contact" (``removed_stuck``: a lift off or a landing on a contact the finger
+    cannot back off, taken out untried when a move with it failed,
+    `planner.gait_search.LazyGraph.forbid`)."""
     out = {m: "rejected state" for m in G.graph.get("removed_with_state", ())}
+    out.update((m, "stuck contact") for m in G.graph.get("removed_stuck", ()))
     out.update((m, "failed later") for m in G.graph.get("removed_moves", ()))
     return out
+
+
+#: How a move taken out after the search found it is said, per `_taken_out` cause.
+_TAKEN_WORDS = {
+    "failed later": "after failing later",
+    "rejected state": "with the state it leads to, which the simulator rejected (reached by another move)",
+    "stuck contact": "untried: the finger cannot back off that contact (its lift or landing there failed)",
+}
 
 
 def failure_analysis(G: nx.DiGraph) -> dict:
@@ -285,12 +297,10 @@ def explain_failure(G: nx.DiGraph, intermediate_tried: bool, tried: str | None =
     for (where, why), fingers in merged.items():
         lines.append(f"{_names(fingers)} cannot be lifted in {where}: {why}")
     for f, taken in a["lift_taken"].items():
-        for cause in ("failed later", "rejected state"):
+        for cause in ("failed later", "rejected state", "stuck contact"):
             states = [u for u, c in taken if c == cause]
             if states:
-                lines.append(f"{f}'s lift {_states_words(p, states)} was taken out "
-                             + ("after failing later" if cause == "failed later" else
-                                "with the state it leads to, which the simulator rejected (reached by another move)"))
+                lines.append(f"{f}'s lift {_states_words(p, states)} was taken out " + _TAKEN_WORDS[cause])
     landing: dict[str, list[str]] = {}
     for f, why in a["landing_blocked"].items():
         parts = [text + (f" ({n} states)" if n > 1 else "") for text, n in why.items()]
@@ -301,7 +311,8 @@ def explain_failure(G: nx.DiGraph, intermediate_tried: bool, tried: str | None =
     # or with a state the simulator rejected; the lifts said with a finger's refusals above left out
     taken_out = _taken_out(G)
     for cause, head in (("failed later", "taken out after failing later"),
-                        ("rejected state", "taken out with a state the simulator rejected (reached by another move)")):
+                        ("rejected state", "taken out with a state the simulator rejected (reached by another move)"),
+                        ("stuck contact", "taken out untried, a contact the finger cannot back off")):
         said = list(dict.fromkeys(
             _move_words(p, u, v) + (" in the initial grasp" if u == p.start else "")
             for (u, v), c in taken_out.items() if c == cause and u in a["reach"]
@@ -327,8 +338,7 @@ def explain_failure(G: nx.DiGraph, intermediate_tried: bool, tried: str | None =
         if gone:
             one = len(gone) == 1
             lines.append(f"{', '.join(gone)} still {'has' if one else 'have'} to move: the moves the search found "
-                         f"for {'it' if one else 'them'} were taken out when they failed later (below), and it "
-                         "found no other")
+                         f"for {'it' if one else 'them'} were taken out (below), and it found no other")
         if rest:
             lines.append(f"{', '.join(rest)} still {'has' if len(rest) == 1 else 'have'} to move and no such move "
                          "was refused: the search stopped before it evaluated them (a longer --time-limit lets "

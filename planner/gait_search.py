@@ -468,12 +468,18 @@ class LazyGraph:
 
     def forbid(self, finger_index: int, slot: int) -> None:
         """Drop, for good, every move lifting a finger off a contact or landing it there (a
-        contact the finger cannot back off in any state: `planner.retreat.retreat_blocked`)."""
+        contact the finger cannot back off in any state: `planner.retreat.retreat_blocked`).
+        The moves dropped from the graph are recorded in its ``removed_stuck``, not in
+        ``removed_moves``: they were never tried (the caller takes the move that failed out
+        first, with `remove_edge`)."""
         self.forbidden.add((finger_index, slot))
         for u, v in list(self.G.edges):
             if u[finger_index] == slot and v[finger_index] == LIFTED or \
                     u[finger_index] == LIFTED and v[finger_index] == slot:
-                self.remove_edge(u, v)
+                if (u, v) not in self.removed:
+                    self.G.graph.setdefault("removed_stuck", []).append((u, v))
+                self.removed.add((u, v))
+                self.G.remove_edge(u, v)
 
     def remove_state(self, v: Node) -> None:
         """Drop every move into a state (e.g. one that failed in the simulator), for good:

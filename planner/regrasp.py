@@ -278,6 +278,7 @@ def anytime_search(problem: GaitProblem, initial, options: PlanOptions, t0: floa
     removed_states = set(prior.removed_states) if prior is not None else set()
     removed_moves = list(prior.G.graph.get("removed_moves", ())) if prior is not None else []
     removed_with_state = list(prior.G.graph.get("removed_with_state", ())) if prior is not None else []
+    removed_stuck = list(prior.G.graph.get("removed_stuck", ())) if prior is not None else []
     forbidden = set(prior.forbidden) if prior is not None else set()
     if prior is not None:
         evaluator = prior.ev
@@ -288,6 +289,8 @@ def anytime_search(problem: GaitProblem, initial, options: PlanOptions, t0: floa
             lazy.G.graph["removed_moves"] = list(removed_moves)  # named by the explanation of a failure
             if removed_with_state:
                 lazy.G.graph["removed_with_state"] = list(removed_with_state)
+            if removed_stuck:
+                lazy.G.graph["removed_stuck"] = list(removed_stuck)
             lazy.removed_states |= removed_states
             lazy.forbidden |= forbidden
             evaluator = lazy.ev

@@ -85,3 +85,30 @@ def test_only_the_moves_that_failed_in_the_simulator_are_said_to_have_failed_lat
     assert "little's lift in the state (thumb initial, index initial, middle initial, ring lifted, little initial) " \
            "was taken out after failing later" in text
     assert "there little cannot be lifted" not in text
+
+
+def test_moves_dropped_untried_with_a_stuck_contact_are_not_said_to_have_failed():
+    """A move lifting L off its initial contact fails (its finger path), and that contact is
+    one L cannot back off (`LazyGraph.forbid`): every other lift off it, never tried, goes too.
+    Only the move that failed is "taken out after failing later"; the others (and the landings
+    back on it) are named as taken out untried with a contact the finger cannot back off, and
+    the graph records them apart."""
+    slots = {"A": [slot("A", "initial", "+x")],
+             "L": [slot("L", "initial", "-x"), slot("L", "final", "-x", tilt_deg=20)],
+             "C": [slot("C", "initial", "+y")],
+             "D": [slot("D", "initial", "+z"), slot("D", "int0", "-x", tilt_deg=-8)]}
+    prob = problem(slots, dict(A=0, L=0, C=0, D=0), dict(A=0, L=1, C=0, D=0))
+    lazy = LazyGraph(prob)
+    s = lazy.best(1)[0]
+    k = s.order(prob).index("L:lift")
+    failed = (s.nodes[k], s.nodes[k + 1])
+    lifts_before = [(u, v) for u, v in lazy.G.edges if u[1] == 0 and v[1] == LIFTED or u[1] == LIFTED and v[1] == 0]
+    assert failed in lifts_before and len(lifts_before) >= 2  # (lifts off L's initial contact, landings on it)
+    lazy.remove_edge(*failed)
+    lazy.forbid(1, 0)
+    assert lazy.G.graph["removed_moves"] == [failed]
+    assert set(lazy.G.graph["removed_stuck"]) == set(lifts_before) - {failed}
+    assert lazy.best(1) == []
+    text = str(explain_failure(lazy.G, intermediate_tried=True))
+    assert "after failing later" in text and "cannot back off" in text
+    assert text.count("after failing later") == 1

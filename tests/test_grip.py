@@ -376,7 +376,8 @@ def test_moves_taken_out_before_a_resumed_round_are_still_known_to_the_explanati
     def checked(*args, prior=None, **kw):
         lazy, info = search(*args, prior=prior, **kw)
         seen.append((prior is not None and lazy is not prior, set(lazy.removed),
-                     set(lazy.G.graph.get("removed_moves", ())) | set(lazy.G.graph.get("removed_with_state", ()))))
+                     set(lazy.G.graph.get("removed_moves", ())) | set(lazy.G.graph.get("removed_with_state", ()))
+                     | set(lazy.G.graph.get("removed_stuck", ()))))
         return lazy, info
 
     monkeypatch.setattr(verify, "verify_plan", never)
