@@ -27,6 +27,7 @@ from typing import Any, Callable, Mapping
 import networkx as nx
 import numpy as np
 
+from planner.audit import audit_plan
 from planner.closure import GRIP_CONE_SIDES
 from planner.errors import MotionError, NoSequenceError, SpecError, UnknownNameError
 from planner.explain import explain_failure, failure_analysis
@@ -516,6 +517,16 @@ def plan_gaits(
             annotate_removable(G, [v for s in candidates for v in s.nodes])
             plan = _make_plan(initial, final, options, inputs or {}, problem, G, candidates[0], candidates[1:], motions,
                               search_info)
+            # the physics check `replay` and `verify` run on a plan file first (`planner.audit`):
+            # a plan it refuses is never returned (nor replayed). Without the input files: the
+            # plan is made from these grasps, and gaits at a reposing candidate's pose start and
+            # end at the files' grasps moved there (`planner.pose_search`)
+            audit = audit_plan(replace(plan, inputs={}), hand)
+            if not audit.ok:
+                raise NoSequenceError(
+                    f"the best sequence ({' '.join(candidates[0].order(problem))}) fails the physics check replay and "
+                    f"verify run on a plan: {audit.problems[0]}; no plan is returned that they would refuse "
+                    f"(--no-verify returns it unchecked)")
             log.info("verifying in %s: attempt %d, %d direction(s) in %d process(es)", engine_names, len(rejected) + 1,
                      len(directions), min(workers, len(directions)))
             # the directions that rejected a sequence before are replayed first: a sequence

@@ -653,3 +653,38 @@ def test_the_step_table_lists_only_touching_fingers_as_removable(tmp_path, capsy
         listed = set() if row[-1] == "-" else set(row[-1].split(","))
         assert listed == {f for f in st.removable if f in st.patches}, (row, st.removable)
         assert step.finger not in listed or step.action == "land"  # a lifted finger is not listed
+
+
+def test_a_plan_the_physics_check_refuses_is_neither_replayed_nor_returned(monkeypatch):
+    """plan --execution runs the physics check `replay` and `verify` run on a plan file
+    (planner.audit) before replaying it: a stand-in check that refuses every plan makes the
+    planner refuse the pair, naming the check's problem, without any replay."""
+    import planner.regrasp as regrasp
+    import planner.sim.verify as verify
+    from planner.audit import AuditReport
+    from planner.errors import NoSequenceError
+    from planner.grasp import load_grasp
+    from planner.options import PlanOptions
+    from planner.realization import realize
+    from planner.resources import bundled_grasp
+
+    a, b = (realize(load_grasp(bundled_grasp(n))) for n in ("icub/box_parallel_extension.yaml", "icub/box_ir2m.yaml"))
+    replays, audited = [], []
+
+    def refuse(plan, hand=None, paths=True):
+        audited.append(plan)
+        rep = AuditReport("stand-in")
+        rep.add("states[2]: finger thumb touches the object at the state's joints but the plan has it lifted (made up)")
+        return rep
+
+    def replay(*args, **kw):
+        replays.append(args)
+        raise AssertionError("no replay of a plan the physics check refuses")
+
+    monkeypatch.setattr(regrasp, "audit_plan", refuse)
+    monkeypatch.setattr(verify, "verify_plan", replay)
+    with pytest.raises(NoSequenceError) as err:
+        regrasp.plan_regrasp(a, b, PlanOptions.for_execution(motion=False, repose=False))
+    assert len(audited) == 1 and not replays
+    assert "fails the physics check replay and verify run on a plan: states[2]: finger thumb touches" in str(err.value)
+    assert "--no-verify" in str(err.value)
