@@ -13,6 +13,7 @@ import math
 
 import numpy as np
 
+from planner.collision import LINK_EPS_M
 from planner.contacts import TOUCH_TOL_M
 from planner.errors import InputError, MotionError, UnknownNameError
 
@@ -37,6 +38,16 @@ class FingerScene:
     does not penetrate the palm, the other fingers or the non-adjacent links of its own
     finger (touching is fine; the allowed pairs and the 1 um threshold of
     ``planner.contacts.collisions``).
+
+    A link the finger's closing joints do not move (`base_links`: the Allegro's abduction and
+    thumb-base links; none on the iCub) cannot be taken away from the object by opening the
+    finger: its distance is set by where the object lies, as the palm's is. Such a link is
+    asked no more than it has with the finger at its open posture (`required`), the lifted
+    finger of every grasp state (a finger with no contact is placed there), so a lift, a land
+    or a move demands no more of it than the state it starts or ends in has; but never less
+    than the touch tolerance (nearer, the link counts as touching). It matters for
+    objects held against the palm: the Allegro's abduction links stay 1.4-1.5 mm from such an
+    object whatever the finger does, inside the 2 mm clearance.
     """
 
     def __init__(self, hand, obj, q_ref: np.ndarray, finger: str, touch_tol_m: float):
@@ -51,6 +62,8 @@ class FingerScene:
         if not self.moving_links:
             raise MotionError(f"finger {finger!r} has no collision geometry")
         self.base = hand.state(self.q_ref)
+        self._open: dict[str, float] | None = None
+        self._base_links: tuple[str, ...] | None = None
 
     def state(self, q_finger: np.ndarray):
         """The hand with this finger at ``q_finger`` (`HandState.with_finger`)."""
@@ -66,9 +79,63 @@ class FingerScene:
         return self.state(q_finger).finger_link_poses(self.finger.name)
 
     # -- queries
+    def open_distances(self) -> dict[str, float]:
+        """Each moving link's distance to the object (its nearest geometry) with the finger at
+        its open posture (``hand.q_open``, the lifted finger of the grasp states)."""
+        if self._open is None:
+            q = np.clip(np.asarray(self.hand.q_open, dtype=float)[self.idx],
+                        np.asarray(self.hand.lower, dtype=float)[self.idx],
+                        np.asarray(self.hand.upper, dtype=float)[self.idx])
+            out: dict[str, float] = {}
+            for d, link, _, _ in self.state(q).object_distances(self.obj, self.finger.name):
+                out[link] = min(d, out.get(link, math.inf))
+            self._open = out
+        return self._open
+
+    def base_links(self) -> tuple[str, ...]:
+        """The moving links no closing joint moves (`Finger.close_joints`, every joint if none
+        is named): the columns of those joints in the link's Jacobian are zero."""
+        if self._base_links is None:
+            f = self.finger
+            cols = [f.q_index[f.joints.index(j)] for j in (f.close_joints or f.joints)]
+            self._base_links = tuple(
+                link for link in self.moving_links
+                if not np.any(np.asarray(self.base.frame_jacobian(link), dtype=float)[:, cols]))
+        return self._base_links
+
+    def required(self, link: str, margin_m: float) -> float:
+        """The distance from the object ``link`` must keep where ``margin_m`` is asked: the
+        margin; for a `base_links` link no more than it has at the finger's open posture (less
+        the collision layer's 1 um resolution, `planner.collision.LINK_EPS_M`), but at least the
+        touch tolerance: a link that near counts as touching (`planner.contacts.touching_links`,
+        what the plan's audit reads), and a lifted finger may not touch."""
+        if link not in self.base_links():
+            return margin_m
+        return min(margin_m, max(self.open_distances()[link] - LINK_EPS_M, self.touch_tol_m))
+
+    def is_clear(self, st, margin_m: float) -> bool:
+        """`HandState.clearance` of the state ``st`` (this scene's finger moved) with the
+        object margin of each link capped by `required` (see class doc)."""
+        name = self.finger.name
+        if st.clearance(self.obj, name, margin_m):
+            return True
+        floor = min(self.required(link, margin_m) for link in self.moving_links)
+        if floor >= margin_m or not st.clearance(self.obj, name, floor):
+            return False  # (the palm, the other fingers and its own links: no margin)
+        return all(d >= self.required(link, margin_m) for d, link, _, _ in st.object_distances(self.obj, name))
+
+    def is_lifted(self, st, link: str, lift_m: float, clearance_m: float) -> bool:
+        """A lift's end in the state ``st``: ``link`` (the contact's) ``lift_m`` and every link
+        ``clearance_m`` from the object, each capped by `required` (the contact link's distance
+        first, the whole finger's only then, and `is_clear`)."""
+        name = self.finger.name
+        return (all(d >= self.required(link, lift_m) for d, _, _, _ in st.object_distances(self.obj, name, links=(link,)))
+                and all(d >= self.required(other, clearance_m) for d, other, _, _ in st.object_distances(self.obj, name))
+                and self.is_clear(st, clearance_m))
+
     def is_valid(self, q_finger: np.ndarray, object_margin_m: float) -> bool:
         """True when the finger at ``q_finger`` respects the margins (see class doc)."""
-        return self.state(q_finger).clearance(self.obj, self.finger.name, object_margin_m)
+        return self.is_clear(self.state(q_finger), object_margin_m)
 
     def object_distances(self, q_finger: np.ndarray) -> list[tuple[float, str, np.ndarray, np.ndarray]]:
         """Signed distance of every moving geometry to the object (negative: penetration).
@@ -89,7 +156,14 @@ class FingerScene:
 
     def explain(self, q_finger: np.ndarray, object_margin_m: float) -> str:
         """A short human-readable reason why ``q_finger`` is invalid."""
-        reasons = self.state(q_finger).clearance_violations(self.obj, self.finger.name, object_margin_m)
+        st = self.state(q_finger)
+        name = self.finger.name
+        if min(self.required(link, object_margin_m) for link in self.moving_links) >= object_margin_m:
+            reasons = st.clearance_violations(self.obj, name, object_margin_m)
+        else:  # the object's lines with each link's own margin, then the hand's (no object margin)
+            reasons = [f"{link} is {d * 1000:.1f} mm from the object (needs {self.required(link, object_margin_m) * 1000:.1f})"
+                       for d, link, _, _ in st.object_distances(self.obj, name) if d < self.required(link, object_margin_m)]
+            reasons += st.clearance_violations(self.obj, name, -math.inf)
         return "; ".join(reasons) or "no collision found"
 
 

@@ -97,11 +97,10 @@ def _retreat_dls(
             dq = np.linalg.solve(Jw.T @ Jw + damp, Jw.T @ ew)
             q = scene.finger.step(q, dq, lo, hi)
             st = scene.state(q)
-        if float(np.dot(p0 - point(st), n_in)) < s - _LIFT_LAG_M or not st.clearance(scene.obj, scene.finger.name,
-                                                                                         touch_margin):
+        if float(np.dot(p0 - point(st), n_in)) < s - _LIFT_LAG_M or not scene.is_clear(st, touch_margin):
             return None
         path.append(q.copy())
-        if s >= lift_m - 1e-12 and st.clearance(scene.obj, scene.finger.name, clearance_m):
+        if s >= lift_m - 1e-12 and scene.is_clear(st, clearance_m):
             return path
     return None
 
@@ -149,14 +148,16 @@ def _retreat_repel(
         dq = A.T @ np.linalg.solve(A @ A.T + damping**2 * np.eye(len(A)), np.full(len(A), step_m))
         q = scene.finger.step(q, dq, lo, hi)
         st = scene.state(q)
-        if not st.clearance(scene.obj, name, touch_margin):
+        if not scene.is_clear(st, touch_margin):
             return None
         path.append(q.copy())
         near = st.object_distances(scene.obj, name)
-        distances = {}
+        distances = {}  # each link's distance, as far as it is asked to keep clearance_m (FingerScene.required)
         for d, link, _, _ in near:
-            distances[link] = min(d, distances.get(link, math.inf))
-        if distances[contact_link] >= lift_m and min(distances.values()) >= clearance_m:
+            need = scene.required(link, clearance_m)
+            distances[link] = min(d if need == clearance_m else d - need + clearance_m, distances.get(link, math.inf))
+        lifted = min(d for d, link, _, _ in near if link == contact_link) >= scene.required(contact_link, lift_m)
+        if lifted and min(distances.values()) >= clearance_m:
             return path
         progress = min(distances.values())
         if progress > best + 1e-5:
@@ -241,12 +242,9 @@ def _open_finger(scene: FingerScene, a: np.ndarray, link: str, *, touch_margin: 
         line = densify(np.array([a, target]), resolution_rad)
         for k, q in enumerate(line[1:], start=1):
             st = scene.state(q)  # one hand state per configuration: clearance and distances read it
-            if not st.clearance(scene.obj, name, touch_margin):
+            if not scene.is_clear(st, touch_margin):
                 break
-            # lifted: the contact link's distance first, the whole finger's only then
-            if (min(d for d, *_ in st.object_distances(scene.obj, name, links=(link,))) >= lift_m
-                    and min(d for d, *_ in st.object_distances(scene.obj, name)) >= clearance_m
-                    and st.clearance(scene.obj, name, clearance_m)):
+            if scene.is_lifted(st, link, lift_m, clearance_m):
                 return line[: k + 1]
     return None
 
