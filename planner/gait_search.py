@@ -278,6 +278,11 @@ def _gaits_lower_bound(start: Node, goal: Node, v: Node) -> int:
 
 
 
+#: The graph's lists of moves taken out after the search found them, by why (`LazyGraph`:
+#: ``remove_edge``, ``remove_state``, ``forbid``); a resumed search carries them over.
+REMOVED_RECORDS = ("removed_moves", "removed_with_state", "removed_stuck")
+
+
 class LazyGraph:
     """The state graph grown lazily, best-first, as far as the ranked search needs it.
 
@@ -457,14 +462,19 @@ class LazyGraph:
         G.graph["search_exact"] = exact
         return found
 
-    def remove_edge(self, u: Node, v: Node) -> None:
-        """Drop a move (e.g. a finger path that cannot be planned) for good (recorded in the
-        graph's ``removed_moves`` for the explanation of a failure)."""
+    def _drop(self, u: Node, v: Node, record: str) -> None:
+        """Drop a move for good, recorded (the first time) in the graph's list ``record`` (one
+        of `REMOVED_RECORDS`: why it went, for the explanation of a failure)."""
         if (u, v) not in self.removed:
-            self.G.graph.setdefault("removed_moves", []).append((u, v))
+            self.G.graph.setdefault(record, []).append((u, v))
         self.removed.add((u, v))
         if self.G.has_edge(u, v):
             self.G.remove_edge(u, v)
+
+    def remove_edge(self, u: Node, v: Node) -> None:
+        """Drop a move (e.g. a finger path that cannot be planned) for good (recorded in the
+        graph's ``removed_moves`` for the explanation of a failure)."""
+        self._drop(u, v, "removed_moves")
 
     def forbid(self, finger_index: int, slot: int) -> None:
         """Drop, for good, every move lifting a finger off a contact or landing it there (a
@@ -476,10 +486,7 @@ class LazyGraph:
         for u, v in list(self.G.edges):
             if u[finger_index] == slot and v[finger_index] == LIFTED or \
                     u[finger_index] == LIFTED and v[finger_index] == slot:
-                if (u, v) not in self.removed:
-                    self.G.graph.setdefault("removed_stuck", []).append((u, v))
-                self.removed.add((u, v))
-                self.G.remove_edge(u, v)
+                self._drop(u, v, "removed_stuck")
 
     def remove_state(self, v: Node) -> None:
         """Drop every move into a state (e.g. one that failed in the simulator), for good:
@@ -488,10 +495,7 @@ class LazyGraph:
         themselves (the caller takes the move that failed out first, with `remove_edge`)."""
         self.removed_states.add(v)
         for u in list(self.G.predecessors(v)) if v in self.G else ():
-            if (u, v) not in self.removed:
-                self.G.graph.setdefault("removed_with_state", []).append((u, v))
-            self.removed.add((u, v))
-            self.G.remove_edge(u, v)
+            self._drop(u, v, "removed_with_state")
 
 
 def greedy(G: nx.DiGraph) -> GaitSequence:

@@ -36,7 +36,7 @@ from planner.options import PlanOptions, gravity_directions_of
 from planner.plan_data import Alternative, Plan, PlanState, PlanStep, hand_files_record
 from planner.realization import RealizedGrasp, realized_grasp
 from planner.retreat import retreat_blocked
-from planner.gait_search import GaitSequence, LazyGraph, greedy
+from planner.gait_search import REMOVED_RECORDS, GaitSequence, LazyGraph, greedy
 from planner.slots import add_intermediate, add_slots, build_problem, holding_grasp, node_q
 
 
@@ -277,9 +277,8 @@ def anytime_search(problem: GaitProblem, initial, options: PlanOptions, t0: floa
     lazy, found, out_of_time = prior, [], False
     removed = set(prior.removed) if prior is not None else set()
     removed_states = set(prior.removed_states) if prior is not None else set()
-    removed_moves = list(prior.G.graph.get("removed_moves", ())) if prior is not None else []
-    removed_with_state = list(prior.G.graph.get("removed_with_state", ())) if prior is not None else []
-    removed_stuck = list(prior.G.graph.get("removed_stuck", ())) if prior is not None else []
+    # the moves taken out, by why: named by the explanation of a failure
+    records = {k: list(prior.G.graph.get(k, ())) for k in REMOVED_RECORDS} if prior is not None else {}
     forbidden = set(prior.forbidden) if prior is not None else set()
     if prior is not None:
         evaluator = prior.ev
@@ -287,11 +286,7 @@ def anytime_search(problem: GaitProblem, initial, options: PlanOptions, t0: floa
         if lazy is None:
             lazy = LazyGraph(problem, options.rank, evaluator=evaluator, deadline=deadline)
             lazy.removed |= removed
-            lazy.G.graph["removed_moves"] = list(removed_moves)  # named by the explanation of a failure
-            if removed_with_state:
-                lazy.G.graph["removed_with_state"] = list(removed_with_state)
-            if removed_stuck:
-                lazy.G.graph["removed_stuck"] = list(removed_stuck)
+            lazy.G.graph.update((k, list(moves)) for k, moves in records.items() if moves)
             lazy.removed_states |= removed_states
             lazy.forbidden |= forbidden
             evaluator = lazy.ev
