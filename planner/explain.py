@@ -99,11 +99,18 @@ def _taken_out(G: nx.DiGraph) -> dict[tuple[Node, Node], str]:
     return out
 
 
-#: How a move taken out after the search found it is said, per `_taken_out` cause.
+#: How a move taken out after the search found it is said, per `_taken_out` cause (in the
+#: order said): after a finger's lift ("its lift ... was taken out <words>"), and as the head of
+#: a list of such moves.
 _TAKEN_WORDS = {
     "failed later": "after failing later",
     "rejected state": "with the state it leads to, which the simulator rejected (reached by another move)",
     "stuck contact": "untried: the finger cannot back off that contact (its lift or landing there failed)",
+}
+_TAKEN_HEADS = {
+    "failed later": "taken out after failing later",
+    "rejected state": "taken out with a state the simulator rejected (reached by another move)",
+    "stuck contact": "taken out untried, a contact the finger cannot back off",
 }
 
 
@@ -297,10 +304,10 @@ def explain_failure(G: nx.DiGraph, intermediate_tried: bool, tried: str | None =
     for (where, why), fingers in merged.items():
         lines.append(f"{_names(fingers)} cannot be lifted in {where}: {why}")
     for f, taken in a["lift_taken"].items():
-        for cause in ("failed later", "rejected state", "stuck contact"):
+        for cause, words in _TAKEN_WORDS.items():
             states = [u for u, c in taken if c == cause]
             if states:
-                lines.append(f"{f}'s lift {_states_words(p, states)} was taken out " + _TAKEN_WORDS[cause])
+                lines.append(f"{f}'s lift {_states_words(p, states)} was taken out {words}")
     landing: dict[str, list[str]] = {}
     for f, why in a["landing_blocked"].items():
         parts = [text + (f" ({n} states)" if n > 1 else "") for text, n in why.items()]
@@ -310,9 +317,7 @@ def explain_failure(G: nx.DiGraph, intermediate_tried: bool, tried: str | None =
     # moves of reached states taken out after they failed later (finger paths, the simulator),
     # or with a state the simulator rejected; the lifts said with a finger's refusals above left out
     taken_out = _taken_out(G)
-    for cause, head in (("failed later", "taken out after failing later"),
-                        ("rejected state", "taken out with a state the simulator rejected (reached by another move)"),
-                        ("stuck contact", "taken out untried, a contact the finger cannot back off")):
+    for cause, head in _TAKEN_HEADS.items():
         said = list(dict.fromkeys(
             _move_words(p, u, v) + (" in the initial grasp" if u == p.start else "")
             for (u, v), c in taken_out.items() if c == cause and u in a["reach"]
