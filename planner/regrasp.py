@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import logging
 import math
+import re
 import time
 from dataclasses import asdict, dataclass, replace
 from typing import Any, Callable, Mapping
@@ -192,6 +193,30 @@ def _step_edges(seq: GaitSequence, motions) -> list[tuple]:
             if action in paths:
                 out.append(land if action == "land" or lift is None else lift)
     return out
+
+
+_AUDIT_AT = re.compile(r"(states|steps)\[(\d+)\]")
+
+
+def _audit_step(problem: str) -> tuple[int | None, bool]:
+    """The plan step a physics-check problem line is about, and whether it is about the state
+    the step reaches (``states[k]``: step k - 1) rather than the step's path (``steps[k]``);
+    (None, False) for a line about something else (the inputs, the hand, the parameters)."""
+    m = _AUDIT_AT.match(problem)
+    if m is None:
+        return None, False
+    k = int(m.group(2))
+    return (k - 1, True) if m.group(1) == "states" else (k, False)
+
+
+def _drop_step(lazy: LazyGraph, problem: GaitProblem, seq: GaitSequence, motions, step: int, at_state: bool) -> None:
+    """Take a failed plan step's move out of the graph; when the state it reaches failed,
+    every move into that state goes too (but the final grasp's: only this move into it,
+    another landing may reach it)."""
+    edge = _step_edges(seq, motions)[step]
+    lazy.remove_edge(*edge)
+    if at_state and edge[1] != problem.goal:
+        lazy.remove_state(edge[1])
 
 
 class _EdgeFailed(Exception):
@@ -447,6 +472,7 @@ def plan_gaits(
     verifying = options.verify and bool(directions) and options.strategy == "graph"
     verified, rejected, verify_s, workers, plan = None, [], 0.0, None, None
     rejected_moves: list[str] = []  # the plan step each rejected sequence failed at, in words
+    unsound: list[str] = []  # moves the plan's physics check refused: the move and its first problem
     if verifying:
         from planner.sim.verify import default_workers, engines_of, verify_suspects_first  # an engine: only when verifying
 
@@ -470,7 +496,7 @@ def plan_gaits(
         resumed = 0
         for _ in range(50):
             if not candidates and resumed < RESUME_ROUNDS and options.intermediate == 0 and options.time_limit_s != 0 \
-                    and (failed or rejected):
+                    and (failed or rejected or unsound):
                 # every sequence of this graph failed later: one more round of intermediate
                 # contacts, keeping what was removed
                 resumed += 1
@@ -495,6 +521,9 @@ def plan_gaits(
                 if rejected:
                     err = NoSequenceError(f"{err}; sequences that failed in the simulator ({len(rejected)}): "
                                           f"{_rejected_words(rejected[:2])}", err.report)
+                if unsound:
+                    err = NoSequenceError(f"{err}; moves the plan's physics check refused ({len(unsound)}): "
+                                          f"{'; '.join(unsound[:2])}", err.report)
                 raise err
             try:
                 if options.motion:
@@ -518,10 +547,19 @@ def plan_gaits(
             # end at the files' grasps moved there (`planner.pose_search`)
             audit = audit_plan(replace(plan, inputs={}), hand)
             if not audit.ok:
-                raise NoSequenceError(
-                    f"the best sequence ({' '.join(candidates[0].order(problem))}) fails the physics check replay and "
-                    f"verify run on a plan: {audit.problems[0]}; no plan is returned that they would refuse "
-                    f"(--no-verify returns it unchecked)")
+                step, at_state = _audit_step(audit.problems[0])
+                if step is None or step < 0:  # not a move of this sequence: no other sequence mends it
+                    raise NoSequenceError(
+                        f"the best sequence ({' '.join(candidates[0].order(problem))}) fails the physics check replay "
+                        f"and verify run on a plan: {audit.problems[0]}; no plan is returned that they would refuse "
+                        f"(--no-verify returns it unchecked)")
+                # a move (or the state it reaches) the check refuses: it goes, as one the
+                # simulator rejected would, and the next sequence is tried (no replay spent)
+                unsound.append(f"{plan.steps[step].action} {plan.steps[step].finger}: {audit.problems[0]}")
+                log.info("physics check refused %s", unsound[-1])
+                _drop_step(lazy, problem, candidates[0], motions, step, at_state)
+                candidates = lazy.best(options.alternatives)
+                continue
             log.info("verifying in %s: attempt %d, %d direction(s) in %d process(es)", engine_names, len(rejected) + 1,
                      len(directions), min(workers, len(directions)))
             # the directions that rejected a sequence before are replayed first: a sequence
@@ -554,13 +592,7 @@ def plan_gaits(
             # deadline passed during them would stop it where the last search stood (and make
             # the plan depend on the machine's load and the number of workers)
             lazy.deadline, lazy.timed_out = None, False
-            edge = _step_edges(seq, motions)[step]
-            # the state reached failed in the simulator: every move into it goes (but the
-            # final grasp's: only this move into it, another landing may reach it); this
-            # move failed, the others go with the state
-            lazy.remove_edge(*edge)
-            if at_state and edge[1] != problem.goal:
-                lazy.remove_state(edge[1])
+            _drop_step(lazy, problem, seq, motions, step, at_state)
             candidates = lazy.best(options.alternatives)
         else:
             counts = {m: failed.count(m) for m in dict.fromkeys(failed)}

@@ -655,36 +655,106 @@ def test_the_step_table_lists_only_touching_fingers_as_removable(tmp_path, capsy
         assert step.finger not in listed or step.action == "land"  # a lifted finger is not listed
 
 
-def test_a_plan_the_physics_check_refuses_is_neither_replayed_nor_returned(monkeypatch):
-    """plan --execution runs the physics check `replay` and `verify` run on a plan file
-    (planner.audit) before replaying it: a stand-in check that refuses every plan makes the
-    planner refuse the pair, naming the check's problem, without any replay."""
-    import planner.regrasp as regrasp
-    import planner.sim.verify as verify
-    from planner.audit import AuditReport
-    from planner.errors import NoSequenceError
+def _box_pair():
     from planner.grasp import load_grasp
-    from planner.options import PlanOptions
     from planner.realization import realize
     from planner.resources import bundled_grasp
 
-    a, b = (realize(load_grasp(bundled_grasp(n))) for n in ("icub/box_parallel_extension.yaml", "icub/box_ir2m.yaml"))
-    replays, audited = [], []
+    return tuple(realize(load_grasp(bundled_grasp(n))) for n in ("icub/box_parallel_extension.yaml", "icub/box_ir2m.yaml"))
 
-    def refuse(plan, hand=None, paths=True):
+
+def _stand_in_check(monkeypatch, refuse):
+    """Replace the plan's physics check by one adding the problem ``refuse(plan)`` returns (None:
+    the plan passes) and the simulator by one that passes every plan; returns the plans checked
+    and the plans replayed."""
+    import planner.regrasp as regrasp
+    import planner.sim.verify as verify
+    from planner.audit import AuditReport
+
+    audited, replays = [], []
+
+    def check(plan, hand=None, paths=True):
         audited.append(plan)
         rep = AuditReport("stand-in")
-        rep.add("states[2]: finger thumb touches the object at the state's joints but the plan has it lifted (made up)")
+        line = refuse(plan)
+        if line is not None:
+            rep.add(line)
         return rep
 
-    def replay(*args, **kw):
-        replays.append(args)
-        raise AssertionError("no replay of a plan the physics check refuses")
+    def replay(plan, hand, directions, workers=None, **kw):
+        replays.append(plan)
+        rows = tuple((n, True, "held", None, False, 0.0, 0.0) for n, _ in directions)
+        return verify.Verification(True, rows, 0.0, "pybullet", (("pybullet", rows),))
 
-    monkeypatch.setattr(regrasp, "audit_plan", refuse)
+    monkeypatch.setattr(regrasp, "audit_plan", check)
     monkeypatch.setattr(verify, "verify_plan", replay)
+    return audited, replays
+
+
+def _moves(plan) -> list[tuple]:
+    """Each step of a plan as (state it leaves, action, finger, state it reaches), a state as
+    its fingers' slot labels."""
+    def state(i):
+        return tuple(sorted(plan.states[i].fingers.items()))
+
+    return [(state(s.from_state), s.action, s.finger, state(s.to_state)) for s in plan.steps]
+
+
+def test_a_plan_the_physics_check_refuses_is_neither_replayed_nor_returned(monkeypatch):
+    """plan --execution runs the physics check `replay` and `verify` run on a plan file
+    (planner.audit) before replaying it: a check refusing a state of every plan takes that
+    state's moves out of the graph each time, until no sequence is left: the pair is refused,
+    naming the check's problems, without any replay; no plan is checked twice."""
+    import planner.regrasp as regrasp
+    from planner.errors import NoSequenceError
+    from planner.options import PlanOptions
+
+    a, b = _box_pair()
+    line = "states[2]: finger thumb touches the object at the state's joints but the plan has it lifted (made up)"
+    audited, replays = _stand_in_check(monkeypatch, lambda plan: line)
+    with pytest.raises(NoSequenceError) as err:
+        regrasp.plan_regrasp(a, b, PlanOptions.for_execution(motion=False, repose=False))
+    assert audited and not replays
+    assert "moves the plan's physics check refused" in str(err.value)
+    assert "states[2]: finger thumb touches" in str(err.value)
+    orders = [tuple(_moves(p)) for p in audited]
+    assert len(set(orders)) == len(orders)  # every refusal removed something: a new sequence each time
+
+
+def test_a_move_the_physics_check_refuses_gives_way_to_the_next_sequence(monkeypatch):
+    """The check refuses the first plan's step 1 (the path of its second step): the planner
+    takes that move out and returns another sequence, the one the simulator then replays;
+    the returned plan does not make the refused move from the same state."""
+    import planner.regrasp as regrasp
+    from planner.options import PlanOptions
+
+    a, b = _box_pair()
+    first = []
+
+    def refuse(plan):
+        if not first:
+            first.append(plan)
+            return "steps[1] (lift thumb): path waypoint 3: link thumb_distal 2.0 mm inside the object (made up)"
+        return None
+
+    audited, replays = _stand_in_check(monkeypatch, refuse)
+    res = regrasp.plan_regrasp(a, b, PlanOptions.for_execution(motion=False, repose=False))
+    assert len(audited) == 2 and replays == [audited[1]]
+    assert _moves(first[0])[1] not in _moves(res.plan)
+    assert res.plan.summary["verification"]["passed"]
+
+
+def test_a_physics_check_problem_outside_the_moves_refuses_at_once(monkeypatch):
+    """A problem no other sequence can mend (here the plan's parameters) refuses the pair at
+    the first plan, with the check's words and the --no-verify hint."""
+    import planner.regrasp as regrasp
+    from planner.errors import NoSequenceError
+    from planner.options import PlanOptions
+
+    a, b = _box_pair()
+    audited, replays = _stand_in_check(monkeypatch, lambda plan: "parameters.hold_factor: 1, below 2 (made up)")
     with pytest.raises(NoSequenceError) as err:
         regrasp.plan_regrasp(a, b, PlanOptions.for_execution(motion=False, repose=False))
     assert len(audited) == 1 and not replays
-    assert "fails the physics check replay and verify run on a plan: states[2]: finger thumb touches" in str(err.value)
+    assert "fails the physics check replay and verify run on a plan: parameters.hold_factor" in str(err.value)
     assert "--no-verify" in str(err.value)
