@@ -103,7 +103,7 @@ def test_both_refuses_when_only_the_second_engine_fails(monkeypatch):
 
     outcome = {"pybullet": report(True, None, 0.5), "mujoco": report(False, 2, 40.0)}
     monkeypatch.setattr(verify, "replay_directions",
-                        lambda plan, hand, directions, workers=None, engine=None: [outcome[engine]] * len(directions))
+                        lambda plan, hand, directions, workers=None, engine=None, **kw: [outcome[engine]] * len(directions))
     monkeypatch.setattr(verify, "as_written", lambda plan: plan)
     v = verify.verify_plan(None, None, [("palm_down", (0, 0, 9.81))], engine="both")
     assert not v.passed and v.first_failure() == ("palm_down", 2, "mujoco: FAIL: object dropped", False)

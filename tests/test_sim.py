@@ -162,6 +162,35 @@ def test_lifting_the_thumb_drops_the_object(hand, grasp, thumb_lifted, tmp_path)
     assert "FAIL" in out.stdout.splitlines()[-1]
 
 
+def test_a_replay_asked_to_stop_at_its_failure_gives_the_same_verdict_sooner(hand, grasp):
+    """stop_at_failure (the planner's verification): the thumb's lift drops the box, and the
+    steps after it (the index lifted and landed) are not simulated: the same failed step and
+    state flag as the whole replay, the later states not reached, less simulated time; a
+    replay that passes is the same replay with or without it."""
+    plan = _plan(hand, grasp, lift="thumb")
+    q, obj = grasp
+    q1 = _lifted(hand, q, "thumb")
+    q2 = _lifted(hand, q1, "index")
+    plan["states"].append(_state(hand, q2, obj, ("middle",)))
+    plan["states"].append(_state(hand, q1, obj, ("index", "middle")))
+    joints = list(hand.fingers["index"].joints)
+    idx = [list(hand.joint_names).index(j) for j in joints]
+    for k, (a, b, action) in enumerate(((q1, q2, "lift"), (q2, q1, "land"))):
+        plan["steps"].append({"finger": "index", "action": action, "from_state": k + 1, "to_state": k + 2,
+                              "joints": joints, "path": [[float(v) for v in qq[idx]] for qq in (a, b)]})
+    # (the box falling far is not a drop here, so the whole replay goes on to the end)
+    whole, short = (replay_plan(plan, stop_at_failure=stop, drop_mm=1e4) for stop in (False, True))
+    assert not whole.passed and not short.passed
+    assert (short.failed_step, short.failed_at_state) == (whole.failed_step, whole.failed_at_state) == (0, whole.failed_at_state)
+    assert all(s.reached for s in whole.states) and not any(s.reached for s in short.states[2:])
+    assert short.sim_time_s < whole.sim_time_s
+    assert "lift thumb" in short.verdict
+    passing = _plan(hand, grasp, lift="index")
+    a, b = (replay_plan(passing, stop_at_failure=stop) for stop in (False, True))
+    assert a.passed and b.passed and a.verdict == b.verdict and a.sim_steps == b.sim_steps
+    assert [s.sim_fingers for s in a.states] == [s.sim_fingers for s in b.states]
+
+
 def test_sim_normals_point_into_the_object(held):
     """Filtered sim contacts are in the object frame on the box surface, normals pointing inward."""
     s0 = held.states[0]

@@ -152,6 +152,7 @@ def replay_plan(
     height: int = 480,
     strict: bool = False,
     engine: str | None = None,
+    stop_at_failure: bool = False,
 ) -> ReplayReport:
     """Replay a plan in a physics engine with gravity on; re-measure contacts, closure and drift.
 
@@ -192,6 +193,11 @@ def replay_plan(
             (`planner.plan.read_plan`'s ``strict``) instead of a warning.
         engine: the physics engine (`planner.sim.engine.engine_for`): "pybullet" or "mujoco";
             None: `planner.sim.engine.default_engine` (pybullet when installed, else MuJoCo).
+        stop_at_failure: stop after the first state measured once the replay has failed (the
+            drift left its limits, or the state is not held as planned): the verdict's failed
+            step and whether it failed at the state are those of the whole replay (the
+            simulation is the same up to there); the later states are reported not reached.
+            For a caller that needs the verdict only (the planner's verification).
 
     Returns:
         ReplayReport with a pass/fail verdict (drift and closure agreement), per-state
@@ -227,7 +233,8 @@ def replay_plan(
                   settle_s=settle_s, handover_s=handover_s, dwell_s=dwell_s, joint_speed_rad_s=joint_speed_rad_s,
                   finger_force_n=finger_force_n, solver_iterations=int(solver_iterations), drop_mm=drop_mm,
                   drift_mm_max=float(drift_mm_max), drift_deg_max=float(drift_deg_max), filter_k=int(filter_k),
-                  mu=friction.mu, gamma=friction.gamma, edges=friction.edges, touch_tol_m=TOUCH_TOL_M)
+                  mu=friction.mu, gamma=friction.gamma, edges=friction.edges, touch_tol_m=TOUCH_TOL_M,
+                  stop_at_failure=bool(stop_at_failure))
 
     own = client is None
     mass_kg, radius_m = object_mass(obj, density_kg_m3)
@@ -656,6 +663,13 @@ class _Sim:
             ctl.latch(to.touching)
         return ok
 
+    def _stop(self, r: StateReport) -> bool:
+        """Whether to stop after measuring ``r``: asked to stop at a failure (``stop_at_failure``)
+        and one has happened (the drift left its limits, or the state is not held as planned:
+        what `replay_plan`'s verdict refuses)."""
+        return bool(self.params.get("stop_at_failure")) and (
+            self.failure is not None or not r.holds_as_planned or r.sim_force_closure != r.planned_force_closure)
+
     def run(self, states, steps, recorder=None, every=8, realtime=False):
         self.recorder, self.every, self.realtime = recorder, every, realtime
         self.released = False
@@ -689,7 +703,7 @@ class _Sim:
             ok = r0 is not None
             if ok:
                 reports[0] = r0
-        for k, st in enumerate(steps if ok else ()):
+        for k, st in enumerate(steps if ok and not self._stop(r0) else ()):
             frm, to = states[st.from_state], states[st.to_state]
             self.phase = f"step {k} ({st.action} {st.finger}, state {st.from_state} -> {st.to_state})"
             self.step_k = k
@@ -701,6 +715,8 @@ class _Sim:
                     ok = False
                     break
                 reports[st.to_state] = r
+                if self._stop(r):
+                    break
                 continue
             q_ref = dict(ctl.q_ref)
             if st.action != "land" and st.finger in ctl.holding:
@@ -745,6 +761,8 @@ class _Sim:
                 ok = False
                 break
             reports[st.to_state] = r
+            if self._stop(r):
+                break
         out = []
         for i, s in enumerate(states):
             if i in reports:

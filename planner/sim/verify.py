@@ -291,7 +291,8 @@ def verify_plan(plan: Plan, hand, directions: Sequence[tuple[str, Sequence[float
     written = as_written(plan)
     by_engine = []
     for e in engines:
-        reports = replay_directions(written, hand, directions, workers=workers, engine=e)
+        # the verdict is all a verification needs: a replay stops at its first failure
+        reports = replay_directions(written, hand, directions, workers=workers, engine=e, stop_at_failure=True)
         rows = tuple((name, r.passed, f"{e}: {r.verdict}", r.failed_step, r.failed_at_state, float(r.max_drift_mm),
                       float(r.max_drift_deg))
                      for (name, _), r in zip(directions, reports))
