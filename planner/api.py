@@ -75,7 +75,9 @@ def plan(initial, final, *, execution: bool = False, output: PathLike | None = N
 
         options["gravity"] = named_gravity(options["gravity"], hand)
     opts = (PlanOptions.for_execution if execution else PlanOptions)(**options)
-    a, b = (g if isinstance(g, RealizedGrasp) else realize(s, hand).require_placed() for g, s in zip(grasps, specs))
+    # (no realization warnings are shown here: no reachable point is searched for them)
+    a, b = (g if isinstance(g, RealizedGrasp) else realize(s, hand, suggest=False).require_placed()
+            for g, s in zip(grasps, specs))
     if opts.gravity is None and opts.gravity_set is None:  # force closure only: say when an end grasp drops its object
         import warnings
 

@@ -882,12 +882,13 @@ def realized_grasp(g) -> tuple["RealizedGrasp", dict | None]:
     (`input_record`; None when it was not given as a file)."""
     if isinstance(g, RealizedGrasp):
         return g, None
+    # (planning shows no realization warnings: no reachable point is searched for them)
     if isinstance(g, GraspSpec):
-        return realize(g).require_placed(), None
-    return realize(load_grasp(g)).require_placed(), input_record(g)
+        return realize(g, suggest=False).require_placed(), None
+    return realize(load_grasp(g), suggest=False).require_placed(), input_record(g)
 
 
-def realize(spec: GraspSpec, hand=None) -> RealizedGrasp:
+def realize(spec: GraspSpec, hand=None, *, suggest: bool = True) -> RealizedGrasp:
     """Turn a grasp spec into a hand configuration and measure its contacts and closure.
 
     Contact fingers: `realize_contact`. Posture fingers: the closing procedure from the
@@ -898,6 +899,10 @@ def realize(spec: GraspSpec, hand=None) -> RealizedGrasp:
     Args:
         spec: a validated `GraspSpec`.
         hand: the `Hand`; None loads ``spec.hand_ref``.
+        suggest: a contact not realized as asked gets, in its warning (or its reach error), a
+            surface point the finger does realize (`place_contact`'s search, seconds per
+            contact). False for a caller that does not show the warnings (`plan`, the audit):
+            the same placement, the warning without the point (a reach error still has it).
 
     Returns:
         The `RealizedGrasp`.
@@ -916,8 +921,13 @@ def realize(spec: GraspSpec, hand=None) -> RealizedGrasp:
         idx = list(f.q_index)
         if fs.kind == "contact":
             try:
-                q, _, n = place_contact(hand, obj, f, fs.point_obj, q, link=fs.link)
+                q, _, n = place_contact(hand, obj, f, fs.point_obj, q, link=fs.link, suggest=suggest)
             except UnreachableError as err:
+                if not suggest:  # an error is always shown: with the point the finger does reach
+                    try:
+                        place_contact(hand, obj, f, fs.point_obj, q, link=fs.link)
+                    except UnreachableError as hinted:
+                        err = hinted
                 unreachable.append((fs.name, err))
                 continue
             except KinematicsError as err:

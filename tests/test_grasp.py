@@ -449,6 +449,17 @@ def test_check_png_draws_the_contacts(tmp_path, capsys):
     assert green[0] == 0 and green[1] > 30
 
 
+def _far_cube() -> dict:
+    """A 40 mm cube held at its face centres by the iCub, index and middle out of reach."""
+    return {"schema_version": 1, "name": "cube", "hand": "icub_right",
+            "object": {"shape": "box", "size": [0.04, 0.04, 0.04], "position": [0.03, -0.01, 0.035],
+                       "quat_xyzw": [0, 0, 0, 1], "mass_kg": 0.05},
+            "friction": {"mu": 0.9, "gamma": 0.004},
+            "fingers": {"thumb": {"contact": {"point": [0.0, -0.02, 0.0]}},
+                        "index": {"contact": {"point": [0.02, 0.0, 0.0]}},
+                        "middle": {"contact": {"point": [0.0, 0.02, 0.0]}}, "ring": "free", "little": "free"}}
+
+
 def test_out_of_reach_names_every_finger_and_its_suggestion_is_reachable(tmp_path):
     """A 40 mm cube held at its face centres, two of them out of reach: one error naming both
     fingers; the point suggested for a finger (checked by IK) is in reach when used; where no
@@ -461,13 +472,7 @@ def test_out_of_reach_names_every_finger_and_its_suggestion_is_reachable(tmp_pat
     from planner.ik import UnreachableError
     from planner.realization import realize
 
-    data = {"schema_version": 1, "name": "cube", "hand": "icub_right",
-            "object": {"shape": "box", "size": [0.04, 0.04, 0.04], "position": [0.03, -0.01, 0.035],
-                       "quat_xyzw": [0, 0, 0, 1], "mass_kg": 0.05},
-            "friction": {"mu": 0.9, "gamma": 0.004},
-            "fingers": {"thumb": {"contact": {"point": [0.0, -0.02, 0.0]}},
-                        "index": {"contact": {"point": [0.02, 0.0, 0.0]}},
-                        "middle": {"contact": {"point": [0.0, 0.02, 0.0]}}, "ring": "free", "little": "free"}}
+    data = _far_cube()
     path = tmp_path / "cube.yaml"
     path.write_text(yaml.safe_dump(data))
     with pytest.raises(UnreachableError) as info:
@@ -486,3 +491,42 @@ def test_out_of_reach_names_every_finger_and_its_suggestion_is_reachable(tmp_pat
     path.write_text(yaml.safe_dump(data))
     g = realize(load_grasp(path))  # no UnreachableError: the suggestion was in reach
     assert "index" in g.touching
+
+
+def test_realizing_without_suggestions_places_the_same_and_keeps_reach_errors_hinted(tmp_path):
+    """realize(suggest=False) (what `plan` and the audit do: they show no realization
+    warnings): the same joints and contacts as with suggestions, the same warnings without the
+    suggested point (a thumb on a box that it reaches only with its pad facing away); and a
+    contact out of reach still raises the error with its suggestion (the cube above)."""
+    import yaml
+
+    from planner.grasp import load_grasp
+    from planner.ik import UnreachableError
+    from planner.realization import realize
+
+    data = {"schema_version": 1, "name": "box", "hand": "allegro_right",
+            "object": {"shape": "box", "size": [0.05563, 0.06529, 0.03687], "position": [0.031701, -0.002114, -0.015615],
+                       "quat_xyzw": [-0.7046386, 0.0590286, -0.7046386, 0.0590286], "mass_kg": 0.03},
+            "friction": {"mu": 0.9, "gamma": 0.004},
+            "fingers": {"thumb": {"contact": {"point": [-0.02782, 0.00705, 0.00455]}},
+                        "index": {"posture": [0.235, 0.3, 0.0, 0.0]}, "middle": {"posture": [0.235, 0.3, 0.0, 0.0]},
+                        "ring": {"posture": [-0.235, 0.3, 0.0, 0.0]}}}
+    path = tmp_path / "box.yaml"
+    path.write_text(yaml.safe_dump(data))
+    spec = load_grasp(path)
+    told, quiet = realize(spec), realize(spec, suggest=False)
+    np.testing.assert_array_equal(told.q, quiet.q)
+    assert sorted(told.patches) == sorted(quiet.patches)
+    for f in told.patches:
+        np.testing.assert_array_equal(told.patches[f].points, quiet.patches[f].points)
+    hinted = [w for w in told.warnings if "a surface point it does reach (checked)" in w]
+    assert hinted, told.warnings  # the case this test is about
+    assert list(quiet.warnings) == [w.split("; a surface point it does reach (checked)")[0] for w in told.warnings]
+    path = tmp_path / "cube.yaml"
+    path.write_text(yaml.safe_dump(_far_cube()))
+    errors = []
+    for suggest in (True, False):
+        with pytest.raises(UnreachableError) as info:
+            realize(load_grasp(path), suggest=suggest)
+        errors.append(str(info.value))
+    assert errors[0] == errors[1] and "move the object toward the finger" in errors[0]
