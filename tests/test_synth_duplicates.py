@@ -36,12 +36,12 @@ def test_skipping_outranked_duplicates_keeps_the_same_grasps(monkeypatch):
         return hold(*a, **k)
 
     monkeypatch.setattr(S, "_hold_grip", counted)
-    fast = S.synthesize("icub_right", dict(BALL), ["thumb", "index", "middle"], 20, fixed=False, seed=0,
+    fast = S.synthesize("icub_right", dict(BALL), ["thumb", "index", "middle"], 20, fixed=False, seed=1,
                         max_attempts=200, **kw)
     fast_calls, calls["hold"] = calls["hold"], 0
     attempt = S._attempt
     monkeypatch.setattr(S, "_attempt", lambda ctx, k, kept=None: attempt(ctx, k))  # every test, always
-    full = S.synthesize("icub_right", dict(BALL), ["thumb", "index", "middle"], 20, fixed=False, seed=0,
+    full = S.synthesize("icub_right", dict(BALL), ["thumb", "index", "middle"], 20, fixed=False, seed=1,
                         max_attempts=200, **kw)
     assert fast.grasps and [(g.data, g.metric, g.grip_force_n, g.attempt, g.execution) for g in fast.grasps] == [
         (g.data, g.metric, g.grip_force_n, g.attempt, g.execution) for g in full.grasps]
