@@ -99,7 +99,7 @@ def test_both_refuses_when_only_the_second_engine_fails(monkeypatch):
 
     def report(ok, step, mm):
         return SimpleNamespace(passed=ok, verdict="PASS: fine" if ok else "FAIL: object dropped", failed_step=step,
-                               failed_at_state=False, max_drift_mm=mm, max_drift_deg=mm)
+                               failed_at_state=False, max_drift_mm=mm, max_drift_deg=mm, stopped_after=None)
 
     outcome = {"pybullet": report(True, None, 0.5), "mujoco": report(False, 2, 40.0)}
     monkeypatch.setattr(verify, "replay_directions",
@@ -112,6 +112,30 @@ def test_both_refuses_when_only_the_second_engine_fails(monkeypatch):
     rec = verify.verify_plan(None, None, [("palm_down", (0, 0, 9.81))], engine="both").record()
     assert rec["engine"] == "both" and rec["directions"]["palm_down"]["max_drift_mm"] == 1.5
     assert rec["engines"]["pybullet"]["palm_down"]["max_drift_mm"] == 0.5
+
+
+def test_directions_a_stop_line_stopped_are_left_out_of_a_failed_verification(monkeypatch):
+    """A replay stopped unfailed once another direction had failed (stopped_after) is not a
+    row of the verification: the failure is the failing direction's, and with two engines
+    the second (failing, one direction stopped) merges with the first's rows by name."""
+    from planner.sim import verify
+
+    def report(ok, step, mm, stopped=None):
+        verdict = "STOPPED" if stopped is not None else "PASS: fine" if ok else "FAIL: object dropped"
+        return SimpleNamespace(passed=ok and stopped is None, verdict=verdict, failed_step=step, failed_at_state=False,
+                               max_drift_mm=mm, max_drift_deg=mm, stopped_after=stopped)
+
+    dirs = [("palm_down", (0, 0, 9.81)), ("palm_up", (0, 0, -9.81)), ("side", (9.81, 0, 0))]
+    outcome = {"pybullet": [report(True, None, 0.5)] * 3,
+               "mujoco": [report(False, None, 1.0, stopped=3), report(False, 3, 40.0), report(True, None, 0.7)]}
+    monkeypatch.setattr(verify, "replay_directions",
+                        lambda plan, hand, directions, workers=None, engine=None, **kw: outcome[engine])
+    monkeypatch.setattr(verify, "as_written", lambda plan: plan)
+    v = verify.verify_plan(None, None, dirs, engine="both")
+    assert not v.passed and v.first_failure() == ("palm_up", 3, "mujoco: FAIL: object dropped", False)
+    assert [d[0] for d in v.directions] == ["palm_up", "side"] and v.directions[0][5] == 40.0
+    v = verify.verify_plan(None, None, dirs, engine="mujoco")
+    assert not v.passed and [d[0] for d in v.directions] == ["palm_up", "side"]
 
 
 @pytest.mark.needs_pybullet("MuJoCo hidden, the engine left is pybullet")

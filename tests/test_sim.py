@@ -162,11 +162,8 @@ def test_lifting_the_thumb_drops_the_object(hand, grasp, thumb_lifted, tmp_path)
     assert "FAIL" in out.stdout.splitlines()[-1]
 
 
-def test_a_replay_asked_to_stop_at_its_failure_gives_the_same_verdict_sooner(hand, grasp):
-    """stop_at_failure (the planner's verification): the thumb's lift drops the box, and the
-    steps after it (the index lifted and landed) are not simulated: the same failed step and
-    state flag as the whole replay, the later states not reached, less simulated time; a
-    replay that passes is the same replay with or without it."""
+def _lift_thumb_then_index(hand, grasp) -> dict:
+    """The grasp, the thumb lifted (drops the box palm down), then the index lifted and landed again."""
     plan = _plan(hand, grasp, lift="thumb")
     q, obj = grasp
     q1 = _lifted(hand, q, "thumb")
@@ -178,6 +175,15 @@ def test_a_replay_asked_to_stop_at_its_failure_gives_the_same_verdict_sooner(han
     for k, (a, b, action) in enumerate(((q1, q2, "lift"), (q2, q1, "land"))):
         plan["steps"].append({"finger": "index", "action": action, "from_state": k + 1, "to_state": k + 2,
                               "joints": joints, "path": [[float(v) for v in qq[idx]] for qq in (a, b)]})
+    return plan
+
+
+def test_a_replay_asked_to_stop_at_its_failure_gives_the_same_verdict_sooner(hand, grasp):
+    """stop_at_failure (the planner's verification): the thumb's lift drops the box, and the
+    steps after it (the index lifted and landed again) are not simulated: the same failed step
+    and state flag as the whole replay, the later states not reached, less simulated time; a
+    replay that passes is the same replay with or without it."""
+    plan = _lift_thumb_then_index(hand, grasp)
     # (the box falling far is not a drop here, so the whole replay goes on to the end)
     whole, short = (replay_plan(plan, stop_at_failure=stop, drop_mm=1e4) for stop in (False, True))
     assert not whole.passed and not short.passed
@@ -189,6 +195,29 @@ def test_a_replay_asked_to_stop_at_its_failure_gives_the_same_verdict_sooner(han
     a, b = (replay_plan(passing, stop_at_failure=stop) for stop in (False, True))
     assert a.passed and b.passed and a.verdict == b.verdict and a.sim_steps == b.sim_steps
     assert [s.sim_fingers for s in a.states] == [s.sim_fingers for s in b.states]
+
+
+def test_a_stop_line_stops_the_other_directions_unfailed_past_the_failed_step(hand, grasp):
+    """A StopLine shared by the replays of one plan: the failing replay lowers it to its failed
+    step; a replay that reaches that step unfailed stops there (stopped_after, not passed, no
+    failed step, the later states not reached); a line no replay lowered stops nothing."""
+    from planner.sim.replay import StopLine
+
+    line = StopLine()
+    assert line.step() == StopLine.NONE
+    failing = replay_plan(_lift_thumb_then_index(hand, grasp), stop_at_failure=line)
+    assert failing.failed_step == 0 and failing.stopped_after is None and line.step() == 0
+    plan = _plan(hand, grasp, lift="index")
+    q, obj = grasp
+    plan["states"].append(plan["states"][0])  # the index landed again where it was
+    step = dict(plan["steps"][0], action="land", from_state=1, to_state=2, path=plan["steps"][0]["path"][::-1])
+    plan["steps"].append(step)
+    free = replay_plan(plan, stop_at_failure=StopLine())
+    assert free.passed, free.verdict
+    stopped = replay_plan(plan, stop_at_failure=line)
+    assert stopped.stopped_after == 0 and not stopped.passed and stopped.failed_step is None
+    assert stopped.verdict.startswith("STOPPED after step 0") and not stopped.states[2].reached
+    assert stopped.states[1].reached and line.step() == 0
 
 
 def test_sim_normals_point_into_the_object(held):

@@ -62,6 +62,7 @@ measurements, and split apart either half would only read the other's state.
 from __future__ import annotations
 
 import math
+import multiprocessing
 import os
 import shutil
 import time
@@ -124,6 +125,30 @@ def pose_drift(pos_ref, quat_ref, pos, quat) -> tuple[float, float]:
 # --------------------------------------------------------------------------- replay
 
 
+class StopLine:
+    """The earliest plan step at which one of several replays of one plan failed, shared by
+    them (in one process or in forked workers: `planner.sim.verify.verify_plan`): a replay
+    stopping at its failure lowers it; one that has measured every step up to it stops there,
+    unfailed (`ReplayReport.stopped_after`): its own verdict could only come later, so the
+    earliest failure over the replays, and the first direction failing there, are those of
+    replays run to the end, whatever order they ran in."""
+
+    NONE = 2 ** 31 - 1
+
+    def __init__(self) -> None:
+        methods = multiprocessing.get_all_start_methods()
+        ctx = multiprocessing.get_context("fork" if "fork" in methods else None)
+        self._value = ctx.Value("i", self.NONE)
+
+    def step(self) -> int:
+        """The earliest failed step so far (`NONE` while none failed)."""
+        return int(self._value.value)
+
+    def lower(self, step: int) -> None:
+        with self._value.get_lock():
+            self._value.value = min(int(self._value.value), int(step))
+
+
 def replay_plan(
     plan: Mapping | str | os.PathLike,
     *,
@@ -152,7 +177,7 @@ def replay_plan(
     height: int = 480,
     strict: bool = False,
     engine: str | None = None,
-    stop_at_failure: bool = False,
+    stop_at_failure: "bool | StopLine" = False,
 ) -> ReplayReport:
     """Replay a plan in a physics engine with gravity on; re-measure contacts, closure and drift.
 
@@ -197,7 +222,10 @@ def replay_plan(
             drift left its limits, or the state is not held as planned): the verdict's failed
             step and whether it failed at the state are those of the whole replay (the
             simulation is the same up to there); the later states are reported not reached.
-            For a caller that needs the verdict only (the planner's verification).
+            For a caller that needs the verdict only (the planner's verification). A
+            `StopLine` shared by the replays of one plan in other directions also stops this
+            one, unfailed, once it has measured the step at which one of them failed
+            (``stopped_after``: its verdict could only come later).
 
     Returns:
         ReplayReport with a pass/fail verdict (drift and closure agreement), per-state
@@ -235,6 +263,7 @@ def replay_plan(
                   drift_mm_max=float(drift_mm_max), drift_deg_max=float(drift_deg_max), filter_k=int(filter_k),
                   mu=friction.mu, gamma=friction.gamma, edges=friction.edges, touch_tol_m=TOUCH_TOL_M,
                   stop_at_failure=bool(stop_at_failure))
+    line = stop_at_failure if isinstance(stop_at_failure, StopLine) else None
 
     own = client is None
     mass_kg, radius_m = object_mass(obj, density_kg_m3)
@@ -245,6 +274,7 @@ def replay_plan(
     eng = engine_for(engine or default_engine(), world, client=client, gui=gui)
     try:
         sim = _Sim(eng, rd, info, joints, obj, friction, params, mass_kg, radius_m)
+        sim.stop_line = line
         params["object_mass_kg"] = sim.mass
         recorder = None
         if gif is not None or mp4 is not None:
@@ -269,12 +299,15 @@ def replay_plan(
             write_mp4(recorder.frames, str(mp4), 1.0 / (dt * int(gif_every)), ffmpeg)
 
     reports, dropped, max_mm, max_deg, fin_mm, fin_deg, n_steps, failure, fail_step = result
+    stopped_after = sim.stopped_after
     reached = [r for r in reports if r.reached]
     agree = sum(1 for r in reached if r.sim_force_closure == r.planned_force_closure)
     disagree = [r for r in reached if r.sim_force_closure != r.planned_force_closure]
     other = [r for r in reached if not r.holds_as_planned]
     within = math.isfinite(max_mm) and math.isfinite(max_deg) and max_mm <= drift_mm_max and max_deg <= drift_deg_max
     broken = [c for c in couplings if not c.within]  # the engine let a coupled joint go
+    if broken:  # a coupling broken before the stop line stopped it: its own failure
+        stopped_after = None
     passed = (not dropped) and within and not disagree and not other and len(reached) == len(reports) and not broken
     limits = f"limits {drift_mm_max:g} mm / {drift_deg_max:g} deg"
     if dropped:
@@ -290,6 +323,9 @@ def replay_plan(
     elif broken:
         verdict = (f"FAIL: the simulated hand breaks {len(broken)}/{len(couplings)} coupled joints beyond their "
                    f"tolerance (max drift {max_mm:.1f} mm / {max_deg:.1f} deg)")
+    elif stopped_after is not None:
+        verdict = (f"STOPPED after step {stopped_after}, unfailed: the replay in another direction failed by then "
+                   f"(max drift {max_mm:.1f} mm / {max_deg:.1f} deg)")
     else:
         verdict = f"PASS: max drift {max_mm:.1f} mm / {max_deg:.1f} deg ({limits}); closure agrees at {agree}/{len(reached)} states"
     reasons = []
@@ -313,7 +349,7 @@ def replay_plan(
         reasons.append(f"state {r.index}: the plan holds with {', '.join(r.planned_fingers)}; in the simulator "
                        + "; ".join(words) + f" (forces: {', '.join(f'{f} {v:.2f} N' for f, v in sorted(r.carried_n.items()))})")
     failed_step, at_state = None, False
-    if not passed:
+    if not passed and stopped_after is None:
         bad_states = [r.index for r in disagree + other] + [r.index for r in reports if not r.reached]
         first_bad = min(bad_states) if bad_states else None
         candidates = [k for k in (fail_step, None if first_bad is None else first_bad - 1) if k is not None]
@@ -331,7 +367,7 @@ def replay_plan(
         gif=str(gif) if gif is not None else None, gif_frames=gif_frames,
         mp4=str(mp4) if mp4 is not None else None, parameters=params, reasons=tuple(reasons),
         failed_step=failed_step, failed_at_state=at_state, trajectory=trajectory, engine=eng.name,
-        coupling_errors=tuple(couplings),
+        coupling_errors=tuple(couplings), stopped_after=stopped_after,
     )
 
 
@@ -388,6 +424,8 @@ class _Sim:
         self.reposing = False  # a reposing step's fingers are moving the object
         self.fail_step: int | None = None  # plan step (-1: state 0) at which the drift first left the limits
         self.step_k = -1
+        self.stop_line: StopLine | None = None  # shared with the replays in other directions
+        self.stopped_after: int | None = None  # the step after which the stop line stopped it
         self.carried: dict[str, float] = {}  # finger or "palm" -> summed normal force over the sampling window
         self.samples = 0
         self.last_patches: Mapping[str, tuple[np.ndarray, np.ndarray]] = {}
@@ -663,12 +701,22 @@ class _Sim:
             ctl.latch(to.touching)
         return ok
 
-    def _stop(self, r: StateReport) -> bool:
-        """Whether to stop after measuring ``r``: asked to stop at a failure (``stop_at_failure``)
-        and one has happened (the drift left its limits, or the state is not held as planned:
-        what `replay_plan`'s verdict refuses)."""
-        return bool(self.params.get("stop_at_failure")) and (
-            self.failure is not None or not r.holds_as_planned or r.sim_force_closure != r.planned_force_closure)
+    def _stop(self, r: StateReport, k: int) -> bool:
+        """Whether to stop after measuring ``r``, the state plan step ``k`` reached (-1: state
+        0): asked to stop at a failure (``stop_at_failure``) and one has happened (the drift
+        left its limits, or the state is not held as planned: what `replay_plan`'s verdict
+        refuses; the stop line learns the step), or the stop line says another replay failed
+        at step ``k`` or before (`stopped_after`)."""
+        if not self.params.get("stop_at_failure"):
+            return False
+        if self.failure is not None or not r.holds_as_planned or r.sim_force_closure != r.planned_force_closure:
+            if self.stop_line is not None:
+                self.stop_line.lower(k)
+            return True
+        if self.stop_line is not None and k >= self.stop_line.step():
+            self.stopped_after = k
+            return True
+        return False
 
     def run(self, states, steps, recorder=None, every=8, realtime=False):
         self.recorder, self.every, self.realtime = recorder, every, realtime
@@ -703,7 +751,7 @@ class _Sim:
             ok = r0 is not None
             if ok:
                 reports[0] = r0
-        for k, st in enumerate(steps if ok and not self._stop(r0) else ()):
+        for k, st in enumerate(steps if ok and not self._stop(r0, -1) else ()):
             frm, to = states[st.from_state], states[st.to_state]
             self.phase = f"step {k} ({st.action} {st.finger}, state {st.from_state} -> {st.to_state})"
             self.step_k = k
@@ -715,7 +763,7 @@ class _Sim:
                     ok = False
                     break
                 reports[st.to_state] = r
-                if self._stop(r):
+                if self._stop(r, k):
                     break
                 continue
             q_ref = dict(ctl.q_ref)
@@ -761,8 +809,10 @@ class _Sim:
                 ok = False
                 break
             reports[st.to_state] = r
-            if self._stop(r):
+            if self._stop(r, k):
                 break
+        if not ok and self.stop_line is not None and self.fail_step is not None:  # dropped: a failure
+            self.stop_line.lower(self.fail_step)
         out = []
         for i, s in enumerate(states):
             if i in reports:

@@ -148,6 +148,10 @@ class ReplayReport:
             .Hand.couplings` order; none for a hand without couplings, and in a report written
             before the replay measured them). A replay whose coupling error exceeds its
             tolerance does not pass.
+        stopped_after: the plan step after which the replay stopped unfailed because the
+            replay in another direction had failed by then (`planner.sim.replay.StopLine`: the
+            planner's verification); not passed, no failed step. None: it ran to its end or
+            its own failure.
     """
 
     passed: bool
@@ -174,6 +178,7 @@ class ReplayReport:
     trajectory: Mapping[str, Any] | None = None
     engine: str = "pybullet"
     coupling_errors: tuple[CouplingError, ...] = ()
+    stopped_after: int | None = None
 
     def to_dict(self) -> dict:
         """Plain data for JSON (``json.dumps(report.to_dict())``)."""

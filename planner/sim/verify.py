@@ -35,7 +35,7 @@ from planner.sim.engine import ENGINES, default_engine, require_engine
 from planner.plan import plan_from_data
 from planner.plan_data import Plan
 from planner.sim.inputs import plan_hand, typed_plan
-from planner.sim.replay import replay_plan
+from planner.sim.replay import StopLine, replay_plan
 from planner.sim.report import GravitySetReport, ReplayReport
 
 #: The job the forked workers run (set before the pool forks; read only in the workers).
@@ -239,7 +239,9 @@ class Verification:
         directions: (name, passed, verdict line, failed plan step or None, failed at the
             state it reaches (`ReplayReport.failed_at_state`), max drift mm, max drift deg)
             per direction; with several engines the worst of them (failed in any, the
-            earliest failing step, the largest drift), the verdict naming the engine.
+            earliest failing step, the largest drift), the verdict naming the engine. A
+            failed verification leaves out the directions whose replays stopped unfailed
+            once another had failed (`planner.sim.replay.StopLine`).
         wall_time_s: wall-clock time of the replays.
         engine: the engine option verified with ("pybullet", "mujoco" or "both").
         by_engine: (engine, its rows as ``directions``) per engine replayed.
@@ -291,15 +293,18 @@ def verify_plan(plan: Plan, hand, directions: Sequence[tuple[str, Sequence[float
     written = as_written(plan)
     by_engine = []
     for e in engines:
-        # the verdict is all a verification needs: a replay stops at its first failure
-        reports = replay_directions(written, hand, directions, workers=workers, engine=e, stop_at_failure=True)
+        # the verdict is all a verification needs: a replay stops at its first failure, and
+        # the others once they are past the earliest step one of them failed at (their rows
+        # are left out: `Verification.first_failure` is that of replays run to the end)
+        reports = replay_directions(written, hand, directions, workers=workers, engine=e, stop_at_failure=StopLine())
         rows = tuple((name, r.passed, f"{e}: {r.verdict}", r.failed_step, r.failed_at_state, float(r.max_drift_mm),
                       float(r.max_drift_deg))
-                     for (name, _), r in zip(directions, reports))
+                     for (name, _), r in zip(directions, reports) if r.stopped_after is None)
         by_engine.append((e, rows))
-        if not all(r[1] for r in rows):
+        if len(rows) < len(directions) or not all(r[1] for r in rows):
             break
-    merged = tuple(_worst([rows[i] for _, rows in by_engine]) for i in range(len(directions)))
+    names = [r[0] for r in by_engine[-1][1]]  # (every engine before the last replayed every direction)
+    merged = tuple(_worst([dict((r[0], r) for r in rows)[name] for _, rows in by_engine]) for name in names)
     return Verification(all(r[1] for r in merged), merged, time.perf_counter() - t0,
                         engine if engine == BOTH else engines[0], tuple(by_engine))
 
