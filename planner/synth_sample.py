@@ -292,8 +292,11 @@ def sample_candidate(hand, fingers, obj: GraspObject, fixed, rng, obj_radius,
     plus `OPPOSITION_WEIGHT` times how much the pads at their nearest points push the same
     way (`_opposition`: a ball between fingers that all close from one side is pushed, not
     held). A draw whose fingers collide with each other (or the palm) where their centre
-    curves pass nearest the centre is not kept. Attempts whose centre curves do not pass
-    within `SWEEP_REACH` inner radii of the centre are dropped before any closing.
+    curves pass nearest the centre is not kept. Each jittered pose (up to `POSE_TRIES`, until
+    no opened finger is inside the object) is pushed out of the opened fingers
+    (`_push_out`), and rather `LIFTED_GAP_M` clear of them when their centre curves still reach
+    it and they do not collide where they would touch it there. Attempts whose centre curves
+    do not pass within `SWEEP_REACH` inner radii of the centre are dropped before any closing.
 
     With ``palm`` (a palm-supported or power grasp) the object goes AGAINST the palm instead
     of ``palm_clearance_m`` clear of it: the palm's grasping face (`_palm_face`, the centres
