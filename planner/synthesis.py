@@ -288,7 +288,10 @@ def synthesize(hand_ref: str, obj: GraspObject | Mapping, fingers, n: int, *, fi
     def view():  # what an attempt needs to know of the kept grasps (`_outranked`)
         return [(fk, c.rank_key()) for fk, c in kept]
 
-    for attempt, (why, out, probe) in _outcomes(ctx, max_attempts, workers, view):
+    def ahead():  # attempts worth computing ahead: about what the missing grasps take at the rate so far
+        return math.ceil((n - len(kept)) * max(attempt, 1) / max(len(kept), 1))
+
+    for attempt, (why, out, probe) in _outcomes(ctx, max_attempts, workers, view, ahead):
         if probe is not None and _outranked(view(), *probe[:2], attempt):
             # a near-duplicate of a kept grasp it cannot replace: counted so whether or not the
             # attempt ran the remaining tests (a worker knows the kept grasps of when it started)
@@ -356,7 +359,8 @@ class _Context:
 
 
 #: Attempts a worker process runs per job (`_outcomes`): one, so that at most
-#: ``2 x workers`` attempts are computed past the one that completes the n grasps.
+#: ``2 x workers`` attempts (``workers`` when the missing grasps need fewer at the rate so
+#: far) are computed past the one that completes the n grasps.
 ATTEMPTS_PER_JOB = 1
 _WORKER_CTX: _Context | None = None  # the context of the running synthesis, in its workers
 _IN_WORKER = False
@@ -373,13 +377,16 @@ def _worker_job(first: int, count: int, kept) -> list:
     return [_attempt(_WORKER_CTX, k, kept) for k in range(first, first + count)]
 
 
-def _outcomes(ctx: _Context, max_attempts: int, workers: int, view=None):
+def _outcomes(ctx: _Context, max_attempts: int, workers: int, view=None, ahead=None):
     """(attempt, `_attempt` outcome) for attempts 1..max_attempts, in order; with ``workers``
     > 1 computed ahead by that many processes (forked where the platform can: they inherit
     the loaded hand). Each attempt draws from its own generator (seeded by (seed, attempt)),
     so the outcomes, and the grasps kept from them in order, do not depend on the number of
     workers or on which worker ran what. ``view()``: the kept grasps when an attempt starts
-    (`_attempt`'s ``kept``)."""
+    (`_attempt`'s ``kept``). ``ahead()``: how many attempts are worth computing ahead (the
+    missing grasps at the rate so far): between ``workers`` and ``2 x workers`` are pending,
+    so that near the end fewer attempts are computed past the one that completes the grasps
+    (the outcomes are taken in attempt order all the same)."""
     global _WORKER_CTX
     if workers == 1 or max_attempts <= 1:
         for k in range(1, max_attempts + 1):
@@ -397,7 +404,8 @@ def _outcomes(ctx: _Context, max_attempts: int, workers: int, view=None):
     nxt = 1
     try:
         while nxt <= max_attempts or pending:
-            while nxt <= max_attempts and len(pending) < 2 * workers:
+            window = 2 * workers if ahead is None else min(2 * workers, max(workers, ahead()))
+            while nxt <= max_attempts and len(pending) < window:
                 count = min(ATTEMPTS_PER_JOB, max_attempts - nxt + 1)
                 pending.append((nxt, pool.submit(_worker_job, nxt, count, None if view is None else view())))
                 nxt += count
