@@ -71,11 +71,12 @@ PUSH_OUT_STEPS = 3
 #: Gap a push leaves between the object and the link that was inside it (m): the closing
 #: procedure's touch resolution is 0.1 % of a joint range, far below this.
 PUSH_OUT_GAP_M = 0.0005
-#: Gap to the opened fingers of the pose a pose try prefers (m): a back-off's lift
-#: (`planner.retreat.DEFAULT_LIFT_M`, what `retreat_blocked` asks of the contact link), so
-#: that a finger's open posture is lifted off the object. Pushed only 0.5 mm clear, the open
-#: iCub thumb lay against a 30 mm ball and closed 1-2 % of its range onto it, pressed sideways
-#: at 85-100 % opposition: 34 of 37 "cannot back off" rejections in 160 attempts (seed 0).
+#: Gap to the opened fingers of the pose a pose try prefers when an opened finger touches the
+#: object (m): a back-off's lift (`planner.retreat.DEFAULT_LIFT_M`, what `retreat_blocked`
+#: asks of the contact link), so that a finger's open posture is lifted off the object.
+#: Pushed only 0.5 mm clear, the open iCub thumb lay against a 30 mm ball and closed 1-2 % of
+#: its range onto it, pressed sideways at 85-100 % opposition: 34 of 37 "cannot back off"
+#: rejections in 160 attempts (seed 0).
 LIFTED_GAP_M = DEFAULT_LIFT_M
 #: Fraction of their range the closing joints of a pre-shape start closed by.
 _PRESHAPE_CLOSE = (0.0, 0.3)
@@ -294,8 +295,9 @@ def sample_candidate(hand, fingers, obj: GraspObject, fixed, rng, obj_radius,
     held). A draw whose fingers collide with each other (or the palm) where their centre
     curves pass nearest the centre is not kept. Each jittered pose (up to `POSE_TRIES`, until
     no opened finger is inside the object) is pushed out of the opened fingers
-    (`_push_out`), and rather `LIFTED_GAP_M` clear of them when their centre curves still reach
-    it and they do not collide where they would touch it there. Attempts whose centre curves
+    (`_push_out`), and, when an opened finger then touches it (`_open_touch`), rather
+    `LIFTED_GAP_M` clear of them if their centre curves still reach it and they do not collide
+    where they would touch it there. Attempts whose centre curves
     do not pass within `SWEEP_REACH` inner radii of the centre are dropped before any closing.
 
     With ``palm`` (a palm-supported or power grasp) the object goes AGAINST the palm instead
@@ -387,13 +389,15 @@ def sample_candidate(hand, fingers, obj: GraspObject, fixed, rng, obj_radius,
                 # out of the palm: push the object along the palm normal until it clears the palm
                 placed = _clear_of_palm(at_q, placed, palm_clearance_m, hand.palm_normal)
                 near = _push_out(hand, free, placed, fingers, palm_clearance_m)
-                # rather the object a lift away from the opened fingers (each can open off its
-                # contact), when their sweeps still reach it without colliding where they touch
-                lifted = _push_out(hand, free, placed, fingers, palm_clearance_m, gap=LIFTED_GAP_M, below=LIFTED_GAP_M)
+                if _open_touch(hand, free, near, fingers):
+                    # an opened finger touches it: it could not open off its contact. Rather the
+                    # object a lift away from the opened fingers, when their sweeps still reach it
+                    # without colliding where they touch it
+                    lifted = _push_out(hand, free, placed, fingers, palm_clearance_m, gap=LIFTED_GAP_M,
+                                       below=LIFTED_GAP_M)
+                    near = lifted if _reach(swept, lifted, obj_radius) and (len(fingers) < 2 or not _collide_touching(
+                        hand, fingers, q, swept, alphas, lifted.position)) else near
                 placed = near
-                if lifted is not near and _reach(swept, lifted, obj_radius) and (
-                        len(fingers) < 2 or not _collide_touching(hand, fingers, q, swept, alphas, lifted.position)):
-                    placed = lifted
                 if not any(free.finger_penetrates(placed, f.name, object_sphere(placed)) for f in fingers):
                     break
             centre = np.asarray(placed.position, dtype=float)
@@ -416,6 +420,15 @@ def _collide_touching(hand, fingers, q, swept, alphas, centre) -> bool:
         q_touch[cidx] = q[cidx] + a * (end - q[cidx])
         couple_finger(f, q_touch)
     return hand.state(q_touch).self_collides({f.name for f in fingers})  # (`collisions` without an object)
+
+
+def _open_touch(hand, state, placed: GraspObject, fingers) -> bool:
+    """Whether a link of the opened fingers (``state``: closing joints open) is within the
+    touch tolerance of the object (`TOUCH_TOL_M`, as `planner.contacts.touching_links`; the
+    back-off's too, `planner.finger_scene.DEFAULT_TOUCH_TOL_M`): that finger's open posture
+    touches the object, so opening the finger cannot back it off its contact."""
+    links = [lk for f in fingers for lk in hand.fingers[f.name].links]
+    return any(ld.distance_m <= TOUCH_TOL_M for ld in state.link_object(placed, links).values())
 
 
 def _reach(swept, placed: GraspObject, obj_radius: float) -> bool:
