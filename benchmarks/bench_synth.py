@@ -21,7 +21,7 @@ The machine's load (/proc/loadavg, 1 min) is printed with every row: CPU seconds
 are dearer than on idle cores (shared caches), so compare rows of one run only.
 
 Run: OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_synth.py [-n 20] [--repeat 3] [--quick] [--profile]
-     [--baseline REV ...]
+     [--why] [--baseline REV ...]
 """
 
 from __future__ import annotations
@@ -158,6 +158,7 @@ def main(argv=None):
     ap.add_argument("--workers", type=int, default=2, help="worker processes of the new synthesis's second row")
     ap.add_argument("--quick", action="store_true", help="one repeat, sampled pose only")
     ap.add_argument("--profile", action="store_true", help="also profile the new synthesis per hand")
+    ap.add_argument("--why", action="store_true", help="also print each row's rejections (candidates dropped, by reason)")
     ap.add_argument("--child", choices=("baseline", "new"), help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     revs = args.baseline or [BASELINE_REV]
@@ -182,6 +183,9 @@ def main(argv=None):
                       f"{r['attempts']:>4} {r['attempts'] / max(r['ready'], 1):>5.1f} {r['wall_s']:>6.2f} "
                       f"{r['cpu_s']:>6.2f} {r['ready'] / r['wall_s']:>7.2f} {r['ready'] / r['cpu_s']:>11.2f} "
                       f"{r['load']:>5.2f}", flush=True)
+                if args.why:
+                    print("    rejected: " + ", ".join(f"{why} {k}" for why, k in sorted(
+                        r["rejected"].items(), key=lambda kv: (-kv[1], kv[0]))), flush=True)
     print("\nmedians (ready grasps per second; ratio to the baseline):")
     for c in cases:
         base = None
