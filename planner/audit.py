@@ -47,6 +47,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from planner.closure import GRIP_CONE_SIDES, apply_contact_model, grasp_closure, min_grip_force
+from planner.collision import HAND_OVERLAP_TOL_M
 from planner.contacts import contact_patches, link_contacts
 from planner.errors import AuditError, PlannerError
 from planner.grasp import load_grasp
@@ -82,8 +83,9 @@ FK_TOL_M = 2e-3
 #: own ends), m: the planner's realized contacts are within `planner.realization.PENETRATION_TOL_M`
 #: (0.5 mm); twice that leaves room for the files' rounding.
 PENETRATION_TOL_M = 2 * _GRASP_PENETRATION_TOL_M
-#: Deepest two links of different fingers (or a finger and the palm) may overlap, m.
-SELF_TOL_M = 5e-4
+#: Deepest two links of different fingers (or a finger and the palm) may overlap, m: what the
+#: planner's finger paths may (`planner.collision.HAND_OVERLAP_TOL_M`).
+SELF_TOL_M = HAND_OVERLAP_TOL_M
 #: Largest joint step between two path waypoints checked (the planner's paths are denser).
 PATH_STEP_RAD = 0.02
 #: Joint values may exceed the URDF limits by this (file rounding), rad or m.

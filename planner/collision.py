@@ -38,6 +38,12 @@ from planner.signed_distance import (bounding_sphere, object_transform, signed_d
 LINK_EPS_M = 1e-6
 """Penetration between two links below this is not a collision (also: shapes closer than
 this at q = 0 or the open posture overlap by design and their pair is allowed)."""
+HAND_OVERLAP_TOL_M = 5e-4
+"""Deepest two links of the hand (of different fingers, a finger and the palm, or a finger's
+non-adjacent links) may overlap in a finger path the planner accepts (`HandState.clearance`):
+what `check` accepts in a grasp (`planner.realization.PENETRATION_TOL_M`) and the audit in a
+plan (`planner.audit.SELF_TOL_M`), so a grasp realized with two links that much inside each
+other can be left; neither engine simulates the hand's contacts with itself."""
 
 CULL_M = 1e-4
 """`HandState.finger_penetrates` skips a geometry whose bounding sphere is this far from the
@@ -552,7 +558,7 @@ class HandState:
         """True when the finger keeps ``object_margin_m`` from the object (negative: a tolerated
         penetration, a signed distance on a mesh too, `signed_distance_geometry`) and does not
         penetrate the palm, the other fingers or its own non-adjacent links (by more than
-        `LINK_EPS_M`; allowed pairs excluded).
+        `HAND_OVERLAP_TOL_M`; allowed pairs excluded).
 
         The OMPL validity check: a vectorised bounding-sphere broad phase, then coal's cached
         collision functors. The rest of the hand is taken as posed in the state this one was
@@ -625,7 +631,7 @@ class _ClearanceScene:
         self.obj_sdf = signed_distance_geometry(obj)
         self.collide_obj = [coal.ComputeCollision(model.geometries[i].shape, obj.geometry) for i in self.moving]
         self.touch_request = coal.CollisionRequest()
-        self.touch_request.security_margin = -LINK_EPS_M
+        self.touch_request.security_margin = -HAND_OVERLAP_TOL_M
 
     def is_clear(self, T: np.ndarray, object_margin_m: float) -> bool:
         """T: (k, 4, 4) poses of the moving geometries, palm frame."""
@@ -693,12 +699,12 @@ class _ClearanceScene:
                     continue
                 d = coal.distance(gi.shape, transform(T[k]), geoms[j].shape, self.static_tf[s],
                                   coal.DistanceRequest(), coal.DistanceResult())
-                if d < -LINK_EPS_M:
+                if d < -HAND_OVERLAP_TOL_M:
                     reasons.append(f"{gi.link} penetrates {geoms[j].link} by {-d * 1000:.2f} mm")
         for a, b in self.self_pairs:
             ga, gb = geoms[self.moving[a]], geoms[self.moving[b]]
             d = coal.distance(ga.shape, transform(T[a]), gb.shape, transform(T[b]),
                               coal.DistanceRequest(), coal.DistanceResult())
-            if d < -LINK_EPS_M:
+            if d < -HAND_OVERLAP_TOL_M:
                 reasons.append(f"{ga.link} penetrates {gb.link} by {-d * 1000:.2f} mm")
         return list(dict.fromkeys(reasons))

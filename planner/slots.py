@@ -22,7 +22,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from planner.closure import apply_contact_model, batch_grasp_closure
-from planner.collision import LINK_EPS_M
+from planner.collision import HAND_OVERLAP_TOL_M
 from planner.contacts import collisions, contact_patches
 from planner.errors import PlannerError
 from planner.graph import LIFTED, GaitProblem, Slot
@@ -493,7 +493,8 @@ def pairwise_collision_check(hand, slots: Mapping[str, tuple[Slot, ...]]) -> Cal
                 and {link_finger.get(model.geometries[i].link), link_finger.get(model.geometries[j].link)} == {fa, fb})
         if not pairs:
             return True
-        return not any(d < -LINK_EPS_M for _, _, d in hand.state(q_of({fa: sa, fb: sb})).link_pair_distances(pairs))
+        return not any(d < -HAND_OVERLAP_TOL_M
+                       for _, _, d in hand.state(q_of({fa: sa, fb: sb})).link_pair_distances(pairs))
 
     return compatible
 

@@ -170,3 +170,28 @@ def test_with_finger_equals_a_fresh_state(hand_name):
             assert [c[:2] for c in moved.self_collisions()] == [c[:2] for c in fresh.self_collisions()]
             again = moved.with_finger(finger, hand.q_open[idx])
             np.testing.assert_allclose(again.finger_link_poses(finger), base.finger_link_poses(finger), atol=1e-12)
+
+
+def test_a_finger_path_may_overlap_the_hand_as_much_as_a_grasp_may():
+    """The Allegro thumb's link_14.0 goes 0.06 mm into palm_link at a posture of a realized
+    grasp (exp9's mesh pair): a finger state that deep is clear (`check` accepts a grasp
+    with 0.5 mm, the audit a plan: `HAND_OVERLAP_TOL_M`), one 7 mm deep is not, and the
+    reasons name only the deep one; the object is far away in both."""
+    from planner.collision import HAND_OVERLAP_TOL_M
+    from planner.objects import make_object
+    from planner.realization import PENETRATION_TOL_M
+
+    assert HAND_OVERLAP_TOL_M == PENETRATION_TOL_M
+    hand = load_hand("allegro_right")
+    idx = list(hand.fingers["thumb"].q_index)
+    T = np.eye(4)
+    T[:3, 3] = (0.3, 0.3, 0.3)
+    far = make_object("sphere", (0.02,), T)
+    for posture, depth_mm, clear in (((0.356, 0.723, 1.478, 0.636), 0.065, True), ((0.8, -0.1, 1.478, 0.636), 7.2, False)):
+        q = np.array(hand.q_open, dtype=float)
+        q[idx] = posture
+        state = hand.state(q)
+        overlap = -min(d for a, b, d in state.link_pair_distances(fingers={"thumb"}) if "palm_link" in (a, b))
+        assert overlap * 1e3 == pytest.approx(depth_mm, abs=0.05)
+        assert state.clearance(far, "thumb", 0.002) is clear
+        assert bool(state.clearance_violations(far, "thumb", 0.002)) is not clear
