@@ -123,3 +123,34 @@ def test_only_links_no_closing_joint_moves_are_relieved(hand, box, q_open):
     icub = Hand.load("icub_right")
     for finger in icub.fingers:
         assert FingerScene(icub, box, np.asarray(icub.q_open, float), finger, DEFAULT_TOUCH_TOL_M).base_links() == ()
+
+
+def test_a_contact_the_finger_cannot_leave_names_the_link_that_stays_on_the_object(tmp_path):
+    """exp9's Allegro box pair (300 g): the thumb touches with link_14.0 at its opposition
+    limit, and its link_12.0 is 0.88 mm from the box whatever the thumb does, inside the 1 mm
+    touch tolerance: the refusal says so, with the distance measured at the open posture."""
+    import re
+
+    import yaml
+
+    from planner.grasp import load_grasp
+    from planner.realization import realize
+
+    data = {"schema_version": 1, "name": "box", "hand": "allegro_right",
+            "object": {"shape": "box", "size": [0.05067, 0.07014, 0.04698], "position": [0.034806, -0.000439, -0.016522],
+                       "quat_xyzw": [0.7056548, 0.0452918, 0.7056548, 0.0452918], "mass_kg": 0.3},
+            "friction": {"mu": 0.9, "gamma": 0.004},
+            "fingers": {"thumb": {"contact": {"point": [0.01183, 0.03507, 0.0052]}},
+                        "index": {"posture": [-0.235, 0.0, 0.0, 0.0]}, "middle": "free",
+                        "ring": {"posture": [0.0, 0.3, 0.0, 0.0]}}}
+    path = tmp_path / "box.yaml"
+    path.write_text(yaml.safe_dump(data))
+    g = realize(load_grasp(path), suggest=False)
+    f = g.hand.fingers["thumb"]
+    why = retreat_blocked(g.hand, g.obj, g.q[list(f.q_index)], "thumb")
+    m = re.search(r"at the finger's open posture too, link_12\.0 is ([0-9.]+) mm from the object", why or "")
+    assert m is not None, why
+    q = np.array(g.q, dtype=float)
+    q[list(f.q_index)] = np.asarray(g.hand.q_open)[list(f.q_index)]
+    d = min(d for d, link, _, _ in g.hand.state(q).object_distances(g.obj, "thumb") if link == "link_12.0")
+    assert float(m.group(1)) == pytest.approx(d * 1e3, abs=0.01) and d < DEFAULT_TOUCH_TOL_M
