@@ -127,8 +127,9 @@ def replay_directions(plan: Plan, hand, directions: Sequence[tuple[str, Sequence
 
 def _log_done(name: str, report, k: int, n: int) -> None:
     """One progress record per replayed direction (`planner.regrasp.log`; the CLI shows it)."""
-    logging.getLogger("planner").info("replay %d/%d %s in %s: %s", k, n, name, report.engine,
-                                      "PASS" if report.passed else "FAIL")
+    verdict = ("PASS" if report.passed else "FAIL" if getattr(report, "stopped_after", None) is None
+               else f"stopped after step {report.stopped_after} (another direction failed by then)")
+    logging.getLogger("planner").info("replay %d/%d %s in %s: %s", k, n, name, report.engine, verdict)
 
 
 def film_paths(path, names: Sequence[str], film: Sequence[str] | None = None) -> list[Path | None]:
