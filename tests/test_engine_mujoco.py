@@ -114,6 +114,7 @@ def test_both_refuses_when_only_the_second_engine_fails(monkeypatch):
     assert rec["engines"]["pybullet"]["palm_down"]["max_drift_mm"] == 0.5
 
 
+@pytest.mark.needs_pybullet("--engine both replays in pybullet too")
 def test_directions_a_stop_line_stopped_are_left_out_of_a_failed_verification(monkeypatch):
     """A replay stopped unfailed once another direction had failed (stopped_after) is not a
     row of the verification: the failure is the failing direction's, and with two engines
