@@ -48,8 +48,9 @@ import numpy as np
 
 from planner.closure import GRIP_CONE_SIDES, apply_contact_model, grasp_closure, min_grip_force
 from planner.collision import HAND_OVERLAP_TOL_M
-from planner.contacts import contact_patches, link_contacts
+from planner.contacts import TOUCH_TOL_M, contact_patches, link_contacts
 from planner.errors import AuditError, PlannerError
+from planner.finger_scene import FingerScene
 from planner.grasp import load_grasp
 from planner.plan import read_plan, recorded_input
 from planner.grip import HOLD_FACTOR, finger_statics, grip_program, hold_capacity
@@ -406,10 +407,13 @@ def _check_states(plan, hand, objs, rep: AuditReport) -> list:
                         f"tolerance {FK_TOL_M * 1000:.0f} mm)")
         for f in fk:
             if f not in st.patches:
-                if f != PALM:
+                if f == PALM:
+                    if whole_hand:  # plans since whole-hand grasps count a touching palm
+                        palm_ignored.append(i)
+                elif not FingerScene(hand, obj, q, f, TOUCH_TOL_M).lifted_as_far_as_it_goes(
+                        q[list(hand.fingers[f].q_index)]):
+                    # (a link no closing joint moves, where the open finger has it, carries nothing)
                     rep.add(f"states[{i}]: finger {f} touches the object at the state's joints but the plan has it lifted")
-                elif whole_hand:  # plans since whole-hand grasps count a touching palm
-                    palm_ignored.append(i)
         for link, ld in hs.link_object(obj, [l for f in hand.fingers for l in hand.fingers[f].links]
                                        + list(hand.collision.finger_links(None))).items():
             if ld.distance_m < -PENETRATION_TOL_M:

@@ -106,12 +106,23 @@ class FingerScene:
     def required(self, link: str, margin_m: float) -> float:
         """The distance from the object ``link`` must keep where ``margin_m`` is asked: the
         margin; for a `base_links` link no more than it has at the finger's open posture (less
-        the collision layer's 1 um resolution, `planner.collision.LINK_EPS_M`), but at least the
-        touch tolerance: a link that near counts as touching (`planner.contacts.touching_links`,
-        what the plan's audit reads), and a lifted finger may not touch."""
+        the collision layer's 1 um resolution, `planner.collision.LINK_EPS_M`), but never inside
+        the object. Such a link is where the open finger puts it: a lifted finger is lifted as
+        far as it goes with it there, and the plan's audit counts it lifted
+        (`planner.audit`: a link of it within the touch tolerance then carries nothing; the
+        Allegro thumb's link_12.0 lies 0.88 mm from a box against the palm at every thumb
+        posture)."""
         if link not in self.base_links():
             return margin_m
-        return min(margin_m, max(self.open_distances()[link] - LINK_EPS_M, self.touch_tol_m))
+        return min(margin_m, max(self.open_distances()[link] - LINK_EPS_M, 0.0))
+
+    def lifted_as_far_as_it_goes(self, q_finger: np.ndarray) -> bool:
+        """Whether the finger at ``q_finger`` touches the object (within the touch tolerance)
+        only with `base_links` links no nearer to it than at the open posture (`required`):
+        lifted, as far as the finger can be."""
+        touching = [(d, link) for d, link, _, _ in self.object_distances(q_finger) if d < self.touch_tol_m]
+        return bool(touching) and all(link in self.base_links() and d >= self.required(link, self.touch_tol_m)
+                                      for d, link in touching)
 
     def is_clear(self, st, margin_m: float) -> bool:
         """`HandState.clearance` of the state ``st`` (this scene's finger moved) with the

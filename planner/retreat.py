@@ -296,7 +296,7 @@ def retreat_blocked(
     at = [f"{j} {a[k]:.2f} rad (limit {lo[k] if a[k] - lo[k] < hi[k] - a[k] else hi[k]:.2f})"
           for k, j in enumerate(f.joints) if min(a[k] - lo[k], hi[k] - a[k]) <= tol]
     # links that touch the object even with the finger open: no way of backing off lifts them
-    stay = sorted((d, link) for link, d in scene.open_distances().items() if d < scene.touch_tol_m)
+    stay = sorted((d, link) for link, d in scene.open_distances().items() if d < scene.required(link, scene.touch_tol_m))
     near = "; ".join(f"{link} {'is' if d >= 0 else 'goes'} {abs(d) * 1e3:.2f} mm {'from' if d >= 0 else 'inside'} the object"
                      for d, link in stay)
     return (f"{err}, even with every other finger open" + (f"; near their limits: {', '.join(at)}" if at else "")
