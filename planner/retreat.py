@@ -295,10 +295,11 @@ def retreat_blocked(
     tol = max(resolution_rad, 0.05 * float(np.max(hi - lo)))
     at = [f"{j} {a[k]:.2f} rad (limit {lo[k] if a[k] - lo[k] < hi[k] - a[k] else hi[k]:.2f})"
           for k, j in enumerate(f.joints) if min(a[k] - lo[k], hi[k] - a[k]) <= tol]
-    # links that touch the object even with the finger open: no way of backing off lifts them
-    stay = sorted((d, link) for link, d in scene.open_distances().items() if d < scene.required(link, scene.touch_tol_m))
-    near = "; ".join(f"{link} {'is' if d >= 0 else 'goes'} {abs(d) * 1e3:.2f} mm {'from' if d >= 0 else 'inside'} the object"
-                     for d, link in stay)
+    # links nearer the object than a lifted finger keeps them (`FingerScene.required`) even
+    # with the finger open: no way of backing off lifts them
+    need = {link: scene.required(link, scene.touch_tol_m) for link in scene.open_distances()}
+    stay = sorted((d, link) for link, d in scene.open_distances().items() if d < need[link])
+    near = "; ".join(f"{link} {'is' if d >= 0 else 'goes'} {abs(d) * 1e3:.2f} mm {'from' if d >= 0 else 'inside'} the object "
+                     f"(a lifted finger keeps it {need[link] * 1e3:.1f} mm from it)" for d, link in stay)
     return (f"{err}, even with every other finger open" + (f"; near their limits: {', '.join(at)}" if at else "")
-            + (f"; at the finger's open posture too, {near} (a lifted finger keeps every link "
-               f"{scene.touch_tol_m * 1e3:.1f} mm from it): move the object away from it" if stay else ""))
+            + (f"; at the finger's open posture too, {near}: move the object away from it" if stay else ""))
