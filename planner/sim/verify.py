@@ -304,8 +304,9 @@ def verify_plan(plan: Plan, hand, directions: Sequence[tuple[str, Sequence[float
         by_engine.append((e, rows))
         if len(rows) < len(directions) or not all(r[1] for r in rows):
             break
-    names = [r[0] for r in by_engine[-1][1]]  # (every engine before the last replayed every direction)
-    merged = tuple(_worst([dict((r[0], r) for r in rows)[name] for _, rows in by_engine]) for name in names)
+    # each direction the last engine has a row for (every engine before it replayed every direction)
+    by_name = [{r[0]: r for r in rows} for _, rows in by_engine]
+    merged = tuple(_worst([rows[name] for rows in by_name]) for name, *_ in by_engine[-1][1])
     return Verification(all(r[1] for r in merged), merged, time.perf_counter() - t0,
                         engine if engine == BOTH else engines[0], tuple(by_engine))
 
