@@ -541,11 +541,20 @@ def plan_gaits(
             annotate_removable(G, [v for s in candidates for v in s.nodes])
             plan = _make_plan(initial, final, options, inputs or {}, problem, G, candidates[0], candidates[1:], motions,
                               search_info)
-            # the physics check `replay` and `verify` run on a plan file first (`planner.audit`):
-            # a plan it refuses is never returned (nor replayed). Without the input files: the
-            # plan is made from these grasps, and gaits at a reposing candidate's pose start and
-            # end at the files' grasps moved there (`planner.pose_search`)
-            audit = audit_plan(replace(plan, inputs={}), hand)
+            log.info("verifying in %s: attempt %d, %d direction(s) in %d process(es)", engine_names, len(rejected) + 1,
+                     len(directions), min(workers, len(directions)))
+            # the physics check `replay` and `verify` run on a plan file (`planner.audit`) runs
+            # here while the replays run in their processes: a plan it refuses is never returned
+            # and its replays count for nothing. Without the input files: the plan is made from
+            # these grasps, and gaits at a reposing candidate's pose start and end at the files'
+            # grasps moved there (`planner.pose_search`)
+            audits = []
+            # the directions that rejected a sequence before are replayed first: a sequence
+            # they reject again costs their replays only (a bound on the work, not the time)
+            check = verify_suspects_first(plan, hand, directions, {r["direction"] for r in rejected}, workers=workers,
+                                          engine=options.engine,
+                                          meanwhile=lambda: audits.append(audit_plan(replace(plan, inputs={}), hand)))
+            audit = audits[0]
             if not audit.ok:
                 step, at_state = _audit_step(audit.problems[0])
                 if step is None or step < 0:  # not a move of this sequence: no other sequence mends it
@@ -554,20 +563,14 @@ def plan_gaits(
                         f"and verify run on a plan: {audit.problems[0]}; no plan is returned that they would refuse "
                         f"(--no-verify returns it unchecked)")
                 # a move (or the state it reaches) the check refuses: it goes, as one the
-                # simulator rejected would, and the next sequence is tried (no replay spent)
+                # simulator rejected would, and the next sequence is tried (its replays ignored)
                 unsound.append(f"{plan.steps[step].action} {plan.steps[step].finger}: {audit.problems[0]}")
                 log.info("physics check refused %s", unsound[-1])
                 _drop_step(lazy, problem, candidates[0], motions, step, at_state)
                 candidates = lazy.best(options.alternatives)
                 continue
-            log.info("verifying in %s: attempt %d, %d direction(s) in %d process(es)", engine_names, len(rejected) + 1,
-                     len(directions), min(workers, len(directions)))
-            # the directions that rejected a sequence before are replayed first: a sequence
-            # they reject again costs their replays only (a bound on the work, not the time)
             if on_replay is not None:
                 on_replay()
-            check = verify_suspects_first(plan, hand, directions, {r["direction"] for r in rejected}, workers=workers,
-                                          engine=options.engine)
             verify_s += check.wall_time_s
             log.info("verification %s (%.1f s)", "passed" if check.passed else "failed: " + check.first_failure()[0],
                      check.wall_time_s)

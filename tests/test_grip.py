@@ -230,7 +230,9 @@ def test_a_failed_verification_removes_the_transition_and_the_search_goes_on(mon
     def first_fails(at_state: bool):
         """A verify_plan whose first replay fails palm down at step 1 (at the state it
         reaches, or in the step) and whose later replays pass."""
-        def fake(plan, hand, directions, workers=None):
+        def fake(plan, hand, directions, workers=None, meanwhile=None):
+            if meanwhile is not None:  # (the physics check, run while the replays run)
+                meanwhile()
             calls.append([s.finger + ":" + s.action for s in plan.steps])
             ok = len(calls) > 1
             rows = tuple((n, ok or i > 0, "PASS" if ok or i > 0 else "FAIL: made up", None if ok or i > 0 else 1,
@@ -261,7 +263,9 @@ def test_a_failed_verification_removes_the_transition_and_the_search_goes_on(mon
     assert res.plan.summary["verification"]["attempts"] == 2
     assert all(dict(s.fingers) != bad for s in res.plan.states)
 
-    def at_start(plan, hand, directions, workers=None):
+    def at_start(plan, hand, directions, workers=None, meanwhile=None):
+        if meanwhile is not None:  # (the physics check, run while the replays run)
+            meanwhile()
         return verify.Verification(False, tuple((n, False, "FAIL: dropped", -1, False, 40.0, 9.0) for n, _ in directions),
                                    0.0)
 
@@ -285,7 +289,9 @@ def test_when_every_sequence_fails_in_the_simulator_more_contacts_are_tried_then
     a, b = (realize(load_grasp(bundled_grasp(n))) for n in ("icub/box_parallel_extension.yaml", "icub/box_ir2m.yaml"))
     calls = []
 
-    def never(plan, hand, directions, workers=None):
+    def never(plan, hand, directions, workers=None, meanwhile=None):
+        if meanwhile is not None:  # (the physics check, run while the replays run)
+            meanwhile()
         calls.append(1)
         rows = tuple((n, False, "FAIL: made up", 1, False, 9.0, 9.0) for n, _ in directions)
         return verify.Verification(False, rows, 0.0)
@@ -367,7 +373,9 @@ def test_moves_taken_out_before_a_resumed_round_are_still_known_to_the_explanati
 
     a, b = (realize(load_grasp(bundled_grasp(n))) for n in ("icub/box_parallel_extension.yaml", "icub/box_ir2m.yaml"))
 
-    def never(plan, hand, directions, workers=None):
+    def never(plan, hand, directions, workers=None, meanwhile=None):
+        if meanwhile is not None:  # (the physics check, run while the replays run)
+            meanwhile()
         return verify.Verification(False, tuple((n, False, "FAIL: made up", 1, False, 9.0, 9.0)
                                                 for n, _ in directions), 0.0)
 

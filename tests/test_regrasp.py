@@ -681,7 +681,9 @@ def _stand_in_check(monkeypatch, refuse):
             rep.add(line)
         return rep
 
-    def replay(plan, hand, directions, workers=None, **kw):
+    def replay(plan, hand, directions, workers=None, meanwhile=None, **kw):
+        if meanwhile is not None:  # (the physics check, run while the replays run)
+            meanwhile()
         replays.append(plan)
         rows = tuple((n, True, "held", None, False, 0.0, 0.0) for n, _ in directions)
         return verify.Verification(True, rows, 0.0, "pybullet", (("pybullet", rows),))
@@ -689,6 +691,11 @@ def _stand_in_check(monkeypatch, refuse):
     monkeypatch.setattr(regrasp, "audit_plan", check)
     monkeypatch.setattr(verify, "verify_plan", replay)
     return audited, replays
+
+
+def _orders(plans) -> list[tuple]:
+    """The sequences of some plans, each once, in order."""
+    return list(dict.fromkeys(tuple(p.summary["order"]) for p in plans))
 
 
 def _moves(plan) -> list[tuple]:
@@ -700,11 +707,12 @@ def _moves(plan) -> list[tuple]:
     return [(state(s.from_state), s.action, s.finger, state(s.to_state)) for s in plan.steps]
 
 
-def test_a_plan_the_physics_check_refuses_is_neither_replayed_nor_returned(monkeypatch):
+def test_a_plan_the_physics_check_refuses_is_never_returned_and_its_replays_count_for_nothing(monkeypatch):
     """plan --execution runs the physics check `replay` and `verify` run on a plan file
-    (planner.audit) before replaying it: a check refusing a state of every plan takes that
-    state's moves out of the graph each time, until no sequence is left: the pair is refused,
-    naming the check's problems, without any replay; no plan is checked twice."""
+    (planner.audit) while it replays the plan: a check refusing a state of every plan takes
+    that state's moves out of the graph each time, until no sequence is left: the pair is
+    refused, naming the check's problems, none of the replays (all passing) counted as a
+    verification attempt; no plan is checked twice."""
     import planner.regrasp as regrasp
     from planner.errors import NoSequenceError
     from planner.options import PlanOptions
@@ -714,8 +722,9 @@ def test_a_plan_the_physics_check_refuses_is_neither_replayed_nor_returned(monke
     audited, replays = _stand_in_check(monkeypatch, lambda plan: line)
     with pytest.raises(NoSequenceError) as err:
         regrasp.plan_regrasp(a, b, PlanOptions.for_execution(motion=False, repose=False))
-    assert audited and not replays
+    assert audited and _orders(replays) == _orders(audited)
     assert "moves the plan's physics check refused" in str(err.value)
+    assert "failed in the simulator" not in str(err.value)
     assert "states[2]: finger thumb touches" in str(err.value)
     orders = [tuple(_moves(p)) for p in audited]
     assert len(set(orders)) == len(orders)  # every refusal removed something: a new sequence each time
@@ -739,7 +748,9 @@ def test_a_move_the_physics_check_refuses_gives_way_to_the_next_sequence(monkeyp
 
     audited, replays = _stand_in_check(monkeypatch, refuse)
     res = regrasp.plan_regrasp(a, b, PlanOptions.for_execution(motion=False, repose=False))
-    assert len(audited) == 2 and replays == [audited[1]]
+    assert len(audited) == 2 and _orders(replays) == _orders(audited)  # (the first one's replays ignored)
+    assert res.plan.summary["order"] == audited[1].summary["order"]
+    assert res.plan.summary["verification"]["attempts"] == 1
     assert _moves(first[0])[1] not in _moves(res.plan)
     assert res.plan.summary["verification"]["passed"]
 
@@ -755,6 +766,6 @@ def test_a_physics_check_problem_outside_the_moves_refuses_at_once(monkeypatch):
     audited, replays = _stand_in_check(monkeypatch, lambda plan: "parameters.hold_factor: 1, below 2 (made up)")
     with pytest.raises(NoSequenceError) as err:
         regrasp.plan_regrasp(a, b, PlanOptions.for_execution(motion=False, repose=False))
-    assert len(audited) == 1 and not replays
+    assert len(audited) == 1 and _orders(replays) == _orders(audited)
     assert "fails the physics check replay and verify run on a plan: parameters.hold_factor" in str(err.value)
     assert "--no-verify" in str(err.value)

@@ -370,7 +370,9 @@ def test_the_gait_search_counts_each_replayed_sequence_within_the_attempts_it_is
     a, b = (realize(load_grasp(bundled_grasp(n))) for n in ("icub/box_parallel_extension.yaml", "icub/box_ir2m.yaml"))
     replayed, counted = [], []
 
-    def never(plan, hand, directions, workers=None):
+    def never(plan, hand, directions, workers=None, meanwhile=None):
+        if meanwhile is not None:
+            meanwhile()
         replayed.append(plan.summary["order"])
         return verify.Verification(False, tuple((n, False, "FAIL: made up", 1, False, 9.0, 9.0)
                                                 for n, _ in directions), 0.0)

@@ -24,7 +24,7 @@ import math
 import multiprocessing
 import os
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
@@ -87,7 +87,8 @@ def _one(i: int) -> ReplayReport:
 
 
 def replay_directions(plan: Plan, hand, directions: Sequence[tuple[str, Sequence[float]]], *,
-                      workers: int | None = None, **kwargs) -> list[ReplayReport]:
+                      workers: int | None = None, meanwhile: Callable[[], object] | None = None,
+                      **kwargs) -> list[ReplayReport]:
     """One replay per named gravity direction (palm frame, m/s^2), in parallel processes.
 
     Args:
@@ -95,6 +96,9 @@ def replay_directions(plan: Plan, hand, directions: Sequence[tuple[str, Sequence
         hand: its `planner.hand.Hand`.
         directions: (name, gravity (3,)) pairs.
         workers: processes (default `default_workers`; 1: in this process, one after the other).
+        meanwhile: called once in this process, while the worker processes replay (without
+            them, before the replays): work that needs no replay, done during them. A single
+            direction has a worker process of its own then.
         **kwargs: passed to `replay_plan`; ``gif``/``mp4`` are one path (or None) per direction.
 
     Returns:
@@ -107,7 +111,9 @@ def replay_directions(plan: Plan, hand, directions: Sequence[tuple[str, Sequence
     _JOB.clear()
     _JOB.update(plan=plan, hand=hand, directions=directions, kwargs=kwargs)
     try:
-        if workers <= 1 or n <= 1 or "fork" not in multiprocessing.get_all_start_methods():
+        if workers <= 1 or n < (1 if meanwhile is not None else 2) or "fork" not in multiprocessing.get_all_start_methods():
+            if meanwhile is not None:
+                meanwhile()
             out = []
             for i in range(n):
                 out.append(_one(i))
@@ -115,6 +121,8 @@ def replay_directions(plan: Plan, hand, directions: Sequence[tuple[str, Sequence
             return out
         with ProcessPoolExecutor(max_workers=min(workers, n), mp_context=multiprocessing.get_context("fork")) as pool:
             futures = {pool.submit(_one, i): i for i in range(n)}
+            if meanwhile is not None:
+                meanwhile()
             done: dict[int, object] = {}
             for fut in as_completed(futures):
                 i = futures[fut]
@@ -285,10 +293,12 @@ def as_written(plan: Plan) -> Plan:
 
 
 def verify_plan(plan: Plan, hand, directions: Sequence[tuple[str, Sequence[float]]], *,
-                workers: int | None = None, engine: str | None = None) -> Verification:
+                workers: int | None = None, engine: str | None = None,
+                meanwhile: Callable[[], object] | None = None) -> Verification:
     """Replay a plan as it will be written under each direction (`replay_directions`), in
     the engine(s) of ``engine`` (`engines_of`; with "both" the next engine only when the
-    plan held in the previous one: a refusal needs one failing engine)."""
+    plan held in the previous one: a refusal needs one failing engine). ``meanwhile``: as
+    `replay_directions`', during the first engine's replays."""
     t0 = time.perf_counter()
     engines = engines_of(engine)
     written = as_written(plan)
@@ -297,7 +307,9 @@ def verify_plan(plan: Plan, hand, directions: Sequence[tuple[str, Sequence[float
         # the verdict is all a verification needs: a replay stops at its first failure, and
         # the others once they are past the earliest step one of them failed at (their rows
         # are left out: `Verification.first_failure` is that of replays run to the end)
-        reports = replay_directions(written, hand, directions, workers=workers, engine=e, stop_at_failure=StopLine())
+        reports = replay_directions(written, hand, directions, workers=workers, engine=e, stop_at_failure=StopLine(),
+                                    meanwhile=meanwhile)
+        meanwhile = None
         rows = tuple((name, r.passed, f"{e}: {r.verdict}", r.failed_step, r.failed_at_state, float(r.max_drift_mm),
                       float(r.max_drift_deg))
                      for (name, _), r in zip(directions, reports) if r.stopped_after is None)
@@ -322,21 +334,50 @@ def _worst(rows):
     return (f[0], False, f[2], f[3], f[4], max(r[5] for r in rows), max(r[6] for r in rows))
 
 
+#: Directions in the first batch a verification replays when none rejected an earlier
+#: sequence (`verify_suspects_first`): the plan's weakest. A constant, not the worker
+#: count, so the verdict does not depend on the machine's cores; on two cores a plan that
+#: holds costs the same rounds of replays as one batch of all six directions.
+FIRST_BATCH = 2
+
+
+def weakest_first(plan: Plan | None, directions: Sequence[tuple[str, Sequence[float]]]) -> list[str]:
+    """The directions' names, the one whose weakest plan state the model holds with the least
+    margin first (the smallest ``hold_factor_by_gravity`` over the plan's states; a direction
+    with no factor last; ties in ``directions`` order)."""
+    states = getattr(plan, "states", None) or ()
+
+    def weakest(name: str) -> float:
+        factors = [s.hold_factor_by_gravity[name] for s in states
+                   if s.hold_factor_by_gravity is not None and name in s.hold_factor_by_gravity]
+        return min(factors) if factors else math.inf
+
+    order = {name: i for i, (name, _) in enumerate(directions)}
+    return sorted(order, key=lambda name: (weakest(name), order[name]))
+
+
 def verify_suspects_first(plan: Plan, hand, directions: Sequence[tuple[str, Sequence[float]]], suspects,
-                          *, workers: int | None = None, engine: str | None = None) -> Verification:
-    """`verify_plan`, the ``suspects`` (direction names that rejected an earlier sequence)
-    replayed first: when one of them fails, the others are not replayed (the verdict is that
-    of the suspects: deterministic, since which directions are suspects depends only on the
-    earlier verdicts); when they all pass, the rest are, and the result covers every
-    direction in ``directions`` order, as `verify_plan`'s."""
-    first = [d for d in directions if d[0] in set(suspects)]
+                          *, workers: int | None = None, engine: str | None = None,
+                          meanwhile: Callable[[], object] | None = None) -> Verification:
+    """`verify_plan` in two batches: first the ``suspects`` (direction names that rejected an
+    earlier sequence) or, when there are none, the plan's `FIRST_BATCH` weakest directions
+    (`weakest_first`), then the rest. When the first batch fails, the rest are not replayed
+    (the verdict is that of the first batch: deterministic, since which directions it holds
+    depends only on the earlier verdicts and the plan, not on the workers or the load); when
+    it passes, the rest are, and the result covers every direction in ``directions`` order,
+    as `verify_plan`'s. ``meanwhile``: as `replay_directions`', during the first batch."""
+    suspects = set(suspects)
+    first = [name for name, _ in directions if name in suspects] or weakest_first(plan, directions)[:FIRST_BATCH]
     kw = {} if engine is None else {"engine": engine}  # (the default engine: verify_plan's call as before)
-    if not first or len(first) == len(directions):
+    if meanwhile is not None:
+        kw["meanwhile"] = meanwhile
+    if len(first) >= len(directions):
         return verify_plan(plan, hand, directions, workers=workers, **kw)
-    a = verify_plan(plan, hand, first, workers=workers, **kw)
+    a = verify_plan(plan, hand, [d for d in directions if d[0] in first], workers=workers, **kw)
     if not a.passed:
         return a
-    b = verify_plan(plan, hand, [d for d in directions if d[0] not in set(suspects)], workers=workers, **kw)
+    kw.pop("meanwhile", None)
+    b = verify_plan(plan, hand, [d for d in directions if d[0] not in first], workers=workers, **kw)
 
     def ordered(rows):
         by_name = {r[0]: r for r in rows}
