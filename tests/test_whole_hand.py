@@ -258,9 +258,7 @@ def test_refusal_says_the_palm_would_let_the_thumb_lift(tmp_path):
 
 def test_verification_replays_the_directions_that_rejected_before_first(monkeypatch):
     """A direction that rejected an earlier sequence is replayed first; when it rejects again
-    the others are not replayed, and when it passes every direction is, in their order.
-    Without one, the plan's two weakest directions come first (here none has a factor: the
-    first two)."""
+    the others are not replayed, and when it passes every direction is, in their order."""
     import planner.sim.verify as V
 
     calls = []
@@ -281,7 +279,7 @@ def test_verification_replays_the_directions_that_rejected_before_first(monkeypa
     assert calls == [["c"], ["a", "d"]] and got.passed and [r[0] for r in got.directions] == ["a", "c", "d"]
     calls.clear()
     V.verify_suspects_first(None, None, good, set())
-    assert calls == [["a", "c"], ["d"]]
+    assert calls == [["a", "c", "d"]]
 
 
 def test_a_finger_cannot_be_called_palm(tmp_path):

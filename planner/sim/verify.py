@@ -334,50 +334,26 @@ def _worst(rows):
     return (f[0], False, f[2], f[3], f[4], max(r[5] for r in rows), max(r[6] for r in rows))
 
 
-#: Directions in the first batch a verification replays when none rejected an earlier
-#: sequence (`verify_suspects_first`): the plan's weakest. A constant, not the worker
-#: count, so the verdict does not depend on the machine's cores; on two cores a plan that
-#: holds costs the same rounds of replays as one batch of all six directions.
-FIRST_BATCH = 2
-
-
-def weakest_first(plan: Plan | None, directions: Sequence[tuple[str, Sequence[float]]]) -> list[str]:
-    """The directions' names, the one whose weakest plan state the model holds with the least
-    margin first (the smallest ``hold_factor_by_gravity`` over the plan's states; a direction
-    with no factor last; ties in ``directions`` order)."""
-    states = getattr(plan, "states", None) or ()
-
-    def weakest(name: str) -> float:
-        factors = [s.hold_factor_by_gravity[name] for s in states
-                   if s.hold_factor_by_gravity is not None and name in s.hold_factor_by_gravity]
-        return min(factors) if factors else math.inf
-
-    order = {name: i for i, (name, _) in enumerate(directions)}
-    return sorted(order, key=lambda name: (weakest(name), order[name]))
-
-
 def verify_suspects_first(plan: Plan, hand, directions: Sequence[tuple[str, Sequence[float]]], suspects,
                           *, workers: int | None = None, engine: str | None = None,
                           meanwhile: Callable[[], object] | None = None) -> Verification:
-    """`verify_plan` in two batches: first the ``suspects`` (direction names that rejected an
-    earlier sequence) or, when there are none, the plan's `FIRST_BATCH` weakest directions
-    (`weakest_first`), then the rest. When the first batch fails, the rest are not replayed
-    (the verdict is that of the first batch: deterministic, since which directions it holds
-    depends only on the earlier verdicts and the plan, not on the workers or the load); when
-    it passes, the rest are, and the result covers every direction in ``directions`` order,
-    as `verify_plan`'s. ``meanwhile``: as `replay_directions`', during the first batch."""
-    suspects = set(suspects)
-    first = [name for name, _ in directions if name in suspects] or weakest_first(plan, directions)[:FIRST_BATCH]
+    """`verify_plan`, the ``suspects`` (direction names that rejected an earlier sequence)
+    replayed first: when one of them fails, the others are not replayed (the verdict is that
+    of the suspects: deterministic, since which directions are suspects depends only on the
+    earlier verdicts); when they all pass, the rest are, and the result covers every
+    direction in ``directions`` order, as `verify_plan`'s. ``meanwhile``: as
+    `replay_directions`', during the first replays."""
+    first = [d for d in directions if d[0] in set(suspects)]
     kw = {} if engine is None else {"engine": engine}  # (the default engine: verify_plan's call as before)
     if meanwhile is not None:
         kw["meanwhile"] = meanwhile
-    if len(first) >= len(directions):
+    if not first or len(first) == len(directions):
         return verify_plan(plan, hand, directions, workers=workers, **kw)
-    a = verify_plan(plan, hand, [d for d in directions if d[0] in first], workers=workers, **kw)
+    a = verify_plan(plan, hand, first, workers=workers, **kw)
     if not a.passed:
         return a
     kw.pop("meanwhile", None)
-    b = verify_plan(plan, hand, [d for d in directions if d[0] not in first], workers=workers, **kw)
+    b = verify_plan(plan, hand, [d for d in directions if d[0] not in set(suspects)], workers=workers, **kw)
 
     def ordered(rows):
         by_name = {r[0]: r for r in rows}
