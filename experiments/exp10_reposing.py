@@ -55,8 +55,12 @@ or load), or another motion error. Pairs whose two fractions add up to 1 or more
 the path both grasps reach. The same for the fingers' own path (`experiments.repose_drive`: the
 object's motion chosen among those the holding fingers can follow; its reach is 1 minus the
 distance left over the distance, in straight-path waypoints), and whether the two grasps, driven
-toward each other's pose in turn, meet (`experiments.repose_drive.meeting`). CSV:
-``experiments/results/exp10_reach_<label>.csv``.
+toward each other's pose in turn, meet (`experiments.repose_drive.meeting`). Per finger, alone
+(`finger_reach`): how far each holding finger follows the straight path and why it stops (its
+contact or a link into the object), the two thumbs' reaches added (a pose on the path both
+thumbs reach needs 1 or more), and how far apart the two grasps' thumb contacts are on the object
+(`thumb_contacts_apart_mm`: with sticking contacts only a thumb gait, at some pose, changes it).
+CSV: ``experiments/results/exp10_reach_<label>.csv``.
 """
 
 from __future__ import annotations
@@ -483,6 +487,56 @@ def _drive_one(g, T):
     return max(0.0, 1.0 - left / total), reach_cause(str(err))
 
 
+def finger_reach(g, T) -> dict[str, tuple[float, str]]:
+    """finger -> (fraction of the straight path's waypoints toward ``T`` it follows alone, why it
+    stops: "follow" (its outermost contact off its object point by more than the follower's
+    2 x tolerance, as `planner.repose.repose` refuses it), "deep" (one of its links more than
+    `PENETRATION_TOL_M` inside the object) or "" (all the way)) for every finger holding in ``g``,
+    each on its own: the path is the object's, so a finger's joints depend on no other finger;
+    the grasp's validity along the way (closure, load), which does, is not judged here."""
+    import numpy as np
+
+    from planner.realization import PENETRATION_TOL_M
+    from planner.repose import FOLLOW_TOL_M, _follow, _holds, object_path
+
+    hand = g.hand
+    lo, hi = np.asarray(hand.lower, float), np.asarray(hand.upper, float)
+    poses = object_path(g.obj.T_palm_obj, T)
+    twist = float(g.friction.gamma) > 0.0
+    out = {}
+    for f, h in _holds(g).items():
+        q, passed, why = np.array(g.q, dtype=float), 0, ""
+        for k in range(1, len(poses)):
+            q, worst, _ = _follow(hand, f, q, h, poses[k], lo, hi, twist)
+            if worst > 2 * FOLLOW_TOL_M:
+                why = "follow"
+                break
+            if hand.state(q).finger_object_distance(g.obj.with_pose(poses[k]), f) < -PENETRATION_TOL_M:
+                why = "deep"
+                break
+            passed = k
+        out[f] = (passed / (len(poses) - 1), why)
+    return out
+
+
+def _fingers_words(r: dict) -> str:
+    return " ".join(f"{f}:{v:.2f}{('/' + w) if w else ''}" for f, (v, w) in r.items())
+
+
+def thumb_contacts_apart_mm(ga, gb) -> float | None:
+    """Distance between the two grasps' outermost thumb contact points on the object (object
+    frame), mm: with sticking contacts the thumb can change its point on the object only by a
+    gait (lifted and landed), at some pose; None when a grasp has no thumb contact."""
+    import numpy as np
+
+    from planner.repose import _holds
+
+    ha, hb = _holds(ga).get("thumb"), _holds(gb).get("thumb")
+    if not ha or not hb:
+        return None
+    return 1000.0 * float(np.linalg.norm(np.asarray(ha[0][2]) - np.asarray(hb[0][2])))
+
+
 def reach(args) -> dict:
     from planner.grasp import load_grasp
     from planner.realization import realize
@@ -507,11 +561,16 @@ def reach(args) -> dict:
         from experiments.repose_drive import meeting
 
         met = meeting(ga, gb, PlanOptions.for_execution())
+        fra, frb = finger_reach(ga, Tb), finger_reach(gb, Ta)
+        thumb_sum = fra["thumb"][0] + frb["thumb"][0] if "thumb" in fra and "thumb" in frb else None
         rows.append({"pair": name, "hand": m["hand"], "family": m["family"], "offset_class": m["offset_class"],
                      "pose_mm": round(mm, 3), "pose_deg": round(deg, 3), "reach_a_to_b": round(fa, 3),
                      "cause_a": ca, "reach_b_to_a": round(fb, 3), "cause_b": cb, "meet": fa + fb >= 1.0,
                      "drive_a_to_b": round(da, 3), "drive_cause_a": dca, "drive_b_to_a": round(db, 3),
                      "drive_cause_b": dcb, "drives_meet": met is not None,
+                     "fingers_a_to_b": _fingers_words(fra), "fingers_b_to_a": _fingers_words(frb),
+                     "thumb_reach_sum": None if thumb_sum is None else round(thumb_sum, 3),
+                     "thumb_contacts_apart_mm": (lambda d: None if d is None else round(d, 2))(thumb_contacts_apart_mm(ga, gb)),
                      "seconds": round(time.perf_counter() - t0, 2), "refusal_a": wa, "refusal_b": wb})
         if not args.quiet:
             print(f"{name:32s} {mm:5.1f} mm {deg:5.1f} deg  straight A->B {fa:4.2f} {ca or 'all the way'}; "
@@ -527,6 +586,14 @@ def reach(args) -> dict:
     s["fingers' path: moves reaching the other pose"] = sum(r[k] >= 1.0 for r in rows for k in ("drive_a_to_b", "drive_b_to_a"))
     s["straight path: moves reaching the other pose"] = sum(r[k] >= 1.0 for r in rows for k in ("reach_a_to_b", "reach_b_to_a"))
     s["pairs whose drives meet (each toward the other's pose)"] = sum(r["drives_meet"] for r in rows)
+    s["fingers alone: finger-moves following the whole path"] = (
+        f"{sum(v.endswith(':1.00') for r in rows for k in ('fingers_a_to_b', 'fingers_b_to_a') for v in r[k].split())}"
+        f"/{sum(len(r[k].split()) for r in rows for k in ('fingers_a_to_b', 'fingers_b_to_a'))}")
+    s["pairs whose thumbs' reaches add up to the path (a pose both thumbs reach)"] = sum(
+        (r["thumb_reach_sum"] or 0.0) >= 1.0 for r in rows)
+    apart = [r["thumb_contacts_apart_mm"] for r in rows if r["thumb_contacts_apart_mm"] is not None]
+    s["thumb contact points apart on the object (min / median mm)"] = \
+        f"{min(apart):.1f} / {statistics.median(apart):.1f}" if apart else None
     causes: dict[str, int] = {}
     for r in rows:
         for k in ("cause_a", "cause_b"):

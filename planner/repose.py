@@ -4,7 +4,8 @@ A reposing move keeps each touching link's contact point where it is on the obje
 (sticking) while the object follows a short straight path in SE(3) (position along the line,
 orientation along the shortest rotation). Waypoints are spaced at most ``STEP_M`` and
 ``STEP_RAD`` apart; at each one every holding finger follows by damped least squares over
-its free coordinates (coupled joints included, `planner.hand.Finger.step`), each contact
+its free coordinates (coupled joints included, `planner.hand.Finger.step`; a coordinate a
+joint limit stops held there and the others solved again, `_bounded_step`), each contact
 link's contact point (fixed in the link) reaching the object point it holds. Then the
 waypoint is measured like a grasp (`planner.realization.measure`, the object at the
 waypoint's pose) and judged by the planner's own state test (`state_reason`: fingers
@@ -227,11 +228,41 @@ def _follow(hand, finger, q, holds, T, lo, hi, twist: bool) -> tuple[np.ndarray,
         worst = float(np.linalg.norm(err[0]))  # the outermost contact must stick
         if worst <= FOLLOW_TOL_M:
             break
-        e, Jm = np.concatenate(err), np.vstack(rows)
-        dz = Jm.T @ np.linalg.solve(Jm @ Jm.T + DAMPING**2 * np.eye(len(e)), e)
-        qf = f.step(qf, dz, lo[idx], hi[idx])
+        qf = _bounded_step(f, qf, np.vstack(rows), np.concatenate(err), lo[idx], hi[idx])
     q[idx] = qf
     return q, worst, abs(turn)
+
+
+def _bounded_step(f, qf, J, e, lo, hi) -> np.ndarray:
+    """One damped least-squares step of finger ``f`` from ``qf`` (its joints) toward the error
+    ``e`` (J: its Jacobian over the free coordinates), within the joint limits ``lo``, ``hi``.
+
+    A free coordinate whose step a limit cuts takes the step to its limit and is held there,
+    and the step is solved again over the others for the error left (an active set):
+    clipping the unconstrained step would lose the part the cut coordinate was to give and
+    leave the others short of it, so that a finger with a joint at its limit stalled where its
+    other joints can still make the motion."""
+    n = J.shape[1]
+    active = np.ones(n, dtype=bool)
+    moved = f.reduce(np.eye(len(qf)))  # (n_joints, n_free): a free coordinate's effect on the joints
+    base = f.step(qf, np.zeros(n), lo, hi)  # (qf within its limits, coupled)
+    free = list(f.free)
+    dz = np.zeros(n)
+    for _ in range(n):
+        Ja = J[:, active]
+        r = e - J[:, ~active] @ dz[~active]  # the error the held coordinates leave
+        dz[active] = Ja.T @ np.linalg.solve(Ja @ Ja.T + DAMPING**2 * np.eye(len(e)), r)
+        qn = f.step(qf, dz, lo, hi)
+        want = moved @ dz  # the joints' change the step asked for
+        cut = np.abs((qn - base) - want) > 1e-12 + 1e-6 * np.abs(want)  # joints a limit cut
+        held = active & (np.abs(moved[cut]).sum(axis=0) > 0.0)
+        if not held.any():
+            break
+        dz[held] = (qn - base)[free][held]  # as far as the limit lets it
+        active &= ~held
+        if not active.any():
+            break
+    return f.step(qf, dz, lo, hi)
 
 
 def repose(grasp: RealizedGrasp, T_target, options, *, palm_at_end: bool = True, still: tuple[str, ...] = ()
