@@ -49,7 +49,6 @@ import numpy as np
 import yaml
 
 from planner.closure import CONTACT_MODELS, apply_contact_model, grasp_closure, min_grip_force
-from planner.collision import LINK_EPS_M
 from planner.contacts import TOUCH_TOL_M
 from planner.errors import OutputError, PlannerError, SpecError, UnknownNameError
 from planner.fileio import MAX_GRASP_BYTES, Reader, read_yaml, write_atomic
@@ -449,11 +448,6 @@ def _attempt(ctx: _Context, attempt: int, kept=None):
         return "not force closure", None, None
     if not g.ok:
         return _check_reason(g, hand), None, None
-    deep = [(a, b) for a, b, depth in g.finger_collisions if depth > LINK_EPS_M]
-    if deep:
-        # `check` tolerates half a millimetre between hand parts; the planner's states and
-        # finger paths do not (an overlapping finger can never lift off)
-        return Rejection("fingers overlap each other or the palm", _fingers_of(hand, [l for ab in deep for l in ab])), None, None
     # the contacts are known: a near-duplicate of a kept grasp it cannot replace is not tested
     # further (near-duplicates were 24 of the 64 iCub candidates passing every test, 30 mm ball)
     features = _features(g, chosen)
