@@ -1,5 +1,6 @@
 """The plan's physics check runs while its verification replays run (`planner.sim.verify`'s
-``meanwhile``): in this process, once, while forked workers replay."""
+``meanwhile``): in this process, once, while forked workers replay when they leave a core
+free, else before them."""
 
 from __future__ import annotations
 
@@ -35,10 +36,19 @@ def test_meanwhile_runs_once_in_the_first_replays(monkeypatch):
     assert calls == [([n for n, _ in DIRS], True)] and done == [1]
 
 
+def _wait_for(path, seconds: float = 60.0) -> bool:
+    t0 = time.monotonic()
+    while not os.path.exists(path) and time.monotonic() - t0 < seconds:
+        time.sleep(0.01)
+    return os.path.exists(path)
+
+
 def _slow_replay(flag: str):
-    """A stand-in `replay_plan` that holds until ``flag`` exists (at most 60 s): it can only
-    finish when the parent's ``meanwhile`` ran while it was running."""
+    """A stand-in `replay_plan` that says it started (``flag`` + ".started") and holds until
+    ``flag`` exists (at most 60 s): it passes when the parent's ``meanwhile`` ran while it
+    was running."""
     def replay(plan, hand=None, gravity=None, **kw):
+        open(flag + ".started", "w").close()
         t0 = time.monotonic()
         while not os.path.exists(flag) and time.monotonic() - t0 < 60:
             time.sleep(0.01)
@@ -46,30 +56,44 @@ def _slow_replay(flag: str):
     return replay
 
 
-@pytest.mark.skipif("fork" not in multiprocessing.get_all_start_methods(), reason="worker processes are forked")
-@pytest.mark.parametrize("n", [1, 2])
-def test_meanwhile_runs_while_the_workers_replay(monkeypatch, tmp_path, n):
-    """With worker processes (one direction too) the parent's ``meanwhile`` runs once while
-    the replays run: a replay that waits for what ``meanwhile`` writes passes."""
+def _first_look(flag: str):
+    """A stand-in `replay_plan` passing only if ``flag`` existed when it started."""
+    def replay(plan, hand=None, gravity=None, **kw):
+        return SimpleNamespace(passed=os.path.exists(flag), engine="pybullet", stopped_after=None)
+    return replay
+
+
+FORKS = pytest.mark.skipif("fork" not in multiprocessing.get_all_start_methods(), reason="worker processes are forked")
+
+
+@FORKS
+@pytest.mark.parametrize("n, workers", [(1, 2), (2, 3)])
+def test_meanwhile_runs_while_the_workers_replay(monkeypatch, tmp_path, n, workers):
+    """Fewer directions than workers (one direction too): the parent's ``meanwhile`` runs once
+    while the replays run, on the core they leave free: a replay that waits for what
+    ``meanwhile`` writes passes."""
     flag = tmp_path / "audited"
     monkeypatch.setattr(V, "replay_plan", _slow_replay(str(flag)))
     monkeypatch.setattr(V, "one_engine", lambda e: "pybullet")
     runs = []
 
-    def meanwhile():
-        runs.append(1)
+    def meanwhile():  # a replay has started by the time it runs
+        runs.append(_wait_for(str(flag) + ".started"))
         flag.write_text("done")
 
-    out = V.replay_directions(object(), None, DIRS[:n], workers=2, meanwhile=meanwhile)
-    assert runs == [1] and [r.passed for r in out] == [True] * n
+    out = V.replay_directions(object(), None, DIRS[:n], workers=workers, meanwhile=meanwhile)
+    assert runs == [True] and [r.passed for r in out] == [True] * n
 
 
-def test_meanwhile_runs_before_replays_in_this_process(monkeypatch, tmp_path):
-    """One worker: the replays run here, after ``meanwhile`` (called once)."""
+@FORKS
+@pytest.mark.parametrize("n, workers", [(2, 2), (4, 2), (2, 1)])
+def test_meanwhile_runs_before_replays_that_take_every_core(monkeypatch, tmp_path, n, workers):
+    """As many directions as workers or more (or one worker, replaying here): ``meanwhile``
+    runs once, before any replay starts."""
     flag = tmp_path / "audited"
-    monkeypatch.setattr(V, "replay_plan", _slow_replay(str(flag)))
+    monkeypatch.setattr(V, "replay_plan", _first_look(str(flag)))
     monkeypatch.setattr(V, "one_engine", lambda e: "pybullet")
     runs = []
-    out = V.replay_directions(object(), None, DIRS[:2], workers=1,
+    out = V.replay_directions(object(), None, DIRS[:n], workers=workers,
                               meanwhile=lambda: (runs.append(1), flag.write_text("done")))
-    assert runs == [1] and all(r.passed for r in out)
+    assert runs == [1] and [r.passed for r in out] == [True] * n

@@ -96,9 +96,10 @@ def replay_directions(plan: Plan, hand, directions: Sequence[tuple[str, Sequence
         hand: its `planner.hand.Hand`.
         directions: (name, gravity (3,)) pairs.
         workers: processes (default `default_workers`; 1: in this process, one after the other).
-        meanwhile: called once in this process, while the worker processes replay (without
-            them, before the replays): work that needs no replay, done during them. A single
-            direction has a worker process of its own then.
+        meanwhile: work that needs no replay, called once in this process: while the worker
+            processes replay when they leave a core free for it (fewer directions than
+            ``workers``; a single direction then has a worker process of its own), else
+            before the replays.
         **kwargs: passed to `replay_plan`; ``gif``/``mp4`` are one path (or None) per direction.
 
     Returns:
@@ -110,10 +111,14 @@ def replay_directions(plan: Plan, hand, directions: Sequence[tuple[str, Sequence
     workers = default_workers() if workers is None else int(workers)
     _JOB.clear()
     _JOB.update(plan=plan, hand=hand, directions=directions, kwargs=kwargs)
+    forks = "fork" in multiprocessing.get_all_start_methods()
+    # ``meanwhile`` beside the replays only on a core they leave free (fewer directions than
+    # workers): beside a worker on every core it would only slow them down
+    beside = meanwhile is not None and forks and n < workers
+    if meanwhile is not None and not beside:
+        meanwhile()
     try:
-        if workers <= 1 or n < (1 if meanwhile is not None else 2) or "fork" not in multiprocessing.get_all_start_methods():
-            if meanwhile is not None:
-                meanwhile()
+        if workers <= 1 or (n <= 1 and not beside) or not forks:
             out = []
             for i in range(n):
                 out.append(_one(i))
@@ -121,7 +126,7 @@ def replay_directions(plan: Plan, hand, directions: Sequence[tuple[str, Sequence
             return out
         with ProcessPoolExecutor(max_workers=min(workers, n), mp_context=multiprocessing.get_context("fork")) as pool:
             futures = {pool.submit(_one, i): i for i in range(n)}
-            if meanwhile is not None:
+            if beside:
                 meanwhile()
             done: dict[int, object] = {}
             for fut in as_completed(futures):
