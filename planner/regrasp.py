@@ -544,8 +544,9 @@ def plan_gaits(
             log.info("verifying in %s: attempt %d, %d direction(s) in %d process(es)", engine_names, len(rejected) + 1,
                      len(directions), min(workers, len(directions)))
             # the physics check `replay` and `verify` run on a plan file (`planner.audit`) runs
-            # here while the replays run in their processes: a plan it refuses is never returned
-            # and its replays count for nothing. Without the input files: the plan is made from
+            # here while the replays run in their processes (before them when they take every
+            # core): a plan it refuses is never returned and its replays count for nothing
+            # (`planner.sim.verify.replay_directions`' meanwhile). Without the input files: the plan is made from
             # these grasps, and gaits at a reposing candidate's pose start and end at the files'
             # grasps moved there (`planner.pose_search`)
             audits = []
