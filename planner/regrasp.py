@@ -545,10 +545,10 @@ def plan_gaits(
                      len(directions), min(workers, len(directions)))
             # the physics check `replay` and `verify` run on a plan file (`planner.audit`) runs
             # here while the replays run in their processes (before them when they take every
-            # core): a plan it refuses is never returned and its replays count for nothing
-            # (`planner.sim.verify.replay_directions`' meanwhile). Without the input files: the plan is made from
-            # these grasps, and gaits at a reposing candidate's pose start and end at the files'
-            # grasps moved there (`planner.pose_search`)
+            # core; `planner.sim.verify.replay_directions`' meanwhile): a plan it refuses is
+            # never returned and its replays count for nothing. Without the input files: the
+            # plan is made from these grasps, and gaits at a reposing candidate's pose start and
+            # end at the files' grasps moved there (`planner.pose_search`)
             audits = []
             # the directions that rejected a sequence before are replayed first: a sequence
             # they reject again costs their replays only (a bound on the work, not the time)
