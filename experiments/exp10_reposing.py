@@ -40,6 +40,7 @@ returned plan replayed by a fresh ``python -m planner replay plan.yaml --gravity
 CSV: ``experiments/results/exp10_<label>.csv``.
 
     python experiments/exp10_reposing.py --generate [--seed 0]
+    python experiments/exp10_reposing.py --generate-v2 [--seed 0]   # v2: synthesized grasps (exp10_v2.py)
     python experiments/exp10_reposing.py --run --label L [--kinds pose,same] [--no-verify]
     python experiments/exp10_reposing.py --summary experiments/results/exp10_L.csv
     python experiments/exp10_reposing.py --reach --label L [--only REGEX]
@@ -266,19 +267,26 @@ def generate_cell(hand, family, cls, seed, out_dir: Path, mesh_path: Path, log=p
     return None
 
 
-def generate(args) -> dict:
+def generation_setup(args):
+    """(pairs folder, the mesh copied into it; the CPU checks are pinned to; the stderr log) of a
+    generation run (``--generate``, ``--generate-v2``); prints which planner is imported."""
     import planner
-    from planner.grasp import load_hand
     from planner.resources import grasps_dir
 
     out: Path = args.pairs_dir
     (out / "meshes").mkdir(parents=True, exist_ok=True)
     shutil.copyfile(Path(grasps_dir()) / "meshes" / MESH_NAME, out / "meshes" / MESH_NAME)
-    cpu = pinned_cpu(args)
     log = (lambda *a: None) if args.quiet else (lambda *a: print(*a, file=sys.stderr, flush=True))
+    print(f"planner: {Path(planner.__file__).parent}", flush=True)
+    return out, pinned_cpu(args), log
+
+
+def generate(args) -> dict:
+    from planner.grasp import load_hand
+
+    out, cpu, log = generation_setup(args)
     rows = []
     t0 = time.perf_counter()
-    print(f"planner: {Path(planner.__file__).parent}", flush=True)
     for hand_name in args.hands:
         hand = load_hand(hand_name)
         for family in args.families:
@@ -329,7 +337,7 @@ def plan_reposing(plan_path: Path):
 
 def run(args) -> dict:
     pairs_dir: Path = args.pairs_dir
-    manifest = read_manifest(pairs_dir)
+    manifest = [m for m in read_manifest(pairs_dir) if m.get("status", "ok") == "ok"]  # v2: skipped cells
     if args.only:
         manifest = [r for r in manifest if re.search(args.only, r["pair"])]
     if args.max_pairs:
@@ -542,7 +550,7 @@ def reach(args) -> dict:
     from planner.realization import realize
     from planner.repose import pose_distance
 
-    manifest = read_manifest(args.pairs_dir)
+    manifest = [m for m in read_manifest(args.pairs_dir) if m.get("status", "ok") == "ok"]  # v2: skipped cells
     if args.only:
         manifest = [r for r in manifest if re.search(args.only, r["pair"])]
     rows = []
@@ -649,6 +657,9 @@ def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     mode = ap.add_mutually_exclusive_group(required=True)
     mode.add_argument("--generate", action="store_true", help="write the grasp pairs and manifest into --pairs-dir")
+    mode.add_argument("--generate-v2", action="store_true",
+                      help="the v2 pairs, every grasp synthesized (experiments/exp10_v2.py); --pairs-dir default "
+                           "experiments/results/exp10_pairs_v2")
     mode.add_argument("--run", action="store_true", help="plan and replay every pair of --pairs-dir")
     mode.add_argument("--summary", type=Path, metavar="CSV", help="no run: the summary of an existing exp10 CSV")
     mode.add_argument("--reach", action="store_true",
@@ -684,6 +695,12 @@ def main(argv=None) -> dict:
         return s
     if args.generate:
         return generate(args)
+    if args.generate_v2:
+        from experiments.exp10_v2 import DEFAULT_PAIRS_V2, generate_v2
+
+        if args.pairs_dir == DEFAULT_PAIRS:
+            args.pairs_dir = DEFAULT_PAIRS_V2
+        return generate_v2(args)
     if not args.label:
         ap.error("--run and --reach need --label")
     if args.reach:
