@@ -37,6 +37,7 @@ from planner.options import PlanOptions, gravity_directions_of
 from planner.plan_data import Alternative, Plan, PlanState, PlanStep, hand_files_record
 from planner.realization import RealizedGrasp, realized_grasp
 from planner.retreat import retreat_blocked
+from planner.sim import snapshots
 from planner.gait_search import REMOVED_RECORDS, GaitSequence, LazyGraph, greedy
 from planner.slots import add_intermediate, add_slots, build_problem, holding_grasp, node_q
 
@@ -395,6 +396,14 @@ def plan_regrasp(
         if inputs is None:
             inputs = {k: v for k, v in (("initial", rec_i), ("final", rec_f)) if v is not None}
     check_same_setup(initial.spec, final.spec, pose=not options.repose)
+    # a sequence replayed after another was rejected resumes where the rejected one's replay
+    # stood at the moves they share (`planner.sim.snapshots`: the same verdicts, less simulation)
+    with snapshots.scope():
+        return _plan_regrasp(initial, final, options, inputs, verbose)
+
+
+def _plan_regrasp(initial, final, options: PlanOptions, inputs, verbose: bool) -> PlanResult:
+    """`plan_regrasp` once the grasps are realized."""
     from planner.pose_search import candidate_poses, first_clause, identical, plan_with_reposing
     from planner.repose import pose_distance, state_reason
 

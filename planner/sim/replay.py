@@ -178,6 +178,7 @@ def replay_plan(
     strict: bool = False,
     engine: str | None = None,
     stop_at_failure: "bool | StopLine" = False,
+    snapshots: tuple[str, int] | None = None,
 ) -> ReplayReport:
     """Replay a plan in a physics engine with gravity on; re-measure contacts, closure and drift.
 
@@ -226,6 +227,11 @@ def replay_plan(
             `StopLine` shared by the replays of one plan in other directions also stops this
             one, unfailed, once it has measured the step at which one of them failed
             (``stopped_after``: its verdict could only come later).
+        snapshots: the open `planner.sim.snapshots.scope` (`planner.sim.snapshots.current`)
+            of a verification: with ``stop_at_failure``, in a worker process, without a
+            picture or window, the replay resumes from the latest snapshot an earlier replay
+            left of this plan's beginning and leaves its own (the same report as from the
+            start).
 
     Returns:
         ReplayReport with a pass/fail verdict (drift and closure agreement), per-state
@@ -264,7 +270,29 @@ def replay_plan(
                   mu=friction.mu, gamma=friction.gamma, edges=friction.edges, touch_tol_m=TOUCH_TOL_M,
                   stop_at_failure=bool(stop_at_failure))
     line = stop_at_failure if isinstance(stop_at_failure, StopLine) else None
+    snap = None
+    if snapshots is not None and stop_at_failure and client is None and not gui and gif is None and mp4 is None:
+        from planner.sim import snapshots as _snapshots  # (only a verification's replays)
 
+        setting = (params, engine or default_engine(), float(density_kg_m3), str(info.urdf_path), list(joints))
+        snap = _snapshots.Snapshots(tuple(snapshots), _snapshots.Chain(rd, setting))
+        if os.getpid() != snap.owner:
+            resumed = snap.resume(rd, line)
+            if resumed is not None:
+                return resumed
+    try:
+        return _replay_engine(rd, info, joints, states, steps, obj, friction, params, line, snap, gui, client, engine,
+                              density_kg_m3, dt, solver_iterations, gif, gif_every, mp4, width, height, ffmpeg)
+    except BaseException as err:
+        if snap is not None:
+            snap.finish(error=err)  # a copy resumed from a snapshot reports it and exits
+        raise
+
+
+def _replay_engine(rd, info, joints, states, steps, obj, friction, params, line, snap, gui, client, engine,
+                   density_kg_m3, dt, solver_iterations, gif, gif_every, mp4, width, height, ffmpeg) -> ReplayReport:
+    """`replay_plan` once its inputs are checked: build the engine, run, give the verdict."""
+    drift_mm_max, drift_deg_max, drop_mm = params["drift_mm_max"], params["drift_deg_max"], params["drop_mm"]
     own = client is None
     mass_kg, radius_m = object_mass(obj, density_kg_m3)
     # the hand's visual meshes only matter to a picture or a window (half the URDF load)
@@ -275,6 +303,7 @@ def replay_plan(
     try:
         sim = _Sim(eng, rd, info, joints, obj, friction, params, mass_kg, radius_m)
         sim.stop_line = line
+        sim.snapshots = snap
         params["object_mass_kg"] = sim.mass
         recorder = None
         if gif is not None or mp4 is not None:
@@ -284,10 +313,10 @@ def replay_plan(
         result = sim.run(states, steps, recorder=recorder, every=int(gif_every), realtime=gui and own)
         trajectory = sim.trajectory
         couplings = sim.coupling_errors()
-        params["squeeze_force_n"] = sim.ctl.force_n if finger_force_n is None else float(finger_force_n)
+        params["squeeze_force_n"] = sim.ctl.force_n if params["finger_force_n"] is None else float(params["finger_force_n"])
     finally:
         eng.close()
-    wall = time.perf_counter() - t0
+    wall = time.perf_counter() - t0 - (snap.paused_s if snap is not None else 0.0)
 
     gif_frames = 0
     if recorder is not None:
@@ -358,7 +387,7 @@ def replay_plan(
         at_state = fail_step is None or (first_bad is not None and first_bad - 1 < fail_step)
     if reasons and not passed:
         verdict += ": " + "; ".join(reasons[:3]) + (f" (+{len(reasons) - 3} more)" if len(reasons) > 3 else "")
-    return ReplayReport(
+    report = ReplayReport(
         passed=passed, verdict=verdict, dropped=dropped,
         max_drift_mm=max_mm, max_drift_deg=max_deg, final_drift_mm=fin_mm, final_drift_deg=fin_deg,
         drift_mm_max=float(drift_mm_max), drift_deg_max=float(drift_deg_max),
@@ -369,6 +398,9 @@ def replay_plan(
         failed_step=failed_step, failed_at_state=at_state, trajectory=trajectory, engine=eng.name,
         coupling_errors=tuple(couplings), stopped_after=stopped_after,
     )
+    if snap is not None:
+        snap.finish(report)  # a copy resumed from a snapshot hands it to its requester and exits
+    return report
 
 
 class _Sim:
@@ -425,6 +457,7 @@ class _Sim:
         self.fail_step: int | None = None  # plan step (-1: state 0) at which the drift first left the limits
         self.step_k = -1
         self.stop_line: StopLine | None = None  # shared with the replays in other directions
+        self.snapshots = None  # `planner.sim.snapshots.Snapshots` of a replay that leaves them
         self.stopped_after: int | None = None  # the step after which the stop line stopped it
         self.carried: dict[str, float] = {}  # finger or "palm" -> summed normal force over the sampling window
         self.samples = 0
@@ -718,8 +751,25 @@ class _Sim:
             return True
         return False
 
+    def swap_plan(self, rd, stop_line) -> None:
+        """In a copy resumed from a snapshot (`planner.sim.snapshots`): go on with this plan,
+        whose states and steps up to the snapshot are the ones replayed, and this stop line."""
+        self.rd, self.plan_states, self.plan_steps, self.stop_line = rd, rd.states, rd.steps, stop_line
+
+    def _steps(self):
+        """(k, step) over the plan's steps, read as the loop goes (`swap_plan` may replace them)."""
+        k = 0
+        while k < len(self.plan_steps):
+            yield k, self.plan_steps[k]
+            k += 1
+
+    def _checkpoint(self, k: int) -> None:
+        if self.snapshots is not None:
+            self.snapshots.checkpoint(self, k)
+
     def run(self, states, steps, recorder=None, every=8, realtime=False):
         self.recorder, self.every, self.realtime = recorder, every, realtime
+        self.plan_states, self.plan_steps = states, steps
         self.released = False
         self.palm_holds = bool(states) and states[0].palm_holds  # the palm holds at the current state
         self.set_reference(states[0].object_pose if states else None)
@@ -751,8 +801,11 @@ class _Sim:
             ok = r0 is not None
             if ok:
                 reports[0] = r0
-        for k, st in enumerate(steps if ok and not self._stop(r0, -1) else ()):
-            frm, to = states[st.from_state], states[st.to_state]
+        go = ok and not self._stop(r0, -1)
+        if go:
+            self._checkpoint(-1)
+        for k, st in (self._steps() if go else ()):
+            frm, to = self.plan_states[st.from_state], self.plan_states[st.to_state]
             self.phase = f"step {k} ({st.action} {st.finger}, state {st.from_state} -> {st.to_state})"
             self.step_k = k
             self.set_reference(frm.object_pose)
@@ -765,6 +818,7 @@ class _Sim:
                 reports[st.to_state] = r
                 if self._stop(r, k):
                     break
+                self._checkpoint(k)
                 continue
             q_ref = dict(ctl.q_ref)
             if st.action != "land" and st.finger in ctl.holding:
@@ -811,10 +865,11 @@ class _Sim:
             reports[st.to_state] = r
             if self._stop(r, k):
                 break
+            self._checkpoint(k)
         if not ok and self.stop_line is not None and self.fail_step is not None:  # dropped: a failure
             self.stop_line.lower(self.fail_step)
         out = []
-        for i, s in enumerate(states):
+        for i, s in enumerate(self.plan_states):
             if i in reports:
                 out.append(reports[i])
             else:

@@ -34,6 +34,7 @@ from planner.gravity import gravity_directions
 from planner.sim.engine import ENGINES, default_engine, require_engine
 from planner.plan import plan_from_data
 from planner.plan_data import Plan
+from planner.sim import snapshots
 from planner.sim.inputs import plan_hand, typed_plan
 from planner.sim.replay import StopLine, replay_plan
 from planner.sim.report import GravitySetReport, ReplayReport
@@ -303,7 +304,9 @@ def verify_plan(plan: Plan, hand, directions: Sequence[tuple[str, Sequence[float
     """Replay a plan as it will be written under each direction (`replay_directions`), in
     the engine(s) of ``engine`` (`engines_of`; with "both" the next engine only when the
     plan held in the previous one: a refusal needs one failing engine). ``meanwhile``: as
-    `replay_directions`', during the first engine's replays."""
+    `replay_directions`', during the first engine's replays. Inside a
+    `planner.sim.snapshots.scope` the replays resume from the snapshots earlier ones left of
+    the same beginning (the same verdicts)."""
     t0 = time.perf_counter()
     engines = engines_of(engine)
     written = as_written(plan)
@@ -313,7 +316,7 @@ def verify_plan(plan: Plan, hand, directions: Sequence[tuple[str, Sequence[float
         # the others once they are past the earliest step one of them failed at (their rows
         # are left out: `Verification.first_failure` is that of replays run to the end)
         reports = replay_directions(written, hand, directions, workers=workers, engine=e, stop_at_failure=StopLine(),
-                                    meanwhile=meanwhile)
+                                    meanwhile=meanwhile, snapshots=snapshots.current())
         meanwhile = None
         rows = tuple((name, r.passed, f"{e}: {r.verdict}", r.failed_step, r.failed_at_state, float(r.max_drift_mm),
                       float(r.max_drift_deg))
