@@ -296,3 +296,28 @@ def test_exp10_reach_measures_how_far_each_grasp_carries_the_object(tmp_path, ca
     move = repose(gb, ga.obj.T_palm_obj, PlanOptions.for_execution())
     assert np.allclose(move.end.obj.T_palm_obj, ga.obj.T_palm_obj, atol=1e-9)
     assert set(move.fingers) == set(gb.patches) - {"palm"}
+
+
+def test_exp10_v2_cell_is_synthesized_execution_ready_and_reproducible(tmp_path):
+    """One v2 cell (iCub sphere, small offset): three synthesized grasps that execution mode
+    accepts as end grasps, pose B within the class's offsets, the control's thumb at least 5 mm
+    from grasp A's, and the same bytes when the cell is generated again."""
+    from experiments.exp10_reposing import CLASSES, CONTROL_THUMB_MOVE_M
+    from experiments.exp10_v2 import ROLES, generate_cell
+    from planner.grasp import load_grasp, load_hand
+    from planner.realization import execution_refusal, realize
+
+    hand = load_hand("icub_right")
+    texts = []
+    for d in (tmp_path / "a", tmp_path / "b"):
+        (d / "meshes").mkdir(parents=True)
+        row = generate_cell(hand, "sphere", "small", 0, d, log=lambda *a: None)
+        assert row["status"] == "ok"
+        texts.append([(d / row[r]).read_text() for r in ROLES])
+    assert texts[0] == texts[1]
+    (t_lo, t_hi), (r_lo, r_hi) = CLASSES["small"]
+    assert t_lo <= row["pose_mm"] <= t_hi and r_lo <= row["pose_deg"] <= r_hi
+    assert row["control_thumb_move_mm"] >= CONTROL_THUMB_MOVE_M * 1e3
+    for r in ROLES:
+        g = realize(load_grasp(tmp_path / "b" / row[r]))
+        assert g.ok and execution_refusal(g) is None
