@@ -501,28 +501,16 @@ def finger_reach(g, T) -> dict[str, tuple[float, str]]:
     2 x tolerance, as `planner.repose.repose` refuses it), "deep" (one of its links more than
     `PENETRATION_TOL_M` inside the object) or "" (all the way)) for every finger holding in ``g``,
     each on its own: the path is the object's, so a finger's joints depend on no other finger;
-    the grasp's validity along the way (closure, load), which does, is not judged here."""
-    import numpy as np
+    the grasp's validity along the way (closure, load), which does, is not judged here
+    (`planner.intermediate.follow_alone`)."""
+    from planner.intermediate import follow_alone
+    from planner.repose import _holds, object_path
 
-    from planner.realization import PENETRATION_TOL_M
-    from planner.repose import FOLLOW_TOL_M, _follow, _holds, object_path
-
-    hand = g.hand
-    lo, hi = np.asarray(hand.lower, float), np.asarray(hand.upper, float)
     poses = object_path(g.obj.T_palm_obj, T)
     twist = float(g.friction.gamma) > 0.0
     out = {}
     for f, h in _holds(g).items():
-        q, passed, why = np.array(g.q, dtype=float), 0, ""
-        for k in range(1, len(poses)):
-            q, worst, _ = _follow(hand, f, q, h, poses[k], lo, hi, twist)
-            if worst > 2 * FOLLOW_TOL_M:
-                why = "follow"
-                break
-            if hand.state(q).finger_object_distance(g.obj.with_pose(poses[k]), f) < -PENETRATION_TOL_M:
-                why = "deep"
-                break
-            passed = k
+        passed, why, _, _ = follow_alone(g.hand, g.obj, f, g.q, h, poses, twist)
         out[f] = (passed / (len(poses) - 1), why)
     return out
 

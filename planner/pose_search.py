@@ -10,7 +10,11 @@ that cannot follow lifted or released first, then the reposing move), the final 
 likewise (its leg reversed ends the plan), and the gait search (`planner.regrasp.plan_gaits`)
 joins the two at ``P``. The first candidate that gives a plan is returned (poses tried in that
 order: the fewest and shortest object motions first); each is work-bounded, so the answer
-does not depend on the machine's load. Each plan must pass the physics check `replay` and
+does not depend on the machine's load. When the grasps' poses differ and no candidate pose
+joins them, the plan may go through an intermediate grasp whose contacts every holding finger
+keeps along the object's path (`planner.intermediate`): gaits at the initial grasp's pose to
+it, its reposing move to the final grasp's pose, gaits there to the final grasp
+(`compose_through`); those are tried after the poses, on what is left of the budget. Each plan must pass the physics check `replay` and
 `verify` run (`planner.audit.audit_plan`); with verification the whole plan (gaits and
 reposing moves) is then replayed in the planned directions before it is returned.
 """
@@ -328,10 +332,46 @@ def compose(initial, final, options: PlanOptions, first: Leg, gait: Plan | None,
         b.step(f, "land", np.asarray(paths["lift"], float)[::-1])
         b.grasp(before, "final")
     moves = [x.move for x in (first, last) if x.move is not None]
-    base = gait
     order = [f"{f}:lift" for f, _, _ in first.lifts] + ([f"{OBJECT}:repose"] if first.move is not None else []) \
-        + (list(base.summary.get("order", [])) if base else []) + ([f"{OBJECT}:repose"] if last.move is not None else []) \
+        + (list(gait.summary.get("order", [])) if gait else []) + ([f"{OBJECT}:repose"] if last.move is not None else []) \
         + [f"{f}:land>final" for f, _, _ in reversed(last.lifts)]
+    return _finish(initial, options, b, moves, gait, order, len(first.lifts) + len(last.lifts), P)
+
+
+def compose_through(initial, final, options: PlanOptions, gait_a: Plan | None, move: Reposing,
+                    gait_b: Plan | None) -> Plan:
+    """One plan through an intermediate grasp (`planner.intermediate`): ``gait_a`` at the
+    initial grasp's pose from it to the intermediate grasp (None: the initial grasp is it),
+    the reposing ``move`` of the intermediate grasp to the final grasp's pose, ``gait_b`` there
+    to the final grasp (None: the move ends at it)."""
+    Ta, Tb = np.asarray(initial.obj.T_palm_obj, float), np.asarray(final.obj.T_palm_obj, float)
+    b = _Builder(options, initial.hand, Ta)
+    if gait_a is None:
+        b.grasp(initial, "initial")
+    else:
+        for st in gait_a.states:
+            b.state(st, Ta)
+        b.steps += list(gait_a.steps)
+    b.reposing(move)
+    if gait_b is None:
+        b.grasp(final, "final")
+    else:
+        k0 = len(b.states)
+        for st in gait_b.states:
+            b.state(st, Tb)
+        b.steps += [replace(s, from_state=s.from_state + k0, to_state=s.to_state + k0) for s in gait_b.steps]
+    order = (list(gait_a.summary.get("order", [])) if gait_a else []) + [f"{OBJECT}:repose"] \
+        + (list(gait_b.summary.get("order", [])) if gait_b else [])
+    base = gait_a or gait_b
+    extra = int(gait_b.summary.get("gait_steps", 0)) if gait_a is not None and gait_b is not None else 0
+    return _finish(initial, options, b, [move], base, order, extra, Tb)
+
+
+def _finish(initial, options: PlanOptions, b: _Builder, moves, base: Plan | None, order, extra_steps: int, P) -> Plan:
+    """The plan of the states and steps ``b`` built: ``base`` (a gait plan of it, or None) its
+    records, the summary's order, reposing moves, gait steps (``base``'s and ``extra_steps``)
+    and metrics of the whole."""
+    hand = initial.hand
     summary = dict(base.summary) if base else {
         "strategy": options.strategy, "gait_steps": 0, "graph_edges_in_sequence": 0, "graph_nodes": 0,
         "graph_edges": 0, "blocked_states": 0, "rank": options.rank, "search": {}}
@@ -341,7 +381,7 @@ def compose(initial, final, options: PlanOptions, first: Leg, gait: Plan | None,
         "object_path_mm": round(sum(r.distance_mm for r in moves), 3),
         "object_path_deg": round(sum(r.angle_deg for r in moves), 3),
         "pose": list(pose_vector(P))})
-    summary["gait_steps"] = int(summary.get("gait_steps", 0)) + len(first.lifts) + len(last.lifts)
+    summary["gait_steps"] = int(summary.get("gait_steps", 0)) + extra_steps
     metrics = [s.metric for s in b.states]
     summary["bottleneck_metric"] = float(min(metrics))
     summary["mean_metric"] = float(np.mean(metrics))
@@ -536,6 +576,32 @@ def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bo
         nonlocal replays
         replays += 1
 
+    def checked(plan: Plan, where: str) -> Plan | None:
+        """``plan`` with the inputs, once it passes the physics check `replay` and `verify` run
+        (`planner.audit.audit_plan`) and, when verifying, the simulator; else None (why in ``tried``)."""
+        nonlocal replays, verify_s
+        from planner.audit import audit_plan
+
+        plan = replace(plan, inputs=dict(inputs or {}))
+        rep = audit_plan(plan, hand)
+        if not rep.ok:
+            tried.append(f"{where}: the plan fails a physics check ({rep.problems[0]})")
+            return None
+        if verifying:
+            from planner.sim.verify import default_workers, verify_suspects_first
+
+            replays += 1  # (a plan whose gaits just held is replayed whole even past the budget)
+            check = verify_suspects_first(plan, hand, directions, set(), workers=options.workers or default_workers(),
+                                          engine=options.engine)
+            verify_s += check.wall_time_s
+            if not check.passed:
+                nm, step, verdict, _ = check.first_failure()
+                tried.append(f"{where}: the plan failed in the simulator ({nm} at step {step}: {first_clause(verdict)})")
+                return None
+            plan = replace(plan, summary={**plan.summary, "verification": {**check.record(), "attempts": 1,
+                                                                             "rejected": []}})
+        return plan
+
     for name, P in candidate_poses(initial, final):
         if verifying and replays >= options.verify_attempts:
             tried.append(f"not tried at {name} and after: {replays} sequences were replayed at the poses before "
@@ -560,28 +626,42 @@ def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bo
             clause = first_clause(err)
             tried.append(f"at {name}: " + ("the gaits fail for the same reason" if clause == known else clause))
             continue
-        plan = compose(initial, final, options, first, gait, back, P)
-        plan = replace(plan, inputs=dict(inputs or {}))
-        from planner.audit import audit_plan  # the physics check `replay` and `verify` run on it
+        plan = checked(compose(initial, final, options, first, gait, back, P), f"at {name}")
+        if plan is not None:
+            return plan, (verify_s if verifying else None), name
+    if not stopped and not identical(Ta, Tb):
+        # gait -> repose -> gait through an intermediate grasp whose contacts follow the object
+        from planner.intermediate import intermediate_grasps
 
-        rep = audit_plan(plan, hand)
-        if not rep.ok:
-            tried.append(f"at {name}: the plan fails a physics check ({rep.problems[0]})")
-            continue
-        if verifying:
-            from planner.sim.verify import default_workers, verify_suspects_first
-
-            replays += 1  # (a plan whose gaits just held is replayed whole even past the budget)
-            check = verify_suspects_first(plan, hand, directions, set(), workers=options.workers or default_workers(),
-                                          engine=options.engine)
-            verify_s += check.wall_time_s
-            if not check.passed:
-                nm, step, verdict, _ = check.first_failure()
-                tried.append(f"at {name}: the plan failed in the simulator ({nm} at step {step}: {first_clause(verdict)})")
+        log.info("reposing: trying intermediate grasps whose contacts follow the object")
+        through, words = intermediate_grasps(initial, final, options)
+        tried.append(words)
+        for it in through:
+            name = f"through an intermediate grasp ({it.words()})"
+            if verifying and replays >= options.verify_attempts:
+                tried.append(f"not tried {name} and after: {replays} sequences were replayed before (--verify-attempts)")
+                stopped = True
+                break
+            gaits_ = []
+            for which, a, b in (("initial", initial, it.grasp), ("final", it.move.end, final)):
+                if set(a.patches) == set(b.patches) and np.array_equal(a.q, b.q):
+                    gaits_.append(None)
+                    continue
+                if verifying and replays >= options.verify_attempts:  # (the gaits at A took what was left)
+                    tried.append(f"{name}: the gaits at the {which} grasp's pose not tried: {replays} sequences were "
+                                 f"replayed before (--verify-attempts)")
+                    break
+                try:
+                    left = replace(options, verify_attempts=options.verify_attempts - replays) if verifying else options
+                    gaits_.append(gaits(a, b, left, replayed).plan)
+                except (NoSequenceError, PlannerError) as err:
+                    tried.append(f"{name}: at the {which} grasp's pose: {first_clause(err)}")
+                    break
+            if len(gaits_) < 2:
                 continue
-            plan = replace(plan, summary={**plan.summary, "verification": {**check.record(), "attempts": 1,
-                                                                             "rejected": []}})
-        return plan, (verify_s if verifying else None), name
+            plan = checked(compose_through(initial, final, options, gaits_[0], it.move, gaits_[1]), name)
+            if plan is not None:
+                return plan, (verify_s if verifying else None), name
     mm, deg = pose_distance(Ta, Tb)
     differ = None if identical(Ta, Tb) else f"the grasps' object poses differ by {mm:.1f} mm / {deg:.1f} deg"
     if stopped:  # (whether a pose left would join them is not known)

@@ -1,0 +1,162 @@
+"""Intermediate grasps for reposing (planner.intermediate): contacts each finger keeps alone
+along the object's path, re-checked here by forward kinematics (not by the planner's own
+follower), grasps valid at both ends, and a pair whose thumb must change its object point
+planned as gaits at the initial pose, one reposing move, gaits at the final pose.
+
+The pair is exp10's Allegro cylinder (small): pose B is pose A moved 9.1 mm and turned 8.3 deg,
+the two grasps' thumb contacts are far apart on the object and neither thumb follows the
+object to the other pose, so every plan needs a thumb gait."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from planner.grasp import load_grasp
+from planner.intermediate import (DISTINCT_M, MARGIN_RAD, finger_choices, follow_alone, intermediate_grasps,
+                                  joint_margin)
+from planner.options import PlanOptions
+from planner.realization import realize
+from planner.repose import FOLLOW_TOL_M, _holds, object_path, state_reason
+
+PAIRS = Path(__file__).resolve().parents[1] / "experiments" / "results" / "exp10_pairs"
+OPTS = PlanOptions.for_execution(motion=False, verify=False)
+
+
+@pytest.fixture(scope="module")
+def pair():
+    name = "allegro_right_cylinder_small"
+    return tuple(realize(load_grasp(PAIRS / f"{name}_{k}.yaml"), suggest=False) for k in ("initial", "final"))
+
+
+@pytest.fixture(scope="module")
+def through(pair):
+    return intermediate_grasps(*pair, OPTS)
+
+
+def _point(hand, q, link, p_link):
+    T = hand.state(q).link_pose(link)
+    return T[:3, :3] @ p_link + T[:3, 3]
+
+
+def _on(T, p_obj):
+    return T[:3, :3] @ p_obj + T[:3, 3]
+
+
+def _with(hand, finger, q_finger, q=None):
+    q = np.array(hand.q_open if q is None else q, dtype=float)
+    q[list(hand.fingers[finger].q_index)] = q_finger
+    return q
+
+
+def test_a_finger_following_alone_keeps_its_contact_on_its_object_point(pair):
+    a, b = pair
+    hand = a.hand
+    path = object_path(a.obj.T_palm_obj, b.obj.T_palm_obj)
+    for f, h in _holds(a).items():
+        link, p_link, p_obj = h[0][:3]
+        qs = []
+        k, why, q_end, margin = follow_alone(hand, a.obj, f, a.q, h, path, True, qs)
+        assert len(qs) == k + 1 and (why == "") == (k == len(path) - 1) and why in ("", "follow", "deep")
+        for j, qf in enumerate(qs):  # forward kinematics at every waypoint passed
+            assert np.linalg.norm(_point(hand, _with(hand, f, qf, a.q), link, p_link) - _on(path[j], p_obj)) \
+                <= 2 * FOLLOW_TOL_M
+        assert np.allclose(q_end[list(hand.fingers[f].q_index)], qs[-1])
+        assert margin == pytest.approx(min(joint_margin(hand, f, _with(hand, f, x)) for x in qs))
+
+
+def test_sampled_thumb_contacts_are_reached_at_both_poses_off_the_joint_limits(pair):
+    a, b = pair
+    hand = a.hand
+    path = object_path(a.obj.T_palm_obj, b.obj.T_palm_obj)
+    # neither grasp's own thumb contact follows the object to the other pose
+    assert follow_alone(hand, a.obj, "thumb", a.q, _holds(a)["thumb"], path, True)[0] < len(path) - 1
+    assert follow_alone(hand, b.obj, "thumb", b.q, _holds(b)["thumb"], path[::-1], True)[0] < len(path) - 1
+    choices = finger_choices(a, b, "thumb", keep=3)
+    assert choices and all(c.source == "sampled" for c in choices)
+    Ta, Tb = np.asarray(a.obj.T_palm_obj), np.asarray(b.obj.T_palm_obj)
+    for c in choices:
+        qa, qb = _with(hand, "thumb", c.q_a), _with(hand, "thumb", c.path[-1])
+        T_link = hand.state(qa).link_pose(c.link)
+        p_link = T_link[:3, :3].T @ (_on(Ta, c.p_obj) - T_link[:3, 3])  # its contact point on the link, at A
+        assert hand.state(qa).finger_object_distance(a.obj, "thumb") > -1e-3  # touching, not inside
+        assert np.linalg.norm(_point(hand, qb, c.link, p_link) - _on(Tb, c.p_obj)) <= 2 * FOLLOW_TOL_M
+        assert min(joint_margin(hand, "thumb", qa), joint_margin(hand, "thumb", qb)) >= MARGIN_RAD
+        assert len(c.path) == len(path)
+    pts = [c.p_obj for c in choices]
+    assert all(np.linalg.norm(p - r) >= DISTINCT_M for i, p in enumerate(pts) for r in pts[:i])
+
+
+def test_intermediate_grasps_hold_at_both_poses_and_put_the_thumb_elsewhere(pair, through):
+    a, b = pair
+    out, words = through
+    assert out, words
+    assert "reposed from A to B" in words
+    thumb_a, thumb_b = _holds(a)["thumb"][0][2], _holds(b)["thumb"][0][2]
+    for it in out:
+        g, end = it.grasp, it.move.end
+        assert np.allclose(g.obj.T_palm_obj, a.obj.T_palm_obj) and np.allclose(end.obj.T_palm_obj, b.obj.T_palm_obj)
+        assert state_reason(g, OPTS) is None and state_reason(end, OPTS) is None
+        assert not g.missing and set(c.finger for c in it.choices) <= set(end.patches)
+        p = _holds(g)["thumb"][0][2]
+        assert np.linalg.norm(p - thumb_a) > DISTINCT_M and np.linalg.norm(p - thumb_b) > DISTINCT_M
+        # each chosen finger's outermost contact is on its object point at B, by forward kinematics
+        for c in it.choices:
+            link, p_link, p_obj = _holds(g)[c.finger][0][:3]
+            assert np.linalg.norm(_point(g.hand, end.q, link, p_link) - _on(end.obj.T_palm_obj, p_obj)) \
+                <= 2 * FOLLOW_TOL_M
+
+
+def test_a_pair_whose_thumb_must_move_plans_gaits_then_one_reposing_move_then_gaits(pair):
+    """Today's candidate poses all fail on this pair (an end grasp's thumb cannot follow and
+    nothing holds without it); through an intermediate grasp it plans: gaits at pose A, the
+    intermediate grasp's reposing move, gaits at pose B, and the plan passes the physics
+    check `replay` and `verify` run."""
+    from planner.audit import audit_plan
+    from planner.plan_data import OBJECT, pose_matrix
+    from planner.regrasp import plan_regrasp
+
+    a, b = pair
+    plan = plan_regrasp(a, b, replace(OPTS, motion=True)).plan  # (finger paths by the motion planner, as `plan` does)
+    assert audit_plan(plan, a.hand).ok
+    moves = [k for k, s in enumerate(plan.steps) if s.action == "repose"]
+    assert len(moves) == 1 and plan.steps[moves[0]].finger == OBJECT
+    k = moves[0]
+    assert 0 < k < len(plan.steps) - 1  # gaits before and after it
+    path = plan.steps[k].object_path
+    assert np.allclose(pose_matrix(path[0]), a.obj.T_palm_obj, atol=1e-6)
+    assert np.allclose(pose_matrix(path[-1]), b.obj.T_palm_obj, atol=1e-6)
+    assert any(s.finger == "thumb" for s in plan.steps[:k]) or any(s.finger == "thumb" for s in plan.steps[k + 1:])
+    assert plan.summary["reposing"]["moves"] == 1
+
+
+def test_the_gaits_at_the_final_pose_wait_for_a_budget_the_gaits_at_the_initial_pose_left(pair, through, monkeypatch):
+    """The intermediate grasps share the candidates' ``--verify-attempts``: when the gaits at
+    the initial pose replayed all of it, the gaits at the final pose are not searched (with
+    no attempts left) and the refusal says so."""
+    import planner.intermediate as inter
+    from planner import pose_search
+    from planner.errors import NoSequenceError
+
+    a, b = pair
+    monkeypatch.setattr(inter, "intermediate_grasps", lambda x, y, o: (through[0][:1], "one intermediate grasp"))
+    monkeypatch.setattr(pose_search, "candidate_poses", lambda x, y: [])
+    calls = []
+
+    class Held:  # a gait plan that held (its contents are not read before the final pose's gaits)
+        plan = None
+
+    def gaits(x, y, o, on_replay):
+        calls.append(o.verify_attempts)
+        for _ in range(o.verify_attempts):
+            on_replay()
+        return Held()
+
+    with pytest.raises(NoSequenceError) as err:
+        pose_search.plan_with_reposing(a, b, PlanOptions.for_execution(motion=False, verify_attempts=4), {}, False,
+                                       gaits, None)
+    assert calls == [4]
+    assert "the gaits at the final grasp's pose not tried: 4 sequences were replayed before" in str(err.value)
