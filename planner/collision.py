@@ -434,6 +434,13 @@ class HandState:
         that penetrates answers (the finger's last geometries first), and with ``obj_sphere`` (`object_sphere`) a geometry whose
         bounding sphere is more than `CULL_M` from the object's is not queried (shapes that
         far apart cannot penetrate: coal's distance between them is positive)."""
+        return self.finger_penetration(obj, finger, obj_sphere) is not None
+
+    def finger_penetration(self, obj, finger: str, obj_sphere=None) -> tuple[int, float] | None:
+        """`finger_penetrates`' answer with what it found: None when the finger does not
+        penetrate the object, else (the geometry that answered, its penetration depth in m:
+        coal's, exact for two convex shapes; 0.0 when either is a mesh (a BVH model), whose
+        negative distances bound nothing)."""
         ids = self.model.finger_geometries(finger)
         if not ids:
             raise UnknownNameError("finger with collision geometry", str(finger),
@@ -449,9 +456,11 @@ class HandState:
                     continue
             if tf_obj is None:
                 tf_obj = object_transform(obj)
-            if coal.distance(geoms[i].shape, self.transform(i), obj.geometry, tf_obj, req, coal.DistanceResult()) < 0.0:
-                return True
-        return False
+            dist = coal.distance(geoms[i].shape, self.transform(i), obj.geometry, tf_obj, req, coal.DistanceResult())
+            if dist < 0.0:
+                convex = not isinstance(geoms[i].shape, coal.BVHModelBase) and not isinstance(obj.geometry, coal.BVHModelBase)
+                return i, (-float(dist) if convex else 0.0)
+        return None
 
     def palm_object_distance(self, obj) -> float | None:
         """Smallest signed distance between the palm's links and the object (m), from the

@@ -9,6 +9,7 @@ them. All points and normals are in the palm frame.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -184,19 +185,39 @@ def close_finger(hand, finger, q, obj, steps: int = 20, backoff: float = 1e-3) -
     kin = hand.kinematics(q)  # the one kinematic state every step updates
     sphere = object_sphere(obj)
 
-    def inside(qa):  # the finger penetrates the object (its signed distance is negative)
-        return HandState.on(hand.collision, kin.update(qa)).finger_penetrates(obj, f.name, sphere)
+    def penetration(qa):  # None when free, else (geometry, depth m) (`HandState.finger_penetration`)
+        return HandState.on(hand.collision, kin.update(qa)).finger_penetration(obj, f.name, sphere)
 
     def colliding(alpha):
-        return inside(at(alpha))
+        return penetration(at(alpha)) is not None
 
     step = backoff * (hand.upper[cidx] - hand.lower[cidx])
+    reach = opening_reach(hand, f, cidx, step)
+
+    def still_inside(found) -> int:
+        """Opening steps after this one certain to leave the finger inside: a convex
+        geometry ``depth`` deep moves at most ``reach`` per step (penetration depth is
+        1-Lipschitz in the largest displacement), so it stays in for fewer than
+        depth / reach steps (less a slack on coal's depth). The scan that checks every step
+        stops at the same step."""
+        i, depth = found
+        v = None if reach is None else reach.get(i)
+        safe = depth * (1.0 - DEPTH_SLACK[0]) - DEPTH_SLACK[1]
+        if v is None or safe <= 0.0:
+            return 0
+        return OPENING_STEPS_MAX if v <= 0.0 else max(0, int(math.ceil(safe / v)) - 1)
+
     if colliding(0.0):
         # already penetrating (e.g. an IK placement): open by 0.1 % steps until free
-        qb = q.copy()
+        qb, left = q.copy(), 0
         for _ in range(int(np.ceil(1.0 / backoff))):
-            if not inside(qb):
-                return qb
+            if left:
+                left -= 1  # (inside: `still_inside`)
+            else:
+                found = penetration(qb)
+                if found is None:
+                    return qb
+                left = still_inside(found)
             qb[cidx] = np.where(down, np.minimum(qb[cidx] + step, hi), np.maximum(qb[cidx] - step, lo))
             qb = couple_finger(f, qb)
         return qb
@@ -206,11 +227,73 @@ def close_finger(hand, finger, q, obj, steps: int = 20, backoff: float = 1e-3) -
             alpha -= 0.5 ** n
         else:
             alpha = min(alpha + 0.5 ** n, 1.0)
-    qc = at(alpha)
-    while inside(qc) and np.any(np.where(down, qc[cidx] < start, qc[cidx] > start)):
+    qc, left = at(alpha), 0
+    while True:
+        if left:
+            left -= 1
+        else:
+            found = penetration(qc)
+            if found is None:
+                break
+            left = still_inside(found)
+        if not np.any(np.where(down, qc[cidx] < start, qc[cidx] > start)):
+            break
         qc[cidx] = np.where(down, np.minimum(qc[cidx] + step, start), np.maximum(qc[cidx] - step, start))
         qc = couple_finger(f, qc)
     return qc
+
+
+#: Slack on a penetration depth before it bounds how long an opening finger stays inside:
+#: relative, and absolute (m); coal's depth of two convex shapes is exact to about 1e-6 m.
+DEPTH_SLACK = (1e-3, 1e-5)
+#: `still_inside` of a geometry that does not move: more steps than any opening takes.
+OPENING_STEPS_MAX = 2 ** 30
+
+_REVOLUTE = ("JointModelRX", "JointModelRY", "JointModelRZ", "JointModelRevoluteUnaligned")
+_PRISMATIC = ("JointModelPX", "JointModelPY", "JointModelPZ", "JointModelPrismaticUnaligned")
+
+
+def opening_reach(hand, f, cidx, step) -> dict[int, float] | None:
+    """Geometry index -> how far (m) any point of it can move when the closing joints at
+    positions ``cidx`` of q move by at most ``|step|`` each and their followers with them:
+    the sum over the moved joints it hangs from of the joint's move times the farthest the
+    geometry can lie from its axis (a revolute joint: the lengths of the rigid offsets from
+    the joint to the geometry's bounding sphere, plus its radius, whatever the posture) or
+    times 1 (a prismatic one). None when a moved joint is of another kind. Cached per finger
+    and step."""
+    key = (f.name, tuple(int(i) for i in cidx), np.asarray(step, float).tobytes())
+    memo = hand.__dict__.setdefault("_opening_reach", {})
+    if key in memo:
+        return memo[key]
+    moved = {int(i): abs(float(s)) for i, s in zip(cidx, step)}
+    for fl, d, m, _ in f.coupled:  # a follower moves by the multiplier times its driver
+        if f.q_index[d] in moved:
+            moved[f.q_index[fl]] = abs(float(m)) * moved[f.q_index[d]]
+    model = hand.collision.kinematic_model.model
+    out: dict[int, float] | None = {}
+    for i in hand.collision.finger_geometries(f.name):
+        g = hand.collision.geometries[i]
+        a, arm, v = int(g.joint_id), float(np.linalg.norm(g.center)), 0.0
+        while a > 0:
+            jm = model.joints[a]
+            qi = int(jm.idx_q) if jm.nq == 1 else None
+            if qi in moved or (jm.nq != 1 and any(model.joints[a].idx_q <= k < model.joints[a].idx_q + jm.nq
+                                                   for k in moved)):
+                kind = jm.shortname()
+                if kind in _REVOLUTE:
+                    v += moved[qi] * (arm + g.radius_m)
+                elif kind in _PRISMATIC:
+                    v += moved[qi]
+                else:
+                    out = None
+                    break
+            arm += float(np.linalg.norm(model.jointPlacements[a].translation))
+            a = int(model.parents[a])
+        if out is None:
+            break
+        out[i] = v
+    memo[key] = out
+    return out
 
 
 def couple_finger(f, q: np.ndarray) -> np.ndarray:
