@@ -173,8 +173,8 @@ def _rejected_summary(rejected, moves: list[str], planned: list[str]) -> str:
     failed = sorted({x["direction"] for x in rejected})
     words = "failed " + ", ".join(parts)
     if len(rejected) > 1:
-        words += (" (each sequence after the first was replayed first in the directions that had rejected one, and "
-                  "not in the others when one of those rejected it again)")
+        words += (" (the directions are replayed in order, those that had rejected a sequence first; the first of "
+                  "them to fail rejects it and stops the others)")
     if len(planned) > len(failed):
         words += (f"; every rejection was in {', '.join(failed)} of the {len(planned)} planned direction(s): if the "
                   f"hand will not be held so, plan for the orientations it will be held in (--gravity NAME, e.g. "
@@ -559,8 +559,9 @@ def plan_gaits(
             # plan is made from these grasps, and gaits at a reposing candidate's pose start and
             # end at the files' grasps moved there (`planner.pose_search`)
             audits = []
-            # the directions that rejected a sequence before are replayed first: a sequence
-            # they reject again costs their replays only (a bound on the work, not the time)
+            # the directions are replayed in order, those that rejected a sequence before
+            # first: the first to fail rejects it and stops the others (a sequence they reject
+            # again costs their replays only; a bound on the work, not the time)
             check = verify_suspects_first(plan, hand, directions, {r["direction"] for r in rejected}, workers=workers,
                                           engine=options.engine,
                                           meanwhile=lambda: audits.append(audit_plan(replace(plan, inputs={}), hand)))

@@ -115,10 +115,10 @@ def test_both_refuses_when_only_the_second_engine_fails(monkeypatch):
 
 
 @pytest.mark.needs_pybullet("--engine both replays in pybullet too")
-def test_directions_a_stop_line_stopped_are_left_out_of_a_failed_verification(monkeypatch):
-    """A replay stopped unfailed once another direction had failed (stopped_after) is not a
-    row of the verification: the failure is the failing direction's, and with two engines
-    the second (failing, one direction stopped) merges with the first's rows by name."""
+def test_a_failed_verification_has_the_rows_up_to_the_failing_direction(monkeypatch):
+    """The first direction in order that fails decides: the rows after it are left out
+    whether their replays stopped, failed or passed (which of them finished depends on the
+    timing); with two engines the second's failing rows merge with the first's by name."""
     from planner.sim import verify
 
     def report(ok, step, mm, stopped=None):
@@ -126,17 +126,20 @@ def test_directions_a_stop_line_stopped_are_left_out_of_a_failed_verification(mo
         return SimpleNamespace(passed=ok and stopped is None, verdict=verdict, failed_step=step, failed_at_state=False,
                                max_drift_mm=mm, max_drift_deg=mm, stopped_after=stopped)
 
-    dirs = [("palm_down", (0, 0, 9.81)), ("palm_up", (0, 0, -9.81)), ("side", (9.81, 0, 0))]
-    outcome = {"pybullet": [report(True, None, 0.5)] * 3,
-               "mujoco": [report(False, None, 1.0, stopped=3), report(False, 3, 40.0), report(True, None, 0.7)]}
+    dirs = [("palm_down", (0, 0, 9.81)), ("palm_up", (0, 0, -9.81)), ("side", (9.81, 0, 0)), ("other", (0, 9.81, 0))]
+    outcome = {"pybullet": [report(True, None, 0.5)] * 4,
+               "mujoco": [report(True, None, 1.0), report(False, 3, 40.0), report(False, 1, 30.0),
+                          report(False, None, 0.7, stopped=2)]}
     monkeypatch.setattr(verify, "replay_directions",
                         lambda plan, hand, directions, workers=None, engine=None, **kw: outcome[engine])
     monkeypatch.setattr(verify, "as_written", lambda plan: plan)
     v = verify.verify_plan(None, None, dirs, engine="both")
     assert not v.passed and v.first_failure() == ("palm_up", 3, "mujoco: FAIL: object dropped", False)
-    assert [d[0] for d in v.directions] == ["palm_up", "side"] and v.directions[0][5] == 40.0
+    assert [d[0] for d in v.directions] == ["palm_down", "palm_up"] and v.directions[1][5] == 40.0
+    assert v.directions[0][5] == 1.0  # the larger drift of the two engines
+    outcome["mujoco"][3] = None  # not started
     v = verify.verify_plan(None, None, dirs, engine="mujoco")
-    assert not v.passed and [d[0] for d in v.directions] == ["palm_up", "side"]
+    assert not v.passed and [d[0] for d in v.directions] == ["palm_down", "palm_up"]
 
 
 @pytest.mark.needs_pybullet("MuJoCo hidden, the engine left is pybullet")

@@ -197,27 +197,30 @@ def test_a_replay_asked_to_stop_at_its_failure_gives_the_same_verdict_sooner(han
     assert [s.sim_fingers for s in a.states] == [s.sim_fingers for s in b.states]
 
 
-def test_a_stop_line_stops_the_other_directions_unfailed_past_the_failed_step(hand, grasp):
-    """A StopLine shared by the replays of one plan: the failing replay lowers it to its failed
-    step; a replay that reaches that step unfailed stops there (stopped_after, not passed, no
-    failed step, the later states not reached); a line no replay lowered stops nothing."""
+def test_a_stop_line_stops_the_replays_after_the_first_failing_one_in_its_order(hand, grasp):
+    """A StopLine shared by the replays of one plan in an order: the failing replay marks its
+    place; a replay after it stops unfailed at its next measured state (stopped_after, not
+    passed, no failed step, the later states not reached); one before it, or on a line no
+    replay failed on, runs to its end."""
     from planner.sim.replay import StopLine
 
     line = StopLine()
-    assert line.step() == StopLine.NONE
-    failing = replay_plan(_lift_thumb_then_index(hand, grasp), stop_at_failure=line)
-    assert failing.failed_step == 0 and failing.stopped_after is None and line.step() == 0
+    assert line.first() == StopLine.NONE and not line.at(5).stopped()
+    failing = replay_plan(_lift_thumb_then_index(hand, grasp), stop_at_failure=line.at(1))
+    assert failing.failed_step == 0 and failing.stopped_after is None and line.first() == 1
+    assert line.at(2).stopped() and not line.at(1).stopped() and not line.at(0).stopped()
     plan = _plan(hand, grasp, lift="index")
-    q, obj = grasp
     plan["states"].append(plan["states"][0])  # the index landed again where it was
     step = dict(plan["steps"][0], action="land", from_state=1, to_state=2, path=plan["steps"][0]["path"][::-1])
     plan["steps"].append(step)
     free = replay_plan(plan, stop_at_failure=StopLine())
     assert free.passed, free.verdict
-    stopped = replay_plan(plan, stop_at_failure=line)
-    assert stopped.stopped_after == 0 and not stopped.passed and stopped.failed_step is None
-    assert stopped.verdict.startswith("STOPPED after step 0") and not stopped.states[2].reached
-    assert stopped.states[1].reached and line.step() == 0
+    before = replay_plan(plan, stop_at_failure=line.at(0))
+    assert before.passed and before.verdict == free.verdict
+    stopped = replay_plan(plan, stop_at_failure=line.at(2))
+    assert stopped.stopped_after == -1 and not stopped.passed and stopped.failed_step is None
+    assert stopped.verdict.startswith("STOPPED after step -1") and not stopped.states[1].reached
+    assert stopped.states[0].reached and line.first() == 1
 
 
 def test_sim_normals_point_into_the_object(held):

@@ -16,9 +16,9 @@ import planner.sim.verify as V
 DIRS = [("palm_down", (0, 0, 9.81)), ("palm_up", (0, 0, -9.81)), ("side_+x", (9.81, 0, 0)), ("side_-x", (-9.81, 0, 0))]
 
 
-def test_meanwhile_runs_once_in_the_first_replays(monkeypatch):
-    """`verify_suspects_first` hands ``meanwhile`` to the first replays only: the suspects'
-    when a direction rejected before, else every direction's."""
+def test_meanwhile_runs_once_with_the_replays(monkeypatch):
+    """`verify_suspects_first` hands ``meanwhile`` to its one `verify_plan`, the suspects
+    first in the order."""
     calls, done = [], []
 
     def fake(plan, hand, directions, *, workers=None, meanwhile=None):
@@ -30,7 +30,7 @@ def test_meanwhile_runs_once_in_the_first_replays(monkeypatch):
 
     monkeypatch.setattr(V, "verify_plan", fake)
     V.verify_suspects_first(None, None, DIRS, {"side_+x"}, meanwhile=lambda: done.append(1))
-    assert calls == [(["side_+x"], True), (["palm_down", "palm_up", "side_-x"], False)] and done == [1]
+    assert calls == [(["side_+x", "palm_down", "palm_up", "side_-x"], True)] and done == [1]
     calls.clear(), done.clear()
     V.verify_suspects_first(None, None, DIRS, set(), meanwhile=lambda: done.append(1))
     assert calls == [([n for n, _ in DIRS], True)] and done == [1]

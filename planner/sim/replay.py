@@ -126,27 +126,39 @@ def pose_drift(pos_ref, quat_ref, pos, quat) -> tuple[float, float]:
 
 
 class StopLine:
-    """The earliest plan step at which one of several replays of one plan failed, shared by
-    them (in one process or in forked workers: `planner.sim.verify.verify_plan`): a replay
-    stopping at its failure lowers it; one that has measured every step up to it stops there,
-    unfailed (`ReplayReport.stopped_after`): its own verdict could only come later, so the
-    earliest failure over the replays, and the first direction failing there, are those of
-    replays run to the end, whatever order they ran in."""
+    """The replays of one plan in several directions, in an order (a verification's: the
+    directions that rejected a sequence before first, then the others as listed), shared by
+    them (in one process or in forked workers: `planner.sim.verify.verify_plan`). The first
+    of them in that order to fail decides: a replay failing marks its place (`fail`), the
+    replays after it stop at their next measured state, unfailed (`stopped`,
+    `ReplayReport.stopped_after`), the ones before it run to their end. Which replay decides
+    depends on the order only, never on which of them ran first or faster. ``at(i)`` is the
+    same line seen from place ``i``; a new line is place 0."""
 
     NONE = 2 ** 31 - 1
 
-    def __init__(self) -> None:
-        methods = multiprocessing.get_all_start_methods()
-        ctx = multiprocessing.get_context("fork" if "fork" in methods else None)
-        self._value = ctx.Value("i", self.NONE)
+    def __init__(self, place: int = 0, value=None) -> None:
+        if value is None:
+            methods = multiprocessing.get_all_start_methods()
+            value = multiprocessing.get_context("fork" if "fork" in methods else None).Value("i", self.NONE)
+        self.place, self._value = int(place), value
 
-    def step(self) -> int:
-        """The earliest failed step so far (`NONE` while none failed)."""
+    def at(self, place: int) -> "StopLine":
+        """This line seen by the replay at ``place`` in the order."""
+        return StopLine(place, self._value)
+
+    def first(self) -> int:
+        """The place of the first replay in the order that failed so far (`NONE`: none)."""
         return int(self._value.value)
 
-    def lower(self, step: int) -> None:
+    def fail(self) -> None:
+        """The replay at this place failed: the ones after it stop."""
         with self._value.get_lock():
-            self._value.value = min(int(self._value.value), int(step))
+            self._value.value = min(int(self._value.value), self.place)
+
+    def stopped(self) -> bool:
+        """Whether a replay before this place failed (this one's verdict cannot decide)."""
+        return self.first() < self.place
 
 
 def replay_plan(
@@ -225,8 +237,8 @@ def replay_plan(
             simulation is the same up to there); the later states are reported not reached.
             For a caller that needs the verdict only (the planner's verification). A
             `StopLine` shared by the replays of one plan in other directions also stops this
-            one, unfailed, once it has measured the step at which one of them failed
-            (``stopped_after``: its verdict could only come later).
+            one, unfailed, at its next measured state once a replay before it in their order
+            has failed (``stopped_after``: its verdict cannot decide).
         snapshots: the open `planner.sim.snapshots.scope` (`planner.sim.snapshots.current`)
             of a verification: with ``stop_at_failure``, in a worker process, without a
             picture or window, the replay resumes from the latest snapshot an earlier replay
@@ -353,7 +365,7 @@ def _replay_engine(rd, info, joints, states, steps, obj, friction, params, line,
         verdict = (f"FAIL: the simulated hand breaks {len(broken)}/{len(couplings)} coupled joints beyond their "
                    f"tolerance (max drift {max_mm:.1f} mm / {max_deg:.1f} deg)")
     elif stopped_after is not None:
-        verdict = (f"STOPPED after step {stopped_after}, unfailed: the replay in another direction failed by then "
+        verdict = (f"STOPPED after step {stopped_after}, unfailed: a replay before it in the verification's order failed "
                    f"(max drift {max_mm:.1f} mm / {max_deg:.1f} deg)")
     else:
         verdict = f"PASS: max drift {max_mm:.1f} mm / {max_deg:.1f} deg ({limits}); closure agrees at {agree}/{len(reached)} states"
@@ -738,15 +750,15 @@ class _Sim:
         """Whether to stop after measuring ``r``, the state plan step ``k`` reached (-1: state
         0): asked to stop at a failure (``stop_at_failure``) and one has happened (the drift
         left its limits, or the state is not held as planned: what `replay_plan`'s verdict
-        refuses; the stop line learns the step), or the stop line says another replay failed
-        at step ``k`` or before (`stopped_after`)."""
+        refuses; the stop line learns it), or the stop line says a replay before this one in
+        its order failed (`stopped_after`)."""
         if not self.params.get("stop_at_failure"):
             return False
         if self.failure is not None or not r.holds_as_planned or r.sim_force_closure != r.planned_force_closure:
             if self.stop_line is not None:
-                self.stop_line.lower(k)
+                self.stop_line.fail()
             return True
-        if self.stop_line is not None and k >= self.stop_line.step():
+        if self.stop_line is not None and self.stop_line.stopped():
             self.stopped_after = k
             return True
         return False
@@ -867,7 +879,7 @@ class _Sim:
                 break
             self._checkpoint(k)
         if not ok and self.stop_line is not None and self.fail_step is not None:  # dropped: a failure
-            self.stop_line.lower(self.fail_step)
+            self.stop_line.fail()
         out = []
         for i, s in enumerate(self.plan_states):
             if i in reports:

@@ -148,10 +148,10 @@ class ReplayReport:
             .Hand.couplings` order; none for a hand without couplings, and in a report written
             before the replay measured them). A replay whose coupling error exceeds its
             tolerance does not pass.
-        stopped_after: the plan step after which the replay stopped unfailed because the
-            replay in another direction had failed by then (`planner.sim.replay.StopLine`: the
-            planner's verification); not passed, no failed step. None: it ran to its end or
-            its own failure.
+        stopped_after: the plan step after which the replay stopped unfailed because a
+            replay before it in the order of the planner's verification had failed
+            (`planner.sim.replay.StopLine`); not passed, no failed step. None: it ran to its
+            end or its own failure.
     """
 
     passed: bool

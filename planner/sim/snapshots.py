@@ -103,24 +103,19 @@ class Chain:
 
 class _LineProxy:
     """A `planner.sim.replay.StopLine` seen through the requester's connection (a resumed
-    copy cannot share the requester's memory): the requester forwards the line's value, and
-    a failure here lowers it there."""
-
-    NONE = 2 ** 31 - 1
+    copy cannot share the requester's memory): the requester says when a replay before it
+    failed, and a failure here is marked there."""
 
     def __init__(self, conn: Connection):
-        self.conn, self.value = conn, self.NONE
+        self.conn, self._stopped = conn, False
 
-    def step(self) -> int:
-        while self.conn.poll(0):
-            kind, v = self.conn.recv()
-            if kind == "line":
-                self.value = min(self.value, int(v))
-        return self.value
+    def stopped(self) -> bool:
+        while not self._stopped and self.conn.poll(0):
+            self._stopped = self.conn.recv()[0] == "stop"
+        return self._stopped
 
-    def lower(self, step: int) -> None:
-        self.value = min(self.value, int(step))
-        self.conn.send(("lower", int(step)))
+    def fail(self) -> None:
+        self.conn.send(("fail", None))
 
 
 class Snapshots:
@@ -162,18 +157,16 @@ class Snapshots:
 
     @staticmethod
     def _wait(conn: Connection, line):
-        last = None
+        told = False
         while True:
-            if line is not None:
-                v = line.step()
-                if v != last:
-                    conn.send(("line", v))
-                    last = v
+            if line is not None and not told and line.stopped():
+                conn.send(("stop", None))
+                told = True
             if conn.poll(FORWARD_S):
                 kind, v = conn.recv()
-                if kind == "lower":
+                if kind == "fail":
                     if line is not None:
-                        line.lower(v)
+                        line.fail()
                 elif kind == "done":
                     return v
                 else:  # "error": the copy failed; a replay from the start says how

@@ -26,7 +26,7 @@ import os
 import time
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from planner.errors import InputError
@@ -77,10 +77,14 @@ def default_workers() -> int:
         return max(1, os.cpu_count() or 1)
 
 
-def _one(i: int) -> ReplayReport:
+def _one(i: int) -> ReplayReport | None:
     job = _JOB
     name, g = job["directions"][i]
     kw = dict(job["kwargs"])
+    if isinstance(kw.get("stop_at_failure"), StopLine):  # this replay's place in the directions' order
+        kw["stop_at_failure"] = kw["stop_at_failure"].at(i)
+        if kw["stop_at_failure"].stopped():  # a direction before it failed: not started
+            return None
     for key in ("gif", "mp4"):
         if kw.get(key) is not None:
             kw[key] = kw[key][i]
@@ -102,9 +106,12 @@ def replay_directions(plan: Plan, hand, directions: Sequence[tuple[str, Sequence
             ``workers``; a single direction then has a worker process of its own), else
             before the replays.
         **kwargs: passed to `replay_plan`; ``gif``/``mp4`` are one path (or None) per direction.
+            A `planner.sim.replay.StopLine` as ``stop_at_failure`` orders the directions as
+            given: once one fails, the later ones stop, or are not started.
 
     Returns:
-        the `ReplayReport` of each direction, in order (identical to a serial run).
+        the `ReplayReport` of each direction, in order (identical to a serial run); with a
+        stop line, None for a direction after a failed one that was not started.
     """
     directions = [(str(n), tuple(float(v) for v in g)) for n, g in directions]
     kwargs["engine"] = one_engine(kwargs.get("engine"))
@@ -118,12 +125,22 @@ def replay_directions(plan: Plan, hand, directions: Sequence[tuple[str, Sequence
     beside = meanwhile is not None and forks and n < workers
     if meanwhile is not None and not beside:
         meanwhile()
+    line = kwargs.get("stop_at_failure")
+    line = line if isinstance(line, StopLine) else None
+
+    def decided(report) -> bool:  # a failure that stops the directions after it
+        return line is not None and not report.passed and report.stopped_after is None
+
     try:
         if workers <= 1 or (n <= 1 and not beside) or not forks:
             out = []
             for i in range(n):
                 out.append(_one(i))
+                if out[-1] is None:
+                    continue
                 _log_done(directions[i][0], out[-1], i + 1, n)
+                if decided(out[-1]):
+                    return out + [None] * (n - i - 1)
             return out
         with ProcessPoolExecutor(max_workers=min(workers, n), mp_context=multiprocessing.get_context("fork")) as pool:
             futures = {pool.submit(_one, i): i for i in range(n)}
@@ -132,9 +149,15 @@ def replay_directions(plan: Plan, hand, directions: Sequence[tuple[str, Sequence
             done: dict[int, object] = {}
             for fut in as_completed(futures):
                 i = futures[fut]
+                if fut.cancelled() or fut.result() is None:
+                    continue
                 done[i] = fut.result()
                 _log_done(directions[i][0], done[i], len(done), n)
-            return [done[i] for i in range(n)]
+                if decided(done[i]):  # the directions after it not started yet are not
+                    for f, j in futures.items():
+                        if j > i:
+                            f.cancel()
+            return [done.get(i) for i in range(n)]
     finally:
         _JOB.clear()
 
@@ -142,7 +165,7 @@ def replay_directions(plan: Plan, hand, directions: Sequence[tuple[str, Sequence
 def _log_done(name: str, report, k: int, n: int) -> None:
     """One progress record per replayed direction (`planner.regrasp.log`; the CLI shows it)."""
     verdict = ("PASS" if report.passed else "FAIL" if getattr(report, "stopped_after", None) is None
-               else f"stopped after step {report.stopped_after} (another direction failed by then)")
+               else f"stopped after step {report.stopped_after} (a direction before it failed)")
     logging.getLogger("planner").info("replay %d/%d %s in %s: %s", k, n, name, report.engine, verdict)
 
 
@@ -255,8 +278,8 @@ class Verification:
             state it reaches (`ReplayReport.failed_at_state`), max drift mm, max drift deg)
             per direction; with several engines the worst of them (failed in any, the
             earliest failing step, the largest drift), the verdict naming the engine. A
-            failed verification leaves out the directions whose replays stopped unfailed
-            once another had failed (`planner.sim.replay.StopLine`).
+            failed verification has the rows of the one direction that failed and of those
+            replayed before it in the replays' order (`planner.sim.replay.StopLine`).
         wall_time_s: wall-clock time of the replays.
         engine: the engine option verified with ("pybullet", "mujoco" or "both").
         by_engine: (engine, its rows as ``directions``) per engine replayed.
@@ -270,12 +293,13 @@ class Verification:
 
     def first_failure(self) -> tuple[str, int, str, bool] | None:
         """(direction, plan step (-1: state 0), verdict, failed at the state the step reaches)
-        of the earliest failing step over the directions (ties: the first direction), or None."""
-        failed = [(d[3] if d[3] is not None else -1, i) for i, d in enumerate(self.directions) if not d[1]]
+        of the direction that failed (the first in the order its replays decided in: a failed
+        verification's rows hold that one only; of several failing rows, the first), or None."""
+        failed = [d for d in self.directions if not d[1]]
         if not failed:
             return None
-        step, i = min(failed)
-        return self.directions[i][0], step, self.directions[i][2], bool(self.directions[i][4])
+        d = failed[0]
+        return d[0], (d[3] if d[3] is not None else -1), d[2], bool(d[4])
 
     def record(self) -> dict:
         """What the plan records (deterministic: no times)."""
@@ -313,14 +337,17 @@ def verify_plan(plan: Plan, hand, directions: Sequence[tuple[str, Sequence[float
     by_engine = []
     for e in engines:
         # the verdict is all a verification needs: a replay stops at its first failure, and
-        # the others once they are past the earliest step one of them failed at (their rows
-        # are left out: `Verification.first_failure` is that of replays run to the end)
+        # the directions after the first failing one in ``directions`` order stop too (their
+        # rows are left out, as the rows after it of those that ran to their end: what the
+        # verification says depends on the order only, not on which replay ran first)
         reports = replay_directions(written, hand, directions, workers=workers, engine=e, stop_at_failure=StopLine(),
                                     meanwhile=meanwhile, snapshots=snapshots.current())
         meanwhile = None
+        last = next((i for i, r in enumerate(reports) if r is not None and not r.passed and r.stopped_after is None),
+                    len(reports) - 1)
         rows = tuple((name, r.passed, f"{e}: {r.verdict}", r.failed_step, r.failed_at_state, float(r.max_drift_mm),
                       float(r.max_drift_deg))
-                     for (name, _), r in zip(directions, reports) if r.stopped_after is None)
+                     for (name, _), r in zip(directions[:last + 1], reports))
         by_engine.append((e, rows))
         if len(rows) < len(directions) or not all(r[1] for r in rows):
             break
@@ -345,29 +372,22 @@ def _worst(rows):
 def verify_suspects_first(plan: Plan, hand, directions: Sequence[tuple[str, Sequence[float]]], suspects,
                           *, workers: int | None = None, engine: str | None = None,
                           meanwhile: Callable[[], object] | None = None) -> Verification:
-    """`verify_plan`, the ``suspects`` (direction names that rejected an earlier sequence)
-    replayed first: when one of them fails, the others are not replayed (the verdict is that
-    of the suspects: deterministic, since which directions are suspects depends only on the
-    earlier verdicts); when they all pass, the rest are, and the result covers every
-    direction in ``directions`` order, as `verify_plan`'s. ``meanwhile``: as
-    `replay_directions`', during the first replays."""
-    first = [d for d in directions if d[0] in set(suspects)]
+    """`verify_plan` in the order: the ``suspects`` (direction names that rejected an earlier
+    sequence) first, then the others, each group as in ``directions``. The first direction in
+    that order to fail decides and the replays after it stop (deterministic: the order depends
+    only on the earlier verdicts); the rows come back in ``directions`` order. ``meanwhile``:
+    as `replay_directions`'."""
+    suspects = set(suspects)
+    order = [d for d in directions if d[0] in suspects] + [d for d in directions if d[0] not in suspects]
     kw = {} if engine is None else {"engine": engine}  # (the default engine: verify_plan's call as before)
     if meanwhile is not None:
         kw["meanwhile"] = meanwhile
-    if not first or len(first) == len(directions):
-        return verify_plan(plan, hand, directions, workers=workers, **kw)
-    a = verify_plan(plan, hand, first, workers=workers, **kw)
-    if not a.passed:
-        return a
-    kw.pop("meanwhile", None)
-    b = verify_plan(plan, hand, [d for d in directions if d[0] not in set(suspects)], workers=workers, **kw)
+    v = verify_plan(plan, hand, order, workers=workers, **kw)
+    if order == list(directions):
+        return v
 
     def ordered(rows):
         by_name = {r[0]: r for r in rows}
         return tuple(by_name[name] for name, _ in directions if name in by_name)
 
-    engines = dict(b.by_engine)
-    by_engine = tuple((e, ordered(rows + engines.get(e, ()))) for e, rows in a.by_engine)
-    return Verification(b.passed, ordered(a.directions + b.directions), a.wall_time_s + b.wall_time_s,
-                        getattr(b, "engine", "pybullet"), by_engine)
+    return replace(v, directions=ordered(v.directions), by_engine=tuple((e, ordered(rows)) for e, rows in v.by_engine))
