@@ -553,8 +553,8 @@ def plan_gaits(
             log.info("verifying in %s: attempt %d, %d direction(s) in %d process(es)", engine_names, len(rejected) + 1,
                      len(directions), min(workers, len(directions)))
             # the physics check `replay` and `verify` run on a plan file (`planner.audit`) runs
-            # here while the replays run in their processes (before them when they take every
-            # core; `planner.sim.verify.replay_directions`' meanwhile): a plan it refuses is
+            # here while the first replays run in their processes, on a core they leave free
+            # (`planner.sim.verify.replay_directions`' meanwhile): a plan it refuses is
             # never returned and its replays count for nothing. Without the input files: the
             # plan is made from these grasps, and gaits at a reposing candidate's pose start and
             # end at the files' grasps moved there (`planner.pose_search`)

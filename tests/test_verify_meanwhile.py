@@ -1,6 +1,6 @@
 """The plan's physics check runs while its verification replays run (`planner.sim.verify`'s
-``meanwhile``): in this process, once, while forked workers replay when they leave a core
-free, else before them."""
+``meanwhile``): in this process, once, while the first ``workers - 1`` forked workers replay
+(the other directions start after it), or before the replays with one worker."""
 
 from __future__ import annotations
 
@@ -67,13 +67,19 @@ FORKS = pytest.mark.skipif("fork" not in multiprocessing.get_all_start_methods()
 
 
 @FORKS
-@pytest.mark.parametrize("n, workers", [(1, 2), (2, 3)])
-def test_meanwhile_runs_while_the_workers_replay(monkeypatch, tmp_path, n, workers):
-    """Fewer directions than workers (one direction too): the parent's ``meanwhile`` runs once
-    while the replays run, on the core they leave free: a replay that waits for what
-    ``meanwhile`` writes passes."""
+@pytest.mark.parametrize("n, workers", [(1, 2), (2, 3), (2, 2), (4, 2), (4, 3)])
+def test_meanwhile_runs_while_the_first_workers_replay(monkeypatch, tmp_path, n, workers):
+    """With two workers or more, the parent's ``meanwhile`` runs once while the first
+    ``workers - 1`` directions replay (on the core they leave free: a replay that waits for
+    what ``meanwhile`` writes passes), and the other directions start once it is done."""
     flag = tmp_path / "audited"
-    monkeypatch.setattr(V, "replay_plan", _slow_replay(str(flag)))
+    slow, look = _slow_replay(str(flag)), _first_look(str(flag))
+    early = {g for _, g in DIRS[:max(1, min(n, workers - 1))]}
+
+    def replay(plan, hand=None, gravity=None, **kw):
+        return (slow if tuple(gravity) in early else look)(plan, hand, gravity, **kw)
+
+    monkeypatch.setattr(V, "replay_plan", replay)
     monkeypatch.setattr(V, "one_engine", lambda e: "pybullet")
     runs = []
 
@@ -86,10 +92,9 @@ def test_meanwhile_runs_while_the_workers_replay(monkeypatch, tmp_path, n, worke
 
 
 @FORKS
-@pytest.mark.parametrize("n, workers", [(2, 2), (4, 2), (2, 1)])
-def test_meanwhile_runs_before_replays_that_take_every_core(monkeypatch, tmp_path, n, workers):
-    """As many directions as workers or more (or one worker, replaying here): ``meanwhile``
-    runs once, before any replay starts."""
+@pytest.mark.parametrize("n, workers", [(1, 1), (2, 1), (4, 1)])
+def test_meanwhile_runs_before_replays_in_this_process(monkeypatch, tmp_path, n, workers):
+    """One worker (replaying here): ``meanwhile`` runs once, before any replay starts."""
     flag = tmp_path / "audited"
     monkeypatch.setattr(V, "replay_plan", _first_look(str(flag)))
     monkeypatch.setattr(V, "one_engine", lambda e: "pybullet")

@@ -101,10 +101,10 @@ def replay_directions(plan: Plan, hand, directions: Sequence[tuple[str, Sequence
         hand: its `planner.hand.Hand`.
         directions: (name, gravity (3,)) pairs.
         workers: processes (default `default_workers`; 1: in this process, one after the other).
-        meanwhile: work that needs no replay, called once in this process: while the worker
-            processes replay when they leave a core free for it (fewer directions than
-            ``workers``; a single direction then has a worker process of its own), else
-            before the replays.
+        meanwhile: work that needs no replay, called once in this process on a core the
+            worker processes leave free: the first ``workers - 1`` directions replay while it
+            runs, the others start once it is done (a single direction has a worker process
+            of its own); with one worker, before the replays.
         **kwargs: passed to `replay_plan`; ``gif``/``mp4`` are one path (or None) per direction.
             A `planner.sim.replay.StopLine` as ``stop_at_failure`` orders the directions as
             given: once one fails, the later ones stop, or are not started.
@@ -120,9 +120,10 @@ def replay_directions(plan: Plan, hand, directions: Sequence[tuple[str, Sequence
     _JOB.clear()
     _JOB.update(plan=plan, hand=hand, directions=directions, kwargs=kwargs)
     forks = "fork" in multiprocessing.get_all_start_methods()
-    # ``meanwhile`` beside the replays only on a core they leave free (fewer directions than
-    # workers): beside a worker on every core it would only slow them down
-    beside = meanwhile is not None and forks and n < workers
+    # ``meanwhile`` beside the replays on a core they leave free (beside a worker on every
+    # core it would only slow them down): the directions past the first workers - 1 wait
+    beside = meanwhile is not None and forks and workers >= 2 and n >= 1
+    first = min(n, workers - 1) if beside else n
     if meanwhile is not None and not beside:
         meanwhile()
     line = kwargs.get("stop_at_failure")
@@ -143,9 +144,10 @@ def replay_directions(plan: Plan, hand, directions: Sequence[tuple[str, Sequence
                     return out + [None] * (n - i - 1)
             return out
         with ProcessPoolExecutor(max_workers=min(workers, n), mp_context=multiprocessing.get_context("fork")) as pool:
-            futures = {pool.submit(_one, i): i for i in range(n)}
+            futures = {pool.submit(_one, i): i for i in range(first)}
             if beside:
                 meanwhile()
+                futures.update({pool.submit(_one, i): i for i in range(first, n)})
             done: dict[int, object] = {}
             for fut in as_completed(futures):
                 i = futures[fut]
