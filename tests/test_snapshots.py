@@ -10,6 +10,7 @@ import dataclasses
 import math
 import multiprocessing
 import os
+import time
 from pathlib import Path
 
 import numpy as np
@@ -157,3 +158,28 @@ def test_no_snapshots_in_the_scope_process():
     with snapshots.scope() as d:
         replay_directions(plan, hand, PALM_DOWN, workers=1, stop_at_failure=StopLine(), snapshots=snapshots.current())
         assert os.listdir(d) == []
+
+
+@FORKS
+def test_the_snapshots_of_a_killed_planner_remove_its_scope(tmp_path):
+    """A planner killed before it closes its scope leaves no directory behind: its snapshots
+    see it gone, remove the scope's directory and exit."""
+    plan, _ = _plans(4)
+    hand = plan_hand(plan)
+    where = tmp_path / "scope.txt"
+    pid = os.fork()
+    if pid == 0:  # the planner: replays in a worker, then dies with its scope open
+        try:
+            with snapshots.scope() as d:
+                _replay(plan, hand, scoped=True)
+                where.write_text(d)
+                os._exit(0)  # inside the scope: its own cleanup never runs
+        finally:
+            os._exit(1)
+    assert os.waitpid(pid, 0)[1] == 0
+    d = where.read_text()
+    for _ in range(200):  # a snapshot looks every POLL_S (0.5 s)
+        if not os.path.exists(d):
+            break
+        time.sleep(0.05)
+    assert not os.path.exists(d)

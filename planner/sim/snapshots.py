@@ -227,14 +227,19 @@ class Snapshots:
             try:
                 s, _ = srv.accept()
             except socket.timeout:
-                if not os.path.isdir(self.dir) or not _alive(self.owner):
+                if not os.path.isdir(self.dir):
+                    os._exit(0)
+                if not _alive(self.owner):
+                    # the planner is gone without closing its scope (killed): its directory
+                    # goes too, and its other snapshots, seeing it gone, exit
+                    shutil.rmtree(self.dir, ignore_errors=True)
                     os._exit(0)
                 continue
             s.setblocking(True)
             conn = Connection(s.detach())
             try:
                 kind, plan, digests = conn.recv()
-            except Exception:  # noqa: BLE001 - a bad request: drop it
+            except (EOFError, OSError, ValueError, TypeError, pickle.UnpicklingError):  # a bad request: dropped
                 conn.close()
                 continue
             if kind != "resume" or os.fork():
