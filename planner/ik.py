@@ -276,14 +276,13 @@ def opening_reach(hand, f, cidx, step) -> dict[int, float] | None:
         a, arm, v = int(g.joint_id), float(np.linalg.norm(g.center)), 0.0
         while a > 0:
             jm = model.joints[a]
-            qi = int(jm.idx_q) if jm.nq == 1 else None
-            if qi in moved or (jm.nq != 1 and any(model.joints[a].idx_q <= k < model.joints[a].idx_q + jm.nq
-                                                   for k in moved)):
+            span = range(int(jm.idx_q), int(jm.idx_q) + int(jm.nq))  # its coordinates in q
+            if any(k in moved for k in span):
                 kind = jm.shortname()
-                if kind in _REVOLUTE:
-                    v += moved[qi] * (arm + g.radius_m)
-                elif kind in _PRISMATIC:
-                    v += moved[qi]
+                if jm.nq == 1 and kind in _REVOLUTE:
+                    v += moved[span[0]] * (arm + g.radius_m)
+                elif jm.nq == 1 and kind in _PRISMATIC:
+                    v += moved[span[0]]
                 else:
                     out = None
                     break
