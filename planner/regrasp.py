@@ -560,9 +560,11 @@ def plan_gaits(
             # end at the files' grasps moved there (`planner.pose_search`)
             audits = []
             # the directions are replayed in order, those that rejected a sequence before
-            # first: the first to fail rejects it and stops the others (a sequence they reject
-            # again costs their replays only; a bound on the work, not the time)
-            check = verify_suspects_first(plan, hand, directions, {r["direction"] for r in rejected}, workers=workers,
+            # first (the latest first): the first to fail rejects it and stops the others (a
+            # sequence they reject again costs their replays only; a bound on the work, not
+            # the time)
+            check = verify_suspects_first(plan, hand, directions, [r["direction"] for r in reversed(rejected)],
+                                          workers=workers,
                                           engine=options.engine,
                                           meanwhile=lambda: audits.append(audit_plan(replace(plan, inputs={}), hand)))
             audit = audits[0]

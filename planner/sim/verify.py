@@ -374,13 +374,15 @@ def _worst(rows):
 def verify_suspects_first(plan: Plan, hand, directions: Sequence[tuple[str, Sequence[float]]], suspects,
                           *, workers: int | None = None, engine: str | None = None,
                           meanwhile: Callable[[], object] | None = None) -> Verification:
-    """`verify_plan` in the order: the ``suspects`` (direction names that rejected an earlier
-    sequence) first, then the others, each group as in ``directions``. The first direction in
-    that order to fail decides and the replays after it stop (deterministic: the order depends
-    only on the earlier verdicts); the rows come back in ``directions`` order. ``meanwhile``:
-    as `replay_directions`'."""
-    suspects = set(suspects)
-    order = [d for d in directions if d[0] in suspects] + [d for d in directions if d[0] not in suspects]
+    """`verify_plan` in the order: the ``suspects`` first (direction names that rejected an
+    earlier sequence, in the order given: the one that rejected the latest first, as the next
+    sequence mostly repeats the last), then the others as in ``directions``. The first
+    direction in that order to fail decides and the replays after it stop (deterministic: the
+    order depends only on the earlier verdicts); the rows come back in ``directions`` order.
+    ``meanwhile``: as `replay_directions`'."""
+    by_name = dict(directions)
+    suspects = list(dict.fromkeys(n for n in suspects if n in by_name))
+    order = [(n, by_name[n]) for n in suspects] + [d for d in directions if d[0] not in set(suspects)]
     kw = {} if engine is None else {"engine": engine}  # (the default engine: verify_plan's call as before)
     if meanwhile is not None:
         kw["meanwhile"] = meanwhile
