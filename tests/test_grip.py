@@ -225,18 +225,19 @@ def test_a_failed_verification_removes_the_transition_and_the_search_goes_on(mon
     from planner.resources import bundled_grasp
 
     a, b = (realize(load_grasp(bundled_grasp(n))) for n in ("icub/box_parallel_extension.yaml", "icub/box_ir2m.yaml"))
-    calls = []
+    calls, orders = [], []
 
     def first_fails(at_state: bool):
-        """A verify_plan whose first replay fails palm down at step 1 (at the state it
-        reaches, or in the step) and whose later replays pass."""
+        """A verify_plan whose first verification fails side_+x at step 1 (at the state it
+        reaches, or in the step) and whose later ones pass."""
         def fake(plan, hand, directions, workers=None, meanwhile=None):
             if meanwhile is not None:  # (the physics check, run while the replays run)
                 meanwhile()
             calls.append([s.finger + ":" + s.action for s in plan.steps])
+            orders.append([n for n, _ in directions])
             ok = len(calls) > 1
-            rows = tuple((n, ok or i > 0, "PASS" if ok or i > 0 else "FAIL: made up", None if ok or i > 0 else 1,
-                          at_state, 0.1, 0.1) for i, (n, _) in enumerate(directions))
+            rows = tuple((n, ok or n != "side_+x", "PASS" if ok or n != "side_+x" else "FAIL: made up",
+                          None if ok or n != "side_+x" else 1, at_state, 0.1, 0.1) for n, _ in directions)
             return verify.Verification(ok, rows, 0.0)
         return fake
 
@@ -245,11 +246,13 @@ def test_a_failed_verification_removes_the_transition_and_the_search_goes_on(mon
     unverified = plan_regrasp(a, b, PlanOptions.for_execution(motion=False, time_limit_s=0, verify=False))
     res = plan_regrasp(a, b, opts)
     rec = res.plan.summary["verification"]
-    # the second sequence is replayed palm down first (the direction that rejected the first
-    # one), then in the other directions: two replay batches of one plan
-    assert len(calls) == 3 and calls[1] == calls[2] and rec["attempts"] == 2 and rec["passed"]
+    # the second sequence is replayed side_+x first (the direction that rejected the first
+    # one), then in the other directions as planned, in one verification
+    assert len(calls) == 2 and rec["attempts"] == 2 and rec["passed"]
+    assert orders == [["palm_down", "palm_up", "side_+x", "side_-x", "side_+y", "side_-y"],
+                      ["side_+x", "palm_down", "palm_up", "side_-x", "side_+y", "side_-y"]]
     assert set(rec["directions"]) == {"palm_down", "palm_up", "side_+x", "side_-x", "side_+y", "side_-y"}
-    assert rec["rejected"][0]["step"] == 1 and rec["rejected"][0]["direction"] == "palm_down"
+    assert rec["rejected"][0]["step"] == 1 and rec["rejected"][0]["direction"] == "side_+x"
     assert rec["rejected"][0]["order"] == list(unverified.sequence.order(unverified.graph.graph["problem"]))
     assert calls[0] == [s.finger + ":" + s.action for s in unverified.plan.steps]
     # the edge of step 1 (a lift's move, or a land) is not in the returned sequence
@@ -287,7 +290,7 @@ def test_when_every_sequence_fails_in_the_simulator_more_contacts_are_tried_then
     from planner.resources import bundled_grasp
 
     a, b = (realize(load_grasp(bundled_grasp(n))) for n in ("icub/box_parallel_extension.yaml", "icub/box_ir2m.yaml"))
-    calls = []
+    calls, orders = [], []
 
     def never(plan, hand, directions, workers=None, meanwhile=None):
         if meanwhile is not None:  # (the physics check, run while the replays run)
