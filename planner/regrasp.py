@@ -81,6 +81,8 @@ def check_same_setup(initial, final, pose: bool = False) -> None:
     ]
     for key, va, vb in checks:
         same = va == vb if isinstance(va, str) or va is None else np.allclose(np.asarray(va, float), np.asarray(vb, float), atol=1e-9)
+        if not same and key == "object.quat_xyzw":  # q and -q are one orientation
+            same = np.allclose(np.asarray(va, float), -np.asarray(vb, float), atol=1e-9)
         if not same:
             raise SpecError(b.path, key, f"differs from the initial grasp ({a.path}): {va} vs {vb}; both grasps must share "
                                          f"hand, object{', object pose' if pose else ''} and friction")

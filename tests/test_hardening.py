@@ -562,6 +562,26 @@ def test_final_grasp_with_another_mass_is_refused(grasps, capsys):
         assert info.value.key == "object.mass_kg"
 
 
+def test_a_final_grasp_writing_the_same_orientation_with_the_other_quaternion_sign_shares_the_pose():
+    """q and -q are one orientation: a final grasp whose object quaternion is the initial's
+    negated shares the initial's pose (it was refused as another pose, naming
+    object.quat_xyzw); another orientation does not."""
+    from dataclasses import replace
+
+    from planner.grasp import load_grasp
+    from planner.regrasp import check_same_setup
+    from planner.resources import bundled_grasp
+
+    a, b = (load_grasp(bundled_grasp(n)) for n in ("icub/box_parallel_extension.yaml", "icub/box_ir2m.yaml"))
+    x, y, z, w = 0.0, 0.0, math.sin(0.2), math.cos(0.2)
+    a, b = (replace(g, object=g.object.replaced(quat_xyzw=(x, y, z, w))) for g in (a, b))
+    check_same_setup(a, b, pose=True)
+    check_same_setup(a, replace(b, object=b.object.replaced(quat_xyzw=(-x, -y, -z, -w))), pose=True)
+    with pytest.raises(SpecError) as info:
+        check_same_setup(a, replace(b, object=b.object.replaced(quat_xyzw=(x, y, -z, w))), pose=True)
+    assert info.value.key == "object.quat_xyzw"
+
+
 @pytest.mark.parametrize("old, new, expect", [
     ('<sphere radius="0.0065"/>', '<sphere radius="-0.0065"/>', "collision sphere radius must be > 0, got -0.0065"),
     ('<cylinder radius="0.0065" length="0.0103"/>', '<cylinder radius="0.0065" length="0"/>',
