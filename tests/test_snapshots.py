@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import json
 import math
 import multiprocessing
 import os
@@ -183,3 +184,57 @@ def test_the_snapshots_of_a_killed_planner_remove_its_scope(tmp_path):
             break
         time.sleep(0.05)
     assert not os.path.exists(d)
+
+
+def _in_child(fn, out: Path):
+    """``fn()``'s dict, computed in a forked child (a replay that may resume: not the scope's
+    own process)."""
+    pid = os.fork()
+    if pid == 0:
+        try:
+            out.write_text(json.dumps(fn()))
+        finally:
+            os._exit(0)
+    os.waitpid(pid, 0)
+    return json.loads(out.read_text())
+
+
+@FORKS
+def test_a_resumed_replay_takes_the_stop_line_through_its_requester(monkeypatch, tmp_path):
+    """A replay resumed from a snapshot is stopped, unfailed, when a replay before it in the
+    order has failed (the requester says so), and its own failure marks its place on the
+    requester's line."""
+    from planner.sim.replay import _Sim, replay_plan
+
+    plan, other = _plans(4)
+    hand = plan_hand(plan)
+    log = tmp_path / "resumed.txt"
+    _spy_resume(monkeypatch, log)
+    force = tmp_path / "fail"
+    real_swap = _Sim.swap_plan
+
+    def swap(self, rd, line):  # a copy that fails as soon as it resumes, when asked
+        real_swap(self, rd, line)
+        if force.exists():
+            self.failure, self.fail_step = "made up", 4
+
+    monkeypatch.setattr(_Sim, "swap_plan", swap)
+
+    def run(line):
+        def fn():
+            r = replay_plan(plan, hand=hand, gravity=PALM_DOWN[0][1], stop_at_failure=line,
+                            snapshots=snapshots.current())
+            return {"stopped_after": r.stopped_after, "passed": r.passed, "failed_step": r.failed_step}
+        return fn
+
+    with snapshots.scope():
+        _replay(other, hand, scoped=True)
+        line = StopLine()
+        line.at(0).fail()
+        stopped = _in_child(run(line.at(1)), tmp_path / "a.json")
+        force.touch()
+        line = StopLine()
+        failed = _in_child(run(line.at(3)), tmp_path / "b.json")
+    assert log.read_text().split() == ["start", "resumed", "resumed"]
+    assert stopped["stopped_after"] is not None and not stopped["passed"] and stopped["failed_step"] is None
+    assert not failed["passed"] and failed["stopped_after"] is None and line.first() == 3

@@ -286,6 +286,9 @@ def test_verification_replays_the_directions_that_rejected_before_first(monkeypa
     got = V.verify_suspects_first(None, None, dirs, ["c", "bad", "c", "gone"])  # the latest rejection first
     assert calls == [["c", "bad", "a"]] and [r[0] for r in got.directions] == ["bad", "c"]
     calls.clear()
+    V.verify_suspects_first(None, None, dirs, {"c", "bad"})  # a set has no order: by name
+    assert calls == [["bad", "c", "a"]]
+    calls.clear()
     good = [("a", (0, 0, 1)), ("c", (1, 0, 0)), ("d", (0, 1, 0))]
     got = V.verify_suspects_first(None, None, good, {"c"})
     assert calls == [["c", "a", "d"]] and got.passed and [r[0] for r in got.directions] == ["a", "c", "d"]

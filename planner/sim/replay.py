@@ -410,6 +410,8 @@ def _replay_engine(rd, info, joints, states, steps, obj, friction, params, line,
         failed_step=failed_step, failed_at_state=at_state, trajectory=trajectory, engine=eng.name,
         coupling_errors=tuple(couplings), stopped_after=stopped_after,
     )
+    if line is not None and not passed and stopped_after is None:
+        line.fail()  # (a failure found once the run is over, e.g. a broken coupling, stops the later replays too)
     if snap is not None:
         snap.finish(report)  # a copy resumed from a snapshot hands it to its requester and exits
     return report

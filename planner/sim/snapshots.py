@@ -13,13 +13,15 @@ snapshot: the snapshot forks again, and the copy swaps in the new plan's states 
 and goes on from there. Its memory is the snapshot's, byte for byte, and the simulation is
 deterministic and reads nothing else up to that state, so its report is the report of a
 replay from the start (the wall time it gives is that of the simulation it ran, as if in
-one go). Whatever fails in this (a snapshot gone, a socket refused, a copy that dies), the
-replay runs from the start.
+one go; a replay stopped because a direction before it failed may stop at another state
+than from the start, as its timing does anyway: a verification leaves its row out). Whatever
+fails in this (a snapshot gone, a socket refused, a copy that dies), the replay runs from the
+start.
 
 Snapshots live until their scope ends (they exit within `POLL_S` once its directory is
-gone, or when the process that opened the scope has exited); at most `MAX_SNAPSHOTS` per
-scope. A replay in the scope's own process (one worker) leaves none: it would fork the
-planner.
+gone, or when the process that opened the scope has exited: the first to see that removes
+the directory); at most `MAX_SNAPSHOTS` per scope. A replay in the scope's own process (one
+worker) leaves none: it would fork the planner.
 """
 
 from __future__ import annotations
@@ -160,7 +162,8 @@ class Snapshots:
         told = False
         while True:
             if line is not None and not told and line.stopped():
-                conn.send(("stop", None))
+                with contextlib.suppress(OSError):  # (a copy that has just sent its report and exited)
+                    conn.send(("stop", None))
                 told = True
             if conn.poll(FORWARD_S):
                 kind, v = conn.recv()
@@ -239,7 +242,8 @@ class Snapshots:
             conn = Connection(s.detach())
             try:
                 kind, plan, digests = conn.recv()
-            except (EOFError, OSError, ValueError, TypeError, pickle.UnpicklingError):  # a bad request: dropped
+            except (EOFError, OSError, ValueError, TypeError, AttributeError, ImportError, IndexError, KeyError,
+                    pickle.UnpicklingError):  # a bad request (what unpickling raises): dropped
                 conn.close()
                 continue
             if kind != "resume" or os.fork():

@@ -110,8 +110,9 @@ def replay_directions(plan: Plan, hand, directions: Sequence[tuple[str, Sequence
             given: once one fails, the later ones stop, or are not started.
 
     Returns:
-        the `ReplayReport` of each direction, in order (identical to a serial run); with a
-        stop line, None for a direction after a failed one that was not started.
+        the `ReplayReport` of each direction, in order (identical to a serial run up to the
+        first failing direction with a stop line; after it, a stopped, finished or None (not
+        started) report, as the timing made it).
     """
     directions = [(str(n), tuple(float(v) for v in g)) for n, g in directions]
     kwargs["engine"] = one_engine(kwargs.get("engine"))
@@ -381,6 +382,8 @@ def verify_suspects_first(plan: Plan, hand, directions: Sequence[tuple[str, Sequ
     order depends only on the earlier verdicts); the rows come back in ``directions`` order.
     ``meanwhile``: as `replay_directions`'."""
     by_name = dict(directions)
+    if isinstance(suspects, (set, frozenset)):  # (no order of its own: a set's depends on the hash seed)
+        suspects = sorted(suspects)
     suspects = list(dict.fromkeys(n for n in suspects if n in by_name))
     order = [(n, by_name[n]) for n in suspects] + [d for d in directions if d[0] not in set(suspects)]
     kw = {} if engine is None else {"engine": engine}  # (the default engine: verify_plan's call as before)
