@@ -207,17 +207,25 @@ def close_finger(hand, finger, q, obj, steps: int = 20, backoff: float = 1e-3) -
             return 0
         return OPENING_STEPS_MAX if v <= 0.0 else max(0, int(math.ceil(safe / v)) - 1)
 
+    left = 0  # opening steps `still_inside` proved inside, not yet taken
+
+    def inside(qa) -> bool:  # an opening finger still penetrates: proved before, or checked now
+        nonlocal left
+        if left:
+            left -= 1
+            return True
+        found = penetration(qa)
+        if found is None:
+            return False
+        left = still_inside(found)
+        return True
+
     if colliding(0.0):
         # already penetrating (e.g. an IK placement): open by 0.1 % steps until free
-        qb, left = q.copy(), 0
+        qb = q.copy()
         for _ in range(int(np.ceil(1.0 / backoff))):
-            if left:
-                left -= 1  # (inside: `still_inside`)
-            else:
-                found = penetration(qb)
-                if found is None:
-                    return qb
-                left = still_inside(found)
+            if not inside(qb):
+                return qb
             qb[cidx] = np.where(down, np.minimum(qb[cidx] + step, hi), np.maximum(qb[cidx] - step, lo))
             qb = couple_finger(f, qb)
         return qb
@@ -227,17 +235,8 @@ def close_finger(hand, finger, q, obj, steps: int = 20, backoff: float = 1e-3) -
             alpha -= 0.5 ** n
         else:
             alpha = min(alpha + 0.5 ** n, 1.0)
-    qc, left = at(alpha), 0
-    while True:
-        if left:
-            left -= 1
-        else:
-            found = penetration(qc)
-            if found is None:
-                break
-            left = still_inside(found)
-        if not np.any(np.where(down, qc[cidx] < start, qc[cidx] > start)):
-            break
+    qc = at(alpha)
+    while inside(qc) and np.any(np.where(down, qc[cidx] < start, qc[cidx] > start)):
         qc[cidx] = np.where(down, np.minimum(qc[cidx] + step, start), np.maximum(qc[cidx] - step, start))
         qc = couple_finger(f, qc)
     return qc
