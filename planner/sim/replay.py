@@ -410,8 +410,11 @@ def _replay_engine(rd, info, joints, states, steps, obj, friction, params, line,
         failed_step=failed_step, failed_at_state=at_state, trajectory=trajectory, engine=eng.name,
         coupling_errors=tuple(couplings), stopped_after=stopped_after,
     )
-    if line is not None and not passed and stopped_after is None:
-        line.fail()  # (a failure found once the run is over, e.g. a broken coupling, stops the later replays too)
+    if sim.stop_line is not None and not passed and stopped_after is None:
+        # the line marked once the verdict is known too (a failure found once the run is
+        # over, a broken coupling or a drop, stops the later replays); ``sim``'s line: in a
+        # copy resumed from a snapshot `_Sim.swap_plan` put the requester's there
+        sim.stop_line.fail()
     if snap is not None:
         snap.finish(report)  # a copy resumed from a snapshot hands it to its requester and exits
     return report
@@ -880,8 +883,6 @@ class _Sim:
             if self._stop(r, k):
                 break
             self._checkpoint(k)
-        if not ok and self.stop_line is not None and self.fail_step is not None:  # dropped: a failure
-            self.stop_line.fail()
         out = []
         for i, s in enumerate(self.plan_states):
             if i in reports:
