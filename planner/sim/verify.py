@@ -381,11 +381,12 @@ def verify_suspects_first(plan: Plan, hand, directions: Sequence[tuple[str, Sequ
     direction in that order to fail decides and the replays after it stop (deterministic: the
     order depends only on the earlier verdicts); the rows come back in ``directions`` order.
     ``meanwhile``: as `replay_directions`'."""
-    by_name = dict(directions)
+    gravity = dict(directions)
     if isinstance(suspects, (set, frozenset)):  # (no order of its own: a set's depends on the hash seed)
         suspects = sorted(suspects)
-    suspects = list(dict.fromkeys(n for n in suspects if n in by_name))
-    order = [(n, by_name[n]) for n in suspects] + [d for d in directions if d[0] not in set(suspects)]
+    suspects = list(dict.fromkeys(n for n in suspects if n in gravity))
+    first = set(suspects)
+    order = [(n, gravity[n]) for n in suspects] + [d for d in directions if d[0] not in first]
     kw = {} if engine is None else {"engine": engine}  # (the default engine: verify_plan's call as before)
     if meanwhile is not None:
         kw["meanwhile"] = meanwhile
