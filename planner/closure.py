@@ -59,7 +59,7 @@ import numpy as np
 
 from planner.errors import InputError, UnknownNameError
 from planner.hull import Closure, Hull, is_force_closure, wrench_closure
-from planner.lp import solve_highs
+from planner.lp import solve_highs_rhs
 from planner.model import PALM, Friction, Patch, cross, tangent_basis
 
 __all__ = [
@@ -485,19 +485,24 @@ _GRIP_MEMO: dict = {}
 def _grip_lp(W: np.ndarray, spans: list, w_ext: np.ndarray) -> float:
     """`min_grip_force`'s linear program for the wrenches W, finger spans and load."""
     k = len(W)
-    A_ub = np.zeros((len(spans), k + 1))
-    for i, (a, b) in enumerate(spans):
-        A_ub[i, a:b] = 1.0
-    A_ub[:, k] = -1.0
-    c = np.zeros(k + 1)
-    c[k] = 1.0
+
+    def program():
+        A_ub = np.zeros((len(spans), k + 1))
+        for i, (a, b) in enumerate(spans):
+            A_ub[i, a:b] = 1.0
+        A_ub[:, k] = -1.0
+        c = np.zeros(k + 1)
+        c[k] = 1.0
+        return c, A_ub, np.zeros(len(spans)), np.c_[W.T, np.zeros(6)], [(0, None)] * (k + 1)
+
     # the program is homogeneous in the load: solve for the unit load and scale t back, so
     # HiGHS's absolute tolerances cannot decide feasibility for a tiny (or huge) load
     scale = float(np.abs(w_ext).max())
-    res = solve_highs(c, A_ub, np.zeros(len(spans)), np.c_[W.T, np.zeros(6)], -w_ext / scale, [(0, None)] * (k + 1),
-                      "grip force LP", f" for {len(spans)} finger(s) and load {np.round(w_ext, 6).tolist()}; "
-                                       "the grip force is unknown")
-    return math.inf if res is None else float(res.x[k]) * scale
+    # the same contacts under another load (the next gravity direction) differ in b_eq only:
+    # HiGHS goes on from the last optimum (`solve_highs_rhs`)
+    t = solve_highs_rhs(("grip", W.shape, W.tobytes(), tuple(spans)), -w_ext / scale, program, "grip force LP",
+                        f" for {len(spans)} finger(s) and load {np.round(w_ext, 6).tolist()}; the grip force is unknown")
+    return math.inf if t is None else t * scale
 
 
 def checked_load(load) -> np.ndarray:

@@ -5,7 +5,7 @@
 * ``metric`` (the thesis): (1) the bottleneck, the worst closure metric along the path,
   larger is better; (2) fewer gait steps (then fewer edges); (3) a larger mean metric.
 * ``grip`` (for execution): (1) the grip bottleneck, the largest grip force any state of the
-  path needs, smaller is better; (2) fewer gait steps; (3) the metric ranking (larger
+  path needs, smaller is better (to 1 uN: `GRIP_RANK_DECIMALS`); (2) fewer gait steps; (3) the metric ranking (larger
   metric bottleneck, fewer edges, larger mean metric).
 
 The search is exact for both: it returns the k best simple paths under the key.
@@ -32,6 +32,18 @@ from planner.errors import InputError, NoSequenceError, UnknownNameError
 from planner.graph import LIFTED, Evaluator, GaitProblem, Node, add_node, seed_graph, within_lift_bound
 
 RANKS = ("metric", "grip")
+
+#: Grip forces (N per finger) are ranked rounded to this many decimals (1 uN): states whose
+#: programs have the same optimum tie exactly and the ranking's next keys (gait steps, the
+#: closure metric) decide, not HiGHS's last digits (1e-10 N apart, and from where its simplex
+#: started: `planner.lp.solve_highs_rhs`). Those digits also made the lazy search expand every
+#: state a hair below the best sequence's grip, whatever its gait steps.
+GRIP_RANK_DECIMALS = 6
+
+
+def ranked_grip(g: float | None) -> float | None:
+    """A grip force as the ranking compares it (`GRIP_RANK_DECIMALS`)."""
+    return None if g is None else round(g, GRIP_RANK_DECIMALS)
 """Sequence rankings of `search` (module docstring)."""
 
 
@@ -65,7 +77,8 @@ class GaitSequence:
         (then edges), then larger mean. ``grip``: smaller grip bottleneck, then fewer gait
         steps, then the metric ranking (larger bottleneck, fewer edges, larger mean)."""
         if self.rank == "grip":
-            return (self.bottleneck_grip, self.gait_steps, -self.bottleneck, len(self.actions), -self.mean_metric)
+            return (ranked_grip(self.bottleneck_grip), self.gait_steps, -self.bottleneck, len(self.actions),
+                    -self.mean_metric)
         return (-self.bottleneck, self.gait_steps, len(self.actions), -self.mean_metric)
 
     def order(self, problem: GaitProblem) -> tuple[str, ...]:
@@ -193,7 +206,7 @@ def search(G: nx.DiGraph, k: int = 1, *, rank: str = "metric", max_expansions: i
         return []
     grip = hb_grip = None
     if rank == "grip":
-        grip = {v: G.nodes[v].get("grip_force") for v in G.nodes}
+        grip = {v: ranked_grip(G.nodes[v].get("grip_force")) for v in G.nodes}
         if any(g is None for g in grip.values()):
             raise InputError("grip ranking needs the grip force of every state: plan with a gravity (a load)")
         hb_grip = _bottleneck_to_goal(G, goal, grip)
@@ -335,7 +348,7 @@ class LazyGraph:
 
     def _cost(self, v: Node) -> float:
         data = self.G.nodes[v]
-        return -data["metric"] if self.rank == "metric" else data["grip_force"]
+        return -data["metric"] if self.rank == "metric" else ranked_grip(data["grip_force"])
 
     def _key(self, v: Node) -> tuple:
         return (self.value[v], _gaits_lower_bound(self.problem.start, self.problem.goal, v), v)
@@ -412,7 +425,7 @@ class LazyGraph:
         return done
 
     def _primary(self, s: GaitSequence) -> float:
-        return -s.bottleneck if self.rank == "metric" else s.bottleneck_grip
+        return -s.bottleneck if self.rank == "metric" else ranked_grip(s.bottleneck_grip)
 
     def best(self, k: int = 1, *, max_expansions: int = 200_000, alternative_expansions: int = 5_000) -> list[GaitSequence]:
         """The k best sequences (`search`'s ranking), growing the graph as needed.
@@ -434,7 +447,7 @@ class LazyGraph:
             return True
 
         def key(s: GaitSequence) -> tuple:
-            return (-s.bottleneck if self.rank == "metric" else s.bottleneck_grip, s.gait_steps)
+            return (-s.bottleneck if self.rank == "metric" else ranked_grip(s.bottleneck_grip), s.gait_steps)
 
         exact = True
         while goal not in G and more(inf, self.BATCH):

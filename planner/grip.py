@@ -134,6 +134,22 @@ class FingerStatics:
             raise InputError(f"statics of {self.finger}: gravity must be ({nj}, 3) and effort ({nj},)")
         if np.any(np.isnan(self.effort)) or np.any(self.effort <= 0):
             raise InputError(f"statics of {self.finger}: effort limits must be > 0 (inf: none)")
+        object.__setattr__(self, "_levers", {})
+
+    def lever(self, mu: float, gamma: float) -> np.ndarray:
+        """(n_joints,): the most torque a joint delivers per newton of normal force at any of
+        the contact points, with friction ``mu`` and torsion ``gamma`` at most: the largest over
+        the points of ``|J_lin[:, j]| sqrt(1 + mu^2) + |J_ang[:, j]| gamma`` (`holds_by_bound`;
+        remembered per (mu, gamma): the search asks it of every state holding this contact)."""
+        key = (float(mu), float(gamma))
+        out = self._levers.get(key)
+        if out is None:
+            J = self.jacobians
+            out = (np.linalg.norm(J[:, :3], axis=1) * math.sqrt(1.0 + key[0] * key[0])
+                   + np.linalg.norm(J[:, 3:], axis=1) * key[1]).max(axis=0)
+            out.setflags(write=False)
+            self._levers[key] = out
+        return out
 
 
 @dataclass(frozen=True)
@@ -590,9 +606,7 @@ def holds_by_bound(statics: Mapping[str, FingerStatics], grip_force_n: float, fr
     mu, gamma = friction.mu * margin, friction.gamma * margin
     g = np.asarray(gravity_obj, dtype=float).reshape(3)
     for st in statics.values():
-        lever = (np.linalg.norm(st.jacobians[:, :3], axis=1) * math.sqrt(1.0 + mu * mu)
-                 + np.linalg.norm(st.jacobians[:, 3:], axis=1) * gamma).max(axis=0)  # (nj,)
-        if np.any(np.abs(st.gravity @ g) + push * lever > st.effort):
+        if np.any(np.abs(st.gravity @ g) + push * st.lever(mu, gamma) > st.effort):
             return False
     return True
 

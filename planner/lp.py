@@ -3,7 +3,9 @@
 `planner.closure.min_grip_force`, `planner.grip`'s capacity and demand programs and the
 controller's force balance all solve small dense programs here. `solve_highs` separates
 "infeasible" (None) from "the solver failed" (PlannerError); `highs_lp` is one solve with
-``scipy.optimize.linprog``'s status codes.
+``scipy.optimize.linprog``'s status codes; `solve_highs_rhs` re-solves the program solved last
+with other equality right-hand sides from its optimal basis (the grip force of one set of
+contacts under each gravity direction).
 """
 
 from __future__ import annotations
@@ -49,6 +51,10 @@ class LPResult:
 
 
 _HIGHS = None  # one highspy.Highs per process, reused (a model is passed per solve)
+#: The key `solve_highs_rhs` gave the program the shared Highs holds at an optimum (None: no
+#: program, or one passed by any other solve): a program with this key differs only in b_eq.
+_HELD = None
+_SIMPLEX = False  # the last program passed was solved by the simplex (it has an optimal basis)
 
 
 def _highs():
@@ -81,7 +87,9 @@ def highs_lp(c, A_ub, b_ub, A_eq, b_eq, bounds, method: str) -> LPResult:
     """One HiGHS solve through highspy, the HiGHS project's own Python interface (a model
     passed as arrays: scipy's linprog spends 2-3x HiGHS's own time in checking and
     converting its input on the planner's small programs)."""
+    global _HELD, _SIMPLEX
     highspy, h = _highs()
+    _HELD, _SIMPLEX = None, method != "highs-ipm"
     inf = highspy.kHighsInf
     c = np.asarray(c, dtype=float)
     n = len(c)
@@ -117,3 +125,36 @@ def highs_lp(c, A_ub, b_ub, A_eq, b_eq, bounds, method: str) -> LPResult:
     if st in (S.kIterationLimit, S.kTimeLimit):
         return LPResult(1, f"model_status is {h.modelStatusToString(st)}", None)
     return LPResult(4, f"model_status is {h.modelStatusToString(st)}", None)
+
+
+def solve_highs_rhs(key, b_eq, build, what: str, detail: str = "; the answer is unknown"):
+    """`solve_highs`, for a family of programs that differ only in ``b_eq`` and share ``key``
+    (hashable; the caller's promise that ``build()``, which returns the rest of the program
+    ``(c, A_ub, b_ub, A_eq, bounds)``, is the same for every member; it is called only when the
+    program is solved from scratch): when
+    the shared HiGHS instance holds the last program of this family at an optimum, only the
+    equality rows' bounds change and HiGHS's simplex goes on from that optimal basis (a few
+    iterations instead of a solve from scratch, and no model passed). Anything else (another
+    program solved in between, a warm solve ending infeasible or unsure) solves from scratch
+    through `solve_highs`, which decides "infeasible" or raises as it does.
+
+    Returns:
+        The objective value at an optimum (not the solution), None when the program is
+        infeasible.
+    """
+    global _HELD
+    highspy, h = _highs()
+    if _HELD is not None and _HELD == key:
+        b = np.asarray(b_eq, dtype=float)
+        h.changeRowsBounds(len(b), np.arange(len(b), dtype=np.int32), b, b)
+        h.run()
+        if h.getModelStatus() == highspy.HighsModelStatus.kOptimal:
+            return float(h.getInfo().objective_function_value)
+        _HELD = None  # infeasible or unsure from the warm basis: the solve from scratch decides
+    c, A_ub, b_ub, A_eq, bounds = build()
+    res = solve_highs(c, A_ub, b_ub, A_eq, b_eq, bounds, what, detail)
+    if res is None:
+        return None
+    # held only after the default method (simplex): an interior-point answer has no basis to go on from
+    _HELD = key if _SIMPLEX else None
+    return float(np.dot(c, res.x))

@@ -221,7 +221,7 @@ def brute_force_keys(G, prob, rank):
         acts = [(G.edges[u, v]["finger"], G.edges[u, v]["action"]) for u, v in zip(path, path[1:])]
         gaits = sum(not (a[1] == "land" and p == (a[0], "lift")) for p, a in zip([None] + acts, acts))
         if rank == "grip":
-            keys.append((max(g), gaits, -min(m), len(acts), -float(np.mean(m))))
+            keys.append((round(max(g), 6), gaits, -min(m), len(acts), -float(np.mean(m))))  # to 1 uN
         else:
             keys.append((-min(m), gaits, len(acts), -float(np.mean(m))))
     return sorted(keys)
