@@ -563,28 +563,29 @@ class HandState:
                         np.array(result.getNearestPoint2(), dtype=float)))
         return out
 
-    def clearance(self, obj, finger: str, object_margin_m: float) -> bool:
+    def clearance(self, obj, finger: str, object_margin_m: float, others: bool = True) -> bool:
         """True when the finger keeps ``object_margin_m`` from the object (negative: a tolerated
         penetration, a signed distance on a mesh too, `signed_distance_geometry`) and does not
-        penetrate the palm, the other fingers or its own non-adjacent links (by more than
-        `HAND_OVERLAP_TOL_M`; allowed pairs excluded).
+        penetrate the palm, the other fingers (unless ``others`` is False: the hand as if it had
+        no other finger, a test no stricter in any configuration) or its own non-adjacent links
+        (by more than `HAND_OVERLAP_TOL_M`; allowed pairs excluded).
 
         The OMPL validity check: a vectorised bounding-sphere broad phase, then coal's cached
         collision functors. The rest of the hand is taken as posed in the state this one was
         made from by `with_finger` (its scene is built there once).
         """
-        return self._clearance_scene(obj, finger).is_clear(self._finger_poses(finger), object_margin_m)
+        return self._clearance_scene(obj, finger, others).is_clear(self._finger_poses(finger), object_margin_m)
 
-    def clearance_violations(self, obj, finger: str, object_margin_m: float) -> list[str]:
+    def clearance_violations(self, obj, finger: str, object_margin_m: float, others: bool = True) -> list[str]:
         """Why `clearance` fails, in words: one line per offending link pair (empty when clear)."""
-        return self._clearance_scene(obj, finger).violations(self._finger_poses(finger), object_margin_m)
+        return self._clearance_scene(obj, finger, others).violations(self._finger_poses(finger), object_margin_m)
 
-    def _clearance_scene(self, obj, finger: str) -> "_ClearanceScene":
+    def _clearance_scene(self, obj, finger: str, others: bool = True) -> "_ClearanceScene":
         base = self._origin if self._moved == finger else self
-        key = ("clearance", finger, id(obj))
+        key = ("clearance", finger, id(obj), bool(others))
         entry = base._cache.get(key)
         if entry is None or entry[0] is not obj:
-            entry = base._cache[key] = (obj, _ClearanceScene(base, obj, finger))
+            entry = base._cache[key] = (obj, _ClearanceScene(base, obj, finger, others))
         return entry[1]
 
 
@@ -620,12 +621,16 @@ class _ClearanceScene:
     the object's bounding sphere, coal's collision functors.
     """
 
-    def __init__(self, base: HandState, obj, finger: str):
+    def __init__(self, base: HandState, obj, finger: str, others: bool = True):
         model = base.model
         self.moving = base._finger_kinematics(finger)["geoms"]
         # what depends on the hand and the finger only: once per hand
         (self.static, spheres, self.moving_centers, self.moving_radii, self.static_radii, self.static_mask,
          self.self_pairs, self.self_a, self.self_b) = _finger_pairs(model, finger, self.moving)
+        if not others:  # the palm only (the geometries no finger owns)
+            keep = [j for j, g in enumerate(self.static) if model.geometries[g].finger is None]
+            self.static = tuple(self.static[j] for j in keep)
+            self.static_radii, self.static_mask = self.static_radii[keep], self.static_mask[:, keep]
         self.static_tf = [base.transform(s) for s in self.static]
         T_static = [transform_matrix(tf) for tf in self.static_tf]
         self.static_centers = (np.array([T[:3, :3] @ spheres[s][0] + T[:3, 3] for s, T in zip(self.static, T_static)])

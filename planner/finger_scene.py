@@ -39,6 +39,9 @@ class FingerScene:
     finger (touching is fine; the allowed pairs and the 1 um threshold of
     ``planner.contacts.collisions``).
 
+    ``others`` False: the hand as if it had no other finger (`HandState.clearance`): every
+    configuration valid with them is valid without them.
+
     A link the finger's closing joints do not move (`base_links`: the Allegro's abduction and
     thumb-base links; none on the iCub) cannot be taken away from the object by opening the
     finger: its distance is set by where the object lies, as the palm's is. Such a link is
@@ -50,8 +53,9 @@ class FingerScene:
     object whatever the finger does, inside the 2 mm clearance.
     """
 
-    def __init__(self, hand, obj, q_ref: np.ndarray, finger: str, touch_tol_m: float):
+    def __init__(self, hand, obj, q_ref: np.ndarray, finger: str, touch_tol_m: float, others: bool = True):
         self.hand = hand
+        self.others = bool(others)  # False: the other fingers are not there (`HandState.clearance`)
         self.finger = hand.fingers[finger]
         self.idx = np.asarray(self.finger.q_index, dtype=int)
         self.q_ref = np.array(q_ref, dtype=float)
@@ -128,10 +132,10 @@ class FingerScene:
         """`HandState.clearance` of the state ``st`` (this scene's finger moved) with the
         object margin of each link capped by `required` (see class doc)."""
         name = self.finger.name
-        if st.clearance(self.obj, name, margin_m):
+        if st.clearance(self.obj, name, margin_m, self.others):
             return True
         floor = min(self.required(link, margin_m) for link in self.moving_links)
-        if floor >= margin_m or not st.clearance(self.obj, name, floor):
+        if floor >= margin_m or not st.clearance(self.obj, name, floor, self.others):
             return False  # (the palm, the other fingers and its own links: no margin)
         return all(d >= self.required(link, margin_m) for d, link, _, _ in st.object_distances(self.obj, name))
 
@@ -170,11 +174,11 @@ class FingerScene:
         st = self.state(q_finger)
         name = self.finger.name
         if min(self.required(link, object_margin_m) for link in self.moving_links) >= object_margin_m:
-            reasons = st.clearance_violations(self.obj, name, object_margin_m)
+            reasons = st.clearance_violations(self.obj, name, object_margin_m, self.others)
         else:  # the object's lines with each link's own margin, then the hand's (no object margin)
             reasons = [f"{link} is {d * 1000:.1f} mm from the object (needs {self.required(link, object_margin_m) * 1000:.1f})"
                        for d, link, _, _ in st.object_distances(self.obj, name) if d < self.required(link, object_margin_m)]
-            reasons += st.clearance_violations(self.obj, name, -math.inf)
+            reasons += st.clearance_violations(self.obj, name, -math.inf, self.others)
         return "; ".join(reasons) or "no collision found"
 
 

@@ -352,6 +352,7 @@ def plan_gait_step(
     lift_m: float = DEFAULT_LIFT_M,
     resolution_rad: float = 0.01,
     verbose: bool = False,
+    others: bool = True,
 ) -> dict:
     """Paths of one gait step of ``finger``: lift off contact A, move, land on contact B.
 
@@ -379,6 +380,9 @@ def plan_gait_step(
         planner, max_checks, seed, clearance_m, touch_tol_m, resolution_rad, verbose:
             as in :func:`plan_finger_move` (``max_checks`` bounds the move).
         lift_m: retreat along the normal in metres.
+        others: False plans as if the hand had no other finger (`planner.finger_scene.FingerScene`):
+            every configuration valid with them is valid without them (a gait not found so is
+            taken as not found whatever the other fingers do: `planner.regrasp`).
 
     Returns:
         dict with ``lift``, ``move``, ``land``: (m, n_finger_joints) paths in
@@ -411,7 +415,7 @@ def plan_gait_step(
     q_open = np.asarray(hand.q_open, dtype=float)[idx]
     a = q_open.copy() if qa is None else check_limits(hand, f, qa[idx], "q_contact_a")
     b = q_open.copy() if qb is None else check_limits(hand, f, qb[idx], "q_contact_b")
-    scene = FingerScene(hand, obj, base, finger, touch_tol_m)
+    scene = FingerScene(hand, obj, base, finger, touch_tol_m, others)
     common = dict(lift_m=lift_m, clearance_m=clearance_m, resolution_rad=resolution_rad)
 
     lift = None if qa is None else retreat(scene, a, n_a_palm, what="lift off contact A", **common)

@@ -195,3 +195,32 @@ def test_a_finger_path_may_overlap_the_hand_as_much_as_a_grasp_may():
         assert overlap * 1e3 == pytest.approx(depth_mm, abs=0.05)
         assert state.clearance(far, "thumb", 0.002) is clear
         assert bool(state.clearance_violations(far, "thumb", 0.002)) is not clear
+
+
+@pytest.mark.parametrize("hand_name", ["icub_right", "allegro_right"])
+def test_clearance_without_the_other_fingers_is_never_stricter(hand_name):
+    """`clearance(..., others=False)`: the hand as if it had only the moving finger and the palm.
+    Random postures of every finger among the others at random postures: clear with the other
+    fingers means clear without them; the postures that differ (some must, the fingers cross)
+    are exactly those whose only violations are with another finger's links."""
+    hand = load_hand(hand_name)
+    obj = make_object("sphere", (0.02,), _pose([0.05, 0.0, 0.06]))
+    rng = np.random.default_rng(3)
+    lower, upper = np.asarray(hand.lower), np.asarray(hand.upper)
+    differ = 0
+    for _ in range(40):
+        base = hand.state(rng.uniform(lower, upper))
+        for finger, f in hand.fingers.items():
+            idx = list(f.q_index)
+            st = base.with_finger(finger, rng.uniform(lower[idx], upper[idx]))
+            with_others, alone = st.clearance(obj, finger, 0.002), st.clearance(obj, finger, 0.002, others=False)
+            assert alone or not with_others
+            if alone != with_others:
+                differ += 1
+                own = set(hand.collision.finger_links(finger))
+                others = {g.link for g in hand.collision.geometries if g.finger not in (None, finger)}
+                for line in st.clearance_violations(obj, finger, 0.002):
+                    assert any(f" {link} " in f" {line} " for link in others), line
+                    assert not any(f"penetrates {link} " in f"{line} " for link in own), line
+                assert st.clearance_violations(obj, finger, 0.002, others=False) == []
+    assert differ > 0
