@@ -32,19 +32,21 @@ from planner.errors import InputError, NoSequenceError, UnknownNameError
 from planner.graph import LIFTED, Evaluator, GaitProblem, Node, add_node, seed_graph, within_lift_bound
 
 RANKS = ("metric", "grip")
+"""Sequence rankings of `search` (module docstring)."""
 
 #: Grip forces (N per finger) are ranked rounded to this many decimals (1 uN): states whose
-#: programs have the same optimum tie exactly and the ranking's next keys (gait steps, the
-#: closure metric) decide, not HiGHS's last digits (1e-10 N apart, and from where its simplex
-#: started: `planner.lp.solve_highs_rhs`). Those digits also made the lazy search expand every
-#: state a hair below the best sequence's grip, whatever its gait steps.
+#: programs have the same optimum tie (but for the rare pair straddling a rounding boundary)
+#: and the ranking's next keys (gait steps, the closure metric) decide, not HiGHS's last
+#: digits (1e-10 N apart, and from where its simplex started: `planner.lp.solve_highs_rhs`).
+#: Those digits also made the lazy search expand every state a hair below the best sequence's
+#: grip, whatever its gait steps. A sequence ranked first may so need up to 0.5 uN more than
+#: another.
 GRIP_RANK_DECIMALS = 6
 
 
 def ranked_grip(g: float | None) -> float | None:
     """A grip force as the ranking compares it (`GRIP_RANK_DECIMALS`)."""
     return None if g is None else round(g, GRIP_RANK_DECIMALS)
-"""Sequence rankings of `search` (module docstring)."""
 
 
 @dataclass(frozen=True)

@@ -131,8 +131,8 @@ def solve_highs_rhs(key, b_eq, build, what: str, detail: str = "; the answer is 
     """`solve_highs`, for a family of programs that differ only in ``b_eq`` and share ``key``
     (hashable; the caller's promise that ``build()``, which returns the rest of the program
     ``(c, A_ub, b_ub, A_eq, bounds)``, is the same for every member; it is called only when the
-    program is solved from scratch): when
-    the shared HiGHS instance holds the last program of this family at an optimum, only the
+    program is solved from scratch): when the shared HiGHS instance holds the last program of
+    this family at an optimum, only the
     equality rows' bounds change and HiGHS's simplex goes on from that optimal basis (a few
     iterations instead of a solve from scratch, and no model passed). Anything else (another
     program solved in between, a warm solve ending infeasible or unsure) solves from scratch
@@ -145,7 +145,7 @@ def solve_highs_rhs(key, b_eq, build, what: str, detail: str = "; the answer is 
     global _HELD
     highspy, h = _highs()
     if _HELD is not None and _HELD == key:
-        b = np.asarray(b_eq, dtype=float)
+        b = np.asarray(b_eq, dtype=float)  # `highs_lp` passes the equality rows first
         h.changeRowsBounds(len(b), np.arange(len(b), dtype=np.int32), b, b)
         h.run()
         if h.getModelStatus() == highspy.HighsModelStatus.kOptimal:
@@ -158,3 +158,10 @@ def solve_highs_rhs(key, b_eq, build, what: str, detail: str = "; the answer is 
     # held only after the default method (simplex): an interior-point answer has no basis to go on from
     _HELD = key if _SIMPLEX else None
     return float(np.dot(c, res.x))
+
+
+def forget() -> None:
+    """Forget the program the shared HiGHS instance holds (the next `solve_highs_rhs` solves
+    from scratch): for tests that stand in for the solver or compare with answers from scratch."""
+    global _HELD
+    _HELD = None

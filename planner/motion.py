@@ -352,7 +352,7 @@ def plan_gait_step(
     lift_m: float = DEFAULT_LIFT_M,
     resolution_rad: float = 0.01,
     verbose: bool = False,
-    others: bool = True,
+    failed_moves: dict | None = None,
 ) -> dict:
     """Paths of one gait step of ``finger``: lift off contact A, move, land on contact B.
 
@@ -380,9 +380,15 @@ def plan_gait_step(
         planner, max_checks, seed, clearance_m, touch_tol_m, resolution_rad, verbose:
             as in :func:`plan_finger_move` (``max_checks`` bounds the move).
         lift_m: retreat along the normal in metres.
-        others: False plans as if the hand had no other finger (`planner.finger_scene.FingerScene`):
-            every configuration valid with them is valid without them (a gait not found so is
-            taken as not found whatever the other fingers do: `planner.regrasp`).
+        failed_moves: a memo of moves not found, shared by the gaits of one plan (None: none).
+            A move (lifted to approach posture) not found among the other fingers is planned
+            once more between the same two postures as if the hand had no other finger
+            (`planner.finger_scene.FingerScene` ``others=False``: every configuration valid
+            with them is valid without them); not found there either, the pair of postures is
+            remembered and a later gait between them, whatever the other fingers' contacts,
+            fails at once with that reason. A heuristic of a bounded planner (not found
+            within ``max_checks``; RRT samples at random), not a proof that no path exists;
+            it spares re-planning a path the object and palm block, state after state.
 
     Returns:
         dict with ``lift``, ``move``, ``land``: (m, n_finger_joints) paths in
@@ -415,17 +421,33 @@ def plan_gait_step(
     q_open = np.asarray(hand.q_open, dtype=float)[idx]
     a = q_open.copy() if qa is None else check_limits(hand, f, qa[idx], "q_contact_a")
     b = q_open.copy() if qb is None else check_limits(hand, f, qb[idx], "q_contact_b")
-    scene = FingerScene(hand, obj, base, finger, touch_tol_m, others)
+    scene = FingerScene(hand, obj, base, finger, touch_tol_m)
     common = dict(lift_m=lift_m, clearance_m=clearance_m, resolution_rad=resolution_rad)
 
     lift = None if qa is None else retreat(scene, a, n_a_palm, what="lift off contact A", **common)
     land = None if qb is None else retreat(scene, b, n_b_palm, what="land on contact B", **common)[::-1].copy()
     start = a if lift is None else lift[-1]
     goal = b if land is None else land[0]
-    move = _plan_move(
-        scene, start, goal, planner=planner, max_checks=max_checks, seed=seed,
-        clearance_m=clearance_m, resolution_rad=resolution_rad, verbose=verbose,
-    )
+    params = dict(planner=planner, max_checks=max_checks, seed=seed, clearance_m=clearance_m,
+                  resolution_rad=resolution_rad, verbose=verbose)
+    # the object by its pose and identity (the memo holds it: its id is not reused meanwhile)
+    key = None if failed_moves is None else (finger, start.tobytes(), goal.tobytes(), id(obj),
+                                             np.asarray(obj.T_palm_obj, dtype=float).tobytes())
+    if key is not None and failed_moves.get(key) is not None:
+        raise MotionError(failed_moves[key][0])
+    try:
+        move = _plan_move(scene, start, goal, **params)
+    except MotionError:
+        if key is None or key in failed_moves:  # (found alone before: the other fingers are in the way)
+            raise
+        try:
+            _plan_move(FingerScene(hand, obj, base, finger, touch_tol_m, others=False), start, goal, **params)
+        except MotionError as alone:
+            failed_moves[key] = (f"{alone} (not found with no other finger in the way either: not tried again "
+                                 f"between these postures)", obj)
+            raise MotionError(failed_moves[key][0]) from None
+        failed_moves[key] = None
+        raise
     out = {"joints": tuple(f.joints)}
     if lift is not None:
         out["lift"] = lift

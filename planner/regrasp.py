@@ -109,11 +109,17 @@ def _motion_gait(options: PlanOptions, verbose: bool = False):
     if options.motion_planner not in available_planners():
         raise UnknownNameError("motion planner", options.motion_planner, available_planners())
 
-    def gait(hand, obj, q_a, q_b, finger, others=True):
+    # moves not found even with no other finger in the way, by their end postures: not
+    # planned again in the plan's other states (`plan_gait_step`'s failed_moves; a thumb the
+    # object and palm keep from its final contact failed 25 states' paths of 20 000 collision
+    # checks each, 137 s, on exp10 v2's Allegro box)
+    failed_moves: dict = {}
+
+    def gait(hand, obj, q_a, q_b, finger):
         return plan_gait_step(
             hand, obj, q_a, q_b, finger,
             planner=options.motion_planner, max_checks=options.motion_checks, seed=options.seed,
-            verbose=verbose, others=others,
+            verbose=verbose, failed_moves=failed_moves,
         )
 
     return gait
@@ -136,45 +142,25 @@ def _gaits(seq: GaitSequence):
 
 
 def _plan_motions(hand, obj, problem, seq: GaitSequence, gait_fn, cache: dict) -> list:
-    """Paths of every gait of a sequence; raises _EdgeFailed naming the failed edge.
-
-    A gait is planned per (finger, state it lifts from, state it lands in), remembered in
-    ``cache``. The finger's own path depends only on the contacts it leaves and reaches (its
-    start and goal configurations); the other fingers are obstacles. So when a gait fails, it
-    is planned once more as if the hand had no other finger (``others=False``: every
-    configuration valid with them is valid without them); failing that too, the gait between
-    those two contacts fails in every state, at once, with that reason (one plan per pair of
-    contacts instead of one per state: a thumb that cannot reach its final contact from its
-    lifted posture failed 25 states' paths of 20 000 collision checks each, 137 s)."""
+    """Paths of every gait of a sequence; raises _EdgeFailed naming the failed edge."""
     out = []
     for i_lift, i_land, finger in _gaits(seq):
         u = seq.nodes[i_lift] if i_lift is not None else None
         w = seq.nodes[i_land + 1] if i_land is not None else None
         key = (finger, u, w)
-        k = problem.fingers.index(finger)
-        lift_from, land_on = (u[k] if u is not None else None), (w[k] if w is not None else None)
-        alone = ("alone", finger, lift_from, land_on)  # the contacts' gait with no other finger
         if key not in cache:
-            if isinstance(cache.get(alone), MotionError):
-                cache[key] = cache[alone]
-            else:
-                q_a = node_q(hand, problem, u) if u is not None else None
-                q_b = node_q(hand, problem, w) if w is not None else None
-                try:
-                    cache[key] = gait_fn(hand, obj, q_a, q_b, finger)
-                except MotionError as err:
-                    cache[key] = err
-                    if alone not in cache:
-                        try:
-                            gait_fn(hand, obj, q_a, q_b, finger, others=False)
-                            cache[alone] = None
-                        except MotionError as lone:
-                            cache[alone] = cache[key] = MotionError(f"{lone} (even with no other finger in the way: "
-                                                                    f"in every state)")
+            q_a = node_q(hand, problem, u) if u is not None else None
+            q_b = node_q(hand, problem, w) if w is not None else None
+            try:
+                cache[key] = gait_fn(hand, obj, q_a, q_b, finger)
+            except MotionError as err:
+                cache[key] = err
         result = cache[key]
         if isinstance(result, MotionError):
             edge = (seq.nodes[i_land], seq.nodes[i_land + 1]) if i_land is not None else (seq.nodes[i_lift], seq.nodes[i_lift + 1])
-            raise _EdgeFailed(edge, finger, str(result), lift_from=lift_from, land_on=land_on)
+            k = problem.fingers.index(finger)
+            raise _EdgeFailed(edge, finger, str(result), lift_from=u[k] if u is not None else None,
+                              land_on=w[k] if w is not None else None)
         out.append((i_lift, i_land, finger, result))
     return out
 

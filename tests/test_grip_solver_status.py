@@ -23,7 +23,9 @@ def _fresh_answers(monkeypatch):
     from another test's real solver."""
     monkeypatch.setattr(closure_module, "_GRIP_MEMO", {})
     # nor from a program HiGHS still holds at an optimum (`planner.lp.solve_highs_rhs`)
-    monkeypatch.setattr(lp_backend, "_HELD", None)
+    lp_backend.forget()
+    yield
+    lp_backend.forget()  # (not restored: the program it named is no longer the one HiGHS holds)
 
 
 def _antipodal(r=0.02):

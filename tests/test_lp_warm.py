@@ -24,7 +24,9 @@ LOADS = [np.r_[0.05 * 9.81 * s * np.eye(3)[i], np.zeros(3)] for i in range(3) fo
 @pytest.fixture(autouse=True)
 def _fresh(monkeypatch):
     monkeypatch.setattr(closure_module, "_GRIP_MEMO", {})
-    monkeypatch.setattr(lp_backend, "_HELD", None)
+    lp_backend.forget()
+    yield
+    lp_backend.forget()  # (not restored: the program it named is no longer the one HiGHS holds)
 
 
 def _contacts(rng, n_fingers):
@@ -41,7 +43,7 @@ def _contacts(rng, n_fingers):
 def _cold(patches, load):
     """The grip force with nothing held: the program passed and solved from scratch."""
     closure_module._GRIP_MEMO.clear()
-    lp_backend._HELD = None
+    lp_backend.forget()
     return min_grip_force(patches, FRICTION, load)
 
 

@@ -459,3 +459,45 @@ def test_gait_step_on_a_non_convex_mesh(hand, overlapping_pairs):
     for arm in arms:
         d_move, _ = _worst(hand, arm, q_a, "thumb", gait["move"], overlapping_pairs)
         assert d_move >= DEFAULT_CLEARANCE_M - 1e-6
+
+
+@pytest.mark.parametrize("fails_alone", [True, False])
+def test_a_move_not_found_even_without_the_other_fingers_is_not_planned_again(monkeypatch, hand, held_box, contact_qs,
+                                                                              fails_alone):
+    """`plan_gait_step(..., failed_moves=memo)`: the index's move off its contact is not found
+    among the other fingers (a stand-in planner). It is planned once more between the same two
+    postures with no other finger; not found there either, the same gait with the other fingers
+    elsewhere fails at once with that reason, and the planner is not asked; found there, the
+    other state's move is planned (the other fingers may have been in the way) and not tried
+    alone again. The same postures at another object pose are another move."""
+    import planner.motion as motion
+
+    q_a, _ = contact_qs["index"]
+    asked = []
+
+    def stand_in(scene, a, b, **kw):
+        asked.append((scene.others, a.tobytes(), b.tobytes()))
+        if scene.others or fails_alone:
+            raise MotionError(f"no path{'' if scene.others else ' alone'}")
+        return np.array([a, b])
+
+    monkeypatch.setattr(motion, "_plan_move", stand_in)
+    memo: dict = {}
+    elsewhere = np.array(q_a, dtype=float)
+    thumb = list(hand.fingers["thumb"].q_index)
+    elsewhere[thumb] = np.asarray(hand.q_open, dtype=float)[thumb]  # another state: the thumb lifted
+    for q_others in (q_a, elsewhere):
+        with pytest.raises(MotionError) as err:
+            plan_gait_step(hand, held_box, q_a, None, "index", q_others=q_others, failed_moves=memo)
+        if fails_alone:
+            assert str(err.value) == "no path alone (not found with no other finger in the way either: not tried " \
+                                     "again between these postures)"
+        else:
+            assert str(err.value) == "no path"
+    assert [others for others, _, _ in asked] == ([True, False] if fails_alone else [True, False, True])
+    assert len({(a, b) for _, a, b in asked}) == 1  # the same two postures every time
+    # another object pose: not the remembered move
+    moved = make_object("box", (0.05, 0.05, 0.03), _pose([0.045, -0.01, 0.0305]))
+    with pytest.raises(MotionError):
+        plan_gait_step(hand, moved, q_a, None, "index", failed_moves=memo)
+    assert [others for others, _, _ in asked[-2:]] == [True, False] and len(asked) == (4 if fails_alone else 5)

@@ -386,11 +386,12 @@ def test_execution_mode_plans_the_cylinder_pair_and_every_state_rechecks_closure
         assert full < state["grip_force_n"]
         grips.append(state["grip_force_n"])
     assert data["summary"]["bottleneck_grip_force_n"] == pytest.approx(max(grips), rel=1e-9)
-    assert all(alt["bottleneck_grip_force_n"] >= max(grips) * (1 - 1e-9) for alt in data["alternatives"])
+    # (the ranking compares grips to 1 uN: GRIP_RANK_DECIMALS)
+    assert all(alt["bottleneck_grip_force_n"] >= max(grips) - 1e-6 for alt in data["alternatives"])
     # the metric ranking on the same states does not need less grip than the grip ranking
     by_metric = plan_regrasp(realized(a), realized(b), PlanOptions(motion=False, contact_model="link", gravity_set=6,
                                                                    friction_margin=k))
-    assert by_metric.sequence.bottleneck_grip >= max(grips) * (1 - 1e-9)
+    assert by_metric.sequence.bottleneck_grip >= max(grips) - 1e-6
     # verified in the six directions before it was returned; the record is part of the bytes
     check = data["summary"]["verification"]
     assert check["passed"] and set(check["directions"]) == set(ICUB_GRAVITY_SET_6)
@@ -770,45 +771,3 @@ def test_a_physics_check_problem_outside_the_moves_refuses_at_once(monkeypatch):
     assert "fails the physics check replay and verify run on a plan: parameters.hold_factor" in str(err.value)
     assert "--no-verify" in str(err.value)
 
-
-@pytest.mark.parametrize("fails_alone", [True, False])
-def test_a_gait_failing_with_no_other_finger_fails_in_every_state_at_once(monkeypatch, fails_alone):
-    """`_plan_motions`: finger a's gait from its slot 0 to its slot 1 fails among the other
-    finger's contacts. Planned again with no other finger: when that fails too, the same gait
-    in a state where b touches elsewhere fails at once, with that reason, and is not planned
-    again; when it passes, the other state's gait is planned (the other finger may be what was
-    in the way there), and the test with no other finger is not repeated."""
-    from types import SimpleNamespace
-
-    import planner.regrasp as regrasp
-    from planner.errors import MotionError
-    from planner.gait_search import GaitSequence
-    from planner.graph import LIFTED
-
-    monkeypatch.setattr(regrasp, "node_q", lambda hand, problem, node: np.array(node, dtype=float))
-    calls = []
-
-    def gait_fn(hand, obj, q_a, q_b, finger, others=True):
-        calls.append((tuple(q_a), tuple(q_b), others))
-        if others or fails_alone:
-            raise MotionError(f"finger {finger}: no path{'' if others else ' alone'}")
-        return {"move": np.zeros((2, 1))}
-
-    problem = SimpleNamespace(fingers=("a", "b"))
-    acts = (("a", "lift"), ("a", "land"))
-    cache: dict = {}
-    for b_slot in (0, 2):
-        seq = GaitSequence(nodes=((0, b_slot), (LIFTED, b_slot), (1, b_slot)), actions=acts, bottleneck=0.0,
-                           mean_metric=0.0)
-        with pytest.raises(regrasp._EdgeFailed) as err:
-            regrasp._plan_motions(None, None, problem, seq, gait_fn, cache)
-        assert (err.value.finger, err.value.lift_from, err.value.land_on) == ("a", 0, 1)
-        assert err.value.edge == ((LIFTED, b_slot), (1, b_slot))
-        if fails_alone:
-            assert err.value.why == "finger a: no path alone (even with no other finger in the way: in every state)"
-        else:
-            assert err.value.why == "finger a: no path"
-    if fails_alone:  # the second state's gait was never planned
-        assert calls == [((0, 0), (1, 0), True), ((0, 0), (1, 0), False)]
-    else:
-        assert calls == [((0, 0), (1, 0), True), ((0, 0), (1, 0), False), ((0, 2), (1, 2), True)]
