@@ -112,3 +112,17 @@ def test_grip_ranking_ignores_differences_below_a_micronewton(seed):
     noisy = search(G, k=6, rank="grip")
     assert [s.nodes for s in noisy] == [s.nodes for s in tied]
     assert [s.gait_steps for s in noisy] == sorted(s.gait_steps for s in noisy)
+
+
+def test_a_warm_zero_is_zero_not_a_hair_below():
+    """Recorded from exp9 v2's Allegro mesh 0.3 kg plan (tests/data/grip_warm_zero.npz: the
+    wrenches of thumb, middle and the palm, the weight palm down then palm up): palm up the palm
+    carries the weight and no finger force is needed. From the palm-down optimum, HiGHS's warm
+    objective read -4.0e-13, and the plan file was refused for a negative grip force; the
+    program's bound t >= 0 makes it 0."""
+    from pathlib import Path
+
+    data = np.load(Path(__file__).parent / "data" / "grip_warm_zero.npz")
+    W, spans, (down, up) = data["W"], [tuple(int(v) for v in s) for s in data["spans"]], data["loads"]
+    assert closure_module._grip_lp(W, spans, down) > 0.1
+    assert closure_module._grip_lp(W, spans, up) == 0.0
