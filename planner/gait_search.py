@@ -5,8 +5,8 @@
 * ``metric`` (the thesis): (1) the bottleneck, the worst closure metric along the path,
   larger is better; (2) fewer gait steps (then fewer edges); (3) a larger mean metric.
 * ``grip`` (for execution): (1) the grip bottleneck, the largest grip force any state of the
-  path needs, smaller is better (to 1 uN: `GRIP_RANK_DECIMALS`); (2) fewer gait steps; (3) the metric ranking (larger
-  metric bottleneck, fewer edges, larger mean metric).
+  path needs, smaller is better (to 1 uN: `GRIP_RANK_DECIMALS`); (2) fewer gait steps; (3)
+  the metric ranking (larger metric bottleneck, fewer edges, larger mean metric).
 
 The search is exact for both: it returns the k best simple paths under the key.
 `LazyGraph` gives the same k best without building the whole graph: a best-first search

@@ -132,9 +132,9 @@ def solve_highs_rhs(key, b_eq, build, what: str, detail: str = "; the answer is 
     (hashable; the caller's promise that ``build()``, which returns the rest of the program
     ``(c, A_ub, b_ub, A_eq, bounds)``, is the same for every member; it is called only when the
     program is solved from scratch): when the shared HiGHS instance holds the last program of
-    this family at an optimum, only the
-    equality rows' bounds change and HiGHS's simplex goes on from that optimal basis (a few
-    iterations instead of a solve from scratch, and no model passed). Anything else (another
+    this family at an optimum, only the equality rows' bounds change and HiGHS's simplex goes
+    on from that optimal basis (a few iterations instead of a solve from scratch, and no model
+    passed). Anything else (another
     program solved in between, a warm solve ending infeasible or unsure) solves from scratch
     through `solve_highs`, which decides "infeasible" or raises as it does.
 

@@ -126,3 +126,31 @@ def test_a_warm_zero_is_zero_not_a_hair_below():
     W, spans, (down, up) = data["W"], [tuple(int(v) for v in s) for s in data["spans"]], data["loads"]
     assert closure_module._grip_lp(W, spans, down) > 0.1
     assert closure_module._grip_lp(W, spans, up) == 0.0
+
+
+@pytest.mark.parametrize("seed", range(3))  # (seed 3's extra contacts leave no sequence)
+def test_the_lazy_search_ignores_differences_below_a_micronewton(monkeypatch, seed):
+    """`LazyGraph.best` (the planner's search) where every state needs 0.5 N per finger but
+    for a 1e-10 N of its own (a function of its contacts): the same best sequences as with
+    exactly 0.5 N everywhere."""
+    import zlib
+
+    import planner.graph as graph_module
+    from planner.gait_search import LazyGraph
+
+    rng = np.random.default_rng(seed)
+    extra = [tuple(rng.normal(size=3)) for _ in range(3)]
+
+    def grip(noise):
+        def fake(patches, friction, load, **kw):
+            if not noise:
+                return 0.5
+            data = b"".join(np.asarray(p[0], dtype=float).tobytes() for _, p in sorted(patches.items()))
+            return 0.5 + (zlib.crc32(data + np.asarray(load, dtype=float).tobytes()) / 2 ** 32 - 0.5) * 2e-10
+        return fake
+
+    found = {}
+    for noise in (False, True):
+        monkeypatch.setattr(graph_module, "min_grip_force", grip(noise))
+        found[noise] = [s.nodes for s in LazyGraph(loaded_deadlock(extra), "grip").best(6)]
+    assert found[True] == found[False] and found[False]
