@@ -451,7 +451,7 @@ def min_grip_force(patches: Mapping[str, tuple], friction: Friction, load, *,
     hit = _GRIP_MEMO.get(key)
     if hit is not None:
         return hit
-    t = _grip_lp(W, spans, w_ext)
+    t = _grip_lp(W, spans, w_ext, key[:3])
     if len(_GRIP_MEMO) >= GRIP_MEMO:
         for stale in list(_GRIP_MEMO)[: GRIP_MEMO // 2]:
             del _GRIP_MEMO[stale]
@@ -482,8 +482,9 @@ GRIP_MEMO = 256
 _GRIP_MEMO: dict = {}
 
 
-def _grip_lp(W: np.ndarray, spans: list, w_ext: np.ndarray) -> float:
-    """`min_grip_force`'s linear program for the wrenches W, finger spans and load."""
+def _grip_lp(W: np.ndarray, spans: list, w_ext: np.ndarray, same: tuple | None = None) -> float:
+    """`min_grip_force`'s linear program for the wrenches W, finger spans and load; ``same``:
+    ``(W.shape, W.tobytes(), tuple(spans))`` when the caller has it (its memo key's start)."""
     k = len(W)
 
     def program():
@@ -500,7 +501,8 @@ def _grip_lp(W: np.ndarray, spans: list, w_ext: np.ndarray) -> float:
     scale = float(np.abs(w_ext).max())
     # the same contacts under another load (the next gravity direction) differ in b_eq only:
     # HiGHS goes on from the last optimum (`solve_highs_rhs`)
-    t = solve_highs_rhs(("grip", W.shape, W.tobytes(), tuple(spans)), -w_ext / scale, program, "grip force LP",
+    same = (W.shape, W.tobytes(), tuple(spans)) if same is None else same
+    t = solve_highs_rhs(("grip",) + same, -w_ext / scale, program, "grip force LP",
                         f" for {len(spans)} finger(s) and load {np.round(w_ext, 6).tolist()}; the grip force is unknown")
     # t >= 0 is a bound of the program; an objective from a warm basis can read -4e-13 where it is 0
     # (exp9 v2's Allegro mesh 0.3 kg, palm up: a plan file refused as holding a negative grip)
