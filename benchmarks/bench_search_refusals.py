@@ -59,11 +59,11 @@ PAIRS = {
 
 @contextlib.contextmanager
 def before():
-    """The planner without this commit's three changes (see the module docstring)."""
+    """The planner without the three changes of 2026-12-06 (see the module docstring)."""
     real_rhs, real_gait, decimals = closure.solve_highs_rhs, motion.plan_gait_step, gait_search.GRIP_RANK_DECIMALS
 
     def cold(*args, **kw):
-        lp._HELD = None
+        lp.forget()
         return real_rhs(*args, **kw)
 
     def gait(*args, failed_moves=None, **kw):
