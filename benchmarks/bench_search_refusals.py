@@ -8,12 +8,17 @@ failing in state after state), the Allegro sphere small (six sequences replayed)
 iCub box 30 g (the verification's case). Each is planned with ``--execution``
 (`PlanOptions.for_execution`), grasp realization excluded, in two ways, alternated:
 
-* now: the planner as it runs;
-* before: three changes of 2026-12-06 undone in process: every grip-force program solved from
-  scratch (`planner.lp.solve_highs_rhs` forgets the program it holds), grip forces ranked to
-  their last digit (`planner.gait_search.GRIP_RANK_DECIMALS` 15), and no memo of finger moves
-  not found even without the other fingers (`planner.motion.plan_gait_step` without
-  ``failed_moves``). (The holds_by_bound lever kept per contact is not undone.)
+* now: the planner as it runs (its default workers: the cores available);
+* before, by ``--baseline``:
+  - ``one-process`` (default): the gait search without its helper process (every state's load
+    test in the planner's process, `planner.graph.Evaluator.HELPER_MIN_STATES` out of reach;
+    the verification replays as now);
+  - ``2026-12-06``: three changes of that day undone in process: every grip-force program
+    solved from scratch (`planner.lp.solve_highs_rhs` forgets the program it holds), grip
+    forces ranked to their last digit (`planner.gait_search.GRIP_RANK_DECIMALS` 15), and no
+    memo of finger moves not found even without the other fingers
+    (`planner.motion.plan_gait_step` without ``failed_moves``). (The holds_by_bound lever kept
+    per contact is not undone.)
 
 One discarded warm-up plan per pair first (imports, the reachable-contact pools); the grip
 memo and the program HiGHS holds are cleared before every plan. Prints per pair the median
@@ -21,6 +26,7 @@ wall time of each, their ratio and what came out (planned or refused, and whethe
 agree: the ranking may pick another sequence among ties).
 
 Usage: python benchmarks/bench_search_refusals.py [--repeats N] [--pairs NAME,...]
+       [--baseline one-process|2026-12-06]
 """
 
 from __future__ import annotations
@@ -34,6 +40,7 @@ from pathlib import Path
 
 import planner.closure as closure
 import planner.gait_search as gait_search
+import planner.graph as graph
 import planner.lp as lp
 import planner.motion as motion
 import planner.regrasp as regrasp
@@ -58,7 +65,18 @@ PAIRS = {
 
 
 @contextlib.contextmanager
-def before():
+def one_process():
+    """The gait search without its helper process (see the module docstring)."""
+    real = graph.Evaluator.HELPER_MIN_STATES
+    graph.Evaluator.HELPER_MIN_STATES = 1 << 60
+    try:
+        yield
+    finally:
+        graph.Evaluator.HELPER_MIN_STATES = real
+
+
+@contextlib.contextmanager
+def before_dec06():
     """The planner without the three changes of 2026-12-06 (see the module docstring)."""
     real_rhs, real_gait, decimals = closure.solve_highs_rhs, motion.plan_gait_step, gait_search.GRIP_RANK_DECIMALS
 
@@ -76,12 +94,15 @@ def before():
         closure.solve_highs_rhs, motion.plan_gait_step, gait_search.GRIP_RANK_DECIMALS = real_rhs, real_gait, decimals
 
 
-def outcome(initial, final, now: bool) -> tuple[float, str]:
+BASELINES = {"one-process": one_process, "2026-12-06": before_dec06}
+
+
+def outcome(initial, final, now: bool, baseline: str = "one-process") -> tuple[float, str]:
     """(wall time s, what came out: planned and the order, or the refusal's first clause)."""
     closure._GRIP_MEMO.clear()
     lp.forget()
     t0 = time.perf_counter()
-    with contextlib.nullcontext() if now else before():
+    with contextlib.nullcontext() if now else BASELINES[baseline]():
         try:
             plan = regrasp.plan_regrasp(initial, final, PlanOptions.for_execution()).plan
             what = "planned: " + " ".join(plan.summary.get("order") or ())
@@ -94,6 +115,7 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=2)
     parser.add_argument("--pairs", default=",".join(PAIRS))
+    parser.add_argument("--baseline", choices=sorted(BASELINES), default="one-process")
     args = parser.parse_args()
     print(f"{'pair':<32} {'before s':>9} {'now s':>7} {'ratio':>6}  outcome now (before, if it differs)")
     for name in args.pairs.split(","):
@@ -104,7 +126,7 @@ def main() -> int:
         seen: dict[bool, list[str]] = {False: [], True: []}
         for i in range(args.repeats):
             for now in ((False, True) if i % 2 == 0 else (True, False)):
-                t, what = outcome(initial, final, now)
+                t, what = outcome(initial, final, now, args.baseline)
                 times[now].append(t)
                 seen[now].append(what)
         old, new = statistics.median(times[False]), statistics.median(times[True])

@@ -65,6 +65,7 @@ from planner.model import PALM, Friction, Patch, cross, tangent_basis
 __all__ = [
     "CONTACT_MODELS",
     "GRIP_CONE_SIDES",
+    "GripContacts",
     "apply_contact_model",
     "batch_grasp_closure",
     "closure_from_wrenches",
@@ -418,47 +419,73 @@ def min_grip_force(patches: Mapping[str, tuple], friction: Friction, load, *,
         PlannerError: HiGHS stopped without an answer (iteration limit, numerical trouble):
             the grip force is unknown, which is neither a value nor infeasible.
     """
-    w_ext = checked_load(load)
-    if cone_sides is not None:
-        if isinstance(cone_sides, bool) or not isinstance(cone_sides, (int, np.integer)) or cone_sides < 3:
-            raise InputError(f"cone_sides must be an integer >= 3 or None, got {cone_sides!r}")
-        if not isinstance(friction, Friction):
-            raise InputError(f"friction must be a Friction, got {type(friction).__name__}")
-        friction = Friction(friction.mu, friction.gamma, int(cone_sides))
-    contacts = _grip_input_key(patches, friction)  # the same patches asked again: no wrenches built
-    given = None if contacts is None else ("given", w_ext.tobytes(), contacts)
-    if given in _GRIP_MEMO:
-        return _GRIP_MEMO[given]
-    if contacts in _GRIP_MEMO:  # the same contacts under another load (another gravity direction)
-        W, spans = _GRIP_MEMO[contacts]
-    else:
-        W, blocks = _finger_wrenches(patches, friction)
-        spans, start = [], 0
-        for owner, b in blocks.items():
-            if len(b) and owner != PALM:  # the rigid palm presses as hard as the fingers make it
-                spans.append((start, start + len(b)))
-            start += len(b)
-        if contacts is not None and start:
-            W.setflags(write=False)
-            _GRIP_MEMO[contacts] = (W, spans)
-    if not w_ext.any():
-        return 0.0
-    if not len(W):
-        return math.inf
-    # the program is W, the spans and the load: the same program, the same answer (synthesis
-    # asks it of a grasp's loads, then execution mode's test of that grasp asks it again)
-    key = (W.shape, W.tobytes(), tuple(spans), w_ext.tobytes())
-    hit = _GRIP_MEMO.get(key)
-    if hit is not None:
-        return hit
-    t = _grip_lp(W, spans, w_ext, key[:3])
-    if len(_GRIP_MEMO) >= GRIP_MEMO:
-        for stale in list(_GRIP_MEMO)[: GRIP_MEMO // 2]:
-            del _GRIP_MEMO[stale]
-    _GRIP_MEMO[key] = t
-    if given is not None:
-        _GRIP_MEMO[given] = t
-    return t
+    return GripContacts(patches, friction, cone_sides=cone_sides).force(load)
+
+
+class GripContacts:
+    """`min_grip_force` of one set of contacts under several loads: the contacts' key and
+    wrenches are made once (``force(load)`` for each load; the same memo, programs and
+    answers as `min_grip_force`, which is ``GripContacts(patches, friction).force(load)``).
+
+    Raises:
+        InputError: a bad ``cone_sides`` or friction (at construction); bad patches or load
+            (at `force`).
+    """
+
+    def __init__(self, patches: Mapping[str, tuple], friction: Friction, *, cone_sides: int | None = GRIP_CONE_SIDES):
+        if cone_sides is not None:
+            if isinstance(cone_sides, bool) or not isinstance(cone_sides, (int, np.integer)) or cone_sides < 3:
+                raise InputError(f"cone_sides must be an integer >= 3 or None, got {cone_sides!r}")
+            if not isinstance(friction, Friction):
+                raise InputError(f"friction must be a Friction, got {type(friction).__name__}")
+            friction = Friction(friction.mu, friction.gamma, int(cone_sides))
+        self.patches, self.friction = patches, friction
+        self._contacts = _grip_input_key(patches, friction)  # the same patches asked again: no wrenches built
+        self._program = None  # (W, spans, (W.shape, W.tobytes(), spans)) once a load needs them
+
+    def _wrenches(self) -> tuple:
+        if self._program is None:
+            contacts = self._contacts
+            if contacts in _GRIP_MEMO:  # the same contacts under another load (another gravity direction)
+                W, spans = _GRIP_MEMO[contacts]
+            else:
+                W, blocks = _finger_wrenches(self.patches, self.friction)
+                spans, start = [], 0
+                for owner, b in blocks.items():
+                    if len(b) and owner != PALM:  # the rigid palm presses as hard as the fingers make it
+                        spans.append((start, start + len(b)))
+                    start += len(b)
+                if contacts is not None and start:
+                    W.setflags(write=False)
+                    _GRIP_MEMO[contacts] = (W, spans)
+            self._program = (W, spans, (W.shape, W.tobytes(), tuple(spans)))
+        return self._program
+
+    def force(self, load) -> float:
+        """`min_grip_force` of these contacts for ``load``."""
+        w_ext = checked_load(load)
+        given = None if self._contacts is None else ("given", w_ext.tobytes(), self._contacts)
+        if given in _GRIP_MEMO:
+            return _GRIP_MEMO[given]
+        W, spans, same = self._wrenches()
+        if not w_ext.any():
+            return 0.0
+        if not len(W):
+            return math.inf
+        # the program is W, the spans and the load: the same program, the same answer (synthesis
+        # asks it of a grasp's loads, then execution mode's test of that grasp asks it again)
+        key = same + (w_ext.tobytes(),)
+        hit = _GRIP_MEMO.get(key)
+        if hit is not None:
+            return hit
+        t = _grip_lp(W, spans, w_ext, same)
+        if len(_GRIP_MEMO) >= GRIP_MEMO:
+            for stale in list(_GRIP_MEMO)[: GRIP_MEMO // 2]:
+                del _GRIP_MEMO[stale]
+        _GRIP_MEMO[key] = t
+        if given is not None:
+            _GRIP_MEMO[given] = t
+        return t
 
 
 def _grip_input_key(patches, friction):

@@ -329,7 +329,7 @@ class LazyGraph:
     """States popped per batch (evaluated together in one batch closure call)."""
 
     def __init__(self, problem: GaitProblem, rank: str = "metric", evaluator: Evaluator | None = None,
-                 deadline: float | None = None):
+                 deadline: float | None = None, helpers: int = 0):
         if rank not in RANKS:
             raise UnknownNameError("rank", rank, RANKS)
         if rank == "grip" and not problem.all_loads():
@@ -337,6 +337,7 @@ class LazyGraph:
         self.problem, self.rank, self.deadline = problem, rank, deadline
         self.G = seed_graph(problem, evaluator)
         self.ev: Evaluator = self.G.graph["evaluator"]
+        self.ev.helpers = helpers
         self.G.graph["expanded"] = 0
         self.G.graph["blocked_moves"] = []  # (from state, finger index, action, to state) of refused moves
         self.removed: set[tuple[Node, Node]] = set()
@@ -390,8 +391,11 @@ class LazyGraph:
                     grow.append(v)
                 elif v not in blocked and v not in fresh:
                     fresh.append(v)
-            # collisions first (cached per slot pair): colliding states need no closure
-            ev.evaluate([w for w in fresh if within_lift_bound(p, w) and ev.collision_free(w)])
+            # collisions first (cached per slot pair): colliding states need no closure, and
+            # only force-closure states need the load test (a share of them in a helper process)
+            free = [w for w in fresh if within_lift_bound(p, w) and ev.collision_free(w)]
+            ev.evaluate(free)
+            ev.test_loads([w for w in free if ev.closure[w].is_force_closure])
             for w in fresh:
                 reason = ev.blocked_reason(w)
                 parents = pending.pop(w)
@@ -430,7 +434,9 @@ class LazyGraph:
         return -s.bottleneck if self.rank == "metric" else ranked_grip(s.bottleneck_grip)
 
     def best(self, k: int = 1, *, max_expansions: int = 200_000, alternative_expansions: int = 5_000) -> list[GaitSequence]:
-        """The k best sequences (`search`'s ranking), growing the graph as needed.
+        """The k best sequences (`search`'s ranking), growing the graph as needed; the
+        evaluator's helper process (``helpers``, `planner.graph.Evaluator.test_loads`) ends
+        with the call.
 
         The best one is exact unless ``max_expansions`` states were expanded or the deadline
         passed first; alternatives 2..k are exact unless completing them needed more than
@@ -438,6 +444,12 @@ class LazyGraph:
         all k are. Empty when the goal cannot be reached (then `complete` is True, unless a
         limit stopped the growth).
         """
+        try:
+            return self._best(k, max_expansions, alternative_expansions)
+        finally:
+            self.ev.close()
+
+    def _best(self, k: int, max_expansions: int, alternative_expansions: int) -> list[GaitSequence]:
         G, goal, inf = self.G, self.problem.goal, (np.inf, np.inf)
 
         def more(bound, budget) -> bool:

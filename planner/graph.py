@@ -26,13 +26,14 @@ from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass, field
+from functools import cached_property
 from types import MappingProxyType
 from typing import Callable, Mapping, Sequence
 
 import networkx as nx
 import numpy as np
 
-from planner.closure import batch_grasp_closure, min_grip_force
+from planner.closure import GripContacts, batch_grasp_closure
 from planner.errors import InputError, NoSequenceError
 from planner.grip import HOLD_FACTOR, Capacity, FingerStatics, grip_program, hold_capacity, holds_by_bound, torque_demand
 from planner.hull import Closure
@@ -207,49 +208,16 @@ class GaitProblem:
         fr, k = self.friction, self.grip_friction_margin
         return fr if k == 1 else Friction(fr.mu * k, fr.gamma * k, fr.edges)
 
+    @cached_property
+    def load_test(self) -> "LoadTest":
+        """What testing a state's loads needs of the problem (`LoadTest`: it pickles, for a
+        helper process), made once."""
+        return LoadTest(tuple(self.all_loads()), self.friction, self.grip_friction, self.load_gravity,
+                        self.max_grip_force_n, self.grip_friction_margin, self.hold_factor)
+
     def load_refusal(self, patches, statics, order=None, grip=None) -> tuple[int, Capacity | None] | None:
-        """Whether contacts hold every load as the problem asks; None when they do, else
-        ``(j, capacity)`` for the first load they do not hold: ``j`` the load's index in
-        `all_loads` (``-j - 1``: held ``hold_factor`` times but not the weight itself, where a
-        finger cannot hold itself up alone) and the capacity None under the per-finger budget
-        (no ``load_gravity``).
-
-        Budget: the grip force (`min_grip_force`) of each load within ``max_grip_force_n``.
-        Torque model (``load_gravity``): the grip force proves most holds by a bound
-        (`planner.grip.holds_by_bound`), the capacity program decides the others.
-
-        Args:
-            patches, statics: the contacts (finger -> (points, normals)) and their statics.
-            order: load indices in the order to try them (default all, in order).
-            grip: a list with one grip force or None per load, filled as they are computed.
-        """
-        loads = self.all_loads()
-        grip = [None] * len(loads) if grip is None else grip
-        program = None
-        for j in range(len(loads)) if order is None else order:
-            if grip[j] is None:
-                grip[j] = min_grip_force(patches, self.grip_friction, loads[j][1])
-            if self.load_gravity is None:
-                if grip[j] > self.max_grip_force_n:
-                    return j, None
-                continue
-            g = self.load_gravity[j]
-            if holds_by_bound(statics, grip[j], self.friction, g, factor=self.hold_factor,
-                              margin=self.grip_friction_margin, force_cap_n=self.max_grip_force_n):
-                continue
-            program = program or grip_program(patches, statics, self.friction, margin=self.grip_friction_margin)
-            cap = hold_capacity(patches, statics, self.friction, loads[j][1], g, force_cap_n=self.max_grip_force_n,
-                                program=program, witness=False)
-            if cap.factor < self.hold_factor:
-                return j, cap
-            # the multiples held form an interval; where a finger cannot hold itself up alone
-            # (|g| > tau_max at a joint) it may not reach down to the weight itself
-            if np.any(np.abs(program.tau_g(g)) > program.tau_max):
-                d = torque_demand(patches, statics, self.friction, loads[j][1], g, factor=1.0,
-                                  force_cap_n=self.max_grip_force_n, program=program)
-                if d.ratio > 1.0:
-                    return -j - 1, cap
-        return None
+        """Whether contacts hold every load as the problem asks (`LoadTest.refusal`)."""
+        return self.load_test.refusal(patches, statics, order, grip)
 
     def statics(self, node: Node) -> dict[str, FingerStatics]:
         """Touching finger -> its slot's `FingerStatics` (fingers whose slot has none left out)."""
@@ -282,6 +250,80 @@ class GaitProblem:
                     yield i, "land", node[:i] + (s,) + node[i + 1 :]
 
 
+@dataclass(frozen=True)
+class LoadTest:
+    """The part of a `GaitProblem` that tests whether contacts hold its loads
+    (`GaitProblem.load_test`): small and picklable, so a helper process can test a share of
+    a batch of states (`Evaluator.test_loads`).
+
+    Attributes:
+        loads: (name, (6,) wrench) of every load (`GaitProblem.all_loads`).
+        friction, grip_friction: the contact friction and the friction the grip forces are
+            computed with (`GaitProblem.grip_friction`).
+        load_gravity, max_grip_force_n, grip_friction_margin, hold_factor: the problem's.
+    """
+
+    loads: tuple
+    friction: Friction
+    grip_friction: Friction
+    load_gravity: np.ndarray | None
+    max_grip_force_n: float | None
+    grip_friction_margin: float
+    hold_factor: float
+
+    def refusal(self, patches, statics, order=None, grip=None) -> tuple[int, Capacity | None] | None:
+        """Whether contacts hold every load as the problem asks; None when they do, else
+        ``(j, capacity)`` for the first load they do not hold: ``j`` the load's index in
+        ``loads`` (``-j - 1``: held ``hold_factor`` times but not the weight itself, where a
+        finger cannot hold itself up alone) and the capacity None under the per-finger budget
+        (no ``load_gravity``).
+
+        Budget: the grip force (`min_grip_force`) of each load within ``max_grip_force_n``.
+        Torque model (``load_gravity``): the grip force proves most holds by a bound
+        (`planner.grip.holds_by_bound`), the capacity program decides the others.
+
+        Args:
+            patches, statics: the contacts (finger -> (points, normals)) and their statics.
+            order: load indices in the order to try them (default all, in order).
+            grip: a list with one grip force or None per load, filled as they are computed.
+        """
+        loads = self.loads
+        grip = [None] * len(loads) if grip is None else grip
+        program = contacts = None
+        for j in range(len(loads)) if order is None else order:
+            if grip[j] is None:
+                contacts = contacts or GripContacts(patches, self.grip_friction)  # made once for the loads
+                grip[j] = contacts.force(loads[j][1])
+            if self.load_gravity is None:
+                if grip[j] > self.max_grip_force_n:
+                    return j, None
+                continue
+            g = self.load_gravity[j]
+            if holds_by_bound(statics, grip[j], self.friction, g, factor=self.hold_factor,
+                              margin=self.grip_friction_margin, force_cap_n=self.max_grip_force_n):
+                continue
+            program = program or grip_program(patches, statics, self.friction, margin=self.grip_friction_margin)
+            cap = hold_capacity(patches, statics, self.friction, loads[j][1], g, force_cap_n=self.max_grip_force_n,
+                                program=program, witness=False)
+            if cap.factor < self.hold_factor:
+                return j, cap
+            # the multiples held form an interval; where a finger cannot hold itself up alone
+            # (|g| > tau_max at a joint) it may not reach down to the weight itself
+            if np.any(np.abs(program.tau_g(g)) > program.tau_max):
+                d = torque_demand(patches, statics, self.friction, loads[j][1], g, factor=1.0,
+                                  force_cap_n=self.max_grip_force_n, program=program)
+                if d.ratio > 1.0:
+                    return -j - 1, cap
+        return None
+
+
+def _test_loads(test: LoadTest, patches, statics, order, grip) -> tuple:
+    """`LoadTest.refusal` of one state and the grip forces it filled (`Evaluator.test_loads`'
+    unit of work, in this process or a helper's)."""
+    grip = list(grip)
+    return test.refusal(patches, statics, order, grip), grip
+
+
 def _same_array(a, b) -> bool:
     return (a is None and b is None) or (a is not None and b is not None and np.array_equal(a, b))
 
@@ -304,6 +346,9 @@ class Evaluator:
         self._over: dict[Node, tuple[int, Capacity | None]] = {}  # refused: `GaitProblem.load_refusal`
         self.hold: set[Node] = set()  # torque model: states that hold every load
         self._factors: dict[Node, tuple[float, ...]] = {}  # their capacity factor per load (`hold_factors`)
+        #: helper processes `test_loads` may use (0 or 1: one helper shares a batch with this process)
+        self.helpers = 0
+        self._helper_proc = None
 
     def evaluate(self, nodes: Sequence[Node]) -> None:
         todo = [n for n in dict.fromkeys(nodes) if n not in self.closure]
@@ -355,7 +400,8 @@ class Evaluator:
         f = self.grip.get(node)
         if f is None:
             patches = self.problem.patches(node)
-            f = self.grip[node] = tuple(min_grip_force(patches, self._grip_friction, w) for _, w in self._loads)
+            contacts = GripContacts(patches, self._grip_friction)
+            f = self.grip[node] = tuple(contacts.force(w) for _, w in self._loads)
         return f
 
     def grip_force(self, node: Node) -> float | None:
@@ -408,26 +454,66 @@ class Evaluator:
         return f"{words}; to hold {p.hold_factor:g}x, {dem.words()}{tail}"
 
     def _over_budget(self, node: Node) -> bool:
-        """Some load is not held as the problem asks (`GaitProblem.load_refusal`). Loads are
-        tried in the order of how many states each has refused so far (one program for most
-        refused states instead of all); a state that holds them all gets every grip force."""
+        """Some load is not held as the problem asks (`GaitProblem.load_refusal`; tested here
+        unless `test_loads` tested the state in a batch)."""
         if not self._loads:
             return False
-        if node in self.hold:
-            return False
-        if node in self._over:
-            return True
+        if node not in self.hold and node not in self._over:
+            self.test_loads([node])
+        return node in self._over
+
+    def test_loads(self, nodes: Sequence[Node]) -> None:
+        """Test the loads of states not tested yet (`GaitProblem.load_refusal`), a share of
+        them in a helper process when `helpers` allows it and there are at least
+        `HELPER_MIN_STATES`. Loads are tried in the order of how many states each has
+        refused before the batch (one program for most refused states instead of all); a
+        state that holds them all gets every grip force. Every state is tested the same way
+        wherever it is tested (the order is fixed for the batch), so the results do not
+        depend on the helper."""
+        if not self._loads:
+            return
+        todo = [n for n in dict.fromkeys(nodes) if n not in self.hold and n not in self._over]
+        if not todo:
+            return
         p = self.problem
-        grip = list(self.grip.get(node) or [None] * len(self._loads))
         order = sorted(range(len(self._loads)), key=lambda j: (-self._refusals[j], j))
-        why = p.load_refusal(p.patches(node), p.statics(node), order, grip)
-        if why is not None:
-            self._refusals[why[0] if why[0] >= 0 else -why[0] - 1] += 1
-            self._over[node] = why
-            return True
-        self.grip[node] = tuple(grip)
-        self.hold.add(node)
-        return False
+        items = [(p.load_test, p.patches(n), p.statics(n), order, self.grip.get(n) or [None] * len(self._loads))
+                 for n in todo]
+        helper = self._helper(len(items))
+        results = helper.map(_test_loads, items) if helper is not None else [_test_loads(*it) for it in items]
+        for n, (why, grip) in zip(todo, results):
+            if why is not None:
+                self._refusals[why[0] if why[0] >= 0 else -why[0] - 1] += 1
+                self._over[n] = why
+            else:
+                self.grip[n] = tuple(grip)
+                self.hold.add(n)
+
+    #: States a batch needs before a helper process tests a share of them (fewer: not worth the
+    #: pipe).
+    HELPER_MIN_STATES = 4
+
+    def _helper(self, n: int):
+        """The helper process for a batch of ``n`` states (started at the first batch that
+        needs one), None when this evaluator has none."""
+        if self.helpers < 1 or n < self.HELPER_MIN_STATES:
+            return None
+        if self._helper_proc is None or not self._helper_proc.alive:
+            if self._helper_proc is not None:  # it failed: the rest runs here
+                return None
+            from planner.helper import Helper, available  # noqa: PLC0415 - only when a helper is asked for
+
+            if not available():
+                self.helpers = 0
+                return None
+            self._helper_proc = Helper()
+        return self._helper_proc
+
+    def close(self) -> None:
+        """End the helper process, if one was started (the next batch starts another)."""
+        if self._helper_proc is not None:
+            self._helper_proc.close()
+            self._helper_proc = None
 
     def hold_factors(self, node: Node) -> dict[str, float] | None:
         """Load name -> the largest multiple of it the state's joints hold (the capacity

@@ -146,10 +146,10 @@ def solve_highs_rhs(key, b_eq, build, what: str, detail: str = "; the answer is 
     highspy, h = _highs()
     if _HELD is not None and _HELD == key:
         b = np.asarray(b_eq, dtype=float)  # `highs_lp` passes the equality rows first
-        h.changeRowsBounds(len(b), np.arange(len(b), dtype=np.int32), b, b)
+        h.changeRowsBounds(len(b), _rows(len(b)), b, b)
         h.run()
         if h.getModelStatus() == highspy.HighsModelStatus.kOptimal:
-            return float(h.getInfo().objective_function_value)
+            return float(h.getObjectiveValue())
         _HELD = None  # infeasible or unsure from the warm basis: the solve from scratch decides
     c, A_ub, b_ub, A_eq, bounds = build()
     res = solve_highs(c, A_ub, b_ub, A_eq, b_eq, bounds, what, detail)
@@ -158,6 +158,18 @@ def solve_highs_rhs(key, b_eq, build, what: str, detail: str = "; the answer is 
     # held only after the default method (simplex): an interior-point answer has no basis to go on from
     _HELD = key if _SIMPLEX else None
     return float(np.dot(c, res.x))
+
+
+_ROWS: dict[int, np.ndarray] = {}
+
+
+def _rows(n: int) -> np.ndarray:
+    """The row indices 0..n-1 as HiGHS takes them (made once per n)."""
+    r = _ROWS.get(n)
+    if r is None:
+        r = _ROWS[n] = np.arange(n, dtype=np.int32)
+        r.setflags(write=False)
+    return r
 
 
 def forget() -> None:

@@ -33,6 +33,7 @@ from planner.closure import GRIP_CONE_SIDES
 from planner.errors import MotionError, NoSequenceError, SpecError, UnknownNameError
 from planner.explain import explain_failure, failure_analysis
 from planner.graph import LIFTED, GaitProblem, annotate_removable, seed_graph
+from planner.helper import cores
 from planner.options import PlanOptions, gravity_directions_of
 from planner.plan_data import Alternative, Plan, PlanState, PlanStep, hand_files_record
 from planner.realization import RealizedGrasp, realized_grasp
@@ -318,7 +319,8 @@ def anytime_search(problem: GaitProblem, initial, options: PlanOptions, t0: floa
         evaluator = prior.ev
     while True:
         if lazy is None:
-            lazy = LazyGraph(problem, options.rank, evaluator=evaluator, deadline=deadline)
+            lazy = LazyGraph(problem, options.rank, evaluator=evaluator, deadline=deadline,
+                             helpers=min(1, (options.workers or cores()) - 1))
             lazy.removed |= removed
             lazy.G.graph.update((k, list(moves)) for k, moves in records.items() if moves)
             lazy.removed_states |= removed_states

@@ -142,15 +142,19 @@ def test_the_lazy_search_ignores_differences_below_a_micronewton(monkeypatch, se
     extra = [tuple(rng.normal(size=3)) for _ in range(3)]
 
     def grip(noise):
-        def fake(patches, friction, load, **kw):
-            if not noise:
-                return 0.5
-            data = b"".join(np.asarray(p[0], dtype=float).tobytes() for _, p in sorted(patches.items()))
-            return 0.5 + (zlib.crc32(data + np.asarray(load, dtype=float).tobytes()) / 2 ** 32 - 0.5) * 2e-10
-        return fake
+        class Fake:  # stands in for the grip program of a state's contacts
+            def __init__(self, patches, friction, **kw):
+                self.patches = patches
+
+            def force(self, load):
+                if not noise:
+                    return 0.5
+                data = b"".join(np.asarray(p[0], dtype=float).tobytes() for _, p in sorted(self.patches.items()))
+                return 0.5 + (zlib.crc32(data + np.asarray(load, dtype=float).tobytes()) / 2 ** 32 - 0.5) * 2e-10
+        return Fake
 
     found = {}
     for noise in (False, True):
-        monkeypatch.setattr(graph_module, "min_grip_force", grip(noise))
+        monkeypatch.setattr(graph_module, "GripContacts", grip(noise))
         found[noise] = [s.nodes for s in LazyGraph(loaded_deadlock(extra), "grip").best(6)]
     assert found[True] == found[False] and found[False]

@@ -31,6 +31,7 @@ from pathlib import Path
 
 from planner.errors import InputError
 from planner.gravity import gravity_directions
+from planner.helper import cores
 from planner.sim.engine import ENGINES, default_engine, require_engine
 from planner.plan import plan_from_data
 from planner.plan_data import Plan
@@ -71,10 +72,7 @@ def one_engine(engine: str | None) -> str:
 
 def default_workers() -> int:
     """Worker processes for the directions: the cores this process may use."""
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:  # pragma: no cover - not Linux
-        return max(1, os.cpu_count() or 1)
+    return cores()
 
 
 def _one(i: int) -> ReplayReport | None:

@@ -1,0 +1,137 @@
+"""A second process for the gait search's per-state work (the load test of a batch of states).
+
+The search's cost is mostly testing whether each new state holds the object's weight in every
+planned gravity direction (about six grip-force programs per state, `planner.graph.Evaluator.test_loads`),
+one state after another on one core, while the verification replays that follow use every
+core. `Helper` is one process forked from the planner's (it inherits the imports, so a start
+costs milliseconds), fed through a pipe: the caller sends a function and a share of the batch,
+computes the rest itself, then receives the helper's share. Results are assembled in the batch's
+order, and each item is computed the same way wherever it runs, so the answer does not depend
+on how many processes computed it.
+
+No threads in the planner's process: the verification replays fork it later, and a fork of a
+process with live threads can deadlock. A helper that fails (an exception, a lost pipe) is
+closed and its share computed by the caller, so an error is raised where the work would
+have raised it without a helper. Only where ``fork`` is a start method (Linux; elsewhere
+everything runs in the caller).
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import os
+import traceback
+from typing import Callable, Sequence
+
+
+def available() -> bool:
+    """Whether helpers can be started here (``fork``, inheriting the imported planner)."""
+    return "fork" in mp.get_all_start_methods()
+
+
+def _serve(conn) -> None:
+    """The helper's loop: ``(function, items)`` in, ``(True, results)`` or ``(False, text)`` out;
+    None (or the pipe closing) ends it."""
+    while True:
+        try:
+            msg = conn.recv()
+        except (EOFError, OSError):
+            return
+        if msg is None:
+            return
+        fn, items = msg
+        try:
+            out = (True, [fn(*item) for item in items])
+        except BaseException:  # noqa: BLE001 - reported; the caller computes the share itself
+            out = (False, traceback.format_exc())
+        try:
+            conn.send(out)
+        except Exception:  # noqa: BLE001 - e.g. a result that does not pickle
+            conn.send((False, traceback.format_exc()))
+
+
+class Helper:
+    """One forked process computing shares of batches (`map`); `close` ends it.
+
+    Attributes:
+        failure: the helper's last failure (its traceback, or why the pipe broke), None when none.
+    """
+
+    def __init__(self):
+        ctx = mp.get_context("fork")
+        self._conn, child = ctx.Pipe()
+        self._proc = ctx.Process(target=_serve, args=(child,), daemon=True, name="regrasp-search-helper")
+        self._proc.start()
+        child.close()
+        self.failure: str | None = None
+
+    @property
+    def alive(self) -> bool:
+        return self._proc is not None and self._proc.is_alive()
+
+    def map(self, fn: Callable, items: Sequence[tuple], share: int | None = None) -> list:
+        """``[fn(*item) for item in items]``, the last ``share`` items (default half, rounded
+        down) computed by the helper while the caller computes the others. ``fn`` must be a
+        module-level function and the items and results must pickle."""
+        n = len(items)
+        k = n // 2 if share is None else max(0, min(n, share))
+        if k == 0 or not self.alive:
+            return [fn(*item) for item in items]
+        mine, theirs = items[: n - k], items[n - k :]
+        try:
+            self._conn.send((fn, list(theirs)))
+        except Exception as err:  # noqa: BLE001 - a broken pipe or an item that does not pickle
+            self._fail(f"could not send the share: {err!r}")
+            return [fn(*item) for item in items]
+        try:
+            out = [fn(*item) for item in mine]
+        except BaseException:
+            self._receive(lambda *item: None, theirs)  # the helper's answer is read (the pipe stays in step)
+            raise
+        return out + self._receive(fn, theirs)
+
+    def _receive(self, fn, theirs) -> list:
+        try:
+            ok, res = self._conn.recv()
+        except (EOFError, OSError) as err:
+            self._fail(f"the helper's pipe broke: {err!r}")
+            ok, res = False, None
+        if ok:
+            return res
+        if res is not None and self.failure is None:
+            self.failure = res
+            self.close()
+        return [fn(*item) for item in theirs]  # its error, if any, raised here as without a helper
+
+    def _fail(self, why: str) -> None:
+        self.failure = why
+        self.close()
+
+    def close(self) -> None:
+        """End the process (idempotent)."""
+        proc, self._proc = self._proc, None
+        if proc is None:
+            return
+        try:
+            self._conn.send(None)
+        except Exception:  # noqa: BLE001 - already gone
+            pass
+        proc.join(timeout=5)
+        if proc.is_alive():
+            proc.terminate()
+            proc.join(timeout=5)
+        self._conn.close()
+
+    def __enter__(self) -> "Helper":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def cores() -> int:
+    """The cores this process may use."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - not Linux
+        return max(1, os.cpu_count() or 1)
