@@ -10,9 +10,9 @@ iCub box 30 g (the verification's case). Each is planned with ``--execution``
 
 * now: the planner as it runs (its default workers: the cores available);
 * before, by ``--baseline``:
-  - ``one-process`` (default): the gait search without its helper process (every state's load
-    test in the planner's process, `planner.graph.Evaluator.HELPER_MIN_STATES` out of reach;
-    the verification replays as now);
+  - ``one-process`` (default): the gait search without its helper process (both halves of
+    every batch of states evaluated in the planner's process, `planner.graph.Evaluator._helper`
+    answering None; the verification replays as now);
   - ``2026-12-06``: three changes of that day undone in process: every grip-force program
     solved from scratch (`planner.lp.solve_highs_rhs` forgets the program it holds), grip
     forces ranked to their last digit (`planner.gait_search.GRIP_RANK_DECIMALS` 15), and no
@@ -67,12 +67,12 @@ PAIRS = {
 @contextlib.contextmanager
 def one_process():
     """The gait search without its helper process (see the module docstring)."""
-    real = graph.Evaluator.HELPER_MIN_STATES
-    graph.Evaluator.HELPER_MIN_STATES = 1 << 60
+    real = graph.Evaluator._helper
+    graph.Evaluator._helper = lambda self: None
     try:
         yield
     finally:
-        graph.Evaluator.HELPER_MIN_STATES = real
+        graph.Evaluator._helper = real
 
 
 @contextlib.contextmanager

@@ -392,10 +392,8 @@ class LazyGraph:
                 elif v not in blocked and v not in fresh:
                     fresh.append(v)
             # collisions first (cached per slot pair): colliding states need no closure, and
-            # only force-closure states need the load test (a share of them in a helper process)
-            free = [w for w in fresh if within_lift_bound(p, w) and ev.collision_free(w)]
-            ev.evaluate(free)
-            ev.test_loads([w for w in free if ev.closure[w].is_force_closure])
+            # only force-closure states need the load test (half of the batch in a helper process)
+            ev.evaluate_states([w for w in fresh if within_lift_bound(p, w) and ev.collision_free(w)])
             for w in fresh:
                 reason = ev.blocked_reason(w)
                 parents = pending.pop(w)
@@ -435,7 +433,7 @@ class LazyGraph:
 
     def best(self, k: int = 1, *, max_expansions: int = 200_000, alternative_expansions: int = 5_000) -> list[GaitSequence]:
         """The k best sequences (`search`'s ranking), growing the graph as needed; the
-        evaluator's helper process (``helpers``, `planner.graph.Evaluator.test_loads`) ends
+        evaluator's helper process (``helpers``, `planner.graph.Evaluator.evaluate_states`) ends
         with the call.
 
         The best one is exact unless ``max_expansions`` states were expanded or the deadline

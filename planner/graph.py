@@ -35,7 +35,7 @@ import numpy as np
 
 from planner.closure import GripContacts, batch_grasp_closure
 from planner.errors import InputError, NoSequenceError
-from planner.grip import HOLD_FACTOR, Capacity, FingerStatics, grip_program, hold_capacity, holds_by_bound, torque_demand
+from planner.grip import HOLD_FACTOR, Capacity, Demand, FingerStatics, grip_program, hold_capacity, holds_by_bound, torque_demand
 from planner.hull import Closure
 from planner.model import Friction, Patch
 
@@ -254,7 +254,7 @@ class GaitProblem:
 class LoadTest:
     """The part of a `GaitProblem` that tests whether contacts hold its loads
     (`GaitProblem.load_test`): small and picklable, so a helper process can test a share of
-    a batch of states (`Evaluator.test_loads`).
+    a batch of states (`Evaluator.evaluate_states`).
 
     Attributes:
         loads: (name, (6,) wrench) of every load (`GaitProblem.all_loads`).
@@ -316,12 +316,36 @@ class LoadTest:
                     return -j - 1, cap
         return None
 
+    def demand(self, patches, statics, why: tuple) -> Demand | None:
+        """The torque demand to hold ``hold_factor`` times the load a refusal ``why`` (`refusal`'s
+        answer) names, as `Evaluator.refusal` words it; None when its words name none (the
+        budget, the weight itself, the force cap binding before a joint)."""
+        j, cap = why
+        if j < 0 or cap is None or (cap.limit is not None and cap.limit.joint is None):
+            return None
+        return torque_demand(patches, statics, self.friction, self.loads[j][1], self.load_gravity[j],
+                             factor=self.hold_factor, margin=self.grip_friction_margin)
 
-def _test_loads(test: LoadTest, patches, statics, order, grip) -> tuple:
-    """`LoadTest.refusal` of one state and the grip forces it filled (`Evaluator.test_loads`'
-    unit of work, in this process or a helper's)."""
-    grip = list(grip)
-    return test.refusal(patches, statics, order, grip), grip
+
+def _evaluate_half(friction: Friction, test: LoadTest | None, order, items) -> list[tuple]:
+    """Half of a batch of `Evaluator.evaluate_states`, in this process or the helper's: items
+    ``(patches, statics, closure or None, whether to test the loads, grip forces so far)`` ->
+    ``(closure, (refusal, grip forces, the refusal's torque demand) or None)`` each; the
+    closures missing in one `batch_grasp_closure` call, the loads tested where the state is
+    force closure (and what `Evaluator.refusal` words of a refusal: the torque demand, a program
+    of its own, computed here with the rest)."""
+    need = [i for i, it in enumerate(items) if it[2] is None]
+    computed = dict(zip(need, batch_grasp_closure([items[i][0] for i in need], friction))) if need else {}
+    out = []
+    for i, (patches, statics, closure, untested, grip) in enumerate(items):
+        closure = computed[i] if closure is None else closure
+        tested = None
+        if untested and closure.is_force_closure:
+            grip = list(grip)
+            why = test.refusal(patches, statics, order, grip)
+            tested = (why, grip, None if why is None else test.demand(patches, statics, why))
+        out.append((closure, tested))
+    return out
 
 
 def _same_array(a, b) -> bool:
@@ -344,9 +368,10 @@ class Evaluator:
         self._pairs: dict[tuple, bool] = {}
         self._refusals = [0] * len(self._loads)  # states each load refused (`_over_budget`)
         self._over: dict[Node, tuple[int, Capacity | None]] = {}  # refused: `GaitProblem.load_refusal`
+        self._demand: dict[Node, Demand] = {}  # of refused states: the torque demand `refusal` words
         self.hold: set[Node] = set()  # torque model: states that hold every load
         self._factors: dict[Node, tuple[float, ...]] = {}  # their capacity factor per load (`hold_factors`)
-        #: helper processes `test_loads` may use (0 or 1: one helper shares a batch with this process)
+        #: helper processes `evaluate_states` may use (0 or 1: one helper takes half of a batch)
         self.helpers = 0
         self._helper_proc = None
 
@@ -440,63 +465,72 @@ class Evaluator:
         if cap is None:
             return f"need over {p.max_grip_force_n:g} N per finger to hold the load"
         k = j if j >= 0 else -j - 1
-        name, w = self._loads[k]
-        g = p.load_gravity[k]
+        name = self._loads[k][0]
         if j < 0:
             return (f"{name}: holds up to {cap.factor:.3g}x its weight but not the weight itself within the "
                     f"joint limits (a finger's own weight exceeds a joint's limit unless the object presses on it)")
         words = f"{name}: {cap.words(p.hold_factor)}"
         if cap.limit is not None and cap.limit.joint is None:  # the force cap binds, not a joint
             return words
-        dem = torque_demand(p.patches(node), p.statics(node), self.problem.friction, w, g, factor=p.hold_factor,
-                            margin=p.grip_friction_margin)
+        dem = self._demand.get(node) or p.load_test.demand(p.patches(node), p.statics(node), (j, cap))
         tail = " (but not within the per-finger force cap)" if p.max_grip_force_n is not None and dem.ratio <= 1 else ""
         return f"{words}; to hold {p.hold_factor:g}x, {dem.words()}{tail}"
 
     def _over_budget(self, node: Node) -> bool:
         """Some load is not held as the problem asks (`GaitProblem.load_refusal`; tested here
-        unless `test_loads` tested the state in a batch)."""
+        unless `evaluate_states` tested the state in a batch)."""
         if not self._loads:
             return False
-        if node not in self.hold and node not in self._over:
-            self.test_loads([node])
+        if self._untested(node):
+            self.evaluate_states([node])
         return node in self._over
 
-    def test_loads(self, nodes: Sequence[Node]) -> None:
-        """Test the loads of states not tested yet (`GaitProblem.load_refusal`), a share of
-        them in a helper process when `helpers` allows it and there are at least
-        `HELPER_MIN_STATES`. Loads are tried in the order of how many states each has
-        refused before the batch (one program for most refused states instead of all); a
-        state that holds them all gets every grip force. Every state is tested the same way
-        wherever it is tested (the order is fixed for the batch), so the results do not
-        depend on the helper."""
-        if not self._loads:
-            return
-        todo = [n for n in dict.fromkeys(nodes) if n not in self.hold and n not in self._over]
+    def evaluate_states(self, nodes: Sequence[Node]) -> None:
+        """Closure and load test (`GaitProblem.load_refusal`) of a batch of states, what
+        `blocked_reason` and `grip_forces` then read: `planner.gait_search.LazyGraph`'s batch
+        of new collision-free states.
+
+        The batch is cut in two halves, the second computed in the helper process when
+        `helpers` allows one (while this process computes the first): each half's closures in
+        one `batch_grasp_closure` call, then the load test of its force-closure states. The
+        loads are tried in the order of how many states each has refused before the batch (one
+        program for most refused states instead of all); a state that holds them all gets
+        every grip force. The halves and the order are the same with or without a helper, so
+        are the results."""
+        p, n_loads = self.problem, len(self._loads)
+        todo = [n for n in dict.fromkeys(nodes) if n not in self.closure or self._untested(n)]
         if not todo:
             return
-        p = self.problem
-        order = sorted(range(len(self._loads)), key=lambda j: (-self._refusals[j], j))
-        items = [(p.load_test, p.patches(n), p.statics(n), order, self.grip.get(n) or [None] * len(self._loads))
-                 for n in todo]
-        helper = self._helper(len(items))
-        results = helper.map(_test_loads, items) if helper is not None else [_test_loads(*it) for it in items]
-        for n, (why, grip) in zip(todo, results):
+        order = sorted(range(n_loads), key=lambda j: (-self._refusals[j], j))
+        test = p.load_test if n_loads else None
+        items = [(p.patches(n), p.statics(n) if n_loads else None, self.closure.get(n), self._untested(n),
+                  self.grip.get(n) or [None] * n_loads) for n in todo]
+        k = len(items) - len(items) // 2
+        halves = [(p.friction, test, order, half) for half in (items[:k], items[k:]) if half]
+        helper = self._helper() if len(halves) == 2 else None
+        results = helper.map(_evaluate_half, halves) if helper is not None else [_evaluate_half(*h) for h in halves]
+        for n, (closure, tested) in zip(todo, itertools.chain.from_iterable(results)):
+            self.closure[n] = closure
+            if tested is None:
+                continue
+            why, grip, demand = tested
             if why is not None:
                 self._refusals[why[0] if why[0] >= 0 else -why[0] - 1] += 1
                 self._over[n] = why
+                if demand is not None:
+                    self._demand[n] = demand
             else:
                 self.grip[n] = tuple(grip)
                 self.hold.add(n)
 
-    #: States a batch needs before a helper process tests a share of them (fewer: not worth the
-    #: pipe).
-    HELPER_MIN_STATES = 4
+    def _untested(self, n: Node) -> bool:
+        """The problem has loads and the state's are not tested yet."""
+        return bool(self._loads) and n not in self.hold and n not in self._over
 
-    def _helper(self, n: int):
-        """The helper process for a batch of ``n`` states (started at the first batch that
-        needs one), None when this evaluator has none."""
-        if self.helpers < 1 or n < self.HELPER_MIN_STATES:
+    def _helper(self):
+        """The helper process (started at the first batch that needs one), None when this
+        evaluator has none."""
+        if self.helpers < 1:
             return None
         if self._helper_proc is None or not self._helper_proc.alive:
             if self._helper_proc is not None:  # it failed: the rest runs here

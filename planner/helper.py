@@ -1,9 +1,9 @@
 """A second process for the gait search's per-state work (the load test of a batch of states).
 
-The search's cost is mostly testing whether each new state holds the object's weight in every
-planned gravity direction (about six grip-force programs per state, `planner.graph.Evaluator.test_loads`),
-one state after another on one core, while the verification replays that follow use every
-core. `Helper` is one process forked from the planner's (it inherits the imports, so a start
+The search's cost is mostly evaluating each new state: its force closure and whether it holds
+the object's weight in every planned gravity direction (about six grip-force programs per
+state; `planner.graph.Evaluator.evaluate_states`), one state after another on one core, while
+the verification replays that follow use every core. `Helper` is one process forked from the planner's (it inherits the imports, so a start
 costs milliseconds), fed through a pipe: the caller sends a function and a share of the batch,
 computes the rest itself, then receives the helper's share. Results are assembled in the batch's
 order, and each item is computed the same way wherever it runs, so the answer does not depend

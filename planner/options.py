@@ -123,8 +123,8 @@ class PlanOptions:
         verify_attempts: sequences replayed at most before giving up (a bound on the work,
             not on the time, so the plan does not depend on the machine's load).
         workers: processes for the verification replays and the gait search (None: the
-            cores available; with two or more the search tests a share of each batch of states
-            in a helper process, `planner.graph.Evaluator.test_loads`). The plan is the same for
+            cores available; with two or more the search evaluates half of each batch of states
+            in a helper process, `planner.graph.Evaluator.evaluate_states`). The plan is the same for
             any number (not written to its parameters).
         gravity_set: None or a set size of `planner.gravity.GRAVITY_SET_SIZES` (1, 2, 6, 7):
             plan for several hand orientations at once, the named gravity directions of

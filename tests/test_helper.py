@@ -65,13 +65,13 @@ def box_pair():
 def test_a_search_with_a_helper_equals_the_search_without(box_pair, monkeypatch):
     """The bundled box pair in execution mode (grip ranking, six gravity directions, the
     torque model): one process and one process with a helper give the same sequence, the
-    same explored graph (states, exact grips per direction, blocked states and why) and the
-    helper tested a share of the states."""
+    same explored graph (states, their closure metrics exactly, grips per direction,
+    blocked states and why) and the helper evaluated half of the batches' states."""
     shares = []
     real_map = helper_mod.Helper.map
 
     def counting(self, fn, items, share=None):
-        shares.append(len(items) // 2 if share is None else share)
+        shares.append(len(items[-1][3]))  # the second half's states (the helper's)
         return real_map(self, fn, items, share)
 
     monkeypatch.setattr(helper_mod.Helper, "map", counting)
@@ -83,10 +83,10 @@ def test_a_search_with_a_helper_equals_the_search_without(box_pair, monkeypatch)
         runs[workers] = (
             res.sequence.order(G.graph["problem"]), res.sequence.bottleneck_grip,
             {v: G.nodes[v]["grip_forces"] for v in G.nodes}, dict(G.graph["blocked"]),
-            [s.order(G.graph["problem"]) for s in res.alternatives])
+            [s.order(G.graph["problem"]) for s in res.alternatives], {v: G.nodes[v]["metric"] for v in G.nodes})
         if workers == 1:
             assert not shares
-    assert sum(shares) >= 8, shares  # the helper did test states
+    assert sum(shares) >= 8, shares  # the helper did evaluate states
     assert runs[1][0] == runs[2][0] and runs[1][1] == runs[2][1] and runs[1][4] == runs[2][4]
     # every state's grip in every direction (HiGHS's last digits may depend on the programs it
     # solved before: the two runs need not agree beyond them)
@@ -94,10 +94,11 @@ def test_a_search_with_a_helper_equals_the_search_without(box_pair, monkeypatch)
     for v, grips in runs[1][2].items():
         assert runs[2][2][v] == pytest.approx(grips, rel=1e-9, abs=1e-12)
     assert runs[1][3] == runs[2][3]  # the same states refused, for the same reasons
+    assert runs[1][5] == runs[2][5]  # the same halves' closures, computed alike in either process
 
 
 def test_a_state_is_tested_alike_alone_or_in_a_batch(box_pair):
-    """`Evaluator.test_loads` of a batch (a share in the helper; the loads in one order for
+    """`Evaluator.evaluate_states` of a batch (half in the helper; the loads in one order for
     the batch) agrees on every state with `GaitProblem.load_refusal` of that state alone in
     that order: holds with the same grips (to HiGHS's tolerance: a program re-solved from
     another optimum may differ in the 11th digit), or the same refused load and capacity."""
@@ -111,8 +112,8 @@ def test_a_state_is_tested_alike_alone_or_in_a_batch(box_pair):
     batch.helpers = 1
     batch.evaluate(nodes)
     ok = [n for n in nodes if batch.collision_free(n) and batch.closure[n].is_force_closure]
-    assert len(ok) >= 2 * batch.HELPER_MIN_STATES
-    batch.test_loads(ok)  # a fresh evaluator: the loads in their own order
+    assert len(ok) >= 8
+    batch.evaluate_states(ok)  # a fresh evaluator: the loads in their own order
     batch.close()
     n_loads = len(problem.all_loads())
     refused = 0
