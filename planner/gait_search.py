@@ -307,7 +307,7 @@ class LazyGraph:
     largest grip force), and a state's is the smallest bottleneck over the paths reaching
     it (a widest-path Dijkstra). A generated state is queued unevaluated, keyed by its
     parent's value (a lower bound of its own); closure, collisions and grip force are
-    evaluated only when it is popped (one batch closure call per batch, with the caches of
+    evaluated only when it is popped (one batch closure call per half batch, with the caches of
     `Evaluator`), then it is queued again with its true key, and expanded when popped
     again. States keyed above what the ranking needs are never evaluated.
 
@@ -326,7 +326,7 @@ class LazyGraph:
     """
 
     BATCH = 16
-    """States popped per batch (evaluated together in one batch closure call)."""
+    """States popped per batch (evaluated together: `planner.graph.Evaluator.evaluate_states`)."""
 
     def __init__(self, problem: GaitProblem, rank: str = "metric", evaluator: Evaluator | None = None,
                  deadline: float | None = None, helpers: int = 0):
@@ -371,7 +371,7 @@ class LazyGraph:
 
     def _expand(self, bound: tuple, budget: int | None) -> int:
         """Pop states keyed at most ``bound`` (value, gait bound): a state not yet evaluated
-        is evaluated (closure, collisions, grip; one batch closure call per batch) and pushed
+        is evaluated (collisions, then closure and grip: `planner.graph.Evaluator.evaluate_states`) and pushed
         again with its true key, an evaluated one is expanded: its successors are pushed
         unevaluated, keyed by the best value they can have (their parent's). Returns how many
         states were expanded."""

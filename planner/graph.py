@@ -33,6 +33,7 @@ from typing import Callable, Mapping, Sequence
 import networkx as nx
 import numpy as np
 
+from planner import lp
 from planner.closure import GripContacts, batch_grasp_closure
 from planner.errors import InputError, NoSequenceError
 from planner.grip import HOLD_FACTOR, Capacity, Demand, FingerStatics, grip_program, hold_capacity, holds_by_bound, torque_demand
@@ -250,7 +251,7 @@ class GaitProblem:
                     yield i, "land", node[:i] + (s,) + node[i + 1 :]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class LoadTest:
     """The part of a `GaitProblem` that tests whether contacts hold its loads
     (`GaitProblem.load_test`): small and picklable, so a helper process can test a share of
@@ -329,18 +330,23 @@ class LoadTest:
 
 def _evaluate_half(friction: Friction, test: LoadTest | None, order, items) -> list[tuple]:
     """Half of a batch of `Evaluator.evaluate_states`, in this process or the helper's: items
-    ``(patches, statics, closure or None, whether to test the loads, grip forces so far)`` ->
-    ``(closure, (refusal, grip forces, the refusal's torque demand) or None)`` each; the
-    closures missing in one `batch_grasp_closure` call, the loads tested where the state is
-    force closure (and what `Evaluator.refusal` words of a refusal: the torque demand, a program
-    of its own, computed here with the rest)."""
+    ``(patches, statics, force closure (None: not known yet), whether to test the loads, grip
+    forces so far)`` -> ``(closure computed or None, (refusal, grip forces, the refusal's torque
+    demand) or None)`` each; the closures not known in one `batch_grasp_closure` call, the loads
+    tested where the state is force closure (and what `Evaluator.refusal` words of a refusal:
+    the torque demand, a program of its own, computed here with the rest).
+
+    The grip programs start from scratch at each half (`planner.lp.forget`), in either process:
+    a program re-solved from another program's optimum may differ in its last digits, so each
+    state's programs are solved in the same sequence wherever the half runs."""
+    lp.forget()
     need = [i for i, it in enumerate(items) if it[2] is None]
     computed = dict(zip(need, batch_grasp_closure([items[i][0] for i in need], friction))) if need else {}
     out = []
-    for i, (patches, statics, closure, untested, grip) in enumerate(items):
-        closure = computed[i] if closure is None else closure
+    for i, (patches, statics, fc, untested, grip) in enumerate(items):
+        closure = computed.get(i)
         tested = None
-        if untested and closure.is_force_closure:
+        if untested and (closure.is_force_closure if fc is None else fc):
             grip = list(grip)
             why = test.refusal(patches, statics, order, grip)
             tested = (why, grip, None if why is None else test.demand(patches, statics, why))
@@ -366,7 +372,7 @@ class Evaluator:
         self._loads = problem.all_loads()
         self._grip_friction = problem.grip_friction
         self._pairs: dict[tuple, bool] = {}
-        self._refusals = [0] * len(self._loads)  # states each load refused (`_over_budget`)
+        self._refusals = [0] * len(self._loads)  # states each load refused (`evaluate_states`)
         self._over: dict[Node, tuple[int, Capacity | None]] = {}  # refused: `GaitProblem.load_refusal`
         self._demand: dict[Node, Demand] = {}  # of refused states: the torque demand `refusal` words
         self.hold: set[Node] = set()  # torque model: states that hold every load
@@ -503,14 +509,16 @@ class Evaluator:
             return
         order = sorted(range(n_loads), key=lambda j: (-self._refusals[j], j))
         test = p.load_test if n_loads else None
-        items = [(p.patches(n), p.statics(n) if n_loads else None, self.closure.get(n), self._untested(n),
+        items = [(p.patches(n), p.statics(n) if n_loads else None,
+                  self.closure[n].is_force_closure if n in self.closure else None, self._untested(n),
                   self.grip.get(n) or [None] * n_loads) for n in todo]
         k = len(items) - len(items) // 2
         halves = [(p.friction, test, order, half) for half in (items[:k], items[k:]) if half]
         helper = self._helper() if len(halves) == 2 else None
         results = helper.map(_evaluate_half, halves) if helper is not None else [_evaluate_half(*h) for h in halves]
         for n, (closure, tested) in zip(todo, itertools.chain.from_iterable(results)):
-            self.closure[n] = closure
+            if closure is not None:
+                self.closure[n] = closure
             if tested is None:
                 continue
             why, grip, demand = tested
@@ -537,10 +545,13 @@ class Evaluator:
                 return None
             from planner.helper import Helper, available  # noqa: PLC0415 - only when a helper is asked for
 
-            if not available():
+            try:
+                self._helper_proc = Helper() if available() else None
+            except OSError:  # the system cannot fork now: the search goes on in one process
+                self._helper_proc = None
+            if self._helper_proc is None:
                 self.helpers = 0
                 return None
-            self._helper_proc = Helper()
         return self._helper_proc
 
     def close(self) -> None:

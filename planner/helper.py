@@ -1,27 +1,32 @@
-"""A second process for the gait search's per-state work (the load test of a batch of states).
+"""A second process for the gait search's per-state work (half of each batch of new states).
 
-The search's cost is mostly evaluating each new state: its force closure and whether it holds
-the object's weight in every planned gravity direction (about six grip-force programs per
-state; `planner.graph.Evaluator.evaluate_states`), one state after another on one core, while
-the verification replays that follow use every core. `Helper` is one process forked from the planner's (it inherits the imports, so a start
-costs milliseconds), fed through a pipe: the caller sends a function and a share of the batch,
-computes the rest itself, then receives the helper's share. Results are assembled in the batch's
-order, and each item is computed the same way wherever it runs, so the answer does not depend
-on how many processes computed it.
+The search's cost is mostly evaluating each new state: its force closure, whether it holds the
+object's weight in every planned gravity direction (about six grip-force programs per state)
+and, for a state that does not, the torque demand its refusal names
+(`planner.graph.Evaluator.evaluate_states`), one state after another on one core, while the
+verification replays that follow use every core. `Helper` is one process forked from the
+planner's (it inherits the imports, so a start costs milliseconds), fed through a pipe: the
+caller sends a function and its share of the work, computes the rest itself, then receives the
+helper's answers. Results are assembled in the work's order, and each item is computed the same
+way wherever it runs.
 
-No threads in the planner's process: the verification replays fork it later, and a fork of a
-process with live threads can deadlock. A helper that fails (an exception, a lost pipe) is
-closed and its share computed by the caller, so an error is raised where the work would
-have raised it without a helper. Only where ``fork`` is a start method (Linux; elsewhere
+No threads of its own in the planner's process (the verification replays fork it later, and a
+fork of a process with live threads can deadlock). A helper that fails (an exception, a lost
+pipe) is closed and its share computed by the caller, so an error is raised where the work
+would have raised it without a helper. Only where ``fork`` is a start method (Linux; elsewhere
 everything runs in the caller).
 """
 
 from __future__ import annotations
 
+import logging
 import multiprocessing as mp
 import os
+import signal
 import traceback
 from typing import Callable, Sequence
+
+log = logging.getLogger(__name__)
 
 
 def available() -> bool:
@@ -29,9 +34,13 @@ def available() -> bool:
     return "fork" in mp.get_all_start_methods()
 
 
-def _serve(conn) -> None:
+def _serve(conn, theirs) -> None:
     """The helper's loop: ``(function, items)`` in, ``(True, results)`` or ``(False, text)`` out;
-    None (or the pipe closing) ends it."""
+    None (or the pipe closing) ends it. ``theirs``, the caller's end of the pipe (inherited by
+    the fork), is closed first: the pipe then closes when the caller dies, however it dies, and
+    the helper ends instead of waiting for ever. Ctrl-C is the caller's to handle."""
+    theirs.close()
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     while True:
         try:
             msg = conn.recv()
@@ -58,11 +67,17 @@ class Helper:
     """
 
     def __init__(self):
+        """Fork the helper. Raises OSError when the system cannot (no pipe ends are left open)."""
         ctx = mp.get_context("fork")
         self._conn, child = ctx.Pipe()
-        self._proc = ctx.Process(target=_serve, args=(child,), daemon=True, name="regrasp-search-helper")
-        self._proc.start()
-        child.close()
+        self._proc = ctx.Process(target=_serve, args=(child, self._conn), daemon=True, name="regrasp-search-helper")
+        try:
+            self._proc.start()
+        except BaseException:
+            self._conn.close()
+            raise
+        finally:
+            child.close()
         self.failure: str | None = None
 
     @property
@@ -99,12 +114,12 @@ class Helper:
         if ok:
             return res
         if res is not None and self.failure is None:
-            self.failure = res
-            self.close()
+            self._fail(res)
         return [fn(*item) for item in theirs]  # its error, if any, raised here as without a helper
 
     def _fail(self, why: str) -> None:
         self.failure = why
+        log.info("search helper failed (its share is computed by the planner's process): %s", why)
         self.close()
 
     def close(self) -> None:

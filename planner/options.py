@@ -125,7 +125,8 @@ class PlanOptions:
         workers: processes for the verification replays and the gait search (None: the
             cores available; with two or more the search evaluates half of each batch of states
             in a helper process, `planner.graph.Evaluator.evaluate_states`). The plan is the same for
-            any number (not written to its parameters).
+            any number (the search's states are evaluated alike in either process; not written to
+            its parameters).
         gravity_set: None or a set size of `planner.gravity.GRAVITY_SET_SIZES` (1, 2, 6, 7):
             plan for several hand orientations at once, the named gravity directions of
             `planner.gravity.gravity_directions` (from the hand's ``palm_normal``). A state
