@@ -10,6 +10,10 @@ caller sends a function and its share of the work, computes the rest itself, the
 helper's answers. Results are assembled in the work's order, and each item is computed the same
 way wherever it runs.
 
+`fork_map` does the same once for work whose inputs do not pickle (a hand's models): half of it
+in a copy forked for the call, which inherits the inputs (the reposing search's contacts per
+finger, `planner.intermediate.intermediate_grasps`).
+
 No threads of its own in the planner's process (the verification replays fork it later, and a
 fork of a process with live threads can deadlock). A helper that fails (an exception, a lost
 pipe) is closed and its share computed by the caller, so an error is raised where the work
@@ -49,14 +53,20 @@ def _serve(conn, theirs) -> None:
         if msg is None:
             return
         fn, items = msg
-        try:
-            out = (True, [fn(*item) for item in items])
-        except BaseException:  # noqa: BLE001 - reported; the caller computes the share itself
-            out = (False, traceback.format_exc())
-        try:
-            conn.send(out)
-        except Exception:  # noqa: BLE001 - e.g. a result that does not pickle
-            conn.send((False, traceback.format_exc()))
+        _answer(conn, lambda: [fn(*item) for item in items])
+
+
+def _answer(conn, work: Callable[[], list]) -> None:
+    """Send ``(True, work())``, or ``(False, the traceback)`` when it raises or its result does
+    not pickle (the caller then computes that share itself)."""
+    try:
+        out = (True, work())
+    except BaseException:  # noqa: BLE001 - reported; the caller computes the share itself
+        out = (False, traceback.format_exc())
+    try:
+        conn.send(out)
+    except Exception:  # noqa: BLE001 - e.g. a result that does not pickle
+        conn.send((False, traceback.format_exc()))
 
 
 class Helper:
@@ -150,3 +160,49 @@ def cores() -> int:
         return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:  # pragma: no cover - not Linux
         return max(1, os.cpu_count() or 1)
+
+
+def fork_map(fn: Callable, items: Sequence, processes: int = 2) -> list:
+    """``[fn(x) for x in items]``, the last half (rounded down) computed in a copy of this
+    process forked for the call while this one computes the rest, when ``processes`` >= 2.
+    ``fn`` and the items are inherited by the copy, not pickled (they may hold a hand's models);
+    the copy's results are pickled back. For work whose items are computed independently of one
+    another (the same results either way). A copy that fails or cannot be forked: its half is
+    computed here, so an error is raised here as without it."""
+    n = len(items)
+    k = n - n // 2
+    if processes < 2 or n < 2 or not available():
+        return [fn(x) for x in items]
+    ctx = mp.get_context("fork")
+    mine, theirs = ctx.Pipe()
+
+    def run() -> None:
+        mine.close()  # (so the pipe closes when the caller dies)
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        _answer(theirs, lambda: [fn(x) for x in items[k:]])
+
+    proc = ctx.Process(target=run, daemon=True, name="regrasp-fork-map")
+    try:
+        proc.start()
+    except OSError:
+        mine.close()
+        theirs.close()
+        return [fn(x) for x in items]
+    theirs.close()
+    try:
+        out = [fn(x) for x in items[:k]]
+        try:
+            ok, res = mine.recv()
+        except (EOFError, OSError) as err:
+            ok, res = False, f"the copy's pipe broke: {err!r}"
+    finally:
+        if proc.is_alive() and proc.exitcode is None:
+            proc.join(timeout=5)
+        if proc.is_alive():
+            proc.terminate()
+        proc.join()
+        mine.close()
+    if not ok:
+        log.info("forked copy failed (its half is computed here): %s", res)
+        res = [fn(x) for x in items[k:]]
+    return out + res

@@ -33,6 +33,7 @@ import numpy as np
 
 from planner.errors import MotionError
 from planner.grasp import FingerSpec
+from planner.helper import cores, fork_map
 from planner.realization import PENETRATION_TOL_M, measure
 from planner.repose import FOLLOW_TOL_M, Reposing, _follow, _holds, object_path, repose, state_reason
 
@@ -298,11 +299,17 @@ def intermediate_grasps(initial, final, options, *, samples: int = SAMPLES, keep
     reposing move to B passes (`planner.repose.repose`); and a sentence on what was tried."""
     hand = initial.hand
     Tb = np.asarray(final.obj.T_palm_obj, float)
+    def one(f: str) -> tuple:
+        tried: dict = {}
+        return finger_choices(initial, final, f, samples=samples, keep=keep, seed=options.seed, tried=tried), tried
+
+    # each finger's contacts are sampled and followed on their own (seeded per finger): half the
+    # fingers in a forked copy when there are two cores (`planner.helper.fork_map`)
     counts: dict[str, dict] = {}
     choices = {}
-    for f in hand.fingers:
-        counts[f] = {}
-        choices[f] = finger_choices(initial, final, f, samples=samples, keep=keep, seed=options.seed, tried=counts[f])
+    fingers = list(hand.fingers)
+    for f, (c, tried) in zip(fingers, fork_map(one, fingers, options.workers or cores())):
+        choices[f], counts[f] = c, tried
     thumb = "thumb" if "thumb" in hand.fingers else None
     have = ", ".join(f"{f} {len(c)}" for f, c in choices.items())
     if thumb is not None and not choices[thumb]:

@@ -174,3 +174,30 @@ def test_a_helper_that_cannot_be_forked_leaves_the_search_in_one_process(box_pai
     two = plan_regrasp(a, b, PlanOptions.for_execution(verify=False, motion=False, workers=2))
     assert one.sequence.order(one.graph.graph["problem"]) == two.sequence.order(two.graph.graph["problem"])
     assert one.graph.number_of_nodes() == two.graph.number_of_nodes()
+
+
+def _square_or_fail(x):
+    if x == "boom":
+        raise ValueError("boom")
+    return os.getpid(), x * x
+
+
+def test_fork_map_is_the_serial_map_with_the_last_half_in_a_copy():
+    """Inputs inherited (a closure over an object that does not pickle works), results pickled
+    back in order; one process when asked; an error in the copy's half raises here."""
+    import threading
+
+    lock = threading.Lock()  # does not pickle: the copy inherits it
+
+    def square(x):
+        with lock:
+            return os.getpid(), x * x
+
+    out = helper_mod.fork_map(square, list(range(5)))
+    assert [sq for _, sq in out] == [0, 1, 4, 9, 16]
+    pids = [p for p, _ in out]
+    assert pids[:3] == [os.getpid()] * 3 and pids[3] == pids[4] != os.getpid()
+    assert [p for p, _ in helper_mod.fork_map(square, [1, 2], processes=1)] == [os.getpid()] * 2
+    with pytest.raises(ValueError, match="boom"):
+        helper_mod.fork_map(_square_or_fail, [1, 2, "boom"])
+    assert not [c for c in multiprocessing.active_children() if c.name == "regrasp-fork-map"]

@@ -160,3 +160,18 @@ def test_the_gaits_at_the_final_pose_wait_for_a_budget_the_gaits_at_the_initial_
                                        gaits, None)
     assert calls == [4]
     assert "the gaits at the final grasp's pose not tried: 4 sequences were replayed before" in str(err.value)
+
+
+def test_the_same_intermediate_grasps_with_one_process_or_two(pair):
+    """Each finger's contacts are computed on their own (seeded per finger), so sampling half
+    the fingers in a forked copy (`planner.helper.fork_map`, ``workers`` 2) gives the grasps and
+    the words of one process."""
+    one = intermediate_grasps(*pair, replace(OPTS, workers=1))
+    two = intermediate_grasps(*pair, replace(OPTS, workers=2))
+    assert one[1] == two[1]
+    assert len(one[0]) == len(two[0]) >= 1
+    for x, y in zip(one[0], two[0]):
+        assert [(c.finger, c.source, c.link) for c in x.choices] == [(c.finger, c.source, c.link) for c in y.choices]
+        for c, d in zip(x.choices, y.choices):
+            assert np.array_equal(c.p_obj, d.p_obj) and np.array_equal(c.q_a, d.q_a) and np.array_equal(c.path, d.path)
+        assert np.array_equal(x.grasp.q, y.grasp.q)
