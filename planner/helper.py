@@ -195,11 +195,10 @@ def fork_map(fn: Callable, items: Sequence, processes: int = 2) -> list:
             ok, res = mine.recv()
         except (EOFError, OSError) as err:
             ok, res = False, f"the copy's pipe broke: {err!r}"
+    except BaseException:  # an error or Ctrl-C here: the copy's half is not wanted
+        proc.terminate()
+        raise
     finally:
-        if proc.is_alive() and proc.exitcode is None:
-            proc.join(timeout=5)
-        if proc.is_alive():
-            proc.terminate()
         proc.join()
         mine.close()
     if not ok:
