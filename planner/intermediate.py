@@ -299,6 +299,7 @@ def intermediate_grasps(initial, final, options, *, samples: int = SAMPLES, keep
     reposing move to B passes (`planner.repose.repose`); and a sentence on what was tried."""
     hand = initial.hand
     Tb = np.asarray(final.obj.T_palm_obj, float)
+
     def one(f: str) -> tuple:
         tried: dict = {}
         return finger_choices(initial, final, f, samples=samples, keep=keep, seed=options.seed, tried=tried), tried
