@@ -26,11 +26,15 @@ from __future__ import annotations
 import logging
 import multiprocessing as mp
 import os
+import pickle
 import signal
 import traceback
 from typing import Callable, Sequence
 
 log = logging.getLogger(__name__)
+
+#: What pickling raises for an object that does not pickle (a lock, a local function, a C++ object).
+_UNPICKLABLE = (pickle.PicklingError, TypeError, AttributeError)
 
 
 def available() -> bool:
@@ -65,7 +69,7 @@ def _answer(conn, work: Callable[[], list]) -> None:
         out = (False, traceback.format_exc())
     try:
         conn.send(out)
-    except Exception:  # noqa: BLE001 - e.g. a result that does not pickle
+    except _UNPICKLABLE:  # a result that does not pickle (a broken pipe: the caller is gone)
         conn.send((False, traceback.format_exc()))
 
 
@@ -105,7 +109,7 @@ class Helper:
         mine, theirs = items[: n - k], items[n - k :]
         try:
             self._conn.send((fn, list(theirs)))
-        except Exception as err:  # noqa: BLE001 - a broken pipe or an item that does not pickle
+        except (OSError, *_UNPICKLABLE) as err:  # a broken pipe or an item that does not pickle
             self._fail(f"could not send the share: {err!r}")
             return [fn(*item) for item in items]
         try:
@@ -139,7 +143,7 @@ class Helper:
             return
         try:
             self._conn.send(None)
-        except Exception:  # noqa: BLE001 - already gone
+        except OSError:  # already gone
             pass
         proc.join(timeout=5)
         if proc.is_alive():

@@ -134,9 +134,9 @@ def solve_highs_rhs(key, b_eq, build, what: str, detail: str = "; the answer is 
     program is solved from scratch): when the shared HiGHS instance holds the last program of
     this family at an optimum, only the equality rows' bounds change and HiGHS's simplex goes
     on from that optimal basis (a few iterations instead of a solve from scratch, and no model
-    passed). Anything else (another
-    program solved in between, a warm solve ending infeasible or unsure) solves from scratch
-    through `solve_highs`, which decides "infeasible" or raises as it does.
+    passed). Anything else (another program solved in between, a warm solve ending infeasible
+    or unsure) solves from scratch through `solve_highs`, which decides "infeasible" or raises
+    as it does.
 
     Returns:
         The objective value at an optimum (not the solution), None when the program is

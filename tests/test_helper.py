@@ -201,3 +201,18 @@ def test_fork_map_is_the_serial_map_with_the_last_half_in_a_copy():
     with pytest.raises(ValueError, match="boom"):
         helper_mod.fork_map(_square_or_fail, [1, 2, "boom"])
     assert not [c for c in multiprocessing.active_children() if c.name == "regrasp-fork-map"]
+
+
+def _first(x, _):
+    return x
+
+
+def test_a_share_that_does_not_pickle_is_computed_by_the_caller():
+    """An item that does not pickle (a lock) cannot go to the helper: the caller computes the
+    whole batch, the same answers, and the helper is closed with the reason."""
+    import threading
+
+    with helper_mod.Helper() as h:
+        items = [(i, threading.Lock()) for i in range(4)]
+        assert h.map(_first, items) == [0, 1, 2, 3]
+        assert not h.alive and "could not send" in h.failure
