@@ -5,7 +5,9 @@ The refusals of exp10 v2's equal-pose tripod controls (experiments/results/exp10
 finger paths, not in the verification replays: the iCub box medium (a search of thousands of
 states, six sequences replayed), the Allegro box medium (the thumb's path to its final contact
 failing in state after state), the Allegro sphere small (six sequences replayed); and exp9 v2's
-iCub box 30 g (the verification's case). Each is planned with ``--execution``
+iCub box 30 g (the verification's case); and the slowest reposing refusals, three of exp10 v2's
+pose pairs (``<pair>_initial.yaml`` -> ``<pair>_final.yaml``, ``--pairs`` names ending in
+``_pose``: their candidate poses' and intermediate grasps' gait searches). Each is planned with ``--execution``
 (`PlanOptions.for_execution`), grasp realization excluded, in two ways, alternated:
 
 * now: the planner as it runs (its default workers: the cores available);
@@ -13,6 +15,11 @@ iCub box 30 g (the verification's case). Each is planned with ``--execution``
   - ``one-process`` (default): the gait search without its helper process (both halves of
     every batch of states evaluated in the planner's process, `planner.graph.Evaluator._helper`
     answering None; the verification replays as now);
+  - ``per-candidate``: the reposing search (the pose pairs below) as before 2026-12-07, in
+    process: each candidate pose's gait search with its own ``--max-rounds`` (not one shared,
+    `planner.regrasp.RoundBudget` never running out) and its gaits verified alone before the
+    whole plan is replayed (`planner.regrasp.plan_gaits` without ``whole``). (The intermediate
+    grasps' reposing moves judged half in a forked copy are not undone.)
   - ``2026-12-06``: three changes of that day undone in process: every grip-force program
     solved from scratch (`planner.lp.solve_highs_rhs` forgets the program it holds), grip
     forces ranked to their last digit (`planner.gait_search.GRIP_RANK_DECIMALS` 15), and no
@@ -26,7 +33,7 @@ wall time of each, their ratio and what came out (planned or refused, and whethe
 agree: the ranking may pick another sequence among ties).
 
 Usage: python benchmarks/bench_search_refusals.py [--repeats N] [--pairs NAME,...]
-       [--baseline one-process|2026-12-06]
+       [--baseline one-process|per-candidate|2026-12-06]
 """
 
 from __future__ import annotations
@@ -61,6 +68,9 @@ PAIRS = {
                                         "exp10_pairs_v2/allegro_right_sphere_small_same.yaml"),
     "icub_right_box_m0.03": ("exp9_pairs_v2/icub_right_box_m0.03_initial.yaml",
                              "exp9_pairs_v2/icub_right_box_m0.03_final.yaml"),
+    **{f"allegro_right_{n}_pose": (f"exp10_pairs_v2/allegro_right_{n}_initial.yaml",
+                                   f"exp10_pairs_v2/allegro_right_{n}_final.yaml")
+       for n in ("box_large", "mesh_small", "sphere_small")},
 }
 
 
@@ -94,7 +104,22 @@ def before_dec06():
         closure.solve_highs_rhs, motion.plan_gait_step, gait_search.GRIP_RANK_DECIMALS = real_rhs, real_gait, decimals
 
 
-BASELINES = {"one-process": one_process, "2026-12-06": before_dec06}
+@contextlib.contextmanager
+def per_candidate():
+    """The reposing search as before 2026-12-07 (see the module docstring)."""
+    real_budget, real_gaits = regrasp.RoundBudget, regrasp.plan_gaits
+
+    def gaits(*args, whole=None, **kw):
+        return real_gaits(*args, **kw)
+
+    regrasp.RoundBudget, regrasp.plan_gaits = (lambda rounds: real_budget(10**9)), gaits
+    try:
+        yield
+    finally:
+        regrasp.RoundBudget, regrasp.plan_gaits = real_budget, real_gaits
+
+
+BASELINES = {"one-process": one_process, "per-candidate": per_candidate, "2026-12-06": before_dec06}
 
 
 def outcome(initial, final, now: bool, baseline: str = "one-process") -> tuple[float, str]:

@@ -318,13 +318,8 @@ def intermediate_grasps(initial, final, options, *, samples: int = SAMPLES, keep
         return [], (f"no thumb contact follows the object from A to B ({samples} points sampled: {why})")
     out, reasons = [], {}
     todo, scanned = _combos(hand, choices, thumb, initial.friction, options.contact_model, SCAN)
-    measured = 0
-    for pick in todo:
-        if measured >= combos or len(out) >= grasps:
-            break
-        if any(c is x for it in out for x in it.choices for c in pick if c.finger == thumb):
-            continue  # (one grasp per thumb contact: the thumb's gait is what the gaits must make)
-        measured += 1
+
+    def measured_at_a(pick):
         q = np.array(hand.q_open, dtype=float)
         for c in pick:
             q[list(hand.fingers[c.finger].q_index)] = c.q_a
@@ -333,23 +328,59 @@ def intermediate_grasps(initial, final, options, *, samples: int = SAMPLES, keep
             FingerSpec(fs.name, "contact", point_obj=tuple(float(v) for v in chosen[fs.name].p_obj),
                        link=chosen[fs.name].link) if fs.name in chosen else FingerSpec(fs.name, "free")
             for fs in initial.spec.fingers), name=f"{initial.spec.name} (intermediate)", path="")
-        g = measure(spec, hand, q)
-        why = None
+        return measure(spec, hand, q)
+
+    def judged(pick) -> tuple:
+        """(why the pick is no intermediate grasp or None, its grasp at A, its move to B)."""
+        g = measured_at_a(pick)
         if g.missing:
-            why = "a finger misses the object at A"
-        elif any(d > PENETRATION_TOL_M for _, _, d in g.collisions):
-            why = "fingers collide at A"
-        else:
-            why = state_reason(g, options)
-        if why is None:
-            try:
-                move = repose(g, Tb, options)
-            except MotionError as err:
-                why = "reposing: " + _short(str(err))
-            else:
-                out.append(Intermediate(g, move, pick))
+            return "a finger misses the object at A", None, None
+        if any(d > PENETRATION_TOL_M for _, _, d in g.collisions):
+            return "fingers collide at A", None, None
+        why = state_reason(g, options)
+        if why is not None:
+            return why, None, None
+        try:
+            return None, g, repose(g, Tb, options)
+        except MotionError as err:
+            return "reposing: " + _short(str(err)), None, None
+
+    def taken(pick) -> bool:  # one grasp per thumb contact: the thumb's gait is what the gaits must make
+        return any(c is x for it in out for x in it.choices for c in pick if c.finger == thumb)
+
+    # the picks in order, judged a few at a time, half of them in a forked copy when there are
+    # two cores (only the reason comes back: a pick that passes is judged again here, its grasp
+    # and move being this process's); the picks are used in order as one at a time would use
+    # them (a pick judged beyond the last one needed, or whose thumb contact a pick before it in
+    # the batch took, counts for nothing), so the grasps and words are the same either way
+    procs = options.workers or cores()
+    measured, i = 0, 0
+    while i < len(todo) and measured < combos and len(out) < grasps:
+        batch = []
+        while i < len(todo) and len(batch) < min(2 * procs, combos - measured):
+            if not taken(todo[i]):
+                batch.append(todo[i])
+            i += 1
+        if not batch:
+            continue
+        here: dict = {}  # the picks judged in this process: kept whole
+
+        def judge(k: int):
+            here[k] = judged(batch[k])
+            return here[k][0]
+
+        whys = fork_map(judge, range(len(batch)), procs)
+        for k, pick in enumerate(batch):
+            if measured >= combos or len(out) >= grasps:
+                break
+            if taken(pick):
                 continue
-        reasons[why] = reasons.get(why, 0) + 1
+            measured += 1
+            why, g, move = here[k] if k in here else (whys[k], None, None) if whys[k] is not None else judged(pick)
+            if why is None:
+                out.append(Intermediate(g, move, pick))
+            else:
+                reasons[why] = reasons.get(why, 0) + 1
     words = (f"intermediate grasps: contacts that follow the object ({have} per finger), {len(todo)} of "
              f"{scanned} combinations clear and force closure, {measured} measured, {len(out)} reposed from A to B")
     if reasons:

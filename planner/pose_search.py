@@ -284,6 +284,11 @@ def compose(initial, final, options: PlanOptions, first: Leg, gait: Plan | None,
     """One plan: ``first`` (the initial grasp's fingers lifted, reposed to ``P``), the gait
     plan at ``P``, ``last`` reversed (reposed back to the final grasp's pose, its fingers
     landed)."""
+    return compose_at(initial, final, options, first, gait, last, P)[0]
+
+
+def compose_at(initial, final, options: PlanOptions, first: Leg, gait: Plan | None, last: Leg, P) -> tuple[Plan, int]:
+    """`compose`, and the index of the gait plan's first step in it."""
     hand = initial.hand
     b = _Builder(options, hand, initial.obj.T_palm_obj)
     b.grasp(initial, "initial")
@@ -307,6 +312,7 @@ def compose(initial, final, options: PlanOptions, first: Leg, gait: Plan | None,
             b.grasp(first.end, "initial")
     elif gait is not None:
         b.states[-1] = replace(gait.states[0], object_pose=b.pose(P))
+    at = len(b.steps)
     if gait is not None:
         k0 = len(b.states) - 1
         for s in gait.states[1:]:
@@ -335,7 +341,7 @@ def compose(initial, final, options: PlanOptions, first: Leg, gait: Plan | None,
     order = [f"{f}:lift" for f, _, _ in first.lifts] + ([f"{OBJECT}:repose"] if first.move is not None else []) \
         + (list(gait.summary.get("order", [])) if gait else []) + ([f"{OBJECT}:repose"] if last.move is not None else []) \
         + [f"{f}:land>final" for f, _, _ in reversed(last.lifts)]
-    return _finish(initial, options, b, moves, gait, order, len(first.lifts) + len(last.lifts), P)
+    return _finish(initial, options, b, moves, gait, order, len(first.lifts) + len(last.lifts), P), at
 
 
 def compose_through(initial, final, options: PlanOptions, gait_a: Plan | None, move: Reposing,
@@ -356,7 +362,7 @@ def compose_through(initial, final, options: PlanOptions, gait_a: Plan | None, m
     if gait_b is None:
         b.grasp(final, "final")
     else:
-        k0 = len(b.states)
+        k0 = len(b.states)  # (the gaits at B start at the move's last state: their steps follow it)
         for st in gait_b.states:
             b.state(st, Tb)
         b.steps += [replace(s, from_state=s.from_state + k0, to_state=s.to_state + k0) for s in gait_b.steps]
@@ -559,7 +565,11 @@ def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bo
     of the gait refusal at the grasps' own pose (a candidate failing the same way says so).
     The candidates share one ``options.verify_attempts`` (sequences replayed, the gaits' and
     the whole plans'): once it is spent the candidates left are not tried, so a refusal costs
-    about that many replays beyond the gaits' at the grasps' own pose. Returns (plan,
+    about that many replays beyond the gaits' at the grasps' own pose; and one
+    ``options.max_rounds`` (`planner.regrasp.RoundBudget`: rounds of intermediate contacts
+    their gait searches add). Where the plan around the gaits is known when they are searched
+    (a candidate pose; the intermediate grasp's gaits at the final grasp's pose), each sequence
+    is verified inside it (`planner.regrasp.plan_gaits`' ``whole``), once. Returns (plan,
     seconds of verification replays or None, a sentence on what was tried); raises
     NoSequenceError with every candidate's reason.
     """
@@ -571,6 +581,9 @@ def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bo
     verify_s = 0.0
     replays = 0  # sequences the verification replayed, every candidate's (gaits and whole plans)
     stopped = False  # the budget ran out before every candidate was tried
+    from planner.regrasp import RoundBudget
+
+    rounds = RoundBudget(options.max_rounds)  # the candidates' gait searches share one --max-rounds
 
     def replayed() -> None:
         nonlocal replays
@@ -621,12 +634,18 @@ def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bo
             same = set(a.patches) == set(b.patches) and all(
                 np.allclose(a.finger_q[f], b.finger_q[f], atol=options.same_slot_tol_rad) for f in a.patches if f != PALM)
             left = replace(options, verify_attempts=options.verify_attempts - replays) if verifying else options
-            gait = None if same else gaits(a, b, left, replayed).plan
+            around = (lambda g, first=first, back=back, P=P: compose_at(initial, final, options, first, g, back, P)) \
+                if verifying else None
+            res = None if same else gaits(a, b, left, replayed, budget=rounds, whole=around)
         except (NoSequenceError, PlannerError) as err:
             clause = first_clause(err)
             tried.append(f"at {name}: " + ("the gaits fail for the same reason" if clause == known else clause))
             continue
-        plan = checked(compose(initial, final, options, first, gait, back, P), f"at {name}")
+        if res is not None and res.whole is not None:  # verified whole with its gaits
+            verify_s += res.verify_s or 0.0
+            return replace(res.whole, inputs=dict(inputs or {})), verify_s, name
+        plan = checked(compose(initial, final, options, first, None if res is None else res.plan, back, P),
+                       f"at {name}")
         if plan is not None:
             return plan, (verify_s if verifying else None), name
     if not stopped and not identical(Ta, Tb):
@@ -653,7 +672,16 @@ def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bo
                     break
                 try:
                     left = replace(options, verify_attempts=options.verify_attempts - replays) if verifying else options
-                    gaits_.append(gaits(a, b, left, replayed).plan)
+                    # the gaits at the final grasp's pose are verified in the whole plan (the
+                    # gaits at A, which hold alone, replayed again with the move before them)
+                    around = None if which == "initial" or not verifying else \
+                        (lambda g, ga=gaits_[0], it=it: (compose_through(initial, final, options, ga, it.move, g),
+                                                         (len(ga.steps) if ga is not None else 0) + 1))
+                    res = gaits(a, b, left, replayed, budget=rounds, whole=around)
+                    if res.whole is not None:
+                        verify_s += res.verify_s or 0.0
+                        return replace(res.whole, inputs=dict(inputs or {})), verify_s, name
+                    gaits_.append(res.plan)
                 except (NoSequenceError, PlannerError) as err:
                     tried.append(f"{name}: at the {which} grasp's pose: {first_clause(err)}")
                     break

@@ -54,6 +54,9 @@ class PlanResult:
     elapsed_s: float
     failed_moves: tuple[str, ...]
     verify_s: float | None = None
+    #: with `plan_gaits`' ``whole``: the larger plan the verification replayed (and the physics
+    #: check passed), its verification recorded
+    whole: Plan | None = None
 
 
 #: Progress of a long plan (search rounds, finger paths, verification replays): `logging`
@@ -274,6 +277,27 @@ RESUME_ROUNDS = 3
 (a finger path OMPL did not find, a replay that failed): a bound on the work."""
 
 
+class RoundBudget:
+    """Rounds of intermediate contacts several gait searches share (`plan_gaits`' ``budget``:
+    the reposing candidates', `planner.pose_search.plan_with_reposing`, share one
+    ``--max-rounds`` as they share one ``--verify-attempts``). Every round a search makes
+    takes one, the anytime rounds and those after rejected sequences alike; a search with none
+    left searches the contacts it has. A bound on the work, not the time."""
+
+    def __init__(self, rounds: int):
+        self.left = max(0, int(rounds))
+        self.used = 0
+
+    def take(self) -> None:
+        self.left -= 1
+        self.used += 1
+
+    @property
+    def spent(self) -> bool:
+        return self.left <= 0
+
+
+
 def _failed_words(problem: GaitProblem, bad: "_EdgeFailed") -> str:
     return f"{bad.finger} {problem.labels(bad.edge[0])[bad.finger]}->{problem.labels(bad.edge[1])[bad.finger]}: {bad.why}"
 
@@ -292,7 +316,7 @@ def _goal_invalid(lazy: LazyGraph) -> bool:
 
 
 def anytime_search(problem: GaitProblem, initial, options: PlanOptions, t0: float,
-                    prior: LazyGraph | None = None) -> tuple[LazyGraph, dict]:
+                    prior: LazyGraph | None = None, budget: RoundBudget | None = None) -> tuple[LazyGraph, dict]:
     """Lazy ranked search, then (anytime mode: ``options.intermediate`` 0 and a time limit)
     rounds of intermediate contacts for the fingers that block progress
     (`planner.explain.failure_analysis`), until a sequence is found or the time limit passes.
@@ -301,6 +325,8 @@ def anytime_search(problem: GaitProblem, initial, options: PlanOptions, t0: floa
     more round starts from its graph, keeping the moves and states it removed, bounded by
     the round (one) rather than the clock, so the plan does not depend on the time the
     paths and replays took.
+
+    ``budget``: rounds shared with other searches (`RoundBudget`); none are made once it is spent.
 
     Returns the last `LazyGraph` and what to record: rounds, contacts added per finger,
     states expanded, whether the ranking is exact, ``found`` (the sequences) and ``tried``
@@ -332,6 +358,8 @@ def anytime_search(problem: GaitProblem, initial, options: PlanOptions, t0: floa
             if found or not auto or out_of_time or _goal_invalid(lazy) or (prior is not None and rounds >= 1) \
                     or rounds >= options.max_rounds:
                 break
+        if budget is not None and budget.spent:
+            break
         # contacts for the fingers that could unblock progress, scored against the states
         # they should complete; every second round (and when those give none) one more for
         # every finger, scored as --intermediate N scores them (after m such rounds every
@@ -358,6 +386,8 @@ def anytime_search(problem: GaitProblem, initial, options: PlanOptions, t0: floa
         if not new:
             break
         rounds += 1
+        if budget is not None:
+            budget.take()
         _count(added, new)
         lazy = None
     spent = time.perf_counter() - t0
@@ -367,6 +397,9 @@ def anytime_search(problem: GaitProblem, initial, options: PlanOptions, t0: floa
                  "no intermediate contacts were tried (no --intermediate N, and --max-rounds or --time-limit 0)")
     elif _goal_invalid(lazy):
         tried = "no intermediate contacts were tried: they cannot make the final grasp valid"
+    elif budget is not None and budget.spent and (rounds < options.max_rounds or prior is not None):
+        tried = (f"{rounds} round(s) of intermediate contacts were tried ({what or 'none added'}) in {spent:.1f} s; the "
+                 f"searches before it had spent the rounds they share (--max-rounds {options.max_rounds})")
     elif rounds == 0 and not out_of_time:
         tried = "no intermediate contact could be added: the fingers that block progress reach no further contact"
     else:
@@ -434,7 +467,8 @@ def _plan_regrasp(initial, final, options: PlanOptions, inputs, verbose: bool) -
     try:
         gait_fn = _motion_gait(options, verbose) if options.motion else _straight_gait
         plan, verify_s, _ = plan_with_reposing(initial, final, options, inputs, verbose,
-                                               lambda a, b, o, r=None: plan_gaits(a, b, o, inputs, verbose, r), gait_fn,
+                                               lambda a, b, o, r=None, **kw: plan_gaits(a, b, o, inputs, verbose, r, **kw),
+                                               gait_fn,
                                                None if first_err is None else first_clause(first_err))
     except NoSequenceError as err:
         if first_err is None:
@@ -449,7 +483,8 @@ def _plan_regrasp(initial, final, options: PlanOptions, inputs, verbose: bool) -
 
 def plan_gaits(
     initial, final, options: PlanOptions = PlanOptions(), inputs: Mapping[str, Any] | None = None, verbose: bool = False,
-    on_replay: Callable[[], Any] | None = None,
+    on_replay: Callable[[], Any] | None = None, budget: RoundBudget | None = None,
+    whole: Callable[[Plan], tuple[Plan, int]] | None = None,
 ) -> PlanResult:
     """Plan a finger-gaiting sequence from one realized grasp to another, the object fixed.
 
@@ -461,6 +496,15 @@ def plan_gaits(
         verbose: let the motion planner print its log.
         on_replay: called once per sequence the verification replays (a caller sharing
             ``--verify-attempts`` among several searches counts them).
+        budget: rounds of intermediate contacts shared with other searches (`RoundBudget`),
+            the rounds after rejected sequences included; None: this search's own
+            ``--max-rounds``, and up to `RESUME_ROUNDS` after rejected sequences.
+        whole: when the gaits are part of a larger plan (reposing moves before or after them,
+            `planner.pose_search`): the gait plan -> (that plan, the index of its first gait
+            step). The verification replays and the physics check checks the larger plan, once
+            per sequence (not the gaits, then the whole again); a failure in a gait step rejects
+            the sequence as usual, one outside the gaits ends the search (no other sequence mends
+            it). The result's ``whole`` is the larger plan that passed.
 
     Returns:
         `PlanResult` with the plan, the graph and the ranked sequences.
@@ -507,7 +551,7 @@ def plan_gaits(
         search_info = {"rounds": 0}
     else:
         log.info("searching the grasp-state graph")
-        lazy, search_info = anytime_search(problem, initial, options, t0)
+        lazy, search_info = anytime_search(problem, initial, options, t0, budget=budget)
         problem, G = lazy.problem, lazy.G
         candidates = search_info.pop("found")
         log.info("search: %d sequence(s) found, %d round(s) of intermediate contacts, %.1f s",
@@ -515,11 +559,11 @@ def plan_gaits(
         resumed = 0
         for _ in range(50):
             if not candidates and resumed < RESUME_ROUNDS and options.intermediate == 0 and options.time_limit_s != 0 \
-                    and (failed or rejected or unsound):
+                    and (failed or rejected or unsound) and (budget is None or not budget.spent):
                 # every sequence of this graph failed later: one more round of intermediate
                 # contacts, keeping what was removed
                 resumed += 1
-                lazy, more_info = anytime_search(problem, initial, options, t0, prior=lazy)
+                lazy, more_info = anytime_search(problem, initial, options, t0, prior=lazy, budget=budget)
                 problem, G = lazy.problem, lazy.G
                 candidates = more_info.pop("found")
                 search_info["rounds"] += more_info["rounds"]
@@ -560,6 +604,7 @@ def plan_gaits(
             annotate_removable(G, [v for s in candidates for v in s.nodes])
             plan = _make_plan(initial, final, options, inputs or {}, problem, G, candidates[0], candidates[1:], motions,
                               search_info)
+            replayed, k0 = (plan, 0) if whole is None else whole(plan)
             log.info("verifying in %s: attempt %d, %d direction(s) in %d process(es)", engine_names, len(rejected) + 1,
                      len(directions), min(workers, len(directions)))
             # the physics check `replay` and `verify` run on a plan file (`planner.audit`) runs
@@ -573,13 +618,18 @@ def plan_gaits(
             # first (the latest first): the first to fail rejects it and stops the others (a
             # sequence they reject again costs their replays only; a bound on the work, not
             # the time)
-            check = verify_suspects_first(plan, hand, directions, [r["direction"] for r in reversed(rejected)],
+            check = verify_suspects_first(replayed, hand, directions, [r["direction"] for r in reversed(rejected)],
                                           workers=workers,
                                           engine=options.engine,
-                                          meanwhile=lambda: audits.append(audit_plan(replace(plan, inputs={}), hand)))
+                                          meanwhile=lambda: audits.append(audit_plan(replace(replayed, inputs={}), hand)))
             audit = audits[0]
             if not audit.ok:
                 step, at_state = _audit_step(audit.problems[0])
+                if step is not None and whole is not None:
+                    if not k0 <= step < k0 + len(plan.steps) or (at_state and step == k0 - 1):
+                        raise NoSequenceError(f"the plan around the gaits fails the physics check replay and verify "
+                                              f"run on a plan: {audit.problems[0]}")
+                    step -= k0
                 if step is None or step < 0:  # not a move of this sequence: no other sequence mends it
                     raise NoSequenceError(
                         f"the best sequence ({' '.join(candidates[0].order(problem))}) fails the physics check replay "
@@ -601,6 +651,12 @@ def plan_gaits(
                 verified = check
                 break
             name, step, verdict, at_state = check.first_failure()
+            if whole is not None:
+                if step >= 0 and not k0 <= step < k0 + len(plan.steps):  # a reposing move, not a gait
+                    raise NoSequenceError(
+                        f"the plan failed in the simulator ({name} at step {step}: "
+                        f"{replayed.steps[step].action} {replayed.steps[step].finger}: {verdict})")
+                step = step - k0 if step >= 0 else step
             seq = candidates[0]
             rejected.append({"order": list(seq.order(problem)), "direction": name, "step": step, "verdict": verdict})
             rejected_moves.append(f"{plan.steps[step].action} {plan.steps[step].finger}" if step >= 0 else "state 0")
@@ -629,11 +685,14 @@ def plan_gaits(
     if plan is None:  # (a verified plan is the one the replays ran)
         annotate_removable(G, [v for s in candidates for v in s.nodes])
         plan = _make_plan(initial, final, options, inputs or {}, problem, G, best, candidates[1:], motions, search_info)
+    whole_plan = None
     if verifying:
         record = {**verified.record(), "attempts": len(rejected) + 1, "rejected": rejected}
         plan = replace(plan, summary={**plan.summary, "verification": record})
+        if whole is not None:
+            whole_plan = replace(replayed, summary={**replayed.summary, "verification": record})
     return PlanResult(plan, G, best, tuple(candidates[1:]), time.perf_counter() - t0, tuple(failed),
-                      verify_s if verifying else None)
+                      verify_s if verifying else None, whole_plan)
 
 
 def _make_plan(initial, final, options, inputs, problem, G, best, others, motions, search_info) -> Plan:

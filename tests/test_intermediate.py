@@ -147,9 +147,9 @@ def test_the_gaits_at_the_final_pose_wait_for_a_budget_the_gaits_at_the_initial_
     calls = []
 
     class Held:  # a gait plan that held (its contents are not read before the final pose's gaits)
-        plan = None
+        plan = whole = None
 
-    def gaits(x, y, o, on_replay):
+    def gaits(x, y, o, on_replay, **_):
         calls.append(o.verify_attempts)
         for _ in range(o.verify_attempts):
             on_replay()

@@ -342,7 +342,7 @@ def test_candidate_poses_share_one_verification_budget():
     assert len(names) > 2
     calls = []
 
-    def gaits(a, b, o, on_replay):
+    def gaits(a, b, o, on_replay, **_):
         calls.append(o.verify_attempts)
         for _ in range(min(4, o.verify_attempts)):  # sequences replayed and rejected, within its share
             on_replay()
@@ -429,11 +429,11 @@ def test_a_candidate_whose_plan_fails_the_physics_check_is_refused(monkeypatch):
         return rep
 
     class NoGaits:  # the gaits' result at the candidate pose: none needed
-        plan = None
+        plan = whole = None
 
     monkeypatch.setattr(audit, "audit_plan", failing)
     with pytest.raises(NoSequenceError) as err:
-        plan_with_reposing(pinch, pose, opts, {}, False, lambda a, b, o, r=None: NoGaits(), None)
+        plan_with_reposing(pinch, pose, opts, {}, False, lambda a, b, o, r=None, **_: NoGaits(), None)
     words = str(err.value)
     assert len(audited) >= 2 and words.count("the plan fails a physics check (steps[1] (repose object): a made-up problem)") \
         == len(audited)
@@ -455,3 +455,121 @@ def test_a_plan_with_reposing_records_the_verify_attempts_it_was_given():
     gait = plan_gaits(first.end, back.end, replace(opts, verify_attempts=2)).plan
     plan = pose_search.compose(pinch, pose, opts, first, gait, back, P)
     assert gait.parameters["verify_attempts"] == 2 and plan.parameters["verify_attempts"] == 6
+
+
+def _pen_pair():
+    return tuple(realize(load_grasp(bundled_grasp(f"icub/{n}.yaml"))) for n in ("pen_palmar_pinch", "pen_writing_pose"))
+
+
+def _stand_in_simulator(monkeypatch, verdict):
+    """``planner.sim.verify.verify_plan`` replaced: every plan it is asked to replay is kept,
+    and ``verdict(plan, k)`` (k: how many were asked before) gives None (every direction
+    passes) or the plan step the first direction fails at."""
+    import planner.sim.verify as verify
+
+    replayed = []
+
+    def stand_in(plan, hand, directions, workers=None, meanwhile=None, **_):
+        if meanwhile is not None:
+            meanwhile()
+        step = verdict(plan, len(replayed))
+        replayed.append(plan)
+        if step is None:
+            return verify.Verification(True, tuple((n, True, "PASS", None, False, 0.1, 0.1) for n, _ in directions), 0.0)
+        n = directions[0][0]
+        return verify.Verification(False, ((n, False, "FAIL: made up", step, False, 9.0, 9.0),), 0.0)
+
+    monkeypatch.setattr(verify, "verify_plan", stand_in)
+    return replayed
+
+
+def _repose_steps(plan) -> list[int]:
+    return [k for k, s in enumerate(plan.steps) if s.action == "repose"]
+
+
+def test_gaits_at_a_candidate_pose_are_verified_inside_the_whole_plan(monkeypatch):
+    """With reposing, each gait sequence the search finds is replayed once, inside the whole
+    plan (the reposing move included), not alone and then again whole: the pen's pinch to its
+    writing pose (gaits at the pinch's pose, then the turn) is replayed once when the simulator
+    passes it, and the plan returned is the one replayed, its verification recorded."""
+    replayed = _stand_in_simulator(monkeypatch, lambda plan, k: None)
+    pinch, pose = _pen_pair()
+    plan = plan_regrasp(pinch, pose, PlanOptions.for_execution(motion=False)).plan
+    assert len(replayed) == 1
+    assert _repose_steps(replayed[0]) and [s.action for s in replayed[0].steps] == [s.action for s in plan.steps]
+    ver = plan.summary["verification"]
+    assert ver["passed"] and ver["attempts"] == 1 and ver["rejected"] == []
+
+
+def test_a_gait_step_failing_in_the_whole_plan_rejects_that_sequence_only(monkeypatch):
+    """A failure at a gait step of the whole plan rejects that sequence, as a failure of the
+    gaits alone did: the next sequence is replayed, again whole. A failure in the reposing
+    move ends the candidate (no other gait sequence mends the move): the pen's first candidate
+    (the pinch turned to the writing pose, then the middle finger lands) is replayed once."""
+    failed_gait = []
+
+    def verdict(plan, k):
+        moves = _repose_steps(plan)
+        if moves and moves[0] == 0:  # the move first: it fails
+            return 0
+        if not failed_gait:  # the first plan whose gaits come first: its first gait step fails
+            failed_gait.append(plan)
+            return 0
+        return None
+
+    replayed = _stand_in_simulator(monkeypatch, verdict)
+    pinch, pose = _pen_pair()
+    plan = plan_regrasp(pinch, pose, PlanOptions.for_execution(motion=False)).plan
+    assert [_repose_steps(p)[0] == 0 for p in replayed] == [True, False, False]
+    assert replayed[-1] is not failed_gait[0] and [s.action for s in replayed[-1].steps] == [s.action for s in plan.steps]
+    ver = plan.summary["verification"]
+    assert ver["attempts"] == 2 and len(ver["rejected"]) == 1 and ver["rejected"][0]["step"] == 0
+    assert ver["rejected"][0]["order"] == [f"{s.finger}:{s.action}>final" for s in failed_gait[0].steps[:1]]
+
+
+def test_the_reposing_candidates_share_one_max_rounds(monkeypatch):
+    """The candidates' gait searches share ``--max-rounds`` (rounds of intermediate contacts,
+    those after rejected sequences included), as they share ``--verify-attempts``: each
+    search gets what the ones before left (a stand-in search here takes three rounds when it
+    can), so a refusal's searches add at most that many rounds of contacts together."""
+    from planner.errors import NoSequenceError
+    from planner.pose_search import plan_with_reposing
+
+    pinch, pose = _pen_pair()
+    left = []
+
+    def gaits(a, b, o, on_replay, budget=None, **_):
+        left.append(budget.left)
+        for _ in range(min(3, budget.left)):
+            budget.take()
+        raise NoSequenceError("no finger-gaiting sequence")
+
+    with pytest.raises(NoSequenceError):
+        plan_with_reposing(pinch, pose, PlanOptions.for_execution(motion=False, max_rounds=4), {}, False, gaits, None)
+    assert len(left) >= 2 and left == [max(0, 4 - 3 * k) for k in range(len(left))]
+
+
+def test_a_gait_search_makes_no_round_beyond_the_budget_it_shares(tmp_path):
+    """`planner.regrasp.plan_gaits` with a shared `RoundBudget`: rounds of intermediate contacts
+    come out of it (the search's own --max-rounds still bounds it), none once it is spent; the
+    Allegro sphere pair whose middle finger takes the ring finger's place needs intermediate
+    contacts, so with none left it is refused, saying the searches before it spent them."""
+    import importlib.util
+    from pathlib import Path
+
+    from planner.errors import NoSequenceError
+    from planner.regrasp import RoundBudget, plan_gaits
+
+    root = Path(__file__).resolve().parents[1]
+    spec = importlib.util.spec_from_file_location("bench_plan", root / "benchmarks" / "bench_plan.py")
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    a, b = (realize(load_grasp(p)) for p in bench.middle_for_ring_pair(tmp_path))
+    opts = PlanOptions(motion=False, repose=False)
+    free = plan_gaits(a, b, opts).plan.summary["search"]["rounds"]
+    assert free >= 1  # (the pair needs intermediate contacts)
+    budget = RoundBudget(free + 3)
+    plan = plan_gaits(a, b, opts, budget=budget).plan
+    assert plan.summary["search"]["rounds"] == free and budget.used == free and budget.left == 3
+    with pytest.raises(NoSequenceError, match="had spent the rounds they share"):
+        plan_gaits(a, b, opts, budget=RoundBudget(0))
