@@ -5,7 +5,7 @@ The refusals of exp10 v2's equal-pose tripod controls (experiments/results/exp10
 finger paths, not in the verification replays: the iCub box medium (a search of thousands of
 states, six sequences replayed), the Allegro box medium (the thumb's path to its final contact
 failing in state after state), the Allegro sphere small (six sequences replayed); and exp9 v2's
-iCub box 30 g (the verification's case); and the slowest reposing refusals, three of exp10 v2's
+iCub box 30 g (the verification's case); and the slowest reposing refusals, five of exp10 v2's
 pose pairs (``<pair>_initial.yaml`` -> ``<pair>_final.yaml``, ``--pairs`` names ending in
 ``_pose``: their candidate poses' and intermediate grasps' gait searches). Each is planned with ``--execution``
 (`PlanOptions.for_execution`), grasp realization excluded, in two ways, alternated:
@@ -19,7 +19,8 @@ pose pairs (``<pair>_initial.yaml`` -> ``<pair>_final.yaml``, ``--pairs`` names 
     process: each candidate pose's gait search with its own ``--max-rounds`` (not one shared,
     `planner.regrasp.RoundBudget` never running out) and its gaits verified alone before the
     whole plan is replayed (`planner.regrasp.plan_gaits` without ``whole``). (The intermediate
-    grasps' reposing moves judged half in a forked copy are not undone.)
+    grasps' reposing moves judged half in a forked copy, and their gaits at the final pose
+    searched first, unverified, are not undone.)
   - ``2026-12-06``: three changes of that day undone in process: every grip-force program
     solved from scratch (`planner.lp.solve_highs_rhs` forgets the program it holds), grip
     forces ranked to their last digit (`planner.gait_search.GRIP_RANK_DECIMALS` 15), and no
@@ -70,7 +71,7 @@ PAIRS = {
                              "exp9_pairs_v2/icub_right_box_m0.03_final.yaml"),
     **{f"allegro_right_{n}_pose": (f"exp10_pairs_v2/allegro_right_{n}_initial.yaml",
                                    f"exp10_pairs_v2/allegro_right_{n}_final.yaml")
-       for n in ("box_large", "mesh_small", "sphere_small")},
+       for n in ("box_large", "box_medium", "box_small", "mesh_small", "sphere_small")},
 }
 
 

@@ -14,8 +14,10 @@ does not depend on the machine's load. When the grasps' poses differ and no cand
 joins them, the plan may go through an intermediate grasp whose contacts every holding finger
 keeps along the object's path (`planner.intermediate`): gaits at the initial grasp's pose to
 it, its reposing move to the final grasp's pose, gaits there to the final grasp
-(`compose_through`); those are tried after the poses, on what is left of the budget. Each plan must pass the physics check `replay` and
-`verify` run (`planner.audit.audit_plan`); with verification the whole plan (gaits and
+(`compose_through`); those are tried after the poses, on what is left of the budget, the gaits
+at the final grasp's pose searched first without verification (an intermediate grasp they
+cannot take to the final one is dropped before its gaits at the initial grasp's pose are
+replayed). Each plan must pass the physics check `replay` and `verify` run (`planner.audit.audit_plan`); with verification the whole plan (gaits and
 reposing moves) is then replayed in the planned directions before it is returned.
 """
 
@@ -661,6 +663,20 @@ def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bo
                 tried.append(f"not tried {name} and after: {replays} sequences were replayed before (--verify-attempts)")
                 stopped = True
                 break
+            end = it.move.end
+            if verifying and not (set(end.patches) == set(final.patches) and np.array_equal(end.q, final.q)):
+                # the gaits at the final grasp's pose searched first, unverified: a grasp they
+                # cannot take to the final one is left before the gaits at the initial grasp's
+                # pose are replayed (its own rounds, from what is left: the search below makes
+                # them again, and takes them then; taken now when it fails)
+                probe = RoundBudget(rounds.left)
+                try:
+                    gaits(end, final, replace(options, verify=False), lambda: None, budget=probe)
+                except (NoSequenceError, PlannerError) as err:
+                    for _ in range(probe.used):
+                        rounds.take()
+                    tried.append(f"{name}: at the final grasp's pose: {first_clause(err)}")
+                    continue
             gaits_ = []
             for which, a, b in (("initial", initial, it.grasp), ("final", it.move.end, final)):
                 if set(a.patches) == set(b.patches) and np.array_equal(a.q, b.q):

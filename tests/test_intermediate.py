@@ -150,16 +150,44 @@ def test_the_gaits_at_the_final_pose_wait_for_a_budget_the_gaits_at_the_initial_
         plan = whole = None
 
     def gaits(x, y, o, on_replay, **_):
-        calls.append(o.verify_attempts)
-        for _ in range(o.verify_attempts):
+        calls.append((o.verify, o.verify_attempts))
+        for _ in range(o.verify_attempts if o.verify else 0):
             on_replay()
         return Held()
 
     with pytest.raises(NoSequenceError) as err:
         pose_search.plan_with_reposing(a, b, PlanOptions.for_execution(motion=False, verify_attempts=4), {}, False,
                                        gaits, None)
-    assert calls == [4]
+    assert calls == [(False, 4), (True, 4)]  # (the gaits at the final pose searched first, unverified)
     assert "the gaits at the final grasp's pose not tried: 4 sequences were replayed before" in str(err.value)
+
+
+def test_an_intermediate_grasp_the_final_pose_gaits_cannot_leave_is_dropped_before_any_replay(pair, through,
+                                                                                              monkeypatch):
+    """The gaits at the final grasp's pose are searched first, unverified: when none exists,
+    the intermediate grasp is dropped before its gaits at the initial pose are searched and
+    replayed; the refusal names why, and the rounds of intermediate contacts that search made
+    come out of the candidates' shared --max-rounds."""
+    import planner.intermediate as inter
+    from planner import pose_search
+    from planner.errors import NoSequenceError
+
+    a, b = pair
+    two = (through[0] * 2)[:2]
+    monkeypatch.setattr(inter, "intermediate_grasps", lambda x, y, o: (two, "two intermediate grasps"))
+    monkeypatch.setattr(pose_search, "candidate_poses", lambda x, y: [])
+    calls = []
+
+    def gaits(x, y, o, on_replay, budget=None, **_):
+        calls.append((o.verify, budget.left))
+        budget.take()
+        raise NoSequenceError("no finger-gaiting sequence: made up")
+
+    with pytest.raises(NoSequenceError) as err:
+        pose_search.plan_with_reposing(a, b, PlanOptions.for_execution(motion=False, max_rounds=4), {}, False,
+                                       gaits, None)
+    assert calls == [(False, 4), (False, 3)]  # no verified search; the first probe's round taken
+    assert str(err.value).count("at the final grasp's pose: no finger-gaiting sequence: made up") == 2
 
 
 def test_the_same_intermediate_grasps_with_one_process_or_two(pair):
