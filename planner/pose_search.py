@@ -560,9 +560,9 @@ def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bo
                        known: str | None = None) -> tuple[Plan, float | None, str]:
     """The first candidate pose (`candidate_poses`) joined by reposing moves and gaits.
 
-    ``gaits(a, b, options, on_replay)`` is the gait planner (`planner.regrasp.plan_gaits`),
-    returning a `planner.regrasp.PlanResult` and calling ``on_replay()`` once per sequence its
-    verification replays; ``gait_fn(hand, obj, q_a, q_b, finger)`` the finger paths of
+    ``gaits(a, b, options, on_replay, budget=, whole=)`` is the gait planner
+    (`planner.regrasp.plan_gaits`), returning a `planner.regrasp.PlanResult` and calling
+    ``on_replay()`` once per sequence its verification replays; ``gait_fn(hand, obj, q_a, q_b, finger)`` the finger paths of
     one gait (lifting a finger that cannot follow a reposing move); ``known``: the first clause
     of the gait refusal at the grasps' own pose (a candidate failing the same way says so).
     The candidates share one ``options.verify_attempts`` (sequences replayed, the gaits' and
@@ -590,6 +590,25 @@ def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bo
     def replayed() -> None:
         nonlocal replays
         replays += 1
+
+    def starved(clause: str, before: bool) -> str:
+        """A gait refusal's clause, saying so when its search had no rounds left (``before``)."""
+        return clause + (" (no rounds of intermediate contacts were left: the searches before it spent the "
+                         f"--max-rounds {options.max_rounds} they share)" if before else "")
+
+    def whole_checked(res, where: str) -> Plan | None:
+        """The whole plan the gait search verified, with the inputs, once it passes the physics
+        check with them (the one `verify` runs on the written file); else None (why in ``tried``)."""
+        nonlocal verify_s
+        from planner.audit import audit_plan
+
+        verify_s += res.verify_s or 0.0
+        plan = replace(res.whole, inputs=dict(inputs or {}))
+        rep = audit_plan(plan, hand)
+        if not rep.ok:
+            tried.append(f"{where}: the plan fails a physics check ({rep.problems[0]})")
+            return None
+        return plan
 
     def checked(plan: Plan, where: str) -> Plan | None:
         """``plan`` with the inputs, once it passes the physics check `replay` and `verify` run
@@ -638,14 +657,18 @@ def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bo
             left = replace(options, verify_attempts=options.verify_attempts - replays) if verifying else options
             around = (lambda g, first=first, back=back, P=P: compose_at(initial, final, options, first, g, back, P)) \
                 if verifying else None
+            before = rounds.spent
             res = None if same else gaits(a, b, left, replayed, budget=rounds, whole=around)
         except (NoSequenceError, PlannerError) as err:
             clause = first_clause(err)
-            tried.append(f"at {name}: " + ("the gaits fail for the same reason" if clause == known else clause))
+            tried.append(f"at {name}: " + starved("the gaits fail for the same reason" if clause == known else clause,
+                                                  before))
             continue
         if res is not None and res.whole is not None:  # verified whole with its gaits
-            verify_s += res.verify_s or 0.0
-            return replace(res.whole, inputs=dict(inputs or {})), verify_s, name
+            plan = whole_checked(res, f"at {name}")
+            if plan is not None:
+                return plan, verify_s, name
+            continue
         plan = checked(compose(initial, final, options, first, None if res is None else res.plan, back, P),
                        f"at {name}")
         if plan is not None:
@@ -675,7 +698,8 @@ def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bo
                 except (NoSequenceError, PlannerError) as err:
                     for _ in range(probe.used):
                         rounds.take()
-                    tried.append(f"{name}: at the final grasp's pose: {first_clause(err)}")
+                    clause = starved(first_clause(err), probe.used == 0 and probe.spent)
+                    tried.append(f"{name}: at the final grasp's pose: {clause}")
                     continue
             gaits_ = []
             for which, a, b in (("initial", initial, it.grasp), ("final", it.move.end, final)):
@@ -693,13 +717,16 @@ def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bo
                     around = None if which == "initial" or not verifying else \
                         (lambda g, ga=gaits_[0], it=it: (compose_through(initial, final, options, ga, it.move, g),
                                                          (len(ga.steps) if ga is not None else 0) + 1))
+                    before = rounds.spent
                     res = gaits(a, b, left, replayed, budget=rounds, whole=around)
                     if res.whole is not None:
-                        verify_s += res.verify_s or 0.0
-                        return replace(res.whole, inputs=dict(inputs or {})), verify_s, name
+                        plan = whole_checked(res, name)
+                        if plan is not None:
+                            return plan, verify_s, name
+                        break
                     gaits_.append(res.plan)
                 except (NoSequenceError, PlannerError) as err:
-                    tried.append(f"{name}: at the {which} grasp's pose: {first_clause(err)}")
+                    tried.append(f"{name}: at the {which} grasp's pose: {starved(first_clause(err), before)}")
                     break
             if len(gaits_) < 2:
                 continue

@@ -335,7 +335,7 @@ def anytime_search(problem: GaitProblem, initial, options: PlanOptions, t0: floa
     deadline = t0 + options.time_limit_s if options.time_limit_s and prior is None else None
     auto = options.intermediate == 0 and options.time_limit_s != 0 and options.max_rounds > 0
     evaluator, added, rounds, expanded, unheld, held = None, {}, 0, 0, {}, set()
-    lazy, found, out_of_time = prior, [], False
+    lazy, found, out_of_time, starved = prior, [], False, False
     removed = set(prior.removed) if prior is not None else set()
     removed_states = set(prior.removed_states) if prior is not None else set()
     # the moves taken out, by why: named by the explanation of a failure
@@ -359,6 +359,7 @@ def anytime_search(problem: GaitProblem, initial, options: PlanOptions, t0: floa
                     or rounds >= options.max_rounds:
                 break
         if budget is not None and budget.spent:
+            starved = True  # (the rounds it would make next are gone)
             break
         # contacts for the fingers that could unblock progress, scored against the states
         # they should complete; every second round (and when those give none) one more for
@@ -397,9 +398,9 @@ def anytime_search(problem: GaitProblem, initial, options: PlanOptions, t0: floa
                  "no intermediate contacts were tried (no --intermediate N, and --max-rounds or --time-limit 0)")
     elif _goal_invalid(lazy):
         tried = "no intermediate contacts were tried: they cannot make the final grasp valid"
-    elif budget is not None and budget.spent and (rounds < options.max_rounds or prior is not None):
+    elif starved and not out_of_time:
         tried = (f"{rounds} round(s) of intermediate contacts were tried ({what or 'none added'}) in {spent:.1f} s; the "
-                 f"searches before it had spent the rounds they share (--max-rounds {options.max_rounds})")
+                 f"rounds shared with the other searches were spent (--max-rounds {options.max_rounds})")
     elif rounds == 0 and not out_of_time:
         tried = "no intermediate contact could be added: the fingers that block progress reach no further contact"
     else:
@@ -626,9 +627,8 @@ def plan_gaits(
             if not audit.ok:
                 step, at_state = _audit_step(audit.problems[0])
                 if step is not None and whole is not None:
-                    if not k0 <= step < k0 + len(plan.steps) or (at_state and step == k0 - 1):
-                        raise NoSequenceError(f"the plan around the gaits fails the physics check replay and verify "
-                                              f"run on a plan: {audit.problems[0]}")
+                    if not k0 <= step < k0 + len(plan.steps):  # (states[k0] is the state the gaits start at)
+                        raise NoSequenceError(f"the plan fails a physics check ({audit.problems[0]})")
                     step -= k0
                 if step is None or step < 0:  # not a move of this sequence: no other sequence mends it
                     raise NoSequenceError(
@@ -652,13 +652,17 @@ def plan_gaits(
                 break
             name, step, verdict, at_state = check.first_failure()
             if whole is not None:
-                if step >= 0 and not k0 <= step < k0 + len(plan.steps):  # a reposing move, not a gait
-                    raise NoSequenceError(
-                        f"the plan failed in the simulator ({name} at step {step}: "
-                        f"{replayed.steps[step].action} {replayed.steps[step].finger}: {verdict})")
-                step = step - k0 if step >= 0 else step
+                if not k0 <= step < k0 + len(plan.steps):  # not a gait: a reposing move, a lift or landing around
+                    at = (f"step {step}: {replayed.steps[step].action} {replayed.steps[step].finger}" if step >= 0
+                          else "its first state")
+                    from planner.pose_search import first_clause
+
+                    raise NoSequenceError(f"the plan failed in the simulator ({name} at {at}: {first_clause(verdict)})")
+                step -= k0
             seq = candidates[0]
-            rejected.append({"order": list(seq.order(problem)), "direction": name, "step": step, "verdict": verdict})
+            # (the step as the plan returned counts it: the whole plan's, with ``whole``)
+            rejected.append({"order": list(seq.order(problem)), "direction": name, "step": step + k0 if step >= 0 else step,
+                             "verdict": verdict})
             rejected_moves.append(f"{plan.steps[step].action} {plan.steps[step].finger}" if step >= 0 else "state 0")
             if verbose:
                 print(f"verify: sequence {_rejected_words(rejected[-1:])}")

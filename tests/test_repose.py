@@ -503,28 +503,37 @@ def test_gaits_at_a_candidate_pose_are_verified_inside_the_whole_plan(monkeypatc
 
 def test_a_gait_step_failing_in_the_whole_plan_rejects_that_sequence_only(monkeypatch):
     """A failure at a gait step of the whole plan rejects that sequence, as a failure of the
-    gaits alone did: the next sequence is replayed, again whole. A failure in the reposing
-    move ends the candidate (no other gait sequence mends the move): the pen's first candidate
-    (the pinch turned to the writing pose, then the middle finger lands) is replayed once."""
-    failed_gait = []
+    gaits alone did: the next sequence is replayed, again whole, and the rejection is recorded
+    at the whole plan's step (the plan file's). The pen's first candidate is the pinch turned
+    to the writing pose (step 0), then its gaits (from step 1): its first gait step fails once."""
+    failed = []
 
     def verdict(plan, k):
-        moves = _repose_steps(plan)
-        if moves and moves[0] == 0:  # the move first: it fails
-            return 0
-        if not failed_gait:  # the first plan whose gaits come first: its first gait step fails
-            failed_gait.append(plan)
-            return 0
+        if _repose_steps(plan)[:1] == [0] and not failed:
+            failed.append(plan)
+            return 1
         return None
 
     replayed = _stand_in_simulator(monkeypatch, verdict)
     pinch, pose = _pen_pair()
     plan = plan_regrasp(pinch, pose, PlanOptions.for_execution(motion=False)).plan
-    assert [_repose_steps(p)[0] == 0 for p in replayed] == [True, False, False]
-    assert replayed[-1] is not failed_gait[0] and [s.action for s in replayed[-1].steps] == [s.action for s in plan.steps]
+    assert len(replayed) == 2 and replayed[0] is failed[0] and _repose_steps(replayed[1])[:1] == [0]
+    assert [s.action for s in replayed[1].steps] == [s.action for s in plan.steps] and plan.steps[0].action == "repose"
     ver = plan.summary["verification"]
-    assert ver["attempts"] == 2 and len(ver["rejected"]) == 1 and ver["rejected"][0]["step"] == 0
-    assert ver["rejected"][0]["order"] == [f"{s.finger}:{s.action}>final" for s in failed_gait[0].steps[:1]]
+    assert ver["attempts"] == 2 and len(ver["rejected"]) == 1 and ver["rejected"][0]["step"] == 1
+    s = failed[0].steps[1]
+    assert ver["rejected"][0]["order"][0] == f"{s.finger}:{s.action}>" + ver["rejected"][0]["order"][0].split(">")[1]
+
+
+def test_a_reposing_move_failing_in_the_whole_plan_ends_its_candidate(monkeypatch):
+    """A failure outside the gaits (here the reposing move) ends the candidate: no other gait
+    sequence mends the move. The pen's first candidate (the pinch turned first) is replayed
+    once; the next candidate (the middle finger lands, then the turn) is replayed next."""
+    replayed = _stand_in_simulator(monkeypatch, lambda plan, k: 0 if _repose_steps(plan)[:1] == [0] else None)
+    pinch, pose = _pen_pair()
+    plan = plan_regrasp(pinch, pose, PlanOptions.for_execution(motion=False)).plan
+    assert [_repose_steps(p)[:1] == [0] for p in replayed] == [True, False]
+    assert plan.steps[0].action != "repose" and plan.summary["verification"]["attempts"] == 1
 
 
 def test_the_reposing_candidates_share_one_max_rounds(monkeypatch):
@@ -571,5 +580,5 @@ def test_a_gait_search_makes_no_round_beyond_the_budget_it_shares(tmp_path):
     budget = RoundBudget(free + 3)
     plan = plan_gaits(a, b, opts, budget=budget).plan
     assert plan.summary["search"]["rounds"] == free and budget.used == free and budget.left == 3
-    with pytest.raises(NoSequenceError, match="had spent the rounds they share"):
+    with pytest.raises(NoSequenceError, match="the rounds shared with the other searches were spent"):
         plan_gaits(a, b, opts, budget=RoundBudget(0))
