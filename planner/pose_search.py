@@ -591,10 +591,17 @@ def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bo
         nonlocal replays
         replays += 1
 
+    said = []  # the budget's words were said once (the next candidates short)
+
     def starved(clause: str, before: bool) -> str:
         """A gait refusal's clause, saying so when its search had no rounds left (``before``)."""
+        if not before:
+            return clause
+        if said:
+            return clause + " (no rounds left)"
+        said.append(True)
         return clause + (" (no rounds of intermediate contacts were left: the searches before it spent the "
-                         f"--max-rounds {options.max_rounds} they share)" if before else "")
+                         f"--max-rounds {options.max_rounds} they share)")
 
     def whole_checked(res, where: str) -> Plan | None:
         """The whole plan the gait search verified, with the inputs, once it passes the physics

@@ -540,7 +540,8 @@ def test_the_reposing_candidates_share_one_max_rounds(monkeypatch):
     """The candidates' gait searches share ``--max-rounds`` (rounds of intermediate contacts,
     those after rejected sequences included), as they share ``--verify-attempts``: each
     search gets what the ones before left (a stand-in search here takes three rounds when it
-    can), so a refusal's searches add at most that many rounds of contacts together."""
+    can), so a refusal's searches add at most that many rounds of contacts together, and the
+    refusal says which searches had none left."""
     from planner.errors import NoSequenceError
     from planner.pose_search import plan_with_reposing
 
@@ -553,9 +554,14 @@ def test_the_reposing_candidates_share_one_max_rounds(monkeypatch):
             budget.take()
         raise NoSequenceError("no finger-gaiting sequence")
 
-    with pytest.raises(NoSequenceError):
-        plan_with_reposing(pinch, pose, PlanOptions.for_execution(motion=False, max_rounds=4), {}, False, gaits, None)
-    assert len(left) >= 2 and left == [max(0, 4 - 3 * k) for k in range(len(left))]
+    with pytest.raises(NoSequenceError) as err:
+        plan_with_reposing(pinch, pose, PlanOptions.for_execution(motion=False, max_rounds=3), {}, False, gaits, None)
+    assert len(left) >= 2 and left == [max(0, 3 - 3 * k) for k in range(len(left))]
+    # the searches that had none left say so, the first in full
+    text = str(err.value)
+    assert text.count("no rounds of intermediate contacts were left: the searches before it spent the --max-rounds 3 "
+                      "they share") == 1
+    assert text.count("(no rounds left)") == len(left) - 2
 
 
 def test_a_gait_search_makes_no_round_beyond_the_budget_it_shares(tmp_path):
