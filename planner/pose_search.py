@@ -17,7 +17,8 @@ it, its reposing move to the final grasp's pose, gaits there to the final grasp
 (`compose_through`); those are tried after the poses, on what is left of the budget, the gaits
 at the final grasp's pose searched first without verification (an intermediate grasp they
 cannot take to the final one is dropped before its gaits at the initial grasp's pose are
-replayed). Each plan must pass the physics check `replay` and `verify` run (`planner.audit.audit_plan`); with verification the whole plan (gaits and
+replayed). Each plan must pass the physics check `replay` and `verify` run
+(`planner.audit.audit_plan`); with verification the whole plan (gaits and
 reposing moves) is then replayed in the planned directions before it is returned.
 """
 
@@ -562,7 +563,8 @@ def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bo
 
     ``gaits(a, b, options, on_replay, budget=, whole=)`` is the gait planner
     (`planner.regrasp.plan_gaits`), returning a `planner.regrasp.PlanResult` and calling
-    ``on_replay()`` once per sequence its verification replays; ``gait_fn(hand, obj, q_a, q_b, finger)`` the finger paths of
+    ``on_replay()`` once per sequence its verification replays; ``gait_fn(hand, obj, q_a, q_b,
+    finger)`` the finger paths of
     one gait (lifting a finger that cannot follow a reposing move); ``known``: the first clause
     of the gait refusal at the grasps' own pose (a candidate failing the same way says so).
     The candidates share one ``options.verify_attempts`` (sequences replayed, the gaits' and

@@ -297,7 +297,6 @@ class RoundBudget:
         return self.left <= 0
 
 
-
 def _failed_words(problem: GaitProblem, bad: "_EdgeFailed") -> str:
     return f"{bad.finger} {problem.labels(bad.edge[0])[bad.finger]}->{problem.labels(bad.edge[1])[bad.finger]}: {bad.why}"
 
@@ -627,7 +626,7 @@ def plan_gaits(
             if not audit.ok:
                 step, at_state = _audit_step(audit.problems[0])
                 if step is not None and whole is not None:
-                    if not k0 <= step < k0 + len(plan.steps):  # (states[k0] is the state the gaits start at)
+                    if not k0 <= step < k0 + len(plan.steps):  # (states[k0], the gaits' first state, is step k0 - 1's)
                         raise NoSequenceError(f"the plan fails a physics check ({audit.problems[0]})")
                     step -= k0
                 if step is None or step < 0:  # not a move of this sequence: no other sequence mends it
