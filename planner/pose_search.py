@@ -417,6 +417,11 @@ def _finish(initial, options: PlanOptions, b: _Builder, moves, base: Plan | None
                 steps=tuple(b.steps))
 
 
+def _same_grasp(a, b) -> bool:
+    """The same fingers touching, the same joints: no gaits between them."""
+    return set(a.patches) == set(b.patches) and np.array_equal(a.q, b.q)
+
+
 def _without(g, fingers):
     """``g`` with the patches of ``fingers`` left out (fingers that hold nothing there: released
     ones, which may still graze the object)."""
@@ -595,9 +600,10 @@ def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bo
 
     said = []  # the budget's words were said once (the next candidates short)
 
-    def starved(clause: str, before: bool) -> str:
-        """A gait refusal's clause, saying so when its search had no rounds left (``before``)."""
-        if not before:
+    def starved(clause: str, stopped: bool) -> str:
+        """A gait refusal's clause, saying so when the spent budget stopped its search (``stopped``:
+        it would have made a round of intermediate contacts and none was left)."""
+        if not stopped:
             return clause
         if said:
             return clause + " (no rounds left)"
@@ -666,12 +672,12 @@ def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bo
             left = replace(options, verify_attempts=options.verify_attempts - replays) if verifying else options
             around = (lambda g, first=first, back=back, P=P: compose_at(initial, final, options, first, g, back, P)) \
                 if verifying else None
-            before = rounds.spent
+            before = rounds.stopped
             res = None if same else gaits(a, b, left, replayed, budget=rounds, whole=around)
         except (NoSequenceError, PlannerError) as err:
             clause = first_clause(err)
             tried.append(f"at {name}: " + starved("the gaits fail for the same reason" if clause == known else clause,
-                                                  before))
+                                                  rounds.stopped > before))
             continue
         if res is not None and res.whole is not None:  # verified whole with its gaits
             plan = whole_checked(res, f"at {name}")
@@ -695,24 +701,26 @@ def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bo
                 tried.append(f"not tried {name} and after: {replays} sequences were replayed before (--verify-attempts)")
                 stopped = True
                 break
-            end = it.move.end
-            if verifying and not (set(end.patches) == set(final.patches) and np.array_equal(end.q, final.q)):
+            end, owed = it.move.end, 0
+            if verifying and options.strategy == "graph" and not _same_grasp(initial, it.grasp) \
+                    and not _same_grasp(end, final):
                 # the gaits at the final grasp's pose searched first, unverified: a grasp they
                 # cannot take to the final one is left before the gaits at the initial grasp's
-                # pose are replayed (its own rounds, from what is left: the search below makes
-                # them again, and takes them then; taken now when it fails)
+                # pose are searched and replayed. Its rounds are taken from the shared budget;
+                # given back just before the verified search there makes them again
                 probe = RoundBudget(rounds.left)
                 try:
                     gaits(end, final, replace(options, verify=False), lambda: None, budget=probe)
                 except (NoSequenceError, PlannerError) as err:
-                    for _ in range(probe.used):
-                        rounds.take()
-                    clause = starved(first_clause(err), probe.used == 0 and probe.spent)
-                    tried.append(f"{name}: at the final grasp's pose: {clause}")
+                    rounds.take(probe.used)
+                    rounds.stopped += probe.stopped
+                    tried.append(f"{name}: at the final grasp's pose: {starved(first_clause(err), probe.stopped > 0)}")
                     continue
+                owed = probe.used
+                rounds.take(owed)
             gaits_ = []
             for which, a, b in (("initial", initial, it.grasp), ("final", it.move.end, final)):
-                if set(a.patches) == set(b.patches) and np.array_equal(a.q, b.q):
+                if _same_grasp(a, b):
                     gaits_.append(None)
                     continue
                 if verifying and replays >= options.verify_attempts:  # (the gaits at A took what was left)
@@ -726,7 +734,10 @@ def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bo
                     around = None if which == "initial" or not verifying else \
                         (lambda g, ga=gaits_[0], it=it: (compose_through(initial, final, options, ga, it.move, g),
                                                          (len(ga.steps) if ga is not None else 0) + 1))
-                    before = rounds.spent
+                    if which == "final":  # (the probe's rounds, made again here)
+                        rounds.give(owed)
+                        owed = 0
+                    before = rounds.stopped
                     res = gaits(a, b, left, replayed, budget=rounds, whole=around)
                     if res.whole is not None:
                         plan = whole_checked(res, name)
@@ -735,7 +746,8 @@ def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bo
                         break
                     gaits_.append(res.plan)
                 except (NoSequenceError, PlannerError) as err:
-                    tried.append(f"{name}: at the {which} grasp's pose: {starved(first_clause(err), before)}")
+                    tried.append(f"{name}: at the {which} grasp's pose: "
+                                 f"{starved(first_clause(err), rounds.stopped > before)}")
                     break
             if len(gaits_) < 2:
                 continue

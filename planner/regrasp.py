@@ -287,10 +287,16 @@ class RoundBudget:
     def __init__(self, rounds: int):
         self.left = max(0, int(rounds))
         self.used = 0
+        self.stopped = 0  # searches it stopped: they would have made a round, and none was left
 
-    def take(self) -> None:
-        self.left -= 1
-        self.used += 1
+    def take(self, n: int = 1) -> None:
+        self.left -= n
+        self.used += n
+
+    def give(self, n: int) -> None:
+        """Rounds taken for work that is about to be made again (and taken again then)."""
+        self.left += n
+        self.used -= n
 
     @property
     def spent(self) -> bool:
@@ -359,6 +365,7 @@ def anytime_search(problem: GaitProblem, initial, options: PlanOptions, t0: floa
                 break
         if budget is not None and budget.spent:
             starved = True  # (the rounds it would make next are gone)
+            budget.stopped += 1
             break
         # contacts for the fingers that could unblock progress, scored against the states
         # they should complete; every second round (and when those give none) one more for
@@ -558,8 +565,12 @@ def plan_gaits(
                  len(candidates), search_info["rounds"], time.perf_counter() - t0)
         resumed = 0
         for _ in range(50):
-            if not candidates and resumed < RESUME_ROUNDS and options.intermediate == 0 and options.time_limit_s != 0 \
-                    and (failed or rejected or unsound) and (budget is None or not budget.spent):
+            resume = not candidates and resumed < RESUME_ROUNDS and options.intermediate == 0 \
+                and options.time_limit_s != 0 and bool(failed or rejected or unsound)
+            if resume and budget is not None and budget.spent:
+                budget.stopped += 1  # (a round after the rejected sequences, and none left)
+                resume = False
+            if resume:
                 # every sequence of this graph failed later: one more round of intermediate
                 # contacts, keeping what was removed
                 resumed += 1
@@ -659,9 +670,7 @@ def plan_gaits(
                     raise NoSequenceError(f"the plan failed in the simulator ({name} at {at}: {first_clause(verdict)})")
                 step -= k0
             seq = candidates[0]
-            # (the step as the plan returned counts it: the whole plan's, with ``whole``)
-            rejected.append({"order": list(seq.order(problem)), "direction": name, "step": step + k0 if step >= 0 else step,
-                             "verdict": verdict})
+            rejected.append({"order": list(seq.order(problem)), "direction": name, "step": step, "verdict": verdict})
             rejected_moves.append(f"{plan.steps[step].action} {plan.steps[step].finger}" if step >= 0 else "state 0")
             if verbose:
                 print(f"verify: sequence {_rejected_words(rejected[-1:])}")
@@ -692,8 +701,9 @@ def plan_gaits(
     if verifying:
         record = {**verified.record(), "attempts": len(rejected) + 1, "rejected": rejected}
         plan = replace(plan, summary={**plan.summary, "verification": record})
-        if whole is not None:
-            whole_plan = replace(replayed, summary={**replayed.summary, "verification": record})
+        if whole is not None:  # (its rejections at the whole plan's steps)
+            shifted = [{**r, "step": r["step"] + k0 if r["step"] >= 0 else r["step"]} for r in rejected]
+            whole_plan = replace(replayed, summary={**replayed.summary, "verification": {**record, "rejected": shifted}})
     return PlanResult(plan, G, best, tuple(candidates[1:]), time.perf_counter() - t0, tuple(failed),
                       verify_s if verifying else None, whole_plan)
 

@@ -188,6 +188,57 @@ def test_an_intermediate_grasp_the_final_pose_gaits_cannot_leave_is_dropped_befo
                                        gaits, None)
     assert calls == [(False, 4), (False, 3)]  # no verified search; the first probe's round taken
     assert str(err.value).count("at the final grasp's pose: no finger-gaiting sequence: made up") == 2
+    assert "no rounds" not in str(err.value)
+
+    calls.clear()
+
+    def starving(x, y, o, on_replay, budget=None, **_):  # (stopped by the budget as anytime_search is)
+        calls.append((o.verify, budget.left))
+        if budget.spent:
+            budget.stopped += 1
+        budget.take(budget.left)
+        raise NoSequenceError("no finger-gaiting sequence: made up")
+
+    with pytest.raises(NoSequenceError) as err:
+        pose_search.plan_with_reposing(a, b, PlanOptions.for_execution(motion=False, max_rounds=1), {}, False,
+                                       starving, None)
+    assert calls == [(False, 1), (False, 0)]
+    assert str(err.value).count("no rounds of intermediate contacts were left") == 1
+
+
+def test_a_probe_that_finds_gaits_is_charged_when_the_gaits_at_the_initial_pose_fail(pair, through, monkeypatch):
+    """The rounds the final pose's unverified search makes are taken from the shared budget:
+    given back only for the verified search there, which makes them again. When the gaits at
+    the initial pose fail after it, they stay taken, so the intermediate grasps together make
+    at most --max-rounds rounds (here the probe takes two and finds gaits, the initial pose's
+    search takes one and fails, for each of two intermediate grasps)."""
+    import planner.intermediate as inter
+    from planner import pose_search
+    from planner.errors import NoSequenceError
+
+    a, b = pair
+    two = (through[0] * 2)[:2]
+    monkeypatch.setattr(inter, "intermediate_grasps", lambda x, y, o: (two, "two intermediate grasps"))
+    monkeypatch.setattr(pose_search, "candidate_poses", lambda x, y: [])
+    calls, made = [], []
+
+    class Found:
+        plan = whole = None
+
+    def gaits(x, y, o, on_replay, budget=None, **_):
+        calls.append((o.verify, budget.left))
+        n = min(2 if not o.verify else 1, budget.left)
+        budget.take(n)
+        made.append(n)
+        if not o.verify:
+            return Found()
+        raise NoSequenceError("no finger-gaiting sequence: made up")
+
+    with pytest.raises(NoSequenceError):
+        pose_search.plan_with_reposing(a, b, PlanOptions.for_execution(motion=False, max_rounds=4), {}, False,
+                                       gaits, None)
+    assert calls == [(False, 4), (True, 2), (False, 1), (True, 0)]
+    assert sum(made) == 4
 
 
 def test_the_same_intermediate_grasps_with_one_process_or_two(pair):

@@ -536,32 +536,57 @@ def test_a_reposing_move_failing_in_the_whole_plan_ends_its_candidate(monkeypatc
     assert plan.steps[0].action != "repose" and plan.summary["verification"]["attempts"] == 1
 
 
-def test_the_reposing_candidates_share_one_max_rounds(monkeypatch):
+def test_the_reposing_candidates_share_one_max_rounds():
     """The candidates' gait searches share ``--max-rounds`` (rounds of intermediate contacts,
     those after rejected sequences included), as they share ``--verify-attempts``: each
     search gets what the ones before left (a stand-in search here takes three rounds when it
-    can), so a refusal's searches add at most that many rounds of contacts together, and the
-    refusal says which searches had none left."""
+    can, and counts as stopped by the budget when it wants one and none is left, as
+    `planner.regrasp.anytime_search` does), so a refusal's searches add at most that many
+    rounds of contacts together; the refusal says which searches the spent budget stopped
+    (the first in full), and says nothing of it with --max-rounds 0 (no rounds wanted)."""
     from planner.errors import NoSequenceError
     from planner.pose_search import plan_with_reposing
 
     pinch, pose = _pen_pair()
-    left = []
+    full = "no rounds of intermediate contacts were left: the searches before it spent the --max-rounds"
+    for max_rounds in (4, 3, 0):
+        left = []
 
-    def gaits(a, b, o, on_replay, budget=None, **_):
-        left.append(budget.left)
-        for _ in range(min(3, budget.left)):
-            budget.take()
-        raise NoSequenceError("no finger-gaiting sequence")
+        def gaits(a, b, o, on_replay, budget=None, **_):
+            left.append(budget.left)
+            if o.max_rounds > 0 and budget.spent:
+                budget.stopped += 1
+            budget.take(min(3, budget.left))
+            raise NoSequenceError("no finger-gaiting sequence")
 
+        with pytest.raises(NoSequenceError) as err:
+            plan_with_reposing(pinch, pose, PlanOptions.for_execution(motion=False, max_rounds=max_rounds), {}, False,
+                               gaits, None)
+        assert len(left) >= 2 and left == [max(0, max_rounds - 3 * k) for k in range(len(left))]
+        text = str(err.value)
+        starved = sum(x == 0 for x in left) if max_rounds else 0
+        assert text.count(full) == min(1, starved) and text.count("(no rounds left)") == max(0, starved - 1)
+
+
+def test_a_whole_plan_that_fails_the_physics_check_with_its_inputs_is_not_returned(monkeypatch):
+    """The whole plan the gait search verified passes the physics check again with the
+    inputs (the check `verify` runs on the written file) before it is returned: one that
+    fails it is refused, naming the check's problem."""
+    from planner import audit
+    from planner.errors import NoSequenceError
+
+    replayed = _stand_in_simulator(monkeypatch, lambda plan, k: None)
+
+    def failing(plan, hand=None, paths=True):
+        rep = audit.AuditReport("<plan>")
+        rep.add("inputs: a made-up problem")
+        return rep
+
+    monkeypatch.setattr(audit, "audit_plan", failing)
+    pinch, pose = _pen_pair()
     with pytest.raises(NoSequenceError) as err:
-        plan_with_reposing(pinch, pose, PlanOptions.for_execution(motion=False, max_rounds=3), {}, False, gaits, None)
-    assert len(left) >= 2 and left == [max(0, 3 - 3 * k) for k in range(len(left))]
-    # the searches that had none left say so, the first in full
-    text = str(err.value)
-    assert text.count("no rounds of intermediate contacts were left: the searches before it spent the --max-rounds 3 "
-                      "they share") == 1
-    assert text.count("(no rounds left)") == len(left) - 2
+        plan_regrasp(pinch, pose, PlanOptions.for_execution(motion=False))
+    assert replayed and "the plan fails a physics check (inputs: a made-up problem)" in str(err.value)
 
 
 def test_a_gait_search_makes_no_round_beyond_the_budget_it_shares(tmp_path):
@@ -586,5 +611,11 @@ def test_a_gait_search_makes_no_round_beyond_the_budget_it_shares(tmp_path):
     budget = RoundBudget(free + 3)
     plan = plan_gaits(a, b, opts, budget=budget).plan
     assert plan.summary["search"]["rounds"] == free and budget.used == free and budget.left == 3
+    spent = RoundBudget(0)
     with pytest.raises(NoSequenceError, match="the rounds shared with the other searches were spent"):
-        plan_gaits(a, b, opts, budget=RoundBudget(0))
+        plan_gaits(a, b, opts, budget=spent)
+    assert spent.stopped == 1  # (it would have made a round)
+    none_wanted = RoundBudget(0)
+    with pytest.raises(NoSequenceError) as err:
+        plan_gaits(a, b, replace(opts, max_rounds=0), budget=none_wanted)
+    assert none_wanted.stopped == 0 and "the rounds shared" not in str(err.value)
