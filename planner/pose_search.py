@@ -29,6 +29,7 @@ import math
 import time
 from dataclasses import dataclass, field, replace
 from types import MappingProxyType
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -39,6 +40,9 @@ from planner.plan_data import OBJECT, Plan, PlanState, PlanStep, pose_vector
 from planner.realization import PENETRATION_TOL_M
 from planner.repose import (FOLLOW_TOL_M, FollowError, Reposing, _holds, at_pose, pose_distance, repose, settle_pose,
                             state_reason)
+
+if TYPE_CHECKING:
+    from planner.regrasp import PlanResult
 
 log = logging.getLogger("planner")
 
@@ -353,6 +357,12 @@ def compose_through(initial, final, options: PlanOptions, gait_a: Plan | None, m
     initial grasp's pose from it to the intermediate grasp (None: the initial grasp is it),
     the reposing ``move`` of the intermediate grasp to the final grasp's pose, ``gait_b`` there
     to the final grasp (None: the move ends at it)."""
+    return compose_through_at(initial, final, options, gait_a, move, gait_b)[0]
+
+
+def compose_through_at(initial, final, options: PlanOptions, gait_a: Plan | None, move: Reposing,
+                       gait_b: Plan | None) -> tuple[Plan, int]:
+    """`compose_through`, and the index of ``gait_b``'s first step in it."""
     Ta, Tb = np.asarray(initial.obj.T_palm_obj, float), np.asarray(final.obj.T_palm_obj, float)
     b = _Builder(options, initial.hand, Ta)
     if gait_a is None:
@@ -362,6 +372,7 @@ def compose_through(initial, final, options: PlanOptions, gait_a: Plan | None, m
             b.state(st, Ta)
         b.steps += list(gait_a.steps)
     b.reposing(move)
+    at = len(b.steps)
     if gait_b is None:
         b.grasp(final, "final")
     else:
@@ -373,7 +384,7 @@ def compose_through(initial, final, options: PlanOptions, gait_a: Plan | None, m
         + (list(gait_b.summary.get("order", [])) if gait_b else [])
     base = gait_a or gait_b
     extra = int(gait_b.summary.get("gait_steps", 0)) if gait_a is not None and gait_b is not None else 0
-    return _finish(initial, options, b, [move], base, order, extra, Tb)
+    return _finish(initial, options, b, [move], base, order, extra, Tb), at
 
 
 def _finish(initial, options: PlanOptions, b: _Builder, moves, base: Plan | None, order, extra_steps: int, P) -> Plan:
@@ -611,23 +622,11 @@ def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bo
         return clause + (" (no rounds of intermediate contacts were left: the searches before it spent the "
                          f"--max-rounds {options.max_rounds} they share)")
 
-    def whole_checked(res, where: str) -> Plan | None:
-        """The whole plan the gait search verified, with the inputs, once it passes the physics
-        check with them (the one `verify` runs on the written file); else None (why in ``tried``)."""
-        nonlocal verify_s
-        from planner.audit import audit_plan
-
-        verify_s += res.verify_s or 0.0
-        plan = replace(res.whole, inputs=dict(inputs or {}))
-        rep = audit_plan(plan, hand)
-        if not rep.ok:
-            tried.append(f"{where}: the plan fails a physics check ({rep.problems[0]})")
-            return None
-        return plan
-
-    def checked(plan: Plan, where: str) -> Plan | None:
+    def checked(plan: Plan, where: str, replayed_in: PlanResult | None = None) -> Plan | None:
         """``plan`` with the inputs, once it passes the physics check `replay` and `verify` run
-        (`planner.audit.audit_plan`) and, when verifying, the simulator; else None (why in ``tried``)."""
+        (`planner.audit.audit_plan`) and, when verifying, the simulator; else None (why in ``tried``).
+        ``replayed_in``: the gait search that verified ``plan`` whole (`planner.regrasp.plan_gaits`'
+        ``whole``): its replays count, none is run again."""
         nonlocal replays, verify_s
         from planner.audit import audit_plan
 
@@ -636,7 +635,9 @@ def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bo
         if not rep.ok:
             tried.append(f"{where}: the plan fails a physics check ({rep.problems[0]})")
             return None
-        if verifying:
+        if replayed_in is not None:
+            verify_s += replayed_in.verify_s or 0.0
+        elif verifying:
             from planner.sim.verify import default_workers, verify_suspects_first
 
             replays += 1  # (a plan whose gaits just held is replayed whole even past the budget)
@@ -680,12 +681,10 @@ def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bo
                                                   rounds.stopped > before))
             continue
         if res is not None and res.whole is not None:  # verified whole with its gaits
-            plan = whole_checked(res, f"at {name}")
-            if plan is not None:
-                return plan, verify_s, name
-            continue
-        plan = checked(compose(initial, final, options, first, None if res is None else res.plan, back, P),
-                       f"at {name}")
+            plan = checked(res.whole, f"at {name}", res)
+        else:
+            plan = checked(compose(initial, final, options, first, None if res is None else res.plan, back, P),
+                           f"at {name}")
         if plan is not None:
             return plan, (verify_s if verifying else None), name
     if not stopped and not identical(Ta, Tb):
@@ -719,7 +718,7 @@ def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bo
                 owed = probe.used
                 rounds.take(owed)
             gaits_ = []
-            for which, a, b in (("initial", initial, it.grasp), ("final", it.move.end, final)):
+            for which, a, b in (("initial", initial, it.grasp), ("final", end, final)):
                 if _same_grasp(a, b):
                     gaits_.append(None)
                     continue
@@ -732,15 +731,14 @@ def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bo
                     # the gaits at the final grasp's pose are verified in the whole plan (the
                     # gaits at A, which hold alone, replayed again with the move before them)
                     around = None if which == "initial" or not verifying else \
-                        (lambda g, ga=gaits_[0], it=it: (compose_through(initial, final, options, ga, it.move, g),
-                                                         (len(ga.steps) if ga is not None else 0) + 1))
+                        (lambda g, ga=gaits_[0], it=it: compose_through_at(initial, final, options, ga, it.move, g))
                     if which == "final":  # (the probe's rounds, made again here)
                         rounds.give(owed)
                         owed = 0
                     before = rounds.stopped
                     res = gaits(a, b, left, replayed, budget=rounds, whole=around)
                     if res.whole is not None:
-                        plan = whole_checked(res, name)
+                        plan = checked(res.whole, name, res)
                         if plan is not None:
                             return plan, verify_s, name
                         break
