@@ -207,3 +207,33 @@ def test_armature_floor_puts_the_stiffest_spring_at_the_design_omega_dt(setup):
     w = np.sqrt(scale * ctl.kp[idx] / ctl.armature[idx]) * (1.0 / 240.0)
     assert np.all(w <= C.ARMATURE_OMEGA_DT * (1 + 1e-9))
     assert np.max(w) == pytest.approx(C.ARMATURE_OMEGA_DT, rel=0.02)
+
+
+def test_the_palm_hands_its_load_over_to_the_fingers_for_a_reposing_move(setup):
+    """The object against the palm (a contact of the palm's link on the side the fingers squeeze
+    it toward, gravity pressing it there): in the balance the palm carries part of the weight
+    and the fingers' squeeze, so the fingers' forces do not sum to the weight; with the palm's
+    share faded to 0 (a reposing move: the planner holds the object with the fingers alone
+    while it moves relative to the palm) the fingers carry all of it, and a share between
+    blends the two solutions linearly (a handover, as a finger's). The palm is passive: it is
+    never commanded a force."""
+    rd, hand = setup
+    ctl, st, _, _, T, points = _controller(rd, hand)
+    n = np.asarray(hand.palm_normal, float)
+    finger_push = sum(np.asarray(c.normal, float) for c in points)
+    assert float(finger_push @ n) > 0.0  # the fingers squeeze the object toward +n: the palm there
+    r = float(np.min(rd.object.extents)) / 2
+    ctl.sensor.points.append(ContactPoint(ROOT, tuple(T[:3, 3] + r * n), tuple(-n), 0.0, 0.0))
+    m = rd.object.mass_kg
+    g = 9.81 * n  # pressing the object onto the palm
+    ctl.set_gravity(g)
+    totals = {}
+    for share in (1.0, 0.5, 0.0):
+        ctl.fade_palm(share)
+        ctl.command(dict(zip(rd.joints, st.q)), st.touching)
+        assert ctl.balanced
+        assert set(ctl.forces) == {c.link for c in points}
+        totals[share] = sum(ctl.forces.values())
+    np.testing.assert_allclose(totals[0.0] + m * g, 0.0, atol=1e-6)  # the fingers alone hold the weight
+    assert float(np.linalg.norm(totals[1.0] + m * g)) > 0.1 * m * 9.81  # the palm carries part of it
+    np.testing.assert_allclose(totals[0.5], 0.5 * (totals[1.0] + totals[0.0]), atol=1e-9)

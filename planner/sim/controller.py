@@ -179,6 +179,11 @@ class Controller:
         self.tau = np.zeros(len(self.movable))
         self.forces: dict[str, np.ndarray] = {}  # link -> commanded force (palm frame)
         self.balanced = True
+        # the share (0..1) of the load the palm's contacts carry in the force balance (they push
+        # back passively); 0 while the object moves relative to the palm (a reposing step: the
+        # planner holds it with the fingers alone there, `planner.repose`), handed over as a
+        # finger's load is (`fade_palm`)
+        self.palm_share = 1.0
         self._tick = 0
         self._cache: dict = {}
         self._near: dict = {}  # (F, load, links) -> (points, normals, centre, solution) last solved
@@ -334,6 +339,11 @@ class Controller:
         the next force solution)."""
         self.share[finger] = float(min(1.0, max(0.0, share)))
 
+    def fade_palm(self, share: float) -> None:
+        """Hand over: the palm carries ``share`` (0..1) of the load it would in the balance,
+        the fingers the rest (applied at the next force solution)."""
+        self.palm_share = float(min(1.0, max(0.0, share)))
+
     def set_gravity(self, g) -> None:
         """The gravity the simulator has now (palm frame; the replay sets the engine's):
         compensation and load follow it."""
@@ -448,7 +458,7 @@ class Controller:
             for j, tj in zip(self.hand.joint_names, g_q):
                 tau[self.hand_pos[j]] = tj
         F = self.force_n
-        contacts = [c for c in self.contacts() if c.finger is None or c.finger in self.holding]
+        contacts = [c for c in self.contacts() if (c.finger is None and self.palm_share > 0.0) or c.finger in self.holding]
         forces = self._balanced(contacts, F, state)
         self.forces = {}
         pushing = [(c, f_c) for c, f_c in zip(contacts, forces) if c.finger is not None and np.any(f_c)]
@@ -490,18 +500,18 @@ class Controller:
             full_load[:3] = self.mass * max(self.g_max, g_now) * self.gravity / g_now
         scale = g_now / max(self.g_max, g_now) if g_now > 0 else 0.0
 
-        def solve(active: set) -> list[np.ndarray] | None:
+        def solve(active: set, palm: bool = True) -> list[np.ndarray] | None:
             """Balanced forces for the load of the current gravity. While gravity ramps, the
             solutions for no load and for the full load are blended: a convex combination of
             two balanced force sets inside the cones balances the blended load inside them."""
             if 0.0 < scale < 1.0:
-                lo, hi = solve_at(active, np.zeros(6)), solve_at(active, full_load)
+                lo, hi = solve_at(active, np.zeros(6), palm), solve_at(active, full_load, palm)
                 if lo is not None and hi is not None:
                     return [(1.0 - scale) * a + scale * b for a, b in zip(lo, hi)]
-            return solve_at(active, scale * full_load)
+            return solve_at(active, scale * full_load, palm)
 
-        def solve_at(active: set, load: np.ndarray) -> list[np.ndarray] | None:
-            idx = [i for i, c in enumerate(contacts) if c.touching and (c.finger is None or c.finger in active)]
+        def solve_at(active: set, load: np.ndarray, palm: bool) -> list[np.ndarray] | None:
+            idx = [i for i, c in enumerate(contacts) if c.touching and (c.finger in active or (c.finger is None and palm))]
             if not idx:
                 return None
             per_finger = {}
@@ -550,6 +560,13 @@ class Controller:
             return out
 
         full = solve(set(self.holding))
+        if self.palm_share < 1.0 and any(c.finger is None for c in contacts):
+            # the palm handing its load over: the fingers' solution without it, blended
+            alone = solve(set(self.holding), palm=False)
+            if alone is not None and full is not None:
+                full = [self.palm_share * a + (1.0 - self.palm_share) * b for a, b in zip(full, alone)]
+            elif alone is not None and self.palm_share == 0.0:
+                full = alone
         self.balanced = full is not None
         if full is None:  # no balanced forces at these contacts: plain squeeze along the normals
             full = [np.zeros(3) if c.finger is None else F * c.normal for c in contacts]

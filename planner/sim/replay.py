@@ -721,6 +721,12 @@ class _Sim:
             if not self._run_for(prm["handover_s"], lambda x: [ctl.fade(f, 1.0 - x) for f in released]):
                 return False
         ctl.command(q_ref, holding)
+        # the object moves relative to the palm: the fingers carry all of it, as planned (the
+        # palm holds only where the object rests on it, `planner.repose`): the palm's load is
+        # handed over to them before they lift the object off it, and back after they put it on
+        if frm.palm_holds and not self._run_for(prm["handover_s"], lambda x: ctl.fade_palm(1.0 - x)):
+            return False
+        ctl.fade_palm(0.0)
         start = np.array([q_ref[j] for j in st.joints])
         planned = np.asarray(st.path, dtype=float)
         path = planned + (start - planned[0])
@@ -743,6 +749,9 @@ class _Sim:
         self.reposing = False
         self.set_reference(to.object_pose)
         self.palm_holds = to.palm_holds
+        if ok and to.palm_holds:
+            ok = self._run_for(prm["handover_s"], lambda x: ctl.fade_palm(x))
+        ctl.fade_palm(1.0)
         if ok and onto:
             ctl.command(dict(ctl.q_ref), to.touching, share={f: 0.0 for f in onto})
             ok = self._run_for(prm["handover_s"], lambda x: [ctl.fade(f, x) for f in onto])
