@@ -115,6 +115,24 @@ def candidate_poses(initial, final) -> list[tuple[str, np.ndarray]]:
     return out
 
 
+def through_poses(initial, final) -> list[tuple[str, np.ndarray | None]]:
+    """(name, pose) of the poses an intermediate grasp (`planner.intermediate`) is carried to
+    from the initial grasp's pose, in the order they are tried: the final grasp's own (pose
+    None) when the poses differ; then resting on the palm from the final grasp (the final
+    grasp's leg there, reversed, ends the plan): the palm lets a thumb that nothing else
+    opposes lift, so the gaits there can move it."""
+    from planner.synth_sample import PALM_TOUCH_GAP_M
+
+    out: list[tuple[str, np.ndarray | None]] = []
+    if not identical(initial.obj.T_palm_obj, final.obj.T_palm_obj):
+        out.append(("the final grasp's pose", None))
+    if "free" not in (initial.spec.palm, final.spec.palm):
+        s = settle_pose(final, PALM_TOUCH_GAP_M)
+        if s is not None:
+            out.append((f"resting on the palm ({s[1] * 1e3:.1f} mm from the final grasp's pose)", s[0]))
+    return out
+
+
 def _away_from(g, finger: str, d: float):
     """The direction (palm frame, unit) to carry the object ``d`` along that takes it farthest
     from ``finger`` (its links' distance to the object, measured with the object moved): the
@@ -325,6 +343,17 @@ def compose_at(initial, final, options: PlanOptions, first: Leg, gait: Plan | No
         for s in gait.states[1:]:
             b.state(s, P)
         b.steps += [replace(s, from_state=s.from_state + k0, to_state=s.to_state + k0) for s in gait.steps]
+    _leg_back(b, last, final)
+    moves = [x.move for x in (first, last) if x.move is not None]
+    order = [f"{f}:lift" for f, _, _ in first.lifts] + ([f"{OBJECT}:repose"] if first.move is not None else []) \
+        + (list(gait.summary.get("order", [])) if gait else []) + _leg_back_order(last)
+    return _finish(initial, options, b, moves, gait, order, len(first.lifts) + len(last.lifts), P), at
+
+
+def _leg_back(b: "_Builder", last: Leg, final) -> None:
+    """The steps and states of the final grasp's leg ``last`` reversed, after ``b``'s last
+    state (``last.end``, at the candidate pose): released fingers back where they hold, the
+    reposing move back to the final grasp's pose, the lifted fingers landed."""
     if last.move is not None:
         back = last.move.reversed()
         lifted_final = last.lifts[-1][2] if last.lifts else final
@@ -344,26 +373,29 @@ def compose_at(initial, final, options: PlanOptions, first: Leg, gait: Plan | No
             b.grasp(_with_q(last.lifts[i][2], paths["lift"][-1], f), "final")
         b.step(f, "land", np.asarray(paths["lift"], float)[::-1])
         b.grasp(before, "final")
-    moves = [x.move for x in (first, last) if x.move is not None]
-    order = [f"{f}:lift" for f, _, _ in first.lifts] + ([f"{OBJECT}:repose"] if first.move is not None else []) \
-        + (list(gait.summary.get("order", [])) if gait else []) + ([f"{OBJECT}:repose"] if last.move is not None else []) \
-        + [f"{f}:land>final" for f, _, _ in reversed(last.lifts)]
-    return _finish(initial, options, b, moves, gait, order, len(first.lifts) + len(last.lifts), P), at
+
+
+def _leg_back_order(last: Leg) -> list[str]:
+    """The summary's order of `_leg_back`'s steps."""
+    return ([f"{OBJECT}:repose"] if last.move is not None else []) + [f"{f}:land>final" for f, _, _ in reversed(last.lifts)]
 
 
 def compose_through(initial, final, options: PlanOptions, gait_a: Plan | None, move: Reposing,
-                    gait_b: Plan | None) -> Plan:
+                    gait_b: Plan | None, back: Leg | None = None) -> Plan:
     """One plan through an intermediate grasp (`planner.intermediate`): ``gait_a`` at the
     initial grasp's pose from it to the intermediate grasp (None: the initial grasp is it),
     the reposing ``move`` of the intermediate grasp to the final grasp's pose, ``gait_b`` there
-    to the final grasp (None: the move ends at it)."""
-    return compose_through_at(initial, final, options, gait_a, move, gait_b)[0]
+    to the final grasp (None: the move ends at it). With ``back`` (the final grasp's `Leg` to
+    another pose, e.g. resting on the palm): the move goes to that pose, ``gait_b`` there to
+    ``back.end``, then ``back`` reversed to the final grasp."""
+    return compose_through_at(initial, final, options, gait_a, move, gait_b, back)[0]
 
 
 def compose_through_at(initial, final, options: PlanOptions, gait_a: Plan | None, move: Reposing,
-                       gait_b: Plan | None) -> tuple[Plan, int]:
+                       gait_b: Plan | None, back: Leg | None = None) -> tuple[Plan, int]:
     """`compose_through`, and the index of ``gait_b``'s first step in it."""
-    Ta, Tb = np.asarray(initial.obj.T_palm_obj, float), np.asarray(final.obj.T_palm_obj, float)
+    target = final if back is None else back.end
+    Ta, Tb = np.asarray(initial.obj.T_palm_obj, float), np.asarray(target.obj.T_palm_obj, float)
     b = _Builder(options, initial.hand, Ta)
     if gait_a is None:
         b.grasp(initial, "initial")
@@ -374,7 +406,7 @@ def compose_through_at(initial, final, options: PlanOptions, gait_a: Plan | None
     b.reposing(move)
     at = len(b.steps)
     if gait_b is None:
-        b.grasp(final, "final")
+        b.grasp(target, "final")
     else:
         k0 = len(b.states)  # (the gaits at B start at the move's last state: their steps follow it)
         for st in gait_b.states:
@@ -382,9 +414,15 @@ def compose_through_at(initial, final, options: PlanOptions, gait_a: Plan | None
         b.steps += [replace(s, from_state=s.from_state + k0, to_state=s.to_state + k0) for s in gait_b.steps]
     order = (list(gait_a.summary.get("order", [])) if gait_a else []) + [f"{OBJECT}:repose"] \
         + (list(gait_b.summary.get("order", [])) if gait_b else [])
+    moves, extra = [move], 0
+    if back is not None:
+        _leg_back(b, back, final)
+        order += _leg_back_order(back)
+        moves += [back.move] if back.move is not None else []
+        extra = len(back.lifts)
     base = gait_a or gait_b
-    extra = int(gait_b.summary.get("gait_steps", 0)) if gait_a is not None and gait_b is not None else 0
-    return _finish(initial, options, b, [move], base, order, extra, Tb), at
+    extra += int(gait_b.summary.get("gait_steps", 0)) if gait_a is not None and gait_b is not None else 0
+    return _finish(initial, options, b, moves, base, order, extra, Tb), at
 
 
 def _finish(initial, options: PlanOptions, b: _Builder, moves, base: Plan | None, order, extra_steps: int, P) -> Plan:
@@ -687,43 +725,48 @@ def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bo
                            f"at {name}")
         if plan is not None:
             return plan, (verify_s if verifying else None), name
-    if not stopped and not identical(Ta, Tb):
-        # gait -> repose -> gait through an intermediate grasp whose contacts follow the object
+    def through(target, back: Leg | None, at_b: str):
+        """gait -> repose -> gait through an intermediate grasp whose contacts follow the object
+        from the initial grasp's pose to ``target``'s (the final grasp, or with ``back`` the final
+        grasp's leg to another pose, ``back.end``, then ``back`` reversed); ``at_b`` names that
+        pose. (plan, name) of the first that passes, else None (why in ``tried``)."""
+        nonlocal stopped
         from planner.intermediate import intermediate_grasps
 
-        log.info("reposing: trying intermediate grasps whose contacts follow the object")
-        through, words = intermediate_grasps(initial, final, options)
-        tried.append(words)
-        for it in through:
-            name = f"through an intermediate grasp ({it.words()})"
+        log.info("reposing: trying intermediate grasps whose contacts follow the object to %s", at_b)
+        through_, words = intermediate_grasps(initial, target, options)
+        tried.append(words if back is None else f"to {at_b}: {words}")
+        for it in through_:
+            name = f"through an intermediate grasp ({it.words()})" + ("" if back is None else f" to {at_b}")
             if verifying and replays >= options.verify_attempts:
                 tried.append(f"not tried {name} and after: {replays} sequences were replayed before (--verify-attempts)")
                 stopped = True
-                break
+                return None
             end, owed = it.move.end, 0
             if verifying and options.strategy == "graph" and not _same_grasp(initial, it.grasp) \
-                    and not _same_grasp(end, final):
+                    and not _same_grasp(end, target):
                 # the gaits at the final grasp's pose searched first, unverified: a grasp they
                 # cannot take to the final one is left before the gaits at the initial grasp's
                 # pose are searched and replayed. Its rounds are taken from the shared budget;
                 # given back just before the verified search there makes them again
                 probe = RoundBudget(rounds.left)
                 try:
-                    gaits(end, final, replace(options, verify=False), lambda: None, budget=probe)
+                    gaits(end, target, replace(options, verify=False), lambda: None, budget=probe)
                 except (NoSequenceError, PlannerError) as err:
                     rounds.take(probe.used)
                     rounds.stopped += probe.stopped
-                    tried.append(f"{name}: at the final grasp's pose: {starved(first_clause(err), probe.stopped > 0)}")
+                    tried.append(f"{name}: at {at_b}: {starved(first_clause(err), probe.stopped > 0)}")
                     continue
                 owed = probe.used
                 rounds.take(owed)
             gaits_ = []
-            for which, a, b in (("initial", initial, it.grasp), ("final", end, final)):
+            for which, where, a, b in (("initial", "the initial grasp's pose", initial, it.grasp),
+                                       ("final", at_b, end, target)):
                 if _same_grasp(a, b):
                     gaits_.append(None)
                     continue
                 if verifying and replays >= options.verify_attempts:  # (the gaits at A took what was left)
-                    tried.append(f"{name}: the gaits at the {which} grasp's pose not tried: {replays} sequences were "
+                    tried.append(f"{name}: the gaits at {where} not tried: {replays} sequences were "
                                  f"replayed before (--verify-attempts)")
                     break
                 try:
@@ -731,7 +774,8 @@ def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bo
                     # the gaits at the final grasp's pose are verified in the whole plan (the
                     # gaits at A, which hold alone, replayed again with the move before them)
                     around = None if which == "initial" or not verifying else \
-                        (lambda g, ga=gaits_[0], it=it: compose_through_at(initial, final, options, ga, it.move, g))
+                        (lambda g, ga=gaits_[0], it=it: compose_through_at(initial, final, options, ga, it.move, g,
+                                                                           back))
                     if which == "final":  # (the probe's rounds, made again here)
                         rounds.give(owed)
                         owed = 0
@@ -740,18 +784,32 @@ def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bo
                     if res.whole is not None:
                         plan = checked(res.whole, name, res)
                         if plan is not None:
-                            return plan, verify_s, name
+                            return plan, name
                         break
                     gaits_.append(res.plan)
                 except (NoSequenceError, PlannerError) as err:
-                    tried.append(f"{name}: at the {which} grasp's pose: "
-                                 f"{starved(first_clause(err), rounds.stopped > before)}")
+                    tried.append(f"{name}: at {where}: {starved(first_clause(err), rounds.stopped > before)}")
                     break
             if len(gaits_) < 2:
                 continue
-            plan = checked(compose_through(initial, final, options, gaits_[0], it.move, gaits_[1]), name)
+            plan = checked(compose_through(initial, final, options, gaits_[0], it.move, gaits_[1], back), name)
             if plan is not None:
-                return plan, (verify_s if verifying else None), name
+                return plan, name
+        return None
+
+    for at_b, P in through_poses(initial, final):
+        if stopped:
+            break
+        back = None
+        if P is not None:  # the final grasp taken there first
+            try:
+                back = leg(final, P, options, gait_fn)
+            except MotionError as err:
+                tried.append(f"through an intermediate grasp to {at_b}: the final grasp's leg there: {err}")
+                continue
+        found = through(final if back is None else back.end, back, at_b)
+        if found is not None:
+            return found[0], (verify_s if verifying else None), found[1]
     mm, deg = pose_distance(Ta, Tb)
     differ = None if identical(Ta, Tb) else f"the grasps' object poses differ by {mm:.1f} mm / {deg:.1f} deg"
     if stopped:  # (whether a pose left would join them is not known)

@@ -144,6 +144,7 @@ def test_the_gaits_at_the_final_pose_wait_for_a_budget_the_gaits_at_the_initial_
     a, b = pair
     monkeypatch.setattr(inter, "intermediate_grasps", lambda x, y, o: (through[0][:1], "one intermediate grasp"))
     monkeypatch.setattr(pose_search, "candidate_poses", lambda x, y: [])
+    monkeypatch.setattr(pose_search, "through_poses", lambda x, y: [("the final grasp's pose", None)])
     calls = []
 
     class Held:  # a gait plan that held (its contents are not read before the final pose's gaits)
@@ -176,6 +177,7 @@ def test_an_intermediate_grasp_the_final_pose_gaits_cannot_leave_is_dropped_befo
     two = (through[0] * 2)[:2]
     monkeypatch.setattr(inter, "intermediate_grasps", lambda x, y, o: (two, "two intermediate grasps"))
     monkeypatch.setattr(pose_search, "candidate_poses", lambda x, y: [])
+    monkeypatch.setattr(pose_search, "through_poses", lambda x, y: [("the final grasp's pose", None)])
     calls = []
 
     def gaits(x, y, o, on_replay, budget=None, **_):
@@ -220,6 +222,7 @@ def test_a_probe_that_finds_gaits_is_charged_when_the_gaits_at_the_initial_pose_
     two = (through[0] * 2)[:2]
     monkeypatch.setattr(inter, "intermediate_grasps", lambda x, y, o: (two, "two intermediate grasps"))
     monkeypatch.setattr(pose_search, "candidate_poses", lambda x, y: [])
+    monkeypatch.setattr(pose_search, "through_poses", lambda x, y: [("the final grasp's pose", None)])
     calls, made = [], []
 
     class Found:
@@ -254,3 +257,51 @@ def test_the_same_intermediate_grasps_with_one_process_or_two(pair):
         for c, d in zip(x.choices, y.choices):
             assert np.array_equal(c.p_obj, d.p_obj) and np.array_equal(c.q_a, d.q_a) and np.array_equal(c.path, d.path)
         assert np.array_equal(x.grasp.q, y.grasp.q)
+
+
+def test_an_intermediate_grasp_carried_onto_the_palm_lets_the_thumb_move_there(monkeypatch):
+    """exp10 v2's Allegro sphere pair (small offset): in neither grasp can the thumb lift at its
+    own pose (index and middle alone are no force closure). Through the palm: an intermediate
+    grasp is carried from the initial grasp's pose to where the final grasp rests on the palm
+    (`planner.pose_search.through_poses`), the gaits there move the thumb while the palm holds,
+    and the final grasp's leg to the palm, reversed, ends the plan at the final grasp. Checked
+    independently: the object poses of the plan's states (the initial, the palm's, the final),
+    the thumb lifted only where the palm holds, and the physics check `verify` runs."""
+    from planner import pose_search
+    from planner.audit import audit_plan
+    from planner.plan_data import OBJECT, pose_matrix
+    from planner.regrasp import _straight_gait, plan_gaits
+    from planner.repose import settle_pose
+    from planner.synth_sample import PALM_TOUCH_GAP_M
+
+    v2 = PAIRS.parent / "exp10_pairs_v2"
+    a, b = (realize(load_grasp(v2 / f"allegro_right_sphere_small_{k}.yaml")) for k in ("initial", "final"))
+    options = replace(OPTS, motion=False)
+    monkeypatch.setattr(pose_search, "candidate_poses", lambda x, y: [])  # only the route through the palm
+    poses = pose_search.through_poses(a, b)
+    assert [name.split(" (")[0] for name, _ in poses] == ["the final grasp's pose", "resting on the palm"]
+    monkeypatch.setattr(pose_search, "through_poses", lambda x, y: poses[1:])
+    plan, _, name = pose_search.plan_with_reposing(
+        a, b, options, {}, False, lambda x, y, o, r=None, **kw: plan_gaits(x, y, o, {}, False, r, **kw), _straight_gait)
+    assert name.startswith("through an intermediate grasp") and name.endswith(poses[1][0])
+    assert audit_plan(plan, a.hand).ok
+    P = settle_pose(b, PALM_TOUCH_GAP_M)[0]
+
+    def pose(i):
+        st = plan.states[i]
+        return np.asarray(a.obj.T_palm_obj if st.object_pose is None else pose_matrix(st.object_pose), float)
+
+    moves = [k for k, s in enumerate(plan.steps) if s.action == "repose"]
+    assert len(moves) == 2 and all(plan.steps[k].finger == OBJECT for k in moves)
+    first, last = moves
+    assert np.allclose(pose(plan.steps[first].from_state), a.obj.T_palm_obj, atol=1e-9)
+    assert np.allclose(pose(plan.steps[first].to_state), P, atol=1e-9)
+    assert np.allclose(pose(plan.steps[last].from_state), P, atol=1e-9)
+    assert np.allclose(pose(len(plan.states) - 1), b.obj.T_palm_obj, atol=1e-9)
+    thumb = [s for s in plan.steps if s.finger == "thumb" and s.action == "lift"]
+    assert thumb  # the thumb moves ...
+    for s in thumb:  # ... only where the palm holds
+        assert plan.steps.index(s) > first and plan.steps.index(s) < last
+        assert plan.states[s.to_state].palm_holds
+    end = plan.states[-1]
+    assert np.allclose(np.asarray(end.q), [b.q[list(b.hand.joint_names).index(j)] for j in plan.joints], atol=1e-9)

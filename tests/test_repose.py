@@ -25,6 +25,13 @@ from planner.repose import FOLLOW_TOL_M, STEP_M, STEP_RAD, object_path, pose_dis
 OPTS = PlanOptions.for_execution(motion=False, verify=False)
 
 
+def _no_finger_path(hand, obj, q_a, q_b, finger):
+    """A stand-in for the planner's finger paths (`planner.pose_search.leg`'s ``gait_fn``): none."""
+    from planner.errors import MotionError
+
+    raise MotionError(f"no path for {finger} (stand-in)")
+
+
 @pytest.fixture(scope="module")
 def box():
     return realize(load_grasp(bundled_grasp("allegro/box_four_finger.yaml")))
@@ -349,7 +356,7 @@ def test_candidate_poses_share_one_verification_budget():
         raise NoSequenceError("no sequence held in the simulator")
 
     with pytest.raises(NoSequenceError) as err:
-        plan_with_reposing(pinch, pose, opts, {}, False, gaits, None)
+        plan_with_reposing(pinch, pose, opts, {}, False, gaits, _no_finger_path)
     text = str(err.value)
     assert calls == [6, 2]  # 4 + 2 replayed: the budget of 6 spent by the first two candidates
     assert text.startswith("the grasps' object poses differ by ")
@@ -433,7 +440,7 @@ def test_a_candidate_whose_plan_fails_the_physics_check_is_refused(monkeypatch):
 
     monkeypatch.setattr(audit, "audit_plan", failing)
     with pytest.raises(NoSequenceError) as err:
-        plan_with_reposing(pinch, pose, opts, {}, False, lambda a, b, o, r=None, **_: NoGaits(), None)
+        plan_with_reposing(pinch, pose, opts, {}, False, lambda a, b, o, r=None, **_: NoGaits(), _no_finger_path)
     words = str(err.value)
     assert len(audited) >= 2 and words.count("the plan fails a physics check (steps[1] (repose object): a made-up problem)") \
         == len(audited)
@@ -561,7 +568,7 @@ def test_the_reposing_candidates_share_one_max_rounds():
 
         with pytest.raises(NoSequenceError) as err:
             plan_with_reposing(pinch, pose, PlanOptions.for_execution(motion=False, max_rounds=max_rounds), {}, False,
-                               gaits, None)
+                               gaits, _no_finger_path)
         assert len(left) >= 2 and left == [max(0, max_rounds - 3 * k) for k in range(len(left))]
         text = str(err.value)
         starved = sum(x == 0 for x in left) if max_rounds else 0
