@@ -133,6 +133,20 @@ def through_poses(initial, final) -> list[tuple[str, np.ndarray | None]]:
     return out
 
 
+def palm_frees(grasp, on_palm, options: PlanOptions) -> bool:
+    """Whether ``on_palm`` (``grasp`` taken to rest on the palm) lets a finger lift that cannot
+    lift in ``grasp``: the others and the palm hold the object without it (the search's state
+    test) where, at ``grasp``'s own pose, the others alone do not. Without such a finger the
+    gaits on the palm can do nothing the gaits at the grasp's pose cannot."""
+    for f in grasp.patches:
+        if f == PALM or f not in on_palm.patches:
+            continue
+        if state_reason(_without(grasp, [f]), options) is not None \
+                and state_reason(_without(on_palm, [f]), options) is None:
+            return True
+    return False
+
+
 def _away_from(g, finger: str, d: float):
     """The direction (palm frame, unit) to carry the object ``d`` along that takes it farthest
     from ``finger`` (its links' distance to the object, measured with the object moved): the
@@ -806,6 +820,10 @@ def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bo
                 back = leg(final, P, options, gait_fn)
             except MotionError as err:
                 tried.append(f"through an intermediate grasp to {at_b}: the final grasp's leg there: {err}")
+                continue
+            if PALM in back.end.patches and not palm_frees(final, back.end, options):
+                tried.append(f"through an intermediate grasp to {at_b}: not tried: the palm there lets no finger of "
+                             f"the final grasp lift that cannot lift at its own pose")
                 continue
         found = through(final if back is None else back.end, back, at_b)
         if found is not None:
