@@ -352,9 +352,13 @@ class Hand:
             fr.mapping(with_value=False)
             fr.require("joints", "tip_frame", message="missing required key")
             joints_r = fr.child("joints")
+            if not joints_r.strings():
+                raise joints_r.fail("expected the finger's joints (base to tip), got an empty list")
             for j in joints_r.strings():
                 if j not in urdf_joints:
                     raise joints_r.fail(str(UnknownNameError("joint", j, urdf_joints)))
+                if joints_r.value.count(j) > 1:
+                    raise joints_r.fail(f"joint {j!r} is named twice")
                 if j in used:
                     raise joints_r.fail(f"joint {j!r} belongs to two fingers")
                 used.append(j)
@@ -455,14 +459,22 @@ class Hand:
             flinks = tuple(l for l in link_geoms if geoms[link_geoms[l][0]].finger == fname)
             contact_r = fr.child("contact_links", list(flinks))
             contact = contact_r.strings()
+            if not contact and "contact_links" in fs:
+                raise contact_r.fail(f"expected the links that may touch the object, got an empty list; links are "
+                                     f"{', '.join(flinks) or '(none)'} (leave the key out: all of them)")
             for l in contact:
                 if l not in flinks:
                     raise contact_r.fail(str(UnknownNameError("link", l, flinks or ["(none)"])))
             close_r = fr.child("close_joints", list(joints))
             close = close_r.strings()
+            if not close:
+                raise close_r.fail(f"expected the joints that close the finger, got an empty list; joints are "
+                                   f"{', '.join(joints)} (leave the key out: all of them)")
             for j in close:
                 if j not in joints:
                     raise close_r.fail(str(UnknownNameError("joint", j, joints)))
+                if close.count(j) > 1:
+                    raise close_r.fail(f"joint {j!r} is named twice")
             close_lower = _close_lower(fr.child("close_toward", {}), close, follows)
             tip = fs["tip_frame"]
             tip_id = frame_id(f"{key}.tip_frame", tip)
