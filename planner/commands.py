@@ -17,6 +17,7 @@ import math
 import os
 import sys
 import time
+from pathlib import Path
 
 import yaml
 
@@ -199,13 +200,25 @@ def cmd_hand(args: argparse.Namespace) -> int:
         out = os.path.abspath(args.output)
         # --root: the hand's own URDF (the sub-tree) is written beside the hand.yaml, same stem
         cut = os.path.splitext(out)[0] + ".urdf" if args.root else None
-        spec, rep = handtool.init_hand(args.urdf, args.package_dir or (), root=args.root, cut_path=cut)
-        urdf = os.path.abspath(spec["urdf"])
-        spec["urdf"] = os.path.relpath(urdf, os.path.dirname(out))  # a hand.yaml moves with its URDF
-        if spec.get("package_dirs"):
-            spec["package_dirs"] = [os.path.relpath(os.path.abspath(d), os.path.dirname(out)) for d in spec["package_dirs"]]
-        header = "# written by regrasp hand init: every guess below is explained on its output; check and edit\n"
-        write_atomic(args.output, header + yaml.safe_dump(spec, sort_keys=False, default_flow_style=None))
+        # the sub-tree is written before the hand is inferred from it: a refusal after that
+        # leaves no hand.urdf behind (or the one that was there)
+        cut_before = Path(cut).read_bytes() if cut is not None and os.path.isfile(cut) else None
+        try:
+            spec, rep = handtool.init_hand(args.urdf, args.package_dir or (), root=args.root, cut_path=cut)
+            urdf = os.path.abspath(spec["urdf"])
+            spec["urdf"] = os.path.relpath(urdf, os.path.dirname(out))  # a hand.yaml moves with its URDF
+            if spec.get("package_dirs"):
+                spec["package_dirs"] = [os.path.relpath(os.path.abspath(d), os.path.dirname(out))
+                                        for d in spec["package_dirs"]]
+            header = "# written by regrasp hand init: every guess below is explained on its output; check and edit\n"
+            write_atomic(args.output, header + yaml.safe_dump(spec, sort_keys=False, default_flow_style=None))
+        except BaseException:
+            if cut is not None and os.path.isfile(cut):
+                if cut_before is None:
+                    os.remove(cut)
+                elif Path(cut).read_bytes() != cut_before:
+                    write_atomic(cut, cut_before)
+            raise
         for f in rep.findings:
             print(f.line())
         print(f"wrote {args.output}: {len(spec['fingers'])} fingers ({', '.join(spec['fingers'])}); "

@@ -1,0 +1,28 @@
+"""`hand init --root LINK` writes the sub-tree's URDF beside the hand.yaml before it infers
+the hand from it: when it then refuses the sub-tree (exit 2), no hand.urdf is left behind,
+and one that was there before is left as it was."""
+
+from planner.cli import main
+from planner.hand import ROBOTS_DIR
+
+URDF = ROBOTS_DIR / "icub_right" / "icub_right.urdf"
+
+
+def test_a_refused_root_leaves_no_urdf_behind(tmp_path, capsys):
+    out = tmp_path / "hand.yaml"
+    assert main(["hand", "init", str(URDF), "-o", str(out), "--root", "index_distal"]) == 2
+    assert "not a hand" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+def test_a_refused_root_leaves_an_existing_urdf_as_it_was(tmp_path):
+    out, cut = tmp_path / "hand.yaml", tmp_path / "hand.urdf"
+    cut.write_text("<robot name='mine'/>\n")
+    assert main(["hand", "init", str(URDF), "-o", str(out), "--root", "index_distal"]) == 2
+    assert cut.read_text() == "<robot name='mine'/>\n" and not out.exists()
+
+
+def test_an_accepted_root_still_writes_both(tmp_path):
+    out = tmp_path / "hand.yaml"
+    assert main(["hand", "init", str(URDF), "-o", str(out), "--root", "index_base"]) == 0
+    assert out.is_file() and (tmp_path / "hand.urdf").is_file()
