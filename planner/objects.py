@@ -116,12 +116,12 @@ def check_mesh_file(path) -> None:
                 head = fh.read(1000)
             if not _ascii_stl(head) and len(head) >= 84:
                 (n,) = struct.unpack("<I", head[80:84])
+                if size < 84 + 50 * n:  # first: a damaged file is not one to decimate
+                    raise MeshFileError(f"mesh {path} is malformed: its binary STL header announces {n} triangles, "
+                                        f"the file holds {(size - 84) // 50}")
                 if n > MAX_MESH_TRIANGLES:
                     raise MeshFileError(f"mesh {path} has {n} triangles; at most {MAX_MESH_TRIANGLES} are read: "
                                         f"decimate it")
-                if size < 84 + 50 * n:
-                    raise MeshFileError(f"mesh {path} is malformed: its binary STL header announces {n} triangles, "
-                                        f"the file holds {(size - 84) // 50}")
     except OSError as err:
         raise MeshFileError(f"cannot read mesh {path}: {err.strerror}") from None
 
@@ -171,7 +171,7 @@ def load_mesh(path, scale=(1.0, 1.0, 1.0)) -> tuple[np.ndarray, np.ndarray]:
     V = V * np.asarray(scale, dtype=float)
     reach, extent = float(np.abs(V[used]).max()), float(np.ptp(V[used], axis=0).max())
     if not (reach <= MAX_SIZE_M and extent >= MIN_SIZE_M):
-        raise MeshFileError(f"mesh {path} scaled by {list(np.ravel(scale))} spans {extent:.3g} m and reaches "
+        raise MeshFileError(f"mesh {path} scaled by [{', '.join(f'{float(x):g}' for x in np.ravel(scale))}] spans {extent:.3g} m and reaches "
                             f"{reach:.3g} m from its origin; an object spans at least {MIN_SIZE_M:g} m and lies "
                             f"within {MAX_SIZE_M:g} m of its origin (object.size scales it)")
     return V, F
