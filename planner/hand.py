@@ -478,6 +478,12 @@ class Hand:
             close_lower = _close_lower(fr.child("close_toward", {}), close, follows)
             tip = fs["tip_frame"]
             tip_id = frame_id(f"{key}.tip_frame", tip)
+            # the tip and the pad move with this finger's joints (another finger's or the palm's
+            # frame passed here and each contact point was then refused as out of reach)
+            own = [f.name for f in self.model.frames if finger_of_joint(f.parentJoint) == fname]
+            if finger_of_joint(self.model.frames[tip_id].parentJoint) != fname:
+                raise fr.fail(f"frame {tip!r} does not move with finger {fname}'s joints; its frames are "
+                              f"{', '.join(own) or '(none)'}", "tip_frame")
             pad = fs.get("pad")
             if pad is None:
                 # default pad: the tip frame origin on the link carrying it; no normal known
@@ -490,7 +496,12 @@ class Hand:
                 if not isinstance(pad, dict) or "link" not in pad or "point" not in pad:
                     raise pad_r.fail("expected {link, point, normal}")
                 pad_link = pad["link"]
-                frame_id(f"{key}.pad.link", pad_link, "link")
+                pad_id = frame_id(f"{key}.pad.link", pad_link, "link")
+                if finger_of_joint(self.model.frames[pad_id].parentJoint) != fname:
+                    own_links = [f.name for f in self.model.frames
+                                 if f.type == pin.FrameType.BODY and finger_of_joint(f.parentJoint) == fname]
+                    raise pad_r.fail(f"link {pad_link!r} is not a link of finger {fname}; its links are "
+                                     f"{', '.join(own_links) or '(none)'}", "link")
                 pad_p = tuple(pad_r.child("point").array(3))
                 pad_n = None
                 if pad.get("normal") is not None:
