@@ -8,6 +8,7 @@ Hand spec (schema_version 1)::
 
     schema_version: 1
     name: icub_right                # optional, default: the folder name
+    units: {length: m, angle: rad}  # optional; the only units read (any other key is refused)
     urdf: icub_right.urdf           # relative to the yaml, absolute, or package://pkg/...
     package_dirs: []                # optional, extra dirs holding ROS packages
     palm_frame: palm
@@ -58,6 +59,11 @@ from planner.urdf_check import (MAX_MESH_TRIANGLES, MAX_NAME_CHARS, check_urdf, 
 
 ROBOTS_DIR = robots_dir()  # the bundled hands (planner.resources), wherever the package is installed
 SCHEMA_VERSION = 1
+#: The keys of a hand.yaml (the module docstring), of one of its fingers, and its units.
+SPEC_KEYS = ("schema_version", "name", "units", "urdf", "package_dirs", "palm_frame", "palm_normal", "fingers",
+             "open", "effort", "disabled_collisions", "couplings")
+FINGER_KEYS = ("joints", "close_joints", "close_toward", "contact_links", "tip_frame", "pad")
+UNITS = {"length": "m", "angle": "rad"}
 
 
 _share_dirs = installed_share_dirs  # (the name other modules import)
@@ -301,6 +307,15 @@ class Hand:
         sp = str(self.spec_path)
         r = Reader(sp, spec, got=repr_short, got_value=repr_short)
         r.require("schema_version", "urdf", "palm_frame", "fingers", message="missing required key")
+        # a misspelt key (close_joint, close_towards) was ignored: the hand then closed all joints
+        # upward, silently
+        r.allow(SPEC_KEYS)
+        if spec.get("units") is not None:
+            units = r.child("units").mapping()
+            units.allow(UNITS)
+            for k, v in spec["units"].items():
+                if v != UNITS[k]:
+                    raise units.fail(f"the planner reads lengths in m and angles in rad, got {repr_short(v)}", k)
         if spec["schema_version"] != SCHEMA_VERSION:
             raise r.fail(f"unsupported version {spec['schema_version']!r}; supported: {SCHEMA_VERSION}", "schema_version")
         self.name = r.child("name").name(MAX_NAME_CHARS) if "name" in spec else self.spec_path.parent.name
@@ -350,6 +365,7 @@ class Hand:
                 raise fr.fail("'object' names what the hand holds (a plan's repose steps), not a finger; call the "
                               "finger something else")
             fr.mapping(with_value=False)
+            fr.allow(FINGER_KEYS)
             fr.require("joints", "tip_frame", message="missing required key")
             joints_r = fr.child("joints")
             if not joints_r.strings():
@@ -495,6 +511,7 @@ class Hand:
                 pad_r = fr.child("pad")
                 if not isinstance(pad, dict) or "link" not in pad or "point" not in pad:
                     raise pad_r.fail("expected {link, point, normal}")
+                pad_r.allow(("link", "point", "normal"))
                 pad_link = pad["link"]
                 pad_id = frame_id(f"{key}.pad.link", pad_link, "link")
                 if finger_of_joint(self.model.frames[pad_id].parentJoint) != fname:
