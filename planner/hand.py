@@ -540,6 +540,8 @@ class Hand:
         # at the open posture (shapes that overlap by design, like MoveIt's "default" pairs)
         allowed = set()
         disabled_r = r.at(spec.get("disabled_collisions", []) or [], "disabled_collisions")
+        if not isinstance(disabled_r.value, list):
+            raise disabled_r.fail(f"expected a list of [link_a, link_b] pairs, got {repr_short(disabled_r.value)}")
         for pair in disabled_r.value:
             if not (isinstance(pair, list) and len(pair) == 2):
                 raise disabled_r.fail(f"expected [link_a, link_b], got {pair!r}")
