@@ -54,31 +54,13 @@ from planner.finger_scene import (
     finger_of,
     first_invalid,
 )
-from planner.options import MOTION_CHECKS
+from planner.options import MOTION_CHECKS, MOTION_PLANNER_CLASSES
 from planner.retreat import DEFAULT_LIFT_M, retreat
 
-# name -> OMPL geometric planner class. Asymptotically optimal planners stop at their
-# first solution (cost threshold +inf): the path is then shortened by PathSimplifier.
-# Every planner here is reproducible from the seed and stops on the work bound (collision
-# checks, `planner.options.MOTION_CHECKS`). PRM and PRM* are left out: they grow their roadmap
-# in a second thread (paths not reproducible, and the work bound, evaluated from both threads,
-# deadlocks); so are FMT and BFMT: they stop after a fixed number of samples whatever the budget.
-_PLANNER_CLASSES = {
-    "rrtconnect": "RRTConnect",
-    "rrt": "RRT",
-    "rrtstar": "RRTstar",
-    "informedrrtstar": "InformedRRTstar",
-    "sorrtstar": "SORRTstar",
-    "kpiece": "KPIECE1",
-    "bkpiece": "BKPIECE1",
-    "lbkpiece": "LBKPIECE1",
-    "bitstar": "BITstar",
-    "aorrtc": "AORRTC",
-}
 
-
+# the planner names and classes: `planner.options.MOTION_PLANNER_CLASSES`
 def _registered_planners() -> Mapping[str, str]:
-    return MappingProxyType({k: v for k, v in _PLANNER_CLASSES.items() if hasattr(og, v)})
+    return MappingProxyType({k: v for k, v in MOTION_PLANNER_CLASSES.items() if hasattr(og, v)})
 
 
 PLANNERS: Mapping[str, str] = _registered_planners()

@@ -36,6 +36,27 @@ EXECUTION_CONTACT_MODELS = ("link", "mean")
 #: was 2 s); a detour around the object needs a few hundred to a few thousand.
 MOTION_CHECKS = 20_000
 
+#: The motion planners (``--motion-planner``): name -> OMPL geometric planner class
+#: (`planner.motion` uses those installed; a name is checked by `PlanOptions`, with or
+#: without motion, as the plan records it). Asymptotically optimal planners stop at their
+#: first solution (cost threshold +inf): the path is then shortened by PathSimplifier.
+#: Every planner here is reproducible from the seed and stops on the work bound (collision
+#: checks, `MOTION_CHECKS`). PRM and PRM* are left out: they grow their roadmap in a second
+#: thread (paths not reproducible, and the work bound, evaluated from both threads,
+#: deadlocks); so are FMT and BFMT: they stop after a fixed number of samples whatever the budget.
+MOTION_PLANNER_CLASSES = {
+    "rrtconnect": "RRTConnect",
+    "rrt": "RRT",
+    "rrtstar": "RRTstar",
+    "informedrrtstar": "InformedRRTstar",
+    "sorrtstar": "SORRTstar",
+    "kpiece": "KPIECE1",
+    "bkpiece": "BKPIECE1",
+    "lbkpiece": "LBKPIECE1",
+    "bitstar": "BITstar",
+    "aorrtc": "AORRTC",
+}
+
 #: Ranges of the numeric planner options, checked by `PlanOptions` and, under their
 #: command-line names (`PLAN_OPTION_FLAGS`), by the CLI (``planner.cli``): each bounds a loop
 #: or a size (alternatives: ranked sequences; intermediate: contacts per finger, the graph
@@ -224,6 +245,8 @@ class PlanOptions:
             raise UnknownNameError("strategy", self.strategy, STRATEGIES)
         if self.contact_model not in CONTACT_MODELS:
             raise UnknownNameError("contact model", self.contact_model, CONTACT_MODELS)
+        if self.motion_planner not in MOTION_PLANNER_CLASSES:  # also without motion: the plan records it
+            raise UnknownNameError("motion planner", str(self.motion_planner), sorted(MOTION_PLANNER_CLASSES))
         for name, (low, high, open_low) in PLAN_OPTION_LIMITS.items():
             value = getattr(self, name)
             optional = value is None and name in ("max_lifted", "gravity", "max_finger_force_n", "workers", "time_limit_s")
