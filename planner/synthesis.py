@@ -54,7 +54,7 @@ from planner.errors import OutputError, PlannerError, SpecError, UnknownNameErro
 from planner.fileio import MAX_GRASP_BYTES, Reader, read_yaml, write_atomic
 from planner.grasp import load_hand, parse_friction, parse_grasp, resolve_hand_ref
 from planner.grip import HOLD_FACTOR, grasp_statics, grip_program, hold_capacity, holds_by_bound
-from planner.model import PALM, Friction
+from planner.model import GAMMA_MAX_M, MU_MAX, PALM, Friction
 from planner.objects import GraspObject, read_object
 from planner.realization import PENETRATION_TOL_M, execution_refusal, realize
 from planner.synth_sample import (PALM_CLEARANCE_M, Rejection, cannot_back_off, closes_onto, inner_radius,
@@ -637,6 +637,11 @@ def run_synth(hand: str, object_path, fingers: str, n: int, out_dir, *, gravity=
         raise PlannerError(f"synth: --max-attempts must be in 1..{MAX_ATTEMPTS}, got {max_attempts}")
     if not 1 <= workers <= MAX_WORKERS:
         raise PlannerError(f"synth: --workers must be in 1..{MAX_WORKERS}, got {workers}")
+    # as a grasp file's friction (`planner.grasp.parse_friction`): every written file passes check
+    if mu is not None and not (math.isfinite(mu) and 0 < mu <= MU_MAX):
+        raise PlannerError(f"synth: --mu must be in (0, {MU_MAX:g}] (friction coefficient), got {mu:g}")
+    if gamma is not None and not (math.isfinite(gamma) and 0 <= gamma <= GAMMA_MAX_M):
+        raise PlannerError(f"synth: --gamma must be in [0, {GAMMA_MAX_M:g}] m (torsional friction), got {gamma:g}")
     _check_out_dir(out_dir)
     try:
         hand_ref = resolve_hand_ref(hand, Path.cwd())
