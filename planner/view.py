@@ -39,7 +39,7 @@ from planner.frames import hand_of_plan, object_of_plan, plain_plan, pose_matrix
 from planner.grasp import grasp_files, load_grasp
 from planner.objects import load_mesh
 from planner.plan import plan_files, read_plan
-from planner.plan_data import pose_between, pose_matrix as plan_pose_matrix
+from planner.plan_data import PLAN_KIND, pose_between, pose_matrix as plan_pose_matrix
 from planner.realization import realize
 from planner.urdf_check import library_message
 from planner.view_page import PAGE
@@ -305,6 +305,9 @@ def _load_report(path, n_states: int) -> list[dict]:
     data = load_json(read_limited(path, MAX_PLAN_BYTES, "replay report"), path)
     if not isinstance(data, dict):
         raise SpecError(str(path), "", "expected a replay report (regrasp replay --report)")
+    if data.get("kind") == PLAN_KIND:  # a plan's states pass for a report's below: say what it is
+        raise SpecError(str(path), "kind", "is a plan file, not a replay report (regrasp replay PLAN --report FILE "
+                                           "writes one)")
     if isinstance(data.get("engines"), list):  # replay --engine both: each engine's run(s), named by engine
         runs = []
         for e in data["engines"]:
@@ -324,6 +327,10 @@ def _load_report(path, n_states: int) -> list[dict]:
     for name, rep in runs:
         if not isinstance(rep, dict) or not isinstance(rep.get("states"), list):
             raise SpecError(str(path), f"{name}.states", "missing key")
+        if not all(isinstance(st, dict) and "reached" in st for st in rep["states"]):
+            raise SpecError(str(path), f"{name}.states", "expected the simulator's states (index, reached, "
+                                                         "sim_fingers, ...): not a replay report (regrasp replay "
+                                                         "--report)")
         if len(rep["states"]) != n_states:
             raise SpecError(str(path), "states", f"the report has {len(rep['states'])} states, the plan {n_states}: "
                                                  "not a replay of this plan")
