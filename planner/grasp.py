@@ -52,6 +52,7 @@ from planner.fileio import Reader, check_grasp_file, describe, sha256_file
 from planner.hand import Hand
 from planner.model import EDGES_MAX, GAMMA_MAX_M, MU_MAX, Friction
 from planner.objects import GraspObject, read_object
+from planner.plan_data import PLAN_KIND
 
 SCHEMA_VERSION = 1
 #: A contact point may lie this far from the object surface (it is projected onto it).
@@ -183,6 +184,9 @@ def parse_grasp(data: Mapping, path) -> GraspSpec:
     relative paths (hand, mesh). See `load_grasp`."""
     path = Path(path)
     r = Reader(path, data).mapping("a YAML mapping at the top level", string_keys=True)
+    if data.get("kind") == PLAN_KIND:  # say what it is, not that its first key is unknown
+        raise r.fail("is a plan file (kind: regrasp-plan), not a grasp file: give the grasps it was planned "
+                     "between (its inputs), or regrasp verify / replay / view the plan", "kind")
     r.keys(_TOP_KEYS, required=("schema_version", "hand", "object", "friction", "fingers"))
 
     version = data["schema_version"]

@@ -187,6 +187,9 @@ def plan_from_data(data: Any, source: str | os.PathLike | None = None) -> Plan:
     """
     src = str(source) if source is not None else "<plan>"
     r = Reader(src, data, got=shown, got_value=shown, ranged=True).mapping()
+    if "fingers" in data and "states" not in data and "kind" not in data:  # say what it is
+        raise r.fail("is a grasp file (it has fingers:), not a plan: regrasp plan INITIAL FINAL -o PLAN writes a "
+                     "plan (regrasp check or view takes a grasp file)", "states")
     r.require(*REQUIRED_KEYS, message="missing key")
     version = data["schema_version"]
     if isinstance(version, bool) or version not in READABLE_VERSIONS:
