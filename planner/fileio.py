@@ -390,7 +390,8 @@ class Reader:
             x = float(v) if not isinstance(v, int) or abs(v) < 2**63 else math.inf
             if not (math.isfinite(x) and low <= x <= high and not (positive and not x > 0)
                     and not (nonnegative and x < 0)):
-                raise bad(f"expected a finite number in [{low:g}, {high:g}], got {self.got_value(v)}")
+                bounds = f" in [{low:g}, {high:g}]" if math.isfinite(low) or math.isfinite(high) else ""
+                raise bad(f"expected a finite number{bounds}, got {self.got_value(v)}")
             return x
         x = float(v)
         if not math.isfinite(x):
