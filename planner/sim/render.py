@@ -14,6 +14,7 @@ from PIL import Image, ImageDraw, ImageFont
 from scipy.spatial.transform import Rotation
 
 from planner.errors import SimulationError
+from planner.fileio import write_atomic
 from planner.sim.engine import engine_installed
 
 if not engine_installed("pybullet"):  # every picture goes through this module: one line, no traceback
@@ -330,10 +331,10 @@ def render_png(
                        yaw_deg=yaw_deg, pitch_deg=pitch_deg, markers=markers, caption=caption,
                        moving_finger=moving_finger)
     path = Path(path)
-    if path.parent and not path.parent.exists():
-        path.parent.mkdir(parents=True, exist_ok=True)
-    Image.fromarray(img).save(path)
-    return path
+    # the one atomic writer (an interrupted or failed save leaves the old file or none);
+    # the format from the name, as Image.save(path) chose it
+    fmt = Image.registered_extensions().get(path.suffix.lower(), "PNG")
+    return write_atomic(path, write=lambda tmp: Image.fromarray(img).save(tmp, format=fmt))
 
 
 class HandScene:
