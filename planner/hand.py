@@ -320,8 +320,13 @@ class Hand:
             raise r.fail(f"unsupported version {spec['schema_version']!r}; supported: {SCHEMA_VERSION}", "schema_version")
         self.name = r.child("name").name(MAX_NAME_CHARS) if "name" in spec else self.spec_path.parent.name
         # the hand.yaml's package_dirs, then ROS_PACKAGE_PATH, then the installed wheels' share
-        self.package_dirs = package_search_dirs([str((self.spec_path.parent / d).resolve())
-                                                 for d in r.child("package_dirs", []).strings()], installed=True)
+        dirs = []
+        for k, d in enumerate(r.child("package_dirs", []).strings()):
+            try:
+                dirs.append(str((self.spec_path.parent / d).resolve()))
+            except (RuntimeError, OSError) as err:  # a symlink loop (Python < 3.13 raises RuntimeError)
+                raise r.fail(f"cannot resolve {d!r}: {err}", f"package_dirs[{k}]") from None
+        self.package_dirs = package_search_dirs(dirs, installed=True)
         self.urdf_path = self._resolve_urdf(r.child("urdf").string())
         # a relative mesh path is relative to the URDF's folder (as pybullet reads it);
         # pinocchio looks for it in package_dirs. `mesh_dirs` is the one list every library

@@ -214,6 +214,10 @@ def init_hand(urdf, package_dirs=(), root: str | None = None, cut_path=None) -> 
 
     urdf = Path(urdf)
     source = urdf
+    for d in package_dirs:  # a typo was ignored (the hand.yaml then named a folder that is not there)
+        if not Path(d).is_dir():
+            raise SpecError(str(d), "", "--package-dir: not a folder (a folder holding the ROS packages of "
+                                        "package:// mesh paths)")
     rep = HandReport()
     dirs = [*map(str, package_dirs), *_share_dirs()]
     # our checks before pinocchio's: it hangs on a FIFO, pybullet crashes on a link with two parents

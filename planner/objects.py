@@ -756,7 +756,10 @@ def check_object_block(r: Reader, base_dir=None) -> dict:
             raise o.fail("shape mesh needs a mesh file path (.obj or .stl, relative to this file)", "mesh")
         mesh = o.child("mesh").name(4096)
         if base_dir is not None:
-            mp = Path(mesh) if Path(mesh).is_absolute() else (Path(base_dir) / mesh).resolve()
+            try:
+                mp = Path(mesh) if Path(mesh).is_absolute() else (Path(base_dir) / mesh).resolve()
+            except (RuntimeError, OSError) as err:  # a symlink loop (Python < 3.13 raises RuntimeError)
+                raise o.fail(f"cannot resolve the mesh path {mesh!r}: {err}", "mesh") from None
             try:
                 check_mesh_file(mp)
             except MeshFileError as err:

@@ -599,6 +599,10 @@ def _check_out_dir(out_dir) -> None:
     """``-o DIR`` before any work: a folder, or a new one in an existing folder; never a
     regular file or under one."""
     d = Path(out_dir)
+    try:
+        d.resolve()
+    except (RuntimeError, OSError) as err:  # a symlink loop (Python < 3.13 raises RuntimeError)
+        raise PlannerError(f"synth: -o {d}: cannot be resolved: {err}") from None
     if d.exists() and not d.is_dir():
         raise PlannerError(f"synth: -o {d}: exists and is not a folder")
     parent = d.parent if not d.exists() else d
