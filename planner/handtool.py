@@ -709,6 +709,9 @@ def check_hand(ref) -> HandReport:
     n = np.asarray(hand.palm_normal, float)
     q_open = np.asarray(hand.q_open, float)
     for name, fg in hand.fingers.items():
+        if not fg.contact_links:  # as hand init says: such a finger never touches the object
+            rep.add("error", f"fingers.{name}", "no link of the finger has collision geometry: it cannot touch; give "
+                                                "its links <collision> shapes in the URDF")
         if fg.pad_n_link is None:
             rep.add("warning", f"fingers.{name}.pad", "no normal: IK places the tip without orienting the pad; "
                                                       "give pad: {link, point, normal}")
