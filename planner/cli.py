@@ -40,7 +40,14 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise PlannerError(f"--out {out}: exists and is not a directory; name a directory for the demo's outputs")
-    out.mkdir(parents=True, exist_ok=True)
+    if out.is_symlink() and not out.exists():
+        raise PlannerError(f"--out {out}: a symbolic link to nothing (broken, or a loop); name a directory")
+    if not out.exists() and not out.absolute().parent.is_dir():  # a typo is not a new folder (as every -o)
+        raise PlannerError(f"--out {out}: folder {out.absolute().parent} does not exist; create it first")
+    try:
+        out.mkdir(exist_ok=True)
+    except OSError as err:  # a symlink loop, a read-only folder
+        raise PlannerError(f"--out {out}: cannot create the folder: {err.strerror or err}") from None
     plan_path = out / "cylinder_plan.yaml"
     # execution mode: one mean contact per finger (the simulator's rigid fingertips), every
     # state holds the weight in six hand orientations with 3/4 of the friction, least grip
