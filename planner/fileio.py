@@ -92,11 +92,16 @@ class _BoundedLoader(yaml.SafeLoader):
         node = super().compose_document()
         if node is not None and self._aliases:  # without aliases the size is the file's
             sizes: dict[int, int] = {}
+            open_nodes: set[int] = set()  # the nodes being expanded: the path from the root
 
             def expanded(n) -> int:
                 k = id(n)
+                if k in open_nodes:  # every reader walks the values: it would never end (or fail deep inside)
+                    raise yaml.YAMLError(f"an alias refers to a value that contains it: a recursive structure "
+                                         f"({_where(n)})")
                 if k not in sizes:
-                    sizes[k] = 1  # (a node inside itself counts once: recursion is refused later)
+                    open_nodes.add(k)
+                    sizes[k] = 1
                     if isinstance(n, yaml.SequenceNode):
                         sizes[k] = 1 + sum(expanded(c) for c in n.value)
                     elif isinstance(n, yaml.MappingNode):
@@ -104,6 +109,7 @@ class _BoundedLoader(yaml.SafeLoader):
                     if sizes[k] > self._max_nodes:
                         raise yaml.YAMLError(f"its aliases expand to more than {self._max_nodes} values, "
                                              f"{MAX_YAML_NODES_PER_CHAR} per character of the file ({_where(n)})")
+                    open_nodes.discard(k)
                 return sizes[k]
 
             expanded(node)
