@@ -71,7 +71,7 @@ def read_plan(path: str | os.PathLike, *, strict: bool = False) -> Plan:
     path = Path(path)
     fmt = plan_format(path)
     text = read_limited(path, MAX_PLAN_BYTES, "plan")
-    data = load_json(text, path) if fmt == "json" else load_yaml(text, path, "plan")
+    data = load_json(text, path) if fmt == "json" else _json_like(load_yaml(text, path, "plan"), str(path))
     plan = plan_from_data(data, path)
     version = data["schema_version"]
     if version >= 2:
@@ -84,6 +84,28 @@ def read_plan(path: str | os.PathLike, *, strict: bool = False) -> Plan:
         _check_digest(data, str(path))
     _check_inputs(plan, str(path), strict)
     return plan
+
+
+def _json_like(data, src: str):
+    """A YAML plan holds what its JSON form can (its digest is that JSON's): strings,
+    numbers, true/false, null, lists and mappings keyed by strings. A date, binary, set or a
+    non-string key (``7:``, ``null:``) in a part no other check reads (summary, parameters)
+    reached the digest as a TypeError."""
+    stack = [(data, "")]
+    while stack:
+        value, key = stack.pop()
+        if isinstance(value, dict):
+            for k, v in value.items():
+                if not isinstance(k, str):
+                    got = "null" if k is None else f"{type(k).__name__} {repr_short(k, 40)}"
+                    raise SpecError(src, key, f"keys must be strings (the plan's JSON form), got {got}")
+                stack.append((v, f"{key}.{k}" if key else k))
+        elif isinstance(value, list):
+            stack.extend((v, f"{key}[{i}]") for i, v in enumerate(value))
+        elif not (value is None or isinstance(value, (bool, int, float, str))):
+            raise SpecError(src, key, f"expected a string, number, true/false or null (the plan's JSON form), "
+                                      f"got {type(value).__name__}")
+    return data
 
 
 def _check_counts(data: Mapping, src: str) -> None:
