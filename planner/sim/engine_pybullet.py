@@ -33,6 +33,8 @@ Settings (from the `planner.sim.engine.World`):
 
 from __future__ import annotations
 
+import os
+import sys
 from collections.abc import Mapping, Sequence
 
 import numpy as np
@@ -53,6 +55,12 @@ GEAR_ERP = 1.0
 GEAR_MAX_TORQUE = 1000.0
 
 
+def no_display() -> bool:
+    """No display for a window: on Linux (X11 or Wayland) neither variable is set (macOS and
+    Windows have one whenever a user is logged in)."""
+    return sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
 class PybulletEngine:
     """A `World` in a pybullet client (`planner.sim.engine.PhysicsEngine`).
 
@@ -71,6 +79,9 @@ class PybulletEngine:
     def __init__(self, world: World, client: int | None = None, gui: bool = False):
         self.own = client is None
         if self.own:
+            if gui and no_display():  # pybullet's window would end the process from C (exit 1, nothing said)
+                raise SimulationError("--gui needs a display, and DISPLAY (or WAYLAND_DISPLAY) is not set: replay "
+                                      "without --gui, or film it with --gif FILE")
             cid = p.connect(p.GUI if gui else p.DIRECT)
             if cid < 0:
                 raise SimulationError("could not connect to pybullet" + (" GUI (is there a display?)" if gui else ""))
