@@ -318,7 +318,13 @@ class Hand:
                     raise units.fail(f"the planner reads lengths in m and angles in rad, got {repr_short(v)}", k)
         if spec["schema_version"] != SCHEMA_VERSION:
             raise r.fail(f"unsupported version {spec['schema_version']!r}; supported: {SCHEMA_VERSION}", "schema_version")
-        self.name = r.child("name").name(MAX_NAME_CHARS) if "name" in spec else self.spec_path.parent.name
+        if "name" in spec:
+            self.name = r.child("name").name(MAX_NAME_CHARS)
+            if "/" in self.name or "\\" in self.name or self.name in (".", ".."):  # it names synth's output files
+                raise r.fail(f"expected a name without / or \\ (synth names its files <hand>_<shape>_01.yaml), got "
+                             f"{repr_short(self.name)}", "name")
+        else:  # the folder's (absolute: '../hand.yaml' is in a folder with a name, not '..')
+            self.name = Path(os.path.abspath(self.spec_path)).parent.name
         # the hand.yaml's package_dirs, then ROS_PACKAGE_PATH, then the installed wheels' share
         dirs = []
         for k, d in enumerate(r.child("package_dirs", []).strings()):

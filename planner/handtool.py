@@ -305,7 +305,9 @@ def init_hand(urdf, package_dirs=(), root: str | None = None, cut_path=None) -> 
         tip = body_of.get(leaf, model.frames[-1].name)
         fingers[name] = {"joints": [model.names[j] for j in chain], "tip_frame": tip}
     name = source.stem if source.stem != "model" else source.parent.name
-    spec = {"schema_version": 1, "name": name if root_link is None else f"{name}_{root_link}"[:MAX_NAME_CHARS],
+    name = name if root_link is None else f"{name}_{root_link}"[:MAX_NAME_CHARS]
+    name = name.replace("/", "_").replace("\\", "_")  # a link name may hold one; the name names files
+    spec = {"schema_version": 1, "name": name,
             "urdf": str(urdf), "palm_frame": root, "fingers": fingers}
     if package_dirs:
         spec["package_dirs"] = [str(d) for d in package_dirs]
