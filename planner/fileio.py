@@ -215,6 +215,23 @@ def repr_short(value, limit: int = 80) -> str:
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
+def number_text_hint(value) -> str:
+    """For a message: a text that reads as a number ('1e-9': YAML 1.1 reads an exponent
+    without a dot as text) says how to write it; else nothing."""
+    if isinstance(value, str) and len(value) < 40:
+        text = value.strip()
+        try:
+            x = float(text)
+        except ValueError:
+            return ""
+        mantissa, e, exponent = text.lower().partition("e")
+        if math.isfinite(x) and e and "." not in mantissa:  # YAML 1.1's float: a dot, a signed exponent
+            return f" (YAML reads {text} as text: write {mantissa}.0e{'' if exponent[:1] in '+-' else '+'}{exponent})"
+        if math.isfinite(x):
+            return " (a number in quotes is text: write it without quotes)"
+    return ""
+
+
 def describe(value) -> str:
     """A value for a message, with its type: ``nothing (null)``, ``str 'high'``, at most 40
     characters of its repr (the grasp file's messages)."""
@@ -391,7 +408,7 @@ class Reader:
             return self.fail(f"expected {expected}, got {self.got_value(v)}" if expected else message)
 
         if (isinstance(v, bool) and not bools) or not isinstance(v, (int, float)):
-            raise bad(f"expected a number, got {self.got(v)}")
+            raise bad(f"expected a number, got {self.got(v)}{number_text_hint(v)}")
         if self.ranged:
             x = float(v) if not isinstance(v, int) or abs(v) < 2**63 else math.inf
             if not (math.isfinite(x) and low <= x <= high and not (positive and not x > 0)
@@ -417,7 +434,7 @@ class Reader:
         v = self.value
         valid = f"{'(' if open_low else '['}{low:g}, {high:g}]{' ' + unit if unit else ''}"
         if isinstance(v, bool) or not isinstance(v, (int, float)):
-            raise self.fail(f"expected a number in {valid}, got {self.got(v)}")
+            raise self.fail(f"expected a number in {valid}, got {self.got(v)}{number_text_hint(v)}")
         x = float(v) if not isinstance(v, int) or abs(v) < 2**63 else math.copysign(math.inf, v)
         if not math.isfinite(x):
             raise self.fail(f"expected a finite number in {valid}, got {self.got_value(v)}")
