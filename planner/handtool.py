@@ -635,10 +635,12 @@ def _check_couplings(hand, rep: HandReport) -> None:
     for c in hand.couplings:
         d = ix(c.follows)
         if hand.upper[d] - hand.lower[d] <= 1e-9:  # as a URDF joint whose limits are equal: it cannot move
-            rep.add("error", f"joint {c.follows}", f"range [{hand.lower[d] + 0.0:.4g}, {hand.upper[d] + 0.0:.4g}]: {c.joint} = "
-                    f"{c.multiplier:g} {c.follows} {'+' if c.offset >= 0 else '-'} {abs(c.offset):g} ({c.source}) "
-                    f"is within its own limits [{hand.urdf_lower[ix(c.joint)]:.4g}, {hand.urdf_upper[ix(c.joint)]:.4g}] "
-                    f"at one angle of {c.follows} only: check the coupling's multiplier and offset")
+            f = ix(c.joint)
+            rep.add("error", f"joint {c.follows}",
+                    f"range [{hand.lower[d] + 0.0:.4g}, {hand.upper[d] + 0.0:.4g}]: {c.joint} = {c.multiplier:g} "
+                    f"{c.follows} {'+' if c.offset >= 0 else '-'} {abs(c.offset):g} ({c.source}) is within its own "
+                    f"limits [{hand.urdf_lower[f]:.4g}, {hand.urdf_upper[f]:.4g}] at one angle of {c.follows} only: "
+                    "check the coupling's multiplier and offset")
         elif hand.lower[d] > hand.urdf_lower[d] + 1e-12 or hand.upper[d] < hand.urdf_upper[d] - 1e-12:
             rep.add("ok", f"joint {c.follows}", f"range [{hand.lower[d]:.4g}, {hand.upper[d]:.4g}] (URDF "
                     f"[{hand.urdf_lower[d]:.4g}, {hand.urdf_upper[d]:.4g}]): where {c.joint} stays within its limits")

@@ -171,7 +171,8 @@ def load_mesh(path, scale=(1.0, 1.0, 1.0)) -> tuple[np.ndarray, np.ndarray]:
     V = V * np.asarray(scale, dtype=float)
     reach, extent = float(np.abs(V[used]).max()), float(np.ptp(V[used], axis=0).max())
     if not (reach <= MAX_SIZE_M and extent >= MIN_SIZE_M):
-        raise MeshFileError(f"mesh {path} scaled by [{', '.join(f'{float(x):g}' for x in np.ravel(scale))}] spans {extent:.3g} m and reaches "
+        shown_scale = ", ".join(f"{float(x):g}" for x in np.ravel(scale))
+        raise MeshFileError(f"mesh {path} scaled by [{shown_scale}] spans {extent:.3g} m and reaches "
                             f"{reach:.3g} m from its origin; an object spans at least {MIN_SIZE_M:g} m and lies "
                             f"within {MAX_SIZE_M:g} m of its origin (object.size scales it)")
     return V, F
