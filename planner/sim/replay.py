@@ -26,7 +26,9 @@ Sequence (thesis section VII / IX):
      (``action: repose``, plan schema 4) lifts nothing: every touching finger keeps holding
      while all their joints follow ``step.path`` together (offset by the grip each is
      latched at), and the force balance, solved at the simulator's contacts, follows the
-     object; at its end they latch where they touch;
+     object, the palm carrying none of it while the object moves relative to it (its share
+     handed over to the fingers before, and back after the object rests on it); at its end
+     they latch where they touch;
   4. drift is measured from the PLANNED pose: the current state's (`planner.plan_data
      .PlanState.object_pose`, else the plan's ``object`` pose), and during a reposing step
      the pose along its ``object_path`` at the fraction of the waypoint the joints are at;
