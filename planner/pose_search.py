@@ -136,8 +136,10 @@ def through_poses(initial, final) -> list[tuple[str, np.ndarray | None]]:
 def palm_frees(grasp, on_palm, options: PlanOptions) -> bool:
     """Whether ``on_palm`` (``grasp`` taken to rest on the palm) lets a finger lift that cannot
     lift in ``grasp``: the others and the palm hold the object without it (the search's state
-    test) where, at ``grasp``'s own pose, the others alone do not. Without such a finger the
-    gaits on the palm can do nothing the gaits at the grasp's pose cannot."""
+    test) where, at ``grasp``'s own pose, the others alone do not. `plan_with_reposing` asks
+    it of the final grasp before it computes intermediate grasps to carry onto the palm: a
+    bound on the work, not a proof (the gaits on the palm start from the intermediate grasp,
+    whose fingers are not asked: a pair where only those are freed by the palm is not tried)."""
     for f in grasp.patches:
         if f == PALM or f not in on_palm.patches:
             continue

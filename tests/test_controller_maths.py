@@ -228,7 +228,7 @@ def test_the_palm_hands_its_load_over_to_the_fingers_for_a_reposing_move(setup):
     g = 9.81 * n  # pressing the object onto the palm
     ctl.set_gravity(g)
     totals = {}
-    for share in (1.0, 0.5, 0.0):
+    for share in (1.0, 0.25, 0.0):
         ctl.fade_palm(share)
         ctl.command(dict(zip(rd.joints, st.q)), st.touching)
         assert ctl.balanced
@@ -236,4 +236,4 @@ def test_the_palm_hands_its_load_over_to_the_fingers_for_a_reposing_move(setup):
         totals[share] = sum(ctl.forces.values())
     np.testing.assert_allclose(totals[0.0] + m * g, 0.0, atol=1e-6)  # the fingers alone hold the weight
     assert float(np.linalg.norm(totals[1.0] + m * g)) > 0.1 * m * 9.81  # the palm carries part of it
-    np.testing.assert_allclose(totals[0.5], 0.5 * (totals[1.0] + totals[0.0]), atol=1e-9)
+    np.testing.assert_allclose(totals[0.25], 0.25 * totals[1.0] + 0.75 * totals[0.0], atol=1e-9)

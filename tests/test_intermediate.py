@@ -259,6 +259,50 @@ def test_the_same_intermediate_grasps_with_one_process_or_two(pair):
         assert np.array_equal(x.grasp.q, y.grasp.q)
 
 
+def _through_the_palm(monkeypatch):
+    """exp10 v2's Allegro sphere pair (small offset), only the route through the palm searched:
+    (initial, final, the palm's pose, plan_with_reposing's arguments after the options)."""
+    from planner import pose_search
+    from planner.regrasp import _straight_gait, plan_gaits
+
+    v2 = PAIRS.parent / "exp10_pairs_v2"
+    a, b = (realize(load_grasp(v2 / f"allegro_right_sphere_small_{k}.yaml")) for k in ("initial", "final"))
+    monkeypatch.setattr(pose_search, "candidate_poses", lambda x, y: [])  # only the route through the palm
+    poses = pose_search.through_poses(a, b)
+    assert [name.split(" (")[0] for name, _ in poses] == ["the final grasp's pose", "resting on the palm"]
+    monkeypatch.setattr(pose_search, "through_poses", lambda x, y: poses[1:])
+    gaits = lambda x, y, o, r=None, **kw: plan_gaits(x, y, o, {}, False, r, **kw)  # noqa: E731
+    return a, b, poses[1], ({}, False, gaits, _straight_gait)
+
+
+def test_the_gaits_on_the_palm_are_verified_inside_the_whole_plan_back_to_the_final_grasp(monkeypatch):
+    """Verifying, the gaits on the palm are replayed inside the whole plan, the final grasp's leg
+    back from the palm included (a stand-in simulator that passes everything): the plan replayed
+    is the one returned, and it ends at the final grasp (pose and joints), not on the palm."""
+    import planner.sim.verify as verify
+    from planner import pose_search
+    from planner.plan_data import pose_matrix
+
+    replayed = []
+
+    def stand_in(plan, hand, directions, workers=None, meanwhile=None, **_):
+        if meanwhile is not None:
+            meanwhile()
+        replayed.append(plan)
+        return verify.Verification(True, tuple((n, True, "PASS", None, False, 0.1, 0.1) for n, _ in directions), 0.0)
+
+    monkeypatch.setattr(verify, "verify_plan", stand_in)
+    a, b, (at_b, _), args = _through_the_palm(monkeypatch)
+    plan, _, name = pose_search.plan_with_reposing(a, b, PlanOptions.for_execution(motion=False), *args)
+    assert name.endswith(at_b) and plan.summary["verification"]["passed"]
+    last = [p for p in replayed if p.steps == plan.steps]
+    assert last  # the plan returned was replayed as it is
+    end = plan.states[-1]
+    assert np.allclose(pose_matrix(end.object_pose), b.obj.T_palm_obj, atol=1e-9)
+    assert np.allclose(np.asarray(end.q), [b.q[list(b.hand.joint_names).index(j)] for j in plan.joints], atol=1e-9)
+    assert sum(s.action == "repose" for s in plan.steps) == 2
+
+
 def test_an_intermediate_grasp_carried_onto_the_palm_lets_the_thumb_move_there(monkeypatch):
     """exp10 v2's Allegro sphere pair (small offset): in neither grasp can the thumb lift at its
     own pose (index and middle alone are no force closure). Through the palm: an intermediate
@@ -270,20 +314,12 @@ def test_an_intermediate_grasp_carried_onto_the_palm_lets_the_thumb_move_there(m
     from planner import pose_search
     from planner.audit import audit_plan
     from planner.plan_data import OBJECT, pose_matrix
-    from planner.regrasp import _straight_gait, plan_gaits
     from planner.repose import settle_pose
     from planner.synth_sample import PALM_TOUCH_GAP_M
 
-    v2 = PAIRS.parent / "exp10_pairs_v2"
-    a, b = (realize(load_grasp(v2 / f"allegro_right_sphere_small_{k}.yaml")) for k in ("initial", "final"))
-    options = replace(OPTS, motion=False)
-    monkeypatch.setattr(pose_search, "candidate_poses", lambda x, y: [])  # only the route through the palm
-    poses = pose_search.through_poses(a, b)
-    assert [name.split(" (")[0] for name, _ in poses] == ["the final grasp's pose", "resting on the palm"]
-    monkeypatch.setattr(pose_search, "through_poses", lambda x, y: poses[1:])
-    plan, _, name = pose_search.plan_with_reposing(
-        a, b, options, {}, False, lambda x, y, o, r=None, **kw: plan_gaits(x, y, o, {}, False, r, **kw), _straight_gait)
-    assert name.startswith("through an intermediate grasp") and name.endswith(poses[1][0])
+    a, b, (at_b, _), args = _through_the_palm(monkeypatch)
+    plan, _, name = pose_search.plan_with_reposing(a, b, replace(OPTS, motion=False), *args)
+    assert name.startswith("through an intermediate grasp") and name.endswith(at_b)
     assert audit_plan(plan, a.hand).ok
     P = settle_pose(b, PALM_TOUCH_GAP_M)[0]
 

@@ -565,7 +565,7 @@ class Controller:
             alone = solve(set(self.holding), palm=False)
             if alone is not None and full is not None:
                 full = [self.palm_share * a + (1.0 - self.palm_share) * b for a, b in zip(full, alone)]
-            elif alone is not None and self.palm_share == 0.0:
+            elif alone is not None:  # (no balance with the palm's contacts: the fingers' alone)
                 full = alone
         self.balanced = full is not None
         if full is None:  # no balanced forces at these contacts: plain squeeze along the normals
