@@ -546,8 +546,11 @@ def output_names(out_dir, hand_name: str, shape: str, n: int) -> list[Path]:
 
 
 def write_grasps(result: SynthResult, out_dir, hand_name: str, *, seed: int, fingers, inputs=()) -> list[Path]:
-    """Write the ranked grasps; refuse (PlannerError) to overwrite any existing file or an input."""
+    """Write the ranked grasps; refuse (PlannerError) to overwrite any existing file or an input.
+    No grasp: nothing written, no folder made."""
     grasps = result.grasps
+    if not grasps:
+        return []
     shape = grasps[0].data["object"]["shape"] if grasps else "object"
     paths = output_names(out_dir, hand_name, shape, len(grasps))
     _refuse_overwrite(paths, inputs)

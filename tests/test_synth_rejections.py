@@ -19,3 +19,14 @@ def test_a_rejection_naming_a_free_finger_is_counted_without_it(tmp_path, capsys
     assert "3/3 grasps" in text and len(list(out.glob("*.yaml"))) == 3
     table = text[text.index("finger  dropped"):] if "finger  dropped" in text else ""
     assert "middle" not in table
+
+
+def test_no_grasp_found_writes_nothing_and_makes_no_folder(tmp_path):
+    """synth that finds no grasp leaves nothing behind: not even the -o folder it was given."""
+    from types import SimpleNamespace
+
+    from planner.synthesis import write_grasps
+
+    out = tmp_path / "new" / "grasps"
+    assert write_grasps(SimpleNamespace(grasps=[]), out, "icub_right", seed=0, fingers=["thumb", "index"]) == []
+    assert not out.exists() and not out.parent.exists()
