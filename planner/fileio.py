@@ -25,6 +25,7 @@ path (``fingers.index.contact.point``, ``states[3].q``) and what was expected.
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import json
 import math
@@ -58,6 +59,23 @@ MAX_INT_DIGITS = 30
 MAX_YAML_NODES_PER_CHAR = 2
 MIN_YAML_EXPANDED_NODES = 10_000
 
+
+
+def resolve_path(path) -> Path:
+    """``path`` with its symlinks followed (`pathlib.Path.resolve`, not strict); OSError (ELOOP)
+    when they loop, on every Python: before 3.13 ``resolve`` raised RuntimeError on a loop, since
+    it returns a path that still loops."""
+    p = Path(path)
+    try:
+        out = p.resolve()
+    except RuntimeError as err:
+        raise OSError(errno.ELOOP, str(err)) from None
+    try:
+        os.stat(out)
+    except OSError as err:
+        if err.errno == errno.ELOOP:
+            raise OSError(errno.ELOOP, f"Symlink loop from {str(p)!r}") from None
+    return out
 
 def _where(node_or_mark) -> str:
     mark = getattr(node_or_mark, "start_mark", node_or_mark)

@@ -47,7 +47,7 @@ import pinocchio as pin
 
 from planner.collision import CollisionModel, Geometry, HandState
 from planner.errors import SpecError, UnknownNameError
-from planner.fileio import MAX_GRASP_BYTES, Reader, read_yaml, repr_short
+from planner.fileio import MAX_GRASP_BYTES, Reader, read_yaml, repr_short, resolve_path
 from planner.ik import IK_TOL_M, IKResult, close_finger, ik_solve
 from planner.kinematics import Kinematics, checked_q
 from planner.model import PALM
@@ -329,8 +329,8 @@ class Hand:
         dirs = []
         for k, d in enumerate(r.child("package_dirs", []).strings()):
             try:
-                dirs.append(str((self.spec_path.parent / d).resolve()))
-            except (RuntimeError, OSError) as err:  # a symlink loop (Python < 3.13 raises RuntimeError)
+                dirs.append(str(resolve_path(self.spec_path.parent / d)))
+            except OSError as err:  # a symlink loop
                 raise r.fail(f"cannot resolve {d!r}: {err}", f"package_dirs[{k}]") from None
         self.package_dirs = package_search_dirs(dirs, installed=True)
         self.urdf_path = self._resolve_urdf(r.child("urdf").string())

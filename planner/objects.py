@@ -20,7 +20,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from planner.errors import InputError, UnknownNameError
-from planner.fileio import Reader
+from planner.fileio import Reader, resolve_path
 
 if TYPE_CHECKING:  # coal is imported where geometry is built: the shape table needs no coal
     import coal
@@ -758,8 +758,8 @@ def check_object_block(r: Reader, base_dir=None) -> dict:
         mesh = o.child("mesh").name(4096)
         if base_dir is not None:
             try:
-                mp = Path(mesh) if Path(mesh).is_absolute() else (Path(base_dir) / mesh).resolve()
-            except (RuntimeError, OSError) as err:  # a symlink loop (Python < 3.13 raises RuntimeError)
+                mp = Path(mesh) if Path(mesh).is_absolute() else resolve_path(Path(base_dir) / mesh)
+            except OSError as err:  # a symlink loop
                 raise o.fail(f"cannot resolve the mesh path {mesh!r}: {err}", "mesh") from None
             try:
                 check_mesh_file(mp)

@@ -51,7 +51,7 @@ import yaml
 from planner.closure import CONTACT_MODELS, apply_contact_model, grasp_closure, min_grip_force
 from planner.contacts import TOUCH_TOL_M
 from planner.errors import OutputError, PlannerError, SpecError, UnknownNameError
-from planner.fileio import MAX_GRASP_BYTES, Reader, read_yaml, write_atomic
+from planner.fileio import MAX_GRASP_BYTES, Reader, read_yaml, resolve_path, write_atomic
 from planner.grasp import load_hand, parse_friction, parse_grasp, resolve_hand_ref
 from planner.grip import HOLD_FACTOR, grasp_statics, grip_program, hold_capacity, holds_by_bound
 from planner.model import GAMMA_MAX_M, MU_MAX, PALM, Friction
@@ -603,8 +603,8 @@ def _check_out_dir(out_dir) -> None:
     regular file or under one."""
     d = Path(out_dir)
     try:
-        d.resolve()
-    except (RuntimeError, OSError) as err:  # a symlink loop (Python < 3.13 raises RuntimeError)
+        resolve_path(d)
+    except OSError as err:  # a symlink loop
         raise PlannerError(f"synth: -o {d}: cannot be resolved: {err}") from None
     if d.exists() and not d.is_dir():
         raise PlannerError(f"synth: -o {d}: exists and is not a folder")

@@ -1,6 +1,7 @@
 """A symlink loop where a path goes (a grasp's mesh, synth's -o, hand init's --package-dir, a
 hand.yaml's package_dirs) is one line and exit 2: on Python < 3.13 Path.resolve raised
-RuntimeError ('Symlink loop from ...'), a traceback and exit 1. hand init also refuses a
+RuntimeError ('Symlink loop from ...'), a traceback and exit 1; since 3.13 it returns the looping
+path (`planner.fileio.resolve_path` says ELOOP on both). hand init also refuses a
 --package-dir that is not a folder (a typo was ignored, exit 0)."""
 
 import pytest
