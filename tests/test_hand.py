@@ -282,3 +282,101 @@ def test_spec_errors_name_the_key(tmp_path, text, key, words):
     assert err.value.key == key
     assert words in str(err.value)
     assert str(tmp_path) in str(err.value)
+
+
+#: GOOD with a pad on the thumb (its distal link).
+PADDED = GOOD.replace("tip_frame: thumb_tip}", """tip_frame: thumb_tip,
+          pad: {link: thumb_distal, point: [0.0103, 0.0, 0.0065], normal: [0.0, 0.0, 1.0]}}""")
+#: PADDED with units written out.
+WITH_UNITS = PADDED.replace("urdf: URDF", "units: {length: m, angle: rad}\nurdf: URDF")
+#: The index finger's line in GOOD.
+INDEX = "joints: [index_0, index_1, index_2, index_3], tip_frame: index_tip"
+
+
+# Unknown keys of a hand.yaml (top level, a finger, its pad) are refused, naming the file,
+# the key and the valid keys, as a grasp file's are: a misspelt `close_joint:` or
+# `close_towards:` was ignored, and the finger then closed every joint upward without a word.
+# `units:` other than metres and radians is refused (it was ignored too).
+@pytest.mark.parametrize("old, new, key, words", [
+    ("palm_frame: palm", "palm_frame: palm\nopen_posture: {thumb_0: 0.3}", "open_posture",
+     "valid keys are schema_version, name, units, urdf"),
+    ("tip_frame: index_tip}", "tip_frame: index_tip, close_joint: [index_1]}", "fingers.index.close_joint",
+     "valid keys are joints, close_joints, close_toward, contact_links, tip_frame, pad"),
+    ("normal: [0.0, 0.0, 1.0]}", "normal: [0.0, 0.0, 1.0], radius: 0.006}", "fingers.thumb.pad.radius",
+     "valid keys are link, point, normal"),
+    ("length: m", "length: mm", "units.length", "m and angles in rad, got 'mm'"),
+    ("angle: rad", "angle: deg", "units.angle", "got 'deg'"),
+    ("angle: rad", "angle: rad, mass: kg", "units.mass", "valid keys are length, angle"),
+])
+def test_unknown_keys_and_other_units_are_refused(tmp_path, old, new, key, words):
+    with pytest.raises(SpecError) as err:
+        Hand.load(_write_spec(tmp_path, WITH_UNITS.replace(old, new, 1)))
+    assert err.value.key == key
+    assert words in str(err.value) and str(tmp_path) in str(err.value)
+
+
+def test_the_bundled_and_a_written_spec_load(tmp_path):
+    assert Hand.load(_write_spec(tmp_path, WITH_UNITS)).fingers["thumb"].pad_link == "thumb_distal"
+    for name in ("icub_right", "allegro_right"):
+        Hand.load(name)
+
+
+# A finger's tip_frame and pad.link must move with that finger's joints: another finger's
+# frame or the palm was accepted by `hand check` (0 errors), and every contact of the finger
+# was then refused in the grasp file as out of reach. Now the hand.yaml is refused, naming the
+# key and the finger's own links (frames).
+@pytest.mark.parametrize("old, new, key, words", [
+    ("link: thumb_distal", "link: index_distal", "fingers.thumb.pad.link", "links are thumb_base, thumb_proximal"),
+    ("link: thumb_distal", "link: palm", "fingers.thumb.pad.link", "'palm' is not a link of finger thumb"),
+    ("tip_frame: index_tip", "tip_frame: thumb_tip", "fingers.index.tip_frame", "index_distal"),
+    ("tip_frame: index_tip", "tip_frame: palm", "fingers.index.tip_frame", "does not move with finger index"),
+])
+def test_a_tip_or_pad_of_another_finger_is_refused(tmp_path, old, new, key, words):
+    with pytest.raises(SpecError) as err:
+        Hand.load(_write_spec(tmp_path, PADDED.replace(old, new, 1)))
+    assert err.value.key == key
+    assert words in str(err.value) and str(tmp_path) in str(err.value)
+
+
+def test_the_finger_own_tip_and_pad_load(tmp_path):
+    hand = Hand.load(_write_spec(tmp_path, PADDED))
+    assert hand.fingers["thumb"].pad_link == "thumb_distal" and hand.fingers["index"].tip_frame == "index_tip"
+
+
+# A hand.yaml's finger lists (joints, close_joints, contact_links) are refused empty or with
+# a joint named twice, naming the file, the key and the valid choices (an empty close_joints
+# list was accepted and `check` ended in an IndexError in the closing procedure).
+@pytest.mark.parametrize("index, key, words", [
+    ("joints: [], tip_frame: index_tip", "fingers.index.joints", "empty list"),
+    ("joints: [index_0, index_1, index_1, index_3], tip_frame: index_tip", "fingers.index.joints",
+     "'index_1' is named twice"),
+    (INDEX + ", close_joints: []", "fingers.index.close_joints", "joints are index_0, index_1, index_2, index_3"),
+    (INDEX + ", close_joints: [index_1, index_1]", "fingers.index.close_joints", "'index_1' is named twice"),
+    (INDEX + ", contact_links: []", "fingers.index.contact_links",
+     "links are index_proximal, index_intermediate, index_distal"),
+])
+def test_empty_or_repeated_finger_lists_are_refused(tmp_path, index, key, words):
+    with pytest.raises(SpecError) as err:
+        Hand.load(_write_spec(tmp_path, GOOD.replace(INDEX, index)))
+    assert err.value.key == key
+    assert words in str(err.value)
+    assert str(tmp_path) in str(err.value)
+
+
+def test_the_lists_left_out_still_default_to_the_whole_finger(tmp_path):
+    finger = Hand.load(_write_spec(tmp_path, GOOD)).fingers["index"]
+    assert finger.close_joints == finger.joints
+    assert finger.contact_links == ("index_proximal", "index_intermediate", "index_distal")
+
+
+# `disabled_collisions:` given as one name instead of a list of pairs is refused as such
+# (it was read letter by letter: "expected [link_a, link_b], got 'p'").
+@pytest.mark.parametrize("value, words", [
+    ("palm", "expected a list of [link_a, link_b] pairs, got 'palm'"),
+    ("{palm: index_distal}", "expected a list of [link_a, link_b] pairs"),
+    ("[[palm]]", "expected [link_a, link_b], got ['palm']"),
+])
+def test_disabled_collisions_not_a_list_of_pairs(tmp_path, value, words):
+    with pytest.raises(SpecError) as err:
+        Hand.load(_write_spec(tmp_path, GOOD + f"disabled_collisions: {value}\n"))
+    assert err.value.key == "disabled_collisions" and words in str(err.value)
