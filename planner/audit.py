@@ -56,7 +56,7 @@ from planner.plan import read_plan, recorded_input
 from planner.grip import HOLD_FACTOR, finger_statics, grip_program, hold_capacity
 from planner.model import PALM, Friction
 from planner.options import PLAN_OPTION_LIMITS, VERIFY_ENGINES, in_range, option_range
-from planner.plan_data import OBJECT, Plan, hand_files_record, plan_hand, pose_matrix
+from planner.plan_data import OBJECT, Plan, hand_files_record, object_still, plan_hand, pose_matrix
 from planner.realization import PENETRATION_TOL_M as _GRASP_PENETRATION_TOL_M
 from planner.realization import realize
 from planner.repose import FOLLOW_TOL_M as _REPOSE_FOLLOW_TOL_M
@@ -585,7 +585,7 @@ def _check_repose(plan, hand, objs, poses, k: int, s, rep: AuditReport) -> None:
     # the fingers (`planner.pose_search._reposture`: two postures touching the same points, the
     # pads rolling on them): there each holding finger's outermost link must still touch the
     # object point it holds while the object moves.
-    same = [bool(np.allclose(opath[w - 1], opath[w], rtol=0.0, atol=1e-12)) for w in range(1, len(Ts))]
+    same = [object_still(opath[w - 1], opath[w]) for w in range(1, len(Ts))]
     m0 = 0
     while m0 < len(same) and same[m0]:
         m0 += 1
@@ -727,7 +727,40 @@ def _directions(plan, hand, rep: AuditReport, obj=None) -> list[tuple[str, np.nd
     return out
 
 
-def _check_claims(plan, hand, poses, rep: AuditReport, objs=None) -> None:
+def _check_gravity_directions(plan, hand, rep: AuditReport) -> None:
+    """The directions a plan records are the ones its ``gravity`` or ``gravity_set`` gives for
+    its hand (`planner.options.gravity_directions_of`): the claims are recomputed for the
+    recorded ones, so a file that lists fewer (or others) than its parameters ask would be
+    checked against less. Plans older than those parameters are not checked."""
+    params = plan.parameters or {}
+    if "gravity" not in params and "gravity_set" not in params:
+        return
+    from types import SimpleNamespace
+
+    from planner.options import gravity_directions_of
+
+    try:
+        want = gravity_directions_of(SimpleNamespace(gravity=params.get("gravity"),
+                                                     gravity_set=params.get("gravity_set")), hand)
+    except (PlannerError, TypeError, ValueError):
+        rep.add(f"parameters.gravity: {params.get('gravity')!r} is not a 3-vector in m/s^2")
+        return
+    rows = params.get("gravity_directions") or []
+    try:
+        have = [(str(row["name"]), np.asarray(row["gravity"], dtype=float).reshape(3)) for row in rows]
+    except (KeyError, TypeError, ValueError):
+        return  # (`_directions` names the row)
+    rep.count("claims")
+    same = [n for n, _ in have] == [n for n, _ in want] and all(
+        np.allclose(g, w, rtol=0.0, atol=1e-9) for (_, g), (_, w) in zip(have, want))
+    if not same:
+        given = f"gravity_set {params.get('gravity_set')}" if params.get("gravity") is None \
+            else f"gravity {params.get('gravity')}"
+        rep.add(f"parameters.gravity_directions: {[n for n, _ in have] or 'none'}, but {given} gives "
+                f"{[n for n, _ in want] or 'none'} for {hand.name}")
+
+
+def _check_claims(plan, hand, poses, rep: AuditReport, objs=None, verified: bool = True) -> None:
     """What the plan says of its states and of itself, recomputed from its contacts and the
     hand: every state's force closure and metric, its grip forces and hold factors (per
     planned gravity direction), the summary's bottleneck and mean metric and largest grip
@@ -754,6 +787,7 @@ def _check_claims(plan, hand, poses, rep: AuditReport, objs=None) -> None:
     grip_friction = friction if margin == 1 else Friction(friction.mu * margin, friction.gamma * margin, friction.edges)
     sides = int(params.get("grip_cone_sides") or GRIP_CONE_SIDES)
     cap = params.get("max_finger_force_n")
+    _check_gravity_directions(plan, hand, rep)
     directions = _directions(plan, hand, rep)
     # a reposed state's loads in its own object frame (the same gravity in the palm frame)
     by_pose = {None: directions}
@@ -829,19 +863,26 @@ def _check_claims(plan, hand, poses, rep: AuditReport, objs=None) -> None:
         rep.add(f"summary.bottleneck_grip_force_n: the file says {s['bottleneck_grip_force_n']}, its states give "
                 f"{max(grips) if grips else None}")
     _check_reposing_summary(plan, rep)
-    _check_verification(plan, [n for n, _, _ in by_pose[None]], rep)
+    _check_verification(plan, [n for n, _, _ in by_pose[None]], rep, verified)
 
 
-def _check_verification(plan, planned: list[str], rep: AuditReport) -> None:
+def _check_verification(plan, planned: list[str], rep: AuditReport, verified: bool = True) -> None:
     """A recorded verification is a claim the audit cannot re-run (``regrasp replay
     --gravity-set`` does): it must at least be one the planner could have written: asked for
     by the parameters, over the planned directions, every one held."""
     record = (plan.summary or {}).get("verification")
+    params = plan.parameters or {}
     if record is None:
+        # the planner records every verification it runs (`planner.regrasp.plan_gaits`: the graph
+        # search, with gravity; `planner.pose_search`: every reposing plan)
+        if verified and params.get("verify") is True and planned and (params.get("strategy", "graph") == "graph" or plan.reposes):
+            rep.count("claims")
+            rep.add("summary.verification: missing, yet the plan's parameters say it was verified in the simulator "
+                    "(parameters.verify: true)")
         return
     rep.count("claims")
     rep.recorded_verification = True
-    if not (plan.parameters or {}).get("verify"):
+    if not params.get("verify"):
         rep.add("summary.verification: recorded, but the plan's parameters say it was made without verification")
         return
     directions = record.get("directions") if isinstance(record, dict) else None
@@ -892,13 +933,15 @@ def _check_chain(plan, hand, rep: AuditReport, grasps: dict) -> None:
                         f"does not {'start' if index == 0 else 'end'} at the {name} grasp")
 
 
-def audit_plan(plan, hand=None, paths: bool = True) -> AuditReport:
+def audit_plan(plan, hand=None, paths: bool = True, verified: bool = True) -> AuditReport:
     """Check a plan against physics and its inputs (see the module's docstring).
 
     Args:
         plan: a `planner.plan_data.Plan` (e.g. `read_plan`'s) or the path of a plan file.
         hand: the plan's `planner.hand.Hand`; default the one its ``hand.spec`` names.
         paths: check the finger paths' waypoints (False: states, chain and inputs only).
+        verified: a plan asking for verification has its record (False: the planner's own
+            check of a plan it is still verifying).
 
     Returns:
         `AuditReport`: ``ok``, ``problems`` (one line each), ``checked`` counts.
@@ -917,7 +960,7 @@ def audit_plan(plan, hand=None, paths: bool = True) -> AuditReport:
     poses = _check_states(plan, hand, objs, rep)
     if paths:
         _check_steps(plan, hand, objs, poses, rep)
-    _check_claims(plan, hand, poses, rep, objs)
+    _check_claims(plan, hand, poses, rep, objs, verified)
     _check_chain(plan, hand, rep, grasps)
     return rep
 

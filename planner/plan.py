@@ -246,7 +246,7 @@ def plan_from_data(data: Any, source: str | os.PathLike | None = None) -> Plan:
             raise rec.fail("expected 64 lowercase hex digits", "sha256")
     parameters = r.at(data.get("parameters") or {}, "parameters").mapping()
 
-    parameters.child("contact_model", "patch").choice(CONTACT_MODELS, "contact model", valid="valid:")
+    _check_parameters(parameters)
     joints = tuple(j.name() for _, j in r.child("joints").seq(MAX_JOINTS, 1).items())
     if len(set(joints)) != len(joints):
         raise r.fail("joint names repeat", "joints")
@@ -283,6 +283,34 @@ def plan_from_data(data: Any, source: str | os.PathLike | None = None) -> Plan:
         raise r.fail(str(err), "object.mesh") from None
     except PlannerError as err:  # the default mass needs the object
         raise r.fail(str(err), "object") from None
+
+
+#: The plan's yes/no parameters (`planner.options.PlanOptions`'s flags).
+PLAN_FLAGS = ("motion", "execution", "verify", "repose")
+
+
+def _check_parameters(parameters: Reader) -> None:
+    """The parameters the planner writes as names or flags: one of the planner's own choices
+    (a forged or mistyped one would change what `verify` checks a plan against: the contact
+    model its closures use, the gravity set its hold factors are recomputed for). Absent or
+    null: the planner's default (plans older than a parameter)."""
+    from planner.gait_search import RANKS
+    from planner.gravity import GRAVITY_SET_SIZES
+    from planner.options import STRATEGIES
+
+    def show(v) -> str:
+        return repr_short(v, 40) if isinstance(v, str) else shown(v)
+
+    parameters.child("contact_model", "patch").choice(CONTACT_MODELS, "contact model", valid="valid:", show=show)
+    for key, choices, what in (("strategy", STRATEGIES, "strategy"), ("rank", RANKS, "rank"),
+                               ("gravity_set", GRAVITY_SET_SIZES, "gravity set")):
+        value = parameters.get(key)
+        if value is not None and (isinstance(value, bool) or value not in choices):
+            raise parameters.fail(f"unknown {what} {show(value)}; valid: {', '.join(map(str, choices))}", key)
+    for key in PLAN_FLAGS:
+        value = parameters.get(key)
+        if value is not None and not isinstance(value, bool):
+            raise parameters.fail(f"expected true or false, got {show(value)}", key)
 
 
 REQUIRED_KEYS = ("schema_version", "hand", "object", "friction", "joints", "states", "steps")

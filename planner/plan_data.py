@@ -94,6 +94,12 @@ def pose_matrix(pose) -> np.ndarray:
     return T
 
 
+def object_still(a, b) -> bool:
+    """Two consecutive waypoints of a reposing step's object path (each (x, y, z, qx, qy, qz,
+    qw)) are one pose: the object does not move there (the fingers re-posture on it)."""
+    return bool(np.allclose(np.asarray(a, dtype=float), np.asarray(b, dtype=float), rtol=0.0, atol=1e-12))
+
+
 def pose_between(a, b, s: float) -> np.ndarray:
     """The pose a fraction ``s`` (0..1) of the way from pose ``a`` to pose ``b`` (each
     (x, y, z, qx, qy, qz, qw)): the position along the line, the orientation along the

@@ -289,6 +289,23 @@ def _claim_hold_factor_low(d):
     d["parameters"]["hold_factor"] = 1.0
 
 
+def _claim_verify_without_record(d):  # "verified" in the parameters, no verification in the summary
+    d["parameters"]["verify"] = True
+    d["summary"].pop("verification", None)
+
+
+def _claim_fewer_directions(d):  # two of the gravity set's six directions, every state's claims trimmed to match
+    keep = [g["name"] for g in d["parameters"]["gravity_directions"][:2]]
+    d["parameters"]["gravity_directions"] = d["parameters"]["gravity_directions"][:2]
+    for s in d["states"]:
+        for key in ("grip_force_by_gravity_n", "hold_factor_by_gravity"):
+            if s.get(key):
+                s[key] = {n: v for n, v in s[key].items() if n in keep}
+        if s.get("grip_force_by_gravity_n"):
+            s["grip_force_n"] = max(s["grip_force_by_gravity_n"].values())
+    d["summary"]["bottleneck_grip_force_n"] = max(s["grip_force_n"] for s in d["states"])
+
+
 CLAIMS = {
     "parameters.hold_factor 0": (_claim_hold_factor_zero, "parameters.hold_factor"),
     "parameters.hold_factor below execution's": (_claim_hold_factor_low, "parameters.hold_factor"),
@@ -298,6 +315,8 @@ CLAIMS = {
     "hold factors x3 at one state": (_claim_hold, "hold_factor_by_gravity"),
     "verification that never ran": (_claim_verified, "summary.verification"),
     "verification over other directions": (_claim_verified_wrong_directions, "summary.verification.directions"),
+    "verify: true without a verification": (_claim_verify_without_record, "summary.verification: missing"),
+    "two of the gravity set's six directions": (_claim_fewer_directions, "parameters.gravity_directions"),
 }
 
 
@@ -316,6 +335,28 @@ def test_recorded_claims_are_recomputed_not_trusted(plans, tmp_path, capsys, edi
                for line in out.splitlines()), out
     assert main(["replay", str(bad)]) == 2
     assert "physics check" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("key, value, words", [
+    ("strategy", "bogus", "unknown strategy 'bogus'; valid: graph, greedy"),
+    ("rank", "fastest", "unknown rank 'fastest'; valid: metric, grip"),
+    ("gravity_set", 99, "unknown gravity set 99; valid: 1, 2, 6, 7"),
+    ("gravity_set", True, "unknown gravity set True; valid: 1, 2, 6, 7"),
+    ("contact_model", "bogus", "unknown contact model 'bogus'; valid: patch, mean, link"),
+    ("execution", "yes", "expected true or false, got 'yes'"),
+    ("verify", 1, "expected true or false, got 1"),
+])
+def test_a_parameter_the_planner_never_writes_is_refused_in_one_line(plans, tmp_path, capsys, key, value, words):
+    """The parameters verify checks a plan against (its contact model, gravity set, whether it
+    was verified) are names and flags the planner writes: any other value is refused when the
+    plan is read, naming the key and the valid choices."""
+    data = _data(plans, "allegro sphere execution")
+    data["parameters"][key] = value
+    bad = tmp_path / "plan.json"
+    _reseal(data, bad, closures=False)
+    assert main(["verify", str(bad)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"parameters.{key}: {words}" in err[0], err
 
 
 def test_a_mean_contact_below_a_curved_surface_is_the_model_not_an_error(tmp_path):

@@ -674,7 +674,7 @@ def _stand_in_check(monkeypatch, refuse):
 
     audited, replays = [], []
 
-    def check(plan, hand=None, paths=True):
+    def check(plan, hand=None, paths=True, verified=True):
         audited.append(plan)
         rep = AuditReport("stand-in")
         line = refuse(plan)

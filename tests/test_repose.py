@@ -429,7 +429,7 @@ def test_a_candidate_whose_plan_fails_the_physics_check_is_refused(monkeypatch):
     opts = PlanOptions.for_execution(motion=False, verify=False)
     audited = []
 
-    def failing(plan, hand=None, paths=True):
+    def failing(plan, hand=None, paths=True, verified=True):
         audited.append(plan)
         rep = audit.AuditReport("<plan>")
         rep.add("steps[1] (repose object): a made-up problem")
@@ -584,7 +584,7 @@ def test_a_whole_plan_that_fails_the_physics_check_with_its_inputs_is_not_return
 
     replayed = _stand_in_simulator(monkeypatch, lambda plan, k: None)
 
-    def failing(plan, hand=None, paths=True):
+    def failing(plan, hand=None, paths=True, verified=True):
         rep = audit.AuditReport("<plan>")
         rep.add("inputs: a made-up problem")
         return rep
