@@ -361,10 +361,11 @@ def _validate(args: argparse.Namespace) -> None:
                 raise PlannerError(f"{_option_name(dest)}: {v!r} is out of range; valid: {option_range(low, high, open_low)}")
     inputs = [getattr(args, k, None) for k in _INPUTS.get(args.command, ())]
     outputs = [(getattr(args, k, None), "-o" if k == "output" else "--" + k) for k in _OUTPUTS.get(args.command, ())]
-    check_outputs(outputs, inputs)
+    check_outputs(outputs, inputs, formats=False)
     # the files a command derives from these (a film per gravity direction) and the files its
     # inputs name (a plan's grasps, hand, URDF, meshes) are checked once the inputs are read
-    # (`planner.fileio.check_outputs`), before any work
+    # (`planner.fileio.check_outputs`, with the pictures' and films' suffixes: an input named
+    # like a picture is said to be an input), before any work
 
 
 _DEPTH = 0  # nesting of main() (demo calls it): only the outermost one redirects stderr

@@ -522,6 +522,12 @@ def _same_file(a: Path, b: Path) -> bool:
         return False
 
 
+#: The picture and film options and the suffix each one's format takes (any case): a file
+#: named otherwise would hold another format than its name says (``--png x.jpg`` was a JPEG,
+#: ``--gif x.png`` a GIF).
+OUTPUT_SUFFIXES = {"--png": ".png", "--gif": ".gif", "--mp4": ".mp4"}
+
+
 def check_output(path: str | os.PathLike, inputs=(), option: str = "-o") -> Path:
     """Refuse an output path before any work is done.
 
@@ -613,14 +619,17 @@ def write_atomic(path: str | os.PathLike, data: str | bytes | None = None, *, wr
     return path
 
 
-def check_outputs(outputs, inputs=()) -> None:
+def check_outputs(outputs, inputs=(), *, formats: bool = True) -> None:
     """Every output file of one command, before any work: none is an input (`check_output`:
-    also through a link) and no two are the same file.
+    also through a link), no two are the same file and (``formats``) a picture or film is
+    named with its format's suffix (`OUTPUT_SUFFIXES`).
 
     Args:
         outputs: (path or None, option) pairs: every file the command will write, derived
             names included (a film per gravity direction).
         inputs: every file the command reads.
+        formats: check the suffixes too (False: a first check before the inputs are read, whose
+            files may still be found to be inputs: that is said first).
     """
     named = [(Path(os.fspath(p)), option) for p, option in outputs if p is not None]
     inputs = [p for p in inputs if p is not None]
@@ -629,6 +638,16 @@ def check_outputs(outputs, inputs=()) -> None:
         for other, other_option in named[:k]:
             if _same_file(out, other):
                 raise OutputError(f"{option} {out}: is also the file of {other_option}; give them different names")
+    for out, option in named if formats else ():
+        check_format(out, option)
+
+
+def check_format(path: str | os.PathLike, option: str) -> None:
+    """A picture or film (``option`` in `OUTPUT_SUFFIXES`) is named with its format's suffix."""
+    suffix, out = OUTPUT_SUFFIXES.get(option), Path(os.fspath(path))
+    if suffix is not None and out.suffix.lower() != suffix:
+        raise OutputError(f"{option} {out}: {option} writes {suffix[1:].upper()}: name the file *{suffix} "
+                          + (f"(not {out.suffix})" if out.suffix else "(this name has no suffix)"))
 
 
 def check_hand_file(path: str | os.PathLike, source: str, key: str = "hand") -> dict:

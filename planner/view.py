@@ -34,7 +34,7 @@ from scipy.spatial.transform import Rotation
 
 from planner.audit import require_sound
 from planner.errors import InputError, SpecError
-from planner.fileio import MAX_PLAN_BYTES, check_outputs, load_json, load_yaml, read_limited, write_atomic
+from planner.fileio import MAX_PLAN_BYTES, check_format, check_outputs, load_json, load_yaml, read_limited, write_atomic
 from planner.frames import hand_of_plan, object_of_plan, plain_plan, pose_matrix, resample
 from planner.grasp import grasp_files, load_grasp
 from planner.objects import load_mesh
@@ -606,7 +606,7 @@ def write_film(source, gif, frames_per_step: int = 8, width: int = 640, height: 
     from planner.sim.render import patch_markers, render_image
 
     source = Path(source)
-    _check_suffix(gif, (".gif",), "film")
+    check_format(gif, "--gif")
     kind, value = loaded or load_source(source)
     if kind == "plan":
         plan = value
@@ -626,7 +626,7 @@ def view_command(source, output, report=None, gif=None) -> int:
     """``regrasp view``: write the page (and the GIF) and say what they hold; exit 0."""
     _check_suffix(output, (".html", ".htm"), "page")  # before any work
     if gif is not None:
-        _check_suffix(gif, (".gif",), "film")
+        check_format(gif, "--gif")
     loaded, files = read_source(source)
     check_outputs([(output, "-o"), (gif, "--gif")], [*files, report])
     out = write_view(source, output, report=report, loaded=loaded)

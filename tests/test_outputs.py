@@ -157,6 +157,25 @@ def test_check_picture_may_not_be_the_hand_or_grasp(setup, capsys):
     assert _snapshot(setup) == before
 
 
+@pytest.mark.parametrize("command, option, name, words", [
+    ("check", "--png", "grasp.jpg", "--png writes PNG: name the file *.png (not .jpg)"),
+    ("check", "--png", "grasp", "--png writes PNG: name the file *.png (this name has no suffix)"),
+    ("replay", "--gif", "film.png", "--gif writes GIF: name the file *.gif (not .png)"),
+    ("replay --gravity-set 1", "--mp4", "film.gif", "--mp4 writes MP4: name the file *.mp4 (not .gif)"),
+    ("view", "--gif", "film.png", "--gif writes GIF: name the file *.gif (not .png)"),
+])
+def test_a_picture_or_film_is_named_with_its_formats_suffix(setup, capsys, tmp_path, command, option, name, words):
+    """`check --png x.jpg` wrote a JPEG and `replay --gif x.png` a GIF named .png: a picture or
+    film not named with its format's suffix is refused in one line before any work (a name's
+    case is the user's: F.GIF is a GIF)."""
+    word, *rest = command.split()
+    source = setup["initial"] if word == "check" else setup["plan"]
+    extra = ["-o", str(tmp_path / "page.html")] if word == "view" else []
+    line = _refused(capsys, [word, str(source), *rest, *extra, option, str(tmp_path / name)], option)
+    assert words in line, line
+    assert not list(tmp_path.iterdir())
+
+
 def test_the_one_writer_replaces_atomically_or_never(tmp_path):
     """write_atomic: replaces a file whole; exclusive: never replaces one (synth's grasps);
     a writer that fails leaves the old file and no temporary file."""
