@@ -53,9 +53,9 @@ from planner.kinematics import Kinematics, checked_q
 from planner.model import PALM
 from planner.resources import HAND_SPEC, bundled_hands, hand_dir, robots_dir
 from planner.signed_distance import convex_hull
-from planner.urdf_check import (MAX_MESH_TRIANGLES, MAX_NAME_CHARS, check_urdf, installed_share_dirs, library_message,
-                                 name_shown, package_search_dirs, register_mesh_dirs, stated_inertias,
-                                 too_many_triangles)
+from planner.urdf_check import (MAX_MESH_TRIANGLES, MAX_NAME_CHARS, check_urdf, given_package_dirs_only,
+                                 installed_share_dirs, library_message, name_shown, package_search_dirs,
+                                 register_mesh_dirs, stated_inertias, too_many_triangles)
 
 ROBOTS_DIR = robots_dir()  # the bundled hands (planner.resources), wherever the package is installed
 SCHEMA_VERSION = 1
@@ -445,7 +445,9 @@ class Hand:
 
         # collision geometry
         try:
-            gm = pin.buildGeomFromUrdf(self.model, self.urdf_path, pin.GeometryType.COLLISION, package_dirs=mesh_dirs)
+            with given_package_dirs_only():
+                gm = pin.buildGeomFromUrdf(self.model, self.urdf_path, pin.GeometryType.COLLISION,
+                                           package_dirs=mesh_dirs)
         except (RuntimeError, ValueError) as err:
             raise SpecError(sp, "urdf", f"cannot load the collision geometry of {self.urdf_path}: "
                                         f"{library_message(err)}") from None

@@ -42,6 +42,7 @@ Every problem is one `SpecError` naming the URDF, the line and the element
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import re
@@ -494,14 +495,35 @@ def package_search_dirs(package_dirs=(), installed: bool = False) -> list[str]:
     """The folders ``package://`` (and relative) mesh paths are looked up in, in order: the
     given ones (a hand.yaml's ``package_dirs``, ``--package-dir``), then ``ROS_PACKAGE_PATH``
     and ``AMENT_PREFIX_PATH``'s ``share`` folders (read now), then (``installed``) the
-    installed wheels' (`installed_share_dirs`). The one list every library is given."""
+    installed wheels' (`installed_share_dirs`). The one list every library is given.
+
+    An environment entry that is no folder (missing, a file, a symbolic link loop) is left
+    out, as ROS's own tools skip it: pinocchio's loader stopped on a loop there ("Too many
+    levels of symbolic links" naming the folder, not the variable)."""
     env = [d for d in os.environ.get("ROS_PACKAGE_PATH", "").split(os.pathsep) if d]
     env += [os.path.join(d, "share") for d in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if d]
+    env = [d for d in env if os.path.isdir(d)]
     out: list[str] = []
     for d in [str(d) for d in package_dirs] + env + (installed_share_dirs() if installed else []):
         if d not in out:
             out.append(d)
     return out
+
+
+#: The environment variables pinocchio reads package folders from by itself (its ``rosPaths``).
+PACKAGE_PATH_VARIABLES = ("ROS_PACKAGE_PATH", "AMENT_PREFIX_PATH")
+
+
+@contextlib.contextmanager
+def given_package_dirs_only():
+    """While pinocchio loads geometry it is given every package folder (`package_search_dirs`:
+    the environment's usable ones included) and reads none from the environment: an entry
+    there that is a symbolic link loop stopped its loader ("Too many levels of symbolic links")."""
+    saved = {k: os.environ.pop(k) for k in PACKAGE_PATH_VARIABLES if k in os.environ}
+    try:
+        yield
+    finally:
+        os.environ.update(saved)
 
 
 #: URDF (resolved path) -> the mesh folders the hand loaded from it was given (`register_mesh_dirs`):

@@ -146,8 +146,11 @@ class _Scene:
         self.rec = _CommandRecorder()
         self.vis = meshcat.Visualizer(window=self.rec)
         try:
-            vmodel = pin.buildGeomFromUrdf(hand.model, str(hand.urdf_path), pin.GeometryType.VISUAL,
-                                           package_dirs=list(getattr(hand, "mesh_dirs", hand.package_dirs)))  # the URDF's folder first
+            from planner.urdf_check import given_package_dirs_only
+
+            with given_package_dirs_only():  # the URDF's folder first
+                vmodel = pin.buildGeomFromUrdf(hand.model, str(hand.urdf_path), pin.GeometryType.VISUAL,
+                                               package_dirs=list(getattr(hand, "mesh_dirs", hand.package_dirs)))
         except (RuntimeError, ValueError) as err:
             raise SpecError(str(hand.urdf_path), "visual",
                             f"cannot load the visual geometry: {library_message(err)}") from None

@@ -56,3 +56,27 @@ def test_hand_yaml_package_dirs_that_loop(tmp_path, capsys):
     (tmp_path / "hand.yaml").write_text(text + "package_dirs: [pkgs]\n")
     assert main(["hand", "check", str(tmp_path / "hand.yaml")]) == 2
     _one_line(capsys, "package_dirs[0]", "hand.yaml")
+
+
+def test_package_path_variables_with_loops_missing_folders_and_files(tmp_path, capsys, monkeypatch):
+    """ROS_PACKAGE_PATH / AMENT_PREFIX_PATH entries that are no folder (a symlink loop, a
+    missing folder, a file) are skipped, as ROS's tools skip them: pinocchio read the variable
+    itself and its loader stopped on the loop ("Too many levels of symbolic links" naming the
+    folder, not the variable). The hand loads, the page draws it, the variables are left as
+    they were."""
+    import os
+
+    loop = _loop(tmp_path, "pkgs")
+    (tmp_path / "file").write_text("x\n")
+    value = os.pathsep.join([str(loop), str(tmp_path / "missing"), str(tmp_path / "file")])
+    monkeypatch.setenv("ROS_PACKAGE_PATH", value)
+    monkeypatch.setenv("AMENT_PREFIX_PATH", str(loop))
+    text = (ROBOTS_DIR / "icub_right" / "hand.yaml").read_text().replace("urdf: icub_right.urdf", f"urdf: {URDF}")
+    (tmp_path / "hand.yaml").write_text(text)  # a hand file of its own: loaded here, not cached
+    assert main(["hand", "check", str(tmp_path / "hand.yaml")]) == 0
+    grasp = yaml.safe_load(bundled_grasp("icub/box_ir2m.yaml").read_text())
+    grasp["hand"] = str(tmp_path / "hand.yaml")
+    (tmp_path / "g.yaml").write_text(yaml.safe_dump(grasp))
+    assert main(["view", str(tmp_path / "g.yaml"), "-o", str(tmp_path / "g.html")]) == 0
+    assert "Too many levels" not in capsys.readouterr().err
+    assert os.environ["ROS_PACKAGE_PATH"] == value and os.environ["AMENT_PREFIX_PATH"] == str(loop)
