@@ -137,3 +137,53 @@ def test_lifting_the_object_off_the_palm_the_fingers_take_its_load_first(off_pal
                       settle_s=0.15)
     assert rep.passed, rep.verdict
     assert rep.max_drift_mm < 1.0, (rep.max_drift_mm, rep.max_drift_deg)
+
+
+def _with_still_waypoints(plan, n: int, at_end: bool, reverse: bool = False):
+    """``plan``'s reposing step (reversed: the object put onto the palm) with ``n`` waypoints of
+    the object still added at its start or end (the fingers re-posturing there, as
+    `planner.pose_search` plans them where both legs touch one point: here they keep still)."""
+    st = plan.steps[0]
+    path, poses, states = list(st.path), list(st.object_path), plan.states
+    if reverse:
+        path, poses, states = path[::-1], poses[::-1], states[::-1]
+    k = -1 if at_end else 0
+    extra_q, extra_p = [path[k]] * n, [poses[k]] * n
+    path, poses = (path + extra_q, poses + extra_p) if at_end else (extra_q + path, extra_p + poses)
+    return replace(plan, states=tuple(states), steps=(replace(st, path=tuple(path), object_path=tuple(poses)),))
+
+
+@pytest.mark.parametrize("where", ["before the lift off the palm", "after the landing on the palm"])
+def test_the_palm_holds_while_the_object_stays_on_it_in_a_reposing_step(off_palm_plan, where):
+    """Waypoints of a reposing step where the object is still on the palm (fingers re-posturing
+    on it) are replayed with the palm holding, as the planner judged them: its load is handed to
+    the fingers only when the object starts to move off it, and back as soon as it rests on it
+    again (before, the palm was left out for the whole step)."""
+    pytest.importorskip("pybullet")
+    from planner.gravity import named_gravity
+    from planner.sim.controller import Controller
+    from planner.sim.inputs import plan_hand, typed_plan
+    from planner.sim.replay import replay_plan
+
+    onto = where.startswith("after")
+    plan = _with_still_waypoints(off_palm_plan, 4, at_end=onto, reverse=onto)
+    assert plan.states[-1 if onto else 0].palm_holds
+    shares = []
+    original = Controller.set_moving_target
+
+    def recording(self, q):
+        shares.append(self.palm_share)
+        return original(self, q)
+
+    hand = plan_hand(typed_plan(plan))
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(Controller, "set_moving_target", recording)
+        rep = replay_plan(plan, engine="pybullet", gravity=named_gravity("palm_up", hand), acquire_s=0.2,
+                          ramp_s=0.3, settle_s=0.15)
+    assert rep.passed, rep.verdict
+    # one target per tick: the still waypoints' ticks (at the start or end) with the palm's full
+    # share, the moving ones with none
+    still = shares[-4:] if onto else shares[:4]
+    assert still == [1.0] * 4, shares
+    moving = shares[:-4] if onto else shares[4:]
+    assert moving and max(moving) == 0.0, moving

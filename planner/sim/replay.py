@@ -76,7 +76,7 @@ from scipy.spatial.transform import Rotation
 from planner.closure import apply_contact_model, grasp_closure
 from planner.errors import InputError, SimulationError
 from planner.model import PALM
-from planner.plan_data import pose_between
+from planner.plan_data import object_still, pose_between
 from planner.sim.contact_filter import ContactFilter
 from planner.sim.controller import BACK_OFF_ITERATIONS, TOUCH_TOL_M, Controller
 from planner.sim.engine import PhysicsEngine, default_engine, engine_for
@@ -723,22 +723,31 @@ class _Sim:
             if not self._run_for(prm["handover_s"], lambda x: [ctl.fade(f, 1.0 - x) for f in released]):
                 return False
         ctl.command(q_ref, holding)
-        # the object moves relative to the palm: the fingers carry all of it, as planned (the
-        # palm holds only where the object rests on it, `planner.repose`): the palm's load is
-        # handed over to them before they lift the object off it, and back after they put it on
-        if frm.palm_holds and not self._run_for(prm["handover_s"], lambda x: ctl.fade_palm(1.0 - x)):
-            return False
-        ctl.fade_palm(0.0)
         start = np.array([q_ref[j] for j in st.joints])
         planned = np.asarray(st.path, dtype=float)
         path = planned + (start - planned[0])
         poses = np.asarray(st.object_path, dtype=float)
+        # the object moves relative to the palm along segments first..last: the fingers carry
+        # all of it there, as planned (the palm holds only where the object rests on it,
+        # `planner.repose`): the palm's load is handed over to them before they lift the object
+        # off it, and back after they put it on. Waypoints before or after, with the object
+        # still (fingers re-posturing on it, `planner.pose_search`), keep the palm as the
+        # state at that end has it: the planner judged them with it
+        moving = [k for k in range(len(poses) - 1) if not object_still(poses[k], poses[k + 1])]
+        first, last = (moving[0], moving[-1]) if moving else (len(poses), -1)
+        self.palm_holds = frm.palm_holds
         # the holding fingers' motors carry the object: no faster than they follow a target
         # (`Controller.tracking_speed_rad_s`), or the fingers lag behind the path and the
         # object with them
         speed = np.minimum(prm["joint_speed_rad_s"], ctl.tracking_speed_rad_s(st.joints))
-        ok, self.reposing = True, True
-        for (a, b), (pa, pb) in zip(zip(path[:-1], path[1:]), zip(poses[:-1], poses[1:])):
+        ok, self.reposing, palm_back = True, True, not moving and frm.palm_holds
+        for k, ((a, b), (pa, pb)) in enumerate(zip(zip(path[:-1], path[1:]), zip(poses[:-1], poses[1:]))):
+            if k == first:
+                if self.palm_holds and not self._run_for(prm["handover_s"], lambda x: ctl.fade_palm(1.0 - x)):
+                    ok = False
+                    break
+                ctl.fade_palm(0.0)
+                self.palm_holds = False
             n = max(1, int(math.ceil(float(np.max(np.abs(b - a) / speed)) / self.dt)))
             for i in range(1, n + 1):
                 ctl.set_moving_target({j: float(v) for j, v in zip(st.joints, a + (b - a) * i / n)})
@@ -748,10 +757,17 @@ class _Sim:
                     break
             if not ok:
                 break
+            if k == last and to.palm_holds:  # (re-posturing waypoints after it: on the palm)
+                self.palm_holds = palm_back = True
+                self.set_reference(to.object_pose)
+                if not self._run_for(prm["handover_s"], lambda x: ctl.fade_palm(x)):
+                    ok = False
+                    break
+                ctl.fade_palm(1.0)
         self.reposing = False
         self.set_reference(to.object_pose)
         self.palm_holds = to.palm_holds
-        if ok and to.palm_holds:
+        if ok and to.palm_holds and not palm_back:
             ok = self._run_for(prm["handover_s"], lambda x: ctl.fade_palm(x))
         ctl.fade_palm(1.0)
         if ok and onto:
