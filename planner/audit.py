@@ -34,7 +34,11 @@ recorded inputs, with the planner's own models:
   (`_check_repose`: the object path continuous from its from-state's pose to its
   to-state's, each holding finger's contact fixed on the moving object, joint limits and
   couplings, no link in the object at the waypoint's pose, a finger touching at one end only keeping still);
-  ``summary.reposing`` is recomputed from the object paths.
+  ``summary.reposing`` is recomputed from the object paths;
+- **parameters**: the gravity directions the claims are recomputed for are the ones the
+  plan's ``gravity_set`` or ``gravity`` gives for its hand; a plan whose parameters say it was
+  verified in the simulator carries the record (`planner.plan.read_plan` refuses names and
+  flags the planner does not write).
 
 Each failed check is one line naming the state or step, the finger and the check.
 """
