@@ -98,6 +98,18 @@ def box_inertia(mass_kg: float, size_m) -> np.ndarray:
     return mass_kg / 12.0 * np.array([y * y + z * z, x * x + z * z, x * x + y * y])
 
 
+def joint_to_link(hand, link: str):
+    """T_joint_link (pin.SE3): a link's frame in its parent joint's frame, where pinocchio
+    places its collision geometry. Not the identity for a link fixed to its parent, which
+    pinocchio merges into the parent's joint (the Allegro's fingertip spheres, 26.7 mm beyond
+    the last joint): a pad or box stated on such a link is in its own frame."""
+    import pinocchio as pin  # pinocchio: loaded only when a hand's model is read
+
+    model = hand.model
+    fid = model.getFrameId(link)
+    return model.frames[fid].placement if fid < len(model.frames) else pin.SE3.Identity()
+
+
 def link_boxes(hand) -> dict[str, np.ndarray]:
     """Link -> size (3,) of the box holding its collision geometry, in the link's frame."""
     out: dict[str, list] = {}
@@ -105,7 +117,8 @@ def link_boxes(hand) -> dict[str, np.ndarray]:
         shape = g.shape
         shape.computeLocalAABB()
         lo, hi = np.asarray(shape.aabb_local.min_, float), np.asarray(shape.aabb_local.max_, float)
-        R, t = g.placement.rotation, g.placement.translation
+        P = joint_to_link(hand, g.link).actInv(g.placement)  # T_link_geom
+        R, t = P.rotation, P.translation
         corners = np.array([[a, b, c] for a in (lo[0], hi[0]) for b in (lo[1], hi[1]) for c in (lo[2], hi[2])])
         out.setdefault(g.link, []).append(corners @ R.T + t)
     return {l: np.ptp(np.vstack(c), axis=0) for l, c in out.items()}
@@ -349,7 +362,9 @@ def init_hand(urdf, package_dirs=(), root: str | None = None, cut_path=None) -> 
                                     f"ranges (flexion) ({why})")
     # closing joints: those moving the tip toward the grasp's centre, in front of the palm
     open_q = {}
+    closing = {}  # finger -> the tip's velocity as its closing joints close together (palm frame)
     for name, (close, lower, notes) in _closing_guess(hand, tips, moves, n, boxes).items():
+        closing[name] = sum(((-1.0 if j in lower else 1.0) * v for j, v in moves[name] if j in close), np.zeros(3))
         fingers[name]["close_joints"] = close
         if lower:
             fingers[name]["close_toward"] = {j: "lower" for j in lower}
@@ -371,11 +386,13 @@ def init_hand(urdf, package_dirs=(), root: str | None = None, cut_path=None) -> 
             continue
         fingers[name]["contact_links"] = links
         tip_link = links[-1]
-        p, normal = _pad(hand, tip_link, boxes, n, q_mid)
+        sphere = _sphere_pad(hand, tip_link, closing.get(name), q_mid)
+        p, normal = sphere if sphere is not None else _pad(hand, tip_link, boxes, n, q_mid)
         fingers[name]["pad"] = {"link": tip_link, "point": [float(round(v, 6)) for v in p],
                                 "normal": [float(round(v, 6)) for v in normal]}
-        rep.add("guess", f"fingers.{name}.pad", f"on {tip_link}: the point of its collision box farthest along the "
-                                                "phalanx, on the side facing the palm normal")
+        rep.add("guess", f"fingers.{name}.pad", f"on {tip_link}: " + (
+            "the point of its collision sphere the tip moves toward as the finger closes" if sphere is not None else
+            "the point of its collision box farthest along the phalanx, on the side facing the palm normal"))
     # effort
     effort = _placeholder_effort(hand, boxes)
     if effort is not None:
@@ -546,6 +563,12 @@ def _far_point(hand, link: str, boxes) -> np.ndarray:
     if size is None:
         return np.zeros(3)
     centre = _box_centre(hand, link)
+    T = joint_to_link(hand, link)
+    away = T.rotation.T @ np.asarray(T.translation, float)  # from the joint to the link's origin, link frame
+    if float(np.ptp(size)) <= 1e-9 and float(np.linalg.norm(away)) > 1e-9:
+        # a round tip fixed beyond its joint (a sphere: no longest axis): its far end along
+        # the phalanx, the direction from the joint to it
+        return centre + 0.5 * float(size[0]) * away / float(np.linalg.norm(away))
     k = int(np.argmax(size))
     p = centre.copy()
     p[k] += math.copysign(size[k] / 2.0, centre[k] if abs(centre[k]) > 1e-9 else 1.0)
@@ -553,11 +576,34 @@ def _far_point(hand, link: str, boxes) -> np.ndarray:
 
 
 def _box_centre(hand, link: str) -> np.ndarray:
+    """The mean of a link's collision shapes' bounding-sphere centres, in the link's frame."""
     pts = []
     for g in hand.collision.geometries:
         if g.link == link:
-            pts.append(np.asarray(g.center, float))
+            pts.append(np.asarray(joint_to_link(hand, link).actInv(np.asarray(g.center, float)), float))
     return np.mean(pts, axis=0) if pts else np.zeros(3)
+
+
+def _sphere_pad(hand, link: str, closing, q) -> tuple[np.ndarray, np.ndarray] | None:
+    """Pad point and outward normal (link frame) of a distal link whose collision geometry is
+    one sphere (a round fingertip: the Allegro's), else None: the point of the sphere the tip
+    moves toward as the finger closes (``closing``, palm frame, at ``q``), the normal snapped
+    to the nearest link axis within `SNAP_DEG`. A box's rule (`_pad`: 3/4 along its longest
+    axis) has no longest axis on a sphere: it put the Allegro's pads on the sphere's side."""
+    import coal
+
+    shapes = [g for g in hand.collision.geometries if g.link == link]
+    if len(shapes) != 1 or not isinstance(shapes[0].shape, coal.Sphere) or closing is None \
+            or float(np.linalg.norm(closing)) < 1e-9:
+        return None
+    g = shapes[0]
+    R = hand.state(q).link_pose(link)[:3, :3]
+    d = R.T @ (np.asarray(closing, float) / float(np.linalg.norm(closing)))
+    axis = int(np.argmax(np.abs(d)))
+    if math.degrees(math.acos(min(1.0, abs(float(d[axis]))))) <= SNAP_DEG:
+        d = np.eye(3)[axis] * math.copysign(1.0, d[axis])
+    centre = np.asarray(joint_to_link(hand, link).actInv(g.placement).translation, float)  # T_link_geom origin
+    return centre + float(g.shape.radius) * d, d
 
 
 def _pad(hand, link: str, boxes, palm_normal, q) -> tuple[np.ndarray, np.ndarray]:

@@ -34,6 +34,30 @@ def test_init_reproduces_the_hand_written_spec(name):
     assert any(f.what == "palm_normal" for f in rep.findings)
 
 
+@pytest.mark.parametrize("side", ["right", "left"])
+def test_init_puts_round_fingertips_pads_where_they_touch(tmp_path, capsys, side):
+    """The Allegro's fingertips are spheres on links fixed beyond the last joint (pinocchio merges
+    them into it and places their geometry in the joint's frame). hand init took those
+    placements for the links' own frames and a sphere's first axis for its "longest": the pads
+    landed 26.7 mm beyond the tip, on the sphere's side (normal -y), and synth found no grasp
+    with the hand it wrote (0 of 240 candidates). Now each pad is the sphere's point the tip
+    closes toward: the bundled hand-written one, on both the right hand and its mirror image."""
+    urdf = Path(Hand.load("allegro_right").urdf_path).with_name(f"allegro_{side}_hand.urdf")
+    out = tmp_path / "hand.yaml"
+    assert main(["hand", "init", str(urdf), "-o", str(out), "--quiet"]) == 0
+    data = yaml.safe_load(out.read_text())
+    ref = Hand.load("allegro_right")
+    for f, fs in data["fingers"].items():
+        assert fs["pad"]["link"] == ref.fingers[f].pad_link
+        np.testing.assert_allclose(fs["pad"]["point"], ref.fingers[f].pad_p_link, atol=1e-6)
+        np.testing.assert_allclose(fs["pad"]["normal"], ref.fingers[f].pad_n_link, atol=1e-6)
+        assert fs["close_joints"] == list(ref.fingers[f].close_joints)
+    obj = tmp_path / "ball.yaml"
+    obj.write_text("shape: sphere\nsize: [0.035]\nmass_kg: 0.05\n")
+    assert main(["synth", str(out), str(obj), "-n", "2", "-o", str(tmp_path / "g"), "--quiet"]) == 0
+    assert len(list((tmp_path / "g").glob("*.yaml"))) == 2
+
+
 def test_init_writes_a_hand_that_loads_checks_and_grasps(tmp_path, capsys):
     urdf = tmp_path / "robot" / "icub_right.urdf"
     urdf.parent.mkdir()
