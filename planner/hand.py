@@ -57,6 +57,10 @@ from planner.urdf_check import (MAX_MESH_TRIANGLES, MAX_NAME_CHARS, check_urdf, 
                                  installed_share_dirs, library_message, name_shown, package_search_dirs,
                                  register_mesh_dirs, stated_inertias, too_many_triangles)
 
+#: Why a coupling may not join two fingers (or a finger and a locked joint).
+CROSS_FINGER = ("a coupling joins joints of one finger only: a regrasp lifts one finger at a time, and fingers "
+                "driven by one actuator (a parallel gripper, an underactuated hand) move together")
+
 ROBOTS_DIR = robots_dir()  # the bundled hands (planner.resources), wherever the package is installed
 SCHEMA_VERSION = 1
 #: The keys of a hand.yaml (the module docstring), of one of its fingers, and its units.
@@ -593,8 +597,8 @@ class Hand:
             if fj != fd:
                 def of(joint, fname):
                     return f"{joint} is {'in no finger (locked)' if fname is None else 'of finger ' + fname}"
-                raise SpecError(sp, "urdf", f"{self.urdf_path}: {where}: a coupling joins two joints of one finger; "
-                                            f"{of(m.joint, fj)}, {of(m.follows, fd)}")
+                raise SpecError(sp, "urdf", f"{self.urdf_path}: {where}: {of(m.joint, fj)}, {of(m.follows, fd)}: "
+                                            f"{CROSS_FINGER}")
             out.append(Coupling(m.joint, m.follows, m.multiplier, m.offset, f"URDF line {m.line}"))
         mimicked = {c.joint: c for c in out}
         cr = r.child("couplings", [])
@@ -617,8 +621,8 @@ class Hand:
                 raise item.fail(f"{joint} already follows {mimicked[joint].follows} by the URDF's <mimic> "
                                 f"({mimicked[joint].source}): remove one", "joint")
             if finger_of[joint] != finger_of[driver]:
-                raise item.fail(f"a coupling joins two joints of one finger; {joint} is of finger {finger_of[joint]}, "
-                                f"{driver} of finger {finger_of[driver]}", "follows")
+                raise item.fail(f"{joint} is of finger {finger_of[joint]}, {driver} of finger {finger_of[driver]}: "
+                                f"{CROSS_FINGER}", "follows")
             m = item.child("multiplier", 1.0).number(-1e3, 1e3, expected="a non-zero number in [-1000, 1000]")
             if m == 0:
                 raise item.fail("multiplier 0 holds the joint at its offset: lock it instead (leave it out of the "

@@ -261,6 +261,7 @@ def init_hand(urdf, package_dirs=(), root: str | None = None, cut_path=None) -> 
                               comment=f"written by regrasp hand init (root {root}): the sub-tree below {root} of "
                                       f"{urdf.resolve()}")
         write_atomic(cut_path, text)
+        source = urdf
         rep.add("ok", "root", f"the hand is the sub-tree below {root}, written to {cut_path} (the hand.yaml's urdf); "
                               "the robot above it is left out")
         urdf = cut_path
@@ -327,7 +328,15 @@ def init_hand(urdf, package_dirs=(), root: str | None = None, cut_path=None) -> 
     couplings = _dangling_mimics(mimics, fingers, rep)
     if couplings:
         spec["couplings"] = couplings
-    hand = _provisional(spec, urdf)
+    try:
+        hand = _provisional(spec, urdf)
+    except SpecError as err:
+        if root is None or err.path != str(urdf):
+            raise
+        # the sub-tree's URDF is removed with the refusal (`planner.commands`): said of the
+        # robot's URDF the user gave, by joint (its line numbers are the sub-tree file's)
+        message = re.sub(r"^line \d+: ", "", err.message)
+        raise SpecError(str(source), err.key, f"the hand below {root}: {message}") from None
     lo, hi = np.asarray(hand.lower), np.asarray(hand.upper)
     followers = {c.joint for c in hand.couplings}
     mimicked = [c for c in hand.couplings if c.source.startswith("URDF")]

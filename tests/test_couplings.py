@@ -114,8 +114,8 @@ def test_a_chain_of_mimics_is_refused(tmp_path):
 @pytest.mark.parametrize("spec, needle", [
     ("couplings:\n  - {joint: left_2, follows: left_0}\n", "couplings[0].joint: left_2 already follows left_1 by the "
                                                            "URDF's <mimic>"),
-    ("couplings:\n  - {joint: right_2, follows: left_1}\n", "couplings[0].follows: a coupling joins two joints of one "
-                                                            "finger"),
+    ("couplings:\n  - {joint: right_2, follows: left_1}\n", "couplings[0].follows: right_2 is of finger right, left_1 "
+                                                            "of finger left: a coupling joins joints of one finger only"),
     ("couplings:\n  - {joint: right_2, follows: right_9}\n", "couplings[0].follows: unknown joint 'right_9'"),
     ("couplings:\n  - {joint: right_2, follows: right_2}\n", "a joint cannot follow itself"),
     ("couplings:\n  - {joint: right_2, follows: right_1, multiplier: 0}\n", "couplings[0].multiplier: multiplier 0"),

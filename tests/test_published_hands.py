@@ -53,6 +53,22 @@ def test_a_robots_urdf_is_refused_with_its_hands_listed(tmp_path, capsys):
     assert not out.exists()
 
 
+def test_a_hand_whose_fingers_share_one_actuator_is_refused_naming_the_robots_urdf(tmp_path, capsys):
+    """Romeo's hands close all fingers with one motor (its finger joints <mimic> 'RHand'): no
+    finger lifts alone, so no regrasp. hand init --root says so in one line naming the robot's
+    URDF and the joint (it named the sub-tree file it had just removed, with that file's line
+    numbers, and said "a coupling joins two joints of one finger" of two fingers); nothing is
+    left behind."""
+    urdf = _robots() / "romeo_description/urdf/romeo.urdf"
+    out = tmp_path / "hand.yaml"
+    assert main(["hand", "init", str(urdf), "--root", "r_wrist", "-o", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"regrasp hand: error: {urdf}: the hand below r_wrist: joint "), err
+    assert "RHand is of finger" in err[0] and "a coupling joins joints of one finger only" in err[0], err
+    assert "line " not in err[0]
+    assert not list(tmp_path.iterdir())
+
+
 def test_a_robot_without_fingered_hands_is_refused_too(tmp_path, capsys):
     # example-robot-data's iCub: legs, arms and head, no fingers
     assert main(["hand", "init", str(_robots() / "icub_description/robots/icub.urdf"), "-o",
