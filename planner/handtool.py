@@ -331,12 +331,12 @@ def init_hand(urdf, package_dirs=(), root: str | None = None, cut_path=None) -> 
     try:
         hand = _provisional(spec, urdf)
     except SpecError as err:
-        if root is None or err.path != str(urdf):
+        if root_link is None or err.path != str(urdf):
             raise
         # the sub-tree's URDF is removed with the refusal (`planner.commands`): said of the
         # robot's URDF the user gave, by joint (its line numbers are the sub-tree file's)
         message = re.sub(r"^line \d+: ", "", err.message)
-        raise SpecError(str(source), err.key, f"the hand below {root}: {message}") from None
+        raise SpecError(str(source), err.key, f"the hand below {root_link}: {message}") from None
     lo, hi = np.asarray(hand.lower), np.asarray(hand.upper)
     followers = {c.joint for c in hand.couplings}
     mimicked = [c for c in hand.couplings if c.source.startswith("URDF")]
