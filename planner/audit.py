@@ -699,6 +699,30 @@ def _check_reposing_summary(plan, rep: AuditReport) -> None:
             rep.add(f"summary.reposing.{key}: the file says {v!r}, its object paths give {mine:.3f}")
 
 
+def _check_order(plan, rep: AuditReport) -> None:
+    """summary.order, the gait sequence other tools read from a plan (``finger:lift``,
+    ``finger:land>label``, ``object:repose``, in step order), is the plan's own steps: a lift
+    and a landing per step (the landing with the label its finger has in the state it
+    reaches), a reposing move; finger moves between them are not listed."""
+    order = (plan.summary or {}).get("order")
+    if order is None:
+        return
+    rep.count("claims")
+    mine = []
+    for s in plan.steps:
+        if s.action == "lift":
+            mine.append(f"{s.finger}:lift")
+        elif s.action == "land":
+            mine.append(f"{s.finger}:land>{plan.states[s.to_state].fingers.get(s.finger)}")
+        elif s.action == "repose":
+            mine.append(f"{OBJECT}:repose")
+    if list(order) != mine:
+        k = next((i for i, (a, b) in enumerate(zip(order, mine)) if a != b), min(len(order), len(mine)))
+        said = order[k] if k < len(order) else "nothing more"
+        rep.add(f"summary.order[{k}]: the file says {said!r}, its steps give "
+                f"{mine[k] if k < len(mine) else 'nothing more'!r} ({len(order)} entries, the steps {len(mine)})")
+
+
 def _close(a, b) -> bool:
     """Two recorded numbers agree (plans round floats to `planner.plan_data.FLOAT_DIGITS`
     digits; the linear programs agree far better than ``CLAIM_RTOL``)."""
@@ -867,6 +891,7 @@ def _check_claims(plan, hand, poses, rep: AuditReport, objs=None, verified: bool
         rep.add(f"summary.bottleneck_grip_force_n: the file says {s['bottleneck_grip_force_n']}, its states give "
                 f"{max(grips) if grips else None}")
     _check_reposing_summary(plan, rep)
+    _check_order(plan, rep)
     _check_verification(plan, [n for n, _, _ in by_pose[None]], rep, verified)
 
 

@@ -306,6 +306,10 @@ def _claim_fewer_directions(d):  # two of the gravity set's six directions, ever
     d["summary"]["bottleneck_grip_force_n"] = max(s["grip_force_n"] for s in d["states"])
 
 
+def _claim_order(d):  # the gait sequence other tools read, its first two moves swapped
+    d["summary"]["order"][0], d["summary"]["order"][1] = d["summary"]["order"][1], d["summary"]["order"][0]
+
+
 CLAIMS = {
     "parameters.hold_factor 0": (_claim_hold_factor_zero, "parameters.hold_factor"),
     "parameters.hold_factor below execution's": (_claim_hold_factor_low, "parameters.hold_factor"),
@@ -317,6 +321,7 @@ CLAIMS = {
     "verification over other directions": (_claim_verified_wrong_directions, "summary.verification.directions"),
     "verify: true without a verification": (_claim_verify_without_record, "summary.verification: missing"),
     "two of the gravity set's six directions": (_claim_fewer_directions, "parameters.gravity_directions"),
+    "the order's first two moves swapped": (_claim_order, "summary.order[0]"),
 }
 
 
