@@ -482,3 +482,24 @@ def test_a_plan_records_its_hand_and_is_refused_after_the_urdf_changed(tmp_path,
     assert main(["replay", str(plan)]) == 2
     err = [line for line in capsys.readouterr().err.splitlines() if "warning:" not in line]
     assert len(err) == 1 and "icub_right.urdf" in err[0], err
+
+
+def test_verify_says_what_it_checks_before_a_large_plan(plans, monkeypatch, caplog, capsys):
+    """A plan of thousands of states takes a minute to check (2,701 states: 69.5 s): verify says
+    first what it is checking, as a progress line (the `planner` log, shown on a terminal)."""
+    import logging
+
+    import planner.commands as commands
+
+    monkeypatch.setattr(commands, "LARGE_PLAN_WAYPOINTS", 10)
+    with caplog.at_level(logging.INFO, logger="planner"):
+        assert main(["verify", str(plans["icub box"])]) == 0
+    said = [r.getMessage() for r in caplog.records if r.getMessage().startswith("checking ")]
+    plan = read_plan(plans["icub box"])
+    assert said == [f"checking {len(plan.states)} states, {len(plan.steps)} steps, "
+                    f"{sum(len(s.path) for s in plan.steps)} path waypoints (about 1 s or more)"], said
+    caplog.clear()
+    monkeypatch.setattr(commands, "LARGE_PLAN_WAYPOINTS", 10**9)
+    with caplog.at_level(logging.INFO, logger="planner"):
+        assert main(["verify", str(plans["icub box"])]) == 0
+    assert not [r for r in caplog.records if r.getMessage().startswith("checking ")]
