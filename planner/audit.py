@@ -35,10 +35,11 @@ recorded inputs, with the planner's own models:
   to-state's, each holding finger's contact fixed on the moving object, joint limits and
   couplings, no link in the object at the waypoint's pose, a finger touching at one end only keeping still);
   ``summary.reposing`` is recomputed from the object paths;
-- **parameters**: the gravity directions the claims are recomputed for are the ones the
+- **parameters**: the gravity directions the claims are recomputed for hold the ones the
   plan's ``gravity_set`` or ``gravity`` gives for its hand; a plan whose parameters say it was
-  verified in the simulator carries the record (`planner.plan.read_plan` refuses names and
-  flags the planner does not write).
+  verified in the simulator (`planner.options.verifies`) carries the record; ``summary.order``
+  is the plan's own steps (`planner.plan.read_plan` refuses names and flags the planner does
+  not write).
 
 Each failed check is one line naming the state or step, the finger and the check.
 """
@@ -59,8 +60,8 @@ from planner.grasp import load_grasp
 from planner.plan import read_plan, recorded_input
 from planner.grip import HOLD_FACTOR, finger_statics, grip_program, hold_capacity
 from planner.model import PALM, Friction
-from planner.options import PLAN_OPTION_LIMITS, VERIFY_ENGINES, in_range, option_range
-from planner.plan_data import OBJECT, Plan, hand_files_record, object_still, plan_hand, pose_matrix
+from planner.options import PLAN_OPTION_LIMITS, VERIFY_ENGINES, in_range, option_range, verifies
+from planner.plan_data import OBJECT, Plan, hand_files_record, object_still, order_entry, plan_hand, pose_matrix
 from planner.realization import PENETRATION_TOL_M as _GRASP_PENETRATION_TOL_M
 from planner.realization import realize
 from planner.repose import FOLLOW_TOL_M as _REPOSE_FOLLOW_TOL_M
@@ -704,18 +705,16 @@ def _check_order(plan, rep: AuditReport) -> None:
     ``finger:land>label``, ``object:repose``, in step order), is the plan's own steps: a lift
     and a landing per step (the landing with the label its finger has in the state it
     reaches), a reposing move; finger moves between them are not listed."""
-    order = (plan.summary or {}).get("order")
-    if order is None:
+    summary = plan.summary or {}
+    if "order" not in summary:  # (no claim made: other tools read the steps)
         return
     rep.count("claims")
-    mine = []
-    for s in plan.steps:
-        if s.action == "lift":
-            mine.append(f"{s.finger}:lift")
-        elif s.action == "land":
-            mine.append(f"{s.finger}:land>{plan.states[s.to_state].fingers.get(s.finger)}")
-        elif s.action == "repose":
-            mine.append(f"{OBJECT}:repose")
+    order = summary["order"]
+    if not (isinstance(order, (list, tuple)) and all(isinstance(o, str) for o in order)):
+        rep.add("summary.order: not a list of moves ('finger:lift', 'finger:land>label', 'object:repose')")
+        return
+    mine = [order_entry(s.finger, s.action, plan.states[s.to_state].fingers.get(s.finger))
+            for s in plan.steps if s.action in ("lift", "land", "repose")]
     if list(order) != mine:
         k = next((i for i, (a, b) in enumerate(zip(order, mine)) if a != b), min(len(order), len(mine)))
         said = order[k] if k < len(order) else "nothing more"
@@ -756,36 +755,40 @@ def _directions(plan, hand, rep: AuditReport, obj=None) -> list[tuple[str, np.nd
 
 
 def _check_gravity_directions(plan, hand, rep: AuditReport) -> None:
-    """The directions a plan records are the ones its ``gravity`` or ``gravity_set`` gives for
-    its hand (`planner.options.gravity_directions_of`): the claims are recomputed for the
-    recorded ones, so a file that lists fewer (or others) than its parameters ask would be
-    checked against less. Plans older than those parameters are not checked."""
+    """The directions a plan lists hold the ones its ``gravity`` or ``gravity_set`` gives for
+    its hand (`planner.options.gravity_directions_of`): the claims are recomputed for the listed
+    ones, so a file listing fewer (or others) than its parameters ask would be checked against
+    less. More is stricter, and some plans wrote it (``--gravity-set 1`` listed palm up too
+    until 2026-11-30). A list needs the parameters it comes from; plans older than the list
+    (``--gravity`` plans before 2026-11-30) are not checked."""
     params = plan.parameters or {}
+    if "gravity_directions" not in params:
+        return
+    rep.count("claims")
     if "gravity" not in params and "gravity_set" not in params:
+        rep.add("parameters.gravity_directions: listed without the gravity or gravity_set they come from")
         return
     from types import SimpleNamespace
 
     from planner.options import gravity_directions_of
 
     try:
-        want = gravity_directions_of(SimpleNamespace(gravity=params.get("gravity"),
-                                                     gravity_set=params.get("gravity_set")), hand)
+        want = [(n, np.asarray(g, dtype=float).reshape(3)) for n, g in gravity_directions_of(
+            SimpleNamespace(gravity=params.get("gravity"), gravity_set=params.get("gravity_set")), hand)]
     except (PlannerError, TypeError, ValueError):
         rep.add(f"parameters.gravity: {params.get('gravity')!r} is not a 3-vector in m/s^2")
         return
     rows = params.get("gravity_directions") or []
     try:
-        have = [(str(row["name"]), np.asarray(row["gravity"], dtype=float).reshape(3)) for row in rows]
+        have = {str(row["name"]): np.asarray(row["gravity"], dtype=float).reshape(3) for row in rows}
     except (KeyError, TypeError, ValueError):
         return  # (`_directions` names the row)
-    rep.count("claims")
-    same = [n for n, _ in have] == [n for n, _ in want] and all(
-        np.allclose(g, w, rtol=0.0, atol=1e-9) for (_, g), (_, w) in zip(have, want))
-    if not same:
+    missing = [n for n, g in want if n not in have or not np.allclose(have[n], g, rtol=0.0, atol=1e-9)]
+    if missing:
         given = f"gravity_set {params.get('gravity_set')}" if params.get("gravity") is None \
             else f"gravity {params.get('gravity')}"
-        rep.add(f"parameters.gravity_directions: {[n for n, _ in have] or 'none'}, but {given} gives "
-                f"{[n for n, _ in want] or 'none'} for {hand.name}")
+        rep.add(f"parameters.gravity_directions: {sorted(have) or 'none'}, but {given} gives "
+                f"{[n for n, _ in want]} for {hand.name} ({', '.join(missing)} missing or other)")
 
 
 def _check_claims(plan, hand, poses, rep: AuditReport, objs=None, verified: bool = True) -> None:
@@ -904,7 +907,7 @@ def _check_verification(plan, planned: list[str], rep: AuditReport, verified: bo
     if record is None:
         # the planner records every verification it runs (`planner.regrasp.plan_gaits`: the graph
         # search, with gravity; `planner.pose_search`: every reposing plan)
-        if verified and params.get("verify") is True and planned and (params.get("strategy", "graph") == "graph" or plan.reposes):
+        if verified and verifies(params.get("verify"), params.get("strategy", "graph"), planned, bool(plan.reposes)):
             rep.count("claims")
             rep.add("summary.verification: missing, yet the plan's parameters say it was verified in the simulator "
                     "(parameters.verify: true)")

@@ -30,6 +30,7 @@ import numpy as np
 
 from planner.errors import InputError, NoSequenceError, UnknownNameError
 from planner.graph import LIFTED, Evaluator, GaitProblem, Node, add_node, seed_graph, within_lift_bound
+from planner.plan_data import order_entry
 
 RANKS = ("metric", "grip")
 """Sequence rankings of `search` (module docstring)."""
@@ -85,13 +86,8 @@ class GaitSequence:
 
     def order(self, problem: GaitProblem) -> tuple[str, ...]:
         """Compact ordering: "finger:lift" / "finger:land>label" per edge."""
-        out = []
-        for (finger, action), node in zip(self.actions, self.nodes[1:]):
-            if action == "land":
-                out.append(f"{finger}:land>{problem.labels(node)[finger]}")
-            else:
-                out.append(f"{finger}:lift")
-        return tuple(out)
+        return tuple(order_entry(finger, "land", problem.labels(node)[finger]) if action == "land"
+                     else order_entry(finger, "lift") for (finger, action), node in zip(self.actions, self.nodes[1:]))
 
 
 def _gait_increment(prev: tuple[str, str] | None, action: tuple[str, str]) -> int:

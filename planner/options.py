@@ -258,6 +258,14 @@ class PlanOptions:
             object.__setattr__(self, "gravity", tuple(float(v) for v in self.gravity))
 
 
+def verifies(verify, strategy: str, directions, reposes: bool = False) -> bool:
+    """Whether a plan is verified in the simulator (and records it, ``summary.verification``):
+    asked (``verify``), made for gravity directions, by the graph search (`planner.regrasp`;
+    the greedy strategy replays nothing) or with reposing moves (`planner.pose_search`
+    verifies every plan it composes)."""
+    return verify is True and bool(directions) and (strategy == "graph" or reposes)
+
+
 def gravity_directions_of(options: PlanOptions, hand) -> list[tuple[str, tuple[float, float, float]]]:
     """The named gravity vectors (palm frame, m/s^2) a plan is made for: ``[("gravity",
     options.gravity)]``, the set of `planner.gravity.gravity_directions` for

@@ -296,7 +296,7 @@ def _check_parameters(parameters: Reader) -> None:
     null: the planner's default (plans older than a parameter)."""
     from planner.gait_search import RANKS
     from planner.gravity import GRAVITY_SET_SIZES
-    from planner.options import STRATEGIES
+    from planner.options import PLAN_OPTION_LIMITS, STRATEGIES
 
     def show(v) -> str:
         return repr_short(v, 40) if isinstance(v, str) else shown(v)
@@ -311,6 +311,9 @@ def _check_parameters(parameters: Reader) -> None:
         value = parameters.get(key)
         if value is not None and not isinstance(value, bool):
             raise parameters.fail(f"expected true or false, got {show(value)}", key)
+    if parameters.get("gravity") is not None:  # (--gravity: 3 numbers, m/s^2 in the palm frame)
+        low, high, _ = PLAN_OPTION_LIMITS["gravity"]
+        parameters.child("gravity").vector((3,), "gravity, m/s^2 in the palm frame", low=low, high=high)
 
 
 REQUIRED_KEYS = ("schema_version", "hand", "object", "friction", "joints", "states", "steps")

@@ -94,6 +94,13 @@ def pose_matrix(pose) -> np.ndarray:
     return T
 
 
+def order_entry(finger: str, action: str, label: str | None = None) -> str:
+    """One entry of a plan's ``summary.order``, the gait sequence other tools read: a lift
+    ``finger:lift``, a landing ``finger:land>label`` (the finger's label in the state it
+    reaches), a reposing move ``object:repose``; finger moves between them are not listed."""
+    return f"{finger}:land>{label}" if action == "land" else f"{finger}:{action}"
+
+
 def object_still(a, b) -> bool:
     """Two consecutive waypoints of a reposing step's object path (each (x, y, z, qx, qy, qz,
     qw)) are one pose: the object does not move there (the fingers re-posture on it)."""

@@ -35,8 +35,8 @@ import numpy as np
 
 from planner.errors import MotionError, NoSequenceError, PlannerError
 from planner.model import PALM
-from planner.options import PlanOptions, gravity_directions_of
-from planner.plan_data import OBJECT, Plan, PlanState, PlanStep, pose_vector
+from planner.options import PlanOptions, gravity_directions_of, verifies
+from planner.plan_data import OBJECT, Plan, PlanState, PlanStep, order_entry, pose_vector
 from planner.realization import PENETRATION_TOL_M
 from planner.repose import (FOLLOW_TOL_M, FollowError, Reposing, _holds, at_pose, pose_distance, repose, settle_pose,
                             state_reason)
@@ -48,6 +48,8 @@ log = logging.getLogger("planner")
 
 #: A pose at most this close to another candidate (mm, deg) is the same candidate.
 SAME_POSE = (0.05, 0.05)
+#: A reposing move in the summary's order.
+REPOSE = order_entry(OBJECT, "repose")
 
 
 def grasp_state(grasp, options: PlanOptions, label: str) -> PlanState:
@@ -361,7 +363,7 @@ def compose_at(initial, final, options: PlanOptions, first: Leg, gait: Plan | No
         b.steps += [replace(s, from_state=s.from_state + k0, to_state=s.to_state + k0) for s in gait.steps]
     _leg_back(b, last, final)
     moves = [x.move for x in (first, last) if x.move is not None]
-    order = [f"{f}:lift" for f, _, _ in first.lifts] + ([f"{OBJECT}:repose"] if first.move is not None else []) \
+    order = [order_entry(f, "lift") for f, _, _ in first.lifts] + ([REPOSE] if first.move is not None else []) \
         + (list(gait.summary.get("order", [])) if gait else []) + _leg_back_order(last)
     return _finish(initial, options, b, moves, gait, order, len(first.lifts) + len(last.lifts), P), at
 
@@ -393,7 +395,7 @@ def _leg_back(b: "_Builder", last: Leg, final) -> None:
 
 def _leg_back_order(last: Leg) -> list[str]:
     """The summary's order of `_leg_back`'s steps."""
-    return ([f"{OBJECT}:repose"] if last.move is not None else []) + [f"{f}:land>final" for f, _, _ in reversed(last.lifts)]
+    return ([REPOSE] if last.move is not None else []) + [order_entry(f, "land", "final") for f, _, _ in reversed(last.lifts)]
 
 
 def compose_through(initial, final, options: PlanOptions, gait_a: Plan | None, move: Reposing,
@@ -428,7 +430,7 @@ def compose_through_at(initial, final, options: PlanOptions, gait_a: Plan | None
         for st in gait_b.states:
             b.state(st, Tb)
         b.steps += [replace(s, from_state=s.from_state + k0, to_state=s.to_state + k0) for s in gait_b.steps]
-    order = (list(gait_a.summary.get("order", [])) if gait_a else []) + [f"{OBJECT}:repose"] \
+    order = (list(gait_a.summary.get("order", [])) if gait_a else []) + [REPOSE] \
         + (list(gait_b.summary.get("order", [])) if gait_b else [])
     moves, extra = [move], 0
     if back is not None:
@@ -651,7 +653,7 @@ def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bo
     Ta, Tb = np.asarray(initial.obj.T_palm_obj, float), np.asarray(final.obj.T_palm_obj, float)
     tried = []
     directions = gravity_directions_of(options, hand)
-    verifying = options.verify and bool(directions)
+    verifying = verifies(options.verify, options.strategy, directions, reposes=True)
     verify_s = 0.0
     replays = 0  # sequences the verification replayed, every candidate's (gaits and whole plans)
     stopped = False  # the budget ran out before every candidate was tried

@@ -34,7 +34,7 @@ from planner.errors import MotionError, NoSequenceError, SpecError, UnknownNameE
 from planner.explain import explain_failure, failure_analysis
 from planner.graph import LIFTED, GaitProblem, annotate_removable, seed_graph
 from planner.helper import cores
-from planner.options import PlanOptions, gravity_directions_of
+from planner.options import PlanOptions, gravity_directions_of, verifies
 from planner.plan_data import Alternative, Plan, PlanState, PlanStep, hand_files_record
 from planner.realization import RealizedGrasp, realized_grasp
 from planner.retreat import retreat_blocked
@@ -539,7 +539,7 @@ def plan_gaits(
     cache: dict = {}
     stuck: dict = {}
     directions = gravity_directions_of(options, hand)
-    verifying = options.verify and bool(directions) and options.strategy == "graph"
+    verifying = verifies(options.verify, options.strategy, directions)
     verified, rejected, verify_s, workers, plan = None, [], 0.0, None, None
     rejected_moves: list[str] = []  # the plan step each rejected sequence failed at, in words
     unsound: list[str] = []  # moves the plan's physics check refused: the move and its first problem

@@ -503,3 +503,65 @@ def test_verify_says_what_it_checks_before_a_large_plan(plans, monkeypatch, capl
     with caplog.at_level(logging.INFO, logger="planner"):
         assert main(["verify", str(plans["icub box"])]) == 0
     assert not [r for r in caplog.records if r.getMessage().startswith("checking ")]
+
+
+def _verify_lines(capsys, data, tmp_path, closures=False) -> tuple[int, str]:
+    bad = tmp_path / "plan.json"
+    _reseal(data, bad, closures=closures)
+    code = main(["verify", str(bad)])
+    out = capsys.readouterr()
+    assert "Traceback" not in out.err
+    return code, out.out + out.err
+
+
+def test_listed_gravity_directions_must_cover_what_the_parameters_ask(plans, tmp_path, capsys):
+    """The directions listed hold the parameters' ones (more is stricter and was written: a
+    gravity set of 1 listed palm up too until 2026-11-30); a list without the parameters it
+    comes from is refused (deleting them let a file list 2 of 6); a plan older than the list
+    (a --gravity plan before 2026-11-30) is not held to it."""
+    data = _data(plans, "allegro sphere execution")
+    data["parameters"]["gravity_set"] = 1  # six listed, one asked
+    assert _verify_lines(capsys, data, tmp_path)[0] == 0
+    data = _data(plans, "allegro sphere execution")
+    _claim_fewer_directions(data)
+    del data["parameters"]["gravity_set"], data["parameters"]["gravity"]
+    code, text = _verify_lines(capsys, data, tmp_path)
+    assert code == 1 and "FAIL parameters.gravity_directions: listed without the gravity or gravity_set" in text, text
+    data = _data(plans)  # no gravity: made without one
+    data["parameters"]["gravity"] = [0.0, 0.0, 9.81]
+    data["parameters"].pop("gravity_directions", None)
+    assert _verify_lines(capsys, data, tmp_path)[0] == 0
+
+
+@pytest.mark.parametrize("value", [[0.0, 12.3], [0.0, 0.0, 9.81, 1.0], "down", [0.0, 0.0, 1e9]])
+def test_a_gravity_parameter_that_is_no_vector_is_one_line(plans, tmp_path, capsys, value):
+    """parameters.gravity of 2 or 4 numbers was a numpy broadcast traceback in verify and replay."""
+    data = _data(plans)
+    data["parameters"]["gravity"] = value
+    code, text = _verify_lines(capsys, data, tmp_path)
+    assert code == 2 and "parameters.gravity" in text and len(text.strip().splitlines()) == 1, text
+
+
+@pytest.mark.parametrize("value", [5, "index:lift", {"a": 1}, [1, 2]])
+def test_a_summary_order_that_is_no_list_of_moves_is_a_problem(plans, tmp_path, capsys, value):
+    """summary.order: 5 was a TypeError traceback in verify and replay; a string was compared
+    character by character."""
+    data = _data(plans)
+    data["summary"]["order"] = value
+    code, text = _verify_lines(capsys, data, tmp_path)
+    assert code == 1 and "FAIL summary.order: not a list of moves" in text, text
+
+
+def test_plans_the_greedy_strategy_writes_pass_without_a_verification(tmp_path, capsys):
+    """The greedy strategy replays nothing: its execution plan has no verification record and
+    verify does not ask for one (it does for the graph search's: the tests above)."""
+    out = tmp_path / "greedy.json"
+    assert main(["plan", str(bundled_grasp("icub/box_parallel_extension.yaml")), str(bundled_grasp("icub/box_ir2m.yaml")),
+                 "--execution", "--strategy", "greedy", "--no-motion", "-o", str(out)]) == 0
+    data = json.loads(out.read_text())
+    assert data["parameters"]["verify"] is True and "verification" not in data["summary"]
+    capsys.readouterr()
+    assert main(["verify", str(out)]) == 0, capsys.readouterr().out
+    data["parameters"]["strategy"] = "graph"  # the same file said to be the graph search's: it would have one
+    code, text = _verify_lines(capsys, data, tmp_path)
+    assert code == 1 and "FAIL summary.verification: missing" in text, text
