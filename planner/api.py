@@ -132,7 +132,10 @@ def replay(plan, *, gravity_set: int | None = None, report: PathLike | None = No
     if not isinstance(plan, Plan):
         plan = plan_from_data(dict(plan)) if hasattr(plan, "keys") else read_plan(plan, strict=kwargs.get("strict", False))
     hand = kwargs.pop("hand", None) or plan_hand(plan)
-    require_sound(plan, hand)
+    inputs = plan_files(plan, hand)
+    # the names as given first (an input, a picture misnamed: said of the name the user wrote),
+    # then the names derived from them, before the physics check (a large plan's takes a minute)
+    check_outputs([(report, "--report"), *((kwargs.get(k), "--" + k) for k in ("gif", "mp4"))], inputs)
     if isinstance(kwargs.get("gravity"), str):  # a named orientation (planner.gravity.named_gravity)
         kwargs["gravity"] = named_gravity(kwargs["gravity"], hand)
     engines = engines_of(engine)  # (an engine not installed: one line, before any work)
@@ -146,7 +149,8 @@ def replay(plan, *, gravity_set: int | None = None, report: PathLike | None = No
             else:
                 names = [n for n, _ in gravity_directions(hand.palm_normal, gravity_set)]
                 outputs += [(p, "--" + key) for p in film_paths(path, names, kwargs.get("film"))]
-    check_outputs(outputs, plan_files(plan, hand))
+    check_outputs(outputs, inputs)
+    require_sound(plan, hand)
     results = []
     for e in engines:
         kw = {**kwargs, **films[e], "engine": e}
