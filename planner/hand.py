@@ -59,7 +59,8 @@ from planner.urdf_check import (MAX_MESH_TRIANGLES, MAX_NAME_CHARS, check_urdf, 
 
 #: Why a coupling may not join two fingers (or a finger and a locked joint).
 CROSS_FINGER = ("a coupling joins joints of one finger only: a regrasp lifts one finger at a time, and fingers "
-                "driven by one actuator (a parallel gripper, an underactuated hand) move together")
+                "driven by one actuator (a parallel gripper, an underactuated hand) move together; put both joints "
+                "in one finger's joints, or remove the coupling")
 
 ROBOTS_DIR = robots_dir()  # the bundled hands (planner.resources), wherever the package is installed
 SCHEMA_VERSION = 1

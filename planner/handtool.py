@@ -574,7 +574,7 @@ def _far_point(hand, link: str, boxes) -> np.ndarray:
     centre = _box_centre(hand, link)
     T = joint_to_link(hand, link)
     away = T.rotation.T @ np.asarray(T.translation, float)  # from the joint to the link's origin, link frame
-    if float(np.ptp(size)) <= 1e-9 and float(np.linalg.norm(away)) > 1e-9:
+    if _one_sphere(hand, link) is not None and float(np.linalg.norm(away)) > 1e-9:
         # a round tip fixed beyond its joint (a sphere: no longest axis): its far end along
         # the phalanx, the direction from the joint to it
         return centre + 0.5 * float(size[0]) * away / float(np.linalg.norm(away))
@@ -593,19 +593,23 @@ def _box_centre(hand, link: str) -> np.ndarray:
     return np.mean(pts, axis=0) if pts else np.zeros(3)
 
 
+def _one_sphere(hand, link: str):
+    """The link's collision geometry when it is one sphere (a round fingertip), else None."""
+    import coal
+
+    shapes = [g for g in hand.collision.geometries if g.link == link]
+    return shapes[0] if len(shapes) == 1 and isinstance(shapes[0].shape, coal.Sphere) else None
+
+
 def _sphere_pad(hand, link: str, closing, q) -> tuple[np.ndarray, np.ndarray] | None:
     """Pad point and outward normal (link frame) of a distal link whose collision geometry is
     one sphere (a round fingertip: the Allegro's), else None: the point of the sphere the tip
     moves toward as the finger closes (``closing``, palm frame, at ``q``), the normal snapped
     to the nearest link axis within `SNAP_DEG`. A box's rule (`_pad`: 3/4 along its longest
     axis) has no longest axis on a sphere: it put the Allegro's pads on the sphere's side."""
-    import coal
-
-    shapes = [g for g in hand.collision.geometries if g.link == link]
-    if len(shapes) != 1 or not isinstance(shapes[0].shape, coal.Sphere) or closing is None \
-            or float(np.linalg.norm(closing)) < 1e-9:
+    g = _one_sphere(hand, link)
+    if g is None or closing is None or float(np.linalg.norm(closing)) < 1e-9:
         return None
-    g = shapes[0]
     R = hand.state(q).link_pose(link)[:3, :3]
     d = R.T @ (np.asarray(closing, float) / float(np.linalg.norm(closing)))
     axis = int(np.argmax(np.abs(d)))

@@ -47,6 +47,7 @@ import math
 import os
 import re
 import stat
+import threading
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -514,16 +515,28 @@ def package_search_dirs(package_dirs=(), installed: bool = False) -> list[str]:
 PACKAGE_PATH_VARIABLES = ("ROS_PACKAGE_PATH", "AMENT_PREFIX_PATH")
 
 
+_ENVIRON_LOCK = threading.Lock()
+
+
+def _unusable(variable: str) -> bool:
+    """An entry of a package path variable that is no folder (missing, a file, a link loop)."""
+    sub = "share" if variable == "AMENT_PREFIX_PATH" else ""
+    return any(d and not os.path.isdir(os.path.join(d, sub)) for d in os.environ.get(variable, "").split(os.pathsep))
+
+
 @contextlib.contextmanager
 def given_package_dirs_only():
     """While pinocchio loads geometry it is given every package folder (`package_search_dirs`:
-    the environment's usable ones included) and reads none from the environment: an entry
-    there that is a symbolic link loop stopped its loader ("Too many levels of symbolic links")."""
-    saved = {k: os.environ.pop(k) for k in PACKAGE_PATH_VARIABLES if k in os.environ}
-    try:
-        yield
-    finally:
-        os.environ.update(saved)
+    the environment's usable ones included) and reads none from a package path variable with
+    an entry that is no folder: a symbolic link loop there stopped its loader ("Too many levels
+    of symbolic links"). Such a variable is taken out of the environment for the load (under a
+    lock: one thread at a time) and put back; a usable one is left alone."""
+    with _ENVIRON_LOCK:
+        saved = {k: os.environ.pop(k) for k in PACKAGE_PATH_VARIABLES if _unusable(k)}
+        try:
+            yield
+        finally:
+            os.environ.update(saved)
 
 
 #: URDF (resolved path) -> the mesh folders the hand loaded from it was given (`register_mesh_dirs`):

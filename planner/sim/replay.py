@@ -731,8 +731,8 @@ class _Sim:
         # all of it there, as planned (the palm holds only where the object rests on it,
         # `planner.repose`): the palm's load is handed over to them before they lift the object
         # off it, and back after they put it on. Waypoints before or after, with the object
-        # still (fingers re-posturing on it, `planner.pose_search`), keep the palm as the
-        # state at that end has it: the planner judged them with it
+        # still (fingers re-posturing on it, `planner.pose_search`), keep the palm's share as
+        # it is (a palm holding at that end holds there: the planner judged them with it)
         moving = [k for k in range(len(poses) - 1) if not object_still(poses[k], poses[k + 1])]
         first, last = (moving[0], moving[-1]) if moving else (len(poses), -1)
         self.palm_holds = frm.palm_holds
