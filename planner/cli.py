@@ -12,8 +12,10 @@ import argparse
 import contextlib
 import logging
 import os
+import signal
 import sys
 import tempfile
+import threading
 import warnings
 from pathlib import Path
 
@@ -255,9 +257,42 @@ OPTION_LIMITS = {
 _INPUTS = {"plan": ("initial", "final"), "check": ("grasp",), "replay": ("plan",), "view": ("source", "report"),
            "verify": ("plan",), "hand": ("urdf", "hand")}
 _OUTPUTS = {"hand": ("output",), "plan": ("output",), "check": ("png",), "replay": ("report", "gif", "mp4"), "view": ("output", "gif")}
-#: Exit code of an interrupted command (128 + SIGINT) and of a closed stdout (128 + SIGPIPE).
+#: Exit code of an interrupted command (128 + SIGINT), of a terminated one (128 + SIGTERM) and of a
+#: closed stdout (128 + SIGPIPE).
 EXIT_INTERRUPTED = 130
+EXIT_TERMINATED = 143
 EXIT_BROKEN_PIPE = 141
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (``kill PID``, ``timeout``) as Ctrl-C: the command unwinds as it does on Ctrl-C
+    (worker and helper processes stopped, temporary files removed, no output written), then
+    exits 143. A KeyboardInterrupt, so that every clean-up for Ctrl-C runs for it too."""
+
+
+@contextlib.contextmanager
+def _sigterm_unwinds():
+    """While the outermost command runs, SIGTERM raises `Terminated` in this process. Without
+    it, the process died at once and the processes it had forked (the gait search's helper,
+    the replays' workers) lived on, holding the caller's pipes open. A forked child (which
+    inherits the handler) still dies of it at once, as before."""
+    if threading.current_thread() is not threading.main_thread():  # (handlers are set there only)
+        yield
+        return
+    pid = os.getpid()
+
+    def handler(signum, _frame):
+        if os.getpid() != pid:  # a forked worker: die of the signal, as without this handler
+            signal.signal(signum, signal.SIG_DFL)
+            os.kill(os.getpid(), signum)
+            return
+        raise Terminated
+
+    old = signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
 
 
 class _Parser(argparse.ArgumentParser):
@@ -389,7 +424,8 @@ def main(argv: list[str] | None = None) -> int:
             term = None
         quiet = bool(getattr(args, "quiet", False))
         with _progress(prefix, term, quiet), _warnings_as_lines(prefix, verbose), \
-                _quiet_stderr(verbose or _DEPTH > 1) as noise:
+                _quiet_stderr(verbose or _DEPTH > 1) as noise, \
+                (_sigterm_unwinds() if _DEPTH == 1 else contextlib.nullcontext()):
             try:
                 _validate(args)
                 code = int(args.func(args))
@@ -406,6 +442,9 @@ def main(argv: list[str] | None = None) -> int:
     except PlannerError as err:
         _say(f"{prefix}: error: {err}")
         return 2
+    except Terminated:
+        _say(f"{prefix}: terminated")
+        return EXIT_TERMINATED
     except KeyboardInterrupt:
         _say(f"{prefix}: interrupted")
         return EXIT_INTERRUPTED

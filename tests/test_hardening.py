@@ -2,6 +2,7 @@
 their integrity. Every case is a small generated input: the command exits 2 (bad input),
 1 or 130 with exactly one stderr line naming the key, and no input file changes."""
 
+import contextlib
 import errno
 import hashlib
 import json
@@ -417,6 +418,58 @@ def test_ctrl_c_is_one_line_and_exit_130(monkeypatch, grasps, capsys):
     monkeypatch.setattr(commands, "cmd_check", interrupted)
     code, err = _run(capsys, "check", grasps[0])
     assert code == 130 and err == ["regrasp check: interrupted"]
+
+
+def _state_and_parent(pid) -> tuple[str, int] | None:
+    """A process's state letter and parent from /proc, None when it is gone."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except (OSError, ValueError):
+        return None
+    fields = stat[stat.rindex(")") + 2:].split()
+    return fields[0], int(fields[1])
+
+
+def _children(pid: int) -> list[int]:
+    """The running processes whose parent is ``pid`` (zombies left out: they have exited)."""
+    out = []
+    for entry in Path("/proc").iterdir():
+        info = _state_and_parent(entry.name) if entry.name.isdigit() else None
+        if info is not None and info[1] == pid and info[0] != "Z":
+            out.append(int(entry.name))
+    return out
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads the process table in /proc")
+def test_sigterm_is_one_line_exit_143_and_stops_the_forked_processes(tmp_path):
+    """`kill PID` (SIGTERM, as `timeout` sends) during `plan --execution -o`: the processes it
+    forked (the search's helper, the replays' workers) end with it instead of running on with
+    the caller's pipes open, one line 'terminated', exit 143, no plan and no temporary file."""
+    import signal
+    import time
+
+    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "PYTHONPATH": str(ROOT)}  # this checkout, from tmp_path
+    proc = subprocess.Popen([sys.executable, "-m", "planner", "plan", str(ROOT / "grasps/icub/cylinder_parallel_extension.yaml"),
+                             str(ROOT / "grasps/icub/cylinder_ir2m.yaml"), "--execution", "-o", "p.yaml"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=tmp_path, env=env,
+                            start_new_session=True)
+    try:
+        deadline = time.monotonic() + 120
+        while not _children(proc.pid) and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert _children(proc.pid), "the planner forked no process to check"
+        forked = _children(proc.pid)
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=120)  # the pipes close: no forked process holds them
+    finally:  # whatever is left of the session (the forked processes too, before the fix)
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+    lines = err.decode().strip().splitlines()
+    assert proc.returncode == 143 and lines == ["regrasp plan: terminated"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+    time.sleep(0.5)
+    assert [p for p in forked if (_state_and_parent(p) or ("Z",))[0] != "Z"] == []
 
 
 def test_closed_stdout_is_quiet():
