@@ -495,6 +495,27 @@ def test_gravity_set_replays_every_direction_with_its_own_verdict(hand, grasp, t
     assert len(rows) == 2 and "FAIL" in rows[0]
 
 
+@pytest.mark.needs_pybullet("pictures (replay --gif)")
+def test_interrupted_gravity_set_stops_its_workers_and_writes_no_film(hand, grasp, tmp_path):
+    """Ctrl-C (a KeyboardInterrupt in this process) while directions replay in worker processes:
+    the running replay is stopped and the queued ones do not start, so no film is written (the
+    pool used to wait for every queued direction, minutes, and write their films)."""
+    from planner.gravity import gravity_directions
+    from planner.sim.inputs import typed_plan
+    from planner.sim.verify import replay_directions
+
+    directions = gravity_directions(hand.palm_normal, 7)
+    films = [tmp_path / f"{name}.gif" for name, _ in directions]
+
+    def ctrl_c():  # runs in this process once the first direction was handed to a worker
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        replay_directions(typed_plan(_plan(hand, grasp), False), hand, directions, workers=2, meanwhile=ctrl_c,
+                          gif=films, gif_every=48)
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
 @pytest.mark.needs_pybullet("pictures (replay --gif --film)")
 def test_gravity_set_films_only_the_directions_asked_for(hand, grasp, tmp_path):
     """--film palm_down with --gravity-set 2 and --gif writes the palm-down film only; a

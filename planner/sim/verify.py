@@ -23,6 +23,7 @@ import logging
 import math
 import multiprocessing
 import os
+import signal
 import time
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -77,6 +78,10 @@ def default_workers() -> int:
 
 def _one(i: int) -> ReplayReport | None:
     job = _JOB
+    if job.get("interrupted") is not None:  # a forked worker: Ctrl-C of the parent stops its replay
+        if job["interrupted"].is_set():  # the command was interrupted: not started
+            return None
+        signal.signal(signal.SIGINT, signal.default_int_handler)  # (the parent's may be SIG_IGN)
     name, g = job["directions"][i]
     kw = dict(job["kwargs"])
     if isinstance(kw.get("stop_at_failure"), StopLine):  # this replay's place in the directions' order
@@ -142,25 +147,48 @@ def replay_directions(plan: Plan, hand, directions: Sequence[tuple[str, Sequence
                 if decided(out[-1]):
                     return out + [None] * (n - i - 1)
             return out
+        _JOB["interrupted"] = multiprocessing.get_context("fork").Event()
         with ProcessPoolExecutor(max_workers=min(workers, n), mp_context=multiprocessing.get_context("fork")) as pool:
-            futures = {pool.submit(_one, i): i for i in range(first)}
-            if beside:
-                meanwhile()
-                futures.update({pool.submit(_one, i): i for i in range(first, n)})
-            done: dict[int, object] = {}
-            for fut in as_completed(futures):
-                i = futures[fut]
-                if fut.cancelled() or fut.result() is None:
-                    continue
-                done[i] = fut.result()
-                _log_done(directions[i][0], done[i], len(done), n)
-                if decided(done[i]):  # the directions after it not started yet are not
-                    for f, j in futures.items():
-                        if j > i:
-                            f.cancel()
-            return [done.get(i) for i in range(n)]
+            try:
+                return _in_pool(pool, n, first, beside, meanwhile, directions, decided)
+            except BaseException:  # Ctrl-C, SIGTERM: no replay starts after it and the running ones stop
+                _interrupt(pool)
+                raise
     finally:
         _JOB.clear()
+
+
+def _interrupt(pool: ProcessPoolExecutor) -> None:
+    """Stop the replays of an interrupted command: the ones not started are not (`_one`), the
+    running ones get a KeyboardInterrupt in their worker (their films' temporary files are
+    removed as they unwind). Without it, leaving the pool waited for every direction queued,
+    minutes after Ctrl-C, and wrote their films."""
+    _JOB["interrupted"].set()
+    for proc in list((getattr(pool, "_processes", None) or {}).values()):  # (no public handle on them)
+        try:
+            os.kill(proc.pid, signal.SIGINT)
+        except (ProcessLookupError, AttributeError, TypeError):
+            pass
+
+
+def _in_pool(pool, n, first, beside, meanwhile, directions, decided) -> list:
+    """`replay_directions`'s replays in the worker processes of ``pool``."""
+    futures = {pool.submit(_one, i): i for i in range(first)}
+    if beside:
+        meanwhile()
+        futures.update({pool.submit(_one, i): i for i in range(first, n)})
+    done: dict[int, object] = {}
+    for fut in as_completed(futures):
+        i = futures[fut]
+        if fut.cancelled() or fut.result() is None:
+            continue
+        done[i] = fut.result()
+        _log_done(directions[i][0], done[i], len(done), n)
+        if decided(done[i]):  # the directions after it not started yet are not
+            for f, j in futures.items():
+                if j > i:
+                    f.cancel()
+    return [done.get(i) for i in range(n)]
 
 
 def _log_done(name: str, report, k: int, n: int) -> None:
