@@ -50,7 +50,7 @@ def plan(initial, final, *, execution: bool = False, output: PathLike | None = N
         `planner.regrasp.PlanResult` (``.plan``, ``.sequence``, ``.alternatives``, ...).
     """
     from planner.errors import UnknownNameError
-    from planner.fileio import check_outputs
+    from planner.fileio import as_path, check_outputs
     from planner.grasp import GraspSpec, grasp_files, input_record, load_grasp, load_hand
     from planner.options import PlanOptions
     from planner.plan_data import plan_format, write_plan
@@ -62,8 +62,11 @@ def plan(initial, final, *, execution: bool = False, output: PathLike | None = N
         if k not in valid:
             raise UnknownNameError("plan option", k, valid)
     if output is not None:
-        plan_format(output)  # a bad suffix before any work
+        plan_format(as_path(output, "output", "a plan file path (.yaml/.json)"))  # a bad suffix before any work
     grasps = [initial, final]
+    for name, g in zip(("initial", "final"), grasps):
+        if not isinstance(g, (GraspSpec, RealizedGrasp)):
+            as_path(g, name, "a grasp file path, a GraspSpec or a RealizedGrasp")
     specs = [g.spec if isinstance(g, RealizedGrasp) else g if isinstance(g, GraspSpec) else load_grasp(g)
              for g in grasps]
     check_same_setup(*specs, pose=options.get("repose") is False)
@@ -178,10 +181,12 @@ def check(grasp):
 
 def verify(plan):
     """Check a plan against physics and its inputs without simulation (``regrasp verify``):
-    `planner.audit.AuditReport` (``ok``, ``problems``)."""
+    `planner.audit.AuditReport` (``ok``, ``problems``). ``plan``: a plan file, a
+    `planner.plan_data.Plan` or plan data (as `replay`)."""
     from planner.audit import audit_plan
+    from planner.plan import plan_from_data
 
-    return audit_plan(plan)
+    return audit_plan(plan_from_data(dict(plan)) if hasattr(plan, "keys") else plan)
 
 
 def synth(hand, object_block: dict, fingers, n: int = 1, *, fixed: bool = False, **kwargs: Any):

@@ -158,6 +158,22 @@ def _short(text, limit: int = 40) -> str:
     return repr(text if len(text) <= limit else text[: limit - 3] + "...")
 
 
+def as_path(value, what: str, expected: str = "a file path") -> Path:
+    """A file argument of the Python API as a `Path`.
+
+    Raises:
+        InputError: ``value`` is not a str or os.PathLike naming a file (an int, None, a dict,
+            bytes: pathlib's TypeError before) or is empty (the current folder before), naming
+            ``what`` and what was ``expected``.
+    """
+    text = os.fspath(value) if isinstance(value, (str, os.PathLike)) else None
+    if not isinstance(text, str):
+        raise InputError(f"{what}: expected {expected}, got {describe(value)}")
+    if not text:
+        raise InputError(f"{what}: expected {expected}, got an empty file name")
+    return Path(text)
+
+
 def read_limited(path: str | os.PathLike, max_bytes: int, what: str) -> str:
     """The text of a file no larger than ``max_bytes``; SpecError (file, no content) otherwise."""
     path = Path(path)
@@ -631,12 +647,14 @@ def check_outputs(outputs, inputs=(), *, formats: bool = True) -> None:
         formats: check the suffixes too (False: a first check before the inputs are read, whose
             files may still be found to be inputs: that is said first).
     """
-    named = [(Path(os.fspath(p)), option) for p, option in outputs if p is not None]
+    # as given: an empty name is refused by `check_output` (Path("") is the current folder)
+    named = [(p if isinstance(p, str) else os.fspath(as_path(p, option, "an output file path")), option)
+             for p, option in outputs if p is not None]
     inputs = [p for p in inputs if p is not None]
     for k, (out, option) in enumerate(named):
         check_output(out, inputs, option)
         for other, other_option in named[:k]:
-            if _same_file(out, other):
+            if _same_file(Path(out), Path(other)):
                 raise OutputError(f"{option} {out}: is also the file of {other_option}; give them different names")
     for out, option in named if formats else ():
         check_format(out, option)

@@ -48,7 +48,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from planner.errors import PlannerError, SpecError, UnknownNameError
-from planner.fileio import Reader, check_grasp_file, describe, sha256_file
+from planner.fileio import Reader, as_path, check_grasp_file, describe, sha256_file
 from planner.hand import Hand
 from planner.model import EDGES_MAX, GAMMA_MAX_M, MU_MAX, Friction
 from planner.objects import GraspObject, read_object
@@ -173,7 +173,8 @@ def load_grasp(path) -> GraspSpec:
     Raises:
         SpecError: naming the file, the key path and what was expected.
     """
-    path = Path(path).resolve() if Path(path).exists() else Path(path)
+    path = as_path(path, "grasp file")
+    path = path.resolve() if path.exists() else path
     data = check_grasp_file(path)  # size, nesting, aliases, duplicate keys, integer digits, hand: path
     Reader(path, data).mapping("a YAML mapping at the top level", string_keys=True)
     return parse_grasp(data, path)

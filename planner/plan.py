@@ -25,7 +25,7 @@ import numpy as np
 import planner
 from planner.closure import CONTACT_MODELS, grasp_closure
 from planner.errors import IntegrityError, PlannerError, PlannerWarning, SpecError, UnknownNameError
-from planner.fileio import (MAX_GRASP_BYTES, MAX_PLAN_BYTES, Reader, load_json, load_yaml, read_limited, repr_short,
+from planner.fileio import (MAX_GRASP_BYTES, MAX_PLAN_BYTES, Reader, as_path, load_json, load_yaml, read_limited, repr_short,
                             sha256_file, shown)
 from planner.model import PALM, Friction, Patch
 from planner.objects import MeshFileError, check_object_block
@@ -68,7 +68,7 @@ def read_plan(path: str | os.PathLike, *, strict: bool = False) -> Plan:
         SpecError: naming the file and the key path of the first problem;
             `IntegrityError` when the plan is incomplete or altered.
     """
-    path = Path(path)
+    path = as_path(path, "plan", "a plan file path")
     fmt = plan_format(path)
     text = read_limited(path, MAX_PLAN_BYTES, "plan")
     data = load_json(text, path) if fmt == "json" else _json_like(load_yaml(text, path, "plan"), str(path))

@@ -51,6 +51,39 @@ def test_bad_options_are_planner_errors_naming_the_choices():
         planner.plan(str(A), str(B), output="plan.txt")  # bad suffix, before any work
 
 
+@pytest.mark.parametrize("value, got", [(5, "int 5"), (None, "nothing"), ({"a": 1}, "dict"), (b"a.yaml", "bytes"),
+                                         ("", "an empty file name")], ids=["int", "None", "dict", "bytes", "empty"])
+def test_a_path_argument_of_the_wrong_type_is_an_input_error_naming_it(value, got):
+    """An int, None, a dict, bytes or an empty string where a file is expected: an InputError
+    naming the argument, what it takes and what it got (pathlib's TypeError before; an empty
+    name read the current folder); plan data (a mapping) is a plan for `verify` as for `replay`."""
+    from planner.errors import InputError
+
+    with pytest.raises(InputError, match=f"^grasp file: expected a file path, got {got}"):
+        planner.check(value)
+    with pytest.raises(InputError, match=f"^initial: expected a grasp file path, a GraspSpec or a RealizedGrasp, got {got}"):
+        planner.plan(value, str(B))
+    if value is not None:
+        with pytest.raises(InputError, match=f"^output: expected a plan file path .*, got {got}"):
+            planner.plan(str(A), str(B), output=value)
+    if not isinstance(value, dict):
+        for call in (planner.verify, planner.replay):
+            with pytest.raises(InputError, match=f"^plan: expected a plan file path, got {got}"):
+                call(value)
+    else:
+        with pytest.raises(planner.SpecError, match="schema_version: missing key"):
+            planner.verify(value)
+
+
+def test_an_output_of_the_wrong_type_is_an_input_error(planned):
+    """``replay(report=5)``: one line naming the option, not a TypeError in pathlib."""
+    from planner.errors import InputError
+
+    _, out = planned
+    with pytest.raises(InputError, match="^--report: expected an output file path, got int 5"):
+        planner.replay(out, report=5)
+
+
 def test_check_realizes_a_grasp_file():
     g = planner.check(A)
     assert g.closure.is_force_closure and not g.problems
