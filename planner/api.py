@@ -110,7 +110,8 @@ def replay(plan, *, gravity_set: int | None = None, report: PathLike | None = No
         engine: "pybullet", "mujoco", "both" (each engine in turn; the films of each are
             ``FILE_<engine>.gif``) or None (`planner.sim.engine.default_engine`).
         **kwargs: `planner.sim.replay.replay_plan` keywords (``gif``, ``mp4``,
-            ``drift_mm_max``, ...; with ``gravity_set``, ``film``: the directions filmed).
+            ``drift_mm_max``, ...; with ``gravity_set``, ``film``: the directions filmed, a list
+            or "palm_down,palm_up", and ``workers``); any other name is an `UnknownNameError`.
 
     Every file written (the report, the films, one per filmed direction of a gravity set:
     ``FILE_<direction>.gif``) is checked before anything is simulated: none may be a file
@@ -121,9 +122,11 @@ def replay(plan, *, gravity_set: int | None = None, report: PathLike | None = No
         `ReplayReport` (one replay) or `GravitySetReport` (``gravity_set``); with ``engine="both"``
         a `planner.sim.verify.EnginesReport` of one of those per engine.
     """
+    import inspect
     import json
 
     from planner.audit import require_sound
+    from planner.errors import UnknownNameError
     from planner.fileio import check_outputs, write_atomic
     from planner.gravity import gravity_directions, named_gravity
     from planner.plan import plan_files, plan_from_data, read_plan
@@ -132,6 +135,12 @@ def replay(plan, *, gravity_set: int | None = None, report: PathLike | None = No
     from planner.sim.replay import replay_plan
     from planner.sim.verify import engine_path, engines_of, film_paths, in_engines, replay_gravity_set
 
+    valid = {*inspect.signature(replay_plan).parameters, *inspect.signature(replay_gravity_set).parameters} - {"plan", "n"}
+    for k in kwargs:  # a misspelt keyword was a TypeError from replay_plan, after the plan was read and checked
+        if k not in valid:
+            raise UnknownNameError("replay option", k, valid)
+    if isinstance(kwargs.get("film"), str):  # "palm_down,palm_up", as --film
+        kwargs["film"] = [d.strip() for d in kwargs["film"].split(",") if d.strip()]
     if not isinstance(plan, Plan):
         plan = plan_from_data(dict(plan)) if hasattr(plan, "keys") else read_plan(plan, strict=kwargs.get("strict", False))
     hand = kwargs.pop("hand", None) or plan_hand(plan)

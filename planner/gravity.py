@@ -52,7 +52,7 @@ def gravity_directions(palm_normal: Sequence[float], n: int, g_mps2: float = G_M
     Raises:
         PlannerError: ``n`` not in ``GRAVITY_SET_SIZES`` or a zero/non-finite normal.
     """
-    if n not in GRAVITY_SET_SIZES:
+    if isinstance(n, bool) or n not in GRAVITY_SET_SIZES:  # (True == 1)
         raise PlannerError(f"gravity set size must be one of {', '.join(map(str, GRAVITY_SET_SIZES))}, got {n!r}")
     nrm = np.asarray(palm_normal, dtype=float).reshape(3)
     length = float(np.linalg.norm(nrm))

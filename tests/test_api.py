@@ -84,6 +84,25 @@ def test_an_output_of_the_wrong_type_is_an_input_error(planned):
         planner.replay(out, report=5)
 
 
+def test_bad_replay_keywords_are_planner_errors(planned):
+    """replay's keywords: a misspelt one is an UnknownNameError listing them (a TypeError from
+    replay_plan before), ``workers`` 0, -1 or 'two' an InputError (0 and -1 replayed serially,
+    'two' was a ValueError), ``gravity_set=True`` is not a set size, and ``film`` may be one
+    comma-separated string as --film (its letters were taken for direction names)."""
+    from planner.errors import InputError
+
+    _, out = planned
+    with pytest.raises(UnknownNameError, match="unknown replay option 'drift_mm'; .*drift_mm_max"):
+        planner.replay(out, drift_mm=3)
+    for workers in (0, -1, "two", 1.5):
+        with pytest.raises(InputError, match=r"^workers must be an integer in \[1, 256\] \(processes\), got"):
+            planner.replay(out, gravity_set=2, workers=workers)
+    with pytest.raises(PlannerError, match="gravity set size must be one of 1, 2, 6, 7, got True"):
+        planner.replay(out, gravity_set=True)
+    with pytest.raises(InputError, match="^cannot film side_\\+x: the gravity set of 2 has palm_down, palm_up$"):
+        planner.replay(out, gravity_set=2, gif=out.with_suffix(".gif"), film="palm_down,side_+x")
+
+
 def test_check_realizes_a_grasp_file():
     g = planner.check(A)
     assert g.closure.is_force_closure and not g.problems

@@ -33,6 +33,7 @@ from pathlib import Path
 from planner.errors import InputError
 from planner.gravity import gravity_directions
 from planner.helper import cores
+from planner.options import PLAN_OPTION_LIMITS, in_range, option_range
 from planner.sim.engine import ENGINES, default_engine, require_engine
 from planner.plan import plan_from_data
 from planner.plan_data import Plan
@@ -120,6 +121,9 @@ def replay_directions(plan: Plan, hand, directions: Sequence[tuple[str, Sequence
     directions = [(str(n), tuple(float(v) for v in g)) for n, g in directions]
     kwargs["engine"] = one_engine(kwargs.get("engine"))
     n = len(directions)
+    low, high, open_low = PLAN_OPTION_LIMITS["workers"]
+    if workers is not None and not in_range(workers, low, high, open_low):  # ('two' was a ValueError, 0 and -1 ran serially)
+        raise InputError(f"workers must be an integer in {option_range(low, high, open_low)} (processes), got {workers!r}")
     workers = default_workers() if workers is None else int(workers)
     _JOB.clear()
     _JOB.update(plan=plan, hand=hand, directions=directions, kwargs=kwargs)
@@ -217,7 +221,8 @@ def replay_gravity_set(plan: Mapping | str | os.PathLike, n: int = 6, *, hand=No
             6 with the four sideways directions, 7 with gravity off too.
         hand: the plan's `planner.hand.Hand` (loaded from the plan when None).
         g_mps2: gravity magnitude.
-        film: the direction names filmed when ``gif`` or ``mp4`` is given (default: all).
+        film: the direction names filmed when ``gif`` or ``mp4`` is given (a list, or one
+            comma-separated string as ``--film``; default: all).
         strict: refuse a plan file whose recorded inputs changed or are gone (`replay_plan`).
         workers: processes the directions are replayed in (`planner.sim.verify.replay_directions`;
             default: the cores available; the reports are those of a serial run).
@@ -236,6 +241,8 @@ def replay_gravity_set(plan: Mapping | str | os.PathLike, n: int = 6, *, hand=No
         hand = plan_hand(rd)
     directions = gravity_directions(hand.palm_normal, n, g_mps2)
     names = [name for name, _ in directions]
+    if isinstance(film, str):  # "palm_down,palm_up", as --film (its letters were taken for names)
+        film = [d.strip() for d in film.split(",") if d.strip()]
     unknown = sorted(set(film or ()) - set(names))
     if unknown:
         raise InputError(f"cannot film {', '.join(unknown)}: the gravity set of {n} has {', '.join(names)}")
