@@ -208,8 +208,24 @@ def synth(hand, object_block: dict, fingers, n: int = 1, *, fixed: bool = False,
         n: grasps wanted.
         fixed: keep the object's pose (else it is sampled too).
     """
+    import inspect
+
+    from planner.errors import InputError, UnknownNameError
+    from planner.fileio import describe
     from planner.grasp import resolve_hand_ref
     from planner.synthesis import synthesize
 
-    names = [f.strip() for f in fingers.split(",")] if isinstance(fingers, str) else list(fingers)
+    valid = set(inspect.signature(synthesize).parameters) - {"hand_ref", "obj", "fingers", "n", "fixed"}
+    for k in kwargs:  # (a TypeError from synthesize before)
+        if k not in valid:
+            raise UnknownNameError("synth option", k, valid)
+    if not hasattr(object_block, "keys"):
+        raise InputError(f"object_block: expected a grasp file's object mapping (shape, size[, position, quat_xyzw, "
+                         f"mass_kg]), got {describe(object_block)}")
+    if isinstance(fingers, str):
+        names = [f.strip() for f in fingers.split(",")]
+    elif isinstance(fingers, (list, tuple)) and all(isinstance(f, str) for f in fingers):
+        names = list(fingers)
+    else:
+        raise InputError(f"fingers: expected finger names (a list or 'thumb,index,middle'), got {describe(fingers)}")
     return synthesize(resolve_hand_ref(str(hand), Path.cwd()), dict(object_block), names, n, fixed=fixed, **kwargs)

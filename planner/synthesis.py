@@ -37,6 +37,7 @@ touch the palm already (`check_palm_pose`).
 from __future__ import annotations
 
 import math
+import numbers
 import os
 import sys
 import time
@@ -262,14 +263,17 @@ def synthesize(hand_ref: str, obj: GraspObject | Mapping, fingers, n: int, *, fi
     if not chosen:
         raise PlannerError("synth: give at least one finger (--fingers thumb,index,...)")
     friction = dict(DEFAULT_FRICTION if friction is None else friction)
-    if n < 1:
-        raise PlannerError(f"synth: -n must be at least 1, got {n}")
+    # counts of the Python API as the CLI's (a str was a TypeError, a negative seed numpy's ValueError)
+    for name, value, low, high in (("n", n, 1, MAX_GRASPS), ("workers", workers, 1, MAX_WORKERS),
+                                   ("seed", seed, 0, 2**32 - 1), ("max_attempts", max_attempts, 1, MAX_ATTEMPTS)):
+        if value is None and name == "max_attempts":
+            continue
+        if isinstance(value, bool) or not isinstance(value, numbers.Integral) or not low <= value <= high:
+            raise PlannerError(f"synth: {name} must be an integer in {low}..{high}, got {value!r}")
     if contact_model not in CONTACT_MODELS:
         raise UnknownNameError("contact model", contact_model, CONTACT_MODELS)
     if not 0 < friction_margin <= 1:
         raise PlannerError(f"synth: friction_margin must be in (0, 1], got {friction_margin!r}")
-    if workers < 1:
-        raise PlannerError(f"synth: workers must be at least 1, got {workers}")
     max_attempts = 60 * n if max_attempts is None else max_attempts
     obj = object_of(obj)
     if palm:

@@ -189,3 +189,24 @@ def test_synth_says_why_when_it_finds_too_few_and_has_a_tripod_default(tmp_path,
     assert sum(counts) == 20
     assert default_fingers(Hand.load("icub_right")) == ["thumb", "index", "middle"]
     assert default_fingers(Hand.load("allegro_right")) == ["thumb", "index", "middle"]
+
+
+@pytest.mark.parametrize("args, kwargs, words", [
+    (("icub_right", None, "thumb,index"), {}, "^object_block: expected a grasp file's object mapping .*got nothing"),
+    (("icub_right", "ball.yaml", "thumb,index"), {}, "^object_block: expected .*got str 'ball.yaml'"),
+    (("icub_right", BALL, None), {}, r"^fingers: expected finger names \(a list or 'thumb,index,middle'\), got nothing"),
+    (("icub_right", BALL, "thumb,index"), {"n": "2"}, r"^synth: n must be an integer in 1\.\.10000, got '2'"),
+    (("icub_right", BALL, "thumb,index"), {"workers": "two"}, r"^synth: workers must be an integer in 1\.\.256, got 'two'"),
+    (("icub_right", BALL, "thumb,index"), {"seed": -1}, r"^synth: seed must be an integer in 0\.\.4294967295, got -1"),
+    (("icub_right", BALL, "thumb,index"), {"max_attempts": 0}, r"^synth: max_attempts must be an integer in 1\.\.10000000"),
+    (("icub_right", BALL, "thumb,index"), {"bogus": 1}, "^unknown synth option 'bogus'; synth options are base_dir"),
+], ids=["object-None", "object-path", "fingers-None", "n-str", "workers-str", "seed-negative", "attempts-0", "bogus"])
+def test_synth_api_bad_arguments_are_planner_errors(args, kwargs, words):
+    """`planner.synth` refuses what the CLI refuses, in one PlannerError naming the argument and
+    what it takes: before, a str count was a TypeError, a negative seed numpy's ValueError, no
+    object mapping or fingers a TypeError, a misspelt keyword a TypeError, and max_attempts=0 ran
+    no attempt and returned no grasp."""
+    import planner
+
+    with pytest.raises(planner.PlannerError, match=words):
+        planner.synth(*args, **kwargs)
