@@ -215,6 +215,9 @@ class PlanOptions:
         return cls(**kw)
 
     def __post_init__(self):
+        for name in ("motion", "execution", "verify", "repose"):  # motion="no" planned paths ("no" is truthy)
+            if not isinstance(getattr(self, name), bool):
+                raise InputError(f"PlanOptions.{name} must be True or False, got {getattr(self, name)!r}")
         if self.gravity is not None:
             try:
                 g = tuple(self.gravity)

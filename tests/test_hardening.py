@@ -329,6 +329,17 @@ def test_plan_options_api_checks_the_cli_ranges():
         PlanOptions(seed=None)
 
 
+@pytest.mark.parametrize("name", ["motion", "execution", "verify", "repose"])
+@pytest.mark.parametrize("value", ["no", 0, None], ids=["str", "int", "None"])
+def test_plan_options_switches_must_be_bools(name, value):
+    """PlanOptions' switches take True or False: ``motion="no"`` planned OMPL paths ("no" is
+    truthy) and ``repose=None`` was taken as False; now one InputError naming the field."""
+    from planner.options import PlanOptions
+
+    with pytest.raises(InputError, match=f"^PlanOptions.{name} must be True or False, got {value!r}$"):
+        PlanOptions(**{name: value})
+
+
 def test_argparse_errors_are_one_line(capsys):
     """A missing argument or unknown option: exit 2 and one line, no usage block."""
     for argv in (["plan"], ["plan", "a.yaml", "b.yaml", "--bogus"], ["nope"]):
