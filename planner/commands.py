@@ -209,7 +209,7 @@ def cmd_hand(args: argparse.Namespace) -> int:
     if args.hand_command == "init":
         out = os.path.abspath(args.output)
         # --root: the hand's own URDF (the sub-tree) is written beside the hand.yaml, same stem
-        cut = os.path.splitext(out)[0] + ".urdf" if args.root else None
+        cut = os.path.splitext(out)[0] + ".urdf" if args.root is not None else None
         # the sub-tree is written before the hand is inferred from it: a refusal after that
         # leaves no hand.urdf behind (or the one that was there)
         cut_before = Path(cut).read_bytes() if cut is not None and os.path.isfile(cut) else None

@@ -26,3 +26,13 @@ def test_an_accepted_root_still_writes_both(tmp_path):
     out = tmp_path / "hand.yaml"
     assert main(["hand", "init", str(URDF), "-o", str(out), "--root", "index_base"]) == 0
     assert out.is_file() and (tmp_path / "hand.urdf").is_file()
+
+
+def test_an_empty_root_is_an_unknown_link(tmp_path, capsys):
+    """`--root ''` (an empty shell variable) is refused as an unknown link, listing the links,
+    exit 2 and nothing written: it was a ValueError traceback ('root needs cut_path')."""
+    out = tmp_path / "hand.yaml"
+    assert main(["hand", "init", str(URDF), "-o", str(out), "--root", ""]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "root: unknown link ''; links are index_base" in err[0]
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
