@@ -39,6 +39,8 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     """Plan the bundled cylinder example (parallel extension -> IR2M) for execution and
     replay it under the six gravity directions it was planned for, and gravity off.
     Here, not in `planner.commands`: it runs the other commands through `main`."""
+    if not args.out:  # Path("") is the current folder: an empty variable wrote the demo there
+        raise PlannerError(f"--out: an empty name; name a directory for the demo's outputs (default ./{DEMO_OUT}/)")
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise PlannerError(f"--out {out}: exists and is not a directory; name a directory for the demo's outputs")

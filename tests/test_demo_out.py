@@ -34,3 +34,12 @@ def test_demo_out_a_symlink_loop(tmp_path, capsys):
     (tmp_path / "b").symlink_to(tmp_path / "a")
     assert main(["demo", "--out", str(tmp_path / "a"), "-q"]) == 2
     _one_line(capsys, "--out", "symbolic link to nothing")
+
+
+def test_demo_out_empty(tmp_path, monkeypatch, capsys):
+    """`--out ''` (an empty shell variable) is refused: it wrote the demo's files into the
+    current folder."""
+    monkeypatch.chdir(tmp_path)
+    assert main(["demo", "--out", "", "-q"]) == 2
+    _one_line(capsys, "--out: an empty name", "regrasp-demo")
+    assert list(tmp_path.iterdir()) == []
