@@ -41,6 +41,15 @@ def cmd_plan(args: argparse.Namespace) -> int:
     """Plan (`planner.api.plan`, which checks and writes) and print the steps and summary."""
     from planner.api import plan as plan_api  # deferred: scipy, networkx, pinocchio, coal; OMPL when planning
 
+    # the options of the verification in a physics engine, which --execution alone runs: given
+    # without it (or with --no-verify), they were ignored and the plan silently not verified
+    unused = [option for option, given in (("--verify-attempts", args.verify_attempts is not None),
+                                           ("--engine", args.engine is not None)) if given]
+    if not args.execution and (unused or args.no_verify):
+        raise PlannerError(f"{', '.join(unused + ['--no-verify'] * args.no_verify)}: only with --execution (the plan is "
+                           "verified in a physics engine in execution mode alone); add --execution or leave it out")
+    if args.no_verify and unused:
+        raise PlannerError(f"{', '.join(unused)} and --no-verify exclude each other: --no-verify replays nothing")
     t0 = time.perf_counter()
     gname = args.gravity if isinstance(args.gravity, str) else None  # a name: the grasps' hand resolves it
     chosen = dict(contact_model=args.contact_model, rank=args.rank, gravity_set=args.gravity_set,
@@ -341,6 +350,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
         raise PlannerError("--film names directions of --gravity-set: give --gravity-set N too")
     if args.gravity_set is not None and args.gravity is not None:
         raise PlannerError("--gravity and --gravity-set exclude each other: give one")
+    if args.workers is not None and args.gravity_set is None:  # (one replay runs in this process: it was ignored)
+        raise PlannerError("--workers runs the directions of --gravity-set in parallel: give --gravity-set N too")
     if args.workers is not None and args.workers < 1:
         raise PlannerError(f"--workers must be >= 1, got {args.workers}")
     from planner.plan import read_plan  # deferred: scipy (~0.2 s)

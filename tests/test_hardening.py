@@ -340,6 +340,30 @@ def test_plan_options_switches_must_be_bools(name, value):
         PlanOptions(**{name: value})
 
 
+@pytest.mark.parametrize("argv, words", [
+    (["--no-verify"], "--no-verify: only with --execution"),
+    (["--verify-attempts", "3"], "--verify-attempts: only with --execution"),
+    (["--engine", "mujoco"], "--engine: only with --execution"),
+    (["--execution", "--no-verify", "--verify-attempts", "3"], "--verify-attempts and --no-verify exclude each other"),
+    (["--execution", "--no-verify", "--engine", "mujoco"], "--engine and --no-verify exclude each other"),
+], ids=["no-verify", "attempts", "engine", "attempts-no-verify", "engine-no-verify"])
+def test_plan_verification_options_without_a_verification_are_refused(tmp_path, grasps, capsys, argv, words):
+    """The options of the verification in a physics engine without one (no --execution, or
+    --no-verify): one line, exit 2, nothing written; they were ignored and e.g. `--engine mujoco`
+    returned a plan verified in no engine."""
+    code, err = _run(capsys, "plan", *grasps, "--no-motion", "-o", tmp_path / "p.yaml", *argv)
+    assert code == 2 and len(err) == 1 and words in err[0], err
+    assert not (tmp_path / "p.yaml").exists()
+
+
+def test_replay_workers_without_a_gravity_set_is_refused(tmp_path, capsys):
+    """`replay --workers N` without --gravity-set (one replay, in this process) is refused as
+    --film is; it was ignored."""
+    code, err = _run(capsys, "replay", _tiny(tmp_path), "--workers", "2")
+    assert code == 2 and err == ["regrasp replay: error: --workers runs the directions of --gravity-set in parallel: "
+                                 "give --gravity-set N too"]
+
+
 def test_argparse_errors_are_one_line(capsys):
     """A missing argument or unknown option: exit 2 and one line, no usage block."""
     for argv in (["plan"], ["plan", "a.yaml", "b.yaml", "--bogus"], ["nope"]):
