@@ -604,7 +604,9 @@ MAX_WORKERS = 256
 
 def _check_out_dir(out_dir) -> None:
     """``-o DIR`` before any work: a folder, or a new one in an existing folder; never a
-    regular file or under one."""
+    regular file or under one; not an empty name (the current folder: files landed there)."""
+    if not os.fspath(out_dir):
+        raise PlannerError("synth: -o: an empty name; name a folder for the grasp files")
     d = Path(out_dir)
     try:
         resolve_path(d)

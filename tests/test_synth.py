@@ -142,6 +142,19 @@ def test_synth_bad_input_is_one_line_exit_2(tmp_path, capsys, args, words):
     assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
 
 
+def test_synth_empty_output_name_is_refused(tmp_path, monkeypatch, capsys):
+    """`synth -o ''` (an empty shell variable): one line, exit 2; the grasp files were written
+    into the current folder."""
+    obj = _object_file(tmp_path, BALL)
+    work = tmp_path / "cwd"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    assert _synth(["icub_right", str(obj), "--fingers", "thumb,index,middle", "-n", 1, "-o", ""]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "-o: an empty name; name a folder" in err[0], err
+    assert list(work.iterdir()) == []
+
+
 def test_synth_for_execution_keeps_grasps_holding_in_every_direction_with_mean_contacts():
     """With several gravity directions, the mean contact model and a friction reserve, every kept
     grasp is force closure with one contact per finger and holds the weight in each direction
