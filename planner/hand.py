@@ -47,7 +47,7 @@ import pinocchio as pin
 
 from planner.collision import CollisionModel, Geometry, HandState
 from planner.errors import SpecError, UnknownNameError
-from planner.fileio import MAX_GRASP_BYTES, Reader, read_yaml, repr_short, resolve_path
+from planner.fileio import MAX_GRASP_BYTES, Reader, as_path, read_yaml, repr_short, resolve_path
 from planner.ik import IK_TOL_M, IKResult, close_finger, ik_solve
 from planner.kinematics import Kinematics, checked_q
 from planner.model import PALM
@@ -293,7 +293,7 @@ class Hand:
             UnknownNameError: a bare name that is neither a bundled hand nor a file or folder.
             SpecError: the hand.yaml is missing or invalid (file + key path in the message).
         """
-        path = Path(name_or_path)
+        path = as_path(name_or_path, "hand", "a bundled hand's name or a hand.yaml path")
         bare = path.suffix not in (".yaml", ".yml") and len(path.parts) == 1
         if bare and path.name in bundled_hands():
             path = hand_dir(path.name)

@@ -45,8 +45,8 @@ from typing import Any, Mapping
 import numpy as np
 import yaml
 
-from planner.errors import SpecError
-from planner.fileio import check_hand_file, sha256_file, write_atomic
+from planner.errors import InputError, SpecError
+from planner.fileio import as_path, check_hand_file, describe, sha256_file, write_atomic
 from planner.model import PALM, Friction, holders
 from planner.objects import GraspObject
 from planner.resources import bundled_grasp_name, bundled_hand_name, is_hand_path
@@ -504,7 +504,9 @@ def write_plan(plan: Plan, path: str | os.PathLike) -> Path:
             behind and an existing file is untouched).
     """
 
-    path = Path(path)
+    path = as_path(path, "plan", "a plan file path (.yaml/.json)")
+    if not isinstance(plan, (Plan, Mapping)):
+        raise InputError(f"plan: expected a Plan or plan data, got {describe(plan)}")
     fmt = plan_format(path)
     data = plan.to_dict(relative_to=path.absolute().parent) if isinstance(plan, Plan) else plan
     return write_atomic(path, dumps_plan(data, fmt))

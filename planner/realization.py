@@ -912,7 +912,7 @@ def realized_grasp(g) -> tuple["RealizedGrasp", dict | None]:
 
 
 def realize(spec: GraspSpec, hand=None, *, suggest: bool = True) -> RealizedGrasp:
-    """Turn a grasp spec into a hand configuration and measure its contacts and closure.
+    """Turn a grasp spec (or a grasp file: `planner.grasp.load_grasp`) into a hand configuration and measure its contacts and closure.
 
     Contact fingers: `realize_contact`. Posture fingers: the closing procedure from the
     posture. Free fingers: the open posture. Then contact patches (several points per
@@ -934,6 +934,8 @@ def realize(spec: GraspSpec, hand=None, *, suggest: bool = True) -> RealizedGras
         KinematicsError: a contact point is out of its finger's reach (the message names
             the file and the key).
     """
+    if not isinstance(spec, GraspSpec):  # a grasp file, as `plan_regrasp` takes (an AttributeError before)
+        spec = load_grasp(spec)
     hand = load_hand(spec.hand_ref) if hand is None else hand
     obj = spec.object
     q = np.array(hand.q_open, dtype=float, copy=True)

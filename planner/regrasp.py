@@ -30,7 +30,8 @@ import numpy as np
 
 from planner.audit import audit_plan
 from planner.closure import GRIP_CONE_SIDES
-from planner.errors import MotionError, NoSequenceError, SpecError, UnknownNameError
+from planner.errors import InputError, MotionError, NoSequenceError, SpecError, UnknownNameError
+from planner.fileio import describe
 from planner.explain import explain_failure, failure_analysis
 from planner.graph import LIFTED, GaitProblem, annotate_removable, seed_graph
 from planner.helper import cores
@@ -441,6 +442,8 @@ def plan_regrasp(
         NoSequenceError: no plan; the message says why (the gaits' refusal and, when
             reposing was tried, why each candidate pose failed).
     """
+    if not isinstance(options, PlanOptions):  # (an AttributeError deep inside before)
+        raise InputError(f"options: expected a PlanOptions (e.g. PlanOptions(motion=False)), got {describe(options)}")
     if not isinstance(initial, RealizedGrasp) or not isinstance(final, RealizedGrasp):
         (initial, rec_i), (final, rec_f) = realized_grasp(initial), realized_grasp(final)
         if inputs is None:

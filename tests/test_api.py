@@ -103,6 +103,26 @@ def test_bad_replay_keywords_are_planner_errors(planned):
         planner.replay(out, gravity_set=2, gif=out.with_suffix(".gif"), film="palm_down,side_+x")
 
 
+def test_exported_functions_refuse_wrong_argument_types(planned, tmp_path):
+    """The other exported calls name a wrong argument in an InputError instead of an
+    AttributeError or TypeError deep inside: Hand.load(None), plan_regrasp with options as a
+    dict, write_plan to a non-path or of a non-plan; realize takes a grasp file as
+    plan_regrasp does (it was an AttributeError on the path)."""
+    from planner.errors import InputError
+
+    result, _ = planned
+    with pytest.raises(InputError, match="^hand: expected a bundled hand's name or a hand.yaml path, got nothing"):
+        planner.Hand.load(None)
+    with pytest.raises(InputError, match=r"^options: expected a PlanOptions .*got dict"):
+        planner.plan_regrasp(str(A), str(B), {"motion": False})
+    with pytest.raises(InputError, match="^plan: expected a plan file path .*got int 5"):
+        planner.write_plan(result.plan, 5)
+    with pytest.raises(InputError, match="^plan: expected a Plan or plan data, got int 5"):
+        planner.write_plan(5, tmp_path / "p.yaml")
+    assert not (tmp_path / "p.yaml").exists()
+    assert planner.realize(str(A)).closure == planner.check(A).closure
+
+
 def test_check_realizes_a_grasp_file():
     g = planner.check(A)
     assert g.closure.is_force_closure and not g.problems
