@@ -444,10 +444,12 @@ def main(argv: list[str] | None = None) -> int:
     except PlannerError as err:
         _say(f"{prefix}: error: {err}")
         return 2
-    except Terminated:
-        _say(f"{prefix}: terminated")
-        return EXIT_TERMINATED
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as stop:
+        if _DEPTH > 1:  # a step of the demo: the demo stops (it went on to its next step)
+            raise
+        if isinstance(stop, Terminated):
+            _say(f"{prefix}: terminated")
+            return EXIT_TERMINATED
         _say(f"{prefix}: interrupted")
         return EXIT_INTERRUPTED
     except BrokenPipeError:

@@ -43,3 +43,23 @@ def test_demo_out_empty(tmp_path, monkeypatch, capsys):
     assert main(["demo", "--out", "", "-q"]) == 2
     _one_line(capsys, "--out: an empty name", "regrasp-demo")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_ctrl_c_in_a_step_stops_the_demo(tmp_path, monkeypatch, capsys):
+    """Ctrl-C during the demo's replay ends the demo (one line, exit 130): it went on to write
+    the 3D page and its summary after the replay said 'interrupted'."""
+    import planner.commands as commands
+
+    monkeypatch.setattr(cli, "bundled_grasp", lambda name: name)
+    monkeypatch.setattr(commands, "cmd_plan", lambda args: 0)
+    viewed = []
+    monkeypatch.setattr(commands, "cmd_view", lambda args: viewed.append(args) or 0)
+
+    def ctrl_c(_args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(commands, "cmd_replay", ctrl_c)
+    assert main(["demo", "--out", str(tmp_path / "demo"), "-q"]) == 130
+    assert viewed == []
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["regrasp demo: interrupted"]
