@@ -126,7 +126,7 @@ def build_parser() -> argparse.ArgumentParser:
                       help="also require every state to hold twice the object's weight under this gravity (palm "
                            "frame, m/s^2, e.g. 0 0 9.81 palm down, or a NAME: " + _GRAVITY_NAMES_HELP + ") within "
                            "the hand's joint torque limits")
-    plan.add_argument("--gravity-set", type=int, default=None, metavar="N",
+    plan.add_argument("--gravity-set", type=int, default=None, choices=GRAVITY_SET_SIZES, metavar="N",
                       help="like --gravity for several hand orientations at once: 1 palm down, 2 and palm up, "
                            "6 and the four sideways directions, 7 and gravity off (from the hand's palm_normal)")
     plan.add_argument("--max-finger-force", type=float, default=None, metavar="N",

@@ -45,6 +45,14 @@ class SpecError(PlannerError):
         return (type(self), (self.path, self.key, self.message))
 
 
+def _plural(kind: str) -> str:
+    """"strategy" -> "strategies", "finger with collision geometry" -> "fingers with collision
+    geometry" ("strategys", "finger with collision geometrys" before), "hand" -> "hands"."""
+    head, sep, tail = kind.partition(" with ")
+    head = head[:-1] + "ies" if head.endswith("y") and head[-2:-1] not in "aeiou" else head + "s"
+    return head + sep + tail
+
+
 class UnknownNameError(PlannerError, KeyError):
     """A name (finger, link, joint, planner...) is not one of the valid choices."""
 
@@ -52,7 +60,7 @@ class UnknownNameError(PlannerError, KeyError):
         self.kind = kind
         self.name = name
         self.valid = sorted(valid)
-        super().__init__(f"unknown {kind} {one_line(repr(name))}; {kind}s are {', '.join(map(one_line, self.valid))}")
+        super().__init__(f"unknown {kind} {one_line(repr(name))}; {_plural(kind)} are {', '.join(map(one_line, self.valid))}")
 
     def __reduce__(self):
         return (type(self), (self.kind, self.name, self.valid))

@@ -364,6 +364,27 @@ def test_replay_workers_without_a_gravity_set_is_refused(tmp_path, capsys):
                                  "give --gravity-set N too"]
 
 
+def test_unknown_name_messages_say_the_plural():
+    """"unknown strategy 'foo'; strategies are graph, greedy" (it said "strategys"; "finger with
+    collision geometrys"), and `plan --gravity-set 3` names the option and its choices."""
+    from planner.errors import UnknownNameError
+    from planner.options import PlanOptions
+
+    with pytest.raises(UnknownNameError, match="^unknown strategy 'foo'; strategies are graph, greedy$"):
+        PlanOptions(strategy="foo")
+    assert str(UnknownNameError("finger with collision geometry", "x", ["index"])) == (
+        "unknown finger with collision geometry 'x'; fingers with collision geometry are index")
+    assert str(UnknownNameError("hand", "x", ["a"])) == "unknown hand 'x'; hands are a"
+    assert str(UnknownNameError("physics engine", "x", ["a"])).endswith("; physics engines are a")
+
+
+def test_plan_gravity_set_names_the_option_and_choices(grasps, capsys):
+    """`plan --gravity-set 3`: the option and its choices, as replay's (it was "gravity set size
+    must be one of ..." without the option)."""
+    code, err = _run(capsys, "plan", *grasps, "--gravity-set", "3")
+    assert code == 2 and len(err) == 1 and "--gravity-set: invalid choice: 3 (choose from 1, 2, 6, 7)" in err[0], err
+
+
 def test_argparse_errors_are_one_line(capsys):
     """A missing argument or unknown option: exit 2 and one line, no usage block."""
     for argv in (["plan"], ["plan", "a.yaml", "b.yaml", "--bogus"], ["nope"]):
