@@ -228,6 +228,9 @@ def init_hand(urdf, package_dirs=(), root: str | None = None, cut_path=None) -> 
     urdf = Path(urdf)
     source = urdf
     for d in package_dirs:  # a typo was ignored (the hand.yaml then named a folder that is not there)
+        if not str(d):  # (an empty variable: the current folder was recorded in the hand.yaml)
+            raise SpecError("--package-dir", "", "an empty name; give the folder holding the ROS packages of "
+                            "package:// mesh paths")
         if not Path(d).is_dir():
             raise SpecError(str(d), "", "--package-dir: not a folder (a folder holding the ROS packages of "
                                         "package:// mesh paths)")

@@ -36,3 +36,13 @@ def test_an_empty_root_is_an_unknown_link(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "root: unknown link ''; links are index_base" in err[0]
     assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+def test_an_empty_package_dir_is_refused(tmp_path, capsys):
+    """`--package-dir ''` (an empty shell variable): one line, exit 2, nothing written; it was
+    taken for the current folder and recorded in the hand.yaml's package_dirs."""
+    out = tmp_path / "hand.yaml"
+    assert main(["hand", "init", str(URDF), "-o", str(out), "--package-dir", ""]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--package-dir: an empty name" in err[0], err
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
