@@ -42,6 +42,23 @@ def available() -> bool:
     return "fork" in mp.get_all_start_methods()
 
 
+def die_with_parent(parent: int) -> None:
+    """In a forked worker: end when the process ``parent`` ends, however it ends (SIGKILL, the
+    OOM killer: nothing of it runs then). Linux's parent-death signal; elsewhere nothing.
+    Without it, the replay workers of a killed planner waited for ever (one blocked writing its
+    result to a pipe no one reads but its sibling, the sibling on the pipe's lock), holding the
+    caller's stdout and stderr open."""
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):  # pragma: no cover - not Linux
+        return
+    if os.getppid() != parent:  # it ended before the signal was asked for
+        os._exit(1)
+
+
 def _serve(conn, theirs) -> None:
     """The helper's loop: ``(function, items)`` in, ``(True, results)`` or ``(False, text)`` out;
     None (or the pipe closing) ends it. ``theirs``, the caller's end of the pipe (inherited by

@@ -528,6 +528,38 @@ def test_sigterm_is_one_line_exit_143_and_stops_the_forked_processes(tmp_path):
     assert [p for p in forked if (_state_and_parent(p) or ("Z",))[0] != "Z"] == []
 
 
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads the process table in /proc")
+def test_replay_workers_end_when_the_replay_is_killed(tmp_path):
+    """SIGKILL (or the OOM killer) of `replay --gravity-set 7`: its worker processes end too
+    (Linux's parent-death signal) and the caller's pipes close; they waited for ever, each on a
+    pipe its siblings kept open."""
+    import signal
+    import time
+
+    import planner
+
+    plan = tmp_path / "plan.yaml"
+    planner.plan(str(BOX_PE), str(BOX_IR2M), motion=False, output=plan)
+    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "PYTHONPATH": str(ROOT)}
+    proc = subprocess.Popen([sys.executable, "-m", "planner", "replay", str(plan), "--gravity-set", "7", "--workers", "2"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=tmp_path, env=env,
+                            start_new_session=True)
+    try:
+        deadline = time.monotonic() + 120
+        while len(_children(proc.pid)) < 2 and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.05)
+        workers = _children(proc.pid)
+        assert len(workers) >= 2, "the replay started no worker processes to check"
+        proc.kill()
+        proc.communicate(timeout=60)  # returns once no worker holds the pipes
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+    time.sleep(0.5)
+    assert [p for p in workers if (_state_and_parent(p) or ("Z",))[0] != "Z"] == []
+
+
 def test_closed_stdout_is_quiet():
     """`regrasp check --json | head -1`: no BrokenPipeError traceback, exit 141 like Unix tools."""
     proc = subprocess.Popen([sys.executable, "-m", "planner", "check", str(BOX_IR2M), "--json"],

@@ -32,7 +32,7 @@ from pathlib import Path
 
 from planner.errors import InputError
 from planner.gravity import gravity_directions
-from planner.helper import cores
+from planner.helper import cores, die_with_parent
 from planner.options import PLAN_OPTION_LIMITS, in_range, option_range
 from planner.sim.engine import ENGINES, default_engine, require_engine
 from planner.plan import plan_from_data
@@ -152,7 +152,8 @@ def replay_directions(plan: Plan, hand, directions: Sequence[tuple[str, Sequence
                     return out + [None] * (n - i - 1)
             return out
         _JOB["interrupted"] = multiprocessing.get_context("fork").Event()
-        with ProcessPoolExecutor(max_workers=min(workers, n), mp_context=multiprocessing.get_context("fork")) as pool:
+        with ProcessPoolExecutor(max_workers=min(workers, n), mp_context=multiprocessing.get_context("fork"),
+                                 initializer=die_with_parent, initargs=(os.getpid(),)) as pool:
             try:
                 return _in_pool(pool, n, first, beside, meanwhile, directions, decided)
             except BaseException:  # Ctrl-C, SIGTERM: no replay starts after it and the running ones stop
