@@ -369,9 +369,13 @@ _WORKER_CTX: _Context | None = None  # the context of the running synthesis, in 
 _IN_WORKER = False
 
 
-def _worker_init(ctx: _Context | None) -> None:
+def _worker_init(ctx: _Context | None, parent: int | None = None) -> None:
     global _WORKER_CTX, _IN_WORKER
     _IN_WORKER = True
+    if parent is not None:  # end with synth's process, however it ends (`planner.helper.die_with_parent`)
+        from planner.helper import die_with_parent
+
+        die_with_parent(parent)
     if ctx is not None:  # spawned: the context came pickled (the hand re-loaded); forked: inherited
         _WORKER_CTX = ctx
 
@@ -402,7 +406,7 @@ def _outcomes(ctx: _Context, max_attempts: int, workers: int, view=None, ahead=N
     fork = "fork" in multiprocessing.get_all_start_methods()
     _WORKER_CTX = ctx
     pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork" if fork else "spawn"),
-                               initializer=_worker_init, initargs=(None if fork else ctx,))
+                               initializer=_worker_init, initargs=(None if fork else ctx, os.getpid()))
     pending = deque()
     nxt = 1
     try:

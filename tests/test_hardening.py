@@ -528,28 +528,21 @@ def test_sigterm_is_one_line_exit_143_and_stops_the_forked_processes(tmp_path):
     assert [p for p in forked if (_state_and_parent(p) or ("Z",))[0] != "Z"] == []
 
 
-@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads the process table in /proc")
-def test_replay_workers_end_when_the_replay_is_killed(tmp_path):
-    """SIGKILL (or the OOM killer) of `replay --gravity-set 7`: its worker processes end too
-    (Linux's parent-death signal) and the caller's pipes close; they waited for ever, each on a
-    pipe its siblings kept open."""
+def _workers_end_with_their_command(tmp_path, argv) -> None:
+    """Run ``regrasp ARGV`` until it has two worker processes, SIGKILL it: its workers end too
+    and the caller's pipes close (`communicate` returns)."""
     import signal
     import time
 
-    import planner
-
-    plan = tmp_path / "plan.yaml"
-    planner.plan(str(BOX_PE), str(BOX_IR2M), motion=False, output=plan)
     env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "PYTHONPATH": str(ROOT)}
-    proc = subprocess.Popen([sys.executable, "-m", "planner", "replay", str(plan), "--gravity-set", "7", "--workers", "2"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=tmp_path, env=env,
-                            start_new_session=True)
+    proc = subprocess.Popen([sys.executable, "-m", "planner", *map(str, argv)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, cwd=tmp_path, env=env, start_new_session=True)
     try:
         deadline = time.monotonic() + 120
         while len(_children(proc.pid)) < 2 and proc.poll() is None and time.monotonic() < deadline:
             time.sleep(0.05)
         workers = _children(proc.pid)
-        assert len(workers) >= 2, "the replay started no worker processes to check"
+        assert len(workers) >= 2, "the command started no worker processes to check"
         proc.kill()
         proc.communicate(timeout=60)  # returns once no worker holds the pipes
     finally:
@@ -558,6 +551,21 @@ def test_replay_workers_end_when_the_replay_is_killed(tmp_path):
         proc.wait()
     time.sleep(0.5)
     assert [p for p in workers if (_state_and_parent(p) or ("Z",))[0] != "Z"] == []
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads the process table in /proc")
+def test_replay_and_synth_workers_end_when_their_command_is_killed(tmp_path):
+    """SIGKILL (or the OOM killer) of `replay --gravity-set 7` or `synth --workers 2`: their
+    worker processes end too (Linux's parent-death signal) and the caller's pipes close; they
+    waited for ever, each on a pipe its siblings kept open."""
+    import planner
+
+    plan = tmp_path / "plan.yaml"
+    planner.plan(str(BOX_PE), str(BOX_IR2M), motion=False, output=plan)
+    _workers_end_with_their_command(tmp_path, ["replay", plan, "--gravity-set", "7", "--workers", "2"])
+    (tmp_path / "ball.yaml").write_text("shape: sphere\nsize: [0.015]\nmass_kg: 0.03\n")
+    _workers_end_with_their_command(tmp_path, ["synth", "icub_right", "ball.yaml", "-n", "200", "-o", "out",
+                                               "--workers", "2", "-q"])
 
 
 def test_closed_stdout_is_quiet():
