@@ -223,7 +223,8 @@ def cmd_hand(args: argparse.Namespace) -> int:
         # leaves no hand.urdf behind (or the one that was there)
         cut_before = Path(cut).read_bytes() if cut is not None and os.path.isfile(cut) else None
         try:
-            spec, rep = handtool.init_hand(args.urdf, args.package_dir or (), root=args.root, cut_path=cut)
+            spec, rep = handtool.init_hand(args.urdf, args.package_dir or (), root=args.root, cut_path=cut,
+                                           output=args.output)
             urdf = os.path.abspath(spec["urdf"])
             spec["urdf"] = os.path.relpath(urdf, os.path.dirname(out))  # a hand.yaml moves with its URDF
             if spec.get("package_dirs"):

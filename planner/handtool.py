@@ -206,7 +206,7 @@ def _candidates_text(cands) -> str:
     return ", ".join(f"{name_shown(l)} ({n} fingers)" for l, n, _ in cands)
 
 
-def init_hand(urdf, package_dirs=(), root: str | None = None, cut_path=None) -> tuple[dict, HandReport]:
+def init_hand(urdf, package_dirs=(), root: str | None = None, cut_path=None, output=None) -> tuple[dict, HandReport]:
     """A hand.yaml (as data) for a URDF, and the guesses made with their reasons.
 
     ``root``: the hand is the sub-tree below that link: its URDF (`rewritten_urdf`, the
@@ -214,6 +214,8 @@ def init_hand(urdf, package_dirs=(), root: str | None = None, cut_path=None) -> 
     it: pinocchio, coal, pybullet and the viewer all read that file, nothing above it.
     Without ``root``, a robot's URDF (hands with more than `MAX_WRIST_JOINTS` joints outside
     them, or several hands) is refused with the candidate hands (`hand_candidates`).
+    ``output``: the hand.yaml to be written, refused (`OutputError`) when it is a file the URDF
+    names (a mesh), before anything is written.
 
     Raises:
         SpecError: the URDF fails `planner.urdf_check`, cannot be loaded, has no finger
@@ -237,7 +239,12 @@ def init_hand(urdf, package_dirs=(), root: str | None = None, cut_path=None) -> 
     rep = HandReport()
     dirs = [*map(str, package_dirs), *_share_dirs()]
     # our checks before pinocchio's: it hangs on a FIFO, pybullet crashes on a link with two parents
-    mimics = check_urdf(urdf, [str(urdf.parent), *dirs]).mimics
+    summary = check_urdf(urdf, [str(urdf.parent), *dirs])
+    mimics = summary.mimics
+    if output is not None:  # a mesh of the hand is an input too (it was overwritten by the hand.yaml)
+        from planner.fileio import check_outputs
+
+        check_outputs([(output, "-o")], [str(urdf), *summary.meshes])
     try:
         model = pin.buildModelFromUrdf(str(urdf))
     except (RuntimeError, ValueError) as err:

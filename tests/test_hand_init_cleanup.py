@@ -46,3 +46,22 @@ def test_an_empty_package_dir_is_refused(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--package-dir: an empty name" in err[0], err
     assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+def test_a_mesh_of_the_urdf_is_not_an_output(tmp_path, capsys):
+    """`hand init -o` naming one of the URDF's own meshes: refused as an input (one line, exit
+    2), the mesh untouched; the hand.yaml was written over it."""
+    text = URDF.read_text()
+    box = '<geometry><box size="0.079 0.067 0.03"/></geometry>'
+    assert box in text
+    (tmp_path / "hand.urdf").write_text(text.replace(box, '<geometry><mesh filename="palm.obj"/></geometry>', 1))
+    mesh = tmp_path / "palm.obj"
+    corners = [(x, y, z) for x in (-0.04, 0.04) for y in (-0.03, 0.03) for z in (-0.015, 0.015)]
+    faces = [(1, 3, 4), (1, 4, 2), (5, 6, 8), (5, 8, 7), (1, 2, 6), (1, 6, 5), (3, 7, 8), (3, 8, 4), (1, 5, 7),
+             (1, 7, 3), (2, 4, 8), (2, 8, 6)]
+    mesh.write_text("".join(f"v {x} {y} {z}\n" for x, y, z in corners) + "".join(f"f {a} {b} {c}\n" for a, b, c in faces))
+    before = mesh.read_bytes()
+    assert main(["hand", "init", str(tmp_path / "hand.urdf"), "-o", str(mesh)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "refusing to overwrite an input file" in err[0] and "palm.obj" in err[0], err
+    assert mesh.read_bytes() == before
