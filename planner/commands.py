@@ -347,7 +347,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
     kw = dict(gui=args.gui, gif=args.gif, gif_every=args.gif_every, mp4=args.mp4,
               drift_mm_max=args.drift_mm, drift_deg_max=args.drift_deg, strict=args.strict)
-    if args.film and args.gravity_set is None:
+    if args.film is not None and args.gravity_set is None:
         raise PlannerError("--film names directions of --gravity-set: give --gravity-set N too")
     if args.gravity_set is not None and args.gravity is not None:
         raise PlannerError("--gravity and --gravity-set exclude each other: give one")
@@ -360,7 +360,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     plan = read_plan(args.plan, strict=args.strict)  # read (and its inputs checked) once
     engine = {"engine": args.engine} if args.engine is not None else {}
     if args.gravity_set is not None:
-        film = [d.strip() for d in args.film.split(",") if d.strip()] if args.film else None
+        film = [d.strip() for d in args.film.split(",") if d.strip()] if args.film is not None else None
         result = replay(plan, gravity_set=args.gravity_set, report=args.report, film=film,
                         workers=1 if args.gui else args.workers, **engine, **kw)
         results = getattr(result, "engines", None) or ((result.directions[0][2].engine, result),)

@@ -123,6 +123,22 @@ def test_exported_functions_refuse_wrong_argument_types(planned, tmp_path):
     assert planner.realize(str(A)).closure == planner.check(A).closure
 
 
+@pytest.mark.parametrize("film", ["", ",", []], ids=["empty", "comma", "no-list"])
+def test_a_film_of_no_direction_is_refused(planned, capsys, film):
+    """``--film ''`` filmed every direction of the set (seven films, minutes) and ``--film ,``
+    none: a --film naming no direction is refused, naming the set's directions (the CLI too)."""
+    from planner.cli import main
+    from planner.errors import InputError
+
+    _, out = planned
+    with pytest.raises(InputError, match="^--film names no direction; .*the gravity set of 2 has palm_down, palm_up$"):
+        planner.replay(out, gravity_set=2, gif=out.with_suffix(".gif"), film=film)
+    if isinstance(film, str):
+        assert main(["replay", str(out), "--gravity-set", "2", "--gif", str(out.with_suffix(".gif")), "--film", film]) == 2
+        assert "--film names no direction" in capsys.readouterr().err
+    assert not list(out.parent.glob("*.gif"))
+
+
 def test_check_realizes_a_grasp_file():
     g = planner.check(A)
     assert g.closure.is_force_closure and not g.problems

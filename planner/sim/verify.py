@@ -244,6 +244,9 @@ def replay_gravity_set(plan: Mapping | str | os.PathLike, n: int = 6, *, hand=No
     names = [name for name, _ in directions]
     if isinstance(film, str):  # "palm_down,palm_up", as --film (its letters were taken for names)
         film = [d.strip() for d in film.split(",") if d.strip()]
+    if film is not None and not film:  # (--film '' filmed every direction, --film , none)
+        raise InputError(f"--film names no direction; name those to film (comma-separated): the gravity set of {n} has "
+                         f"{', '.join(names)}")
     unknown = sorted(set(film or ()) - set(names))
     if unknown:
         raise InputError(f"cannot film {', '.join(unknown)}: the gravity set of {n} has {', '.join(names)}")
