@@ -55,7 +55,9 @@ def cmd_plan(args: argparse.Namespace) -> int:
     chosen = dict(contact_model=args.contact_model, rank=args.rank, gravity_set=args.gravity_set,
                   gravity=gname or (tuple(args.gravity) if args.gravity is not None else None))
     if not args.execution:  # the thesis's defaults; --execution brings its own (PlanOptions.for_execution)
-        chosen.update(contact_model=args.contact_model or "patch", rank=args.rank or "metric")
+        # ('' is not the default: --contact-model '' planned with patch, --rank '' with metric)
+        chosen.update(contact_model="patch" if args.contact_model is None else args.contact_model,
+                      rank="metric" if args.rank is None else args.rank)
     result = plan_api(
         args.initial, args.final, execution=args.execution, output=args.output, verbose=args.verbose,
         strategy=args.strategy,

@@ -34,7 +34,8 @@ from scipy.spatial.transform import Rotation
 
 from planner.audit import require_sound
 from planner.errors import InputError, SpecError
-from planner.fileio import MAX_PLAN_BYTES, check_format, check_outputs, load_json, load_yaml, read_limited, write_atomic
+from planner.fileio import (MAX_PLAN_BYTES, as_path, check_format, check_outputs, load_json, load_yaml, read_limited,
+                            write_atomic)
 from planner.frames import hand_of_plan, object_of_plan, plain_plan, pose_matrix, resample
 from planner.grasp import grasp_files, load_grasp
 from planner.objects import load_mesh
@@ -303,7 +304,7 @@ def _num(x) -> float | None:
 
 def _load_report(path, n_states: int) -> list[dict]:
     """Replay report(s) of ``regrasp replay --report``: [{name, passed, verdict, states}]."""
-    path = Path(path)
+    path = as_path(path, "--report", "a replay report (regrasp replay --report)")  # ('' read the current folder)
     # a FIFO, a device, a huge or deeply nested file: one line
     data = load_json(read_limited(path, MAX_PLAN_BYTES, "replay report"), path)
     if not isinstance(data, dict):

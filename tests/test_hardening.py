@@ -385,6 +385,27 @@ def test_plan_gravity_set_names_the_option_and_choices(grasps, capsys):
     assert code == 2 and len(err) == 1 and "--gravity-set: invalid choice: 3 (choose from 1, 2, 6, 7)" in err[0], err
 
 
+@pytest.mark.parametrize("option, words", [("--contact-model", "unknown contact model ''; contact models are link, mean, patch"),
+                                           ("--rank", "unknown rank ''; ranks are grip, metric")])
+def test_an_empty_choice_is_not_the_default(grasps, capsys, option, words):
+    """`plan --contact-model ''` and `--rank ''` (an empty shell variable) are unknown names,
+    listed with the choices; they planned with the defaults (patch, metric), silently."""
+    code, err = _run(capsys, "plan", *grasps, "--no-motion", option, "")
+    assert code == 2 and len(err) == 1 and err[0].endswith(words), err
+
+
+def test_view_an_empty_report_name_is_refused(tmp_path, grasps, capsys):
+    """`view --report ''`: one line naming --report and the empty name (it said
+    '.: cannot read replay report: not a regular file')."""
+    import planner
+
+    plan = tmp_path / "plan.yaml"
+    planner.plan(str(grasps[0]), str(grasps[1]), motion=False, output=plan)
+    code, err = _run(capsys, "view", plan, "-o", tmp_path / "v.html", "--report", "")
+    assert code == 2 and len(err) == 1 and "--report: expected a replay report" in err[0] and "empty file name" in err[0], err
+    assert not (tmp_path / "v.html").exists()
+
+
 def test_argparse_errors_are_one_line(capsys):
     """A missing argument or unknown option: exit 2 and one line, no usage block."""
     for argv in (["plan"], ["plan", "a.yaml", "b.yaml", "--bogus"], ["nope"]):
