@@ -127,7 +127,7 @@ def replay(plan, *, gravity_set: int | None = None, report: PathLike | None = No
 
     from planner.audit import require_sound
     from planner.errors import UnknownNameError
-    from planner.fileio import check_outputs, write_atomic
+    from planner.fileio import check_format, check_outputs, write_atomic
     from planner.gravity import gravity_directions, named_gravity
     from planner.plan import plan_files, plan_from_data, read_plan
     from planner.plan_data import Plan
@@ -145,9 +145,11 @@ def replay(plan, *, gravity_set: int | None = None, report: PathLike | None = No
         plan = plan_from_data(dict(plan)) if hasattr(plan, "keys") else read_plan(plan, strict=kwargs.get("strict", False))
     hand = kwargs.pop("hand", None) or plan_hand(plan)
     inputs = plan_files(plan, hand)
-    # the names as given first (an input, a picture misnamed: said of the name the user wrote),
-    # then the names derived from them, before the physics check (a large plan's takes a minute)
-    check_outputs([(report, "--report"), *((kwargs.get(k), "--" + k) for k in ("gif", "mp4"))], inputs)
+    # the names as given, then the names derived from them, may not be inputs; then a picture's
+    # name as given must say its format (said of the name the user wrote); all before the
+    # physics check (a large plan's takes a minute)
+    given = [(report, "--report"), *((kwargs.get(k), "--" + k) for k in ("gif", "mp4"))]
+    check_outputs(given, inputs, formats=False)
     if isinstance(kwargs.get("gravity"), str):  # a named orientation (planner.gravity.named_gravity)
         kwargs["gravity"] = named_gravity(kwargs["gravity"], hand)
     engines = engines_of(engine)  # (an engine not installed: one line, before any work)
@@ -161,7 +163,10 @@ def replay(plan, *, gravity_set: int | None = None, report: PathLike | None = No
             else:
                 names = [n for n, _ in gravity_directions(hand.palm_normal, gravity_set)]
                 outputs += [(p, "--" + key) for p in film_paths(path, names, kwargs.get("film"))]
-    check_outputs(outputs, inputs)
+    check_outputs(outputs, inputs, formats=False)
+    for path, option in given:
+        if path is not None:
+            check_format(path, option)
     require_sound(plan, hand)
     results = []
     for e in engines:
