@@ -193,7 +193,8 @@ def cmd_synth(args: argparse.Namespace) -> int:
     return run_synth(args.hand, args.object, args.fingers, args.n, args.output, gravity=gravity, seed=args.seed,
                      max_finger_force_n=args.max_finger_force, mu=args.mu, gamma=args.gamma,
                      max_attempts=args.max_attempts, quiet=args.quiet, palm=args.palm,
-                     workers=getattr(args, "workers", 1))
+                     workers=getattr(args, "workers", 1),
+                     gravity_name=args.gravity if isinstance(args.gravity, str) else None)
 
 
 

@@ -553,9 +553,28 @@ def output_names(out_dir, hand_name: str, shape: str, n: int) -> list[Path]:
     return [Path(out_dir) / f"{hand_name}_{shape}_{i:0{width}d}.yaml" for i in range(1, n + 1)]
 
 
-def write_grasps(result: SynthResult, out_dir, hand_name: str, *, seed: int, fingers, inputs=()) -> list[Path]:
+def execution_words(gravity_label: str | None = None) -> str:
+    """The command a synthesized grasp's verdict is about: ``plan --execution`` (its six
+    directions), or with one ``--gravity`` ``plan --execution --gravity LABEL``, the one
+    direction the verdict was computed for (a grasp held palm down may drop palm up)."""
+    return "plan --execution" if gravity_label is None else f"plan --execution --gravity {gravity_label}"
+
+
+def gravity_label_of(gravity, name: str | None = None) -> str | None:
+    """How a synth's ``--gravity`` is said in its verdicts: its name, else its three numbers
+    (None: no gravity given, execution mode's own directions)."""
+    if gravity is None:
+        return None
+    if name:
+        return name
+    return " ".join(f"{float(v):g}" for v in np.asarray(gravity, dtype=float).reshape(-1)[:3])
+
+
+def write_grasps(result: SynthResult, out_dir, hand_name: str, *, seed: int, fingers, inputs=(),
+                 gravity_label: str | None = None) -> list[Path]:
     """Write the ranked grasps; refuse (PlannerError) to overwrite any existing file or an input.
-    No grasp: nothing written, no folder made."""
+    No grasp: nothing written, no folder made. ``gravity_label``: the one ``--gravity`` the
+    verdicts were computed for (`gravity_label_of`), named in each file's description."""
     grasps = result.grasps
     if not grasps:
         return []
@@ -571,8 +590,8 @@ def write_grasps(result: SynthResult, out_dir, hand_name: str, *, seed: int, fin
             grip = f", grip force {g.grip_force_n:.3f} N" if g.grip_force_n is not None else ""
             data["description"] = (f"synthesized by regrasp synth (seed {seed}, fingers {','.join(fingers)}, "
                                    f"attempt {g.attempt}): rank {rank}, closure metric {g.metric:.4g}{grip}, "
-                                   + ("plan --execution accepts it" if g.execution_ready else
-                                      f"plan --execution refuses it: {g.execution}"))
+                                   + (f"{execution_words(gravity_label)} accepts it" if g.execution_ready else
+                                      f"{execution_words(gravity_label)} refuses it: {g.execution}"))
             obj = dict(data["object"])
             if obj.get("mesh"):
                 obj["mesh"] = os.path.relpath(obj["mesh"], Path(out_dir).resolve())
@@ -644,8 +663,9 @@ def default_fingers(hand, palm: bool = False) -> list[str]:
 
 def run_synth(hand: str, object_path, fingers: str, n: int, out_dir, *, gravity=None, seed: int = 0,
               max_finger_force_n: float | None = None, mu=None, gamma=None, max_attempts=None, quiet=False,
-              palm: bool = False, workers: int = 1) -> int:
-    """``regrasp synth``: synthesize, write, print a summary. Exit 0 when n grasps were written,
+              palm: bool = False, workers: int = 1, gravity_name: str | None = None) -> int:
+    """``regrasp synth``: synthesize, write, print a summary. ``gravity_name``: the name the
+    one ``gravity`` was given by (``--gravity palm_down``), said in the verdicts. Exit 0 when n grasps were written,
     1 when fewer (those found are written), 2 (PlannerError) on bad input. ``palm``: whole-hand
     grasps (``--palm``, `synthesize`), every finger by default."""
     if not 1 <= n <= MAX_GRASPS:
@@ -695,10 +715,12 @@ def run_synth(hand: str, object_path, fingers: str, n: int, out_dir, *, gravity=
     result = synthesize(hand_ref, obj, names, n, fixed=fixed, friction=friction, seed=seed, gravity=gravity,
                         max_finger_force_n=max_finger_force_n, max_attempts=max_attempts, base_dir=out_dir,
                         progress=progress, palm=palm, workers=workers)
-    paths = write_grasps(result, out_dir, h.name, seed=seed, fingers=names, inputs=[object_path])
+    label = gravity_label_of(gravity, gravity_name)
+    paths = write_grasps(result, out_dir, h.name, seed=seed, fingers=names, inputs=[object_path], gravity_label=label)
     for path, g in zip(paths, result.grasps):
         grip = f"  grip {g.grip_force_n:.3f} N" if g.grip_force_n is not None else ""
-        ex = "execution-ready" if g.execution_ready else f"not for --execution: {g.execution}"
+        ex = ("execution-ready" if g.execution_ready else f"not for --execution: {g.execution}") \
+            + ("" if label is None else f" (--gravity {label} only)")
         print(f"{path}  metric {g.metric:.4g}{grip}  {ex}")
     rate = len(paths) / result.seconds if result.seconds > 0 else math.inf
     print(f"synth: {len(paths)}/{n} grasps of {obj.shape} with {h.name} ({','.join(names)}) in "

@@ -223,3 +223,29 @@ def test_synth_api_bad_arguments_are_planner_errors(args, kwargs, words):
 
     with pytest.raises(planner.PlannerError, match=words):
         planner.synth(*args, **kwargs)
+
+
+def test_synth_with_one_gravity_names_it_in_its_verdicts(tmp_path, capsys):
+    """With one --gravity synth judges execution in that direction alone, so a file's verdict
+    names it (`plan --execution --gravity palm_down accepts it`) and `check --execution
+    --gravity palm_down` agrees; it said `plan --execution accepts it` for this four-finger grasp
+    of a 15 mm ball, which holds 0.89x its weight palm up: plan --execution and check --execution
+    (six directions) refuse it."""
+    obj = _object_file(tmp_path, {"shape": "sphere", "size": [0.015], "mass_kg": 0.016,
+                                  "position": [0.007417530893595576, -0.01244876006653533, 0.019988998172736173],
+                                  "quat_xyzw": [0.0, 0.0, 0.0, 1.0]})
+    out = tmp_path / "out"
+    assert _synth(["icub_right", obj, "--fingers", "thumb,index,middle,ring", "-n", 3, "--seed", 7,
+                   "--gravity", "palm_down", "-o", out]) == 0
+    printed = capsys.readouterr().out
+    assert printed.count("(--gravity palm_down only)") == 3, printed
+    six_refuse_accepted = 0
+    for f in sorted(out.glob("*.yaml")):
+        desc = " ".join(yaml.safe_load(f.read_text())["description"].split())
+        assert "plan --execution accepts it" not in desc and "plan --execution refuses it" not in desc, desc
+        accepted = "plan --execution --gravity palm_down accepts it" in desc
+        assert accepted or "plan --execution --gravity palm_down refuses it" in desc, desc
+        assert main(["check", "--execution", "--gravity", "palm_down", str(f), "-q"]) == (0 if accepted else 1)
+        six_refuse_accepted += accepted and not execution_verdict(realize(load_grasp(f))).ok
+    capsys.readouterr()
+    assert six_refuse_accepted >= 1  # the case: held palm down, refused by the six directions
