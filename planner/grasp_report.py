@@ -86,7 +86,8 @@ def check_text(grasp: RealizedGrasp, verdict: ExecutionVerdict | None = None, st
         out.append(f"  not computed: {grasp.hold_unavailable() or 'no direction'}")
     names = ", ".join(n for n, _ in verdict.directions)
     out.append(f"execution mode (plan --execution, {names}): "
-               + ("accepts it as an end grasp" if verdict.ok else f"refuses it: {verdict.reason}")
+               + ("accepts it as an end grasp (by its static test; plan --execution also holds it in the simulator "
+                  "first: plan G G --execution runs both)" if verdict.ok else f"refuses it: {verdict.reason}")
                + ("" if strict or verdict.ok else " (check --execution fails it)"))
     why = [] if grasp.is_force_closure else ["not force closure"]
     why += [f"{len(grasp.problems)} problem(s)"] if grasp.problems else []
