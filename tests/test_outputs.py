@@ -163,7 +163,8 @@ def test_check_picture_may_not_be_the_hand_or_grasp(setup, capsys):
     ("replay", "--gif", "film.png", "--gif writes GIF: name the file *.gif (not .png)"),
     ("replay --gravity-set 1", "--mp4", "film.gif", "--mp4 writes MP4: name the file *.mp4 (not .gif)"),
     ("replay --gravity-set 2", "--gif", "film.png", "film.png: --gif writes GIF"),  # the name given, not film_palm_down.png
-    ("replay --engine both", "--gif", "film.png", "film.png: --gif writes GIF"),
+    pytest.param("replay --engine both", "--gif", "film.png", "film.png: --gif writes GIF",
+                 marks=pytest.mark.needs_pybullet("--engine both: without pybullet that is said first")),
     ("view", "--gif", "film.png", "--gif writes GIF: name the file *.gif (not .png)"),
 ])
 def test_a_picture_or_film_is_named_with_its_formats_suffix(setup, capsys, tmp_path, command, option, name, words):
