@@ -16,6 +16,8 @@ from planner.grip import FRICTION_MARGIN, HOLD_FACTOR
 from planner.gait_search import RANKS
 
 STRATEGIES = ("graph", "greedy")
+#: The plan options that are True or False (a plan file's too: `planner.plan`).
+SWITCHES = ("motion", "execution", "verify", "repose")
 #: Friction fraction execution-mode plans must hold their load with: the grip model's
 #: (`planner.grip.FRICTION_MARGIN`), which the replay controller uses too. Measured on exp7
 #: (43 pairs, with the 1 N budget of before): 1.0 plans 33 pairs, 26 hold in all 7 gravity
@@ -215,7 +217,7 @@ class PlanOptions:
         return cls(**kw)
 
     def __post_init__(self):
-        for name in ("motion", "execution", "verify", "repose"):  # motion="no" planned paths ("no" is truthy)
+        for name in SWITCHES:  # motion="no" planned paths ("no" is truthy)
             if not isinstance(getattr(self, name), bool):
                 raise InputError(f"PlanOptions.{name} must be True or False, got {getattr(self, name)!r}")
         if self.gravity is not None:

@@ -285,10 +285,6 @@ def plan_from_data(data: Any, source: str | os.PathLike | None = None) -> Plan:
         raise r.fail(str(err), "object") from None
 
 
-#: The plan's yes/no parameters (`planner.options.PlanOptions`'s flags).
-PLAN_FLAGS = ("motion", "execution", "verify", "repose")
-
-
 def _check_parameters(parameters: Reader) -> None:
     """The parameters the planner writes as names or flags: one of the planner's own choices
     (a forged or mistyped one would change what `verify` checks a plan against: the contact
@@ -296,18 +292,20 @@ def _check_parameters(parameters: Reader) -> None:
     null: the planner's default (plans older than a parameter)."""
     from planner.gait_search import RANKS
     from planner.gravity import GRAVITY_SET_SIZES
-    from planner.options import PLAN_OPTION_LIMITS, STRATEGIES
+    from planner.options import PLAN_OPTION_LIMITS, STRATEGIES, SWITCHES
 
     def show(v) -> str:
         return repr_short(v, 40) if isinstance(v, str) else shown(v)
 
     parameters.child("contact_model", "patch").choice(CONTACT_MODELS, "contact model", valid="valid:", show=show)
-    for key, choices, what in (("strategy", STRATEGIES, "strategy"), ("rank", RANKS, "rank"),
-                               ("gravity_set", GRAVITY_SET_SIZES, "gravity set")):
-        value = parameters.get(key)
-        if value is not None and (isinstance(value, bool) or value not in choices):
-            raise parameters.fail(f"unknown {what} {show(value)}; valid: {', '.join(map(str, choices))}", key)
-    for key in PLAN_FLAGS:
+    for key, choices, what in (("strategy", STRATEGIES, "strategy"), ("rank", RANKS, "rank")):
+        if parameters.get(key) is not None:
+            parameters.child(key).choice(choices, what, valid="valid:", show=show)
+    size = parameters.get("gravity_set")  # (a number: true would pass for 1)
+    if size is not None and (isinstance(size, bool) or size not in GRAVITY_SET_SIZES):
+        raise parameters.fail(f"unknown gravity set {show(size)}; valid: {', '.join(map(str, GRAVITY_SET_SIZES))}",
+                              "gravity_set")
+    for key in SWITCHES:
         value = parameters.get(key)
         if value is not None and not isinstance(value, bool):
             raise parameters.fail(f"expected true or false, got {show(value)}", key)
