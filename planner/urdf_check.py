@@ -501,9 +501,7 @@ def package_search_dirs(package_dirs=(), installed: bool = False) -> list[str]:
     An environment entry that is no folder (missing, a file, a symbolic link loop) is left
     out, as ROS's own tools skip it: pinocchio's loader stopped on a loop there ("Too many
     levels of symbolic links" naming the folder, not the variable)."""
-    env = [d for d in os.environ.get("ROS_PACKAGE_PATH", "").split(os.pathsep) if d]
-    env += [os.path.join(d, "share") for d in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if d]
-    env = [d for d in env if os.path.isdir(d)]
+    env = [d for v in PACKAGE_PATH_VARIABLES for d in _package_path_entries(v) if os.path.isdir(d)]
     out: list[str] = []
     for d in [str(d) for d in package_dirs] + env + (installed_share_dirs() if installed else []):
         if d not in out:
@@ -518,10 +516,15 @@ PACKAGE_PATH_VARIABLES = ("ROS_PACKAGE_PATH", "AMENT_PREFIX_PATH")
 _ENVIRON_LOCK = threading.Lock()
 
 
+def _package_path_entries(variable: str) -> list[str]:
+    """The folders a package path variable names, now (``AMENT_PREFIX_PATH``: their ``share``)."""
+    entries = [d for d in os.environ.get(variable, "").split(os.pathsep) if d]
+    return [os.path.join(d, "share") for d in entries] if variable == "AMENT_PREFIX_PATH" else entries
+
+
 def _unusable(variable: str) -> bool:
     """An entry of a package path variable that is no folder (missing, a file, a link loop)."""
-    sub = "share" if variable == "AMENT_PREFIX_PATH" else ""
-    return any(d and not os.path.isdir(os.path.join(d, sub)) for d in os.environ.get(variable, "").split(os.pathsep))
+    return any(not os.path.isdir(d) for d in _package_path_entries(variable))
 
 
 @contextlib.contextmanager
