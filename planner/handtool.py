@@ -584,10 +584,11 @@ def _far_point(hand, link: str, boxes) -> np.ndarray:
     centre = _box_centre(hand, link)
     T = joint_to_link(hand, link)
     away = T.rotation.T @ np.asarray(T.translation, float)  # from the joint to the link's origin, link frame
-    if _one_sphere(hand, link) is not None and float(np.linalg.norm(away)) > 1e-9:
+    sphere = _one_sphere(hand, link)
+    if sphere is not None and float(np.linalg.norm(away)) > 1e-9:
         # a round tip fixed beyond its joint (a sphere: no longest axis): its far end along
         # the phalanx, the direction from the joint to it
-        return centre + 0.5 * float(size[0]) * away / float(np.linalg.norm(away))
+        return centre + float(sphere.shape.radius) * away / float(np.linalg.norm(away))
     k = int(np.argmax(size))
     p = centre.copy()
     p[k] += math.copysign(size[k] / 2.0, centre[k] if abs(centre[k]) > 1e-9 else 1.0)
