@@ -309,8 +309,13 @@ INDEX = "joints: [index_0, index_1, index_2, index_3], tip_frame: index_tip"
     ("angle: rad", "angle: rad, mass: kg", "units.mass", "valid keys are length, angle"),
 ])
 def test_unknown_keys_and_other_units_are_refused(tmp_path, old, new, key, words):
+    _refused_naming(tmp_path, WITH_UNITS.replace(old, new, 1), key, words)
+
+
+def _refused_naming(tmp_path, spec: str, key: str, words: str) -> None:
+    """The hand.yaml ``spec`` is refused at ``key``, naming the file and saying ``words``."""
     with pytest.raises(SpecError) as err:
-        Hand.load(_write_spec(tmp_path, WITH_UNITS.replace(old, new, 1)))
+        Hand.load(_write_spec(tmp_path, spec))
     assert err.value.key == key
     assert words in str(err.value) and str(tmp_path) in str(err.value)
 
@@ -332,10 +337,7 @@ def test_the_bundled_and_a_written_spec_load(tmp_path):
     ("tip_frame: index_tip", "tip_frame: palm", "fingers.index.tip_frame", "does not move with finger index"),
 ])
 def test_a_tip_or_pad_of_another_finger_is_refused(tmp_path, old, new, key, words):
-    with pytest.raises(SpecError) as err:
-        Hand.load(_write_spec(tmp_path, PADDED.replace(old, new, 1)))
-    assert err.value.key == key
-    assert words in str(err.value) and str(tmp_path) in str(err.value)
+    _refused_naming(tmp_path, PADDED.replace(old, new, 1), key, words)
 
 
 def test_the_finger_own_tip_and_pad_load(tmp_path):
