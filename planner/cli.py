@@ -291,10 +291,51 @@ def _sigterm_unwinds():
         raise Terminated
 
     old = signal.signal(signal.SIGTERM, handler)
+    old_alarm = signal.signal(signal.SIGALRM, _raise_dropped) if hasattr(signal, "setitimer") else None
+    old_hook = sys.unraisablehook
+    sys.unraisablehook = _redeliver_interrupts(old_hook)
     try:
         yield
     finally:
+        sys.unraisablehook = old_hook
+        if old_alarm is not None:
+            signal.setitimer(signal.ITIMER_REAL, 0)
+            _DROPPED.clear()
+            signal.signal(signal.SIGALRM, old_alarm)
         signal.signal(signal.SIGTERM, old)
+
+
+#: The interrupt (`Terminated` or KeyboardInterrupt) Python dropped, raised again by `_raise_dropped`.
+_DROPPED: list[type[BaseException]] = []
+#: How soon a dropped interrupt is raised again (s): past the callback or finalizer that dropped it.
+_REDELIVER_S = 0.005
+
+
+def _raise_dropped(_signum, _frame) -> None:
+    """SIGALRM's handler while a command runs: raise the interrupt Python dropped."""
+    if _DROPPED:
+        raise _DROPPED.pop()()
+
+
+def _redeliver_interrupts(fallback):
+    """An unraisable-exception hook that raises a Ctrl-C or SIGTERM again when Python dropped
+    the exception its handler raised: a signal's handler runs wherever the interpreter is, and
+    where that is inside a fork's callback (`os.register_at_fork`: logging's lock release after
+    each fork), a finalizer or a weakref callback, the exception is printed and dropped
+    ("Exception ignored in ...") and the command ran on to exit 0 with its output written. It is
+    raised again a few milliseconds later (a timer's signal: raised from here, it would be raised
+    inside the hook, and dropped again), where the command runs. Other exceptions go to
+    ``fallback``."""
+
+    def hook(unraisable) -> None:
+        exc = unraisable.exc_value
+        if not isinstance(exc, KeyboardInterrupt) or not hasattr(signal, "setitimer"):
+            fallback(unraisable)
+            return
+        _DROPPED[:] = [Terminated if isinstance(exc, Terminated) else KeyboardInterrupt]
+        signal.setitimer(signal.ITIMER_REAL, _REDELIVER_S)
+
+    return hook
 
 
 class _Parser(argparse.ArgumentParser):
