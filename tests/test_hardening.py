@@ -1066,6 +1066,7 @@ def kill_self_in_the_callback():  # the handler runs inside a fork's callback, w
     for _ in range(100):
         pass
 
+signal.signal(signal.SIGINT, signal.default_int_handler)  # (a test runner's worker may ignore Ctrl-C: inherited)
 os.register_at_fork(after_in_parent=kill_self_in_the_callback)
 try:
     with cli._sigterm_unwinds():
