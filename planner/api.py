@@ -212,6 +212,8 @@ def synth(hand, object_block: dict, fingers, n: int = 1, *, fixed: bool = False,
         fingers: finger names (a list or "thumb,index,middle").
         n: grasps wanted.
         fixed: keep the object's pose (else it is sampled too).
+        kwargs: `planner.synthesis.synthesize`'s; ``verify`` defaults to True here, as ``regrasp
+            synth``: the grasps execution mode's static test accepts are held in a physics engine.
     """
     import inspect
 
@@ -233,4 +235,5 @@ def synth(hand, object_block: dict, fingers, n: int = 1, *, fixed: bool = False,
         names = list(fingers)
     else:
         raise InputError(f"fingers: expected finger names (a list or 'thumb,index,middle'), got {describe(fingers)}")
+    kwargs.setdefault("verify", True)  # as regrasp synth: the accepted grasps held in a physics engine
     return synthesize(resolve_hand_ref(str(hand), Path.cwd()), dict(object_block), names, n, fixed=fixed, **kwargs)

@@ -97,7 +97,13 @@ def build_parser() -> argparse.ArgumentParser:
     check.add_argument("--execution", action="store_true",
                        help="exit 1 unless plan --execution accepts the grasp as an initial or final grasp: force "
                             "closure with one contact per touching link and twice the weight held in each of the six "
-                            "hand orientations within the joints' torque limits (the failing direction and joint named)")
+                            "hand orientations within the joints' torque limits (the failing direction and joint named), "
+                            "then held in a physics engine as plan --execution holds its end grasps (--no-verify skips it)")
+    check.add_argument("--no-verify", action="store_true",
+                       help="with --execution or --gravity: the static test alone, no replay in a physics engine")
+    check.add_argument("--engine", default=None, choices=ENGINE_CHOICES,
+                       help="with --execution or --gravity: the physics engine that holds the grasp (default: "
+                            + _ENGINE_DEFAULT + "); both: it must hold in pybullet and in mujoco")
     check.set_defaults(func=commands.cmd_check)
 
     plan = sub.add_parser("plan", help="plan a finger-gaiting sequence between two grasps")
@@ -181,6 +187,11 @@ def build_parser() -> argparse.ArgumentParser:
                             "with every finger by default (power grasps); a fixed position must touch the palm")
     synth.add_argument("--workers", type=int, default=1, metavar="K",
                        help="processes running attempts (default 1); the files do not depend on it")
+    synth.add_argument("--no-verify", action="store_true",
+                       help="do not hold the grasps execution mode's static test accepts in a physics engine (as "
+                            "plan --execution holds its end grasps; those that drop are ranked after the others)")
+    synth.add_argument("--engine", default=None, choices=ENGINE_CHOICES,
+                       help="the physics engine that holds the grasps (default: " + _ENGINE_DEFAULT + ")")
     synth.add_argument("-q", "--quiet", action="store_true", help="no progress line on stderr")
     synth.set_defaults(func=commands.cmd_synth)
     replay = sub.add_parser("replay", help="execute a plan in a physics engine with gravity on and check the object "
@@ -271,6 +282,17 @@ class Terminated(KeyboardInterrupt):
     (worker and helper processes stopped, temporary files removed, no output written), then
     exits 143. A KeyboardInterrupt, so that every clean-up for Ctrl-C runs for it too."""
 
+    signum = signal.SIGTERM
+    words = "terminated"
+
+
+class HungUp(Terminated):
+    """SIGHUP (the terminal or the ssh session closed) as SIGTERM: exit 129. Not where the
+    command started with SIGHUP ignored (``nohup``): it runs on."""
+
+    signum = getattr(signal, "SIGHUP", signal.SIGTERM)
+    words = "hung up (the terminal closed)"
+
 
 @contextlib.contextmanager
 def _sigterm_unwinds():
@@ -288,9 +310,15 @@ def _sigterm_unwinds():
             signal.signal(signum, signal.SIG_DFL)
             os.kill(os.getpid(), signum)
             return
-        raise Terminated
+        raise HungUp if signum == HungUp.signum else Terminated
 
     old = signal.signal(signal.SIGTERM, handler)
+    hup = getattr(signal, "SIGHUP", None)
+    old_hup = signal.getsignal(hup) if hup is not None else None
+    if old_hup is not None and old_hup != signal.SIG_IGN:  # (nohup: the command outlives the terminal)
+        signal.signal(hup, handler)
+    else:
+        old_hup = None
     old_alarm = signal.signal(signal.SIGALRM, _raise_dropped) if hasattr(signal, "setitimer") else None
     old_hook = sys.unraisablehook
     sys.unraisablehook = _redeliver_interrupts(old_hook)
@@ -302,6 +330,8 @@ def _sigterm_unwinds():
             signal.setitimer(signal.ITIMER_REAL, 0)
             _DROPPED.clear()
             signal.signal(signal.SIGALRM, old_alarm)
+        if old_hup is not None:
+            signal.signal(hup, old_hup)
         signal.signal(signal.SIGTERM, old)
 
 
@@ -332,7 +362,7 @@ def _redeliver_interrupts(fallback):
         if not isinstance(exc, KeyboardInterrupt) or not hasattr(signal, "setitimer"):
             fallback(unraisable)
             return
-        _DROPPED[:] = [Terminated if isinstance(exc, Terminated) else KeyboardInterrupt]
+        _DROPPED[:] = [type(exc) if isinstance(exc, Terminated) else KeyboardInterrupt]
         signal.setitimer(signal.ITIMER_REAL, _REDELIVER_S)
 
     return hook
@@ -489,8 +519,9 @@ def main(argv: list[str] | None = None) -> int:
         if _DEPTH > 1:  # a step of the demo: the demo stops (it went on to its next step)
             raise
         if isinstance(stop, Terminated):
-            _say(f"{prefix}: terminated")
-            return EXIT_TERMINATED
+            with contextlib.suppress(OSError):  # (a closed terminal: the line goes nowhere)
+                _say(f"{prefix}: {stop.words}")
+            return 128 + stop.signum
         _say(f"{prefix}: interrupted")
         return EXIT_INTERRUPTED
     except BrokenPipeError:

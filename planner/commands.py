@@ -23,7 +23,7 @@ from pathlib import Path
 import yaml
 
 from planner import handtool
-from planner.errors import PlannerError
+from planner.errors import NoSequenceError, PlannerError
 from planner.fileio import check_outputs, write_atomic
 
 #: `verify` says what it is checking first when a plan has more path waypoints than this (about
@@ -125,14 +125,22 @@ def cmd_plan(args: argparse.Namespace) -> int:
 def cmd_check(args: argparse.Namespace) -> int:
     """Realize one grasp, print the report (text or JSON), draw it (``--png``); exit 0 force
     closure and as written (no `RealizedGrasp.problems`), 1 not, 2 bad input. With
-    ``--execution`` also 1 unless ``plan --execution`` accepts it as an end grasp
-    (`planner.realization.execution_verdict`: the execution contact model, the hold factor in
-    the six directions it plans for); with ``--gravity`` (3 numbers, "gravity"; or a name) the
-    same under that gravity alone, as ``plan --execution --gravity``."""
+    ``--execution`` also 1 unless ``plan --execution`` accepts it as an end grasp: its static
+    test (`planner.realization.execution_verdict`: the execution contact model, the hold
+    factor in the six directions it plans for), then the grasp held in a physics engine as the
+    plan's end grasps are (`_simulator_hold`; ``--no-verify`` skips it, ``--engine``); with
+    ``--gravity`` (3 numbers, "gravity"; or a name) the same under that gravity alone, as
+    ``plan --execution --gravity``."""
     from planner.grasp import grasp_files, load_grasp  # deferred: objects, the hand: pinocchio, coal (~0.1 s)
     from planner.grasp_report import check_text, contact_markers  # deferred: scipy (~0.2 s)
     from planner.realization import execution_verdict, realize  # deferred: closure, contacts: scipy (~0.05 s more)
 
+    strict = args.execution or args.gravity is not None
+    if not strict and (args.no_verify or args.engine is not None):
+        raise PlannerError(f"{'--no-verify' if args.no_verify else '--engine'}: only with --execution or --gravity "
+                           "(the grasp is held in a physics engine for execution mode alone); add one or leave it out")
+    if args.no_verify and args.engine is not None:
+        raise PlannerError("--engine and --no-verify exclude each other: --no-verify replays nothing")
     spec = load_grasp(args.grasp)
     # the picture may not be a file the check reads (the grasp, its hand's files, the mesh)
     check_outputs([(args.png, "--png")], grasp_files(spec, path=args.grasp))
@@ -146,9 +154,11 @@ def cmd_check(args: argparse.Namespace) -> int:
         verdict = execution_verdict(grasp, g, name)
         gline, gdata = _gravity_line(name, g, grasp.hand.name), {"name": name, "vector": list(g)}
     else:
-        verdict = execution_verdict(grasp)
-    strict = args.execution or args.gravity is not None
-    passes = grasp.ok and (verdict.ok or not strict)
+        g, name, verdict = None, None, execution_verdict(grasp)
+    sim = None
+    if strict and not args.no_verify and grasp.ok and verdict.ok:
+        sim = _simulator_hold(grasp, g, name, args.engine)
+    passes = grasp.ok and (verdict.ok and (sim is None or sim["held"]) or not strict)
     if args.png:
         from planner.sim.render import render_png  # deferred: pybullet, only with --png
 
@@ -156,12 +166,13 @@ def cmd_check(args: argparse.Namespace) -> int:
     if args.json:
         data = grasp.summary(list(verdict.hold), verdict)
         data["execution"]["required"] = strict
+        data["execution"]["simulator"] = sim
         data["passes"] = passes
         if gdata is not None:
             data["gravity"] = gdata
         print(json.dumps(data, indent=1))
     else:
-        text = check_text(grasp, verdict, strict)
+        text = check_text(grasp, verdict, strict, sim)
         if gline is not None:  # before the verdict, the report's last line
             head, _, last = text.rpartition("\n")
             text = f"{head}\n{gline}\n{last}"
@@ -172,10 +183,35 @@ def cmd_check(args: argparse.Namespace) -> int:
     return 0 if passes else 1
 
 
+def _simulator_hold(grasp, gravity, name: str | None, engine: str | None) -> dict:
+    """The grasp held in a physics engine as ``plan --execution`` holds its end grasps before it
+    searches (`planner.regrasp.end_grasp_replay`), as plain data (``check --json``'s
+    ``execution.simulator``): the engine, whether it held, the directions replayed (in order;
+    ``gravity`` as ``name``, the --gravity given) and the failing one's verdict, the replays'
+    wall time."""
+    from planner.regrasp import end_grasp_replay  # deferred: the physics engine
+
+    try:
+        v = end_grasp_replay(grasp, gravity, engine=engine)
+    except NoSequenceError as err:  # the one-state plan refused before any replay (its static test passed)
+        from planner.sim.engine import default_engine
+
+        return {"engine": engine or default_engine(), "held": False, "directions": [], "failure": {"direction": None, "verdict": str(err)},
+                "wall_s": 0.0}
+    failure = v.first_failure()
+    shown = {"gravity": name} if name else {}
+    return {"engine": " and ".join(e for e, _ in v.by_engine) or v.engine, "held": v.passed, "directions": [shown.get(d[0], d[0]) for d in v.directions],
+            "failure": None if failure is None else {"direction": shown.get(failure[0], failure[0]),
+                                                     "verdict": failure[2]},
+            "wall_s": round(v.wall_time_s, 2)}
+
+
 def cmd_synth(args: argparse.Namespace) -> int:
     """Synthesize force-closure grasps; exit 0 when -n were written, 1 fewer, 2 bad input."""
     from planner.synthesis import run_synth  # deferred: scipy, coal (~0.25 s)
 
+    if args.no_verify and args.engine is not None:
+        raise PlannerError("--engine and --no-verify exclude each other: --no-verify replays nothing")
     gravity = args.gravity
     if isinstance(gravity, str):  # a name: the hand resolves it (planner.gravity.named_gravity)
         from pathlib import Path
@@ -194,7 +230,8 @@ def cmd_synth(args: argparse.Namespace) -> int:
                      max_finger_force_n=args.max_finger_force, mu=args.mu, gamma=args.gamma,
                      max_attempts=args.max_attempts, quiet=args.quiet, palm=args.palm,
                      workers=getattr(args, "workers", 1),
-                     gravity_name=args.gravity if isinstance(args.gravity, str) else None)
+                     gravity_name=args.gravity if isinstance(args.gravity, str) else None,
+                     verify=not args.no_verify, engine=args.engine)
 
 
 

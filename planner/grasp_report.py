@@ -30,10 +30,12 @@ def object_text(obj) -> str:
     return f"mesh {Path(obj.mesh_path).name} {mm} mm (scale {list(obj.size)})"
 
 
-def check_text(grasp: RealizedGrasp, verdict: ExecutionVerdict | None = None, strict: bool = False) -> str:
+def check_text(grasp: RealizedGrasp, verdict: ExecutionVerdict | None = None, strict: bool = False,
+               simulator: dict | None = None) -> str:
     """The text report of ``regrasp check``; ``verdict``: `planner.realization.execution_verdict`'s
     when already computed (its ``hold`` is the load table); ``strict`` (``--execution``,
-    ``--gravity``): a refusal fails the check."""
+    ``--gravity``): a refusal fails the check; ``simulator``: the grasp held in a physics engine
+    (``check --execution``'s `planner.commands._simulator_hold` data), None when not replayed."""
     verdict = execution_verdict(grasp) if verdict is None else verdict
     hold = verdict.hold
     report = grasp.summary(hold)
@@ -85,13 +87,29 @@ def check_text(grasp: RealizedGrasp, verdict: ExecutionVerdict | None = None, st
     if not hold:
         out.append(f"  not computed: {grasp.hold_unavailable() or 'no direction'}")
     names = ", ".join(n for n, _ in verdict.directions)
-    out.append(f"execution mode (plan --execution, {names}): "
-               + ("accepts it as an end grasp (by its static test; plan --execution also holds it in the simulator "
-                  "first: plan G G --execution runs both)" if verdict.ok else f"refuses it: {verdict.reason}")
-               + ("" if strict or verdict.ok else " (check --execution fails it)"))
+    if not verdict.ok:
+        accepted = f"refuses it: {verdict.reason}" + ("" if strict else " (check --execution fails it)")
+    elif simulator is not None:
+        accepted = "accepts it as an end grasp by its static test"
+    else:
+        accepted = ("accepts it as an end grasp by its static test (plan --execution also holds it in a physics "
+                    + ("engine first: --no-verify skipped that)" if strict else "engine first, as check --execution does)"))
+    out.append(f"execution mode (plan --execution, {names}): {accepted}")
+    if simulator is not None:
+        where = f"held in a physics engine ({simulator['engine']}, as plan --execution holds its end grasps)"
+        if simulator["held"]:
+            out.append(f"{where}: holds it in {len(simulator['directions'])} direction(s) "
+                       f"({', '.join(simulator['directions'])}), {simulator['wall_s']:.1f} s")
+        else:
+            failure = simulator["failure"]
+            out.append(f"{where}: does not hold it: "
+                       + (f"{failure['direction']}: " if failure["direction"] else "") + failure["verdict"])
     why = [] if grasp.is_force_closure else ["not force closure"]
     why += [f"{len(grasp.problems)} problem(s)"] if grasp.problems else []
     why += [f"execution mode refuses it: {verdict.brief()}"] if strict and not verdict.ok else []
+    if strict and simulator is not None and not simulator["held"]:
+        why += ["execution mode refuses it: it does not hold in the simulator"
+                + (f" ({simulator['failure']['direction']})" if simulator["failure"]["direction"] else "")]
     out.append(f"{'FAIL' if why else 'PASS'}{': ' + ', '.join(why) if why else ''} (tolerances: penetration "
                f"{PENETRATION_TOL_M * 1e3:.1f} mm, contact warning {CONTACT_WARN_M * 1e3:.0f} mm, "
                f"contact: points realized within {CONTACT_TOL_M * 1e3:.0f} mm by the asked link with the pad within "

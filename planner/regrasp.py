@@ -491,6 +491,21 @@ def _plan_regrasp(initial, final, options: PlanOptions, inputs, verbose: bool) -
     return PlanResult(plan, nx.DiGraph(), None, (), time.perf_counter() - t0, (), verify_s)
 
 
+def end_grasp_replay(grasp: RealizedGrasp, gravity=None, *, engine: str | None = None, workers: int | None = None):
+    """The simulator's half of execution mode's test of an end grasp (``check --execution``):
+    ``grasp`` as the one-state plan ``plan G G --execution`` makes of it (the execution contact
+    model; ``gravity`` a palm-frame vector, else the six directions of execution mode), replayed
+    as that plan's verification replays it: the gravity ramped on, then held. Returns the
+    `planner.sim.verify.Verification`. Raises NoSequenceError when execution mode's static test
+    refuses the grasp (`planner.realization.execution_verdict` says why, first)."""
+    from planner.sim.verify import default_workers, verify_suspects_first  # an engine: only when replaying
+
+    options = PlanOptions.for_execution(verify=False, motion=False, gravity=gravity, engine=engine, workers=workers)
+    one = plan_gaits(grasp, grasp, options)
+    return verify_suspects_first(one.plan, grasp.hand, gravity_directions_of(options, grasp.hand), [],
+                                 workers=options.workers or default_workers(), engine=engine)
+
+
 def plan_gaits(
     initial, final, options: PlanOptions = PlanOptions(), inputs: Mapping[str, Any] | None = None, verbose: bool = False,
     on_replay: Callable[[], Any] | None = None, budget: RoundBudget | None = None,

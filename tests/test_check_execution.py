@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import re
 import warnings
 from pathlib import Path
 
@@ -180,3 +181,53 @@ def test_check_names_a_finger_wedged_at_its_contact_and_the_planner_refuses_to_m
         planner.plan(pairs / "icub_right_cylinder_m0.1_initial.yaml", pairs / "icub_right_cylinder_m0.1_final.yaml",
                      execution=True, verify=False, max_rounds=2)
     assert wedged_fingers(realize(load_grasp(BOX_IR2M))) == {}
+
+
+DROPS = ROOT / "tests/data/grasps/allegro_box_drops_in_sim.yaml"
+
+
+def test_check_execution_holds_the_grasp_in_a_physics_engine_as_plan_does(capsys):
+    """A tripod execution mode's static test accepts (force closure per link, twice the weight in
+    every direction within the torque limits) that the simulator drops palm down: check
+    --execution passed it while plan --execution refused every pair it ends; now it replays the
+    grasp as the plan's end grasp is replayed and fails it, with the engine's verdict."""
+    grasp = realize(load_grasp(DROPS))
+    assert grasp.ok and execution_verdict(grasp).ok  # the static test alone passes it
+    code, out, _ = _run(capsys, "check", DROPS, "--execution")
+    lines = out.splitlines()
+    assert code == 1 and lines[-1].startswith("FAIL: execution mode refuses it: it does not hold in the simulator "
+                                              "(palm_down)")
+    assert lines[-3].endswith("accepts it as an end grasp by its static test")
+    assert re.match(r"held in a physics engine \((pybullet|mujoco), as plan --execution holds its end grasps\): "
+                    r"does not hold it: palm_down: (pybullet|mujoco): FAIL: object dropped", lines[-2])
+    with pytest.raises(NoSequenceError, match="does not hold in the simulator"):  # the planner's own verdict
+        planner.plan(DROPS, DROPS, execution=True, motion=False)
+    code, out, _ = _run(capsys, "check", DROPS, "--execution", "--no-verify")  # the static test alone
+    assert code == 0 and "--no-verify skipped that" in out and "held in a physics engine (" not in out
+    code, out, _ = _run(capsys, "check", DROPS)  # no --execution: no replay, the exit code of the closure
+    assert code == 0 and "held in a physics engine (" not in out and "as check --execution does" in out
+
+
+def test_check_execution_json_carries_the_replay(capsys):
+    code, out, _ = _run(capsys, "check", DROPS, "--execution", "--json")
+    data = json.loads(out)
+    sim = data["execution"]["simulator"]
+    assert code == 1 and data["passes"] is False and data["execution"]["accepted"] is True
+    assert sim["held"] is False and sim["directions"] == ["palm_down"] and sim["failure"]["direction"] == "palm_down"
+    assert "FAIL: object dropped" in sim["failure"]["verdict"] and sim["engine"] in ("pybullet", "mujoco")
+    code, out, _ = _run(capsys, "check", BOX_IR2M, "--execution", "--json")
+    sim = json.loads(out)["execution"]["simulator"]
+    assert code == 0 and sim["held"] is True and sim["failure"] is None
+    assert sim["directions"] == ["palm_down", "palm_up", "side_+x", "side_-x", "side_+y", "side_-y"]
+    code, out, _ = _run(capsys, "check", BOX_IR2M, "--json")
+    assert code == 0 and json.loads(out)["execution"]["simulator"] is None
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["--no-verify"], "--no-verify: only with --execution or --gravity"),
+    (["--engine", "pybullet"], "--engine: only with --execution or --gravity"),
+    (["--execution", "--no-verify", "--engine", "pybullet"], "--engine and --no-verify exclude each other"),
+])
+def test_check_replay_options_without_a_replay_are_refused(capsys, argv, words):
+    code, out, err = _run(capsys, "check", BOX_IR2M, *argv)
+    assert code == 2 and out == "" and err.startswith(f"regrasp check: error: {words}") and len(err.splitlines()) == 1

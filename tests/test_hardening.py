@@ -530,11 +530,10 @@ def _still_running(pids: list[int], within_s: float = 30.0) -> list[int]:
         time.sleep(0.05)
 
 
-@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads the process table in /proc")
-def test_sigterm_is_one_line_exit_143_and_stops_the_forked_processes(tmp_path):
-    """`kill PID` (SIGTERM, as `timeout` sends) during `plan --execution -o`: the processes it
-    forked (the search's helper, the replays' workers) end with it instead of running on with
-    the caller's pipes open, one line 'terminated', exit 143, no plan and no temporary file."""
+def _signal_a_plan(tmp_path, sig, ignore: bool = False) -> tuple[int, list[str]]:
+    """Run `plan --execution -o p.yaml` until it has forked a process, send it ``sig``: (its exit
+    code, its stderr lines), once every process it forked has ended. ``ignore``: the planner
+    starts with ``sig`` ignored (as under ``nohup``)."""
     import signal
     import time
 
@@ -542,23 +541,53 @@ def test_sigterm_is_one_line_exit_143_and_stops_the_forked_processes(tmp_path):
     proc = subprocess.Popen([sys.executable, "-m", "planner", "plan", str(ROOT / "grasps/icub/cylinder_parallel_extension.yaml"),
                              str(ROOT / "grasps/icub/cylinder_ir2m.yaml"), "--execution", "-o", "p.yaml"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=tmp_path, env=env,
-                            start_new_session=True)
+                            start_new_session=True,
+                            preexec_fn=(lambda: signal.signal(sig, signal.SIG_IGN)) if ignore else None)
     try:
         deadline = time.monotonic() + 120
         while not _children(proc.pid) and proc.poll() is None and time.monotonic() < deadline:
             time.sleep(0.05)
         assert _children(proc.pid), "the planner forked no process to check"
         forked = _children(proc.pid)
-        proc.send_signal(signal.SIGTERM)
-        _, err = proc.communicate(timeout=120)  # the pipes close: no forked process holds them
+        proc.send_signal(sig)
+        _, err = proc.communicate(timeout=300)  # the pipes close: no forked process holds them
     finally:  # whatever is left of the session (the forked processes too, before the fix)
         with contextlib.suppress(ProcessLookupError):
             os.killpg(proc.pid, signal.SIGKILL)
         proc.wait()
-    lines = err.decode().strip().splitlines()
-    assert proc.returncode == 143 and lines == ["regrasp plan: terminated"]
-    assert sorted(p.name for p in tmp_path.iterdir()) == []
     assert _still_running(forked) == []
+    return proc.returncode, err.decode().strip().splitlines()
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads the process table in /proc")
+def test_sigterm_is_one_line_exit_143_and_stops_the_forked_processes(tmp_path):
+    """`kill PID` (SIGTERM, as `timeout` sends) during `plan --execution -o`: the processes it
+    forked (the search's helper, the replays' workers) end with it instead of running on with
+    the caller's pipes open, one line 'terminated', exit 143, no plan and no temporary file."""
+    import signal
+
+    code, lines = _signal_a_plan(tmp_path, signal.SIGTERM)
+    assert code == 143 and lines == ["regrasp plan: terminated"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists() or not hasattr(os, "register_at_fork"),
+                    reason="reads the process table in /proc")
+def test_a_hangup_unwinds_as_sigterm_and_nohup_runs_on(tmp_path):
+    """SIGHUP (the terminal or ssh session closed) during `plan --execution -o`: the command
+    unwinds as on SIGTERM (its forked processes end, no plan, no temporary file), exit 129; it
+    died of the signal at once, saying nothing. Started with SIGHUP ignored (``nohup``) it runs
+    on and writes its plan."""
+    import signal
+
+    hup, nohup = tmp_path / "hup", tmp_path / "nohup"
+    hup.mkdir()
+    nohup.mkdir()
+    code, lines = _signal_a_plan(hup, signal.SIGHUP)
+    assert code == 129 and lines == ["regrasp plan: hung up (the terminal closed)"]
+    assert list(hup.iterdir()) == []
+    code, lines = _signal_a_plan(nohup, signal.SIGHUP, ignore=True)
+    assert code == 0 and lines == [] and [p.name for p in nohup.iterdir()] == ["p.yaml"]
 
 
 def _workers_end_with_their_command(tmp_path, argv) -> None:
