@@ -213,6 +213,14 @@ class ReplayRecorder:
         st = self.rd.steps[int(k)]
         head = f"step {int(k) + 1}/{len(self.rd.steps)}: {st.finger} {st.action} (state {st.from_state} -> {st.to_state})"
         if st.action == "repose":  # every touching finger moves the object; none lifts
+            palm = float(getattr(ctl, "palm_share", 1.0))
+            if 0.0 < palm < 1.0:  # the palm's load handed to the fingers before the object moves, back after
+                if self._moved:
+                    return f"{head}: the palm takes its load back ({100 * palm:.0f}%)", st.to_state, None
+                return (f"{head}: the fingers take the load off the palm ({100 * (1.0 - palm):.0f}%)", st.from_state,
+                        None)
+            if sim.reposing and getattr(sim, "palm_holds", False):  # still waypoints: the object rests on the palm
+                return f"{head}: the fingers re-posture, the object on the palm", st.from_state, None
             if sim.reposing:
                 self._moved = True
                 return f"{head}: the fingers move the object", st.from_state, None
