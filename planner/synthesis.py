@@ -372,7 +372,7 @@ def hold_in_engine(grasps, gravity=None, engine: str | None = None, progress=Non
             continue
         failure = v.first_failure()
         if failure is None:
-            c.held_in = v.engine
+            c.held_in = " and ".join(e for e, _ in v.by_engine) or v.engine  # (--engine both: each named)
         else:
             c.execution = f"{_NOT_HELD} ({failure[0]}: {failure[2]})"
 

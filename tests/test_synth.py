@@ -287,3 +287,12 @@ def test_synth_holds_its_grasps_in_a_physics_engine_and_ranks_those_that_drop_la
         capsys.readouterr()
     static_desc = yaml.safe_load(sorted((tmp_path / "static").glob("*.yaml"))[0].read_text())["description"]
     assert "the static test of plan --execution accepts it" in " ".join(static_desc.split())
+
+
+@pytest.mark.needs_pybullet("--engine both replays in pybullet and MuJoCo")
+def test_synth_engine_both_names_each_engine_that_held(tmp_path, capsys):
+    obj = _object_file(tmp_path, BOX_FIXED, "box.yaml")
+    assert _synth(["allegro_right", obj, "--fingers", "thumb,index,middle", "-n", 3, "--seed", 7, "--engine", "both",
+                   "-o", tmp_path / "out"]) == 0
+    line = capsys.readouterr().out.splitlines()[0]
+    assert line.endswith("execution-ready, held in pybullet and mujoco"), line
