@@ -498,12 +498,19 @@ def end_grasp_replay(grasp: RealizedGrasp, gravity=None, *, engine: str | None =
     as that plan's verification replays it: the gravity ramped on, then held. Returns the
     `planner.sim.verify.Verification`. Raises NoSequenceError when execution mode's static test
     refuses the grasp (`planner.realization.execution_verdict` says why, first)."""
+    return hold_alone(grasp, PlanOptions.for_execution(gravity=gravity, engine=engine, workers=workers))
+
+
+def hold_alone(grasp: RealizedGrasp, options: PlanOptions):
+    """``grasp`` as a one-state plan made with ``options`` (its contact model, gravity
+    directions), replayed as that plan's verification replays it, in ``options.engine`` with
+    ``options.workers``: `planner.sim.verify.Verification`. Raises NoSequenceError when the
+    static test refuses the grasp."""
     from planner.sim.verify import default_workers, verify_suspects_first  # an engine: only when replaying
 
-    options = PlanOptions.for_execution(verify=False, motion=False, gravity=gravity, engine=engine, workers=workers)
-    one = plan_gaits(grasp, grasp, options)
+    one = plan_gaits(grasp, grasp, replace(options, verify=False, motion=False))
     return verify_suspects_first(one.plan, grasp.hand, gravity_directions_of(options, grasp.hand), [],
-                                 workers=options.workers or default_workers(), engine=engine)
+                                 workers=options.workers or default_workers(), engine=options.engine)
 
 
 def plan_gaits(
@@ -559,6 +566,7 @@ def plan_gaits(
     directions = gravity_directions_of(options, hand)
     verifying = verifies(options.verify, options.strategy, directions)
     verified, rejected, verify_s, workers, plan = None, [], 0.0, None, None
+    final_alone = None  # the final grasp's replay alone (once a sequence failed at it): its failure, or ()
     rejected_moves: list[str] = []  # the plan step each rejected sequence failed at, in words
     unsound: list[str] = []  # moves the plan's physics check refused: the move and its first problem
     if verifying:
@@ -695,6 +703,16 @@ def plan_gaits(
             if step < 0:
                 raise NoSequenceError(f"the initial grasp {initial.spec.name!r} does not hold in the simulator ({name}: "
                                       f"{verdict}); no sequence starting from it can pass (--no-verify returns one anyway)")
+            if final_alone is None:
+                # a sequence failed: the final grasp is held alone (once), as the initial grasp is
+                # at the start of every replay; one the simulator drops is said so now (every
+                # sequence ending in it was replayed up to --verify-attempts, each failing
+                # wherever the final grasp's weak direction first showed)
+                final_alone = hold_alone(final, options).first_failure() or ()
+                if final_alone:
+                    raise NoSequenceError(f"the final grasp {final.spec.name!r} does not hold in the simulator "
+                                          f"({final_alone[0]}: {final_alone[2]}); no sequence ending in it can pass "
+                                          f"(--no-verify returns one anyway)")
             if len(rejected) >= options.verify_attempts:
                 raise NoSequenceError(
                     f"no sequence held in the simulator in {len(rejected)} attempt(s) (--verify-attempts; "

@@ -231,3 +231,24 @@ def test_check_execution_json_carries_the_replay(capsys):
 def test_check_replay_options_without_a_replay_are_refused(capsys, argv, words):
     code, out, err = _run(capsys, "check", BOX_IR2M, *argv)
     assert code == 2 and out == "" and err.startswith(f"regrasp check: error: {words}") and len(err.splitlines()) == 1
+
+
+BALL15 = [ROOT / f"tests/data/grasps/icub_ball15_{k}.yaml" for k in ("01", "02")]
+
+
+@pytest.mark.needs_pybullet("the final grasp's verdict is pybullet's (MuJoCo holds it)")
+def test_plan_says_when_its_final_grasp_does_not_hold_in_the_simulator(capsys):
+    """A final grasp the static test accepts and pybullet drops palm up: every sequence to it
+    failed in the simulator at some lift, and plan said 'no sequence held in 6 attempts' after
+    about 30 s of replays. After the first failure the final grasp is held alone, as check
+    --execution holds it, and the plan is refused naming it, in the direction check names."""
+    with pytest.raises(NoSequenceError) as err:
+        planner.plan(*BALL15, execution=True, motion=False, repose=False)
+    assert str(err.value).startswith("the final grasp 'icub_ball15_02' does not hold in the simulator (palm_up: "
+                                     "pybullet: FAIL: ")
+    assert str(err.value).endswith("no sequence ending in it can pass (--no-verify returns one anyway)")
+    code, out, _ = _run(capsys, "check", BALL15[1], "--execution")
+    assert code == 1 and out.splitlines()[-1].startswith("FAIL: execution mode refuses it: it does not hold in the "
+                                                         "simulator (palm_up)")
+    code, _, _ = _run(capsys, "check", BALL15[0], "--execution")  # (the initial grasp holds)
+    assert code == 0
