@@ -350,7 +350,7 @@ _NOT_HELD = "does not hold in the simulator"
 
 def hold_in_engine(grasps, gravity=None, engine: str | None = None, progress=None) -> None:
     """Hold each grasp that execution mode's static test accepts in a physics engine, as ``plan
-    --execution`` holds its end grasps before it searches (`planner.regrasp.end_grasp_replay`,
+    --execution``'s verification holds its end grasps (`planner.regrasp.end_grasp_replay`,
     what ``check --execution`` runs): one that holds gets ``held_in`` (the engine), one that does
     not gets the engine's verdict as its ``execution`` refusal (ranked after the accepted ones).
     ``gravity``: synthesize's (one direction: replayed there; none or several: execution mode's
