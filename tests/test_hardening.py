@@ -542,7 +542,8 @@ def _signal_a_plan(tmp_path, sig, ignore: bool = False) -> tuple[int, list[str]]
                              str(ROOT / "grasps/icub/cylinder_ir2m.yaml"), "--execution", "-o", "p.yaml"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=tmp_path, env=env,
                             start_new_session=True,
-                            preexec_fn=(lambda: signal.signal(sig, signal.SIG_IGN)) if ignore else None)
+                            # (the test's own disposition is not inherited: a CI under nohup ignores SIGHUP)
+                            preexec_fn=lambda: signal.signal(sig, signal.SIG_IGN if ignore else signal.SIG_DFL))
     try:
         deadline = time.monotonic() + 120
         while not _children(proc.pid) and proc.poll() is None and time.monotonic() < deadline:
