@@ -170,6 +170,23 @@ def _plan_motions(hand, obj, problem, seq: GaitSequence, gait_fn, cache: dict) -
     return out
 
 
+def _final_alone_words(final: RealizedGrasp, options: PlanOptions, whole=None) -> str:
+    """When every sequence failed in the simulator: the final grasp replayed alone (`hold_alone`,
+    as ``check --execution`` replays it), and ``"; the final grasp 'X' alone does not hold in
+    the simulator either (DIRECTION: VERDICT)"`` when it fails, else "". Said, not decided on:
+    a plan arriving at a grasp can hold where the grasp taken alone does not (the iCub pen
+    turned in the tripod, `grasps/icub/pen_writing_pose.yaml`). Gaits inside a larger plan
+    (``whole``, a reposing candidate's): nothing (one replay per candidate pose is not spent on
+    words)."""
+    if whole is not None:
+        return ""
+    failure = hold_alone(final, options).first_failure()
+    if failure is None:
+        return ""
+    return (f"; the final grasp {final.spec.name!r} alone does not hold in the simulator either ({failure[0]}: "
+            f"{failure[2]}; check --execution replays it so)")
+
+
 def _rejected_words(rejected) -> str:
     """Sequences the simulator rejected, in words: order, direction, step and verdict each."""
     return "; ".join(f"{' '.join(x['order'])}: {x['direction']} at step {x['step']}: {x['verdict']}" for x in rejected)
@@ -566,7 +583,6 @@ def plan_gaits(
     directions = gravity_directions_of(options, hand)
     verifying = verifies(options.verify, options.strategy, directions)
     verified, rejected, verify_s, workers, plan = None, [], 0.0, None, None
-    final_alone = None  # the final grasp's replay alone (once a sequence failed at it): its failure, or ()
     rejected_moves: list[str] = []  # the plan step each rejected sequence failed at, in words
     unsound: list[str] = []  # moves the plan's physics check refused: the move and its first problem
     if verifying:
@@ -620,7 +636,8 @@ def plan_gaits(
                     err = NoSequenceError(f"{err}; finger moves that could not be planned: {moves}", err.report)
                 if rejected:
                     err = NoSequenceError(f"{err}; sequences that failed in the simulator ({len(rejected)}): "
-                                          f"{_rejected_words(rejected[:2])}", err.report)
+                                          f"{_rejected_words(rejected[:2])}{_final_alone_words(final, options, whole)}",
+                                          err.report)
                 if unsound:
                     err = NoSequenceError(f"{err}; moves the plan's physics check refused ({len(unsound)}): "
                                           f"{'; '.join(unsound[:2])}", err.report)
@@ -703,21 +720,12 @@ def plan_gaits(
             if step < 0:
                 raise NoSequenceError(f"the initial grasp {initial.spec.name!r} does not hold in the simulator ({name}: "
                                       f"{verdict}); no sequence starting from it can pass (--no-verify returns one anyway)")
-            if final_alone is None:
-                # a sequence failed: the final grasp is held alone (once), as the initial grasp is
-                # at the start of every replay; one the simulator drops is said so now (every
-                # sequence ending in it was replayed up to --verify-attempts, each failing
-                # wherever the final grasp's weak direction first showed)
-                final_alone = hold_alone(final, options).first_failure() or ()
-                if final_alone:
-                    raise NoSequenceError(f"the final grasp {final.spec.name!r} does not hold in the simulator "
-                                          f"({final_alone[0]}: {final_alone[2]}); no sequence ending in it can pass "
-                                          f"(--no-verify returns one anyway)")
             if len(rejected) >= options.verify_attempts:
                 raise NoSequenceError(
                     f"no sequence held in the simulator in {len(rejected)} attempt(s) (--verify-attempts; "
                     f"{verify_s:.1f} s of replays): {_rejected_summary(rejected, rejected_moves, [n for n, _ in directions])}; "
-                    f"the first: {_rejected_words(rejected[:1])}; --no-verify returns the best sequence unverified")
+                    f"the first: {_rejected_words(rejected[:1])}{_final_alone_words(final, options, whole)}; --no-verify "
+                    f"returns the best sequence unverified")
             # the re-search is bounded by the graph, not by the clock the replays spent: a
             # deadline passed during them would stop it where the last search stood (and make
             # the plan depend on the machine's load and the number of workers)
