@@ -310,6 +310,8 @@ def _sigterm_unwinds():
             signal.signal(signum, signal.SIG_DFL)
             os.kill(os.getpid(), signum)
             return
+        if _unwinding():  # a repeat (`timeout` signals the process and its group) while the command unwinds
+            return
         raise HungUp if signum == HungUp.signum else Terminated
 
     old = signal.signal(signal.SIGTERM, handler)
@@ -341,10 +343,21 @@ _DROPPED: list[type[BaseException]] = []
 _REDELIVER_S = 0.005
 
 
+def _unwinding() -> bool:
+    """Whether the command is already unwinding for an interrupt (the clean-up of a Ctrl-C, a
+    SIGTERM or a hang-up runs in an ``except``/``finally``/``__exit__``, which Python runs with
+    it as the exception handled): another one raised there would cut the clean-up short (the
+    replays' workers not told to stop, the pool waiting for them)."""
+    return isinstance(sys.exc_info()[1], KeyboardInterrupt)
+
+
 def _raise_dropped(_signum, _frame) -> None:
-    """SIGALRM's handler while a command runs: raise the interrupt Python dropped."""
+    """SIGALRM's handler while a command runs: raise the interrupt Python dropped (not when
+    another one has been raised since: the command is unwinding for it)."""
     if _DROPPED:
-        raise _DROPPED.pop()()
+        stop = _DROPPED.pop()
+        if not _unwinding():
+            raise stop()
 
 
 def _redeliver_interrupts(fallback):

@@ -1123,3 +1123,44 @@ def test_a_signal_whose_exception_python_dropped_is_delivered_again(sig, raised)
     got = subprocess.run([sys.executable, "-c", _DROPPED_SIGNAL.replace("{sig}", sig)], capture_output=True,
                          text=True, env=env, timeout=60)
     assert (got.stdout.strip(), got.stderr.strip()) == (raised, "")
+
+
+_REPEATED_SIGNAL = """
+import os, signal, sys, time, types
+from planner import cli
+
+signal.signal(signal.SIGINT, signal.default_int_handler)  # (a test runner's worker may ignore Ctrl-C: inherited)
+done = []
+try:
+    with cli._sigterm_unwinds():
+        try:
+            if {dropped}:  # one Python dropped (raised in a fork's callback): delivered again in a few ms
+                sys.unraisablehook(types.SimpleNamespace(exc_value=cli.Terminated(), exc_type=cli.Terminated,
+                                                         exc_traceback=None, err_msg=None, object=None))
+            os.kill(os.getpid(), signal.{sig})
+            for _ in range(2000):
+                time.sleep(0.001)
+            print("ran on")
+        except KeyboardInterrupt:  # the clean-up (the replays' workers told to stop, the pool left)
+            if not {dropped}:  # (else the dropped one's redelivery comes here)
+                os.kill(os.getpid(), signal.{sig})  # `timeout` signals the process, then its group
+            for _ in range(50):
+                time.sleep(0.001)
+            done.append("cleaned up")
+            raise
+except KeyboardInterrupt as stop:
+    print(type(stop).__name__, *done)
+"""
+
+
+@pytest.mark.parametrize("sig, raised, dropped", [("SIGTERM", "Terminated", False), ("SIGHUP", "HungUp", False),
+                                                  ("SIGTERM", "Terminated", True)])
+def test_a_repeated_signal_does_not_cut_the_clean_up_short(sig, raised, dropped):
+    """A second SIGTERM (`timeout` signals the planner and then its process group) or SIGHUP, or
+    the redelivery of one Python had dropped, arriving while the command unwinds for the first:
+    it raised again inside the clean-up, which stopped there (the replays' workers not told to
+    stop, the pool waiting for them to finish). The command unwinds once."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    got = subprocess.run([sys.executable, "-c", _REPEATED_SIGNAL.replace("{sig}", sig).replace("{dropped}", str(dropped))],
+                         capture_output=True, text=True, env=env, timeout=60)
+    assert (got.stdout.strip(), got.stderr.strip()) == (f"{raised} cleaned up", "")
