@@ -278,6 +278,12 @@ def synthesize(hand_ref: str, obj: GraspObject | Mapping, fingers, n: int, *, fi
             continue
         if isinstance(value, bool) or not isinstance(value, numbers.Integral) or not low <= value <= high:
             raise PlannerError(f"synth: {name} must be an integer in {low}..{high}, got {value!r}")
+    if not isinstance(verify, bool):  # (verify="no" replayed)
+        raise PlannerError(f"synth: verify must be True or False, got {verify!r}")
+    if verify:  # an engine unknown or not installed: refused before the synthesis, not after it
+        from planner.sim.verify import engines_of
+
+        engines_of(engine)
     if contact_model not in CONTACT_MODELS:
         raise UnknownNameError("contact model", contact_model, CONTACT_MODELS)
     if not 0 < friction_margin <= 1:

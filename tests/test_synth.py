@@ -296,3 +296,28 @@ def test_synth_engine_both_names_each_engine_that_held(tmp_path, capsys):
                    "-o", tmp_path / "out"]) == 0
     line = capsys.readouterr().out.splitlines()[0]
     assert line.endswith("execution-ready, held in pybullet and mujoco"), line
+
+
+def test_synth_refuses_an_engine_it_cannot_replay_in_before_it_synthesizes(tmp_path, capsys, monkeypatch):
+    """`synth --engine pybullet` where pybullet is not installed (Python 3.12+), or an engine
+    name the API does not know: the whole synthesis ran (minutes), then the replay failed and
+    nothing was written. Refused at once, as plan --execution refuses it before its search; the
+    API's ``verify`` must be True or False ("no" replayed)."""
+    import planner
+    import planner.sim.engine as engine
+    import planner.synthesis as synthesis
+
+    def no_attempt(*_a, **_k):
+        raise AssertionError("synthesized before the engine was checked")
+
+    monkeypatch.setattr(synthesis, "_outcomes", no_attempt)
+    monkeypatch.setattr(engine, "engine_installed", lambda name: name == "mujoco")
+    obj = _object_file(tmp_path, BALL)
+    assert _synth(["icub_right", obj, "--fingers", "thumb,index,middle", "--engine", "pybullet", "-o", tmp_path / "g"]) == 2
+    err = capsys.readouterr().err
+    assert "physics engine 'pybullet' is not installed" in err and len(err.splitlines()) == 1
+    assert not (tmp_path / "g").exists()
+    with pytest.raises(planner.PlannerError, match="unknown physics engine 'pybulet'"):
+        planner.synth("icub_right", BALL, "thumb,index,middle", engine="pybulet")
+    with pytest.raises(planner.PlannerError, match="verify must be True or False"):
+        planner.synth("icub_right", BALL, "thumb,index,middle", verify="no")
