@@ -266,3 +266,14 @@ def test_every_option_a_message_names_exists(capsys):
                  "--verify-attempts", "0"])
     err = capsys.readouterr().err
     assert code == 2 and "--verify-attempts: 0 is out of range; valid: [1, 100]" in err and len(err.strip().splitlines()) == 1
+
+
+def test_the_exit_code_table_has_every_signal_a_command_unwinds_for():
+    """README's exit codes and USAGE's hardening paragraph name the code of each signal a command
+    unwinds for (SIGHUP's 129 came with session 56 and was in neither)."""
+    from planner.cli import EXIT_INTERRUPTED, HungUp, Terminated
+
+    usage = (ROOT / "docs/USAGE.md").read_text()
+    for code in (EXIT_INTERRUPTED, 128 + Terminated.signum, 128 + HungUp.signum):
+        assert f"\n| {code} |" in README.read_text(), code
+        assert f"{code}: " in usage, code
