@@ -98,7 +98,8 @@ def build_parser() -> argparse.ArgumentParser:
                        help="exit 1 unless plan --execution accepts the grasp as an initial or final grasp: force "
                             "closure with one contact per touching link and twice the weight held in each of the six "
                             "hand orientations within the joints' torque limits (the failing direction and joint named), "
-                            "then held in a physics engine as plan --execution holds its end grasps (--no-verify skips it)")
+                            "then held in a physics engine from the start, as plan --execution replays an initial grasp (--no-verify "
+                            "skips it; a plan arriving at a grasp that fails here may still hold it as its final grasp)")
     check.add_argument("--no-verify", action="store_true",
                        help="with --execution or --gravity: the static test alone, no replay in a physics engine")
     check.add_argument("--engine", default=None, choices=ENGINE_CHOICES,

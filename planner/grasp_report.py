@@ -109,7 +109,9 @@ def check_text(grasp: RealizedGrasp, verdict: ExecutionVerdict | None = None, st
     why += [f"execution mode refuses it: {verdict.brief()}"] if strict and not verdict.ok else []
     if strict and simulator is not None and not simulator["held"]:
         why += ["execution mode refuses it: it does not hold in the simulator"
-                + (f" ({simulator['failure']['direction']})" if simulator["failure"]["direction"] else "")]
+                + (f" ({simulator['failure']['direction']})" if simulator["failure"]["direction"] else "")
+                + " from the start, as plan --execution replays an initial grasp (a plan arriving at it may "
+                  "still hold it as its final grasp: plan A.yaml THIS.yaml --execution)"]
     out.append(f"{'FAIL' if why else 'PASS'}{': ' + ', '.join(why) if why else ''} (tolerances: penetration "
                f"{PENETRATION_TOL_M * 1e3:.1f} mm, contact warning {CONTACT_WARN_M * 1e3:.0f} mm, "
                f"contact: points realized within {CONTACT_TOL_M * 1e3:.0f} mm by the asked link with the pad within "
