@@ -277,3 +277,11 @@ def test_the_exit_code_table_has_every_signal_a_command_unwinds_for():
     for code in (EXIT_INTERRUPTED, 128 + Terminated.signum, 128 + HungUp.signum):
         assert f"\n| {code} |" in README.read_text(), code
         assert f"{code}: " in usage, code
+
+
+def test_usage_says_check_execution_replays_the_grasp():
+    """docs/USAGE.md's `check` paragraph said `--execution` decides by the static test alone and
+    listed `--json`'s `execution` without the replay (`simulator`) session 56 added."""
+    text = " ".join((ROOT / "docs/USAGE.md").read_text().split())
+    para = text[text.index("- `check` realizes one grasp"):text.index("- `plan` searches")]
+    assert "physics engine" in para and "`--no-verify`" in para and "`simulator`" in para
