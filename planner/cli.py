@@ -322,9 +322,13 @@ def _sigterm_unwinds():
         signal.signal(hup, handler)
     else:
         old_hup = None
-    old_alarm = signal.signal(signal.SIGALRM, _raise_dropped) if hasattr(signal, "setitimer") else None
+    # the redelivery's timer, unless the caller (a program running main()) has one of its own:
+    # its alarm was swallowed by `_raise_dropped` and its timer cancelled when main() returned
+    timer = hasattr(signal, "setitimer") and signal.getitimer(signal.ITIMER_REAL) == (0.0, 0.0) \
+        and signal.getsignal(signal.SIGALRM) in (signal.SIG_DFL, signal.SIG_IGN)
+    old_alarm = signal.signal(signal.SIGALRM, _raise_dropped) if timer else None
     old_hook = sys.unraisablehook
-    sys.unraisablehook = _redeliver_interrupts(old_hook)
+    sys.unraisablehook = _redeliver_interrupts(old_hook, timer)
     try:
         yield
     finally:
@@ -361,7 +365,7 @@ def _raise_dropped(_signum, _frame) -> None:
             raise stop()
 
 
-def _redeliver_interrupts(fallback):
+def _redeliver_interrupts(fallback, timer: bool = True):
     """An unraisable-exception hook that raises a Ctrl-C or SIGTERM again when Python dropped
     the exception its handler raised: a signal's handler runs wherever the interpreter is, and
     where that is inside a fork's callback (`os.register_at_fork`: logging's lock release after
@@ -369,11 +373,11 @@ def _redeliver_interrupts(fallback):
     ("Exception ignored in ...") and the command ran on to exit 0 with its output written. It is
     raised again a few milliseconds later (a timer's signal: raised from here, it would be raised
     inside the hook, and dropped again), where the command runs. Other exceptions go to
-    ``fallback``."""
+    ``fallback``, and every one without ``timer`` (SIGALRM is not ours: the caller's timer runs)."""
 
     def hook(unraisable) -> None:
         exc = unraisable.exc_value
-        if not isinstance(exc, KeyboardInterrupt) or not hasattr(signal, "setitimer"):
+        if not isinstance(exc, KeyboardInterrupt) or not timer:
             fallback(unraisable)
             return
         _DROPPED[:] = [type(exc) if isinstance(exc, Terminated) else KeyboardInterrupt]

@@ -1164,3 +1164,33 @@ def test_a_repeated_signal_does_not_cut_the_clean_up_short(sig, raised, dropped)
     got = subprocess.run([sys.executable, "-c", _REPEATED_SIGNAL.replace("{sig}", sig).replace("{dropped}", str(dropped))],
                          capture_output=True, text=True, env=env, timeout=60)
     assert (got.stdout.strip(), got.stderr.strip()) == (f"{raised} cleaned up", "")
+
+
+_CALLERS_ALARM = """
+import signal, time
+from planner import cli
+
+fired = []
+signal.signal(signal.SIGALRM, lambda *_: fired.append("alarm"))
+signal.setitimer(signal.ITIMER_REAL, {first})
+with cli._sigterm_unwinds():  # what main() runs a command in
+    time.sleep(0.1)
+    if {first} < 0.1:
+        time.sleep(0.2)
+deadline = time.monotonic() + 1
+while not fired and time.monotonic() < deadline:
+    time.sleep(0.01)
+print(*fired)
+"""
+
+
+@pytest.mark.skipif(not hasattr(__import__("signal"), "setitimer"), reason="interval timers")
+@pytest.mark.parametrize("first", [0.05, 0.3])
+def test_a_callers_alarm_survives_a_command(first):
+    """A program that runs `planner.cli.main` with a timer of its own (a watchdog alarm): while
+    the command ran, its SIGALRM went to the redelivery of dropped interrupts and was lost, and
+    when the command returned its timer was cancelled. Its alarm now fires, during or after."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    got = subprocess.run([sys.executable, "-c", _CALLERS_ALARM.replace("{first}", str(first))], capture_output=True,
+                         text=True, env=env, timeout=60)
+    assert (got.stdout.strip(), got.stderr.strip()) == ("alarm", "")
