@@ -141,6 +141,10 @@ def cmd_check(args: argparse.Namespace) -> int:
                            "(the grasp is held in a physics engine for execution mode alone); add one or leave it out")
     if args.no_verify and args.engine is not None:
         raise PlannerError("--engine and --no-verify exclude each other: --no-verify replays nothing")
+    if strict and not args.no_verify:  # (an engine not installed: refused whatever the static test says, as plan does)
+        from planner.sim.verify import engines_of
+
+        engines_of(args.engine)
     spec = load_grasp(args.grasp)
     # the picture may not be a file the check reads (the grasp, its hand's files, the mesh)
     check_outputs([(args.png, "--png")], grasp_files(spec, path=args.grasp))

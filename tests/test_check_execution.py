@@ -269,3 +269,17 @@ def test_a_grasp_held_alone_is_the_initial_role_a_plan_may_still_end_in_it(capsy
     result = planner.plan(pinch, pose, execution=True, motion=False)  # the plan ending in it holds
     check = result.plan.summary["verification"]
     assert check["passed"] and "palm_down" in check["directions"] and len(check["directions"]) == 6
+
+
+def test_check_execution_refuses_an_engine_not_installed_whatever_the_static_test_says(capsys, monkeypatch):
+    """`check --execution --engine pybullet` where pybullet is not installed (Python 3.12+): a
+    grasp the static test refuses exited 1 as if the option were fine (the engine was looked at
+    only for a replay), one it accepts exited 2; `plan --execution --engine pybullet` refuses the
+    option before its search. Refused in one line, exit 2, whatever the grasp."""
+    import planner.sim.engine as engine
+
+    monkeypatch.setattr(engine, "engine_installed", lambda name: name == "mujoco")
+    for grasp in (ROOT / "grasps/guide/allegro_plate_pinch_corner.yaml", BOX_IR2M):  # refused / accepted statically
+        code, out, err = _run(capsys, "check", grasp, "--execution", "--engine", "pybullet")
+        assert code == 2 and out == "" and len(err.splitlines()) == 1, (grasp, err)
+        assert "physics engine 'pybullet' is not installed" in err
