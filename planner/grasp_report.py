@@ -92,8 +92,10 @@ def check_text(grasp: RealizedGrasp, verdict: ExecutionVerdict | None = None, st
     elif simulator is not None:
         accepted = "accepts it as an end grasp by its static test"
     else:
-        accepted = ("accepts it as an end grasp by its static test (plan --execution also holds it in a physics "
-                    + ("engine first: --no-verify skipped that)" if strict else "engine first, as check --execution does)"))
+        skipped = ("engine first, as check --execution does)" if not strict else
+                   "engine first: --no-verify skipped that)" if grasp.ok else
+                   "engine first: not replayed, the grasp is not as written)")  # (a problem fails the check already)
+        accepted = "accepts it as an end grasp by its static test (plan --execution also holds it in a physics " + skipped
     out.append(f"execution mode (plan --execution, {names}): {accepted}")
     if simulator is not None:
         where = f"held in a physics engine ({simulator['engine']}, as plan --execution holds its end grasps)"

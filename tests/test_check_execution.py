@@ -283,3 +283,21 @@ def test_check_execution_refuses_an_engine_not_installed_whatever_the_static_tes
         code, out, err = _run(capsys, "check", grasp, "--execution", "--engine", "pybullet")
         assert code == 2 and out == "" and len(err.splitlines()) == 1, (grasp, err)
         assert "physics engine 'pybullet' is not installed" in err
+
+
+def test_a_grasp_not_as_written_is_not_said_skipped_by_no_verify():
+    """A grasp execution mode's static test accepts but that is not as written (a link 1 mm
+    into another: `problems`) is not replayed by check --execution, which fails it anyway; the
+    report said "--no-verify skipped that" of a command given no --no-verify."""
+    from dataclasses import replace
+
+    from planner.grasp_report import check_text
+
+    grasp = realize(load_grasp(BOX_IR2M))
+    verdict = execution_verdict(grasp)
+    assert grasp.ok and verdict.ok
+    bad = replace(grasp, problems=("collision a - b: 1.00 mm deep (tolerance 0.5 mm)",))
+    text = check_text(bad, verdict, True, None)
+    assert "--no-verify" not in text and "not replayed, the grasp is not as written" in text
+    assert text.splitlines()[-1].startswith("FAIL: 1 problem(s)")
+    assert "--no-verify skipped that" in check_text(grasp, verdict, True, None)  # (given --no-verify)
