@@ -219,7 +219,8 @@ def synthesize(hand_ref: str, obj: GraspObject | Mapping, fingers, n: int, *, fi
                gravity=None, max_finger_force_n: float | None = None, max_attempts: int | None = None, base_dir=".",
                progress=None, contact_model: str = "patch", friction_margin: float = 1.0,
                hold_factor: float = HOLD_FACTOR, palm_clearance_m: float = PALM_CLEARANCE_M,
-               palm: bool = False, workers: int = 1, verify: bool = False, engine: str | None = None) -> SynthResult:
+               palm: bool = False, workers: int = 1, verify: bool = False, engine: str | None = None,
+               gravity_name: str | None = None) -> SynthResult:
     """Sample, close, check, de-duplicate and rank grasps.
 
     Args:
@@ -258,6 +259,8 @@ def synthesize(hand_ref: str, obj: GraspObject | Mapping, fingers, n: int, *, fi
             (``engine``: None the default one), as ``plan --execution`` holds its end grasps
             (`hold_in_engine`): those that drop are ranked after the accepted ones, with the
             engine's verdict; no other grasp is sought in their place (a bound on the work).
+        gravity_name: the name of the one ``gravity`` given (``--gravity palm_down``), said in a
+            replay's verdict instead of "gravity".
 
     Returns:
         `SynthResult` with up to n grasps ranked by `SynthGrasp.rank_key`: those
@@ -343,7 +346,7 @@ def synthesize(hand_ref: str, obj: GraspObject | Mapping, fingers, n: int, *, fi
             break
     ranked = [c for _, c in kept]
     if verify:
-        hold_in_engine(ranked, gravity, engine, progress)
+        hold_in_engine(ranked, gravity, engine, progress, gravity_name)
     ranked.sort(key=SynthGrasp.rank_key)
     return SynthResult(grasps=tuple(ranked), attempts=attempt, candidates_passed=passed, duplicates=dups,
                        seconds=time.perf_counter() - t0, rejected=dict(rejected), palm=palm,
@@ -354,14 +357,18 @@ def synthesize(hand_ref: str, obj: GraspObject | Mapping, fingers, n: int, *, fi
 _NOT_HELD = "does not hold in the simulator"
 
 
-def hold_in_engine(grasps, gravity=None, engine: str | None = None, progress=None) -> None:
+def hold_in_engine(grasps, gravity=None, engine: str | None = None, progress=None,
+                   gravity_name: str | None = None) -> None:
     """Hold each grasp that execution mode's static test accepts in a physics engine, as ``plan
     --execution``'s verification holds its end grasps (`planner.regrasp.end_grasp_replay`,
     what ``check --execution`` runs): one that holds gets ``held_in`` (the engine), one that does
     not gets the engine's verdict as its ``execution`` refusal (ranked after the accepted ones).
     ``gravity``: synthesize's (one direction: replayed there; none or several: execution mode's
-    six). Of 54 synthesized grasps the static test accepted (a sweep of 11 objects on 4 hands),
-    the simulator dropped or turned 8, which synth had said plan --execution accepts."""
+    six; ``gravity_name``: how the one direction is named in a verdict, else "gravity"). Of 54
+    synthesized grasps the static test accepted (a sweep of 11 objects on 4 hands), the
+    simulator dropped or turned 8, which synth had said plan --execution accepts. The replay
+    is how a plan tests its initial grasp: a plan arriving at a grasp that fails it may still
+    end in it (`verdict_words` says so)."""
     from planner.errors import NoSequenceError
     from planner.regrasp import end_grasp_replay  # deferred: the physics engine
 
@@ -380,7 +387,8 @@ def hold_in_engine(grasps, gravity=None, engine: str | None = None, progress=Non
         if failure is None:
             c.held_in = " and ".join(e for e, _ in v.by_engine) or v.engine  # (--engine both: each named)
         else:
-            c.execution = f"{_NOT_HELD} ({failure[0]}: {failure[2]})"
+            where = (gravity_name or failure[0]) if one is not None else failure[0]  # ("gravity": the one given)
+            c.execution = f"{_NOT_HELD} ({where}: {failure[2]})"
 
 
 @dataclass
@@ -610,11 +618,19 @@ def execution_words(gravity_label: str | None = None) -> str:
     return "plan --execution" if gravity_label is None else f"plan --execution --gravity {gravity_label}"
 
 
+def _role(g: SynthGrasp) -> str:
+    """" as an initial grasp" for a grasp the simulator did not hold from the start (a plan may
+    still end in it), else ""."""
+    return " as an initial grasp" if g.execution and g.execution.startswith(_NOT_HELD) else ""
+
+
 def verdict_words(g: SynthGrasp, gravity_label: str | None = None) -> str:
     """A synthesized grasp's execution verdict in its file's description: ``plan --execution
     accepts it`` once a physics engine held it too, ``... refuses it: why``, or, not replayed
     (``--no-verify``), what the static test says."""
     words = execution_words(gravity_label)
+    if not g.execution_ready and g.execution.startswith(_NOT_HELD):  # (a plan may still end in it)
+        return f"{words} refuses it as an initial grasp: {g.execution}; a plan arriving at it may still end in it"
     if not g.execution_ready:
         return f"{words} refuses it: {g.execution}"
     if g.held_in is None:
@@ -776,13 +792,14 @@ def run_synth(hand: str, object_path, fingers: str, n: int, out_dir, *, gravity=
         check_palm_pose(h, obj)
     result = synthesize(hand_ref, obj, names, n, fixed=fixed, friction=friction, seed=seed, gravity=gravity,
                         max_finger_force_n=max_finger_force_n, max_attempts=max_attempts, base_dir=out_dir,
-                        progress=progress, palm=palm, workers=workers, verify=verify, engine=engine)
+                        progress=progress, palm=palm, workers=workers, verify=verify, engine=engine,
+                        gravity_name=gravity_name)
     label = gravity_label_of(gravity, gravity_name)
     paths = write_grasps(result, out_dir, h.name, seed=seed, fingers=names, inputs=[object_path], gravity_label=label)
     for path, g in zip(paths, result.grasps):
         grip = f"  grip {g.grip_force_n:.3f} N" if g.grip_force_n is not None else ""
         ex = (("execution-ready" + (f", held in {g.held_in}" if g.held_in else " by the static test"))
-              if g.execution_ready else f"not for --execution: {g.execution}") \
+              if g.execution_ready else f"not for --execution{_role(g)}: {g.execution}") \
             + ("" if label is None else f" (--gravity {label} only)")
         print(f"{path}  metric {g.metric:.4g}{grip}  {ex}")
     rate = len(paths) / result.seconds if result.seconds > 0 else math.inf

@@ -275,7 +275,7 @@ def test_synth_holds_its_grasps_in_a_physics_engine_and_ranks_those_that_drop_la
     assert _synth([*args, "-o", tmp_path / "held"]) == 0
     out = capsys.readouterr().out.splitlines()
     held = [" execution-ready, held in " in line for line in out[:3]]
-    dropped = [" not for --execution: does not hold in the simulator (" in line for line in out[:3]]
+    dropped = [" not for --execution as an initial grasp: does not hold in the simulator (" in line for line in out[:3]]
     assert all(h or d for h, d in zip(held, dropped)) and held == sorted(held, reverse=True), out
     assert out[3].endswith(f"held in a physics engine: {sum(held)} of the 3 the static test accepts")
     if default_engine() == "pybullet":
@@ -321,3 +321,18 @@ def test_synth_refuses_an_engine_it_cannot_replay_in_before_it_synthesizes(tmp_p
         planner.synth("icub_right", BALL, "thumb,index,middle", engine="pybulet")
     with pytest.raises(planner.PlannerError, match="verify must be True or False"):
         planner.synth("icub_right", BALL, "thumb,index,middle", verify="no")
+
+
+@pytest.mark.needs_pybullet("which of the grasps pybullet drops")
+def test_synth_gravity_name_is_said_in_a_replays_verdict(tmp_path, capsys):
+    """synth --gravity palm_down: a grasp the simulator drops names the direction as given, not
+    "gravity"; its file says plan --execution refuses it as an initial grasp (the replay is that
+    test; a plan arriving at it may still end in it)."""
+    obj = _object_file(tmp_path, BOX_FIXED, "box.yaml")
+    assert _synth(["allegro_right", obj, "--fingers", "thumb,index,middle", "-n", 3, "--seed", 7,
+                   "--gravity", "palm_down", "-o", tmp_path / "out"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert " not for --execution as an initial grasp: does not hold in the simulator (palm_down: pybullet: " in out[1]
+    desc = " ".join(yaml.safe_load(sorted((tmp_path / "out").glob("*.yaml"))[1].read_text())["description"].split())
+    assert "plan --execution --gravity palm_down refuses it as an initial grasp: does not hold in the simulator " \
+           "(palm_down: " in desc and desc.endswith("; a plan arriving at it may still end in it")
