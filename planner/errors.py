@@ -81,6 +81,12 @@ class NoSequenceError(PlannerError):
         super().__init__(message)
 
 
+class InitialGraspDrops(NoSequenceError):
+    """The initial grasp does not hold in the simulator: every plan starts there, so no sequence
+    and no reposing move can pass (`planner.regrasp.plan_gaits` raises it; the reposing routes
+    are not tried after it)."""
+
+
 class MotionError(PlannerError):
     """A finger path could not be planned within its time budget."""
 

@@ -702,7 +702,8 @@ def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bo
             verify_s += check.wall_time_s
             if not check.passed:
                 nm, step, verdict, _ = check.first_failure()
-                tried.append(f"{where}: the plan failed in the simulator ({nm} at step {step}: {first_clause(verdict)})")
+                at = f"step {step}" if step >= 0 else "its first state"
+                tried.append(f"{where}: the plan failed in the simulator ({nm} at {at}: {first_clause(verdict)})")
                 return None
             plan = replace(plan, summary={**plan.summary, "verification": {**check.record(), "attempts": 1,
                                                                              "rejected": []}})

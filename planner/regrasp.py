@@ -30,7 +30,7 @@ import numpy as np
 
 from planner.audit import audit_plan
 from planner.closure import GRIP_CONE_SIDES
-from planner.errors import InputError, MotionError, NoSequenceError, SpecError, UnknownNameError
+from planner.errors import InitialGraspDrops, InputError, MotionError, NoSequenceError, SpecError, UnknownNameError
 from planner.fileio import describe
 from planner.explain import explain_failure, failure_analysis
 from planner.graph import LIFTED, GaitProblem, annotate_removable, seed_graph
@@ -485,7 +485,8 @@ def _plan_regrasp(initial, final, options: PlanOptions, inputs, verbose: bool) -
         try:
             return plan_gaits(initial, final, options, inputs, verbose)
         except NoSequenceError as err:
-            if not options.repose or options.strategy != "graph" or not candidate_poses(initial, final) \
+            if isinstance(err, InitialGraspDrops) or not options.repose or options.strategy != "graph" \
+                    or not candidate_poses(initial, final) \
                     or state_reason(initial, options) is not None or state_reason(final, options) is not None:
                 raise  # (an end grasp that is no valid state cannot be moved either)
             first_err = err
@@ -718,8 +719,9 @@ def plan_gaits(
             if verbose:
                 print(f"verify: sequence {_rejected_words(rejected[-1:])}")
             if step < 0:
-                raise NoSequenceError(f"the initial grasp {initial.spec.name!r} does not hold in the simulator ({name}: "
-                                      f"{verdict}); no sequence starting from it can pass (--no-verify returns one anyway)")
+                raise InitialGraspDrops(f"the initial grasp {initial.spec.name!r} does not hold in the simulator "
+                                        f"({name}: {verdict}); no sequence starting from it can pass, nor a reposing "
+                                        f"move (--no-verify returns one anyway)")
             if len(rejected) >= options.verify_attempts:
                 raise NoSequenceError(
                     f"no sequence held in the simulator in {len(rejected)} attempt(s) (--verify-attempts; "

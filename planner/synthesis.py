@@ -118,6 +118,7 @@ class SynthResult:
     palm: bool = False      # whole-hand grasps (the object against the palm)
     by_finger: dict = None  # finger -> {reason: attempts dropped for it that were about that finger}
     verified: bool = False  # the execution-ready grasps were held in a physics engine (`hold_in_engine`)
+    fixed: bool = False     # the object's pose was the file's (else sampled per attempt)
 
 
 def load_object_file(path) -> tuple[GraspObject, dict | None, bool]:
@@ -350,7 +351,7 @@ def synthesize(hand_ref: str, obj: GraspObject | Mapping, fingers, n: int, *, fi
     ranked.sort(key=SynthGrasp.rank_key)
     return SynthResult(grasps=tuple(ranked), attempts=attempt, candidates_passed=passed, duplicates=dups,
                        seconds=time.perf_counter() - t0, rejected=dict(rejected), palm=palm,
-                       by_finger={f: dict(c) for f, c in by_finger.items()}, verified=verify)
+                       by_finger={f: dict(c) for f, c in by_finger.items()}, verified=verify, fixed=bool(fixed))
 
 
 #: How `hold_in_engine` words a grasp the physics engine did not hold.
@@ -885,7 +886,10 @@ def rejection_table(result: SynthResult) -> str:
                      "object, fewer fingers (e.g. --fingers thumb,index,middle: a palm-supported tripod), or "
                      "drop --palm")
     elif any(w in top for w in ("reach", "IK", "touch", "miss")):
-        hints.append("the fingers do not reach the object there: move it (position) or let synth sample the pose")
+        hints.append("the fingers do not reach the object there: move it (position) or let synth sample the pose "
+                     "(an object file without position)" if result.fixed else
+                     "the fingers do not reach the object at the poses sampled: other fingers (--fingers), another "
+                     "size, or more attempts (--max-attempts)")
     if "force closure" in top:
         hints.append("add a finger that opposes the others (e.g. the thumb) or raise --max-attempts")
     if "limits" in top:

@@ -397,3 +397,36 @@ def test_moves_taken_out_before_a_resumed_round_are_still_known_to_the_explanati
         regrasp.plan_regrasp(a, b, PlanOptions.for_execution(motion=False, verify_attempts=100, repose=False))
     assert any(new and removed for new, removed, _ in seen)  # a resumed round in a new graph, after removals
     assert all(recorded == removed for _, removed, recorded in seen)
+
+
+def test_an_initial_grasp_the_simulator_drops_ends_the_plan_without_reposing_routes(monkeypatch):
+    """Every plan starts at the initial grasp: when the simulator drops it, no reposing move can
+    pass either. The reposing routes were tried anyway (36.8 s, 26 s of it replays, and a
+    2,000-character refusal repeating the drop and naming 'step -1' on a sweep's grasp); the
+    plan now ends at the drop (`InitialGraspDrops`)."""
+    import planner.pose_search as pose_search
+    import planner.sim.verify as verify
+    from planner.errors import InitialGraspDrops
+    from planner.grasp import load_grasp
+    from planner.options import PlanOptions
+    from planner.realization import realize
+    from planner.regrasp import plan_regrasp
+    from planner.resources import bundled_grasp
+
+    def at_start(plan, hand, directions, workers=None, meanwhile=None):
+        if meanwhile is not None:
+            meanwhile()
+        return verify.Verification(False, tuple((n, False, "FAIL: dropped", -1, False, 40.0, 9.0) for n, _ in directions),
+                                   0.0)
+
+    def no_route(*_a, **_k):
+        raise AssertionError("a reposing route was tried after the initial grasp dropped")
+
+    g = realize(load_grasp(bundled_grasp("icub/box_ir2m.yaml")))
+    assert pose_search.candidate_poses(g, g)  # (the routes exist for this grasp: they would be tried)
+    monkeypatch.setattr(verify, "verify_plan", at_start)
+    monkeypatch.setattr(pose_search, "plan_with_reposing", no_route)
+    with pytest.raises(InitialGraspDrops) as err:
+        plan_regrasp(g, g, PlanOptions.for_execution(motion=False))
+    assert str(err.value).startswith("the initial grasp 'box_ir2m' does not hold in the simulator (palm_down: FAIL: "
+                                     "dropped); no sequence starting from it can pass, nor a reposing move")

@@ -123,3 +123,14 @@ def test_rejection_table_names_the_palm_reasons():
     assert "object not against the palm" in table and "sweeps miss the object on the palm" in table
     assert "not force closure" in table and "drop --palm" in table
     assert default_fingers(Hand.load("allegro_right"), palm=True) == list(Hand.load("allegro_right").fingers)
+
+
+def test_rejection_table_says_to_sample_the_pose_only_when_it_was_fixed():
+    """'let synth sample the pose' was the hint of 29 sweep runs whose pose was sampled."""
+    rejected = {"sweeps miss the object": 530, "not force closure": 48}
+    fixed = rejection_table(SynthResult(grasps=(), attempts=600, candidates_passed=0, duplicates=0, seconds=0.0,
+                                        rejected=rejected, fixed=True))
+    sampled = rejection_table(SynthResult(grasps=(), attempts=600, candidates_passed=0, duplicates=0, seconds=0.0,
+                                          rejected=rejected))
+    assert "let synth sample the pose" in fixed and "let synth sample the pose" not in sampled
+    assert "the fingers do not reach the object at the poses sampled: other fingers (--fingers)" in sampled
