@@ -98,7 +98,7 @@ def check_text(grasp: RealizedGrasp, verdict: ExecutionVerdict | None = None, st
         accepted = "accepts it as an end grasp by its static test (plan --execution also holds it in a physics " + skipped
     out.append(f"execution mode (plan --execution, {names}): {accepted}")
     if simulator is not None:
-        where = f"held in a physics engine ({simulator['engine']}, as plan --execution holds its end grasps)"
+        where = f"held in a physics engine ({simulator['engine']}, as plan --execution replays an initial grasp)"
         if simulator["held"]:
             out.append(f"{where}: holds it in {len(simulator['directions'])} direction(s) "
                        f"({', '.join(simulator['directions'])}), {simulator['wall_s']:.1f} s")

@@ -198,7 +198,7 @@ def test_check_execution_holds_the_grasp_in_a_physics_engine_as_plan_does(capsys
     assert code == 1 and lines[-1].startswith("FAIL: execution mode refuses it: it does not hold in the simulator "
                                               "(palm_down)")
     assert lines[-3].endswith("accepts it as an end grasp by its static test")
-    assert re.match(r"held in a physics engine \((pybullet|mujoco), as plan --execution holds its end grasps\): "
+    assert re.match(r"held in a physics engine \((pybullet|mujoco), as plan --execution replays an initial grasp\): "
                     r"does not hold it: palm_down: (pybullet|mujoco): FAIL: object dropped", lines[-2])
     with pytest.raises(NoSequenceError, match="does not hold in the simulator"):  # the planner's own verdict
         planner.plan(DROPS, DROPS, execution=True, motion=False)

@@ -44,7 +44,7 @@ def _walk(tmp_path, capsys, urdf: str, root: str, obj_text: str, fingers: list[s
     assert main(cmd) == 0
     out = capsys.readouterr().out
     lines = out.splitlines()[:2]
-    # each grasp held in the simulator as plan --execution holds its end grasps, or refused by it
+    # each grasp held in the simulator as plan --execution replays an initial grasp, or refused by it
     assert all(" execution-ready, held in " in line or " not for --execution as an initial grasp: does not hold in the simulator (" in line
                for line in lines), out
     assert " execution-ready, held in " in lines[0], out  # the first ranked one held

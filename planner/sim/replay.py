@@ -354,7 +354,9 @@ def _replay_engine(rd, info, joints, states, steps, obj, friction, params, line,
     passed = (not dropped) and within and not disagree and not other and len(reached) == len(reports) and not broken
     limits = f"limits {drift_mm_max:g} mm / {drift_deg_max:g} deg"
     if dropped:
-        verdict = f"FAIL: object dropped (moved more than {drop_mm:g} mm)"
+        # (the cause that follows is where it first left the drift limits: the millimetres it names
+        # are those, not the drop's)
+        verdict = f"FAIL: object dropped (moved more than {drop_mm:g} mm), first out of the {limits}"
     elif not within:
         verdict = f"FAIL: drift {max_mm:.1f} mm / {max_deg:.1f} deg exceeds the {limits}"
     elif disagree:
