@@ -1130,6 +1130,7 @@ import os, signal, sys, time, types
 from planner import cli
 
 signal.signal(signal.SIGINT, signal.default_int_handler)  # (a test runner's worker may ignore Ctrl-C: inherited)
+signal.signal(signal.SIGHUP, signal.SIG_DFL)  # (and a CI under nohup SIGHUP: the planner then leaves it ignored)
 done = []
 try:
     with cli._sigterm_unwinds():
