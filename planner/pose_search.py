@@ -799,7 +799,9 @@ def plan_with_reposing(initial, final, options: PlanOptions, inputs, verbose: bo
                         rounds.give(owed)
                         owed = 0
                     before = rounds.stopped
-                    res = gaits(a, b, left, replayed, budget=rounds, whole=around)
+                    # (a refusal's first clause is kept: the grasp at its end is not replayed alone for
+                    # the words after it)
+                    res = gaits(a, b, left, replayed, budget=rounds, whole=around, final_alone=False)
                     if res.whole is not None:
                         plan = checked(res.whole, name, res)
                         if plan is not None:

@@ -170,15 +170,15 @@ def _plan_motions(hand, obj, problem, seq: GaitSequence, gait_fn, cache: dict) -
     return out
 
 
-def _final_alone_words(final: RealizedGrasp, options: PlanOptions, whole=None) -> str:
+def _final_alone_words(final: RealizedGrasp, options: PlanOptions, whole=None, asked: bool = True) -> str:
     """When every sequence failed in the simulator: the final grasp replayed alone (`hold_alone`,
     as ``check --execution`` replays it), and ``"; the final grasp 'X' alone does not hold in
     the simulator either (DIRECTION: VERDICT)"`` when it fails, else "". Said, not decided on:
     a plan arriving at a grasp can hold where the grasp taken alone does not (the iCub pen
     turned in the tripod, `grasps/icub/pen_writing_pose.yaml`). Gaits inside a larger plan
     (``whole``, a reposing candidate's): nothing (one replay per candidate pose is not spent on
-    words)."""
-    if whole is not None:
+    words), nor when not ``asked`` (`plan_gaits`' ``final_alone``)."""
+    if whole is not None or not asked:
         return ""
     failure = hold_alone(final, options).first_failure()
     if failure is None:
@@ -534,7 +534,7 @@ def hold_alone(grasp: RealizedGrasp, options: PlanOptions):
 def plan_gaits(
     initial, final, options: PlanOptions = PlanOptions(), inputs: Mapping[str, Any] | None = None, verbose: bool = False,
     on_replay: Callable[[], Any] | None = None, budget: RoundBudget | None = None,
-    whole: Callable[[Plan], tuple[Plan, int]] | None = None,
+    whole: Callable[[Plan], tuple[Plan, int]] | None = None, final_alone: bool = True,
 ) -> PlanResult:
     """Plan a finger-gaiting sequence from one realized grasp to another, the object fixed.
 
@@ -555,6 +555,10 @@ def plan_gaits(
             per sequence (not the gaits, then the whole again); a failure in a gait step rejects
             the sequence as usual, one outside the gaits ends the search (no other sequence mends
             it). The result's ``whole`` is the larger plan that passed.
+        final_alone: when every sequence failed in the simulator, replay the final grasp alone
+            for the refusal's words (`_final_alone_words`); False for a caller that keeps only
+            the refusal's first clause (`planner.pose_search`'s gaits to an intermediate grasp:
+            the replay would be spent for nothing).
 
     Returns:
         `PlanResult` with the plan, the graph and the ranked sequences.
@@ -637,7 +641,7 @@ def plan_gaits(
                     err = NoSequenceError(f"{err}; finger moves that could not be planned: {moves}", err.report)
                 if rejected:
                     err = NoSequenceError(f"{err}; sequences that failed in the simulator ({len(rejected)}): "
-                                          f"{_rejected_words(rejected[:2])}{_final_alone_words(final, options, whole)}",
+                                          f"{_rejected_words(rejected[:2])}{_final_alone_words(final, options, whole, final_alone)}",
                                           err.report)
                 if unsound:
                     err = NoSequenceError(f"{err}; moves the plan's physics check refused ({len(unsound)}): "
@@ -726,7 +730,7 @@ def plan_gaits(
                 raise NoSequenceError(
                     f"no sequence held in the simulator in {len(rejected)} attempt(s) (--verify-attempts; "
                     f"{verify_s:.1f} s of replays): {_rejected_summary(rejected, rejected_moves, [n for n, _ in directions])}; "
-                    f"the first: {_rejected_words(rejected[:1])}{_final_alone_words(final, options, whole)}; --no-verify "
+                    f"the first: {_rejected_words(rejected[:1])}{_final_alone_words(final, options, whole, final_alone)}; --no-verify "
                     f"returns the best sequence unverified")
             # the re-search is bounded by the graph, not by the clock the replays spent: a
             # deadline passed during them would stop it where the last search stood (and make

@@ -341,3 +341,39 @@ def test_an_intermediate_grasp_carried_onto_the_palm_lets_the_thumb_move_there(m
         assert plan.states[s.to_state].palm_holds
     end = plan.states[-1]
     assert np.allclose(np.asarray(end.q), [b.q[list(b.hand.joint_names).index(j)] for j in plan.joints], atol=1e-9)
+
+
+def test_the_gaits_to_an_intermediate_grasp_do_not_replay_it_alone_when_every_sequence_failed(pair, through,
+                                                                                               monkeypatch):
+    """When every sequence of the gaits from the initial grasp to an intermediate grasp failed in
+    the simulator, the gait search replayed the intermediate grasp alone (as a final grasp:
+    `planner.regrasp.hold_alone`) for its refusal's words, which the reposing search cuts off (it
+    keeps a refusal's first clause): a one-state replay in every direction for nothing, per
+    intermediate grasp. Only sequences are replayed now (a stand-in simulator failing each at its
+    first step)."""
+    import planner.intermediate as inter
+    import planner.sim.verify as verify
+    from planner import pose_search, regrasp
+    from planner.errors import NoSequenceError
+
+    a, b = pair
+    monkeypatch.setattr(inter, "intermediate_grasps", lambda x, y, o: (through[0][:1], "one intermediate grasp"))
+    monkeypatch.setattr(pose_search, "candidate_poses", lambda x, y: [])
+    monkeypatch.setattr(pose_search, "through_poses", lambda x, y: [("the final grasp's pose", None)])
+    states = []
+
+    def fails(plan, hand, directions, workers=None, meanwhile=None, **_):
+        if meanwhile is not None:
+            meanwhile()
+        states.append(len(plan.states))
+        step = 0 if plan.steps else -1
+        return verify.Verification(False, ((directions[0][0], False, "FAIL: made up", step, False, 9.0, 9.0),), 0.0)
+
+    monkeypatch.setattr(verify, "verify_plan", fails)
+    opts = PlanOptions.for_execution(motion=False, verify_attempts=2)
+    with pytest.raises(NoSequenceError) as err:
+        pose_search.plan_with_reposing(a, b, opts, {}, False,
+                                       lambda x, y, o, r=None, **kw: regrasp.plan_gaits(x, y, o, {}, False, r, **kw),
+                                       regrasp._straight_gait)
+    assert "through an intermediate grasp" in str(err.value) and "at the initial grasp's pose" in str(err.value)
+    assert states and all(n > 1 for n in states), states  # (1: the intermediate grasp replayed alone)
