@@ -190,7 +190,8 @@ def build_parser() -> argparse.ArgumentParser:
                        help="processes running attempts (default 1); the files do not depend on it")
     synth.add_argument("--no-verify", action="store_true",
                        help="do not hold the grasps execution mode's static test accepts in a physics engine (as "
-                            "plan --execution holds its end grasps; those that drop are ranked after the others)")
+                            "plan --execution replays an initial grasp; those that drop are ranked after the others, "
+                            "a plan arriving at one may still end in it)")
     synth.add_argument("--engine", default=None, choices=ENGINE_CHOICES,
                        help="the physics engine that holds the grasps (default: " + _ENGINE_DEFAULT + ")")
     synth.add_argument("-q", "--quiet", action="store_true", help="no progress line on stderr")

@@ -188,8 +188,8 @@ def cmd_check(args: argparse.Namespace) -> int:
 
 
 def _simulator_hold(grasp, gravity, name: str | None, engine: str | None) -> dict:
-    """The grasp held in a physics engine as ``plan --execution``'s verification holds its end
-    grasps (`planner.regrasp.end_grasp_replay`), as plain data (``check --json``'s
+    """The grasp held in a physics engine as ``plan --execution``'s verification replays an
+    initial grasp (`planner.regrasp.end_grasp_replay`), as plain data (``check --json``'s
     ``execution.simulator``): the engine, whether it held, the directions replayed (in order;
     ``gravity`` as ``name``, the --gravity given) and the failing one's verdict, the replays'
     wall time."""

@@ -257,7 +257,7 @@ def synthesize(hand_ref: str, obj: GraspObject | Mapping, fingers, n: int, *, fi
             generator seeded by (seed, k) and the outcomes are taken in attempt order, so
             the result is the same for any number of workers.
         verify: hold the kept grasps execution mode's static test accepts in a physics engine
-            (``engine``: None the default one), as ``plan --execution`` holds its end grasps
+            (``engine``: None the default one), as ``plan --execution`` replays an initial grasp
             (`hold_in_engine`): those that drop are ranked after the accepted ones, with the
             engine's verdict; no other grasp is sought in their place (a bound on the work).
         gravity_name: the name of the one ``gravity`` given (``--gravity palm_down``), said in a
@@ -361,7 +361,7 @@ _NOT_HELD = "does not hold in the simulator"
 def hold_in_engine(grasps, gravity=None, engine: str | None = None, progress=None,
                    gravity_name: str | None = None) -> None:
     """Hold each grasp that execution mode's static test accepts in a physics engine, as ``plan
-    --execution``'s verification holds its end grasps (`planner.regrasp.end_grasp_replay`,
+    --execution``'s verification replays an initial grasp (`planner.regrasp.end_grasp_replay`,
     what ``check --execution`` runs): one that holds gets ``held_in`` (the engine), one that does
     not gets the engine's verdict as its ``execution`` refusal (ranked after the accepted ones).
     ``gravity``: synthesize's (one direction: replayed there; none or several: execution mode's
