@@ -187,6 +187,18 @@ def _final_alone_words(final: RealizedGrasp, options: PlanOptions, whole=None, a
             f"{failure[2]}; check --execution replays it so)")
 
 
+def _with_final_alone(err: NoSequenceError, final: RealizedGrasp, options: PlanOptions) -> NoSequenceError:
+    """``err`` of a `plan_gaits` run with ``final_alone=False`` with the final grasp's words
+    (`_final_alone_words`) put where that run left them out (``err.final_alone_at``), the
+    final grasp replayed alone now; ``err`` itself when there is nothing to add."""
+    at = getattr(err, "final_alone_at", None)
+    words = "" if at is None else _final_alone_words(final, options)
+    if not words:
+        return err
+    text = str(err)
+    return NoSequenceError(text[:at] + words + text[at:], err.report)
+
+
 def _rejected_words(rejected) -> str:
     """Sequences the simulator rejected, in words: order, direction, step and verdict each."""
     return "; ".join(f"{' '.join(x['order'])}: {x['direction']} at step {x['step']}: {x['verdict']}" for x in rejected)
@@ -482,13 +494,16 @@ def _plan_regrasp(initial, final, options: PlanOptions, inputs, verbose: bool) -
     moved = not identical(initial.obj.T_palm_obj, final.obj.T_palm_obj)
     first_err = None
     if not moved:
+        # reposing moves may follow: the final grasp is replayed alone for the refusal's words
+        # only once no plan is found (`_with_final_alone`)
+        reposes = options.repose and options.strategy == "graph"
         try:
-            return plan_gaits(initial, final, options, inputs, verbose)
+            return plan_gaits(initial, final, options, inputs, verbose, final_alone=not reposes)
         except NoSequenceError as err:
-            if isinstance(err, InitialGraspDrops) or not options.repose or options.strategy != "graph" \
-                    or not candidate_poses(initial, final) \
+            if isinstance(err, InitialGraspDrops) or not reposes or not candidate_poses(initial, final) \
                     or state_reason(initial, options) is not None or state_reason(final, options) is not None:
-                raise  # (an end grasp that is no valid state cannot be moved either)
+                # (an end grasp that is no valid state cannot be moved either)
+                raise _with_final_alone(err, final, options) from None
             first_err = err
     log.info("object poses differ by %.1f mm / %.1f deg: reposing moves" if moved else
              "no gait sequence at this pose: trying reposing moves (%.1f mm / %.1f deg)", mm, deg)
@@ -502,7 +517,7 @@ def _plan_regrasp(initial, final, options: PlanOptions, inputs, verbose: bool) -
         if first_err is None:
             raise
         # the reposing outcome before the gait refusal's closing advice ("to go on: ...")
-        words = str(first_err)
+        words = str(_with_final_alone(first_err, final, options))
         cut = words.rfind("; to go on: ")
         cut = len(words) if cut < 0 else cut
         raise NoSequenceError(f"{words[:cut]}; with the object moved: {err}{words[cut:]}", first_err.report) from None
@@ -556,9 +571,11 @@ def plan_gaits(
             the sequence as usual, one outside the gaits ends the search (no other sequence mends
             it). The result's ``whole`` is the larger plan that passed.
         final_alone: when every sequence failed in the simulator, replay the final grasp alone
-            for the refusal's words (`_final_alone_words`); False for a caller that keeps only
-            the refusal's first clause (`planner.pose_search`'s gaits to an intermediate grasp:
-            the replay would be spent for nothing).
+            for the refusal's words (`_final_alone_words`); False: not now (the refusal's
+            ``final_alone_at`` says where the words go, `_with_final_alone`): for a caller that
+            keeps only the refusal's first clause (`planner.pose_search`'s gaits to an
+            intermediate grasp) or may still find a plan another way (reposing moves,
+            `_plan_regrasp`): the replay would be spent for nothing.
 
     Returns:
         `PlanResult` with the plan, the graph and the ranked sequences.
@@ -639,13 +656,16 @@ def plan_gaits(
                     counts = {m: failed.count(m) for m in dict.fromkeys(failed)}
                     moves = "; ".join(m + (f" (x{n} states)" if n > 1 else "") for m, n in counts.items())
                     err = NoSequenceError(f"{err}; finger moves that could not be planned: {moves}", err.report)
+                alone_at = None
                 if rejected:
                     err = NoSequenceError(f"{err}; sequences that failed in the simulator ({len(rejected)}): "
                                           f"{_rejected_words(rejected[:2])}{_final_alone_words(final, options, whole, final_alone)}",
                                           err.report)
+                    alone_at = None if final_alone or whole is not None else len(str(err))
                 if unsound:
                     err = NoSequenceError(f"{err}; moves the plan's physics check refused ({len(unsound)}): "
                                           f"{'; '.join(unsound[:2])}", err.report)
+                err.final_alone_at = alone_at
                 raise err
             try:
                 if options.motion:
@@ -727,11 +747,12 @@ def plan_gaits(
                                         f"({name}: {verdict}); no sequence starting from it can pass, nor a reposing "
                                         f"move (--no-verify returns one anyway)")
             if len(rejected) >= options.verify_attempts:
-                raise NoSequenceError(
-                    f"no sequence held in the simulator in {len(rejected)} attempt(s) (--verify-attempts; "
-                    f"{verify_s:.1f} s of replays): {_rejected_summary(rejected, rejected_moves, [n for n, _ in directions])}; "
-                    f"the first: {_rejected_words(rejected[:1])}{_final_alone_words(final, options, whole, final_alone)}; --no-verify "
-                    f"returns the best sequence unverified")
+                head = (f"no sequence held in the simulator in {len(rejected)} attempt(s) (--verify-attempts; "
+                        f"{verify_s:.1f} s of replays): {_rejected_summary(rejected, rejected_moves, [n for n, _ in directions])}; "
+                        f"the first: {_rejected_words(rejected[:1])}{_final_alone_words(final, options, whole, final_alone)}")
+                err = NoSequenceError(f"{head}; --no-verify returns the best sequence unverified")
+                err.final_alone_at = None if final_alone or whole is not None else len(head)
+                raise err
             # the re-search is bounded by the graph, not by the clock the replays spent: a
             # deadline passed during them would stop it where the last search stood (and make
             # the plan depend on the machine's load and the number of workers)

@@ -627,3 +627,31 @@ def test_a_gait_search_makes_no_round_beyond_the_budget_it_shares(tmp_path):
     with pytest.raises(NoSequenceError) as err:
         plan_gaits(a, b, replace(opts, max_rounds=0), budget=none_wanted)
     assert none_wanted.stopped == 0 and "the rounds shared" not in str(err.value)
+
+
+def test_the_final_grasp_is_replayed_alone_only_when_no_plan_is_found(monkeypatch):
+    """Every gait sequence at the grasps' own pose failing in the simulator, the final grasp was
+    replayed alone for the refusal's words ("the final grasp 'X' alone does not hold ...")
+    before the reposing moves were tried: a plan they found threw those words, and the replay,
+    away. It is replayed once no plan is found, its words where they were (a stand-in simulator
+    failing every plan without a reposing move; then every plan)."""
+    from planner.errors import NoSequenceError
+
+    def gaits_fail(plan, k):
+        return None if _repose_steps(plan) else (0 if plan.steps else -1)
+
+    replayed = _stand_in_simulator(monkeypatch, gaits_fail)
+    a, b = (realize(load_grasp(bundled_grasp(n))) for n in ("icub/box_parallel_extension.yaml", "icub/box_ir2m.yaml"))
+    opts = PlanOptions.for_execution(motion=False, verify_attempts=2)
+    plan = plan_regrasp(a, b, opts).plan
+    assert _repose_steps(plan) and plan.summary["verification"]["passed"]
+    assert replayed and all(p.steps for p in replayed), [len(p.states) for p in replayed]  # (no one-state plan)
+
+    replayed = _stand_in_simulator(monkeypatch, lambda plan, k: 0 if plan.steps else -1)
+    with pytest.raises(NoSequenceError) as err:
+        plan_regrasp(a, b, opts)
+    text = str(err.value)
+    assert sum(not p.steps for p in replayed) == 1  # the final grasp alone, once
+    assert "; the final grasp 'box_ir2m' alone does not hold in the simulator either (" in text
+    assert text.index("the final grasp 'box_ir2m' alone") < text.index("; --no-verify returns the best sequence") \
+        < text.index("; with the object moved: ")
