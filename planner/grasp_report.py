@@ -92,10 +92,13 @@ def check_text(grasp: RealizedGrasp, verdict: ExecutionVerdict | None = None, st
     elif simulator is not None:
         accepted = "accepts it as an end grasp by its static test"
     else:
-        skipped = ("engine first, as check --execution does)" if not strict else
-                   "engine first: --no-verify skipped that)" if grasp.ok else
-                   "engine first: not replayed, the grasp is not as written)")  # (a problem fails the check already)
-        accepted = "accepts it as an end grasp by its static test (plan --execution also holds it in a physics " + skipped
+        skipped = ("engine from the start, as check --execution does)" if not strict else
+                   "engine from the start: --no-verify skipped that)" if grasp.ok else
+                   "engine from the start: not replayed, the grasp is not as written)")  # (a problem fails the check already)
+        # (as an initial grasp: plan replays its plan from it; a plan arriving at a grasp may
+        # still end in it where the grasp held alone drops)
+        accepted = ("accepts it as an end grasp by its static test (as an initial grasp, plan --execution also holds it "
+                    "in a physics " + skipped)
     out.append(f"execution mode (plan --execution, {names}): {accepted}")
     if simulator is not None:
         where = f"held in a physics engine ({simulator['engine']}, as plan --execution replays an initial grasp)"

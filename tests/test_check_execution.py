@@ -301,3 +301,22 @@ def test_a_grasp_not_as_written_is_not_said_skipped_by_no_verify():
     assert "--no-verify" not in text and "not replayed, the grasp is not as written" in text
     assert text.splitlines()[-1].startswith("FAIL: 1 problem(s)")
     assert "--no-verify skipped that" in check_text(grasp, verdict, True, None)  # (given --no-verify)
+
+
+def test_check_without_a_replay_says_plan_holds_the_grasp_as_an_initial_grasp():
+    """check's execution line said "plan --execution also holds it in a physics engine first",
+    the claim this session took back elsewhere (plan replays its plan, whose first state is the
+    initial grasp; a final grasp is not held alone first, and a plan arriving at a grasp that
+    drops alone may still end in it): it says plan holds it so as an initial grasp."""
+    from dataclasses import replace
+
+    from planner.grasp_report import check_text
+
+    grasp = realize(load_grasp(BOX_IR2M))
+    verdict = execution_verdict(grasp)
+    bad = replace(grasp, problems=("collision a - b: 1.00 mm deep (tolerance 0.5 mm)",))
+    for text in (check_text(grasp, verdict, False, None), check_text(grasp, verdict, True, None),
+                 check_text(bad, verdict, True, None)):
+        line = next(x for x in text.splitlines() if x.startswith("execution mode (plan --execution"))
+        assert "engine first" not in line
+        assert "by its static test (as an initial grasp, plan --execution also holds it in a physics engine" in line
