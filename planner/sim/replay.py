@@ -358,7 +358,9 @@ def _replay_engine(rd, info, joints, states, steps, obj, friction, params, line,
         # are those, not the drop's)
         verdict = f"FAIL: object dropped (moved more than {drop_mm:g} mm), first out of the {limits}"
     elif not within:
-        verdict = f"FAIL: drift {max_mm:.1f} mm / {max_deg:.1f} deg exceeds the {limits}"
+        # (the largest drift; the cause that follows is where it first left the limits, smaller)
+        verdict = f"FAIL: drift {max_mm:.1f} mm / {max_deg:.1f} deg exceeds the {limits}" \
+            + (", first out of them" if failure is not None else "")
     elif disagree:
         verdict = (f"FAIL: the simulator's force closure disagrees with the plan at "
                    f"{len(disagree)}/{len(reached)} states (max drift {max_mm:.1f} mm / {max_deg:.1f} deg)")
