@@ -176,7 +176,9 @@ def cmd_check(args: argparse.Namespace) -> int:
             data["gravity"] = gdata
         print(json.dumps(data, indent=1))
     else:
-        text = check_text(grasp, verdict, strict, sim)
+        given = "" if args.gravity is None else " --gravity " + (args.gravity if isinstance(args.gravity, str) else
+                                                              " ".join(f"{float(v):g}" for v in args.gravity))
+        text = check_text(grasp, verdict, strict, sim, given)
         if gline is not None:  # before the verdict, the report's last line
             head, _, last = text.rpartition("\n")
             text = f"{head}\n{gline}\n{last}"

@@ -31,11 +31,12 @@ def object_text(obj) -> str:
 
 
 def check_text(grasp: RealizedGrasp, verdict: ExecutionVerdict | None = None, strict: bool = False,
-               simulator: dict | None = None) -> str:
+               simulator: dict | None = None, gravity_option: str = "") -> str:
     """The text report of ``regrasp check``; ``verdict``: `planner.realization.execution_verdict`'s
     when already computed (its ``hold`` is the load table); ``strict`` (``--execution``,
     ``--gravity``): a refusal fails the check; ``simulator``: the grasp held in a physics engine
-    (``check --execution``'s `planner.commands._simulator_hold` data), None when not replayed."""
+    (``check --execution``'s `planner.commands._simulator_hold` data), None when not replayed;
+    ``gravity_option``: the ``--gravity`` given (`` --gravity palm_up``), in the plan it suggests."""
     verdict = execution_verdict(grasp) if verdict is None else verdict
     hold = verdict.hold
     report = grasp.summary(hold)
@@ -116,7 +117,7 @@ def check_text(grasp: RealizedGrasp, verdict: ExecutionVerdict | None = None, st
         why += ["execution mode refuses it: it does not hold in the simulator"
                 + (f" ({simulator['failure']['direction']})" if simulator["failure"]["direction"] else "")
                 + " from the start, as plan --execution replays an initial grasp (a plan arriving at it may "
-                  "still hold it as its final grasp: plan A.yaml THIS.yaml --execution)"]
+                  f"still hold it as its final grasp: plan A.yaml THIS.yaml --execution{gravity_option})"]
     out.append(f"{'FAIL' if why else 'PASS'}{': ' + ', '.join(why) if why else ''} (tolerances: penetration "
                f"{PENETRATION_TOL_M * 1e3:.1f} mm, contact warning {CONTACT_WARN_M * 1e3:.0f} mm, "
                f"contact: points realized within {CONTACT_TOL_M * 1e3:.0f} mm by the asked link with the pad within "

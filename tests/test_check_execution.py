@@ -333,3 +333,12 @@ def test_a_drift_verdict_says_its_cause_is_where_it_first_left_the_limits(capsys
     line = next(x for x in out.splitlines() if x.startswith("held in a physics engine ("))
     assert code == 1 and re.search(r"FAIL: drift [\d.]+ mm / [\d.]+ deg exceeds the limits 5 mm / 5 deg, first out of "
                                    r"them: gravity ramp at state 0: rotation [\d.]+ deg", line), line
+
+
+def test_check_gravity_suggests_the_plan_with_that_gravity(capsys):
+    """check --gravity G failing in the simulator suggests the plan arriving at the grasp with
+    the same --gravity (it suggested plain --execution, six directions)."""
+    code, out, _ = _run(capsys, "check", DROPS, "--gravity", "palm_down")
+    assert code == 1 and "plan A.yaml THIS.yaml --execution --gravity palm_down)" in out.splitlines()[-1]
+    code, out, _ = _run(capsys, "check", DROPS, "--gravity", "9.81", "0", "0")  # (the Allegro's palm down)
+    assert code == 1 and "plan A.yaml THIS.yaml --execution --gravity 9.81 0 0)" in out.splitlines()[-1]
