@@ -255,6 +255,7 @@ def test_plan_says_when_its_final_grasp_alone_does_not_hold_in_the_simulator(cap
     assert code == 0
 
 
+@pytest.mark.needs_pybullet("the writing pose's drift held alone is pybullet's (MuJoCo holds it)")
 def test_a_grasp_held_alone_is_the_initial_role_a_plan_may_still_end_in_it(capsys):
     """The bundled writing pose drifts 6.8 deg palm down when the gravity is ramped on at it (as
     plan --execution replays an initial grasp), yet the README's pen plan ends in it and holds
