@@ -170,16 +170,12 @@ def _plan_motions(hand, obj, problem, seq: GaitSequence, gait_fn, cache: dict) -
     return out
 
 
-def _final_alone_words(final: RealizedGrasp, options: PlanOptions, whole=None, asked: bool = True) -> str:
+def _final_alone_words(final: RealizedGrasp, options: PlanOptions) -> str:
     """When every sequence failed in the simulator: the final grasp replayed alone (`hold_alone`,
     as ``check --execution`` replays it), and ``"; the final grasp 'X' alone does not hold in
     the simulator either (DIRECTION: VERDICT)"`` when it fails, else "". Said, not decided on:
     a plan arriving at a grasp can hold where the grasp taken alone does not (the iCub pen
-    turned in the tripod, `grasps/icub/pen_writing_pose.yaml`). Gaits inside a larger plan
-    (``whole``, a reposing candidate's): nothing (one replay per candidate pose is not spent on
-    words), nor when not ``asked`` (`plan_gaits`' ``final_alone``)."""
-    if whole is not None or not asked:
-        return ""
+    turned in the tripod, `grasps/icub/pen_writing_pose.yaml`)."""
     failure = hold_alone(final, options).first_failure()
     if failure is None:
         return ""
@@ -607,6 +603,18 @@ def plan_gaits(
     verified, rejected, verify_s, workers, plan = None, [], 0.0, None, None
     rejected_moves: list[str] = []  # the plan step each rejected sequence failed at, in words
     unsound: list[str] = []  # moves the plan's physics check refused: the move and its first problem
+
+    def with_final_alone(head: str) -> tuple[str, int | None]:
+        """A refusal after every sequence failed in the simulator, up to ``head``: (the text with
+        the final grasp's words, None) when ``final_alone``; else (``head``, where the words go
+        later: the refusal's ``final_alone_at``, `_with_final_alone`); gaits inside a larger
+        plan (``whole``, a reposing candidate's): (``head``, None), one replay per candidate
+        pose is not spent on words."""
+        if whole is not None:
+            return head, None
+        if final_alone:
+            return head + _final_alone_words(final, options), None
+        return head, len(head)
     if verifying:
         from planner.sim.verify import default_workers, engines_of, verify_suspects_first  # an engine: only when verifying
 
@@ -658,10 +666,9 @@ def plan_gaits(
                     err = NoSequenceError(f"{err}; finger moves that could not be planned: {moves}", err.report)
                 alone_at = None
                 if rejected:
-                    err = NoSequenceError(f"{err}; sequences that failed in the simulator ({len(rejected)}): "
-                                          f"{_rejected_words(rejected[:2])}{_final_alone_words(final, options, whole, final_alone)}",
-                                          err.report)
-                    alone_at = None if final_alone or whole is not None else len(str(err))
+                    text, alone_at = with_final_alone(f"{err}; sequences that failed in the simulator ({len(rejected)}): "
+                                                      f"{_rejected_words(rejected[:2])}")
+                    err = NoSequenceError(text, err.report)
                 if unsound:
                     err = NoSequenceError(f"{err}; moves the plan's physics check refused ({len(unsound)}): "
                                           f"{'; '.join(unsound[:2])}", err.report)
@@ -749,9 +756,10 @@ def plan_gaits(
             if len(rejected) >= options.verify_attempts:
                 head = (f"no sequence held in the simulator in {len(rejected)} attempt(s) (--verify-attempts; "
                         f"{verify_s:.1f} s of replays): {_rejected_summary(rejected, rejected_moves, [n for n, _ in directions])}; "
-                        f"the first: {_rejected_words(rejected[:1])}{_final_alone_words(final, options, whole, final_alone)}")
+                        f"the first: {_rejected_words(rejected[:1])}")
+                head, alone_at = with_final_alone(head)
                 err = NoSequenceError(f"{head}; --no-verify returns the best sequence unverified")
-                err.final_alone_at = None if final_alone or whole is not None else len(head)
+                err.final_alone_at = alone_at
                 raise err
             # the re-search is bounded by the graph, not by the clock the replays spent: a
             # deadline passed during them would stop it where the last search stood (and make
