@@ -23,6 +23,16 @@ from typing import Any
 PathLike = str | os.PathLike
 
 
+def _known(kind: str, given, valid: set) -> None:
+    """Every keyword in ``given`` is one of ``valid``, else `UnknownNameError` naming ``kind``
+    and the valid ones (a misspelt keyword was a TypeError deep inside, or ignored)."""
+    from planner.errors import UnknownNameError
+
+    for k in given:
+        if k not in valid:
+            raise UnknownNameError(kind, k, valid)
+
+
 def plan(initial, final, *, execution: bool = False, output: PathLike | None = None, verbose: bool = False,
          **options: Any):
     """Plan a finger-gaiting sequence between two grasps (``regrasp plan``).
@@ -49,7 +59,6 @@ def plan(initial, final, *, execution: bool = False, output: PathLike | None = N
     Returns:
         `planner.regrasp.PlanResult` (``.plan``, ``.sequence``, ``.alternatives``, ...).
     """
-    from planner.errors import UnknownNameError
     from planner.fileio import as_path, check_outputs
     from planner.grasp import GraspSpec, grasp_files, input_record, load_grasp, load_hand
     from planner.options import PlanOptions
@@ -57,10 +66,7 @@ def plan(initial, final, *, execution: bool = False, output: PathLike | None = N
     from planner.realization import RealizedGrasp, realize
     from planner.regrasp import check_same_setup, plan_regrasp
 
-    valid = {f.name for f in fields(PlanOptions)}
-    for k in options:
-        if k not in valid:
-            raise UnknownNameError("plan option", k, valid)
+    _known("plan option", options, {f.name for f in fields(PlanOptions)})
     if output is not None:
         plan_format(as_path(output, "output", "a plan file path (.yaml/.json)"))  # a bad suffix before any work
     grasps = [initial, final]
@@ -126,7 +132,6 @@ def replay(plan, *, gravity_set: int | None = None, report: PathLike | None = No
     import json
 
     from planner.audit import require_sound
-    from planner.errors import UnknownNameError
     from planner.fileio import check_format, check_outputs, write_atomic
     from planner.gravity import gravity_directions, named_gravity
     from planner.plan import plan_files, plan_from_data, read_plan
@@ -135,10 +140,9 @@ def replay(plan, *, gravity_set: int | None = None, report: PathLike | None = No
     from planner.sim.replay import replay_plan
     from planner.sim.verify import engine_path, engines_of, film_paths, in_engines, replay_gravity_set
 
-    valid = {*inspect.signature(replay_plan).parameters, *inspect.signature(replay_gravity_set).parameters} - {"plan", "n"}
-    for k in kwargs:  # a misspelt keyword was a TypeError from replay_plan, after the plan was read and checked
-        if k not in valid:
-            raise UnknownNameError("replay option", k, valid)
+    # (a misspelt keyword was a TypeError from replay_plan, after the plan was read and checked)
+    _known("replay option", kwargs,
+           {*inspect.signature(replay_plan).parameters, *inspect.signature(replay_gravity_set).parameters} - {"plan", "n"})
     if isinstance(kwargs.get("film"), str):  # "palm_down,palm_up", as --film
         kwargs["film"] = [d.strip() for d in kwargs["film"].split(",") if d.strip()]
     if not isinstance(plan, Plan):
@@ -217,15 +221,12 @@ def synth(hand, object_block: dict, fingers, n: int = 1, *, fixed: bool = False,
     """
     import inspect
 
-    from planner.errors import InputError, UnknownNameError
+    from planner.errors import InputError
     from planner.fileio import describe
     from planner.grasp import resolve_hand_ref
     from planner.synthesis import synthesize
 
-    valid = set(inspect.signature(synthesize).parameters) - {"hand_ref", "obj", "fingers", "n", "fixed"}
-    for k in kwargs:  # (a TypeError from synthesize before)
-        if k not in valid:
-            raise UnknownNameError("synth option", k, valid)
+    _known("synth option", kwargs, set(inspect.signature(synthesize).parameters) - {"hand_ref", "obj", "fingers", "n", "fixed"})
     if not hasattr(object_block, "keys"):
         raise InputError(f"object_block: expected a grasp file's object mapping (shape, size[, position, quat_xyzw, "
                          f"mass_kg]), got {describe(object_block)}")
