@@ -272,10 +272,9 @@ OPTION_LIMITS = {
 _INPUTS = {"plan": ("initial", "final"), "check": ("grasp",), "replay": ("plan",), "view": ("source", "report"),
            "verify": ("plan",), "hand": ("urdf", "hand")}
 _OUTPUTS = {"hand": ("output",), "plan": ("output",), "check": ("png",), "replay": ("report", "gif", "mp4"), "view": ("output", "gif")}
-#: Exit code of an interrupted command (128 + SIGINT), of a terminated one (128 + SIGTERM) and of a
-#: closed stdout (128 + SIGPIPE).
+#: Exit code of an interrupted command (128 + SIGINT) and of a closed stdout (128 + SIGPIPE); a
+#: terminated or hung-up one exits 128 + its signal (`Terminated.signum`: 143, 129).
 EXIT_INTERRUPTED = 130
-EXIT_TERMINATED = 143
 EXIT_BROKEN_PIPE = 141
 
 
