@@ -176,9 +176,10 @@ def cmd_check(args: argparse.Namespace) -> int:
             data["gravity"] = gdata
         print(json.dumps(data, indent=1))
     else:
-        given = "" if args.gravity is None else " --gravity " + (args.gravity if isinstance(args.gravity, str) else
-                                                              " ".join(f"{float(v):g}" for v in args.gravity))
-        text = check_text(grasp, verdict, strict, sim, given)
+        from planner.gravity import gravity_label_of
+
+        label = gravity_label_of(args.gravity, args.gravity if isinstance(args.gravity, str) else None)
+        text = check_text(grasp, verdict, strict, sim, "" if label is None else f" --gravity {label}")
         if gline is not None:  # before the verdict, the report's last line
             head, _, last = text.rpartition("\n")
             text = f"{head}\n{gline}\n{last}"
@@ -206,7 +207,7 @@ def _simulator_hold(grasp, gravity, name: str | None, engine: str | None) -> dic
                 "wall_s": 0.0}
     failure = v.first_failure()
     shown = {"gravity": name} if name else {}
-    return {"engine": " and ".join(e for e, _ in v.by_engine) or v.engine, "held": v.passed, "directions": [shown.get(d[0], d[0]) for d in v.directions],
+    return {"engine": v.engine_names, "held": v.passed, "directions": [shown.get(d[0], d[0]) for d in v.directions],
             "failure": None if failure is None else {"direction": shown.get(failure[0], failure[0]),
                                                      "verdict": failure[2]},
             "wall_s": round(v.wall_time_s, 2)}

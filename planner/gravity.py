@@ -76,6 +76,16 @@ def gravity_directions(palm_normal: Sequence[float], n: int, g_mps2: float = G_M
     return [(name, tuple(float(x) + 0.0 for x in v)) for name, v in out]
 
 
+def gravity_label_of(gravity, name: str | None = None) -> str | None:
+    """How a ``--gravity`` given is said in verdicts and suggested commands: its name, else its
+    three numbers (None: no gravity given, execution mode's own directions)."""
+    if gravity is None:
+        return None
+    if name:
+        return name
+    return " ".join(f"{float(v):g}" for v in np.asarray(gravity, dtype=float).reshape(-1)[:3])
+
+
 def gravity_name_error(what: str = "--gravity") -> str:
     """The one line refusing a gravity that is neither 3 numbers nor a name."""
     return f"{what}: expected 3 numbers GX GY GZ or one of {', '.join(GRAVITY_NAMES)}"

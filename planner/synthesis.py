@@ -54,6 +54,7 @@ from planner.contacts import TOUCH_TOL_M
 from planner.errors import OutputError, PlannerError, SpecError, UnknownNameError
 from planner.fileio import MAX_GRASP_BYTES, Reader, read_yaml, resolve_path, write_atomic
 from planner.grasp import load_hand, parse_friction, parse_grasp, resolve_hand_ref
+from planner.gravity import gravity_label_of
 from planner.grip import HOLD_FACTOR, grasp_statics, grip_program, hold_capacity, holds_by_bound
 from planner.model import GAMMA_MAX_M, MU_MAX, PALM, Friction
 from planner.objects import GraspObject, read_object
@@ -95,6 +96,12 @@ class SynthGrasp:
     @property
     def execution_ready(self) -> bool:
         return self.execution is None
+
+    @property
+    def not_held(self) -> bool:
+        """Execution mode's static test accepted it and the physics engine did not hold it
+        (`hold_in_engine`): refused as an initial grasp, a plan arriving at it may still end in it."""
+        return self.execution is not None and self.execution.startswith(_NOT_HELD)
 
     def rank_key(self) -> tuple:
         """Execution-accepted grasps first, then the larger closure metric, then the earlier attempt."""
@@ -386,7 +393,7 @@ def hold_in_engine(grasps, gravity=None, engine: str | None = None, progress=Non
             continue
         failure = v.first_failure()
         if failure is None:
-            c.held_in = " and ".join(e for e, _ in v.by_engine) or v.engine  # (--engine both: each named)
+            c.held_in = v.engine_names
         else:
             where = (gravity_name or failure[0]) if one is not None else failure[0]  # ("gravity": the one given)
             c.execution = f"{_NOT_HELD} ({where}: {failure[2]})"
@@ -622,7 +629,7 @@ def execution_words(gravity_label: str | None = None) -> str:
 def _role(g: SynthGrasp) -> str:
     """" as an initial grasp" for a grasp the simulator did not hold from the start (a plan may
     still end in it), else ""."""
-    return " as an initial grasp" if g.execution and g.execution.startswith(_NOT_HELD) else ""
+    return " as an initial grasp" if g.not_held else ""
 
 
 def verdict_words(g: SynthGrasp, gravity_label: str | None = None) -> str:
@@ -630,23 +637,13 @@ def verdict_words(g: SynthGrasp, gravity_label: str | None = None) -> str:
     accepts it`` once a physics engine held it too, ``... refuses it: why``, or, not replayed
     (``--no-verify``), what the static test says."""
     words = execution_words(gravity_label)
-    if not g.execution_ready and g.execution.startswith(_NOT_HELD):  # (a plan may still end in it)
+    if g.not_held:
         return f"{words} refuses it as an initial grasp: {g.execution}; a plan arriving at it may still end in it"
     if not g.execution_ready:
         return f"{words} refuses it: {g.execution}"
     if g.held_in is None:
         return f"the static test of {words} accepts it (not held in a physics engine: check --execution does that)"
     return f"{words} accepts it (held in {g.held_in})"
-
-
-def gravity_label_of(gravity, name: str | None = None) -> str | None:
-    """How a synth's ``--gravity`` is said in its verdicts: its name, else its three numbers
-    (None: no gravity given, execution mode's own directions)."""
-    if gravity is None:
-        return None
-    if name:
-        return name
-    return " ".join(f"{float(v):g}" for v in np.asarray(gravity, dtype=float).reshape(-1)[:3])
 
 
 def write_grasps(result: SynthResult, out_dir, hand_name: str, *, seed: int, fingers, inputs=(),
@@ -819,7 +816,7 @@ def run_synth(hand: str, object_path, fingers: str, n: int, out_dir, *, gravity=
 def _held_words(result: SynthResult) -> str:
     """How many of the grasps the static test accepted a physics engine held (`hold_in_engine`)."""
     held = sum(1 for g in result.grasps if g.held_in)
-    dropped = sum(1 for g in result.grasps if not g.execution_ready and g.execution.startswith(_NOT_HELD))
+    dropped = sum(1 for g in result.grasps if g.not_held)
     return f"; held in a physics engine: {held} of the {held + dropped} the static test accepts"
 
 

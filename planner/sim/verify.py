@@ -331,6 +331,11 @@ class Verification:
     engine: str = "pybullet"
     by_engine: tuple[tuple[str, tuple], ...] = ()
 
+    @property
+    def engine_names(self) -> str:
+        """The engines replayed in, in words ("pybullet", "pybullet and mujoco" for ``both``)."""
+        return " and ".join(e for e, _ in self.by_engine) or self.engine
+
     def first_failure(self) -> tuple[str, int, str, bool] | None:
         """(direction, plan step (-1: state 0), verdict, failed at the state the step reaches)
         of the direction that failed (the first in the order its replays decided in: a failed
